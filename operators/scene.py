@@ -1,0 +1,110 @@
+"""Physical description of the caustic setup (method.md section 1); lengths in scene units.
+
+The substrate occupies [-W, W]^2 with its flat bottom at z = 0 and its top at z = h + d(x, y);
+a point light shines on it from above and the receiver plane at z = receiver.z < 0 records the
+caustic. Arrays follow [row, col] = [y, x].
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+from operators.materials import FUSED_SILICA, DispersionCurve, refractive_indices
+
+
+def _finite(name: str, value: float) -> float:
+    if not math.isfinite(value):
+        raise ValueError(f"{name}={value} is not a finite number")
+    return float(value)
+
+
+@dataclass(frozen=True)
+class PointLight:
+    """Isotropic point light: ``position`` (x, y, z) and ``power`` in W over the full sphere."""
+
+    position: tuple[float, float, float] = (0.0, 0.0, 10.0)
+    power: float = 1.0
+
+    def __post_init__(self) -> None:
+        if len(self.position) != 3:
+            raise ValueError(f"light.position={self.position} must have three coordinates (x, y, z)")
+        for axis, v in zip("xyz", self.position):
+            _finite(f"light.position.{axis}", v)
+        if not _finite("light.power", self.power) > 0.0:
+            raise ValueError(f"light.power={self.power} W must be positive")
+
+
+@dataclass(frozen=True)
+class Substrate:
+    """Glass plate of ``thickness`` h below the printed height field, spanning [-half_width, half_width]^2."""
+
+    thickness: float = 0.1
+    half_width: float = 1.0
+
+    def __post_init__(self) -> None:
+        if not _finite("substrate.thickness", self.thickness) > 0.0:
+            raise ValueError(f"substrate.thickness={self.thickness} must be positive (scene units)")
+        if not _finite("substrate.half_width", self.half_width) > 0.0:
+            raise ValueError(f"substrate.half_width={self.half_width} must be positive")
+
+
+@dataclass(frozen=True)
+class Receiver:
+    """Sensor plane at height ``z`` (below the substrate), n x n pixels over [-half_width, half_width]^2."""
+
+    z: float = -0.05
+    resolution: int = 512
+    half_width: float = 1.0
+
+    def __post_init__(self) -> None:
+        if not _finite("receiver.z", self.z) < 0.0:
+            raise ValueError(f"receiver.z={self.z} must lie below the substrate bottom (z < 0), e.g. -0.05")
+        if int(self.resolution) != self.resolution or self.resolution < 2:
+            raise ValueError(f"receiver.resolution={self.resolution} must be an integer >= 2")
+        if not _finite("receiver.half_width", self.half_width) > 0.0:
+            raise ValueError(f"receiver.half_width={self.half_width} must be positive")
+
+    @property
+    def pixel_size(self) -> float:
+        """Edge length of one pixel (scene units)."""
+        return 2.0 * self.half_width / self.resolution
+
+    def pixel_centres(self) -> list[float]:
+        """Pixel-centre coordinates (2p + 1) / n - 1, scaled to the half width."""
+        return [-self.half_width + (p + 0.5) * self.pixel_size for p in range(self.resolution)]
+
+
+@dataclass(frozen=True)
+class Scene:
+    """Light, substrate, receiver, material and the wavelengths (um, one image channel each)."""
+
+    light: PointLight = field(default_factory=PointLight)
+    substrate: Substrate = field(default_factory=Substrate)
+    receiver: Receiver = field(default_factory=Receiver)
+    material: DispersionCurve = FUSED_SILICA
+    wavelengths: tuple[float, ...] = (0.633,)
+
+    def __post_init__(self) -> None:
+        if not self.wavelengths:
+            raise ValueError("wavelengths is empty; give at least one, e.g. [0.633] (micrometres)")
+        refractive_indices(self.material, self.wavelengths)
+        if self.light.position[2] <= self.substrate.thickness:
+            raise ValueError(f"light.position z={self.light.position[2]} must lie above the substrate top "
+                             f"(z > thickness {self.substrate.thickness})")
+
+    @property
+    def indices(self) -> tuple[float, ...]:
+        """Refractive index of the glass per channel."""
+        return tuple(refractive_indices(self.material, self.wavelengths))
+
+    @property
+    def channels(self) -> int:
+        return len(self.wavelengths)
+
+    def check_heights_below_light(self, max_height: float) -> None:
+        """Refuse a height field that reaches the light."""
+        top = self.substrate.thickness + max_height
+        if self.light.position[2] <= top:
+            raise ValueError(f"light.position z={self.light.position[2]} is not above the glass top "
+                             f"z={top:.4g}; raise the light or lower the heights")

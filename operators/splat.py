@@ -1,0 +1,79 @@
+"""Photon differential splatting (Frisvad et al. 2014) as a differentiable torch operation."""
+
+from __future__ import annotations
+
+import numba as nb
+import numpy as np
+import torch
+
+from operators.splat_kernels import splat_backward, splat_forward
+
+
+def footprint_metric(footprint: torch.Tensor, min_radius_px: float, max_radius_px: float) -> torch.Tensor:
+    """Metric Q (3, N) = (q00, q01, q11) of each photon's footprint ellipse, in pixel units.
+
+    ``footprint`` (2, 2, N) holds the positional differentials Du, Dv (in pixels) on the
+    receiver; the footprint {a Du + b Dv : a^2 + b^2 <= 1} is the ellipse r^T C^-1 r <= 1 with
+    C = Du Du^T + Dv Dv^T. C is widened by min_radius_px^2 I (a pixel filter: a photon never
+    falls between pixel centres, even at a focus) and scaled down where its major semi-axis
+    exceeds max_radius_px (the paper's cut-off). Returns Q = C^-1.
+    """
+    du, dv = footprint[0], footprint[1]
+    c00 = du[0] ** 2 + dv[0] ** 2 + min_radius_px ** 2
+    c01 = du[0] * du[1] + dv[0] * dv[1]
+    c11 = du[1] ** 2 + dv[1] ** 2 + min_radius_px ** 2
+    major = 0.5 * (c00 + c11) + torch.sqrt(0.25 * (c00 - c11) ** 2 + c01 ** 2 + 1e-30)
+    scale = torch.clamp(max_radius_px ** 2 / major, max=1.0)
+    c00, c01, c11 = c00 * scale, c01 * scale, c11 * scale
+    det = c00 * c11 - c01 ** 2
+    return torch.stack([c11 / det, -c01 / det, c00 / det])
+
+
+def footprint_capacity(metric: np.ndarray) -> int:
+    """Upper bound on the pixels of any footprint: its bounding box (3, N) metric."""
+    if metric.shape[1] == 0:
+        return 1
+    det = metric[0] * metric[2] - metric[1] ** 2
+    half = np.sqrt(np.maximum(metric[0], metric[2]) / np.maximum(det, 1e-30))
+    side = 2 * int(np.ceil(np.nanmax(np.minimum(half, 1e4)))) + 3
+    return side * side
+
+
+def _numpy(t: torch.Tensor) -> np.ndarray:
+    return t.detach().cpu().contiguous().numpy()
+
+
+class _Splat(torch.autograd.Function):
+    @staticmethod
+    def forward(ctx, pos: torch.Tensor, metric: torch.Tensor, flux: torch.Tensor,
+                channel: torch.Tensor, channels: int, resolution: int) -> torch.Tensor:
+        f = _numpy(flux)
+        out = np.zeros((nb.get_num_threads(), channels, resolution, resolution), dtype=f.dtype)
+        splat_forward(_numpy(pos).astype(f.dtype), _numpy(metric).astype(f.dtype), f, _numpy(channel), out,
+                      footprint_capacity(_numpy(metric)))
+        ctx.save_for_backward(pos, metric, flux, channel)
+        return torch.from_numpy(out.sum(axis=0)).to(flux.device)
+
+    @staticmethod
+    def backward(ctx, grad_image: torch.Tensor):
+        pos, metric, flux, channel = ctx.saved_tensors
+        f = _numpy(flux)
+        g_pos = np.empty((2, f.shape[0]), dtype=f.dtype)
+        g_metric = np.empty((3, f.shape[0]), dtype=f.dtype)
+        g_flux = np.empty(f.shape[0], dtype=f.dtype)
+        splat_backward(_numpy(pos).astype(f.dtype), _numpy(metric).astype(f.dtype), f, _numpy(channel),
+                       _numpy(grad_image).astype(f.dtype), g_pos, g_metric, g_flux)
+
+        def back(a: np.ndarray, like: torch.Tensor) -> torch.Tensor:
+            return torch.from_numpy(a).to(dtype=like.dtype, device=like.device)
+
+        return back(g_pos, pos), back(g_metric, metric), back(g_flux, flux), None, None, None
+
+
+def splat_photons(pos: torch.Tensor, metric: torch.Tensor, flux: torch.Tensor, channel: torch.Tensor,
+                  channels: int, resolution: int) -> torch.Tensor:
+    """Image (channels, n, n) of flux per pixel from photons at ``pos`` (2, N) (pixel coordinates,
+    x = column, y = row, centres on integers) with footprint metrics (3, N), ``flux`` (N,) in W and
+    ``channel`` (N,) int64. Differentiable w.r.t. pos, metric and flux (native adjoint gather).
+    """
+    return _Splat.apply(pos, metric, flux, channel, channels, resolution)
