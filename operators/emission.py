@@ -77,22 +77,24 @@ class PointLightEmitter:
 
     def batch(self, start: int, stop: int) -> PhotonBatch:
         """Photons with global indices start .. stop-1 (channel-major order)."""
-        scene = self.scene
         idx = torch.arange(start, stop, dtype=torch.int64)
         channel = idx // self.per_channel
         j = (idx - channel * self.per_channel).to(torch.float64)
         shift = self.shifts[channel]
         u = torch.frac(shift[:, 0] + j * R2_STEP[0])
         v = torch.frac(shift[:, 1] + j * R2_STEP[1])
+        half = self.scene.substrate.half_width
         cast = dict(dtype=self.dtype, device=self.device)
-        u, v = u.to(**cast), v.to(**cast)
-        half = scene.substrate.half_width
-        light = torch.tensor(scene.light.position, **cast)
-        to_target = torch.stack([
-            (2.0 * half) * u - (half + light[0]),
-            (2.0 * half) * v - (half + light[1]),
-            torch.full_like(u, scene.substrate.thickness) - light[2],
-        ])
+        targets = torch.stack([(2.0 * half) * u.to(**cast) - half, (2.0 * half) * v.to(**cast) - half,
+                               torch.full_like(u, self.scene.substrate.thickness, **cast)])
+        return self.photons_toward(targets, channel.to(self.device))
+
+    def photons_toward(self, targets: torch.Tensor, channel: torch.Tensor) -> PhotonBatch:
+        """Photons aimed at ``targets`` (3, N) on the plane z = h, each standing for one cell of
+        area ``cell_area`` there; flux and direction differentials as in the module docstring."""
+        scene = self.scene
+        light = torch.tensor(scene.light.position, dtype=targets.dtype, device=targets.device)
+        to_target = targets - light.unsqueeze(-1)
         r = torch.sqrt((to_target * to_target).sum(0))
         direction = to_target / r
         inv_r = 1.0 / r
@@ -102,5 +104,4 @@ class PointLightEmitter:
         diff = -direction * direction[:2].unsqueeze(1) * scale  # (2, 3, N): -w w_k radius / r
         diff[0, 0] += scale
         diff[1, 1] += scale
-        return PhotonBatch(origin=light, direction=direction, direction_diff=diff, flux=flux,
-                           channel=channel.to(self.device))
+        return PhotonBatch(origin=light, direction=direction, direction_diff=diff, flux=flux, channel=channel)
