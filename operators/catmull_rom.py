@@ -18,8 +18,10 @@ import math
 import numba as nb
 import numpy as np
 
+from operators.native import FAST_MATH
 
-@nb.njit(cache=True, inline="always")
+
+@nb.njit(cache=True, inline="always", fastmath=FAST_MATH, error_model="numpy")
 def _fill_basis(s: float, k: int, scale: float, w: np.ndarray) -> None:
     """Row k of the weight table: k-th s-derivative of the Catmull-Rom weights times ``scale``."""
     s2 = s * s
@@ -46,7 +48,7 @@ def _fill_basis(s: float, k: int, scale: float, w: np.ndarray) -> None:
         w[3, 3] = scale * 3.0
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True, inline="always", fastmath=FAST_MATH, error_model="numpy")
 def axis_weights(coord: float, origin: float, spacing: float, m: int, max_order: int, w: np.ndarray) -> int:
     """Fill w[k, :] (k <= max_order) with the weights of the k-th derivative at ``coord``.
 
@@ -65,12 +67,12 @@ def axis_weights(coord: float, origin: float, spacing: float, m: int, max_order:
     return i
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True, inline="always", fastmath=FAST_MATH, error_model="numpy")
 def _node(i: int, m: int) -> int:
     return min(max(i, 0), m - 1)
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True, inline="always", fastmath=FAST_MATH, error_model="numpy")
 def load_patch(d: np.ndarray, ix: int, iy: int, patch: np.ndarray) -> None:
     """patch[a, b] = d[iy-1+a, ix-1+b] with replicated borders."""
     m = d.shape[0]
@@ -80,7 +82,7 @@ def load_patch(d: np.ndarray, ix: int, iy: int, patch: np.ndarray) -> None:
             patch[a, b] = d[r, _node(ix - 1 + b, m)]
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True, inline="always", fastmath=FAST_MATH, error_model="numpy")
 def contract(patch: np.ndarray, wx: np.ndarray, kx: int, wy: np.ndarray, ky: int) -> float:
     """d^(kx+ky) S / dx^kx dy^ky = sum_ab wy[ky, a] wx[kx, b] patch[a, b]."""
     acc = 0.0
@@ -90,7 +92,7 @@ def contract(patch: np.ndarray, wx: np.ndarray, kx: int, wy: np.ndarray, ky: int
     return acc
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True, inline="always", fastmath=FAST_MATH, error_model="numpy")
 def scatter_patch(grad: np.ndarray, ix: int, iy: int, patch: np.ndarray) -> None:
     """Adjoint of :func:`load_patch`: grad[iy-1+a, ix-1+b] += patch[a, b]."""
     m = grad.shape[0]

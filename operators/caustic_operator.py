@@ -18,7 +18,7 @@ from tqdm.auto import tqdm
 from framework.registry import register
 from operators.emission import PointLightEmitter
 from operators.scene import Scene
-from operators.splat import footprint_metric, splat_photons
+from operators.splat import footprint_metric, splat_photons, splat_photons_vjp
 from operators.substrate_trace import trace_substrate
 
 DTYPES = {"float32": torch.float32, "float64": torch.float64}
@@ -105,16 +105,21 @@ class CausticOperator:
         size = self.settings.chunk_size
         return [(a, min(a + size, self.photons)) for a in range(0, self.photons, size)]
 
-    def trace_chunk(self, heights: torch.Tensor, start: int, stop: int) -> torch.Tensor:
-        """Irradiance (c, n, n) from photons start .. stop-1; differentiable w.r.t. heights."""
+    def splat_inputs(self, heights: torch.Tensor, start: int, stop: int
+                     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Photons start .. stop-1 traced onto the receiver: pixel positions (2, N), footprint
+        metrics (3, N), flux (N,) and channel (N,); differentiable w.r.t. heights."""
         batch = self.emitter.batch(start, stop)
         hits = trace_substrate(heights.to(self.dtype), self.scene, batch, self.glass_index, self.settings.fresnel)
-        half = self.scene.receiver.half_width
-        pos = (hits.position + half) * self._to_pixels - 0.5
+        pos = (hits.position + self.scene.receiver.half_width) * self._to_pixels - 0.5
         metric = footprint_metric(hits.footprint * self._to_pixels, self.settings.min_footprint_px,
                                   self.settings.max_pixel_radius)
-        n = self.scene.receiver.resolution
-        image = splat_photons(pos, metric, hits.flux, hits.channel, self.scene.channels, n)
+        return pos, metric, hits.flux, hits.channel
+
+    def trace_chunk(self, heights: torch.Tensor, start: int, stop: int) -> torch.Tensor:
+        """Irradiance (c, n, n) from photons start .. stop-1; differentiable w.r.t. heights."""
+        image = splat_photons(*self.splat_inputs(heights, start, stop), self.scene.channels,
+                              self.scene.receiver.resolution)
         return image / self.pixel_area
 
     def _check(self, heights: torch.Tensor) -> None:
@@ -136,10 +141,14 @@ class CausticOperator:
         if grad_image.shape != self.output_shape:
             raise ValueError(f"grad_image has shape {tuple(grad_image.shape)}, expected {self.output_shape}")
         leaf = heights.detach().to(self.dtype).requires_grad_(True)
-        g = grad_image.detach().to(dtype=self.dtype, device=self.device)
+        g = grad_image.detach().to(dtype=self.dtype, device=self.device) / self.pixel_area
         for start, stop in self.chunks():
             with torch.enable_grad():
-                torch.autograd.backward(self.trace_chunk(leaf, start, stop), g)
+                pos, metric, flux, channel = self.splat_inputs(leaf, start, stop)
+                # The splat's adjoint needs only the photons, not the image: gather directly.
+                grads = splat_photons_vjp(pos, metric, flux, channel, g)
+                pairs = [(t, gt) for t, gt in zip((pos, metric, flux), grads) if t.requires_grad]
+                torch.autograd.backward([t for t, _ in pairs], [gt for _, gt in pairs])
         return leaf.grad.to(heights.dtype)
 
     def loss_and_grad(self, heights: torch.Tensor, target: torch.Tensor) -> tuple[float, torch.Tensor, torch.Tensor]:

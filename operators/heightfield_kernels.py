@@ -15,13 +15,15 @@ import math
 import numba as nb
 import numpy as np
 
+from operators.native import FAST_MATH
+
 from operators.catmull_rom import axis_weights, contract, load_patch, scatter_patch
 
 MAX_MARCH_STEPS = 512
 NEWTON_ITERATIONS = 40
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, fastmath=FAST_MATH, error_model="numpy")
 def _solve_hit(d, base, ox, oy, oz, wx_, wy_, wz_, x0, spacing, zlo, zhi, wx, wy, patch) -> float:
     """First root of the gap (ray height above the surface): march between the bounding planes
     in half-cell steps, then Newton safeguarded by bisection inside the bracket."""
@@ -66,7 +68,7 @@ def _solve_hit(d, base, ox, oy, oz, wx_, wy_, wz_, x0, spacing, zlo, zhi, wx, wy
     return t
 
 
-@nb.njit(parallel=True, cache=True)
+@nb.njit(parallel=True, cache=True, fastmath=FAST_MATH, error_model="numpy")
 def hit_forward(d, base, origin, dirs, x0, spacing, zlo, zhi, t_out, jet_out, nthreads):
     """Fill t_out (N,) and jet_out (5, N) = (S_x, S_y, S_xx, S_xy, S_yy) at each photon's hit."""
     n = dirs.shape[1]
@@ -91,7 +93,7 @@ def hit_forward(d, base, origin, dirs, x0, spacing, zlo, zhi, t_out, jet_out, nt
             jet_out[4, p] = contract(patch, wx, 0, wy, 2)
 
 
-@nb.njit(parallel=True, cache=True)
+@nb.njit(parallel=True, cache=True, fastmath=FAST_MATH, error_model="numpy")
 def hit_backward(d, origin, dirs, t, grad_t, grad_jet, x0, spacing, nthreads):
     """Gradient (nthreads, m, m) w.r.t. d of <grad_t, t> + <grad_jet, jet>; sum over axis 0."""
     n = dirs.shape[1]

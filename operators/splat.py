@@ -57,17 +57,24 @@ class _Splat(torch.autograd.Function):
     @staticmethod
     def backward(ctx, grad_image: torch.Tensor):
         pos, metric, flux, channel = ctx.saved_tensors
-        f = _numpy(flux)
-        g_pos = np.empty((2, f.shape[0]), dtype=f.dtype)
-        g_metric = np.empty((3, f.shape[0]), dtype=f.dtype)
-        g_flux = np.empty(f.shape[0], dtype=f.dtype)
-        splat_backward(_numpy(pos).astype(f.dtype), _numpy(metric).astype(f.dtype), f, _numpy(channel),
-                       _numpy(grad_image).astype(f.dtype), g_pos, g_metric, g_flux)
+        return (*splat_photons_vjp(pos, metric, flux, channel, grad_image), None, None, None)
 
-        def back(a: np.ndarray, like: torch.Tensor) -> torch.Tensor:
-            return torch.from_numpy(a).to(dtype=like.dtype, device=like.device)
 
-        return back(g_pos, pos), back(g_metric, metric), back(g_flux, flux), None, None, None
+def splat_photons_vjp(pos: torch.Tensor, metric: torch.Tensor, flux: torch.Tensor, channel: torch.Tensor,
+                      grad_image: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Adjoint of :func:`splat_photons` at these photons: gradients of <image, grad_image> w.r.t.
+    pos (2, N), metric (3, N) and flux (N,), by the native gather (no forward splat needed)."""
+    f = _numpy(flux)
+    g_pos = np.empty((2, f.shape[0]), dtype=f.dtype)
+    g_metric = np.empty((3, f.shape[0]), dtype=f.dtype)
+    g_flux = np.empty(f.shape[0], dtype=f.dtype)
+    splat_backward(_numpy(pos).astype(f.dtype), _numpy(metric).astype(f.dtype), f, _numpy(channel),
+                   _numpy(grad_image).astype(f.dtype), g_pos, g_metric, g_flux)
+
+    def back(a: np.ndarray, like: torch.Tensor) -> torch.Tensor:
+        return torch.from_numpy(a).to(dtype=like.dtype, device=like.device)
+
+    return back(g_pos, pos), back(g_metric, metric), back(g_flux, flux)
 
 
 def splat_photons(pos: torch.Tensor, metric: torch.Tensor, flux: torch.Tensor, channel: torch.Tensor,

@@ -19,8 +19,10 @@ import math
 import numba as nb
 import numpy as np
 
+from operators.native import FAST_MATH
 
-@nb.njit(cache=True, inline="always")
+
+@nb.njit(cache=True, inline="always", fastmath=FAST_MATH, error_model="numpy")
 def _row_span(q00, q01, q11, ry, px) -> tuple[int, int]:
     """Integer pixel columns whose centres satisfy t < 1 on the row at offset ry."""
     disc = (q01 * ry) ** 2 - q00 * (q11 * ry * ry - 1.0)
@@ -30,20 +32,20 @@ def _row_span(q00, q01, q11, ry, px) -> tuple[int, int]:
     return int(math.ceil(px + (-q01 * ry - root) / q00)), int(math.floor(px + (-q01 * ry + root) / q00))
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True, inline="always", fastmath=FAST_MATH, error_model="numpy")
 def _row_range(q00, q01, q11, py) -> tuple[int, int]:
     """Integer pixel rows that the ellipse touches (half height sqrt(q00 / det Q))."""
     half = math.sqrt(q00 / (q00 * q11 - q01 * q01))
     return int(math.ceil(py - half)), int(math.floor(py + half))
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True, inline="always", fastmath=FAST_MATH, error_model="numpy")
 def _usable(f, px, py, q00, q01, q11) -> bool:
     return (f != 0.0 and math.isfinite(f) and math.isfinite(px) and math.isfinite(py)
             and q00 > 0.0 and q11 > 0.0 and q00 * q11 - q01 * q01 > 0.0)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, fastmath=FAST_MATH, error_model="numpy")
 def _weights(px, py, q00, q01, q11, buf) -> tuple[float, int]:
     """Weights (1 - t)^2 of the ellipse's pixels, row by row, into ``buf``; returns (sum, count).
 
@@ -66,7 +68,7 @@ def _weights(px, py, q00, q01, q11, buf) -> tuple[float, int]:
     return s, count
 
 
-@nb.njit(parallel=True, cache=True)
+@nb.njit(parallel=True, cache=True, fastmath=FAST_MATH, error_model="numpy")
 def splat_forward(pos, metric, flux, channel, out, capacity):
     """Accumulate photons into ``out`` (threads, c, n, n) (flux per pixel); sum over axis 0 after.
 
@@ -103,7 +105,7 @@ def splat_forward(pos, metric, flux, channel, out, capacity):
                     k += max(x1 - x0 + 1, 0)
 
 
-@nb.njit(parallel=True, cache=True)
+@nb.njit(parallel=True, cache=True, fastmath=FAST_MATH, error_model="numpy")
 def splat_backward(pos, metric, flux, channel, grad_image, g_pos, g_metric, g_flux):
     """Gather the adjoint: gradients of <grad_image, splat(...)> w.r.t. pos, metric and flux.
 

@@ -1,0 +1,141 @@
+"""sfc-bench: speed and memory of the caustic operator, printed as JSON.
+
+Measures, at the default scene (print_lines, 128 x 128 heights, 512 x 512 receiver):
+forward and forward+backward photons/s, the time split between tracing and splatting, the peak
+memory of a gradient evaluation with the paper's 8.4 million photons, and the native splat
+against the straightforward PyTorch splat on the same photons, side by side, each in a fresh
+process so that their peak memories are comparable.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import multiprocessing as mp
+import resource
+import tempfile
+import time
+from pathlib import Path
+
+import numba
+import torch
+
+from framework.shapes import make_shape
+from operators.caustic_operator import CausticOperator, OperatorSettings
+from operators.scene import Scene
+from operators.splat import footprint_metric, splat_photons
+from operators.splat_reference import splat_photons_reference
+from operators.substrate_trace import trace_substrate
+
+
+def peak_rss_mb() -> float:
+    """High-water mark of this process's resident memory (MiB)."""
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def make_operator(photons: int, footprint_px: float, chunk_size: int) -> CausticOperator:
+    return CausticOperator(Scene(), OperatorSettings(photons=photons, footprint_px=footprint_px,
+                                                     chunk_size=chunk_size))
+
+
+def heights_print_lines() -> torch.Tensor:
+    return torch.from_numpy(make_shape("print_lines", 128)).float()
+
+
+def time_split(op: CausticOperator, heights: torch.Tensor) -> dict[str, float]:
+    """Seconds spent in emission + tracing and in splatting over one forward pass."""
+    trace_s = splat_s = 0.0
+    to_pixels = op.scene.receiver.resolution / (2 * op.scene.receiver.half_width)
+    with torch.no_grad():
+        for start, stop in op.chunks():
+            t0 = time.perf_counter()
+            hits = trace_substrate(heights, op.scene, op.emitter.batch(start, stop), op.glass_index)
+            pos = (hits.position + op.scene.receiver.half_width) * to_pixels - 0.5
+            metric = footprint_metric(hits.footprint * to_pixels, op.settings.min_footprint_px,
+                                      op.settings.max_pixel_radius)
+            t1 = time.perf_counter()
+            splat_photons(pos, metric, hits.flux, hits.channel, op.scene.channels, op.scene.receiver.resolution)
+            splat_s += time.perf_counter() - t1
+            trace_s += t1 - t0
+    return {"trace_s": trace_s, "splat_s": splat_s, "trace_fraction": trace_s / (trace_s + splat_s)}
+
+
+def _splat_worker(path: str, which: str, queue: mp.Queue) -> None:
+    data = torch.load(path)
+    splat = splat_photons if which == "native" else splat_photons_reference
+    args = (data["pos"], data["metric"], data["flux"], data["channel"], 1, data["resolution"])
+    splat(*[a[:, :1000] if a.dim() == 2 else a[:1000] for a in args[:4]], 1, args[5])  # compile / warm up
+    base = peak_rss_mb()
+    t0 = time.perf_counter()
+    image = splat(*args)
+    seconds = time.perf_counter() - t0
+    queue.put({"seconds": seconds, "peak_extra_mb": peak_rss_mb() - base, "sum": float(image.sum())})
+
+
+def compare_splats(op: CausticOperator, heights: torch.Tensor, photons: int) -> dict[str, float]:
+    """Native vs straightforward PyTorch splat of the same traced photons, each in its own process."""
+    with torch.no_grad():
+        hits = trace_substrate(heights, op.scene, op.emitter.batch(0, photons), op.glass_index)
+        to_pixels = op.scene.receiver.resolution / (2 * op.scene.receiver.half_width)
+        data = {"pos": (hits.position + op.scene.receiver.half_width) * to_pixels - 0.5,
+                "metric": footprint_metric(hits.footprint * to_pixels, op.settings.min_footprint_px,
+                                           op.settings.max_pixel_radius),
+                "flux": hits.flux, "channel": hits.channel, "resolution": op.scene.receiver.resolution}
+    results = {}
+    ctx = mp.get_context("spawn")
+    with tempfile.TemporaryDirectory() as tmp:
+        path = str(Path(tmp) / "photons.pt")
+        torch.save(data, path)
+        for which in ("native", "torch_reference"):
+            queue = ctx.Queue()
+            proc = ctx.Process(target=_splat_worker, args=(path, which, queue))
+            proc.start()
+            results[which] = queue.get()
+            proc.join()
+    native, ref = results["native"], results["torch_reference"]
+    return {"photons": photons, "native_s": native["seconds"], "torch_s": ref["seconds"],
+            "speedup": ref["seconds"] / native["seconds"],
+            "native_peak_extra_mb": native["peak_extra_mb"], "torch_peak_extra_mb": ref["peak_extra_mb"],
+            "memory_ratio": ref["peak_extra_mb"] / max(native["peak_extra_mb"], 0.1),
+            "relative_image_difference": abs(native["sum"] - ref["sum"]) / abs(ref["sum"])}
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--photons", type=int, default=1 << 22, help="photons for the speed runs")
+    parser.add_argument("--grad-photons", type=int, default=128 * 128 * 32 * 16,
+                        help="photons of the peak-memory gradient run (paper: 8388608)")
+    parser.add_argument("--splat-photons", type=int, default=1 << 20, help="photons of the splat comparison")
+    parser.add_argument("--footprint-px", type=float, default=3.0)
+    parser.add_argument("--chunk-size", type=int, default=1 << 18)
+    args = parser.parse_args(argv)
+
+    heights = heights_print_lines()
+    op = make_operator(args.photons, args.footprint_px, args.chunk_size)
+    target = make_operator(args.photons, args.footprint_px, args.chunk_size).render(torch.zeros(128, 128))
+    op.loss_and_grad(heights, target)  # warm up: numba compilation
+    t0 = time.perf_counter()
+    op.render(heights)
+    forward_s = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    op.loss_and_grad(heights, target)
+    gradient_s = time.perf_counter() - t0
+    report = {
+        "scene": "print_lines, m=128, n=512, light (0,0,10)",
+        "threads": {"torch": torch.get_num_threads(), "numba": numba.get_num_threads()},
+        "photons": op.photons, "footprint_px": args.footprint_px, "chunk_size": args.chunk_size,
+        "forward_photons_per_s": op.photons / forward_s,
+        "forward_backward_photons_per_s": op.photons / gradient_s,
+        "forward_split": time_split(op, heights),
+        "splat_comparison": compare_splats(op, heights, args.splat_photons),
+    }
+    big = make_operator(args.grad_photons, args.footprint_px, args.chunk_size)
+    t0 = time.perf_counter()
+    big.loss_and_grad(heights, target)
+    report["gradient_paper_photons"] = {"photons": big.photons, "seconds": time.perf_counter() - t0,
+                                        "process_peak_rss_mb": peak_rss_mb()}
+    print(json.dumps(report, indent=2))
+
+
+if __name__ == "__main__":
+    main()
