@@ -1,0 +1,190 @@
+"""The data term of every reconstruction: f(d) = 1/2 ||F(d) - b||_F^2 / ||b||_F^2.
+
+method.md section 4 writes the data term as f(d) = 1/2 ||F(d) - b^delta||_F^2. We divide it
+by ||b^delta||_F^2 so that f is dimensionless and does not depend on the brightness or units of
+the caustic image (photon count, exposure, flux normalisation). **This is our step-size unit**:
+a step tau multiplies grad f of the *normalised* data term, so tau is in scene units^2 per unit
+of relative squared residual, and the same tau works for a dim and a bright image. Step sizes
+taken from the official code (tau_p = 0.1, ...) are in that code's own image scaling and must be
+re-tuned in this unit.
+
+The relative discrepancy ||F(d) - b||_F / ||b||_F (method.md section 3) equals sqrt(2 f(d)).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Callable, Protocol, runtime_checkable
+
+import torch
+from torch import Tensor
+
+__all__ = [
+    "ForwardOperator",
+    "DataEvaluation",
+    "DataFidelity",
+    "loss_and_grad_by_autograd",
+]
+
+
+@runtime_checkable
+class ForwardOperator(Protocol):
+    """A differentiable forward operator F: R^{m x m} -> R_+^{c x n x n} (height field to image).
+
+    Implementations compute the gradient memory-efficiently (architecture.md: image without a
+    graph first, then per photon chunk a recomputation with graph and a backward of
+    <image_chunk, residual>), so peak memory is set by the chunk size, not the photon count.
+    An operator may expose ``image_shape: tuple[int, int, int]``; the data term then checks the
+    target against it.
+    """
+
+    def __call__(self, d: Tensor) -> Tensor:
+        """The image F(d), shape (c, n, n), for a height field d of shape (m, m); no graph."""
+        ...
+
+    def loss_and_grad(self, d: Tensor, target: Tensor) -> tuple[float, Tensor, Tensor]:
+        """(1/2 ||F(d) - target||_F^2, its gradient w.r.t. d (m, m), the image F(d) (c, n, n))."""
+        ...
+
+
+def loss_and_grad_by_autograd(
+    forward: Callable[[Tensor], Tensor], d: Tensor, target: Tensor
+) -> tuple[float, Tensor, Tensor]:
+    """``loss_and_grad`` for a small operator by plain autograd (keeps the whole graph in memory).
+
+    Meant for toy and test operators; the photon operators implement the chunked two-pass version.
+
+    Returns:
+        (1/2 ||forward(d) - target||_F^2, gradient (shape of d), image (shape of target)).
+    """
+    x = d.detach().clone().requires_grad_(True)
+    with torch.enable_grad():
+        image = forward(x)
+        loss = 0.5 * torch.sum((image - target) ** 2)
+        (grad,) = torch.autograd.grad(loss, x)
+    return float(loss.detach()), grad.detach(), image.detach()
+
+
+@dataclass(frozen=True)
+class DataEvaluation:
+    """The data term at one height field.
+
+    Attributes:
+        value: f(d) = 1/2 ||F(d) - b||^2 / ||b||^2 (dimensionless).
+        grad: grad f(d), shape (m, m) (1 / scene unit), or None for a value-only evaluation.
+        image: F(d), shape (c, n, n).
+        rel_discrepancy: ||F(d) - b||_F / ||b||_F.
+    """
+
+    value: float
+    grad: Tensor | None
+    image: Tensor
+    rel_discrepancy: float
+
+
+class DataFidelity:
+    """f(d) = 1/2 ||F(d) - b||_F^2 / ||b||_F^2, its gradient and the relative discrepancy.
+
+    Args:
+        operator: The forward operator F (see :class:`ForwardOperator`).
+        target: The measured caustic image b^delta, shape (c, n, n), finite; it may hold small
+            negative values (additive noise) but its total energy must be positive.
+        max_negative_fraction: Refuse a target whose negative mass exceeds this fraction of its
+            positive mass (a sign or offset error, not noise).
+
+    Example:
+        >>> A = torch.eye(4, dtype=torch.float64)
+        >>> class Op:
+        ...     def __call__(self, d): return (A @ d.reshape(-1)).reshape(1, 2, 2)
+        ...     def loss_and_grad(self, d, b): return loss_and_grad_by_autograd(self, d, b)
+        >>> data = DataFidelity(Op(), torch.ones(1, 2, 2, dtype=torch.float64))
+        >>> data.evaluate(torch.zeros(2, 2, dtype=torch.float64)).rel_discrepancy
+        1.0
+    """
+
+    def __init__(self, operator: ForwardOperator, target: Tensor, max_negative_fraction: float = 0.25) -> None:
+        if not callable(operator) or not callable(getattr(operator, "loss_and_grad", None)):
+            raise ValueError(
+                f"operator {type(operator).__name__} must be callable and have loss_and_grad(d, target); "
+                "see framework.objective.ForwardOperator"
+            )
+        self.operator = operator
+        self.target = self._validated_target(target, operator, max_negative_fraction)
+        self.target_norm_sq = float(torch.sum(self.target.double() ** 2))
+        self.target_norm = math.sqrt(self.target_norm_sq)
+
+    @staticmethod
+    def _validated_target(target: Tensor, operator: object, max_negative_fraction: float) -> Tensor:
+        if not isinstance(target, Tensor):
+            raise ValueError(f"target must be a torch.Tensor (c, n, n), got {type(target).__name__}")
+        if target.ndim != 3 or target.shape[1] != target.shape[2] or target.shape[0] < 1:
+            raise ValueError(
+                f"target must have shape (c, n, n) with square images, got {tuple(target.shape)}; "
+                "add a channel axis with target[None] for a single-wavelength image"
+            )
+        if not target.is_floating_point():
+            raise ValueError(f"target has dtype {target.dtype}; convert it with target.double() or target.float()")
+        if not bool(torch.isfinite(target).all()):
+            bad = int((~torch.isfinite(target)).sum())
+            raise ValueError(f"target has {bad} non-finite pixels (nan/inf); clean the image before reconstructing")
+        positive = float(target.clamp(min=0).sum())
+        negative = float((-target).clamp(min=0).sum())
+        if positive <= 0.0:
+            raise ValueError("target has no positive energy (sum of positive pixels is 0); is it the right image?")
+        if negative > max_negative_fraction * positive:
+            raise ValueError(
+                f"target's negative mass is {negative / positive:.3g} of its positive mass "
+                f"(allowed {max_negative_fraction}); noise gives small negatives only, check sign and offset"
+            )
+        expected = getattr(operator, "image_shape", None)
+        if expected is not None and tuple(expected) != tuple(target.shape):
+            raise ValueError(
+                f"target shape {tuple(target.shape)} does not match the operator's image_shape "
+                f"{tuple(expected)}; resample the image or configure the operator's resolution"
+            )
+        return target.detach()
+
+    def _check_d(self, d: Tensor) -> None:
+        if not isinstance(d, Tensor) or d.ndim != 2 or d.shape[0] != d.shape[1]:
+            shape = tuple(d.shape) if isinstance(d, Tensor) else type(d).__name__
+            raise ValueError(f"height field d must be a square (m, m) tensor, got {shape}")
+
+    def _check_image(self, image: Tensor) -> None:
+        if tuple(image.shape) != tuple(self.target.shape):
+            raise ValueError(
+                f"operator {type(self.operator).__name__} returned an image of shape {tuple(image.shape)}, "
+                f"but the target has shape {tuple(self.target.shape)}"
+            )
+
+    def evaluate(self, d: Tensor, with_grad: bool = True) -> DataEvaluation:
+        """f(d), grad f(d) (if ``with_grad``; else one forward pass only), F(d) and the discrepancy.
+
+        Args:
+            d: Height field, shape (m, m), scene units.
+            with_grad: False for a value-only evaluation (one forward pass, no backward).
+        """
+        self._check_d(d)
+        if with_grad:
+            raw, grad, image = self.operator.loss_and_grad(d, self.target)
+            if tuple(grad.shape) != tuple(d.shape):
+                raise ValueError(
+                    f"operator {type(self.operator).__name__} returned a gradient of shape "
+                    f"{tuple(grad.shape)} for d of shape {tuple(d.shape)}"
+                )
+            grad = grad.detach() / self.target_norm_sq
+        else:
+            with torch.no_grad():
+                image = self.operator(d)
+            grad = None
+        image = image.detach()
+        self._check_image(image)
+        residual_norm = float(torch.linalg.vector_norm((image - self.target).double()))
+        rel = residual_norm / self.target_norm
+        return DataEvaluation(value=0.5 * rel * rel, grad=grad, image=image, rel_discrepancy=rel)
+
+    def value(self, d: Tensor) -> float:
+        """f(d) by one forward pass."""
+        return self.evaluate(d, with_grad=False).value
+
+    __call__ = value

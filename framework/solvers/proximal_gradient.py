@@ -1,0 +1,234 @@
+"""The one proximal-gradient iteration, and M1 / M2 as configurations of it (method.md section 4).
+
+One iteration from d (with g = sum of the regularisers, P = their proxes applied in list order):
+
+    d+ = P(d - tau grad f(d), tau)            (the step-size policy picks tau)
+    d+ = u_K(... u_1(d+))                     (post-step updates, e.g. the volume heuristic V1)
+    evaluate f, grad f at d+                  (one gradient evaluation per iteration)
+
+M1 ``gradient_descent``: no regulariser (P = identity). M2 ``landweber_pixel``, eq. (4)-(7):
+regularisers e.g. [L1 with alpha_p, bounds [p1, p2] with mask]. Applying the proxes one after
+the other equals the prox of the sum for the paper's separable choices (shrink, then clamp to
+[p1, p2], then zero off the mask); for other combinations it is a splitting heuristic.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from typing import Any, Callable, Sequence
+
+import torch
+from torch import Tensor
+
+from framework.objective import DataEvaluation, DataFidelity
+from framework.registry import register
+
+from .base import IterationFailed, IterationRecord, IterativeSolver
+from .step_size import LineSearchFailed, StepSizePolicy, as_step_policy
+
+__all__ = ["ProximalGradientSolver", "GradientDescent", "PixelLandweber"]
+
+Candidate = dict[str, Tensor]
+
+
+def _check_regularizers(regularizers: Sequence[Any], solver: str, role: str = "regularizers") -> list[Any]:
+    out = list(regularizers)
+    for r in out:
+        if not callable(getattr(r, "value", None)) or not callable(getattr(r, "prox", None)):
+            raise ValueError(f"{solver}: {role} entry {type(r).__name__} needs value(d) and prox(d, step)")
+        if getattr(r, "has_prox", True) is False:
+            raise ValueError(
+                f"{solver}: {type(r).__name__} has no proximal map (has_prox=False); "
+                "a proximal-gradient solver can only use regularisers with a prox"
+            )
+    return out
+
+
+def _check_post_steps(post_steps: Sequence[Any], solver: str) -> list[Callable[[Tensor], Tensor]]:
+    out = list(post_steps)
+    for u in out:
+        if not callable(u):
+            raise ValueError(f"{solver}: post step {type(u).__name__} is not callable as u(d) -> d")
+    return out
+
+
+class ProximalGradientSolver(IterativeSolver):
+    """Generic proximal gradient with post-step updates; M1, M2 and M3 specialise it.
+
+    Args:
+        data: The data term f (:class:`framework.objective.DataFidelity`).
+        d0: Initial height field (m, m) (the paper starts from zeros).
+        step_size: A :class:`StepSizePolicy`, or a number for a constant step.
+        regularizers: Regularisers with ``value(d)`` and ``prox(d, step)``, applied in order.
+        post_steps: Heuristic updates ``u(d) -> d`` applied after the prox, in order.
+        context: If given, ``setup(context)`` is called on every regulariser and post step that
+            has ``setup`` (e.g. a :class:`regularizers.base.RegularizerContext`); if None the
+            caller must have set them up.
+    """
+
+    def __init__(
+        self,
+        data: DataFidelity,
+        d0: Tensor,
+        step_size: StepSizePolicy | float,
+        regularizers: Sequence[Any] = (),
+        post_steps: Sequence[Any] = (),
+        context: Any = None,
+    ) -> None:
+        super().__init__(d0)
+        if not callable(getattr(data, "evaluate", None)):
+            raise ValueError(f"{self.name}: data must be a DataFidelity, got {type(data).__name__}")
+        self.data = data
+        self.step_size = as_step_policy(step_size)
+        self.regularizers = _check_regularizers(regularizers, self.name)
+        self.post_steps = _check_post_steps(post_steps, self.name)
+        self._evaluation: DataEvaluation | None = None
+        if context is not None:
+            for item in self._context_users():
+                if callable(getattr(item, "setup", None)):
+                    item.setup(context)
+
+    def _context_users(self) -> list[Any]:
+        return [*self.regularizers, *self.post_steps]
+
+    # -- the pieces a subclass may change ------------------------------------------------------
+    def regularization_value(self, d: Tensor) -> float:
+        """g(d) = sum of the regularisers' values (inf outside an indicator's set)."""
+        return float(sum(float(r.value(d)) for r in self.regularizers))
+
+    def _prox_pixels(self, x: Tensor, tau: float) -> Tensor:
+        for r in self.regularizers:
+            x = r.prox(x, tau)
+        return x
+
+    def _propose(self, tau: float) -> Candidate:
+        """The proximal point for step tau (no operator call)."""
+        grad = self._current_evaluation().grad
+        return {"d": self._prox_pixels(self.state.d - tau * grad, tau)}
+
+    def _finalize(self, candidate: Candidate) -> Candidate:
+        """Apply the post-step updates to the accepted candidate."""
+        d = candidate["d"]
+        for u in self.post_steps:
+            d = u(d)
+        return {**candidate, "d": d}
+
+    # -- the iteration -------------------------------------------------------------------------
+    def _current_evaluation(self) -> DataEvaluation:
+        if self._evaluation is None:
+            self._evaluation = self.data.evaluate(self.state.d, with_grad=True)
+        return self._evaluation
+
+    def _objective(self, candidate: Candidate) -> float:
+        d = candidate["d"]
+        return self.data.evaluate(d, with_grad=False).value + self.regularization_value(d)
+
+    def step(self) -> IterationRecord:
+        """One proximal-gradient iteration; raises :class:`IterationFailed` (run() stops on it)."""
+        t0 = time.perf_counter()
+        current = self._current_evaluation()
+        d = self.state.d
+        objective_now = current.value + self.regularization_value(d)
+
+        def sq_distance(c: Candidate) -> float:
+            return float(torch.sum((c["d"] - d) ** 2))
+
+        try:
+            choice = self.step_size.select(self._propose, self._objective, sq_distance, objective_now)
+        except LineSearchFailed as err:
+            raise IterationFailed(str(err)) from err
+        new = self._finalize(choice.candidate)
+        if not bool(torch.isfinite(new["d"]).all()):
+            raise IterationFailed(f"the new iterate has non-finite entries (tau={choice.step:.3g}); reduce the step")
+        evaluation = self.data.evaluate(new["d"], with_grad=True)
+        if not math.isfinite(evaluation.value):
+            raise IterationFailed(f"data term is {evaluation.value} at the new iterate; reduce the step size")
+        regularization = self.regularization_value(new["d"])
+        self.state.d = new["d"]
+        self.state.coefficients = new.get("w")
+        self.state.iteration += 1
+        self.state.elapsed_s += time.perf_counter() - t0
+        self._evaluation = evaluation
+        record = IterationRecord(
+            iteration=self.state.iteration,
+            objective=evaluation.value + regularization,
+            data_fidelity=evaluation.value,
+            rel_discrepancy=evaluation.rel_discrepancy,
+            step_size=choice.step,
+            elapsed_s=self.state.elapsed_s,
+            extras={
+                "regularization": regularization,
+                "trials": float(choice.trials),
+                "forward_evaluations": float(choice.forward_evaluations),
+            },
+        )
+        self.history.append(record)
+        return record
+
+    # -- checkpoints ---------------------------------------------------------------------------
+    def state_dict(self) -> dict[str, Any]:
+        """Adds the step-size state and the cached evaluation at d (so a resume re-evaluates nothing)."""
+        state = super().state_dict()
+        state["step_size"] = self.step_size.state_dict()
+        ev = self._evaluation
+        state["evaluation"] = None if ev is None else {
+            "value": ev.value, "grad": ev.grad, "image": ev.image, "rel_discrepancy": ev.rel_discrepancy,
+        }
+        return state
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:  # noqa: D102
+        super().load_state_dict(state)
+        self.step_size.load_state_dict(state.get("step_size", {}))
+        ev = state.get("evaluation")
+        like = self.state.d
+        self._evaluation = None if ev is None else DataEvaluation(
+            value=float(ev["value"]),
+            grad=ev["grad"].to(device=like.device, dtype=like.dtype),
+            image=ev["image"].to(device=like.device),
+            rel_discrepancy=float(ev["rel_discrepancy"]),
+        )
+
+
+@register("solver", "gradient_descent")
+class GradientDescent(ProximalGradientSolver):
+    """M1: d <- d - tau grad f(d). No regulariser, no post step (method.md section 4).
+
+    Args:
+        data: The data term f.
+        d0: Initial height field (m, m).
+        step_size: Policy or constant tau (the paper: tau_p).
+    """
+
+    name = "gradient_descent"
+
+    def __init__(self, data: DataFidelity, d0: Tensor, step_size: StepSizePolicy | float) -> None:
+        super().__init__(data, d0, step_size)
+
+
+@register("solver", "landweber_pixel")
+class PixelLandweber(ProximalGradientSolver):
+    """M2: thresholded nonlinear Landweber, d <- P(d - tau grad f(d), tau), then post steps (eq. 4-7).
+
+    Typical ``regularizers``: an L1 term (alpha_p) and the masked bounds [p1, p2]; typical
+    ``post_steps``: the volume heuristic V1 (eq. 8). Arguments as :class:`ProximalGradientSolver`;
+    at least one regulariser is required (without one, use ``gradient_descent``).
+    """
+
+    name = "landweber_pixel"
+
+    def __init__(
+        self,
+        data: DataFidelity,
+        d0: Tensor,
+        step_size: StepSizePolicy | float,
+        regularizers: Sequence[Any],
+        post_steps: Sequence[Any] = (),
+        context: Any = None,
+    ) -> None:
+        if not list(regularizers):
+            raise ValueError(
+                "landweber_pixel needs at least one regulariser with a prox (e.g. L1 + bounds); "
+                "for plain gradient descent use solver 'gradient_descent'"
+            )
+        super().__init__(data, d0, step_size, regularizers, post_steps, context)

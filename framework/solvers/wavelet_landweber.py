@@ -1,0 +1,105 @@
+"""M3: wavelet-based thresholded Landweber, method.md section 4, eq. (9).
+
+One iteration, in exactly this order (w = W d, W a Daubechies-3 wavelet transform):
+
+    w <- S(w - tau_w (W^-1)^* grad_d f(W^-1 w), tau_w alpha_w)     (wavelet regulariser's prox)
+    d  = W^-1 w
+    d <- P_pixel(d, tau_p)        (pixel shrink alpha_p, bounds [p1, p2], mask), tau_p = ratio * tau_w
+    d <- u_K(... u_1(d))          (post steps, e.g. the volume heuristic V1)
+    w  = W d
+
+grad_d f is evaluated at the current d, which equals W^-1 w because the previous iteration ended
+with w = W d (W^-1 W = I). The step-size policy chooses tau_w; the pixel prox step follows it
+with the fixed ratio ``pixel_step_ratio`` (the paper: tau_p = tau_w = 0.1, ratio 1).
+"""
+
+from __future__ import annotations
+
+from typing import Any, Sequence
+
+from torch import Tensor
+
+from framework.objective import DataFidelity
+from framework.registry import register
+
+from .proximal_gradient import Candidate, ProximalGradientSolver
+from .step_size import StepSizePolicy
+
+__all__ = ["WaveletLandweber"]
+
+
+@register("solver", "landweber_wavelet")
+class WaveletLandweber(ProximalGradientSolver):
+    """M3 (eq. 9): soft shrinkage of wavelet coefficients, then the pixel prox and post steps.
+
+    Args:
+        data: The data term f.
+        d0: Initial height field (m, m).
+        step_size: Policy or constant tau_w for the wavelet-domain gradient step.
+        wavelet: Transform with ``forward(d) -> w`` (flat), ``inverse(w) -> d`` (m, m) and
+            ``inverse_adjoint(g) -> (W^-1)^* g`` (flat).
+        wavelet_regularizer: Has ``prox_coefficients(w, step)`` (shrink by step * alpha_w) and
+            ``value(d)`` (alpha_w ||W d||_1, used for the objective and backtracking).
+        pixel_regularizers: Pixel proxes (L1 with alpha_p, bounds, mask), applied in order.
+        post_steps: Heuristic updates ``u(d) -> d`` (volume heuristic V1).
+        pixel_step_ratio: tau_p / tau_w > 0.
+        context: If given, passed to ``setup`` of every regulariser and post step.
+    """
+
+    name = "landweber_wavelet"
+
+    def __init__(
+        self,
+        data: DataFidelity,
+        d0: Tensor,
+        step_size: StepSizePolicy | float,
+        wavelet: Any,
+        wavelet_regularizer: Any,
+        pixel_regularizers: Sequence[Any] = (),
+        post_steps: Sequence[Any] = (),
+        pixel_step_ratio: float = 1.0,
+        context: Any = None,
+    ) -> None:
+        missing = [m for m in ("forward", "inverse", "inverse_adjoint") if not callable(getattr(wavelet, m, None))]
+        if wavelet is None or missing:
+            raise ValueError(
+                "landweber_wavelet needs a wavelet transform with forward, inverse and inverse_adjoint; "
+                f"got {type(wavelet).__name__} (missing: {', '.join(missing) or 'the transform'})"
+            )
+        if not callable(getattr(wavelet_regularizer, "prox_coefficients", None)) or not callable(
+            getattr(wavelet_regularizer, "value", None)
+        ):
+            raise ValueError(
+                "landweber_wavelet needs a wavelet regulariser with prox_coefficients(w, step) and value(d); "
+                f"got {type(wavelet_regularizer).__name__}"
+            )
+        if not float(pixel_step_ratio) > 0.0:
+            raise ValueError(f"pixel_step_ratio (tau_p / tau_w) must be > 0, got {pixel_step_ratio!r}")
+        self.wavelet = wavelet
+        self.wavelet_regularizer = wavelet_regularizer
+        self.pixel_step_ratio = float(pixel_step_ratio)
+        super().__init__(data, d0, step_size, pixel_regularizers, post_steps, context)
+        self.state.coefficients = self.wavelet.forward(self.state.d)
+
+    def _context_users(self) -> list[Any]:
+        return [self.wavelet_regularizer, *self.regularizers, *self.post_steps]
+
+    def regularization_value(self, d: Tensor) -> float:
+        """g(d) = alpha_w ||W d||_1 + the pixel regularisers' values."""
+        return float(self.wavelet_regularizer.value(d)) + super().regularization_value(d)
+
+    def _propose(self, tau: float) -> Candidate:
+        grad_d = self._current_evaluation().grad
+        grad_w = self.wavelet.inverse_adjoint(grad_d)
+        w = self.wavelet_regularizer.prox_coefficients(self.state.coefficients - tau * grad_w, tau)
+        d = self.wavelet.inverse(w)
+        return {"d": self._prox_pixels(d, tau * self.pixel_step_ratio)}
+
+    def _finalize(self, candidate: Candidate) -> Candidate:
+        d = super()._finalize(candidate)["d"]
+        return {"d": d, "w": self.wavelet.forward(d)}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:  # noqa: D102
+        if state.get("coefficients") is None:
+            raise ValueError("landweber_wavelet checkpoint has no wavelet coefficients; was it written by M3?")
+        super().load_state_dict(state)

@@ -1,0 +1,103 @@
+import math
+
+import pytest
+import torch
+
+from framework.callbacks import Callback, Checkpointer, GroundTruthError, MetricsHistory, MorozovStopping, ProgressBar
+from framework.solvers import GradientDescent, IterationRecord, IterativeSolver
+from tests.framework.toy import DTYPE, make_problem
+
+
+class ScriptedSolver(IterativeSolver):
+    """Replays a fixed sequence of relative discrepancies."""
+
+    name = "scripted"
+
+    def __init__(self, discrepancies):
+        super().__init__(torch.zeros(2, 2, dtype=DTYPE))
+        self.discrepancies = list(discrepancies)
+
+    def step(self):
+        k = self.state.iteration
+        self.state.iteration += 1
+        rec = IterationRecord(k + 1, 0.5 * self.discrepancies[k] ** 2, 0.5 * self.discrepancies[k] ** 2,
+                              self.discrepancies[k], 0.1, float(k + 1))
+        self.history.append(rec)
+        return rec
+
+
+class Recorder(Callback):
+    def __init__(self):
+        self.seen, self.started, self.result = [], 0, None
+
+    def on_start(self, solver):
+        self.started += 1
+
+    def on_iteration(self, solver, record):
+        self.seen.append(record.iteration)
+
+    def on_end(self, solver, result):
+        self.result = result
+
+
+def test_morozov_stops_at_exactly_the_first_iteration_below_the_threshold():
+    stop = MorozovStopping(delta=0.1, tau_dis=1.05)
+    rec = Recorder()
+    solver = ScriptedSolver([0.5, 0.3, 0.2, 0.106, 0.1049, 0.09, 0.08])
+    result = solver.run(100, [stop, rec])
+    assert result.iterations == 5 and result.stopped_by == "MorozovStopping"
+    assert "discrepancy principle" in result.stop_reason and "iteration 5" in result.stop_reason
+    assert rec.seen == [1, 2, 3, 4, 5] and rec.result is result  # later callbacks still see the last record
+
+
+def test_morozov_threshold_is_inclusive_and_cap_wins_first():
+    stop = MorozovStopping(delta=0.1, tau_dis=1.05)
+    assert ScriptedSolver([0.2, stop.threshold, 0.0]).run(10, [stop]).iterations == 2
+    result = ScriptedSolver([0.5, 0.4, 0.3]).run(2, [MorozovStopping(0.1, 1.05)])
+    assert result.iterations == 2 and result.stopped_by == "max_iter"
+
+
+@pytest.mark.parametrize("delta, tau_dis, match", [(0.05, 1.0, "tau_dis"), (0.05, 0.9, "tau_dis"),
+                                                   (0.0, 1.1, "delta"), (1.5, 1.1, "delta"),
+                                                   (float("nan"), 1.1, "delta")])
+def test_morozov_refuses_bad_parameters(delta, tau_dis, match):
+    with pytest.raises(ValueError, match=match):
+        MorozovStopping(delta, tau_dis)
+
+
+def test_ground_truth_error_uses_the_papers_definition_and_runs_before_other_callbacks():
+    data, op, A, b, d_true, L = make_problem()
+    h = 0.1
+    gt = GroundTruthError(d_true, substrate_thickness=h)
+    hist = MetricsHistory()
+    bar = ProgressBar(disable=True)
+    solver = GradientDescent(data, torch.zeros(8, 8, dtype=DTYPE), 1.0 / L)
+    solver.run(5, [hist, bar, gt])  # gt listed last but runs first (order -100)
+    d = solver.d
+    expected = float(torch.linalg.norm((h + d) - (h + d_true))) / float(torch.linalg.norm(h + d_true))
+    assert hist.records[-1].extras["rel_error"] == pytest.approx(expected, rel=1e-12)
+    assert hist.records[-1].extras["rel_error_d"] == pytest.approx(
+        float(torch.linalg.norm(d - d_true)) / float(torch.linalg.norm(d_true)), rel=1e-12)
+    cols = hist.columns()
+    assert len(cols["rel_discrepancy"]) == 5 and len(cols["rel_error"]) == 5
+    assert hist["iteration"] == [1.0, 2.0, 3.0, 4.0, 5.0]
+    with pytest.raises(ValueError, match="substrate_thickness"):
+        GroundTruthError(d_true, -1.0)
+
+
+def test_progress_bar_runs_with_postfix(capsys):
+    data, *_, L = make_problem()
+    solver = GradientDescent(data, torch.zeros(8, 8, dtype=DTYPE), 1.0 / L)
+    result = solver.run(3, [ProgressBar(desc="M1", disable=False)])
+    assert result.iterations == 3
+    assert "M1" in capsys.readouterr().err
+
+
+def test_checkpointer_validates_every(tmp_path):
+    with pytest.raises(ValueError, match="every"):
+        Checkpointer(tmp_path / "c.pt", every=0)
+
+
+def test_non_callbacks_are_refused():
+    with pytest.raises(ValueError, match="not a Callback"):
+        ScriptedSolver([0.1]).run(1, [object()])

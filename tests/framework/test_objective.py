@@ -1,0 +1,73 @@
+import math
+
+import pytest
+import torch
+
+from framework.objective import DataFidelity, loss_and_grad_by_autograd
+from tests.framework.toy import DTYPE, LinearOperator, make_problem
+
+
+def test_value_gradient_and_discrepancy_match_the_normalised_formula():
+    data, op, A, b, d_true, _ = make_problem()
+    d = torch.rand(8, 8, dtype=DTYPE, generator=torch.Generator().manual_seed(3))
+    ev = data.evaluate(d)
+    r = A @ d.reshape(-1) - b.reshape(-1)
+    nb2 = float(b.reshape(-1) @ b.reshape(-1))
+    assert ev.value == pytest.approx(0.5 * float(r @ r) / nb2, rel=1e-12)
+    assert ev.rel_discrepancy == pytest.approx(math.sqrt(float(r @ r) / nb2), rel=1e-12)
+    torch.testing.assert_close(ev.grad, (A.T @ r).reshape(8, 8) / nb2)
+    assert data.evaluate(d, with_grad=False).grad is None
+    assert data.value(d) == pytest.approx(ev.value, rel=1e-14)
+
+
+def test_gradient_matches_finite_differences_and_autograd_helper():
+    data, op, A, b, _, _ = make_problem()
+    d = torch.rand(8, 8, dtype=DTYPE, generator=torch.Generator().manual_seed(4))
+    grad = data.evaluate(d).grad
+    direction = torch.randn(8, 8, dtype=DTYPE, generator=torch.Generator().manual_seed(5))
+    eps = 1e-6
+    fd = (data.value(d + eps * direction) - data.value(d - eps * direction)) / (2 * eps)
+    assert fd == pytest.approx(float((grad * direction).sum()), rel=1e-7)
+    loss, g_auto, image = loss_and_grad_by_autograd(op, d, b)
+    loss_ref, g_ref, _ = op.loss_and_grad(d, b)
+    assert loss == pytest.approx(loss_ref, rel=1e-12)
+    torch.testing.assert_close(g_auto, g_ref)
+
+
+def test_step_unit_does_not_depend_on_brightness():
+    data, op, A, b, _, _ = make_problem()
+    bright = DataFidelity(LinearOperator(1000.0 * A, 8, (1, 10, 10)), 1000.0 * b)
+    d = torch.full((8, 8), 0.01, dtype=DTYPE)
+    assert bright.evaluate(d).value == pytest.approx(data.evaluate(d).value, rel=1e-10)
+    # grad w.r.t. d scales with A / ||b||^2 * A^T A ... the relative step effect is invariant:
+    step = 0.1
+    d1 = d - step * data.evaluate(d).grad
+    d2 = d - step * bright.evaluate(d).grad
+    torch.testing.assert_close(d1, d2)
+
+
+@pytest.mark.parametrize(
+    "target, match",
+    [
+        (torch.ones(10, 10, dtype=DTYPE), "shape"),
+        (torch.ones(1, 10, 9, dtype=DTYPE), "shape"),
+        (torch.ones(1, 10, 10, dtype=torch.int64), "dtype"),
+        (torch.full((1, 10, 10), float("nan"), dtype=DTYPE), "non-finite"),
+        (torch.zeros(1, 10, 10, dtype=DTYPE), "no positive energy"),
+        (-torch.ones(1, 10, 10, dtype=DTYPE) + 1.5 * torch.eye(10, dtype=DTYPE), "negative mass"),
+        (torch.ones(1, 12, 12, dtype=DTYPE), "image_shape"),
+    ],
+)
+def test_bad_targets_are_refused(target, match):
+    _, op, *_ = make_problem()
+    with pytest.raises(ValueError, match=match):
+        DataFidelity(op, target)
+
+
+def test_bad_operator_and_height_field_are_refused():
+    _, op, _, b, _, _ = make_problem()
+    with pytest.raises(ValueError, match="loss_and_grad"):
+        DataFidelity(lambda d: d, b)
+    data = DataFidelity(op, b)
+    with pytest.raises(ValueError, match="square"):
+        data.evaluate(torch.zeros(8, 7, dtype=DTYPE))

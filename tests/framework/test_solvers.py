@@ -1,0 +1,173 @@
+import math
+
+import pytest
+import torch
+
+from framework.registry import _REGISTRY
+from framework.solvers import (
+    BacktrackingStep,
+    ConstantStep,
+    GradientDescent,
+    IterativeSolver,
+    PixelLandweber,
+    WaveletLandweber,
+)
+from tests.framework.toy import DTYPE, L1, Bounds, OrthogonalTransform, SpyPostStep, WaveletL1, make_problem
+
+
+def test_all_methods_are_registered():
+    assert {"gradient_descent", "landweber_pixel", "landweber_wavelet"} <= set(_REGISTRY["solver"])
+    assert _REGISTRY["solver"]["landweber_wavelet"] is WaveletLandweber
+
+
+def test_m1_converges_to_the_least_squares_solution():
+    data, op, A, b, _, L = make_problem()
+    solver = GradientDescent(data, torch.zeros(8, 8, dtype=DTYPE), ConstantStep(1.0 / L))
+    result = solver.run(400)
+    d_ls = torch.linalg.lstsq(A, b.reshape(-1, 1)).solution.reshape(8, 8)
+    torch.testing.assert_close(result.d, d_ls, rtol=0, atol=1e-10)
+    assert result.iterations == 400 and result.stopped_by == "max_iter"
+    assert len(result.history) == 400 and result.history[-1].iteration == 400
+    # one gradient evaluation per iteration plus the initial one; no extra forward passes
+    assert op.calls == 401
+
+
+def test_m2_backtracking_decreases_the_objective_monotonically_and_finds_the_sparse_minimiser():
+    data, op, A, b, d_true, L = make_problem()
+    d0 = torch.zeros(8, 8, dtype=DTYPE)
+    alpha = 2e-3
+    policy = BacktrackingStep(tau0=20.0 / L, shrink=0.5, grow=1.5)
+    solver = PixelLandweber(data, d0, policy, regularizers=[L1(alpha), Bounds(0.0, 0.3)])
+    result = solver.run(150)
+    objectives = [data.value(d0) + 0.0] + [r.objective for r in result.history]
+    assert all(b_ <= a for a, b_ in zip(objectives, objectives[1:]))
+    assert any(r.extras["trials"] > 1 for r in result.history)  # it did backtrack
+    # reference: ISTA with the safe step 1/L for many iterations
+    ref = PixelLandweber(data, d0, ConstantStep(1.0 / L), regularizers=[L1(alpha), Bounds(0.0, 0.3)]).run(3000)
+    assert result.history[-1].objective == pytest.approx(ref.history[-1].objective, rel=1e-8)
+    torch.testing.assert_close(result.d, ref.d, rtol=0, atol=1e-6)
+    assert bool((result.d >= 0).all())
+    support_true = d_true > 0
+    assert bool((result.d[~support_true].abs() < 0.02).all())
+
+
+def test_m2_applies_post_steps_after_the_prox():
+    data, *_, L = make_problem()
+    log: list[str] = []
+    solver = PixelLandweber(data, torch.zeros(8, 8, dtype=DTYPE), 1.0 / L,
+                            regularizers=[L1(1e-3, log)], post_steps=[SpyPostStep(log)])
+    solver.run(3)
+    assert log == ["pixel_prox", "post"] * 3
+
+
+def test_m3_keeps_the_paper_order_and_keeps_w_equal_to_W_d():
+    data, *_, L = make_problem()
+    log: list[str] = []
+    W = OrthogonalTransform(8, log)
+    pixel = L1(1e-4, log)
+    solver = WaveletLandweber(
+        data, torch.zeros(8, 8, dtype=DTYPE), ConstantStep(0.5 / L), wavelet=W,
+        wavelet_regularizer=WaveletL1(W, 1e-3, log), pixel_regularizers=[pixel],
+        post_steps=[SpyPostStep(log)], pixel_step_ratio=0.5,
+    )
+    assert log == ["forward"]  # w = W d0
+    log.clear()
+    result = solver.run(4)
+    one = ["inverse_adjoint", "prox_coefficients", "inverse", "pixel_prox", "post", "forward"]
+    assert log == one * 4
+    assert pixel.steps == [0.25 / L] * 4
+    torch.testing.assert_close(solver.state.coefficients, W.Q @ solver.d.reshape(-1))
+    assert result.coefficients is solver.state.coefficients
+    disc = [r.rel_discrepancy for r in result.history]
+    assert disc[-1] < disc[0]
+
+
+def test_m3_with_backtracking_decreases_the_objective():
+    data, *_, L = make_problem()
+    log: list[str] = []
+    W = OrthogonalTransform(8, log)
+    solver = WaveletLandweber(data, torch.zeros(8, 8, dtype=DTYPE), BacktrackingStep(10.0 / L), wavelet=W,
+                              wavelet_regularizer=WaveletL1(W, 1e-3, log), pixel_regularizers=[Bounds()])
+    hist = solver.run(30).history
+    assert all(b <= a for a, b in zip([r.objective for r in hist], [r.objective for r in hist][1:]))
+
+
+class _NoProx:
+    has_prox = False
+
+    def value(self, d):
+        return 0.0
+
+    def prox(self, d, step):
+        raise NotImplementedError
+
+
+def test_solvers_refuse_what_they_cannot_use():
+    data, *_ = make_problem()
+    d0 = torch.zeros(8, 8, dtype=DTYPE)
+    W = OrthogonalTransform(8, [])
+    with pytest.raises(ValueError, match="wavelet transform"):
+        WaveletLandweber(data, d0, 0.1, wavelet=None, wavelet_regularizer=WaveletL1(W, 1e-3, []))
+    with pytest.raises(ValueError, match="wavelet regulariser"):
+        WaveletLandweber(data, d0, 0.1, wavelet=W, wavelet_regularizer=L1(1e-3))
+    with pytest.raises(ValueError, match="pixel_step_ratio"):
+        WaveletLandweber(data, d0, 0.1, wavelet=W, wavelet_regularizer=WaveletL1(W, 1e-3, []), pixel_step_ratio=0)
+    with pytest.raises(ValueError, match="at least one regulariser"):
+        PixelLandweber(data, d0, 0.1, regularizers=[])
+    with pytest.raises(ValueError, match="has_prox=False"):
+        PixelLandweber(data, d0, 0.1, regularizers=[_NoProx()])
+    with pytest.raises(ValueError, match="not callable"):
+        PixelLandweber(data, d0, 0.1, regularizers=[L1(1.0)], post_steps=[42])
+    with pytest.raises(ValueError, match="d0 must be a square"):
+        GradientDescent(data, torch.zeros(8, dtype=DTYPE), 0.1)
+    with pytest.raises(ValueError, match="finite"):
+        GradientDescent(data, torch.full((8, 8), float("nan"), dtype=DTYPE), 0.1)
+    with pytest.raises(ValueError, match="DataFidelity"):
+        GradientDescent(object(), d0, 0.1)
+    with pytest.raises(ValueError, match="StepSizePolicy"):
+        GradientDescent(data, d0, "0.1")
+    with pytest.raises(ValueError, match="tau"):
+        ConstantStep(-1.0)
+    with pytest.raises(ValueError, match="shrink"):
+        BacktrackingStep(1.0, shrink=1.5)
+    with pytest.raises(ValueError, match="grow"):
+        BacktrackingStep(1.0, grow=0.5)
+    with pytest.raises(ValueError, match="max_iter"):
+        GradientDescent(data, d0, 0.1).run(-1)
+
+
+def test_context_is_passed_to_setup():
+    data, *_ = make_problem()
+
+    class NeedsSetup(L1):
+        ctx = None
+
+        def setup(self, ctx):
+            self.ctx = ctx
+
+    reg = NeedsSetup(1e-3)
+    PixelLandweber(data, torch.zeros(8, 8, dtype=DTYPE), 0.1, regularizers=[reg], context="CTX")
+    assert reg.ctx == "CTX"
+
+
+def test_divergence_and_failed_line_search_stop_the_run_cleanly():
+    data, *_, L = make_problem()
+    d0 = torch.zeros(8, 8, dtype=DTYPE)
+    result = GradientDescent(data, d0, ConstantStep(1e200)).run(50)
+    assert result.stopped_by == "solver" and "failed" in result.stop_reason
+    assert bool(torch.isfinite(result.d).all())
+
+    class Increasing:  # each evaluation is worse than the last: no step can give sufficient decrease
+        has_prox = True
+        calls = 0
+
+        def value(self, d):
+            self.calls += 1
+            return 1e3 * self.calls
+
+        def prox(self, d, step):
+            return d
+
+    solver = PixelLandweber(data, d0 + 0.01, BacktrackingStep(1.0 / L, max_trials=3), regularizers=[Increasing()])
+    result = solver.run(5)
+    assert result.stopped_by == "solver" and "sufficient decrease" in result.stop_reason

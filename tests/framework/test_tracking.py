@@ -1,0 +1,98 @@
+import pytest
+import torch
+
+from framework.callbacks import GroundTruthError, MorozovStopping
+from framework.solvers import GradientDescent
+from framework.tracking import MlflowTracker, flatten_params
+from tests.framework.toy import DTYPE, make_problem
+
+mlflow = pytest.importorskip("mlflow")
+from mlflow.tracking import MlflowClient  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def store(tmp_path_factory):
+    return tmp_path_factory.mktemp("mlflow")
+
+
+def _client(store):
+    return MlflowClient(tracking_uri=f"sqlite:///{store.resolve() / 'mlflow.db'}")
+
+
+def test_flatten_params_joins_keys_and_truncates_values():
+    flat = flatten_params({"solver": {"name": "landweber_pixel", "step": {"tau": 0.1}}, "seeds": [1, 2],
+                           "empty": {}, "long": "x" * 7000})
+    assert flat["solver.name"] == "landweber_pixel" and flat["solver.step.tau"] == "0.1"
+    assert flat["seeds"] == "[1, 2]" and flat["empty"] == "{}"
+    assert len(flat["long"]) == 6000 and flat["long"].endswith("[truncated]")
+    with pytest.raises(ValueError, match="250"):
+        flatten_params({"k" * 300: 1})
+    with pytest.raises(ValueError, match="mapping"):
+        flatten_params([1, 2])
+
+
+def test_run_is_found_again_with_params_metric_history_and_artefact(store, tmp_path):
+    data, op, A, b, d_true, L = make_problem()
+    solver = GradientDescent(data, torch.zeros(8, 8, dtype=DTYPE), 1.0 / L)
+    (tmp_path / "run_dir").mkdir()
+    (tmp_path / "run_dir" / "reconstruction.pt").write_bytes(b"fake")
+    params = {"solver": {"name": "gradient_descent", "tau": 1.0 / L}, "scene": {"m": 8}}
+    with MlflowTracker("toy", run_name="m1", store_dir=store, params=params,
+                       tags={"method": "M1", "scene": "toy"}, sweep_id="sweep-1") as tracker:
+        result = solver.run(6, [GroundTruthError(d_true, 0.1), tracker.metrics_callback()])
+        tracker.log_artifacts(tmp_path / "run_dir")
+    client = _client(store)
+    run = client.get_run(tracker.run_id)
+    assert run.info.status == "FINISHED"
+    assert run.data.params["solver.name"] == "gradient_descent" and run.data.params["scene.m"] == "8"
+    assert run.data.tags["method"] == "M1" and run.data.tags["sweep_id"] == "sweep-1"
+    assert run.data.tags["stopped_by"] == "max_iter"
+    history = client.get_metric_history(tracker.run_id, "rel_discrepancy")
+    assert sorted(m.step for m in history) == [1, 2, 3, 4, 5, 6]
+    by_step = {m.step: m.value for m in history}
+    assert by_step[6] == pytest.approx(result.history[-1].rel_discrepancy)
+    assert len(client.get_metric_history(tracker.run_id, "rel_error")) == 6
+    assert [a.path for a in client.list_artifacts(tracker.run_id)] == ["reconstruction.pt"]
+    found = client.search_runs([tracker.experiment_id], "tags.sweep_id = 'sweep-1'")
+    assert [r.info.run_id for r in found] == [tracker.run_id]
+
+
+def test_exception_ends_run_failed_and_is_reraised(store):
+    with pytest.raises(RuntimeError, match="boom"):
+        with MlflowTracker("toy", store_dir=store) as tracker:
+            raise RuntimeError("boom")
+    run = _client(store).get_run(tracker.run_id)
+    assert run.info.status == "FAILED" and "boom" in run.data.tags["error"]
+
+
+def test_keyboard_interrupt_ends_run_killed_and_is_reraised(store):
+    data, *_, L = make_problem()
+    solver = GradientDescent(data, torch.zeros(8, 8, dtype=DTYPE), 1.0 / L)
+
+    class Interrupt(MorozovStopping):
+        def on_iteration(self, solver, record):
+            if record.iteration == 2:
+                raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        with MlflowTracker("toy", store_dir=store) as tracker:
+            solver.run(10, [tracker.metrics_callback(), Interrupt(0.05, 1.1)])
+    client = _client(store)
+    assert client.get_run(tracker.run_id).info.status == "KILLED"
+    # the interrupt (order 0) fires before the MLflow callback (order 50) logs iteration 2
+    assert [m.step for m in client.get_metric_history(tracker.run_id, "objective")] == [1]
+
+
+def test_nested_child_run_points_to_its_parent(store):
+    with MlflowTracker("toy", run_name="sweep", store_dir=store) as parent:
+        with parent.child(run_name="job-0", tags={"method": "M2V1"}) as child:
+            child.log_metrics({"x": 1.0}, step=0)
+    run = _client(store).get_run(child.run_id)
+    assert run.data.tags["mlflow.parentRunId"] == parent.run_id and run.info.status == "FINISHED"
+
+
+def test_tracker_without_active_run_is_an_error(store):
+    with pytest.raises(RuntimeError, match="no active run"):
+        MlflowTracker("toy", store_dir=store).log_metrics({"x": 1.0})
+    with pytest.raises(ValueError, match="experiment"):
+        MlflowTracker("")
