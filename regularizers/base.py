@@ -1,0 +1,132 @@
+"""Common shape of regularizers (value + prox) and post-step updates (heuristics).
+
+A :class:`Regularizer` is a convex functional R(d) of the height field d (shape (m, m), scene
+units) with ``value(d) = R(d)`` and ``prox(d, step) = argmin_x step * R(x) + 1/2 ||x - d||^2``
+(a projection for an indicator function). A :class:`PostStepUpdate` is a rule applied after a
+solver iteration that is *not* a proximal map (the paper's volume heuristic, eq. (8)).
+Both are configured once per reconstruction through :meth:`setup` with a
+:class:`RegularizerContext` (mask N^, deposited volume V, pixel area a).
+"""
+
+from __future__ import annotations
+
+import math
+from abc import ABC, abstractmethod
+from dataclasses import dataclass
+from typing import ClassVar
+
+import torch
+
+from ._checks import check_positive
+
+
+@dataclass(frozen=True)
+class RegularizerContext:
+    """What a regularizer may know about the reconstruction problem.
+
+    Attributes:
+        mask: Bool tensor (m, m); True on the printed area N^ (where material may be
+            deposited), False on the unprinted area N° (height forced to 0).
+        volume: Deposited volume V in scene units^3, or None if unknown.
+        pixel_area: Area a of one height-field sample in scene units^2
+            (e.g. (2/m)^2 for an m x m grid on [-1, 1]^2).
+    """
+
+    mask: torch.Tensor
+    volume: float | None = None
+    pixel_area: float = 1.0
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.mask, torch.Tensor) or self.mask.ndim != 2:
+            shape = tuple(self.mask.shape) if isinstance(self.mask, torch.Tensor) else type(self.mask).__name__
+            raise ValueError(f"mask must be a 2-D torch.Tensor (m, m), got {shape}; pass one mask image")
+        if self.mask.dtype != torch.bool:
+            raise ValueError(f"mask has dtype {self.mask.dtype}, expected torch.bool; pass mask > 0.5 or mask.bool()")
+        check_positive(self.pixel_area, "pixel_area", "pass the area of one height-field sample, e.g. (2/m)**2")
+        if self.volume is not None:
+            v = float(self.volume)
+            if not math.isfinite(v) or v <= 0.0:
+                raise ValueError(
+                    f"deposited volume must be a positive finite number, got volume={self.volume!r}; "
+                    "pass V in scene units^3 or None"
+                )
+
+    @classmethod
+    def full(cls, m: int, volume: float | None = None, pixel_area: float = 1.0) -> "RegularizerContext":
+        """Context whose mask is True everywhere on an m x m grid (no area constraint)."""
+        return cls(mask=torch.ones(m, m, dtype=torch.bool), volume=volume, pixel_area=pixel_area)
+
+
+class _UsesContext:
+    """Mixin: stores the :class:`RegularizerContext` and hands out the mask on the right device."""
+
+    _ctx: RegularizerContext | None = None
+
+    def setup(self, ctx: RegularizerContext) -> None:
+        """Store the problem context; call once before use (again if mask or volume change)."""
+        if not isinstance(ctx, RegularizerContext):
+            raise ValueError(f"setup expects a RegularizerContext, got {type(ctx).__name__}; build one from the mask")
+        self._ctx = ctx
+
+    @property
+    def ctx(self) -> RegularizerContext:
+        """The context given to :meth:`setup`; raises if setup was not called."""
+        if self._ctx is None:
+            raise RuntimeError(f"{type(self).__name__} is not set up; call setup(RegularizerContext(mask=...)) first")
+        return self._ctx
+
+    def _mask_for(self, d: torch.Tensor) -> torch.Tensor:
+        """The mask N^ as a bool tensor on ``d.device``, checked against ``d.shape``."""
+        mask = self.ctx.mask
+        if mask.shape != d.shape:
+            raise ValueError(
+                f"mask shape {tuple(mask.shape)} does not match height field shape {tuple(d.shape)}; "
+                "build the mask on the same grid as d"
+            )
+        return mask.to(d.device)
+
+    def __repr__(self) -> str:
+        params = ", ".join(f"{k}={v!r}" for k, v in vars(self).items() if not k.startswith("_"))
+        return f"{type(self).__name__}({params})"
+
+
+class Regularizer(_UsesContext, ABC):
+    """A convex functional R(d) of the height field with (optionally) a proximal map.
+
+    Subclasses set the class flags and implement :meth:`value` and, if ``has_prox``, :meth:`prox`.
+
+    Attributes:
+        has_prox: True if :meth:`prox` is implemented exactly (closed form or 1-D root find).
+        smooth: True if R is differentiable (a gradient step may be used instead of a prox).
+    """
+
+    has_prox: ClassVar[bool] = False
+    smooth: ClassVar[bool] = False
+
+    @abstractmethod
+    def value(self, d: torch.Tensor) -> float:
+        """R(d) for a height field d of shape (m, m); ``inf`` outside the domain of an indicator."""
+
+    def prox(self, d: torch.Tensor, step: float) -> torch.Tensor:
+        """prox_{step R}(d) = argmin_x step * R(x) + 1/2 ||x - d||_2^2, shape (m, m).
+
+        Args:
+            d: Point to evaluate the proximal map at, shape (m, m).
+            step: Step size tau > 0 multiplying R (ignored by pure indicators).
+        """
+        raise NotImplementedError(
+            f"{type(self).__name__} has no proximal map (has_prox=False); use a solver that takes its gradient"
+        )
+
+    @staticmethod
+    def _check_step(step: float) -> float:
+        return check_positive(step, "step", "pass the solver step size tau > 0")
+
+
+class PostStepUpdate(_UsesContext, ABC):
+    """A heuristic applied to d after each solver iteration; not a proximal map of any functional."""
+
+    @abstractmethod
+    def __call__(self, d: torch.Tensor) -> torch.Tensor:
+        """Return the updated height field (same shape, dtype and device as d); d is not modified."""
+

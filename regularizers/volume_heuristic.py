@@ -1,0 +1,93 @@
+"""The paper's volume-conservation heuristic V1, eq. (8): a post-step update, not a prox."""
+
+from __future__ import annotations
+
+import math
+
+import torch
+import torch.nn.functional as F
+
+from framework.registry import register
+
+from ._checks import check_height_field, check_nonnegative, check_relative_tolerance
+from .base import PostStepUpdate, RegularizerContext
+
+
+def volume_band(ctx: RegularizerContext, v_eps: float, who: str) -> tuple[float, float]:
+    """Sample-sum band [q1, q2] = [V (1 - v_eps) / a, V (1 + v_eps) / a] of the deposited volume.
+
+    Args:
+        ctx: Context with ``volume`` V (scene units^3) and ``pixel_area`` a (scene units^2).
+        v_eps: Relative volume uncertainty in [0, 1).
+        who: Registry name of the caller, for the error message.
+
+    Returns:
+        (q1, q2) in scene units (a sum of heights), 0 < q1 <= q2.
+    """
+    if ctx.volume is None:
+        raise ValueError(f"{who} needs the deposited volume: set data.volume=... or use a ground truth")
+    volume = float(ctx.volume)
+    return volume * (1.0 - v_eps) / ctx.pixel_area, volume * (1.0 + v_eps) / ctx.pixel_area
+
+
+def window_mean(d: torch.Tensor, radius: int) -> torch.Tensor:
+    """dbar_j: mean of d over the (2r+1) x (2r+1) window around j, zero padding at the borders.
+
+    The divisor is always (2r+1)^2, also at the borders. Shape, dtype, device of d (m, m).
+    """
+    k = 2 * radius + 1
+    return F.avg_pool2d(d[None, None], kernel_size=k, stride=1, padding=radius, count_include_pad=True)[0, 0]
+
+
+@register("regularizer", "volume_v1")
+class VolumeHeuristic(PostStepUpdate):
+    """Eq. (8): push the total height sum v(d) = sum_j d_j back into [q1, q2].
+
+    With q1 = V (1 - V_eps) / a, q2 = V (1 + V_eps) / a and dbar the local window mean
+    (:func:`window_mean`), for j in the printed area N^ only:
+        if v(d) <= q1:  d_j <- d_j + gamma dbar_j sin(pi v(d) / q1)
+        if v(d) >= q2:  d_j <- d_j - gamma dbar_j sin(pi (v(d) / q2 - 1))
+    and d is unchanged when q1 < v(d) < q2 or off the mask. The sine makes the correction slow
+    at the start (v ~ 0) and near the band, fast in between. It is a heuristic from the paper,
+    not the proximal map of any functional (for a convex alternative see ``volume_v2``);
+    note that for v(d) > 2 q2 the sine changes sign, as in the paper.
+
+    Args:
+        gamma: Relative strength gamma >= 0 (official 0.1).
+        v_eps: Relative volume uncertainty V_eps in [0, 1) (official 0.25).
+        r_v: Window radius r_V >= 0 in pixels (official 2).
+    """
+
+    def __init__(self, gamma: float = 0.1, v_eps: float = 0.25, r_v: int = 2) -> None:
+        self.gamma = check_nonnegative(gamma, "gamma", "pass the heuristic strength gamma >= 0 (paper: 0.1)")
+        self.v_eps = check_relative_tolerance(v_eps)
+        if int(r_v) != r_v or int(r_v) < 0:
+            raise ValueError(f"window radius r_v={r_v!r} must be a non-negative integer; the paper uses 2")
+        self.r_v = int(r_v)
+        self._q: tuple[float, float] | None = None
+
+    def setup(self, ctx: RegularizerContext) -> None:
+        """Store the context and compute the band [q1, q2]; requires ``ctx.volume``."""
+        super().setup(ctx)
+        self._q = volume_band(ctx, self.v_eps, "volume_v1")
+
+    @property
+    def band(self) -> tuple[float, float]:
+        """(q1, q2) in scene units (sum of heights)."""
+        self.ctx  # raises if not set up
+        assert self._q is not None
+        return self._q
+
+    def __call__(self, d: torch.Tensor) -> torch.Tensor:
+        """Apply eq. (8) once; returns a new tensor of d's shape (m, m), dtype and device."""
+        check_height_field(d)
+        mask = self._mask_for(d)
+        q1, q2 = self.band
+        v = float(d.sum())
+        if v <= q1:
+            factor = self.gamma * math.sin(math.pi * v / q1)
+        elif v >= q2:
+            factor = -self.gamma * math.sin(math.pi * (v / q2 - 1.0))
+        else:
+            return d.clone()
+        return torch.where(mask, d + factor * window_mean(d, self.r_v), d)
