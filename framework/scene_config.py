@@ -1,0 +1,171 @@
+"""Build the scene, the heights and the caustic operator from a (Hydra) config.
+
+Config layout (top-level keys; see conf/scene/*.yaml and conf/operator/default.yaml)::
+
+    light:        {position: [x, y, z], power: W}
+    substrate:    {thickness: h, half_width: W}
+    receiver:     {z: s, resolution: n, half_width: W}
+    material:     {kind: fused_silica | sellmeier | cauchy | constant, ...coefficients}
+    wavelengths:  [um, ...]                       # one image channel each
+    height_field: {shape, resolution, path, scale, params}
+    photons: N
+    seed: int
+    operator:     {footprint_px, min_footprint_px, max_pixel_radius, chunk_size, fresnel, dtype, device}
+
+Lengths are in scene units. Groups may omit keys (dataclass defaults apply); unknown keys in
+a group are refused with an error naming the key.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from omegaconf import DictConfig, ListConfig, OmegaConf
+
+from framework.height_field_io import load_height_field
+from framework.shapes import make_shape
+from operators.caustic_operator import CausticOperator, OperatorSettings
+from operators.materials import make_material
+from operators.scene import PointLight, Receiver, Scene, Substrate
+
+__all__ = ["build_scene", "build_heights", "build_operator", "to_plain"]
+
+SCENE_KEYS: dict[str, tuple[str, ...]] = {
+    "light": ("position", "power"),
+    "substrate": ("thickness", "half_width"),
+    "receiver": ("z", "resolution", "half_width"),
+}
+MATERIAL_KEYS: dict[str, tuple[str, ...]] = {
+    "fused_silica": (),
+    "sellmeier": ("b", "c"),
+    "cauchy": ("a", "b", "c"),
+    "constant": ("n",),
+}
+HEIGHT_FIELD_KEYS = ("shape", "resolution", "path", "scale", "params")
+OPERATOR_KEYS = ("footprint_px", "min_footprint_px", "max_pixel_radius", "chunk_size", "fresnel", "dtype", "device")
+DEFAULT_RESOLUTION = 128
+
+
+def to_plain(cfg: Any) -> Any:
+    """A resolved plain-Python copy of an OmegaConf node (dicts and lists); other values unchanged."""
+    if isinstance(cfg, (DictConfig, ListConfig)):
+        return OmegaConf.to_container(cfg, resolve=True)
+    return cfg
+
+
+def _group(cfg: Mapping[str, Any], name: str, allowed: tuple[str, ...]) -> dict[str, Any]:
+    """The mapping ``cfg[name]`` (empty if absent) with its keys checked against ``allowed``."""
+    value = to_plain(cfg.get(name))
+    if value is None:
+        return {}
+    if not isinstance(value, Mapping):
+        raise ValueError(f"{name}={value!r} must be a mapping with keys {', '.join(allowed)}")
+    for key in value:
+        if key not in allowed:
+            raise ValueError(f"unknown key {name}.{key}; allowed keys of {name}: {', '.join(allowed) or 'none'}")
+    return dict(value)
+
+
+def _number(name: str, value: Any, kind: type = float) -> Any:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ValueError(f"{name}={value!r} must be a number")
+    if kind is int:
+        if int(value) != value:
+            raise ValueError(f"{name}={value} must be an integer")
+        return int(value)
+    return float(value)
+
+
+def _build_material(cfg: Mapping[str, Any]) -> Any:
+    spec = to_plain(cfg.get("material")) or {"kind": "fused_silica"}
+    if not isinstance(spec, Mapping):
+        raise ValueError(f"material={spec!r} must be a mapping, e.g. {{kind: fused_silica}}")
+    kind = spec.get("kind", "fused_silica")
+    if kind not in MATERIAL_KEYS:
+        raise ValueError(f"unknown material.kind {kind!r}; use {', '.join(MATERIAL_KEYS)}")
+    allowed = ("kind", "name") + MATERIAL_KEYS[kind]
+    _group({"material": spec}, "material", allowed)
+    missing = [k for k in MATERIAL_KEYS[kind] if k not in spec and not (kind == "cauchy" and k != "a")]
+    if missing:
+        raise ValueError(f"material kind {kind!r} needs material.{missing[0]}; give e.g. material.{missing[0]}=...")
+    return make_material(dict(spec))
+
+
+def build_scene(cfg: Mapping[str, Any]) -> Scene:
+    """Scene (light, substrate, receiver, material, wavelengths in um) from the config's top-level keys."""
+    light = _group(cfg, "light", SCENE_KEYS["light"])
+    if "position" in light:
+        position = light["position"]
+        if not isinstance(position, (list, tuple)) or len(position) != 3:
+            raise ValueError(f"light.position={position!r} must be [x, y, z], e.g. light.position=[0,0,10]")
+        light["position"] = tuple(_number(f"light.position[{i}]", v) for i, v in enumerate(position))
+    if "power" in light:
+        light["power"] = _number("light.power", light["power"])
+    substrate = {k: _number(f"substrate.{k}", v) for k, v in _group(cfg, "substrate", SCENE_KEYS["substrate"]).items()}
+    receiver = _group(cfg, "receiver", SCENE_KEYS["receiver"])
+    receiver = {k: _number(f"receiver.{k}", v, int if k == "resolution" else float) for k, v in receiver.items()}
+    wavelengths = to_plain(cfg.get("wavelengths", [0.633]))
+    if isinstance(wavelengths, (int, float)) and not isinstance(wavelengths, bool):
+        wavelengths = [wavelengths]
+    if not isinstance(wavelengths, (list, tuple)):
+        raise ValueError(f"wavelengths={wavelengths!r} must be a list in micrometres, e.g. [0.633]")
+    return Scene(light=PointLight(**light), substrate=Substrate(**substrate), receiver=Receiver(**receiver),
+                 material=_build_material(cfg),
+                 wavelengths=tuple(_number(f"wavelengths[{i}]", v) for i, v in enumerate(wavelengths)))
+
+
+def build_heights(cfg: Mapping[str, Any], base_dir: str | Path | None = None) -> torch.Tensor:
+    """Heights d (m, m), float64, scene units, from ``height_field``.
+
+    ``path`` (a .npy or 8/16-bit .png/.tif, resolved against ``base_dir`` when relative) overrides
+    ``shape``; ``resolution`` m defaults to 128; ``scale`` multiplies the heights (for images:
+    the height of full white); ``params`` go to the shape function.
+    """
+    spec = _group(cfg, "height_field", HEIGHT_FIELD_KEYS)
+    resolution = _number("height_field.resolution", spec.get("resolution", DEFAULT_RESOLUTION), int)
+    scale = _number("height_field.scale", spec.get("scale", 1.0))
+    path = spec.get("path")
+    if path:
+        path = Path(path)
+        if not path.is_absolute() and base_dir is not None:
+            path = Path(base_dir) / path
+        heights = load_height_field(path, resolution=resolution, scale=scale)
+    else:
+        shape = spec.get("shape")
+        if not shape:
+            raise ValueError("height_field needs a shape (e.g. height_field.shape=print_lines) or a path")
+        params = spec.get("params") or {}
+        if not isinstance(params, Mapping):
+            raise ValueError(f"height_field.params={params!r} must be a mapping of shape parameters")
+        if not scale >= 0.0:
+            raise ValueError(f"height_field.scale={scale} must be >= 0, e.g. 1.0")
+        heights = scale * make_shape(str(shape), resolution, **dict(params))
+    return torch.from_numpy(np.ascontiguousarray(heights, dtype=np.float64))
+
+
+def build_operator(cfg: Mapping[str, Any], scene: Scene) -> CausticOperator:
+    """CausticOperator from ``photons``, ``seed`` and the ``operator`` group (OperatorSettings fields)."""
+    settings = _group(cfg, "operator", OPERATOR_KEYS)
+    photons = _number("photons", cfg.get("photons", OperatorSettings.photons), int)
+    if photons < scene.channels:
+        raise ValueError(f"photons={photons} is too few; need at least one per wavelength ({scene.channels})")
+    seed = _number("seed", cfg.get("seed", 0), int)
+    for key in ("footprint_px", "min_footprint_px", "max_pixel_radius"):
+        if key in settings:
+            settings[key] = _number(f"operator.{key}", settings[key])
+    if "chunk_size" in settings:
+        settings["chunk_size"] = _number("operator.chunk_size", settings["chunk_size"], int)
+    if "fresnel" in settings and not isinstance(settings["fresnel"], bool):
+        raise ValueError(f"operator.fresnel={settings['fresnel']!r} must be true or false")
+    device = str(settings.get("device", "cpu"))
+    try:
+        torch.device(device)
+    except RuntimeError:
+        raise ValueError(f"operator.device={device!r} is not a torch device; use cpu or cuda") from None
+    if device.startswith("cuda") and not torch.cuda.is_available():
+        raise ValueError(f"operator.device={device} but CUDA is not available here; use operator.device=cpu")
+    return CausticOperator(scene, OperatorSettings(photons=photons, seed=seed, **settings))
