@@ -58,7 +58,12 @@ def trace_substrate(heights: torch.Tensor, scene: Scene, batch: PhotonBatch, gla
     direction, d_direction, cos_i, cos_t, tir = refract(direction, d_direction, up, None, n_glass)
     if fresnel:
         flux = flux * fresnel_transmittance(cos_i, cos_t, n_glass)
-    flux = torch.where(inside & ~tir, flux, torch.zeros_like(flux))
+    # Lost photons continue straight down with zero flux and footprint, so that no grazing
+    # direction blows up their (unused) receiver footprint into inf/NaN gradients.
+    lost = ~inside | tir
+    flux = torch.where(lost, torch.zeros_like(flux), flux)
+    direction = torch.where(lost, -up, direction)
+    d_direction = torch.where(lost, torch.zeros_like(d_direction), d_direction)
 
     # Receiver plane z = s.
     position, d_position = transfer(position, d_position, direction, d_direction,

@@ -42,3 +42,14 @@ def test_loss_and_grad_is_the_gradient_of_the_squared_loss_and_independent_of_ch
     leaf = heights.clone().requires_grad_(True)
     (0.5 * ((op(leaf) - target) ** 2).sum()).backward()
     assert torch.allclose(leaf.grad, grad_a, rtol=1e-9, atol=1e-12 * float(grad_a.abs().max()))
+
+
+def test_gradient_stays_finite_when_steep_lines_cause_total_internal_reflection():
+    op = make_operator(photons=50_000, resolution=32, dtype="float32")
+    axis = torch.linspace(-1, 1, 64)
+    ridge = 0.08 * torch.exp(-axis ** 2 / (2 * 0.02 ** 2))  # slopes up to ~2.4: beyond the critical angle
+    heights = ridge.expand(64, 64).contiguous()
+    _, metric, flux, _ = op.splat_inputs(heights, 0, op.photons)
+    assert int((flux == 0).sum()) > 0 and bool(torch.isfinite(metric).all())
+    loss, grad, _ = op.loss_and_grad(heights, op.render(torch.zeros(64, 64)))
+    assert loss > 0 and bool(torch.isfinite(grad).all()) and float(grad.abs().max()) > 0
