@@ -57,8 +57,9 @@ class OperatorSettings:
                              f"({self.max_pixel_radius})")
 
 
-def validate_heights(heights: torch.Tensor) -> None:
-    """Refuse arrays that are not a finite, non-negative, square (m, m) height field with m >= 4."""
+def validate_heights(heights: torch.Tensor, thickness: float) -> None:
+    """Refuse arrays that are not a finite, square (m, m) height field (m >= 4) whose glass top
+    stays above the substrate bottom (d > -thickness; iterates of M1 may dip below d = 0)."""
     if not isinstance(heights, torch.Tensor):
         raise TypeError(f"heights must be a torch.Tensor, got {type(heights).__name__}")
     if heights.dim() != 2 or heights.shape[0] != heights.shape[1]:
@@ -67,8 +68,9 @@ def validate_heights(heights: torch.Tensor) -> None:
         raise ValueError(f"heights resolution {heights.shape[0]} is too small; use m >= 4")
     if not bool(torch.isfinite(heights).all()):
         raise ValueError("heights contain NaN or infinite values; clean the height field first")
-    if float(heights.min()) < 0.0:
-        raise ValueError(f"heights must be >= 0 (printed glass on the substrate), min is {float(heights.min()):.4g}")
+    if float(heights.min()) <= -thickness:
+        raise ValueError(f"heights reach {float(heights.min()):.4g}, below the substrate bottom "
+                         f"(d must exceed -thickness = {-thickness}); printed heights are >= 0")
 
 
 @register("operator", "height_field")
@@ -123,7 +125,7 @@ class CausticOperator:
         return image / self.pixel_area
 
     def _check(self, heights: torch.Tensor) -> None:
-        validate_heights(heights)
+        validate_heights(heights, self.scene.substrate.thickness)
         self.scene.check_heights_below_light(float(heights.max()))
 
     def render(self, heights: torch.Tensor, progress: bool = False) -> torch.Tensor:

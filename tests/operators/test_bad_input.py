@@ -13,7 +13,7 @@ from tests.operators.conftest import make_operator
 
 @pytest.mark.parametrize("heights, message", [
     (torch.full((16, 16), float("nan")), "NaN"),
-    (-0.01 * torch.ones(16, 16), ">= 0"),
+    (-0.2 * torch.ones(16, 16), "below the substrate bottom"),
     (torch.zeros(16, 12), "square"),
     (torch.zeros(16), "square"),
     (torch.full((16, 16), 20.0), "light"),

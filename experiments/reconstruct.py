@@ -1,0 +1,44 @@
+"""sfc-reconstruct: recover a printed height field from its caustic (Hydra app, conf/reconstruct.yaml).
+
+Examples::
+
+    sfc-reconstruct                                   # print_lines, M2V1, 5% noise
+    sfc-reconstruct experiment=m3v1 scene=oblique_lines
+    sfc-reconstruct -m experiment=m1,m2v0,m2v1,m3v0,m3v1 hydra/launcher=parallel
+    sfc-reconstruct data=file data.image=caustic.npy data.mask=mask.png data.volume=0.0669
+    sfc-reconstruct resume=outputs/<date>/<time>/checkpoint.pt
+
+Writes height_field.npy, metrics.json, figures and checkpoint.pt into the Hydra run directory
+and logs the run to MLflow (conf/tracking/mlflow.yaml).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import hydra
+from hydra.core.hydra_config import HydraConfig
+from hydra.types import RunMode
+from hydra.utils import get_original_cwd
+from omegaconf import DictConfig
+
+from framework.reconstruction import run_reconstruction
+from framework.scene_config import to_plain
+
+CONFIG_DIR = str(Path(__file__).resolve().parent.parent / "conf")
+
+
+@hydra.main(version_base=None, config_path=CONFIG_DIR, config_name="reconstruct")
+def main(cfg: DictConfig) -> None:
+    """Hydra entry point: one reconstruction per job; multirun jobs share an MLflow sweep id."""
+    hydra_cfg = HydraConfig.get()
+    output_dir = Path(hydra_cfg.runtime.output_dir)
+    sweep_id = hydra_cfg.sweep.dir if hydra_cfg.mode == RunMode.MULTIRUN else None
+    metrics = run_reconstruction(to_plain(cfg), output_dir, Path(get_original_cwd()), sweep_id=sweep_id)
+    print(json.dumps(metrics, indent=2))
+    print(f"wrote height_field.npy, metrics.json and figures to {output_dir}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,154 @@
+"""One reconstruction, end to end: data -> operator -> solver -> outputs, tracked in MLflow.
+
+Used by ``sfc-reconstruct`` (experiments/reconstruct.py); kept here so that the app stays thin
+and tests can run a reconstruction without Hydra's command line.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import time
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from framework.callbacks import Checkpointer, GroundTruthError, MetricsHistory, MorozovStopping, ProgressBar
+from framework.checkpoint import resume as resume_solver
+from framework.data import ReconstructionData, measured_data, synthetic_data
+from framework.image_io import load_caustic_image, load_mask
+from framework.objective import DataFidelity
+from framework.report_figures import save_reconstruction_figures
+from framework.scene_config import build_heights, build_operator, build_scene, to_plain
+from framework.solver_config import build_solver
+from framework.tracking import MlflowTracker
+from operators.caustic_operator import CausticOperator
+from operators.scene import Scene
+from regularizers import RegularizerContext, mask_from_height_field
+
+CHECKPOINT = "checkpoint.pt"
+
+
+def height_pixel_area(scene: Scene, resolution: int) -> float:
+    """Area a of one height sample (scene units^2): samples are spaced 2 W / (m - 1)."""
+    return (2.0 * scene.substrate.half_width / (resolution - 1)) ** 2
+
+
+def _reference_operator(cfg: Mapping[str, Any], scene: Scene, seed: int) -> CausticOperator:
+    """Operator that renders synthetic references: more photons, own receiver size, own seed."""
+    data = cfg["data"]
+    resolution = int(data["reference_resolution"])
+    receiver = dataclasses.replace(scene.receiver, resolution=resolution)
+    # Footprints are given in receiver pixels: scale them so the reference blurs like the model.
+    zoom = resolution / scene.receiver.resolution
+    settings = dict(cfg["operator"])
+    for key in ("footprint_px", "min_footprint_px", "max_pixel_radius"):
+        if key in settings:
+            settings[key] = float(settings[key]) * zoom
+    ref_cfg = {**cfg, "photons": int(data["reference_photons"]), "seed": seed, "operator": settings}
+    return build_operator(ref_cfg, dataclasses.replace(scene, receiver=receiver))
+
+
+def build_data(cfg: Mapping[str, Any], scene: Scene, operator: CausticOperator, base_dir: Path) -> ReconstructionData:
+    """Synthetic data from the configured height field, or measured data from files (``data.kind``)."""
+    data = cfg["data"]
+    kind = data["kind"]
+    m = int(cfg["height_field"]["resolution"])
+    if kind == "synthetic":
+        truth = build_heights(cfg, base_dir=base_dir)
+        seed = int(cfg["seed"])
+        first = _reference_operator(cfg, scene, seed + 1000)
+        second = _reference_operator(cfg, scene, seed + 2000)
+        return synthetic_data(truth.to(operator.dtype), first.render, second.render, scene.receiver.resolution,
+                              float(data["delta"]), seed, height_pixel_area(scene, m),
+                              float(data["mask_threshold"]), float(data["mask_dilation"]))
+    if kind == "file":
+        if not data.get("image"):
+            raise ValueError("data.kind=file needs data.image=<caustic .npy/.png/.tif>")
+        image = load_caustic_image(_resolve(data["image"], base_dir))
+        if image.shape[0] != scene.channels:
+            raise ValueError(f"data.image has {image.shape[0]} channel(s) but the scene has {scene.channels} "
+                             "wavelength(s); set wavelengths=[...] to match")
+        mask_spec = data.get("mask")
+        if mask_spec in (None, "none"):
+            mask = torch.ones(m, m, dtype=torch.bool)
+        elif mask_spec == "design":
+            mask = mask_from_height_field(build_heights(cfg, base_dir=base_dir), float(data["mask_threshold"]),
+                                          float(data["mask_dilation"]))
+        else:
+            mask = load_mask(_resolve(mask_spec, base_dir), m)
+        flat_total = None
+        if data.get("brightness", "energy") == "energy":
+            flat_total = float(operator.render(torch.zeros(m, m, dtype=operator.dtype)).sum())
+        volume = data.get("volume")
+        return measured_data(image, scene.receiver.resolution, float(data["delta"]), mask,
+                             None if volume is None else float(volume), flat_total)
+    raise ValueError(f"unknown data.kind {kind!r}; use synthetic or file")
+
+
+def _resolve(path: str, base_dir: Path) -> Path:
+    p = Path(path).expanduser()
+    return p if p.is_absolute() else base_dir / p
+
+
+def _errors(d: torch.Tensor, data: ReconstructionData, h: float) -> dict[str, float]:
+    if data.ground_truth is None:
+        return {}
+    return GroundTruthError(data.ground_truth, h).errors(d.double())
+
+
+def run_reconstruction(cfg: Mapping[str, Any], output_dir: Path, base_dir: Path,
+                       sweep_id: str | None = None) -> dict[str, Any]:
+    """Reconstruct the configured scene into ``output_dir``; returns the metrics written to metrics.json."""
+    output_dir.mkdir(parents=True, exist_ok=True)
+    scene = build_scene(cfg)
+    operator = build_operator(cfg, scene)
+    m = int(cfg["height_field"]["resolution"])
+    tracking = cfg["tracking"]
+    tags = {"method": cfg.get("method", "custom"), "scene": cfg["height_field"].get("shape", "file"),
+            "data": cfg["data"]["kind"]}
+    with MlflowTracker(experiment=tracking["experiment"], run_name=cfg.get("method"),
+                       store_dir=_resolve(tracking["store_dir"], base_dir), tracking_uri=tracking.get("uri"),
+                       params=to_plain(cfg), tags=tags, sweep_id=sweep_id) as tracker:
+        start = time.perf_counter()
+        data = build_data(cfg, scene, operator, base_dir)
+        data_seconds = time.perf_counter() - start
+        context = RegularizerContext(mask=data.mask, volume=data.volume, pixel_area=height_pixel_area(scene, m))
+        fidelity = DataFidelity(operator, data.target.to(operator.dtype))
+        d0 = torch.zeros(m, m, dtype=operator.dtype)
+        solver = build_solver(cfg["solver"], fidelity, d0, cfg.get("regularizers"), cfg.get("post_steps"),
+                              cfg.get("wavelet"), context)
+        history = MetricsHistory()
+        callbacks = [history, MorozovStopping(data.delta, float(cfg["solver"]["tau_dis"])),
+                     ProgressBar(desc=str(cfg.get("method", "reconstruct"))),
+                     Checkpointer(output_dir / CHECKPOINT, every=int(cfg["checkpoint_every"])),
+                     tracker.metrics_callback()]
+        if data.ground_truth is not None:
+            callbacks.append(GroundTruthError(data.ground_truth.to(operator.dtype), scene.substrate.thickness))
+        max_iter = int(cfg["solver"]["max_iter"])
+        solve_start = time.perf_counter()
+        if cfg.get("resume"):
+            result = resume_solver(solver, _resolve(str(cfg["resume"]), base_dir), max_iter, callbacks)
+        else:
+            result = solver.run(max_iter, callbacks)
+        solve_seconds = time.perf_counter() - solve_start
+        d = result.d.detach()
+        prediction = operator.render(d)
+        residual = float(torch.linalg.vector_norm((prediction - data.target.to(prediction)).double()))
+        metrics: dict[str, Any] = {
+            "method": cfg.get("method", "custom"), "iterations": result.iterations,
+            "stop_reason": result.stop_reason, "stopped_by": result.stopped_by,
+            "run_time_s": solve_seconds, "data_time_s": data_seconds,
+            "rel_discrepancy": residual / float(torch.linalg.vector_norm(data.target.double())),
+            "delta": data.delta, "intrinsic_noise": data.intrinsic_noise,
+            "photons_per_iteration": operator.photons, **_errors(d, data, scene.substrate.thickness)}
+        np.save(output_dir / "height_field.npy", d.cpu().numpy().astype(np.float64))
+        (output_dir / "metrics.json").write_text(json.dumps(metrics, indent=2))
+        save_reconstruction_figures(output_dir, d, data, prediction, history.columns(), scene)
+        tracker.log_metrics({k: v for k, v in metrics.items() if isinstance(v, (int, float)) and v is not None
+                             and not isinstance(v, bool)})
+        tracker.log_artifacts(output_dir)
+    return metrics

@@ -1,0 +1,67 @@
+"""Building a solver, its regularisers and step-size policy from config (registry keys only)."""
+
+from __future__ import annotations
+
+import inspect
+from collections.abc import Mapping
+from typing import Any
+
+import torch
+
+from framework.objective import DataFidelity
+from framework.registry import build, lookup
+from framework.solvers.step_size import BacktrackingStep, ConstantStep, StepSizePolicy
+from regularizers import RegularizerContext
+
+
+def make_step_size(spec: Mapping[str, Any]) -> StepSizePolicy:
+    """``{policy: constant, tau: 1.0}`` or ``{policy: backtracking, tau: 4.0, shrink: 0.5, grow: 1.25}``."""
+    params = dict(spec)
+    policy = params.pop("policy", "constant")
+    tau = params.pop("tau")
+    if policy == "constant":
+        if params:
+            raise ValueError(f"step_size.policy=constant takes only tau; remove {sorted(params)}")
+        return ConstantStep(tau)
+    if policy == "backtracking":
+        return BacktrackingStep(tau, **params)
+    raise ValueError(f"unknown step_size.policy {policy!r}; use constant or backtracking")
+
+
+def build_plugins(specs: Mapping[str, Any] | None) -> list[Any]:
+    """Regularisers / post-step updates from ``{registry_name: {params}}``, in config order."""
+    return [build("regularizer", name, **dict(params or {})) for name, params in (specs or {}).items()]
+
+
+def build_solver(solver_cfg: Mapping[str, Any], data: DataFidelity, d0: torch.Tensor,
+                 regularizer_cfg: Mapping[str, Any] | None, post_step_cfg: Mapping[str, Any] | None,
+                 wavelet_cfg: Mapping[str, Any] | None, context: RegularizerContext) -> Any:
+    """Instantiate the registered solver ``solver_cfg.name`` with the parts it takes.
+
+    A part that is configured but that the solver does not use (e.g. regularisers for gradient
+    descent) is an error rather than silently ignored.
+    """
+    name = solver_cfg["name"]
+    cls = lookup("solver", name)
+    accepted = set(inspect.signature(cls.__init__).parameters)
+    regularizers = build_plugins(regularizer_cfg)
+    parts: dict[str, Any] = {"data": data, "d0": d0, "step_size": make_step_size(solver_cfg["step_size"])}
+    offered: dict[str, tuple[Any, bool]] = {
+        "regularizers": (regularizers, bool(regularizers)),
+        "pixel_regularizers": (regularizers, bool(regularizers)),
+        "post_steps": (build_plugins(post_step_cfg), bool(post_step_cfg)),
+        "context": (context, False),
+    }
+    if wavelet_cfg:
+        wavelet_regularizer = build("regularizer", "l1_wavelet", **dict(wavelet_cfg))
+        offered["wavelet_regularizer"] = (wavelet_regularizer, True)
+        offered["wavelet"] = (wavelet_regularizer.transform_for(tuple(d0.shape)), True)
+    for key, (value, configured) in offered.items():
+        if key in accepted:
+            parts[key] = value
+    used = {k for k in offered if k in accepted}
+    unused = [k for k, (_, configured) in offered.items() if configured and k not in used]
+    if unused and not ({"regularizers", "pixel_regularizers"} & used and set(unused) <= {"regularizers", "pixel_regularizers"}):
+        raise ValueError(f"solver {name} does not use {', '.join(sorted(set(unused)))}; remove them from the config "
+                         "or pick a solver that does (landweber_pixel, landweber_wavelet)")
+    return cls(**parts)
