@@ -1,4 +1,4 @@
-"""The data term of every reconstruction: f(d) = 1/2 ||F(d) - b||_F^2 / ||b||_F^2.
+"""The data term of every reconstruction: f(d) = 1/2 ||F(d) - b||_F^2 / (||b||_F^2 a).
 
 method.md section 4 writes the data term as f(d) = 1/2 ||F(d) - b^delta||_F^2. We divide it
 by ||b^delta||_F^2 so that f is dimensionless and does not depend on the brightness or units of
@@ -8,7 +8,9 @@ of relative squared residual, and the same tau works for a dim and a bright imag
 taken from the official code (tau_p = 0.1, ...) are in that code's own image scaling and must be
 re-tuned in this unit.
 
-The relative discrepancy ||F(d) - b||_F / ||b||_F (method.md section 3) equals sqrt(2 f(d)).
+The optional cell area a (default 1) makes the unit resolution independent as well (see
+:class:`DataFidelity`). The relative discrepancy ||F(d) - b||_F / ||b||_F (method.md section 3)
+equals sqrt(2 a f(d)).
 """
 
 from __future__ import annotations
@@ -92,6 +94,10 @@ class DataFidelity:
             negative values (additive noise) but its total energy must be positive.
         max_negative_fraction: Refuse a target whose negative mass exceeds this fraction of its
             positive mass (a sign or offset error, not noise).
+        cell_area: Area a of one height sample (scene units^2). f is divided by a, which makes
+            grad f the gradient in the L2 metric of the substrate (sum_j a u_j v_j) rather than of
+            the sample vector: step sizes and L1 weights then mean the same at every height-field
+            resolution m (the per-sample gradient of f shrinks like a as m grows).
 
     Example:
         >>> A = torch.eye(4, dtype=torch.float64)
@@ -103,7 +109,11 @@ class DataFidelity:
         1.0
     """
 
-    def __init__(self, operator: ForwardOperator, target: Tensor, max_negative_fraction: float = 0.25) -> None:
+    def __init__(self, operator: ForwardOperator, target: Tensor, max_negative_fraction: float = 0.25,
+                 cell_area: float = 1.0) -> None:
+        if not (math.isfinite(cell_area) and cell_area > 0.0):
+            raise ValueError(f"cell_area={cell_area} must be a positive area (scene units^2)")
+        self.cell_area = float(cell_area)
         if not callable(operator) or not callable(getattr(operator, "loss_and_grad", None)):
             raise ValueError(
                 f"operator {type(operator).__name__} must be callable and have loss_and_grad(d, target); "
@@ -172,7 +182,7 @@ class DataFidelity:
                     f"operator {type(self.operator).__name__} returned a gradient of shape "
                     f"{tuple(grad.shape)} for d of shape {tuple(d.shape)}"
                 )
-            grad = grad.detach() / self.target_norm_sq
+            grad = grad.detach() / (self.target_norm_sq * self.cell_area)
         else:
             with torch.no_grad():
                 image = self.operator(d)
@@ -181,7 +191,7 @@ class DataFidelity:
         self._check_image(image)
         residual_norm = float(torch.linalg.vector_norm((image - self.target).double()))
         rel = residual_norm / self.target_norm
-        return DataEvaluation(value=0.5 * rel * rel, grad=grad, image=image, rel_discrepancy=rel)
+        return DataEvaluation(value=0.5 * rel * rel / self.cell_area, grad=grad, image=image, rel_discrepancy=rel)
 
     def value(self, d: Tensor) -> float:
         """f(d) by one forward pass."""

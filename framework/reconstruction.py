@@ -116,8 +116,9 @@ def run_reconstruction(cfg: Mapping[str, Any], output_dir: Path, base_dir: Path,
         start = time.perf_counter()
         data = build_data(cfg, scene, operator, base_dir)
         data_seconds = time.perf_counter() - start
-        context = RegularizerContext(mask=data.mask, volume=data.volume, pixel_area=height_pixel_area(scene, m))
-        fidelity = DataFidelity(operator, data.target.to(operator.dtype))
+        cell_area = height_pixel_area(scene, m)
+        context = RegularizerContext(mask=data.mask, volume=data.volume, pixel_area=cell_area)
+        fidelity = DataFidelity(operator, data.target.to(operator.dtype), cell_area=cell_area)
         d0 = torch.zeros(m, m, dtype=operator.dtype)
         solver = build_solver(cfg["solver"], fidelity, d0, cfg.get("regularizers"), cfg.get("post_steps"),
                               cfg.get("wavelet"), context)

@@ -9,6 +9,9 @@ import torch
 from operators.splat_kernels import splat_backward, splat_forward
 
 
+MAX_DIFFERENTIAL_PX = 1e6
+
+
 def footprint_metric(footprint: torch.Tensor, min_radius_px: float, max_radius_px: float) -> torch.Tensor:
     """Metric Q (3, N) = (q00, q01, q11) of each photon's footprint ellipse, in pixel units.
 
@@ -18,7 +21,10 @@ def footprint_metric(footprint: torch.Tensor, min_radius_px: float, max_radius_p
     falls between pixel centres, even at a focus) and scaled down where its major semi-axis
     exceeds max_radius_px (the paper's cut-off). Returns Q = C^-1.
     """
-    du, dv = footprint[0], footprint[1]
+    # Grazing photons can carry astronomically large differentials; bound them (far above any
+    # footprint the cut-off lets through) so that squaring cannot overflow to inf / NaN.
+    bounded = footprint.clamp(-MAX_DIFFERENTIAL_PX, MAX_DIFFERENTIAL_PX)
+    du, dv = bounded[0], bounded[1]
     c00 = du[0] ** 2 + dv[0] ** 2 + min_radius_px ** 2
     c01 = du[0] * du[1] + dv[0] * dv[1]
     c11 = du[1] ** 2 + dv[1] ** 2 + min_radius_px ** 2

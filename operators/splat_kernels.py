@@ -39,9 +39,13 @@ def _row_range(q00, q01, q11, py) -> tuple[int, int]:
     return int(math.ceil(py - half)), int(math.floor(py + half))
 
 
+# Photons farther than this from the image (pixels) are skipped: nothing of theirs can land.
+FAR_PX = 1e7
+
+
 @nb.njit(cache=True, inline="always", fastmath=FAST_MATH, error_model="numpy")
 def _usable(f, px, py, q00, q01, q11) -> bool:
-    return (f != 0.0 and math.isfinite(f) and math.isfinite(px) and math.isfinite(py)
+    return (f != 0.0 and math.isfinite(f) and abs(px) < FAR_PX and abs(py) < FAR_PX
             and q00 > 0.0 and q11 > 0.0 and q00 * q11 - q01 * q01 > 0.0)
 
 

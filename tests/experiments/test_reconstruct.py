@@ -1,0 +1,96 @@
+"""End-to-end reconstructions with the real operator on small problems."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+import torch
+from mlflow.tracking import MlflowClient
+
+from framework.reconstruction import CHECKPOINT, run_reconstruction
+from tests.experiments.conftest import SMALL, compose_reconstruct
+
+BUMP = ["scene=bump", "height_field.params.sigma=0.3", "height_field.params.height=0.04"]
+
+
+def test_smooth_bump_is_recovered_and_the_run_is_tracked(tmp_path):
+    cfg = compose_reconstruct([*SMALL, *BUMP, "solver.max_iter=40"], tmp_path)
+    metrics = run_reconstruction(cfg, tmp_path / "run", tmp_path)
+    # d = 0 has rel_error_d = 1; the bump comes back to within a fraction of itself.
+    assert metrics["rel_error_d"] < 0.3, metrics
+    assert metrics["rel_error"] < 0.03, metrics
+    heights = np.load(tmp_path / "run" / "height_field.npy")
+    assert heights.shape == (32, 32) and heights.min() >= 0.0
+    saved = json.loads((tmp_path / "run" / "metrics.json").read_text())
+    assert saved["iterations"] == metrics["iterations"] and saved["stop_reason"]
+    for name in ("heights.png", "centre_slice.png", "caustics.png", "convergence.png", CHECKPOINT):
+        assert (tmp_path / "run" / name).is_file(), name
+
+    client = MlflowClient(tracking_uri=f"sqlite:///{tmp_path / 'mlruns' / 'mlflow.db'}")
+    experiment = client.get_experiment_by_name("shape-from-caustics")
+    (run,) = client.search_runs([experiment.experiment_id])
+    assert run.info.status == "FINISHED"
+    assert run.data.tags["method"] == "M2V1" and run.data.tags["scene"] == "bump"
+    assert run.data.params["solver.name"] == "landweber_pixel"
+    history = client.get_metric_history(run.info.run_id, "rel_discrepancy")
+    assert len(history) >= metrics["iterations"]
+    artifacts = {a.path for a in client.list_artifacts(run.info.run_id)}
+    assert {"height_field.npy", "metrics.json"} <= artifacts
+
+
+def test_resume_continues_an_interrupted_run_to_the_same_result(tmp_path):
+    base = [*SMALL, *BUMP, "data.delta=0.01"]
+    full = run_reconstruction(compose_reconstruct([*base, "solver.max_iter=6"], tmp_path),
+                              tmp_path / "full", tmp_path)
+    run_reconstruction(compose_reconstruct([*base, "solver.max_iter=4"], tmp_path), tmp_path / "part", tmp_path)
+    resumed = run_reconstruction(
+        compose_reconstruct([*base, "solver.max_iter=6", f"resume={tmp_path / 'part' / CHECKPOINT}"], tmp_path),
+        tmp_path / "resumed", tmp_path)
+    assert resumed["iterations"] == full["iterations"] == 6
+    assert np.array_equal(np.load(tmp_path / "full" / "height_field.npy"),
+                          np.load(tmp_path / "resumed" / "height_field.npy"))
+
+
+@pytest.mark.parametrize("experiment", ["m1", "m2v0", "m2v1", "m2v2", "m3v0", "m3v1", "m3v2"])
+def test_every_experiment_preset_runs_two_iterations(tmp_path, experiment):
+    cfg = compose_reconstruct([*SMALL, f"experiment={experiment}", "solver.max_iter=2"], tmp_path)
+    metrics = run_reconstruction(cfg, tmp_path / experiment, tmp_path)
+    assert metrics["iterations"] == 2 and math.isfinite(metrics["rel_error"])
+    assert metrics["method"] == experiment.upper()
+
+
+def test_measured_data_from_files(tmp_path):
+    image = torch.rand(1, 64, 64).numpy() + 0.5
+    np.save(tmp_path / "caustic.npy", image)
+    mask = np.zeros((32, 32), dtype=np.uint8)
+    mask[8:24, 8:24] = 1
+    np.save(tmp_path / "mask.npy", mask)
+    cfg = compose_reconstruct([*SMALL, "data=file", "data.image=caustic.npy", "data.mask=mask.npy",
+                               "data.volume=0.01", "solver.max_iter=2"], tmp_path)
+    metrics = run_reconstruction(cfg, tmp_path / "run", tmp_path)
+    heights = np.load(tmp_path / "run" / "height_field.npy")
+    assert metrics["iterations"] == 2 and "rel_error" not in metrics
+    assert np.all(heights[mask == 0] == 0.0)
+
+
+@pytest.mark.parametrize("overrides, error, message", [
+    (["data=file"], ValueError, "data.image"),
+    (["data=file", "data.image=missing.npy"], FileNotFoundError, "missing.npy"),
+    (["data=file", "data.image=caustic.npy", "data.mask=small_mask.npy"], ValueError, "must match the height field"),
+    (["data=file", "data.image=nan.npy"], ValueError, "NaN"),
+    (["data.delta=0.0001"], ValueError, "intrinsic noise"),
+    (["data.delta=1.5"], ValueError, "data.delta=1.5"),
+    (["experiment=m1", "+regularizers.l1_pixel.alpha=0.1"], ValueError, "does not use regularizers"),
+    (["regularizers.no_such_prior={}"], KeyError, "no_such_prior"),
+    (["solver.step_size.policy=adam"], ValueError, "adam"),
+])
+def test_bad_configuration_is_refused_clearly(tmp_path, overrides, error, message):
+    np.save(tmp_path / "caustic.npy", np.ones((1, 64, 64)))
+    np.save(tmp_path / "small_mask.npy", np.ones((16, 16)))
+    np.save(tmp_path / "nan.npy", np.full((1, 64, 64), np.nan))
+    cfg = compose_reconstruct([*SMALL, *overrides, "solver.max_iter=1"], tmp_path)
+    with pytest.raises(error, match=message):
+        run_reconstruction(cfg, tmp_path / "run", tmp_path)
