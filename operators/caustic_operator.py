@@ -52,8 +52,8 @@ class OperatorSettings:
             raise ValueError(f"dtype={self.dtype!r} is not supported; use float32 or float64")
         if int(self.chunk_size) != self.chunk_size or self.chunk_size < 1:
             raise ValueError(f"chunk_size={self.chunk_size} must be a positive integer, e.g. 262144")
-        if not 0.0 < self.min_footprint_px <= self.max_pixel_radius:
-            raise ValueError(f"need 0 < min_footprint_px ({self.min_footprint_px}) <= max_pixel_radius "
+        if not 0.0 < self.min_footprint_px < self.max_pixel_radius:
+            raise ValueError(f"need 0 < min_footprint_px ({self.min_footprint_px}) < max_pixel_radius "
                              f"({self.max_pixel_radius})")
 
 

@@ -14,6 +14,15 @@ def dot(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     return (a * b).sum(-2)
 
 
+GRAZING = 1e-6
+
+
+def away_from_zero(x: torch.Tensor, eps: float = GRAZING) -> torch.Tensor:
+    """x with magnitudes below eps raised to eps (sign kept): a safe denominator for grazing rays,
+    whose values stay finite so that neither the forward pass nor autograd produces inf / NaN."""
+    return torch.where(x.abs() < eps, torch.where(x < 0, -eps, eps) * torch.ones_like(x), x)
+
+
 def transfer(position: torch.Tensor, d_position: torch.Tensor, direction: torch.Tensor,
              d_direction: torch.Tensor, distance: torch.Tensor,
              normal: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -23,7 +32,7 @@ def transfer(position: torch.Tensor, d_position: torch.Tensor, direction: torch.
     D p' = D p + t D w + D t w, with D t = -(D p + t D w) . n / (w . n).
     """
     moved = d_position + distance * d_direction
-    d_distance = -dot(moved, normal) / dot(direction, normal)
+    d_distance = -dot(moved, normal) / away_from_zero(dot(direction, normal))
     return position + distance * direction, moved + d_distance.unsqueeze(-2) * direction
 
 

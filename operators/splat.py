@@ -16,23 +16,25 @@ def footprint_metric(footprint: torch.Tensor, min_radius_px: float, max_radius_p
     """Metric Q (3, N) = (q00, q01, q11) of each photon's footprint ellipse, in pixel units.
 
     ``footprint`` (2, 2, N) holds the positional differentials Du, Dv (in pixels) on the
-    receiver; the footprint {a Du + b Dv : a^2 + b^2 <= 1} is the ellipse r^T C^-1 r <= 1 with
-    C = Du Du^T + Dv Dv^T. C is widened by min_radius_px^2 I (a pixel filter: a photon never
-    falls between pixel centres, even at a focus) and scaled down where its major semi-axis
-    exceeds max_radius_px (the paper's cut-off). Returns Q = C^-1.
+    receiver; the footprint {a Du + b Dv : a^2 + b^2 <= 1} is the ellipse r^T A^-1 r <= 1 with
+    A = Du Du^T + Dv Dv^T. A is scaled down where its major semi-axis exceeds the cut-off
+    (the paper's maximum radius), then widened by min_radius_px^2 I, a pixel filter: no photon
+    falls between pixel centres, even at a focus. Returns Q = (A + r0^2 I)^-1, computed in
+    float64 with det = det A + r0^2 tr A + r0^4 so that near-degenerate footprints stay exact.
     """
     # Grazing photons can carry astronomically large differentials; bound them (far above any
-    # footprint the cut-off lets through) so that squaring cannot overflow to inf / NaN.
-    bounded = footprint.clamp(-MAX_DIFFERENTIAL_PX, MAX_DIFFERENTIAL_PX)
+    # footprint the cut-off lets through) so that squaring cannot overflow.
+    bounded = footprint.double().clamp(-MAX_DIFFERENTIAL_PX, MAX_DIFFERENTIAL_PX)
     du, dv = bounded[0], bounded[1]
-    c00 = du[0] ** 2 + dv[0] ** 2 + min_radius_px ** 2
-    c01 = du[0] * du[1] + dv[0] * dv[1]
-    c11 = du[1] ** 2 + dv[1] ** 2 + min_radius_px ** 2
-    major = 0.5 * (c00 + c11) + torch.sqrt(0.25 * (c00 - c11) ** 2 + c01 ** 2 + 1e-30)
-    scale = torch.clamp(max_radius_px ** 2 / major, max=1.0)
-    c00, c01, c11 = c00 * scale, c01 * scale, c11 * scale
-    det = c00 * c11 - c01 ** 2
-    return torch.stack([c11 / det, -c01 / det, c00 / det])
+    a00 = du[0] ** 2 + dv[0] ** 2
+    a01 = du[0] * du[1] + dv[0] * dv[1]
+    a11 = du[1] ** 2 + dv[1] ** 2
+    major = 0.5 * (a00 + a11) + torch.sqrt(0.25 * (a00 - a11) ** 2 + a01 ** 2 + 1e-300)
+    r2 = min_radius_px ** 2
+    scale = torch.clamp((max_radius_px ** 2 - r2) / major.clamp(min=1e-300), max=1.0)
+    a00, a01, a11 = a00 * scale, a01 * scale, a11 * scale
+    det = (a00 * a11 - a01 ** 2).clamp(min=0.0) + r2 * (a00 + a11) + r2 * r2
+    return torch.stack([(a11 + r2) / det, -a01 / det, (a00 + r2) / det]).to(footprint.dtype)
 
 
 def footprint_capacity(metric: np.ndarray) -> int:

@@ -8,7 +8,7 @@ import torch
 
 from operators.emission import PhotonBatch
 from operators.heightfield_surface import HeightFieldGrid, intersect_height_field
-from operators.optics import (fresnel_transmittance, height_field_normal, height_field_normal_differential,
+from operators.optics import (away_from_zero, fresnel_transmittance, height_field_normal, height_field_normal_differential,
                               refract, transfer)
 from operators.scene import Scene
 
@@ -52,7 +52,7 @@ def trace_substrate(heights: torch.Tensor, scene: Scene, batch: PhotonBatch, gla
     # Flat bottom z = 0: refraction glass -> air.
     up = torch.tensor([0.0, 0.0, 1.0], dtype=direction.dtype, device=direction.device).unsqueeze(-1)
     position, d_position = transfer(position, d_position, direction, d_direction,
-                                    -position[2] / direction[2], up)
+                                    -position[2] / away_from_zero(direction[2]), up)
     half = scene.substrate.half_width
     inside = (position[0].abs() <= half) & (position[1].abs() <= half)
     direction, d_direction, cos_i, cos_t, tir = refract(direction, d_direction, up, None, n_glass)
@@ -67,5 +67,5 @@ def trace_substrate(heights: torch.Tensor, scene: Scene, batch: PhotonBatch, gla
 
     # Receiver plane z = s.
     position, d_position = transfer(position, d_position, direction, d_direction,
-                                    (scene.receiver.z - position[2]) / direction[2], up)
+                                    (scene.receiver.z - position[2]) / away_from_zero(direction[2]), up)
     return ReceiverHits(position=position[:2], footprint=d_position[:, :2], flux=flux, channel=batch.channel)

@@ -13,7 +13,7 @@ from mlflow.tracking import MlflowClient
 from framework.reconstruction import CHECKPOINT, run_reconstruction
 from tests.experiments.conftest import SMALL, compose_reconstruct
 
-BUMP = ["scene=bump", "height_field.params.sigma=0.3", "height_field.params.height=0.04"]
+BUMP = ["scene=bump", "height_field.params.sigma=0.3", "height_field.params.height=0.06", "data.delta=0.01"]
 
 
 def test_smooth_bump_is_recovered_and_the_run_is_tracked(tmp_path):
@@ -42,7 +42,7 @@ def test_smooth_bump_is_recovered_and_the_run_is_tracked(tmp_path):
 
 
 def test_resume_continues_an_interrupted_run_to_the_same_result(tmp_path):
-    base = [*SMALL, *BUMP, "data.delta=0.01"]
+    base = [*SMALL, *BUMP]
     full = run_reconstruction(compose_reconstruct([*base, "solver.max_iter=6"], tmp_path),
                               tmp_path / "full", tmp_path)
     run_reconstruction(compose_reconstruct([*base, "solver.max_iter=4"], tmp_path), tmp_path / "part", tmp_path)

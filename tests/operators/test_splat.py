@@ -85,3 +85,13 @@ def test_footprint_metric_is_the_inverse_covariance_with_pixel_filter_and_cut_of
     big = footprint_metric(torch.stack([du * 100, dv]), 1.0, 20.0)[:, 0]
     major_axis = (1.0 / big[0]).sqrt()
     assert abs(float(major_axis) - 20.0) < 1e-9
+
+
+def test_nearly_degenerate_huge_footprint_gives_a_finite_well_shaped_ellipse():
+    # A rank-1 footprint of ~4e5 px (a photon near a focal line on a steep flank), in float32.
+    footprint = torch.tensor([[[2958.4 * 128], [482.1146 * 128]], [[521.2621 * 128], [85.1678 * 128]]])
+    q = footprint_metric(footprint, 1.0, 20.0)[:, 0].double()
+    assert bool(torch.isfinite(q).all())
+    eig = torch.linalg.eigvalsh(torch.tensor([[q[0], q[1]], [q[1], q[2]]]))
+    semi_axes = 1.0 / eig.sqrt()
+    assert abs(float(semi_axes.max()) - 20.0) < 1e-3 and abs(float(semi_axes.min()) - 1.0) < 1e-3

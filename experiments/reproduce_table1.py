@@ -1,0 +1,128 @@
+"""Reproduce the paper's Table 1 and Fig. 5: run the method presets (Hydra multirun), then build
+the table from the MLflow store beside the paper's numbers.
+
+    python -m experiments.reproduce_table1                 # run all presets, then tabulate
+    python -m experiments.reproduce_table1 --table-only    # tabulate the latest sweep in the store
+    python -m experiments.reproduce_table1 --overrides photons=2097152
+
+Writes table1.md, table1.csv and fig5_centre_slices.png into --out (default docs/results).
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+from matplotlib.figure import Figure
+
+from framework.shapes import make_shape
+
+METHODS = ["M2V1", "M3V1", "M1", "M2V0", "M3V0", "M2V2", "M3V2"]
+# Paper Table 1 (Titan RTX GPU): run time (min), rel. discrepancy, rel. error, iterations.
+PAPER = {"M2V1": (2.95, 0.0504, 0.0648, 72), "M3V1": (2.77, 0.0505, 0.0658, 65), "M1": (6.62, 0.0549, 0.1800, 162),
+         "M2V0": (4.72, 0.0600, 0.1086, 114), "M3V0": (4.38, 0.0598, 0.1065, 102)}
+EXPERIMENT = "table1"
+
+
+def run_sweep(store: Path, extra: list[str]) -> None:
+    """One Hydra multirun over the presets; each job is an MLflow run tagged with the sweep."""
+    presets = ",".join(m.lower() for m in METHODS)
+    cmd = [sys.executable, "-m", "experiments.reconstruct", "-m", f"experiment={presets}",
+           f"tracking.experiment={EXPERIMENT}", f"tracking.store_dir={store}", *extra]
+    subprocess.run(cmd, check=True)
+
+
+def latest_sweep_runs(store: Path) -> list:
+    """Finished runs of the most recent sweep in the store, one per method."""
+    from mlflow.tracking import MlflowClient
+
+    client = MlflowClient(tracking_uri=f"sqlite:///{store / 'mlflow.db'}")
+    experiment = client.get_experiment_by_name(EXPERIMENT)
+    if experiment is None:
+        raise SystemExit(f"no '{EXPERIMENT}' experiment in {store}; run without --table-only first")
+    runs = client.search_runs([experiment.experiment_id], "attributes.status = 'FINISHED'",
+                              order_by=["attributes.start_time DESC"])
+    if not runs:
+        raise SystemExit(f"no finished runs in {store}")
+    sweep = runs[0].data.tags.get("sweep_id")
+    chosen: dict[str, object] = {}
+    for run in runs:
+        if run.data.tags.get("sweep_id") == sweep:
+            chosen.setdefault(run.data.tags.get("method"), run)
+    return [chosen[m] for m in METHODS if m in chosen], client
+
+
+def write_table(runs: list, out: Path) -> list[dict]:
+    rows = []
+    for run in runs:
+        method, metrics, params = run.data.tags["method"], run.data.metrics, run.data.params
+        paper = PAPER.get(method, (None,) * 4)
+        rows.append({
+            "method": method, "run_time_min": metrics.get("run_time_s", float("nan")) / 60.0,
+            "rel_dis": metrics.get("rel_discrepancy"), "rel_err": metrics.get("rel_error"),
+            "rel_err_d": metrics.get("rel_error_d"), "iter": int(metrics.get("iterations", 0)),
+            "tau_dis": params.get("solver.tau_dis"), "tau": params.get("solver.step_size.tau"),
+            "paper_run_time_min": paper[0], "paper_rel_dis": paper[1], "paper_rel_err": paper[2],
+            "paper_iter": paper[3]})
+    with open(out / "table1.csv", "w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+
+    def fmt(v, spec):
+        return "" if v is None else format(v, spec)
+
+    lines = ["| method | run time (min) | rel. dis. | rel. err. | rel. err. (d) | #iter | tau_dis "
+             "| paper: time | paper: dis. | paper: err. | paper: #iter |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        lines.append(f"| {r['method']} | {r['run_time_min']:.2f} | {r['rel_dis']:.4f} | {r['rel_err']:.4f} "
+                     f"| {r['rel_err_d']:.4f} | {r['iter']} | {r['tau_dis']} | {fmt(r['paper_run_time_min'], '.2f')} "
+                     f"| {fmt(r['paper_rel_dis'], '.4f')} | {fmt(r['paper_rel_err'], '.4f')} "
+                     f"| {fmt(r['paper_iter'], 'd')} |")
+    (out / "table1.md").write_text("\n".join(lines) + "\n")
+    return rows
+
+
+def write_fig5(runs: list, client, out: Path) -> None:
+    """Centre slices (y = 0) of the ground truth and each reconstruction, as in the paper's Fig. 5."""
+    truth = make_shape("print_lines", 128)
+    x = np.linspace(-1, 1, truth.shape[1])
+    fig = Figure(figsize=(8, 4))
+    ax = fig.add_subplot(1, 1, 1)
+    ax.plot(x, truth[truth.shape[0] // 2], "k-", lw=2, label="ground truth")
+    with tempfile.TemporaryDirectory() as tmp:
+        for run in runs:
+            path = client.download_artifacts(run.info.run_id, "height_field.npy", tmp)
+            d = np.load(path)
+            ax.plot(np.linspace(-1, 1, d.shape[1]), d[d.shape[0] // 2], label=run.data.tags["method"])
+    ax.set_xlabel("x (scene units)")
+    ax.set_ylabel("height d at y = 0 (scene units)")
+    ax.legend(fontsize=8)
+    fig.savefig(out / "fig5_centre_slices.png", dpi=120, bbox_inches="tight")
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--store", type=Path, default=Path("mlruns"), help="MLflow store directory")
+    parser.add_argument("--out", type=Path, default=Path("docs/results"))
+    parser.add_argument("--table-only", action="store_true", help="do not run; tabulate the latest sweep")
+    parser.add_argument("--overrides", nargs="*", default=[], help="extra Hydra overrides for every run")
+    args = parser.parse_args(argv)
+    store = args.store.resolve()
+    if not args.table_only:
+        run_sweep(store, args.overrides)
+    runs, client = latest_sweep_runs(store)
+    args.out.mkdir(parents=True, exist_ok=True)
+    write_table(runs, args.out)
+    write_fig5(runs, client, args.out)
+    print((args.out / "table1.md").read_text())
+
+
+if __name__ == "__main__":
+    main()
