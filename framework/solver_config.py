@@ -60,8 +60,10 @@ def build_solver(solver_cfg: Mapping[str, Any], data: DataFidelity, d0: torch.Te
         if key in accepted:
             parts[key] = value
     used = {k for k in offered if k in accepted}
-    unused = [k for k, (_, configured) in offered.items() if configured and k not in used]
-    if unused and not ({"regularizers", "pixel_regularizers"} & used and set(unused) <= {"regularizers", "pixel_regularizers"}):
-        raise ValueError(f"solver {name} does not use {', '.join(sorted(set(unused)))}; remove them from the config "
+    # regularizers / pixel_regularizers are two names for the same configured list.
+    unused = {k.replace("pixel_", "") for k, (_, configured) in offered.items() if configured and k not in used}
+    unused -= {k.replace("pixel_", "") for k in used}
+    if unused:
+        raise ValueError(f"solver {name} does not use {', '.join(sorted(unused))}; remove them from the config "
                          "or pick a solver that does (landweber_pixel, landweber_wavelet)")
     return cls(**parts)

