@@ -23,9 +23,8 @@ import torch
 from framework.shapes import make_shape
 from operators.caustic_operator import CausticOperator, OperatorSettings
 from operators.scene import Scene
-from operators.splat import footprint_metric, splat_photons
+from operators.splat import splat_photons
 from operators.splat_reference import splat_photons_reference
-from operators.substrate_trace import trace_substrate
 
 
 def peak_rss_mb() -> float:
@@ -45,16 +44,12 @@ def heights_print_lines() -> torch.Tensor:
 def time_split(op: CausticOperator, heights: torch.Tensor) -> dict[str, float]:
     """Seconds spent in emission + tracing and in splatting over one forward pass."""
     trace_s = splat_s = 0.0
-    to_pixels = op.scene.receiver.resolution / (2 * op.scene.receiver.half_width)
     with torch.no_grad():
         for start, stop in op.chunks():
             t0 = time.perf_counter()
-            hits = trace_substrate(heights, op.scene, op.emitter.batch(start, stop), op.glass_index)
-            pos = (hits.position + op.scene.receiver.half_width) * to_pixels - 0.5
-            metric = footprint_metric(hits.footprint * to_pixels, op.settings.min_footprint_px,
-                                      op.settings.max_pixel_radius)
+            photons = op.splat_inputs(heights, start, stop)
             t1 = time.perf_counter()
-            splat_photons(pos, metric, hits.flux, hits.channel, op.scene.channels, op.scene.receiver.resolution)
+            splat_photons(*photons, op.scene.channels, op.scene.receiver.resolution)
             splat_s += time.perf_counter() - t1
             trace_s += t1 - t0
     return {"trace_s": trace_s, "splat_s": splat_s, "trace_fraction": trace_s / (trace_s + splat_s)}
@@ -75,12 +70,9 @@ def _splat_worker(path: str, which: str, queue: mp.Queue) -> None:
 def compare_splats(op: CausticOperator, heights: torch.Tensor, photons: int) -> dict[str, float]:
     """Native vs straightforward PyTorch splat of the same traced photons, each in its own process."""
     with torch.no_grad():
-        hits = trace_substrate(heights, op.scene, op.emitter.batch(0, photons), op.glass_index)
-        to_pixels = op.scene.receiver.resolution / (2 * op.scene.receiver.half_width)
-        data = {"pos": (hits.position + op.scene.receiver.half_width) * to_pixels - 0.5,
-                "metric": footprint_metric(hits.footprint * to_pixels, op.settings.min_footprint_px,
-                                           op.settings.max_pixel_radius),
-                "flux": hits.flux, "channel": hits.channel, "resolution": op.scene.receiver.resolution}
+        pos, metric, flux, channel = op.splat_inputs(heights, 0, photons)
+    data = {"pos": pos, "metric": metric, "flux": flux, "channel": channel,
+            "resolution": op.scene.receiver.resolution}
     results = {}
     ctx = mp.get_context("spawn")
     with tempfile.TemporaryDirectory() as tmp:

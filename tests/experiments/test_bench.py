@@ -1,0 +1,17 @@
+"""sfc-bench runs end to end on a tiny budget and reports every figure it promises."""
+
+from __future__ import annotations
+
+import json
+
+from experiments.bench import main
+
+
+def test_bench_prints_the_promised_figures(capsys):
+    main(["--photons", "30000", "--grad-photons", "30000", "--splat-photons", "3000", "--chunk-size", "8192"])
+    report = json.loads(capsys.readouterr().out)
+    assert report["forward_photons_per_s"] > 0 and report["forward_backward_photons_per_s"] > 0
+    assert 0.0 < report["forward_split"]["trace_fraction"] < 1.0
+    comparison = report["splat_comparison"]
+    assert comparison["relative_image_difference"] < 1e-5 and comparison["speedup"] > 0
+    assert report["gradient_paper_photons"]["photons"] == 30000
