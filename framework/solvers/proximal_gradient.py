@@ -141,7 +141,10 @@ class ProximalGradientSolver(IterativeSolver):
         new = self._finalize(choice.candidate)
         if not bool(torch.isfinite(new["d"]).all()):
             raise IterationFailed(f"the new iterate has non-finite entries (tau={choice.step:.3g}); reduce the step")
-        evaluation = self.data.evaluate(new["d"], with_grad=True)
+        try:
+            evaluation = self.data.evaluate(new["d"], with_grad=True)
+        except ValueError as err:  # e.g. an M1 iterate that dips below the substrate bottom
+            raise IterationFailed(f"the new iterate cannot be evaluated (tau={choice.step:.3g}): {err}") from err
         if not math.isfinite(evaluation.value):
             raise IterationFailed(f"data term is {evaluation.value} at the new iterate; reduce the step size")
         regularization = self.regularization_value(new["d"])
