@@ -94,12 +94,6 @@ def _resolve(path: str, base_dir: Path) -> Path:
     return p if p.is_absolute() else base_dir / p
 
 
-def _errors(d: torch.Tensor, data: ReconstructionData, h: float) -> dict[str, float]:
-    if data.ground_truth is None:
-        return {}
-    return GroundTruthError(data.ground_truth, h).errors(d.double())
-
-
 def run_reconstruction(cfg: Mapping[str, Any], output_dir: Path, base_dir: Path,
                        sweep_id: str | None = None) -> dict[str, Any]:
     """Reconstruct the configured scene into ``output_dir``; returns the metrics written to metrics.json."""
@@ -127,8 +121,10 @@ def run_reconstruction(cfg: Mapping[str, Any], output_dir: Path, base_dir: Path,
                      ProgressBar(desc=str(cfg.get("method", "reconstruct"))),
                      Checkpointer(output_dir / CHECKPOINT, every=int(cfg["checkpoint_every"])),
                      tracker.metrics_callback()]
+        truth_error = None
         if data.ground_truth is not None:
-            callbacks.append(GroundTruthError(data.ground_truth.to(operator.dtype), scene.substrate.thickness))
+            truth_error = GroundTruthError(data.ground_truth.to(operator.dtype), scene.substrate.thickness)
+            callbacks.append(truth_error)
         max_iter = int(cfg["solver"]["max_iter"])
         solve_start = time.perf_counter()
         if cfg.get("resume"):
@@ -145,7 +141,7 @@ def run_reconstruction(cfg: Mapping[str, Any], output_dir: Path, base_dir: Path,
             "run_time_s": solve_seconds, "data_time_s": data_seconds,
             "rel_discrepancy": residual / float(torch.linalg.vector_norm(data.target.double())),
             "delta": data.delta, "intrinsic_noise": data.intrinsic_noise,
-            "photons_per_iteration": operator.photons, **_errors(d, data, scene.substrate.thickness)}
+            "photons_per_iteration": operator.photons, **(truth_error.errors(d) if truth_error else {})}
         np.save(output_dir / "height_field.npy", d.cpu().numpy().astype(np.float64))
         (output_dir / "metrics.json").write_text(json.dumps(metrics, indent=2))
         save_reconstruction_figures(output_dir, d, data, prediction, history.columns(), scene)

@@ -8,6 +8,7 @@ import numba as nb
 import numpy as np
 import torch
 
+from operators.native import to_numpy
 from operators.heightfield_kernels import hit_backward, hit_forward
 
 # Catmull-Rom can overshoot the sample range by at most 9/16 of it (sum of |weights| in 2-D).
@@ -27,17 +28,13 @@ class HeightFieldGrid:
         return 2.0 * self.half_width / (self.resolution - 1)
 
 
-def _numpy(t: torch.Tensor) -> np.ndarray:
-    return t.detach().cpu().contiguous().numpy()
-
-
 class _HeightFieldHit(torch.autograd.Function):
     @staticmethod
     def forward(ctx, heights: torch.Tensor, grid: HeightFieldGrid, origin: torch.Tensor,
                 direction: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        d = _numpy(heights).astype(np.float64)
-        o = _numpy(origin).astype(np.float64)
-        w = _numpy(direction)
+        d = to_numpy(heights).astype(np.float64)
+        o = to_numpy(origin).astype(np.float64)
+        w = to_numpy(direction)
         lo, hi = float(d.min()), float(d.max())
         zlo = grid.base + lo - OVERSHOOT * (hi - lo) - 1e-9
         zhi = grid.base + hi + OVERSHOOT * (hi - lo) + 1e-9
@@ -55,11 +52,11 @@ class _HeightFieldHit(torch.autograd.Function):
     def backward(ctx, grad_t: torch.Tensor | None, grad_jet: torch.Tensor | None):
         heights, origin, direction, t = ctx.saved_tensors
         grid: HeightFieldGrid = ctx.grid
-        w = _numpy(direction)
-        gt = np.zeros(w.shape[1]) if grad_t is None else _numpy(grad_t).astype(np.float64)
-        gj = np.zeros((5, w.shape[1])) if grad_jet is None else _numpy(grad_jet).astype(np.float64)
-        per_thread = hit_backward(_numpy(heights).astype(np.float64), _numpy(origin).astype(np.float64),
-                                  w, _numpy(t), gt, gj, -grid.half_width, grid.spacing,
+        w = to_numpy(direction)
+        gt = np.zeros(w.shape[1]) if grad_t is None else to_numpy(grad_t).astype(np.float64)
+        gj = np.zeros((5, w.shape[1])) if grad_jet is None else to_numpy(grad_jet).astype(np.float64)
+        per_thread = hit_backward(to_numpy(heights).astype(np.float64), to_numpy(origin).astype(np.float64),
+                                  w, to_numpy(t), gt, gj, -grid.half_width, grid.spacing,
                                   nb.get_num_threads())
         grad = torch.from_numpy(per_thread.sum(axis=0)).to(dtype=heights.dtype, device=heights.device)
         return grad, None, None, None

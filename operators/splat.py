@@ -6,6 +6,7 @@ import numba as nb
 import numpy as np
 import torch
 
+from operators.native import to_numpy
 from operators.splat_kernels import splat_backward, splat_forward
 
 
@@ -47,18 +48,14 @@ def footprint_capacity(metric: np.ndarray) -> int:
     return side * side
 
 
-def _numpy(t: torch.Tensor) -> np.ndarray:
-    return t.detach().cpu().contiguous().numpy()
-
-
 class _Splat(torch.autograd.Function):
     @staticmethod
     def forward(ctx, pos: torch.Tensor, metric: torch.Tensor, flux: torch.Tensor,
                 channel: torch.Tensor, channels: int, resolution: int) -> torch.Tensor:
-        f = _numpy(flux)
+        f = to_numpy(flux)
         out = np.zeros((nb.get_num_threads(), channels, resolution, resolution), dtype=f.dtype)
-        splat_forward(_numpy(pos).astype(f.dtype), _numpy(metric).astype(f.dtype), f, _numpy(channel), out,
-                      footprint_capacity(_numpy(metric)))
+        splat_forward(to_numpy(pos).astype(f.dtype), to_numpy(metric).astype(f.dtype), f, to_numpy(channel), out,
+                      footprint_capacity(to_numpy(metric)))
         ctx.save_for_backward(pos, metric, flux, channel)
         return torch.from_numpy(out.sum(axis=0)).to(flux.device)
 
@@ -72,12 +69,12 @@ def splat_photons_vjp(pos: torch.Tensor, metric: torch.Tensor, flux: torch.Tenso
                       grad_image: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Adjoint of :func:`splat_photons` at these photons: gradients of <image, grad_image> w.r.t.
     pos (2, N), metric (3, N) and flux (N,), by the native gather (no forward splat needed)."""
-    f = _numpy(flux)
+    f = to_numpy(flux)
     g_pos = np.empty((2, f.shape[0]), dtype=f.dtype)
     g_metric = np.empty((3, f.shape[0]), dtype=f.dtype)
     g_flux = np.empty(f.shape[0], dtype=f.dtype)
-    splat_backward(_numpy(pos).astype(f.dtype), _numpy(metric).astype(f.dtype), f, _numpy(channel),
-                   _numpy(grad_image).astype(f.dtype), g_pos, g_metric, g_flux)
+    splat_backward(to_numpy(pos).astype(f.dtype), to_numpy(metric).astype(f.dtype), f, to_numpy(channel),
+                   to_numpy(grad_image).astype(f.dtype), g_pos, g_metric, g_flux)
 
     def back(a: np.ndarray, like: torch.Tensor) -> torch.Tensor:
         return torch.from_numpy(a).to(dtype=like.dtype, device=like.device)
