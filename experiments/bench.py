@@ -1,16 +1,19 @@
 """sfc-bench: speed and memory of the caustic operator, printed as JSON.
 
 Measures, at the default scene (print_lines, 128 x 128 heights, 512 x 512 receiver):
-forward and forward+backward photons/s, the time split between tracing and splatting, the peak
-memory of a gradient evaluation with the paper's 8.4 million photons, and the native splat
-against the straightforward PyTorch splat on the same photons, side by side, each in a fresh
-process so that their peak memories are comparable.
+forward and forward+backward photons/s of the operator (the fused native path), the same for the
+torch reference path in the same process (side by side: timings on a shared machine are noisy),
+the time split between tracing and splatting in the fused kernel (a pass with the splat switched
+off against the full pass), the peak memory of a gradient evaluation with the paper's 8.4 million
+photons, and the native splat against the straightforward PyTorch splat on the same photons,
+side by side, each in a fresh process so that their peak memories are comparable.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import math
 import multiprocessing as mp
 import resource
 import tempfile
@@ -18,6 +21,7 @@ import time
 from pathlib import Path
 
 import numba
+import numpy as np
 import torch
 
 from framework.shapes import make_shape
@@ -41,18 +45,47 @@ def heights_print_lines() -> torch.Tensor:
     return torch.from_numpy(make_shape("print_lines", 128)).float()
 
 
-def time_split(op: CausticOperator, heights: torch.Tensor) -> dict[str, float]:
-    """Seconds spent in emission + tracing and in splatting over one forward pass."""
-    trace_s = splat_s = 0.0
-    with torch.no_grad():
+def best_seconds(run, repeats: int = 3) -> float:
+    """Shortest wall time of ``repeats`` calls of ``run`` (the least disturbed by other load)."""
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        run()
+        times.append(time.perf_counter() - t0)
+    return min(times)
+
+
+def time_split(op: CausticOperator, heights: torch.Tensor, repeats: int = 5) -> dict[str, float]:
+    """Seconds of one forward pass of the fused kernel with the splat switched off (emission,
+    hit, optics, footprint) and the rest of the full pass (splat): the best of ``repeats``
+    alternating runs of each, so that both see the same background load."""
+    d = heights.double().numpy()
+    out = op.fused.image_buffers(np.dtype(op.settings.dtype))
+
+    def passes(splat: bool) -> None:
         for start, stop in op.chunks():
-            t0 = time.perf_counter()
-            photons = op.splat_inputs(heights, start, stop)
-            t1 = time.perf_counter()
-            splat_photons(*photons, op.scene.channels, op.scene.receiver.resolution)
-            splat_s += time.perf_counter() - t1
-            trace_s += t1 - t0
-    return {"trace_s": trace_s, "splat_s": splat_s, "trace_fraction": trace_s / (trace_s + splat_s)}
+            op.fused.render(d, start, stop, out, splat)
+
+    trace_s = full_s = math.inf
+    for _ in range(repeats):
+        trace_s = min(trace_s, best_seconds(lambda: passes(False), repeats=1))
+        full_s = min(full_s, best_seconds(lambda: passes(True), repeats=1))
+    return {"trace_s": trace_s, "splat_s": full_s - trace_s, "trace_fraction": trace_s / full_s}
+
+
+def time_reference(heights: torch.Tensor, target: torch.Tensor, photons: int, footprint_px: float,
+                   chunk_size: int) -> dict[str, float]:
+    """Forward and forward+backward photons/s of the torch reference path (torch trace, native
+    splat, torch autograd), the operator's implementation before the fused kernels."""
+    op = make_operator(photons, footprint_px, chunk_size)
+    op.vjp_reference(heights, op.render_reference(heights) - target)  # warm up
+    t0 = time.perf_counter()
+    image = op.render_reference(heights)
+    forward_s = time.perf_counter() - t0
+    op.vjp_reference(heights, image - target)
+    gradient_s = time.perf_counter() - t0
+    return {"photons": op.photons, "forward_photons_per_s": op.photons / forward_s,
+            "forward_backward_photons_per_s": op.photons / gradient_s}
 
 
 def _splat_worker(path: str, which: str, queue: mp.Queue) -> None:
@@ -100,6 +133,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--grad-photons", type=int, default=128 * 128 * 32 * 16,
                         help="photons of the peak-memory gradient run (paper: 8388608)")
     parser.add_argument("--splat-photons", type=int, default=1 << 20, help="photons of the splat comparison")
+    parser.add_argument("--reference-photons", type=int, default=1 << 20,
+                        help="photons for the speed of the torch reference path")
     parser.add_argument("--footprint-px", type=float, default=3.0)
     parser.add_argument("--chunk-size", type=int, default=1 << 18)
     args = parser.parse_args(argv)
@@ -108,12 +143,8 @@ def main(argv: list[str] | None = None) -> None:
     op = make_operator(args.photons, args.footprint_px, args.chunk_size)
     target = make_operator(args.photons, args.footprint_px, args.chunk_size).render(torch.zeros(128, 128))
     op.loss_and_grad(heights, target)  # warm up: numba compilation
-    t0 = time.perf_counter()
-    op.render(heights)
-    forward_s = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    op.loss_and_grad(heights, target)
-    gradient_s = time.perf_counter() - t0
+    forward_s = best_seconds(lambda: op.render(heights), repeats=2)
+    gradient_s = best_seconds(lambda: op.loss_and_grad(heights, target), repeats=2)
     report = {
         "scene": "print_lines, m=128, n=512, light (0,0,10)",
         "threads": {"torch": torch.get_num_threads(), "numba": numba.get_num_threads()},
@@ -121,13 +152,15 @@ def main(argv: list[str] | None = None) -> None:
         "forward_photons_per_s": op.photons / forward_s,
         "forward_backward_photons_per_s": op.photons / gradient_s,
         "forward_split": time_split(op, heights),
-        "splat_comparison": compare_splats(op, heights, args.splat_photons),
     }
     big = make_operator(args.grad_photons, args.footprint_px, args.chunk_size)
     t0 = time.perf_counter()
     big.loss_and_grad(heights, target)
     report["gradient_paper_photons"] = {"photons": big.photons, "seconds": time.perf_counter() - t0,
                                         "process_peak_rss_mb": peak_rss_mb()}
+    report["torch_reference_path"] = time_reference(heights, target, args.reference_photons, args.footprint_px,
+                                                    args.chunk_size)
+    report["splat_comparison"] = compare_splats(op, heights, args.splat_photons)
     print(json.dumps(report, indent=2))
 
 

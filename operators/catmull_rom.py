@@ -68,6 +68,49 @@ def axis_weights(coord: float, origin: float, spacing: float, m: int, max_order:
 
 
 @nb.njit(cache=True, inline="always", fastmath=FAST_MATH, error_model="numpy")
+def _cell(coord: float, origin: float, spacing: float, m: int) -> tuple[int, float, float]:
+    """(cell index i, offset s in [0, 1], d/dcoord scale: 1 / spacing on the grid, 0 off it)."""
+    g = (coord - origin) / spacing
+    inside = 0.0 <= g <= m - 1.0
+    g = min(max(g, 0.0), m - 1.0)
+    i = min(int(math.floor(g)), m - 2)
+    return i, g - i, (1.0 / spacing if inside else 0.0)
+
+
+@nb.njit(cache=True, inline="always", fastmath=FAST_MATH, error_model="numpy")
+def _basis(s: float, k: float) -> tuple[float, float, float, float, float, float, float, float]:
+    """Catmull-Rom weights at s and their s-derivatives times k (rows 0 and 1 of _fill_basis)."""
+    s2 = s * s
+    s3 = s2 * s
+    return (0.5 * (-s3 + 2.0 * s2 - s), 0.5 * (3.0 * s3 - 5.0 * s2 + 2.0), 0.5 * (-3.0 * s3 + 4.0 * s2 + s),
+            0.5 * (s3 - s2), k * 0.5 * (-3.0 * s2 + 4.0 * s - 1.0), k * 0.5 * (9.0 * s2 - 10.0 * s),
+            k * 0.5 * (-9.0 * s2 + 8.0 * s + 1.0), k * 0.5 * (3.0 * s2 - 2.0 * s))
+
+
+@nb.njit(cache=True, inline="always", fastmath=FAST_MATH, error_model="numpy")
+def surface_gradient(d: np.ndarray, x: float, y: float, origin: float, spacing: float
+                     ) -> tuple[float, float, float]:
+    """(S, S_x, S_y) at (x, y): the same values as axis_weights / load_patch / contract, in
+    scalar code (no weight tables), for the hit solver's inner loop."""
+    m = d.shape[0]
+    ix, sx, kx = _cell(x, origin, spacing, m)
+    iy, sy, ky = _cell(y, origin, spacing, m)
+    a0, a1, a2, a3, b0, b1, b2, b3 = _basis(sx, kx)
+    e0, e1, e2, e3, f0, f1, f2, f3 = _basis(sy, ky)
+    c0, c1, c2, c3 = max(ix - 1, 0), ix, ix + 1, min(ix + 2, m - 1)
+    value = slope_x = slope_y = 0.0
+    for a in range(4):
+        r = _node(iy - 1 + a, m)
+        d0, d1, d2, d3 = d[r, c0], d[r, c1], d[r, c2], d[r, c3]
+        v = a0 * d0 + a1 * d1 + a2 * d2 + a3 * d3
+        ey = e0 if a == 0 else e1 if a == 1 else e2 if a == 2 else e3
+        value += ey * v
+        slope_x += ey * (b0 * d0 + b1 * d1 + b2 * d2 + b3 * d3)
+        slope_y += (f0 if a == 0 else f1 if a == 1 else f2 if a == 2 else f3) * v
+    return value, slope_x, slope_y
+
+
+@nb.njit(cache=True, inline="always", fastmath=FAST_MATH, error_model="numpy")
 def _node(i: int, m: int) -> int:
     return min(max(i, 0), m - 1)
 

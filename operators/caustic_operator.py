@@ -1,10 +1,18 @@
 """The forward operator F_{h,s}: printed heights d (m, m) -> caustic irradiance (c, n, n).
 
-F(d) = E(P(d)): photons from the point light are traced through the substrate
-(:mod:`operators.substrate_trace`) and splatted with photon differentials
-(:mod:`operators.splat`). Photons flow in chunks, so memory is set by ``chunk_size``, not by the
-photon count, both for the image and for its gradient: the backward pass re-traces each chunk
-with the same photons (deterministic emission) and back-propagates only that chunk.
+F(d) = E(P(d)): photons from the point light are traced through the substrate and splatted with
+photon differentials. Two implementations of the same photons:
+
+- the fused native path (:mod:`operators.fused_trace`), used by :meth:`CausticOperator.render`
+  and :meth:`CausticOperator.vjp`: one numba pass per chunk, per photon from emission to splat
+  (or, for the gradient, from emission to the splat adjoint and back into the heights), with no
+  per-photon arrays;
+- the torch path (:mod:`operators.substrate_trace`, :mod:`operators.splat`), kept as the
+  independent reference (:meth:`CausticOperator.render_reference`,
+  :meth:`CausticOperator.vjp_reference`), differentiated by torch autograd.
+
+Photons flow in chunks of ``chunk_size``; the backward pass re-traces each chunk with the same
+photons (deterministic emission), so memory does not grow with the photon count.
 """
 
 from __future__ import annotations
@@ -12,11 +20,15 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numba as nb
+import numpy as np
 import torch
 from tqdm.auto import tqdm
 
 from framework.registry import register
 from operators.emission import PointLightEmitter
+from operators.fused_trace import FusedTracer
+from operators.native import to_numpy
 from operators.scene import Scene
 from operators.splat import footprint_metric, splat_photons, splat_photons_vjp
 from operators.substrate_trace import trace_substrate
@@ -89,6 +101,8 @@ class CausticOperator:
         self.emitter = PointLightEmitter(scene, self.settings.photons, self.settings.seed,
                                          self.settings.footprint_px, self.dtype, self.device)
         self.glass_index = torch.tensor(scene.indices, dtype=self.dtype, device=self.device)
+        self.fused = FusedTracer(scene, self.emitter, self.settings.min_footprint_px,
+                                 self.settings.max_pixel_radius, self.settings.fresnel)
         receiver = scene.receiver
         self.pixel_area = receiver.pixel_size ** 2
         self._to_pixels = receiver.resolution / (2.0 * receiver.half_width)
@@ -129,19 +143,39 @@ class CausticOperator:
         self.scene.check_heights_below_light(float(heights.max()))
 
     def render(self, heights: torch.Tensor, progress: bool = False) -> torch.Tensor:
-        """Irradiance (c, n, n), no autograd graph; ``progress`` shows a bar over the chunks."""
+        """Irradiance (c, n, n) by the fused native path, no autograd graph; ``progress`` shows a
+        bar over the chunks."""
         self._check(heights)
-        image = torch.zeros(self.output_shape, dtype=self.dtype, device=self.device)
-        with torch.no_grad():
-            for start, stop in tqdm(self.chunks(), desc="photons", unit="chunk", disable=not progress):
-                image += self.trace_chunk(heights.detach(), start, stop)
-        return image
+        d = to_numpy(heights).astype(np.float64)
+        out = self.fused.image_buffers(np.dtype(self.settings.dtype))
+        for start, stop in tqdm(self.chunks(), desc="photons", unit="chunk", disable=not progress):
+            self.fused.render(d, start, stop, out)
+        return torch.from_numpy(out.sum(axis=0) / self.pixel_area).to(self.device)
 
     def vjp(self, heights: torch.Tensor, grad_image: torch.Tensor) -> torch.Tensor:
-        """F'(d)^* grad_image: the gradient (m, m) of <F(d), grad_image>, chunk by chunk."""
+        """F'(d)^* grad_image: the gradient (m, m) of <F(d), grad_image>, by the fused native path."""
         self._check(heights)
         if grad_image.shape != self.output_shape:
             raise ValueError(f"grad_image has shape {tuple(grad_image.shape)}, expected {self.output_shape}")
+        d = to_numpy(heights).astype(np.float64)
+        g = to_numpy(grad_image).astype(np.float64) / self.pixel_area
+        out = np.zeros((nb.get_num_threads(), *d.shape))
+        for start, stop in self.chunks():
+            self.fused.vjp(d, start, stop, g, out)
+        return torch.from_numpy(out.sum(axis=0)).to(self.dtype).to(dtype=heights.dtype, device=heights.device)
+
+    def render_reference(self, heights: torch.Tensor) -> torch.Tensor:
+        """Irradiance (c, n, n) by the torch path, no autograd graph (the reference for render)."""
+        self._check(heights)
+        image = torch.zeros(self.output_shape, dtype=self.dtype, device=self.device)
+        with torch.no_grad():
+            for start, stop in self.chunks():
+                image += self.trace_chunk(heights.detach(), start, stop)
+        return image
+
+    def vjp_reference(self, heights: torch.Tensor, grad_image: torch.Tensor) -> torch.Tensor:
+        """F'(d)^* grad_image by torch autograd through the torch path (the reference for vjp)."""
+        self._check(heights)
         leaf = heights.detach().to(self.dtype).requires_grad_(True)
         g = grad_image.detach().to(dtype=self.dtype, device=self.device) / self.pixel_area
         for start, stop in self.chunks():

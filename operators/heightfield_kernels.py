@@ -17,47 +17,48 @@ import numpy as np
 
 from operators.native import FAST_MATH
 
-from operators.catmull_rom import axis_weights, contract, load_patch, scatter_patch
+from operators.catmull_rom import axis_weights, contract, load_patch, scatter_patch, surface_gradient
 
 MAX_MARCH_STEPS = 512
 NEWTON_ITERATIONS = 40
 
 
 @nb.njit(cache=True, fastmath=FAST_MATH, error_model="numpy")
-def _solve_hit(d, base, ox, oy, oz, wx_, wy_, wz_, x0, spacing, zlo, zhi, wx, wy, patch) -> float:
+def solve_hit(d, base, ox, oy, oz, wx_, wy_, wz_, x0, spacing, zlo, zhi) -> float:
     """First root of the gap (ray height above the surface): march between the bounding planes
     in half-cell steps, then Newton safeguarded by bisection inside the bracket."""
-    m = d.shape[0]
     t_a = (zhi - oz) / wz_
     t_b = (zlo - oz) / wz_
     travel = math.sqrt(wx_ * wx_ + wy_ * wy_) * (t_b - t_a)
     steps = int(min(max(math.ceil(travel / (0.5 * spacing)), 1.0), MAX_MARCH_STEPS))
     dt = (t_b - t_a) / steps
     lo, hi = t_a, t_b
-    if steps > 1:
-        for k in range(1, steps):
-            t_k = t_a + k * dt
-            ix = axis_weights(ox + t_k * wx_, x0, spacing, m, 0, wx)
-            iy = axis_weights(oy + t_k * wy_, x0, spacing, m, 0, wy)
-            load_patch(d, ix, iy, patch)
-            if oz + t_k * wz_ - base - contract(patch, wx, 0, wy, 0) <= 0.0:
-                hi = t_k
-                break
-            lo = t_k
-    t = hi
+    t = t_b
+    known = False  # whether (g, slope) below already belong to t
+    g = slope = 0.0
+    for k in range(1, steps):
+        t_k = t_a + k * dt
+        s, sx, sy = surface_gradient(d, ox + t_k * wx_, oy + t_k * wy_, x0, spacing)
+        g = oz + t_k * wz_ - base - s
+        if g <= 0.0:
+            t = hi = t_k
+            slope = wz_ - sx * wx_ - sy * wy_
+            known = True
+            break
+        lo = t_k
     tol = 1e-12 * (abs(oz) + abs(zhi) + 1.0)
     for _ in range(NEWTON_ITERATIONS):
-        ix = axis_weights(ox + t * wx_, x0, spacing, m, 1, wx)
-        iy = axis_weights(oy + t * wy_, x0, spacing, m, 1, wy)
-        load_patch(d, ix, iy, patch)
-        g = oz + t * wz_ - base - contract(patch, wx, 0, wy, 0)
+        if not known:
+            s, sx, sy = surface_gradient(d, ox + t * wx_, oy + t * wy_, x0, spacing)
+            g = oz + t * wz_ - base - s
+            slope = wz_ - sx * wx_ - sy * wy_
+        known = False
         if abs(g) <= tol:
             break
         if g > 0.0:
             lo = t
         else:
             hi = t
-        slope = wz_ - contract(patch, wx, 1, wy, 0) * wx_ - contract(patch, wx, 0, wy, 1) * wy_
         t_new = t - g / slope if slope != 0.0 else 0.5 * (lo + hi)
         if not (lo <= t_new <= hi):
             t_new = 0.5 * (lo + hi)
@@ -66,6 +67,43 @@ def _solve_hit(d, base, ox, oy, oz, wx_, wy_, wz_, x0, spacing, zlo, zhi, wx, wy
             break
         t = t_new
     return t
+
+
+@nb.njit(cache=True, inline="always", fastmath=FAST_MATH, error_model="numpy")
+def surface_jet(patch, wx, wy) -> tuple[float, float, float, float, float]:
+    """(S_x, S_y, S_xx, S_xy, S_yy) from a loaded patch and weight tables of order >= 2."""
+    return (contract(patch, wx, 1, wy, 0), contract(patch, wx, 0, wy, 1), contract(patch, wx, 2, wy, 0),
+            contract(patch, wx, 1, wy, 1), contract(patch, wx, 0, wy, 2))
+
+
+@nb.njit(cache=True, inline="always", fastmath=FAST_MATH, error_model="numpy")
+def scatter_hit_adjoint(grad, ix, iy, wx, wy, patch, wx_, wy_, wz_, g_t, g_sx, g_sy, g_sxx, g_sxy, g_syy) -> None:
+    """Add to grad (m, m) the gradient w.r.t. d of g_t t + <g_jet, jet> at one photon's hit.
+
+    ``patch`` holds the samples around the hit (it is overwritten), wx / wy weight tables of
+    order 3 at the hit, (wx_, wy_, wz_) the ray direction.
+    """
+    sx = contract(patch, wx, 1, wy, 0)
+    sy = contract(patch, wx, 0, wy, 1)
+    sxx = contract(patch, wx, 2, wy, 0)
+    sxy = contract(patch, wx, 1, wy, 1)
+    syy = contract(patch, wx, 0, wy, 2)
+    sxxx = contract(patch, wx, 3, wy, 0)
+    sxxy = contract(patch, wx, 2, wy, 1)
+    sxyy = contract(patch, wx, 1, wy, 2)
+    syyy = contract(patch, wx, 0, wy, 3)
+    # Loss change per unit of t while d is held: the hit point slides along the ray.
+    along = (g_t
+             + g_sx * (sxx * wx_ + sxy * wy_) + g_sy * (sxy * wx_ + syy * wy_)
+             + g_sxx * (sxxx * wx_ + sxxy * wy_) + g_sxy * (sxxy * wx_ + sxyy * wy_)
+             + g_syy * (sxyy * wx_ + syyy * wy_))
+    c = along / (wz_ - sx * wx_ - sy * wy_)
+    for a in range(4):
+        for b in range(4):
+            patch[a, b] = (wy[0, a] * (c * wx[0, b] + g_sx * wx[1, b] + g_sxx * wx[2, b])
+                           + wy[1, a] * (g_sy * wx[0, b] + g_sxy * wx[1, b])
+                           + wy[2, a] * g_syy * wx[0, b])
+    scatter_patch(grad, ix, iy, patch)
 
 
 @nb.njit(parallel=True, cache=True, fastmath=FAST_MATH, error_model="numpy")
@@ -80,17 +118,14 @@ def hit_forward(d, base, origin, dirs, x0, spacing, zlo, zhi, t_out, jet_out, nt
         patch = np.empty((4, 4))
         for p in range(th * per, min(n, (th + 1) * per)):
             wx_, wy_, wz_ = dirs[0, p], dirs[1, p], dirs[2, p]
-            t = _solve_hit(d, base, origin[0], origin[1], origin[2], wx_, wy_, wz_,
-                           x0, spacing, zlo, zhi, wx, wy, patch)
+            t = solve_hit(d, base, origin[0], origin[1], origin[2], wx_, wy_, wz_, x0, spacing, zlo, zhi)
             ix = axis_weights(origin[0] + t * wx_, x0, spacing, m, 2, wx)
             iy = axis_weights(origin[1] + t * wy_, x0, spacing, m, 2, wy)
             load_patch(d, ix, iy, patch)
             t_out[p] = t
-            jet_out[0, p] = contract(patch, wx, 1, wy, 0)
-            jet_out[1, p] = contract(patch, wx, 0, wy, 1)
-            jet_out[2, p] = contract(patch, wx, 2, wy, 0)
-            jet_out[3, p] = contract(patch, wx, 1, wy, 1)
-            jet_out[4, p] = contract(patch, wx, 0, wy, 2)
+            jet = surface_jet(patch, wx, wy)
+            for k in range(5):
+                jet_out[k, p] = jet[k]
 
 
 @nb.njit(parallel=True, cache=True, fastmath=FAST_MATH, error_model="numpy")
@@ -110,27 +145,6 @@ def hit_backward(d, origin, dirs, t, grad_t, grad_jet, x0, spacing, nthreads):
             ix = axis_weights(origin[0] + t[p] * wx_, x0, spacing, m, 3, wx)
             iy = axis_weights(origin[1] + t[p] * wy_, x0, spacing, m, 3, wy)
             load_patch(d, ix, iy, patch)
-            sx = contract(patch, wx, 1, wy, 0)
-            sy = contract(patch, wx, 0, wy, 1)
-            sxx = contract(patch, wx, 2, wy, 0)
-            sxy = contract(patch, wx, 1, wy, 1)
-            syy = contract(patch, wx, 0, wy, 2)
-            sxxx = contract(patch, wx, 3, wy, 0)
-            sxxy = contract(patch, wx, 2, wy, 1)
-            sxyy = contract(patch, wx, 1, wy, 2)
-            syyy = contract(patch, wx, 0, wy, 3)
-            g_sx, g_sy = grad_jet[0, p], grad_jet[1, p]
-            g_sxx, g_sxy, g_syy = grad_jet[2, p], grad_jet[3, p], grad_jet[4, p]
-            # Loss change per unit of t while d is held: the hit point slides along the ray.
-            along = (grad_t[p]
-                     + g_sx * (sxx * wx_ + sxy * wy_) + g_sy * (sxy * wx_ + syy * wy_)
-                     + g_sxx * (sxxx * wx_ + sxxy * wy_) + g_sxy * (sxxy * wx_ + sxyy * wy_)
-                     + g_syy * (sxyy * wx_ + syyy * wy_))
-            c = along / (wz_ - sx * wx_ - sy * wy_)
-            for a in range(4):
-                for b in range(4):
-                    patch[a, b] = (wy[0, a] * (c * wx[0, b] + g_sx * wx[1, b] + g_sxx * wx[2, b])
-                                   + wy[1, a] * (g_sy * wx[0, b] + g_sxy * wx[1, b])
-                                   + wy[2, a] * g_syy * wx[0, b])
-            scatter_patch(grad, ix, iy, patch)
+            scatter_hit_adjoint(grad, ix, iy, wx, wy, patch, wx_, wy_, wz_, grad_t[p], grad_jet[0, p],
+                                grad_jet[1, p], grad_jet[2, p], grad_jet[3, p], grad_jet[4, p])
     return out

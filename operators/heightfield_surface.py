@@ -27,6 +27,11 @@ class HeightFieldGrid:
     def spacing(self) -> float:
         return 2.0 * self.half_width / (self.resolution - 1)
 
+    def z_bounds(self, d: np.ndarray) -> tuple[float, float]:
+        """Planes (zlo, zhi) that bracket the interpolated surface of samples ``d`` (m, m)."""
+        lo, hi = float(d.min()), float(d.max())
+        return (self.base + lo - OVERSHOOT * (hi - lo) - 1e-9, self.base + hi + OVERSHOOT * (hi - lo) + 1e-9)
+
 
 class _HeightFieldHit(torch.autograd.Function):
     @staticmethod
@@ -35,9 +40,7 @@ class _HeightFieldHit(torch.autograd.Function):
         d = to_numpy(heights).astype(np.float64)
         o = to_numpy(origin).astype(np.float64)
         w = to_numpy(direction)
-        lo, hi = float(d.min()), float(d.max())
-        zlo = grid.base + lo - OVERSHOOT * (hi - lo) - 1e-9
-        zhi = grid.base + hi + OVERSHOOT * (hi - lo) + 1e-9
+        zlo, zhi = grid.z_bounds(d)
         n = w.shape[1]
         t = np.empty(n, dtype=w.dtype)
         jet = np.empty((5, n), dtype=w.dtype)

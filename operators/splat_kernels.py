@@ -49,27 +49,53 @@ def _usable(f, px, py, q00, q01, q11) -> bool:
             and q00 > 0.0 and q11 > 0.0 and q00 * q11 - q01 * q01 > 0.0)
 
 
-@nb.njit(cache=True, fastmath=FAST_MATH, error_model="numpy")
-def _weights(px, py, q00, q01, q11, buf) -> tuple[float, int]:
-    """Weights (1 - t)^2 of the ellipse's pixels, row by row, into ``buf``; returns (sum, count).
+@nb.njit(cache=True, inline="always", fastmath=FAST_MATH, error_model="numpy")
+def _box(px, py, q00, q01, q11) -> tuple[int, int, int, int]:
+    """Pixel columns x0 .. x1 and rows y0 .. y1 of the ellipse's bounding box (half extents
+    sqrt(q11 / det Q) and sqrt(q00 / det Q))."""
+    det = q00 * q11 - q01 * q01
+    hx = math.sqrt(q11 / det)
+    hy = math.sqrt(q00 / det)
+    return int(math.ceil(px - hx)), int(math.floor(px + hx)), int(math.ceil(py - hy)), int(math.floor(py + hy))
 
-    Pixels beyond ``buf``'s capacity are left out (the caller sizes it for the largest footprint).
+
+@nb.njit(cache=True, inline="always", fastmath=FAST_MATH, error_model="numpy")
+def splat_photon(img, c, px, py, q00, q01, q11, f, buf) -> None:
+    """Add one photon's flux ``f`` into channel ``c`` of ``img`` (c, n, n).
+
+    Two passes over the footprint's bounding box, free of per-row square roots and branches:
+    the weights max(1 - t, 0)^2 go into ``buf`` while their sum s is taken, then f / s times each
+    weight lands on the pixels that lie on the image. Photons whose box has more pixels than
+    ``buf`` holds are left out (the caller sizes it for the largest footprint).
     """
+    if not _usable(f, px, py, q00, q01, q11):
+        return
+    x0, x1, y0, y1 = _box(px, py, q00, q01, q11)
+    width = x1 - x0 + 1
+    if width <= 0 or y1 < y0 or width * (y1 - y0 + 1) > buf.shape[0]:
+        return
     s = 0.0
-    count = 0
-    y0, y1 = _row_range(q00, q01, q11, py)
+    k = 0
     for iy in range(y0, y1 + 1):
         ry = iy - py
-        x0, x1 = _row_span(q00, q01, q11, ry, px)
-        for ix in range(x0, x1 + 1):
-            rx = ix - px
-            t = q00 * rx * rx + 2.0 * q01 * rx * ry + q11 * ry * ry
-            w = (1.0 - t) ** 2 if t < 1.0 else 0.0
-            if count < buf.shape[0]:
-                buf[count] = w
-            count += 1
-            s += w
-    return s, count
+        b = 2.0 * q01 * ry
+        e = q11 * ry * ry
+        rx = x0 - px
+        for _ in range(width):
+            u = max(1.0 - ((q00 * rx + b) * rx + e), 0.0)
+            buf[k] = u * u
+            s += u * u
+            k += 1
+            rx += 1.0
+    if s <= 0.0:
+        return
+    n = img.shape[1]
+    scale = f / s
+    lo, hi = max(x0, 0), min(x1, n - 1)
+    for iy in range(max(y0, 0), min(y1, n - 1) + 1):
+        k = (iy - y0) * width - x0
+        for ix in range(lo, hi + 1):
+            img[c, iy, ix] += scale * buf[k + ix]
 
 
 @nb.njit(parallel=True, cache=True, fastmath=FAST_MATH, error_model="numpy")
@@ -79,98 +105,79 @@ def splat_forward(pos, metric, flux, channel, out, capacity):
     pos (2, N) pixel coordinates (x = column, y = row), metric (3, N) = (q00, q01, q11),
     flux (N,), channel (N,) int; ``capacity`` bounds the pixels of one footprint.
     """
-    nthreads, _, n, _ = out.shape
+    nthreads = out.shape[0]
     count = flux.shape[0]
     per = (count + nthreads - 1) // nthreads
     for th in nb.prange(nthreads):
         img = out[th]
         buf = np.empty(capacity)
         for p in range(th * per, min(count, (th + 1) * per)):
-            f, px, py = flux[p], pos[0, p], pos[1, p]
-            q00, q01, q11 = metric[0, p], metric[1, p], metric[2, p]
-            if not _usable(f, px, py, q00, q01, q11):
-                continue
-            s, used = _weights(px, py, q00, q01, q11, buf)
-            if s <= 0.0 or used > capacity:
-                continue
-            scale = f / s
-            c = channel[p]
-            k = 0
-            y0, y1 = _row_range(q00, q01, q11, py)
-            for iy in range(y0, y1 + 1):
-                ry = iy - py
-                x0, x1 = _row_span(q00, q01, q11, ry, px)
-                if 0 <= iy < n:
-                    for ix in range(x0, x1 + 1):
-                        if 0 <= ix < n:
-                            img[c, iy, ix] += scale * buf[k]
-                        k += 1
-                else:
-                    k += max(x1 - x0 + 1, 0)
+            splat_photon(img, channel[p], pos[0, p], pos[1, p], metric[0, p], metric[1, p], metric[2, p],
+                         flux[p], buf)
 
 
-@nb.njit(parallel=True, cache=True, fastmath=FAST_MATH, error_model="numpy")
-def splat_backward(pos, metric, flux, channel, grad_image, g_pos, g_metric, g_flux):
-    """Gather the adjoint: gradients of <grad_image, splat(...)> w.r.t. pos, metric and flux.
+@nb.njit(cache=True, inline="always", fastmath=FAST_MATH, error_model="numpy")
+def gather_photon(grad_image, c, px, py, q00, q01, q11, f) -> tuple[float, float, float, float, float, float]:
+    """One photon's adjoint: gradients of <grad_image, splat> w.r.t. (flux, px, py, q00, q01, q11).
 
     With I = f / s * sum_k G_k w_k: dI/df = sum G w / s and, for theta in (px, py, q00, q01, q11),
     dI/dtheta = f / s * (sum_k G_k dw_k - (sum_k G_k w_k / s) sum_k dw_k),
     dw = -2 (1 - t) dt, dt/dp = -2 Q r, dt/dq00 = rx^2, dt/dq01 = 2 rx ry, dt/dq11 = ry^2.
     """
-    _, n, _ = grad_image.shape
+    if not _usable(f, px, py, q00, q01, q11):
+        return 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+    n = grad_image.shape[1]
+    s = gw = 0.0
+    u0 = u1 = u2 = u3 = u4 = 0.0  # sum_k G_k dw_k / dtheta
+    v0 = v1 = v2 = v3 = v4 = 0.0  # sum_k dw_k / dtheta
+    y0, y1 = _row_range(q00, q01, q11, py)
+    for iy in range(y0, y1 + 1):
+        ry = iy - py
+        x0, x1 = _row_span(q00, q01, q11, ry, px)
+        # Columns lo .. hi of the span lie on the image (none if the row is off it).
+        lo, hi = (max(x0, 0), min(x1, n - 1)) if 0 <= iy < n else (x1 + 1, x1)
+        rx = x0 - px
+        for ix in range(x0, x1 + 1):
+            u = max(1.0 - (q00 * rx * rx + 2.0 * q01 * rx * ry + q11 * ry * ry), 0.0)
+            w = u * u
+            k = -2.0 * u
+            d0 = -2.0 * k * (q00 * rx + q01 * ry)
+            d1 = -2.0 * k * (q01 * rx + q11 * ry)
+            d2 = k * rx * rx
+            d3 = 2.0 * k * rx * ry
+            d4 = k * ry * ry
+            s += w
+            v0 += d0
+            v1 += d1
+            v2 += d2
+            v3 += d3
+            v4 += d4
+            g = grad_image[c, iy, ix] if lo <= ix <= hi else 0.0
+            gw += g * w
+            u0 += g * d0
+            u1 += g * d1
+            u2 += g * d2
+            u3 += g * d3
+            u4 += g * d4
+            rx += 1.0
+    if s <= 0.0:
+        return 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+    mean = gw / s
+    scale = f / s
+    return (mean, scale * (u0 - mean * v0), scale * (u1 - mean * v1), scale * (u2 - mean * v2),
+            scale * (u3 - mean * v3), scale * (u4 - mean * v4))
+
+
+@nb.njit(parallel=True, cache=True, fastmath=FAST_MATH, error_model="numpy")
+def splat_backward(pos, metric, flux, channel, grad_image, g_pos, g_metric, g_flux):
+    """Gather the adjoint (see :func:`gather_photon`): gradients of <grad_image, splat(...)> w.r.t.
+    pos (2, N), metric (3, N) and flux (N,), written into g_pos, g_metric and g_flux."""
     for p in nb.prange(flux.shape[0]):
-        f, px, py = flux[p], pos[0, p], pos[1, p]
-        q00, q01, q11 = metric[0, p], metric[1, p], metric[2, p]
-        g_flux[p] = 0.0
-        g_pos[0, p] = 0.0
-        g_pos[1, p] = 0.0
-        g_metric[0, p] = 0.0
-        g_metric[1, p] = 0.0
-        g_metric[2, p] = 0.0
-        if not _usable(f, px, py, q00, q01, q11):
-            continue
-        c = channel[p]
-        s = gw = 0.0
-        u0 = u1 = u2 = u3 = u4 = 0.0  # sum_k G_k dw_k / dtheta
-        v0 = v1 = v2 = v3 = v4 = 0.0  # sum_k dw_k / dtheta
-        y0, y1 = _row_range(q00, q01, q11, py)
-        for iy in range(y0, y1 + 1):
-            ry = iy - py
-            x0, x1 = _row_span(q00, q01, q11, ry, px)
-            row_on = 0 <= iy < n
-            for ix in range(x0, x1 + 1):
-                rx = ix - px
-                t = q00 * rx * rx + 2.0 * q01 * rx * ry + q11 * ry * ry
-                if t >= 1.0:
-                    continue
-                w = (1.0 - t) ** 2
-                k = -2.0 * (1.0 - t)
-                d0 = -2.0 * k * (q00 * rx + q01 * ry)
-                d1 = -2.0 * k * (q01 * rx + q11 * ry)
-                d2 = k * rx * rx
-                d3 = 2.0 * k * rx * ry
-                d4 = k * ry * ry
-                s += w
-                v0 += d0
-                v1 += d1
-                v2 += d2
-                v3 += d3
-                v4 += d4
-                if row_on and 0 <= ix < n:
-                    g = grad_image[c, iy, ix]
-                    gw += g * w
-                    u0 += g * d0
-                    u1 += g * d1
-                    u2 += g * d2
-                    u3 += g * d3
-                    u4 += g * d4
-        if s <= 0.0:
-            continue
-        mean = gw / s
-        scale = f / s
-        g_flux[p] = mean
-        g_pos[0, p] = scale * (u0 - mean * v0)
-        g_pos[1, p] = scale * (u1 - mean * v1)
-        g_metric[0, p] = scale * (u2 - mean * v2)
-        g_metric[1, p] = scale * (u3 - mean * v3)
-        g_metric[2, p] = scale * (u4 - mean * v4)
+        g = gather_photon(grad_image, channel[p], pos[0, p], pos[1, p], metric[0, p], metric[1, p],
+                          metric[2, p], flux[p])
+        g_flux[p] = g[0]
+        g_pos[0, p] = g[1]
+        g_pos[1, p] = g[2]
+        g_metric[0, p] = g[3]
+        g_metric[1, p] = g[4]
+        g_metric[2, p] = g[5]

@@ -8,10 +8,13 @@ from experiments.bench import main
 
 
 def test_bench_prints_the_promised_figures(capsys):
-    main(["--photons", "30000", "--grad-photons", "30000", "--splat-photons", "3000", "--chunk-size", "8192"])
+    main(["--photons", "200000", "--grad-photons", "30000", "--splat-photons", "3000", "--chunk-size", "8192",
+          "--reference-photons", "20000"])
     report = json.loads(capsys.readouterr().out)
     assert report["forward_photons_per_s"] > 0 and report["forward_backward_photons_per_s"] > 0
     assert 0.0 < report["forward_split"]["trace_fraction"] < 1.0
+    reference = report["torch_reference_path"]
+    assert reference["forward_photons_per_s"] > 0 and reference["forward_backward_photons_per_s"] > 0
     comparison = report["splat_comparison"]
     assert comparison["relative_image_difference"] < 1e-5 and comparison["speedup"] > 0
     assert report["gradient_paper_photons"]["photons"] == 30000

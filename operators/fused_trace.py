@@ -1,0 +1,61 @@
+"""Host side of the fused photon kernels (:mod:`operators.fused_kernels`): image and gradient."""
+
+from __future__ import annotations
+
+import math
+
+import numba as nb
+import numpy as np
+
+from operators.emission import PointLightEmitter
+from operators.fused_kernels import FusedScene, render_photons, vjp_photons
+from operators.heightfield_surface import HeightFieldGrid
+from operators.scene import Scene
+
+
+class FusedTracer:
+    """Photons ``start .. stop-1`` of ``emitter`` traced through ``scene`` in one native pass each.
+
+    Matches the torch path (PointLightEmitter.batch, trace_substrate, footprint_metric,
+    splat_photons) photon by photon, computed in float64.
+    """
+
+    def __init__(self, scene: Scene, emitter: PointLightEmitter, min_footprint_px: float,
+                 max_pixel_radius: float, fresnel: bool) -> None:
+        self.scene = scene
+        self.shifts = np.ascontiguousarray(emitter.shifts.numpy(), dtype=np.float64)
+        self.indices = np.asarray(scene.indices, dtype=np.float64)
+        self.capacity = (2 * math.ceil(max_pixel_radius) + 3) ** 2
+        light, sub, rec = scene.light, scene.substrate, scene.receiver
+        self._constants = dict(
+            light_x=float(light.position[0]), light_y=float(light.position[1]), light_z=float(light.position[2]),
+            half=float(sub.half_width), base=float(sub.thickness), per_channel=int(emitter.per_channel),
+            flux_scale=light.power / (4.0 * math.pi * scene.channels) * emitter.cell_area
+            * (light.position[2] - sub.thickness),
+            radius=float(emitter.footprint_radius), receiver_z=float(rec.z), receiver_half=float(rec.half_width),
+            to_px=rec.resolution / (2.0 * rec.half_width), min_px=float(min_footprint_px),
+            max_px=float(max_pixel_radius), fresnel=bool(fresnel))
+
+    def constants(self, d: np.ndarray) -> FusedScene:
+        """Kernel constants for heights ``d`` (m, m) (the bracketing planes depend on them)."""
+        grid = HeightFieldGrid(self.scene.substrate.thickness, self.scene.substrate.half_width, d.shape[0])
+        zlo, zhi = grid.z_bounds(d)
+        return FusedScene(spacing=grid.spacing, zlo=zlo, zhi=zhi, **self._constants)
+
+    def image_buffers(self, dtype: np.dtype) -> np.ndarray:
+        """Zeroed per-thread images (threads, c, n, n) for :meth:`render`."""
+        n = self.scene.receiver.resolution
+        return np.zeros((nb.get_num_threads(), self.scene.channels, n, n), dtype=dtype)
+
+    def render(self, d: np.ndarray, start: int, stop: int, out: np.ndarray, splat: bool = True) -> float:
+        """Add the flux per pixel of photons start .. stop-1 to ``out`` (threads, c, n, n) for
+        float64 heights ``d`` (m, m); returns the flux that reached the receiver (W)."""
+        with nb.parallel_chunksize(1):
+            return render_photons(d, self.constants(d), self.shifts, self.indices, start, stop, out,
+                                  self.capacity, splat)
+
+    def vjp(self, d: np.ndarray, start: int, stop: int, grad_image: np.ndarray, out: np.ndarray) -> None:
+        """Add to ``out`` (threads, m, m) the gradient w.r.t. d of <flux per pixel of photons
+        start .. stop-1, grad_image (c, n, n) float64>."""
+        with nb.parallel_chunksize(1):
+            vjp_photons(d, self.constants(d), self.shifts, self.indices, start, stop, grad_image, out)
