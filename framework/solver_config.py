@@ -28,6 +28,16 @@ def make_step_size(spec: Mapping[str, Any]) -> StepSizePolicy:
     raise ValueError(f"unknown step_size.policy {policy!r}; use constant or backtracking")
 
 
+def build_preconditioner(spec: Mapping[str, Any] | None) -> Any:
+    """``{name: sobolev, length: 0.125, order: 2}`` (registry kind ``preconditioner``), or None."""
+    if not spec:
+        return None
+    params = dict(spec)
+    if "name" not in params:
+        raise ValueError(f"solver.preconditioner={params} needs a name, e.g. {{name: sobolev, length: 0.125}}")
+    return build("preconditioner", params.pop("name"), **params)
+
+
 def build_plugins(specs: Mapping[str, Any] | None) -> list[Any]:
     """Regularisers / post-step updates from ``{registry_name: {params}}``, in config order."""
     return [build("regularizer", name, **dict(params or {})) for name, params in (specs or {}).items()]
@@ -46,7 +56,9 @@ def build_solver(solver_cfg: Mapping[str, Any], data: DataFidelity, d0: torch.Te
     accepted = set(inspect.signature(cls.__init__).parameters)
     regularizers = build_plugins(regularizer_cfg)
     parts: dict[str, Any] = {"data": data, "d0": d0, "step_size": make_step_size(solver_cfg["step_size"])}
+    preconditioner_cfg = solver_cfg.get("preconditioner")
     offered: dict[str, tuple[Any, bool]] = {
+        "preconditioner": (build_preconditioner(preconditioner_cfg), bool(preconditioner_cfg)),
         "regularizers": (regularizers, bool(regularizers)),
         "pixel_regularizers": (regularizers, bool(regularizers)),
         "post_steps": (build_plugins(post_step_cfg), bool(post_step_cfg)),

@@ -5,6 +5,7 @@ Importing this package registers every solver: ``gradient_descent`` (M1), ``land
 """
 
 from .base import IterationFailed, IterationRecord, IterativeSolver, RunResult, SolverState
+from .preconditioner import GradientPreconditioner, SobolevPreconditioner
 from .proximal_gradient import GradientDescent, PixelLandweber, ProximalGradientSolver
 from .step_size import BacktrackingStep, ConstantStep, LineSearchFailed, StepChoice, StepSizePolicy, as_step_policy
 from .wavelet_landweber import WaveletLandweber
@@ -19,6 +20,8 @@ __all__ = [
     "GradientDescent",
     "PixelLandweber",
     "WaveletLandweber",
+    "GradientPreconditioner",
+    "SobolevPreconditioner",
     "StepSizePolicy",
     "ConstantStep",
     "BacktrackingStep",

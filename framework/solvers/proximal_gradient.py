@@ -2,7 +2,7 @@
 
 One iteration from d (with g = sum of the regularisers, P = their proxes applied in list order):
 
-    d+ = P(d - tau grad f(d), tau)            (the step-size policy picks tau)
+    d+ = P(d - tau K grad f(d), tau)          (the step-size policy picks tau; K = I or a preconditioner)
     d+ = u_K(... u_1(d+))                     (post-step updates, e.g. the volume heuristic V1)
     evaluate f, grad f at d+                  (one gradient evaluation per iteration)
 
@@ -25,6 +25,7 @@ from framework.objective import DataEvaluation, DataFidelity
 from framework.registry import register
 
 from .base import IterationFailed, IterationRecord, IterativeSolver
+from .preconditioner import GradientPreconditioner
 from .step_size import LineSearchFailed, StepSizePolicy, as_step_policy
 
 __all__ = ["ProximalGradientSolver", "GradientDescent", "PixelLandweber"]
@@ -62,6 +63,8 @@ class ProximalGradientSolver(IterativeSolver):
         step_size: A :class:`StepSizePolicy`, or a number for a constant step.
         regularizers: Regularisers with ``value(d)`` and ``prox(d, step)``, applied in order.
         post_steps: Heuristic updates ``u(d) -> d`` applied after the prox, in order.
+        preconditioner: If given, the step goes along P grad f instead of grad f (a variable
+            metric, e.g. :class:`framework.solvers.preconditioner.SobolevPreconditioner`).
         context: If given, ``setup(context)`` is called on every regulariser and post step that
             has ``setup`` (e.g. a :class:`regularizers.base.RegularizerContext`); if None the
             caller must have set them up.
@@ -74,6 +77,7 @@ class ProximalGradientSolver(IterativeSolver):
         step_size: StepSizePolicy | float,
         regularizers: Sequence[Any] = (),
         post_steps: Sequence[Any] = (),
+        preconditioner: GradientPreconditioner | None = None,
         context: Any = None,
     ) -> None:
         super().__init__(d0)
@@ -83,14 +87,18 @@ class ProximalGradientSolver(IterativeSolver):
         self.step_size = as_step_policy(step_size)
         self.regularizers = _check_regularizers(regularizers, self.name)
         self.post_steps = _check_post_steps(post_steps, self.name)
+        if preconditioner is not None and not callable(preconditioner):
+            raise ValueError(f"{self.name}: preconditioner {type(preconditioner).__name__} is not callable as P(grad)")
+        self.preconditioner = preconditioner
         self._evaluation: DataEvaluation | None = None
+        self._direction: Tensor | None = None
         if context is not None:
             for item in self._context_users():
                 if callable(getattr(item, "setup", None)):
                     item.setup(context)
 
     def _context_users(self) -> list[Any]:
-        return [*self.regularizers, *self.post_steps]
+        return [*self.regularizers, *self.post_steps, *([self.preconditioner] if self.preconditioner else [])]
 
     # -- the pieces a subclass may change ------------------------------------------------------
     def regularization_value(self, d: Tensor) -> float:
@@ -102,10 +110,16 @@ class ProximalGradientSolver(IterativeSolver):
             x = r.prox(x, tau)
         return x
 
+    def _step_direction(self) -> Tensor:
+        """grad f at the current iterate, preconditioned if configured (computed once per iterate)."""
+        if self._direction is None:
+            grad = self._current_evaluation().grad
+            self._direction = grad if self.preconditioner is None else self.preconditioner(grad)
+        return self._direction
+
     def _propose(self, tau: float) -> Candidate:
         """The proximal point for step tau (no operator call)."""
-        grad = self._current_evaluation().grad
-        return {"d": self._prox_pixels(self.state.d - tau * grad, tau)}
+        return {"d": self._prox_pixels(self.state.d - tau * self._step_direction(), tau)}
 
     def _finalize(self, candidate: Candidate) -> Candidate:
         """Apply the post-step updates to the accepted candidate."""
@@ -153,6 +167,7 @@ class ProximalGradientSolver(IterativeSolver):
         self.state.iteration += 1
         self.state.elapsed_s += time.perf_counter() - t0
         self._evaluation = evaluation
+        self._direction = None
         record = IterationRecord(
             iteration=self.state.iteration,
             objective=evaluation.value + regularization,
@@ -183,6 +198,7 @@ class ProximalGradientSolver(IterativeSolver):
     def load_state_dict(self, state: dict[str, Any]) -> None:  # noqa: D102
         super().load_state_dict(state)
         self.step_size.load_state_dict(state.get("step_size", {}))
+        self._direction = None
         ev = state.get("evaluation")
         like = self.state.d
         self._evaluation = None if ev is None else DataEvaluation(
@@ -205,8 +221,9 @@ class GradientDescent(ProximalGradientSolver):
 
     name = "gradient_descent"
 
-    def __init__(self, data: DataFidelity, d0: Tensor, step_size: StepSizePolicy | float) -> None:
-        super().__init__(data, d0, step_size)
+    def __init__(self, data: DataFidelity, d0: Tensor, step_size: StepSizePolicy | float,
+                 preconditioner: GradientPreconditioner | None = None, context: Any = None) -> None:
+        super().__init__(data, d0, step_size, preconditioner=preconditioner, context=context)
 
 
 @register("solver", "landweber_pixel")
@@ -227,6 +244,7 @@ class PixelLandweber(ProximalGradientSolver):
         step_size: StepSizePolicy | float,
         regularizers: Sequence[Any],
         post_steps: Sequence[Any] = (),
+        preconditioner: GradientPreconditioner | None = None,
         context: Any = None,
     ) -> None:
         if not list(regularizers):
@@ -234,4 +252,4 @@ class PixelLandweber(ProximalGradientSolver):
                 "landweber_pixel needs at least one regulariser with a prox (e.g. L1 + bounds); "
                 "for plain gradient descent use solver 'gradient_descent'"
             )
-        super().__init__(data, d0, step_size, regularizers, post_steps, context)
+        super().__init__(data, d0, step_size, regularizers, post_steps, preconditioner, context)

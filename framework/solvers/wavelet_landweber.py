@@ -22,6 +22,7 @@ from torch import Tensor
 from framework.objective import DataFidelity
 from framework.registry import register
 
+from .preconditioner import GradientPreconditioner
 from .proximal_gradient import Candidate, ProximalGradientSolver
 from .step_size import StepSizePolicy
 
@@ -43,6 +44,7 @@ class WaveletLandweber(ProximalGradientSolver):
         pixel_regularizers: Pixel proxes (L1 with alpha_p, bounds, mask), applied in order.
         post_steps: Heuristic updates ``u(d) -> d`` (volume heuristic V1).
         pixel_step_ratio: tau_p / tau_w > 0.
+        preconditioner: If given, grad_d f is replaced by P grad_d f (see :mod:`.preconditioner`).
         context: If given, passed to ``setup`` of every regulariser and post step.
     """
 
@@ -58,6 +60,7 @@ class WaveletLandweber(ProximalGradientSolver):
         pixel_regularizers: Sequence[Any] = (),
         post_steps: Sequence[Any] = (),
         pixel_step_ratio: float = 1.0,
+        preconditioner: GradientPreconditioner | None = None,
         context: Any = None,
     ) -> None:
         missing = [m for m in ("forward", "inverse", "inverse_adjoint") if not callable(getattr(wavelet, m, None))]
@@ -78,19 +81,18 @@ class WaveletLandweber(ProximalGradientSolver):
         self.wavelet = wavelet
         self.wavelet_regularizer = wavelet_regularizer
         self.pixel_step_ratio = float(pixel_step_ratio)
-        super().__init__(data, d0, step_size, pixel_regularizers, post_steps, context)
+        super().__init__(data, d0, step_size, pixel_regularizers, post_steps, preconditioner, context)
         self.state.coefficients = self.wavelet.forward(self.state.d)
 
     def _context_users(self) -> list[Any]:
-        return [self.wavelet_regularizer, *self.regularizers, *self.post_steps]
+        return [self.wavelet_regularizer, *super()._context_users()]
 
     def regularization_value(self, d: Tensor) -> float:
         """g(d) = alpha_w ||W d||_1 + the pixel regularisers' values."""
         return float(self.wavelet_regularizer.value(d)) + super().regularization_value(d)
 
     def _propose(self, tau: float) -> Candidate:
-        grad_d = self._current_evaluation().grad
-        grad_w = self.wavelet.inverse_adjoint(grad_d)
+        grad_w = self.wavelet.inverse_adjoint(self._step_direction())
         w = self.wavelet_regularizer.prox_coefficients(self.state.coefficients - tau * grad_w, tau)
         d = self.wavelet.inverse(w)
         return {"d": self._prox_pixels(d, tau * self.pixel_step_ratio)}
