@@ -23,7 +23,7 @@ from framework.checkpoint import save_checkpoint
 if TYPE_CHECKING:
     from framework.solvers.base import IterationRecord, IterativeSolver, RunResult
 
-__all__ = ["Callback", "MorozovStopping", "MetricsHistory", "ProgressBar", "Checkpointer", "GroundTruthError", "default_callbacks"]
+__all__ = ["Callback", "MorozovStopping", "StagnationStopping", "MetricsHistory", "ProgressBar", "Checkpointer", "GroundTruthError", "default_callbacks"]
 
 
 class Callback:
@@ -76,6 +76,47 @@ class MorozovStopping(Callback):
             self.stop_reason = (
                 f"discrepancy principle: rel. discrepancy {record.rel_discrepancy:.4g} <= "
                 f"tau_dis * delta = {self.tau_dis:g} * {self.delta:g} at iteration {record.iteration}"
+            )
+            return True
+        return False
+
+
+class StagnationStopping(Callback):
+    """Stop once the discrepancy has not improved for ``patience`` iterations; keep the best iterate.
+
+    The complement of Morozov's rule for data the model cannot fit down to tau_dis * delta (a
+    local minimum, features the model cannot resolve): when the relative discrepancy has stayed
+    above (1 - min_improvement) times its best value for ``patience`` iterations, more
+    iterations only drift (e.g. the volume heuristic V1 pumping height into a stalled fit), so
+    the run stops, and ``best_d`` / ``best_iteration`` hold the iterate with the lowest
+    discrepancy, which the caller should report. The best iterate is not part of a checkpoint: a
+    resumed run starts tracking afresh.
+
+    Args:
+        patience: Iterations without improvement before stopping (>= 1).
+        min_improvement: Relative decrease that counts as an improvement, in [0, 1).
+    """
+
+    def __init__(self, patience: int = 8, min_improvement: float = 1e-3) -> None:
+        if isinstance(patience, bool) or int(patience) != patience or int(patience) < 1:
+            raise ValueError(f"patience={patience!r} must be an integer >= 1 (iterations), e.g. 8; null disables the rule")
+        if not 0.0 <= float(min_improvement) < 1.0:
+            raise ValueError(f"min_improvement={min_improvement!r} must lie in [0, 1), e.g. 1e-3")
+        self.patience, self.min_improvement = int(patience), float(min_improvement)
+        self.best_discrepancy = math.inf
+        self.best_iteration: int | None = None
+        self.best_d: Tensor | None = None
+
+    def on_iteration(self, solver, record) -> bool:  # noqa: D102
+        if record.rel_discrepancy < (1.0 - self.min_improvement) * self.best_discrepancy or self.best_d is None:
+            self.best_discrepancy = record.rel_discrepancy
+            self.best_iteration = record.iteration
+            self.best_d = solver.d.detach().clone()
+            return False
+        if record.iteration - self.best_iteration >= self.patience:
+            self.stop_reason = (
+                f"stagnation: rel. discrepancy has not improved on {self.best_discrepancy:.4g} (iteration "
+                f"{self.best_iteration}) for {self.patience} iterations; the best iterate is returned"
             )
             return True
         return False

@@ -16,7 +16,8 @@ from typing import Any
 import numpy as np
 import torch
 
-from framework.callbacks import Checkpointer, GroundTruthError, MetricsHistory, MorozovStopping, ProgressBar
+from framework.callbacks import (Checkpointer, GroundTruthError, MetricsHistory, MorozovStopping, ProgressBar,
+                                 StagnationStopping)
 from framework.checkpoint import resume as resume_solver
 from framework.data import ReconstructionData, measured_data, synthetic_data
 from framework.image_io import load_caustic_image, load_mask
@@ -121,6 +122,10 @@ def run_reconstruction(cfg: Mapping[str, Any], output_dir: Path, base_dir: Path,
                      ProgressBar(desc=str(cfg.get("method", "reconstruct"))),
                      Checkpointer(output_dir / CHECKPOINT, every=int(cfg["checkpoint_every"])),
                      tracker.metrics_callback()]
+        patience = cfg["solver"].get("patience")
+        stagnation = StagnationStopping(patience) if patience is not None else None
+        if stagnation is not None:
+            callbacks.append(stagnation)
         truth_error = None
         if data.ground_truth is not None:
             truth_error = GroundTruthError(data.ground_truth.to(operator.dtype), scene.substrate.thickness)
@@ -133,10 +138,14 @@ def run_reconstruction(cfg: Mapping[str, Any], output_dir: Path, base_dir: Path,
             result = solver.run(max_iter, callbacks)
         solve_seconds = time.perf_counter() - solve_start
         d = result.d.detach()
+        returned_iteration = result.iterations
+        if stagnation is not None and result.stopped_by == type(stagnation).__name__:
+            d, returned_iteration = stagnation.best_d, stagnation.best_iteration
         prediction = operator.render(d)
         residual = float(torch.linalg.vector_norm((prediction - data.target.to(prediction)).double()))
         metrics: dict[str, Any] = {
             "method": cfg.get("method", "custom"), "iterations": result.iterations,
+            "returned_iteration": returned_iteration,
             "stop_reason": result.stop_reason, "stopped_by": result.stopped_by,
             "run_time_s": solve_seconds, "data_time_s": data_seconds,
             "rel_discrepancy": residual / float(torch.linalg.vector_norm(data.target.double())),

@@ -3,7 +3,8 @@ import math
 import pytest
 import torch
 
-from framework.callbacks import Callback, Checkpointer, GroundTruthError, MetricsHistory, MorozovStopping, ProgressBar
+from framework.callbacks import (Callback, Checkpointer, GroundTruthError, MetricsHistory, MorozovStopping, ProgressBar,
+                                 StagnationStopping)
 from framework.solvers import GradientDescent, IterationRecord, IterativeSolver
 from tests.framework.toy import DTYPE, make_problem
 
@@ -23,6 +24,7 @@ class ScriptedSolver(IterativeSolver):
         rec = IterationRecord(k + 1, 0.5 * self.discrepancies[k] ** 2, 0.5 * self.discrepancies[k] ** 2,
                               self.discrepancies[k], 0.1, float(k + 1))
         self.history.append(rec)
+        self.state.d = torch.full((2, 2), float(k + 1), dtype=DTYPE)  # the iterate remembers its number
         return rec
 
 
@@ -101,3 +103,25 @@ def test_checkpointer_validates_every(tmp_path):
 def test_non_callbacks_are_refused():
     with pytest.raises(ValueError, match="not a Callback"):
         ScriptedSolver([0.1]).run(1, [object()])
+
+
+def test_stagnation_stops_after_patience_iterations_without_improvement_and_keeps_the_best_iterate():
+    # best at iteration 4 (0.2); 0.1999 is not a 0.1% improvement; iterations 5..7 make 3 without.
+    stagnation = StagnationStopping(patience=3, min_improvement=1e-3)
+    result = ScriptedSolver([0.5, 0.4, 0.3, 0.2, 0.25, 0.1999, 0.3, 0.1, 0.05]).run(9, [stagnation])
+    assert result.iterations == 7 and result.stopped_by == "StagnationStopping"
+    assert stagnation.best_iteration == 4 and math.isclose(stagnation.best_discrepancy, 0.2)
+    torch.testing.assert_close(stagnation.best_d, torch.full((2, 2), 4.0, dtype=DTYPE))
+    assert "iteration 4" in result.stop_reason
+
+
+def test_stagnation_does_not_stop_a_run_that_keeps_improving():
+    stagnation = StagnationStopping(patience=2)
+    result = ScriptedSolver([0.5, 0.4, 0.3, 0.2, 0.1]).run(5, [stagnation])
+    assert result.stopped_by == "max_iter" and stagnation.best_iteration == 5
+
+
+@pytest.mark.parametrize("kwargs", [{"patience": 0}, {"patience": 2.5}, {"min_improvement": 1.0}])
+def test_stagnation_refuses_bad_settings(kwargs):
+    with pytest.raises(ValueError, match="patience|min_improvement"):
+        StagnationStopping(**kwargs)
