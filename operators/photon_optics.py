@@ -113,6 +113,25 @@ def refract(w: Vec, dwu: Vec, dwv: Vec, n: Vec, dnu: Vec, dnv: Vec, eta: float):
 
 
 @_jit
+def _refract_differential_adjoint(w: Vec, dw: Vec, n: Vec, dn: Vec, eta: float, ci: float, ct: float,
+                                  g_dw1: Vec, g_dw: Vec, g_dn: Vec, g_n: Vec, g_w: Vec, g_ci: float, g_ct: float):
+    """Adjoint of the b-term of one refracted differential, b (n) with b = eta D cos_i - D cos_t,
+    D cos_i = -(D w . n + w . D n), D cos_t = eta^2 cos_i D cos_i / cos_t: adds to and returns
+    (g_dw, g_dn, g_n, g_w, g_ci, g_ct)."""
+    e2 = eta * eta
+    dci = -dot(dw, n) - dot(w, dn)
+    dct = e2 * ci * dci / ct
+    g_b = dot(g_dw1, n)
+    g_n = axpy(eta * dci - dct, g_dw1, g_n)
+    g_dct = -g_b
+    g_dci = eta * g_b + g_dct * e2 * ci / ct
+    g_ci += g_dct * e2 * dci / ct
+    g_ct -= g_dct * dct / ct
+    return (axpy(-g_dci, n, g_dw), axpy(-g_dci, w, g_dn), axpy(-g_dci, dw, g_n), axpy(-g_dci, dn, g_w),
+            g_ci, g_ct)
+
+
+@_jit
 def refract_adjoint(w: Vec, dwu: Vec, dwv: Vec, n: Vec, dnu: Vec, dnv: Vec, eta: float,
                     g_w1: Vec, g_dwu1: Vec, g_dwv1: Vec, g_ci: float, g_ct: float):
     """Adjoint of :func:`refract`: (g_w, g_dwu, g_dwv, g_n, g_dnu, g_dnv)."""
@@ -129,32 +148,10 @@ def refract_adjoint(w: Vec, dwu: Vec, dwv: Vec, n: Vec, dnu: Vec, dnv: Vec, eta:
     g_dnu = scale(a, g_dwu1)
     g_dnv = scale(a, g_dwv1)
     g_a += dot(g_dwu1, dnu) + dot(g_dwv1, dnv)
-    # u differential
-    dci = -dot(dwu, n) - dot(w, dnu)
-    dct = e2 * ci * dci / ct
-    g_b = dot(g_dwu1, n)
-    g_n = axpy(eta * dci - dct, g_dwu1, g_n)
-    g_dct = -g_b
-    g_dci = eta * g_b + g_dct * e2 * ci / ct
-    g_ci += g_dct * e2 * dci / ct
-    g_ct -= g_dct * dct / ct
-    g_dwu = axpy(-g_dci, n, g_dwu)
-    g_n = axpy(-g_dci, dwu, g_n)
-    g_w = axpy(-g_dci, dnu, g_w)
-    g_dnu = axpy(-g_dci, w, g_dnu)
-    # v differential
-    dci = -dot(dwv, n) - dot(w, dnv)
-    dct = e2 * ci * dci / ct
-    g_b = dot(g_dwv1, n)
-    g_n = axpy(eta * dci - dct, g_dwv1, g_n)
-    g_dct = -g_b
-    g_dci = eta * g_b + g_dct * e2 * ci / ct
-    g_ci += g_dct * e2 * dci / ct
-    g_ct -= g_dct * dct / ct
-    g_dwv = axpy(-g_dci, n, g_dwv)
-    g_n = axpy(-g_dci, dwv, g_n)
-    g_w = axpy(-g_dci, dnv, g_w)
-    g_dnv = axpy(-g_dci, w, g_dnv)
+    g_dwu, g_dnu, g_n, g_w, g_ci, g_ct = _refract_differential_adjoint(
+        w, dwu, n, dnu, eta, ci, ct, g_dwu1, g_dwu, g_dnu, g_n, g_w, g_ci, g_ct)
+    g_dwv, g_dnv, g_n, g_w, g_ci, g_ct = _refract_differential_adjoint(
+        w, dwv, n, dnv, eta, ci, ct, g_dwv1, g_dwv, g_dnv, g_n, g_w, g_ci, g_ct)
     # a = eta cos_i - cos_t, cos_t = sqrt(max(k, 1e-12)), k = 1 - eta^2 (1 - cos_i^2), cos_i = -w . n
     g_ci += eta * g_a
     g_ct -= g_a

@@ -89,6 +89,9 @@ def test_measured_data_from_files(tmp_path):
     (["experiment=m1", "+regularizers.l1_pixel.alpha=0.1"], ValueError, "does not use regularizers"),
     (["+regularizers.no_such_prior={}"], KeyError, "no_such_prior"),
     (["solver.step_size.policy=adam"], ValueError, "adam"),
+    (["solver.preconditioner.length=-1"], ValueError, "length=-1"),
+    (["solver.preconditioner.name=multigrid"], KeyError, "multigrid"),
+    (["solver.patience=0"], ValueError, "patience=0"),
 ])
 def test_bad_configuration_is_refused_clearly(tmp_path, overrides, error, message):
     np.save(tmp_path / "caustic.npy", np.ones((1, 64, 64)))
