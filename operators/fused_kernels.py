@@ -96,6 +96,23 @@ def hit_top(d, sc, w, wx, wy, patch, order):
 
 
 @_jit
+def through_top(d, sc, shifts, indices, index, wx, wy, patch, order):
+    """Photon ``index`` emitted, hit on the printed surface (weight tables up to ``order``) and
+    refracted into the glass, with every intermediate the adjoint needs:
+    (c, w, Dw, flux, t, jet, ix, iy, n, p1, Dp1, Dn, eta, w1, Dw1, cos_i, cos_t), each D a u, v pair."""
+    c, w, dwu, dwv, flux = emit(index, sc, shifts)
+    t, jet, ix, iy = hit_top(d, sc, w, wx, wy, patch, order)
+    sx, sy, sxx, sxy, syy = jet
+    n1 = height_field_normal(sx, sy)
+    p1, dpu1, dpv1 = transfer((sc.light_x, sc.light_y, sc.light_z), ZERO, ZERO, w, dwu, dwv, t, n1)
+    dnu = normal_differential(sxx, sxy, syy, n1, dpu1)
+    dnv = normal_differential(sxx, sxy, syy, n1, dpv1)
+    eta = indices[c]
+    w1, dwu1, dwv1, ci1, ct1, _ = refract(w, dwu, dwv, n1, dnu, dnv, 1.0 / eta)
+    return c, w, dwu, dwv, flux, t, jet, ix, iy, n1, p1, dpu1, dpv1, dnu, dnv, eta, w1, dwu1, dwv1, ci1, ct1
+
+
+@_jit
 def below_top(p1, dpu1, dpv1, w1, dwu1, dwv1, eta, sc):
     """From the top hit to the receiver: (lost, dist2, p2, Dp2, w2, Dw2, cos_i, cos_t, dist3, p3, Dp3)."""
     dist2 = -p1[2] / away_from_zero(w1[2])
@@ -110,15 +127,8 @@ def below_top(p1, dpu1, dpv1, w1, dwu1, dwv1, eta, sc):
 @_jit
 def trace_photon(d, sc, shifts, indices, index, wx, wy, patch):
     """Photon ``index`` on the receiver: (channel, px, py, q00, q01, q11, flux) in pixels; flux 0 if lost."""
-    c, w, dwu, dwv, flux = emit(index, sc, shifts)
-    t, jet, _, _ = hit_top(d, sc, w, wx, wy, patch, 2)
-    sx, sy, sxx, sxy, syy = jet
-    n1 = height_field_normal(sx, sy)
-    p1, dpu1, dpv1 = transfer((sc.light_x, sc.light_y, sc.light_z), ZERO, ZERO, w, dwu, dwv, t, n1)
-    dnu = normal_differential(sxx, sxy, syy, n1, dpu1)
-    dnv = normal_differential(sxx, sxy, syy, n1, dpv1)
-    eta = indices[c]
-    w1, dwu1, dwv1, ci1, ct1, _ = refract(w, dwu, dwv, n1, dnu, dnv, 1.0 / eta)
+    (c, _, _, _, flux, _, _, _, _, _, p1, dpu1, dpv1, _, _, eta, w1, dwu1, dwv1, ci1, ct1
+     ) = through_top(d, sc, shifts, indices, index, wx, wy, patch, 2)
     lost, _, _, _, _, _, _, _, ci2, ct2, _, p3, dpu3, dpv3 = below_top(p1, dpu1, dpv1, w1, dwu1, dwv1, eta, sc)
     if lost:
         return c, 0.0, 0.0, 1.0, 0.0, 1.0, 0.0
@@ -169,16 +179,9 @@ def render_photons(d, sc, shifts, indices, start, stop, out, capacity, splat):
 @_jit
 def _photon_vjp(d, sc, shifts, indices, index, grad_image, wx, wy, patch, grad):
     """Add photon ``index``'s contribution to the gradient ``grad`` (m, m) of <splat, grad_image>."""
-    c, w, dwu, dwv, flux0 = emit(index, sc, shifts)
-    t, jet, ix, iy = hit_top(d, sc, w, wx, wy, patch, 3)
+    (c, w, dwu, dwv, flux0, t, jet, ix, iy, n1, p1, dpu1, dpv1, dnu, dnv, eta, w1, dwu1, dwv1, ci1, ct1
+     ) = through_top(d, sc, shifts, indices, index, wx, wy, patch, 3)
     sx, sy, sxx, sxy, syy = jet
-    light = (sc.light_x, sc.light_y, sc.light_z)
-    n1 = height_field_normal(sx, sy)
-    p1, dpu1, dpv1 = transfer(light, ZERO, ZERO, w, dwu, dwv, t, n1)
-    dnu = normal_differential(sxx, sxy, syy, n1, dpu1)
-    dnv = normal_differential(sxx, sxy, syy, n1, dpv1)
-    eta = indices[c]
-    w1, dwu1, dwv1, ci1, ct1, _ = refract(w, dwu, dwv, n1, dnu, dnv, 1.0 / eta)
     (lost, dist2, p2, dpu2, dpv2, w2, dwu2, dwv2, ci2, ct2, dist3, p3, dpu3, dpv3
      ) = below_top(p1, dpu1, dpv1, w1, dwu1, dwv1, eta, sc)
     if lost:
