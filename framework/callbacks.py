@@ -87,14 +87,20 @@ class StagnationStopping(Callback):
     The complement of Morozov's rule for data the model cannot fit down to tau_dis * delta (a
     local minimum, features the model cannot resolve): when the relative discrepancy has stayed
     above (1 - min_improvement) times its best value for ``patience`` iterations, more
-    iterations only drift (e.g. the volume heuristic V1 pumping height into a stalled fit), so
-    the run stops, and ``best_d`` / ``best_iteration`` hold the iterate with the lowest
+    iterations only drift (e.g. the volume heuristic V1 pumping height into a stalled fit).
+    Before stopping, the solver is offered ``refine(best_d)`` (a coarse-to-fine preconditioner
+    schedule, :meth:`framework.solvers.proximal_gradient.ProximalGradientSolver.refine`): if it
+    accepts, it continues from the best iterate in a finer stage and the count starts again.
+    Otherwise the run stops, and ``best_d`` / ``best_iteration`` hold the iterate with the lowest
     discrepancy, which the caller should report. The best iterate is not part of a checkpoint: a
     resumed run starts tracking afresh.
 
     Args:
-        patience: Iterations without improvement before stopping (>= 1).
+        patience: Iterations without improvement before refining or stopping (>= 1).
         min_improvement: Relative decrease that counts as an improvement, in [0, 1).
+
+    Attributes:
+        refined_at: Iterations after which the solver switched to a finer stage.
     """
 
     def __init__(self, patience: int = 8, min_improvement: float = 1e-3) -> None:
@@ -106,20 +112,32 @@ class StagnationStopping(Callback):
         self.best_discrepancy = math.inf
         self.best_iteration: int | None = None
         self.best_d: Tensor | None = None
+        self._reference = math.inf  # discrepancy that the next improvement must beat by min_improvement
+        self._progress_iteration = 0  # iteration of the last such improvement (or refinement)
+        self.refined_at: list[int] = []
 
     def on_iteration(self, solver, record) -> bool:  # noqa: D102
-        if record.rel_discrepancy < (1.0 - self.min_improvement) * self.best_discrepancy or self.best_d is None:
+        if record.rel_discrepancy < self.best_discrepancy or self.best_d is None:
             self.best_discrepancy = record.rel_discrepancy
             self.best_iteration = record.iteration
             self.best_d = solver.d.detach().clone()
+        if record.rel_discrepancy < (1.0 - self.min_improvement) * self._reference:
+            self._reference = record.rel_discrepancy
+            self._progress_iteration = record.iteration
             return False
-        if record.iteration - self.best_iteration >= self.patience:
-            self.stop_reason = (
-                f"stagnation: rel. discrepancy has not improved on {self.best_discrepancy:.4g} (iteration "
-                f"{self.best_iteration}) for {self.patience} iterations; the best iterate is returned"
-            )
-            return True
-        return False
+        if record.iteration - self._progress_iteration < self.patience:
+            return False
+        refine = getattr(solver, "refine", None)
+        if callable(refine) and refine(self.best_d):
+            self.refined_at.append(record.iteration)
+            self._reference = self.best_discrepancy
+            self._progress_iteration = record.iteration
+            return False
+        self.stop_reason = (
+            f"stagnation: no {self.min_improvement:.2%} improvement of the rel. discrepancy for {self.patience} "
+            f"iterations; the best iterate (iteration {self.best_iteration}, {self.best_discrepancy:.4g}) is returned"
+        )
+        return True
 
 
 class MetricsHistory(Callback):

@@ -45,8 +45,12 @@ class ForwardOperator(Protocol):
         """The image F(d), shape (c, n, n), for a height field d of shape (m, m); no graph."""
         ...
 
-    def loss_and_grad(self, d: Tensor, target: Tensor) -> tuple[float, Tensor, Tensor]:
-        """(1/2 ||F(d) - target||_F^2, its gradient w.r.t. d (m, m), the image F(d) (c, n, n))."""
+    def loss_and_grad(self, d: Tensor, target: Tensor, image: Tensor | None = None) -> tuple[float, Tensor, Tensor]:
+        """(1/2 ||F(d) - target||_F^2, its gradient w.r.t. d (m, m), the image F(d) (c, n, n)).
+
+        ``image``, when given, is F(d) as this operator rendered it before (same d, same random
+        numbers): an operator may use it instead of rendering again.
+        """
         ...
 
 
@@ -55,7 +59,8 @@ def loss_and_grad_by_autograd(
 ) -> tuple[float, Tensor, Tensor]:
     """``loss_and_grad`` for a small operator by plain autograd (keeps the whole graph in memory).
 
-    Meant for toy and test operators; the photon operators implement the chunked two-pass version.
+    Meant for toy and test operators (which then ignore a rendered ``image``: autograd needs the
+    forward pass anyway); the photon operators implement the chunked two-pass version.
 
     Returns:
         (1/2 ||forward(d) - target||_F^2, gradient (shape of d), image (shape of target)).
@@ -103,7 +108,7 @@ class DataFidelity:
         >>> A = torch.eye(4, dtype=torch.float64)
         >>> class Op:
         ...     def __call__(self, d): return (A @ d.reshape(-1)).reshape(1, 2, 2)
-        ...     def loss_and_grad(self, d, b): return loss_and_grad_by_autograd(self, d, b)
+        ...     def loss_and_grad(self, d, b, image=None): return loss_and_grad_by_autograd(self, d, b)
         >>> data = DataFidelity(Op(), torch.ones(1, 2, 2, dtype=torch.float64))
         >>> data.evaluate(torch.zeros(2, 2, dtype=torch.float64)).rel_discrepancy
         1.0
@@ -123,6 +128,9 @@ class DataFidelity:
         self.target = self._validated_target(target, operator, max_negative_fraction)
         self.target_norm_sq = float(torch.sum(self.target.double() ** 2))
         self.target_norm = math.sqrt(self.target_norm_sq)
+        # The last value-only evaluation (d, F(d)): a gradient evaluation at the same d (the
+        # accepted trial of a line search) hands F(d) to the operator instead of rendering again.
+        self._last_forward: tuple[Tensor, Tensor] | None = None
 
     @staticmethod
     def _validated_target(target: Tensor, operator: object, max_negative_fraction: float) -> Tensor:
@@ -175,8 +183,13 @@ class DataFidelity:
             with_grad: False for a value-only evaluation (one forward pass, no backward).
         """
         self._check_d(d)
+        known = self._last_forward
+        rendered = known[1] if known is not None and known[0].shape == d.shape and torch.equal(known[0], d) else None
         if with_grad:
-            raw, grad, image = self.operator.loss_and_grad(d, self.target)
+            if rendered is None:
+                raw, grad, image = self.operator.loss_and_grad(d, self.target)
+            else:
+                raw, grad, image = self.operator.loss_and_grad(d, self.target, image=rendered)
             if tuple(grad.shape) != tuple(d.shape):
                 raise ValueError(
                     f"operator {type(self.operator).__name__} returned a gradient of shape "
@@ -184,8 +197,11 @@ class DataFidelity:
                 )
             grad = grad.detach() / (self.target_norm_sq * self.cell_area)
         else:
-            with torch.no_grad():
-                image = self.operator(d)
+            if rendered is None:
+                with torch.no_grad():
+                    rendered = self.operator(d).detach()
+                self._last_forward = (d.detach().clone(), rendered)
+            image = rendered
             grad = None
         image = image.detach()
         self._check_image(image)

@@ -139,13 +139,14 @@ def run_reconstruction(cfg: Mapping[str, Any], output_dir: Path, base_dir: Path,
         solve_seconds = time.perf_counter() - solve_start
         d = result.d.detach()
         returned_iteration = result.iterations
-        if stagnation is not None and result.stopped_by == type(stagnation).__name__:
+        if stagnation is not None and stagnation.best_d is not None:  # the lowest discrepancy seen
             d, returned_iteration = stagnation.best_d, stagnation.best_iteration
         prediction = operator.render(d)
         residual = float(torch.linalg.vector_norm((prediction - data.target.to(prediction)).double()))
         metrics: dict[str, Any] = {
             "method": cfg.get("method", "custom"), "iterations": result.iterations,
             "returned_iteration": returned_iteration,
+            "refined_at": [] if stagnation is None else stagnation.refined_at,
             "stop_reason": result.stop_reason, "stopped_by": result.stopped_by,
             "run_time_s": solve_seconds, "data_time_s": data_seconds,
             "rel_discrepancy": residual / float(torch.linalg.vector_norm(data.target.double())),

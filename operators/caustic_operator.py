@@ -187,9 +187,14 @@ class CausticOperator:
                 torch.autograd.backward([t for t, _ in pairs], [gt for _, gt in pairs])
         return leaf.grad.to(heights.dtype)
 
-    def loss_and_grad(self, heights: torch.Tensor, target: torch.Tensor) -> tuple[float, torch.Tensor, torch.Tensor]:
-        """(1/2 ||F(d) - target||^2, its gradient (m, m), F(d)) in two passes of bounded memory."""
-        image = self.render(heights)
+    def loss_and_grad(self, heights: torch.Tensor, target: torch.Tensor, image: torch.Tensor | None = None
+                      ) -> tuple[float, torch.Tensor, torch.Tensor]:
+        """(1/2 ||F(d) - target||^2, its gradient (m, m), F(d)) in two passes of bounded memory;
+        ``image`` = F(d) from an earlier :meth:`render` of these heights skips the first pass."""
+        if image is None:
+            image = self.render(heights)
+        elif image.shape != self.output_shape:
+            raise ValueError(f"image has shape {tuple(image.shape)}, the operator renders {self.output_shape}")
         if target.shape != image.shape:
             raise ValueError(f"target has shape {tuple(target.shape)}, the operator renders {tuple(image.shape)}")
         residual = image - target.to(image)

@@ -177,8 +177,9 @@ def render_photons(d, sc, shifts, indices, start, stop, out, capacity, splat):
 
 
 @_jit
-def _photon_vjp(d, sc, shifts, indices, index, grad_image, wx, wy, patch, grad):
-    """Add photon ``index``'s contribution to the gradient ``grad`` (m, m) of <splat, grad_image>."""
+def _photon_vjp(d, sc, shifts, indices, index, padded, pad, wx, wy, patch, grad):
+    """Add photon ``index``'s contribution to the gradient ``grad`` (m, m) of <splat, G>, G given
+    with ``pad`` zero pixels on every side (``padded``, see :func:`operators.splat_kernels.gather_photon`)."""
     (c, w, dwu, dwv, flux0, t, jet, ix, iy, n1, p1, dpu1, dpv1, dnu, dnv, eta, w1, dwu1, dwv1, ci1, ct1
      ) = through_top(d, sc, shifts, indices, index, wx, wy, patch, 3)
     sx, sy, sxx, sxy, syy = jet
@@ -191,7 +192,7 @@ def _photon_vjp(d, sc, shifts, indices, index, grad_image, wx, wy, patch, grad):
     k = sc.to_px
     fu_x, fu_y, fv_x, fv_y = dpu3[0] * k, dpu3[1] * k, dpv3[0] * k, dpv3[1] * k
     q00, q01, q11 = footprint_metric(fu_x, fu_y, fv_x, fv_y, sc.min_px, sc.max_px)
-    g_flux, g_px, g_py, g00, g01, g11 = gather_photon(grad_image, c, (p3[0] + sc.receiver_half) * k - 0.5,
+    g_flux, g_px, g_py, g00, g01, g11 = gather_photon(padded, pad, c, (p3[0] + sc.receiver_half) * k - 0.5,
                                                       (p3[1] + sc.receiver_half) * k - 0.5, q00, q01, q11,
                                                       flux0 * t1 * t2)
     if g_flux == 0.0 and g_px == 0.0 and g_py == 0.0 and g00 == 0.0 and g01 == 0.0 and g11 == 0.0:
@@ -230,20 +231,22 @@ def _photon_vjp(d, sc, shifts, indices, index, grad_image, wx, wy, patch, grad):
 
 
 @nb.njit(cache=True, fastmath=FAST_MATH, error_model="numpy")
-def _vjp_range(d, sc, shifts, indices, lo, hi, grad_image, grad) -> None:
+def _vjp_range(d, sc, shifts, indices, lo, hi, padded, pad, grad) -> None:
     """Serial body of :func:`vjp_photons` for photons lo .. hi-1 (one thread, its own gradient)."""
     wx = np.empty((4, 4))
     wy = np.empty((4, 4))
     patch = np.empty((4, 4))
     for index in range(lo, hi):
-        _photon_vjp(d, sc, shifts, indices, index, grad_image, wx, wy, patch, grad)
+        _photon_vjp(d, sc, shifts, indices, index, padded, pad, wx, wy, patch, grad)
 
 
 @nb.njit(parallel=True, cache=True, fastmath=FAST_MATH, error_model="numpy")
-def vjp_photons(d, sc, shifts, indices, start, stop, grad_image, out):
+def vjp_photons(d, sc, shifts, indices, start, stop, padded, pad, out):
     """Add to ``out`` (threads, m, m) the gradient w.r.t. d of <splat of photons start .. stop-1,
-    grad_image> (grad_image (c, n, n) float64, per pixel flux); sum over axis 0 after."""
+    G> (G (c, n, n), per pixel flux, given as ``padded`` float64 with ``pad`` zero pixels on every
+    side: :func:`operators.splat_kernels.pad_for_gather`); sum over axis 0 after."""
     blocks = (stop - start + BLOCK - 1) // BLOCK
     for b in nb.prange(blocks):
         lo = start + b * BLOCK
-        _vjp_range(d, sc, shifts, indices, lo, min(stop, lo + BLOCK), grad_image, out[nb.get_thread_id()])
+        _vjp_range(d, sc, shifts, indices, lo, min(stop, lo + BLOCK), padded, pad,
+                   out[nb.get_thread_id()])

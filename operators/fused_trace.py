@@ -11,6 +11,7 @@ from operators.emission import PointLightEmitter
 from operators.fused_kernels import FusedScene, render_photons, vjp_photons
 from operators.heightfield_surface import HeightFieldGrid
 from operators.scene import Scene
+from operators.splat_kernels import gather_padding, pad_for_gather
 
 
 class FusedTracer:
@@ -26,6 +27,8 @@ class FusedTracer:
         self.shifts = np.ascontiguousarray(emitter.shifts.numpy(), dtype=np.float64)
         self.indices = np.asarray(scene.indices, dtype=np.float64)
         self.capacity = (2 * math.ceil(max_pixel_radius) + 3) ** 2
+        # Footprints' major semi-axes are capped at max_pixel_radius, so are their boxes' half extents.
+        self.gather_pad = gather_padding(max_pixel_radius)
         light, sub, rec = scene.light, scene.substrate, scene.receiver
         self._constants = dict(
             light_x=float(light.position[0]), light_y=float(light.position[1]), light_z=float(light.position[2]),
@@ -58,4 +61,5 @@ class FusedTracer:
         """Add to ``out`` (threads, m, m) the gradient w.r.t. d of <flux per pixel of photons
         start .. stop-1, grad_image (c, n, n) float64>."""
         with nb.parallel_chunksize(1):
-            vjp_photons(d, self.constants(d), self.shifts, self.indices, start, stop, grad_image, out)
+            vjp_photons(d, self.constants(d), self.shifts, self.indices, start, stop,
+                        pad_for_gather(grad_image, self.gather_pad), self.gather_pad, out)

@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import math
+
 import numba as nb
 import numpy as np
 import torch
 
 from operators.native import to_numpy
-from operators.splat_kernels import splat_backward, splat_forward
+from operators.splat_kernels import gather_padding, pad_for_gather, splat_backward, splat_forward
 
 
 MAX_DIFFERENTIAL_PX = 1e6
@@ -38,13 +40,18 @@ def footprint_metric(footprint: torch.Tensor, min_radius_px: float, max_radius_p
     return torch.stack([(a11 + r2) / det, -a01 / det, (a00 + r2) / det]).to(footprint.dtype)
 
 
-def footprint_capacity(metric: np.ndarray) -> int:
-    """Upper bound on the pixels of any footprint: its bounding box (3, N) metric."""
+def footprint_half_extent(metric: np.ndarray) -> float:
+    """Largest half extent (pixels, at most 1e4) of the footprints' bounding boxes, (3, N) metric."""
     if metric.shape[1] == 0:
-        return 1
+        return 0.0
     det = metric[0] * metric[2] - metric[1] ** 2
     half = np.sqrt(np.maximum(metric[0], metric[2]) / np.maximum(det, 1e-30))
-    side = 2 * int(np.ceil(np.nanmax(np.minimum(half, 1e4)))) + 3
+    return float(np.nanmax(np.minimum(half, 1e4)))
+
+
+def footprint_capacity(metric: np.ndarray) -> int:
+    """Upper bound on the pixels of any footprint: its bounding box (3, N) metric."""
+    side = 2 * math.ceil(footprint_half_extent(metric)) + 3
     return side * side
 
 
@@ -73,8 +80,10 @@ def splat_photons_vjp(pos: torch.Tensor, metric: torch.Tensor, flux: torch.Tenso
     g_pos = np.empty((2, f.shape[0]), dtype=f.dtype)
     g_metric = np.empty((3, f.shape[0]), dtype=f.dtype)
     g_flux = np.empty(f.shape[0], dtype=f.dtype)
-    splat_backward(to_numpy(pos).astype(f.dtype), to_numpy(metric).astype(f.dtype), f, to_numpy(channel),
-                   to_numpy(grad_image).astype(f.dtype), g_pos, g_metric, g_flux)
+    q = to_numpy(metric).astype(f.dtype)
+    pad = gather_padding(footprint_half_extent(q))
+    splat_backward(to_numpy(pos).astype(f.dtype), q, f, to_numpy(channel), pad_for_gather(to_numpy(grad_image), pad),
+                   pad, g_pos, g_metric, g_flux)
 
     def back(a: np.ndarray, like: torch.Tensor) -> torch.Tensor:
         return torch.from_numpy(a).to(dtype=like.dtype, device=like.device)

@@ -22,23 +22,6 @@ import numpy as np
 from operators.native import FAST_MATH
 
 
-@nb.njit(cache=True, inline="always", fastmath=FAST_MATH, error_model="numpy")
-def _row_span(q00, q01, q11, ry, px) -> tuple[int, int]:
-    """Integer pixel columns whose centres satisfy t < 1 on the row at offset ry."""
-    disc = (q01 * ry) ** 2 - q00 * (q11 * ry * ry - 1.0)
-    if disc <= 0.0:
-        return 1, 0
-    root = math.sqrt(disc)
-    return int(math.ceil(px + (-q01 * ry - root) / q00)), int(math.floor(px + (-q01 * ry + root) / q00))
-
-
-@nb.njit(cache=True, inline="always", fastmath=FAST_MATH, error_model="numpy")
-def _row_range(q00, q01, q11, py) -> tuple[int, int]:
-    """Integer pixel rows that the ellipse touches (half height sqrt(q00 / det Q))."""
-    half = math.sqrt(q00 / (q00 * q11 - q01 * q01))
-    return int(math.ceil(py - half)), int(math.floor(py + half))
-
-
 # Photons farther than this from the image (pixels) are skipped: nothing of theirs can land.
 FAR_PX = 1e7
 
@@ -117,63 +100,88 @@ def splat_forward(pos, metric, flux, channel, out, capacity):
 
 
 @nb.njit(cache=True, inline="always", fastmath=FAST_MATH, error_model="numpy")
-def gather_photon(grad_image, c, px, py, q00, q01, q11, f) -> tuple[float, float, float, float, float, float]:
-    """One photon's adjoint: gradients of <grad_image, splat> w.r.t. (flux, px, py, q00, q01, q11).
+def gather_photon(padded, pad, c, px, py, q00, q01, q11, f) -> tuple[float, float, float, float, float, float]:
+    """One photon's adjoint: gradients of <G, splat> w.r.t. (flux, px, py, q00, q01, q11).
 
-    With I = f / s * sum_k G_k w_k: dI/df = sum G w / s and, for theta in (px, py, q00, q01, q11),
-    dI/dtheta = f / s * (sum_k G_k dw_k - (sum_k G_k w_k / s) sum_k dw_k),
+    ``padded`` is G (c, n, n) with ``pad`` zero pixels added on every side (:func:`pad_for_gather`);
+    ``pad`` must exceed the half extents of every footprint's bounding box, so the loops below
+    need no bounds checks. With I = f / s * sum_k G_k w_k: dI/df = sum G w / s and, for theta in
+    (px, py, q00, q01, q11), dI/dtheta = f / s * (sum_k G_k dw_k - (sum_k G_k w_k / s) sum_k dw_k),
     dw = -2 (1 - t) dt, dt/dp = -2 Q r, dt/dq00 = rx^2, dt/dq01 = 2 rx ry, dt/dq11 = ry^2.
+    Every dw sum is a combination of the row moments sum (1 - t) rx^j, j = 0, 1, 2 (ry is fixed
+    on a row), so the per-pixel loop over the bounding box only accumulates those, with and
+    without G (branch-free; w = max(1 - t, 0)^2 is zero outside the ellipse).
     """
     if not _usable(f, px, py, q00, q01, q11):
         return 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
-    n = grad_image.shape[1]
+    n = padded.shape[1] - 2 * pad
+    x0, x1, y0, y1 = _box(px, py, q00, q01, q11)
+    if x1 < 0 or y1 < 0 or x0 > n - 1 or y0 > n - 1 or x1 < x0 or y1 < y0:
+        return 0.0, 0.0, 0.0, 0.0, 0.0, 0.0  # nothing on the image: G = 0 on the whole footprint
+    x0, x1 = max(x0, -pad), min(x1, n - 1 + pad)
+    y0, y1 = max(y0, -pad), min(y1, n - 1 + pad)
+    width = x1 - x0 + 1
     s = gw = 0.0
-    u0 = u1 = u2 = u3 = u4 = 0.0  # sum_k G_k dw_k / dtheta
-    v0 = v1 = v2 = v3 = v4 = 0.0  # sum_k dw_k / dtheta
-    y0, y1 = _row_range(q00, q01, q11, py)
+    v0 = v1 = v2 = v3 = v4 = 0.0  # sum_k dw_k / dtheta, over -2
+    u0 = u1 = u2 = u3 = u4 = 0.0  # sum_k G_k dw_k / dtheta, over -2
     for iy in range(y0, y1 + 1):
         ry = iy - py
-        x0, x1 = _row_span(q00, q01, q11, ry, px)
-        # Columns lo .. hi of the span lie on the image (none if the row is off it).
-        lo, hi = (max(x0, 0), min(x1, n - 1)) if 0 <= iy < n else (x1 + 1, x1)
+        b = 2.0 * q01 * ry
+        e = q11 * ry * ry
+        row = padded[c, iy + pad]
         rx = x0 - px
-        for ix in range(x0, x1 + 1):
-            u = max(1.0 - (q00 * rx * rx + 2.0 * q01 * rx * ry + q11 * ry * ry), 0.0)
-            w = u * u
-            k = -2.0 * u
-            d0 = -2.0 * k * (q00 * rx + q01 * ry)
-            d1 = -2.0 * k * (q01 * rx + q11 * ry)
-            d2 = k * rx * rx
-            d3 = 2.0 * k * rx * ry
-            d4 = k * ry * ry
-            s += w
-            v0 += d0
-            v1 += d1
-            v2 += d2
-            v3 += d3
-            v4 += d4
-            g = grad_image[c, iy, ix] if lo <= ix <= hi else 0.0
-            gw += g * w
-            u0 += g * d0
-            u1 += g * d1
-            u2 += g * d2
-            u3 += g * d3
-            u4 += g * d4
+        sw = a0 = a1 = a2 = 0.0
+        gsw = g0 = g1 = g2 = 0.0
+        for ix in range(x0 + pad, x0 + pad + width):
+            u = max(1.0 - ((q00 * rx + b) * rx + e), 0.0)
+            g = row[ix]
+            sw += u * u
+            a0 += u
+            a1 += u * rx
+            a2 += u * rx * rx
+            gu = g * u
+            gsw += gu * u
+            g0 += gu
+            g1 += gu * rx
+            g2 += gu * rx * rx
             rx += 1.0
+        s += sw
+        gw += gsw
+        v0 -= 2.0 * (q00 * a1 + q01 * ry * a0)
+        v1 -= 2.0 * (q01 * a1 + q11 * ry * a0)
+        v2 += a2
+        v3 += 2.0 * ry * a1
+        v4 += ry * ry * a0
+        u0 -= 2.0 * (q00 * g1 + q01 * ry * g0)
+        u1 -= 2.0 * (q01 * g1 + q11 * ry * g0)
+        u2 += g2
+        u3 += 2.0 * ry * g1
+        u4 += ry * ry * g0
     if s <= 0.0:
         return 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
     mean = gw / s
-    scale = f / s
+    scale = -2.0 * f / s
     return (mean, scale * (u0 - mean * v0), scale * (u1 - mean * v1), scale * (u2 - mean * v2),
             scale * (u3 - mean * v3), scale * (u4 - mean * v4))
 
 
+def gather_padding(max_half_extent_px: float) -> int:
+    """Zero border (pixels) that :func:`gather_photon` needs for bounding boxes up to this half extent."""
+    return int(math.ceil(max_half_extent_px)) + 2
+
+
+def pad_for_gather(grad_image: np.ndarray, pad: int) -> np.ndarray:
+    """G (c, n, n) float64 with ``pad`` zero pixels on every side, for :func:`gather_photon`."""
+    return np.pad(np.asarray(grad_image, dtype=np.float64), ((0, 0), (pad, pad), (pad, pad)))
+
+
 @nb.njit(parallel=True, cache=True, fastmath=FAST_MATH, error_model="numpy")
-def splat_backward(pos, metric, flux, channel, grad_image, g_pos, g_metric, g_flux):
-    """Gather the adjoint (see :func:`gather_photon`): gradients of <grad_image, splat(...)> w.r.t.
-    pos (2, N), metric (3, N) and flux (N,), written into g_pos, g_metric and g_flux."""
+def splat_backward(pos, metric, flux, channel, padded, pad, g_pos, g_metric, g_flux):
+    """Gather the adjoint (see :func:`gather_photon`): gradients of <G, splat(...)> w.r.t.
+    pos (2, N), metric (3, N) and flux (N,), written into g_pos, g_metric and g_flux; ``padded``
+    is G with ``pad`` zero pixels on every side (:func:`pad_for_gather`)."""
     for p in nb.prange(flux.shape[0]):
-        g = gather_photon(grad_image, channel[p], pos[0, p], pos[1, p], metric[0, p], metric[1, p],
+        g = gather_photon(padded, pad, channel[p], pos[0, p], pos[1, p], metric[0, p], metric[1, p],
                           metric[2, p], flux[p])
         g_flux[p] = g[0]
         g_pos[0, p] = g[1]

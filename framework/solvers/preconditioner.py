@@ -12,12 +12,17 @@ metric <u, (I - l^2 Laplace)^p u> instead, i.e. stepping along
 damps what is finer than l and so admits a much larger step for everything broader than l
 (variable-metric proximal gradient; the proxes keep their usual, pixel-wise form). P is symmetric
 positive definite and leaves a constant field unchanged.
+
+Coarse to fine: with a schedule of lengths l_1 > l_2 > ..., the solver starts with l_1 and, when
+the fit stalls (:class:`framework.callbacks.StagnationStopping`), calls :meth:`refine` and goes on
+from its best iterate with the next length, so detail finer than l_1 is fitted once the broad
+shape is in place.
 """
 
 from __future__ import annotations
 
 import math
-from typing import Any, Protocol
+from typing import Any, Protocol, Sequence
 
 import numpy as np
 import scipy.fft
@@ -30,7 +35,11 @@ __all__ = ["GradientPreconditioner", "SobolevPreconditioner", "neumann_laplacian
 
 
 class GradientPreconditioner(Protocol):
-    """Maps the gradient (m, m) to the step direction (m, m), symmetric positive definite."""
+    """Maps the gradient (m, m) to the step direction (m, m), symmetric positive definite.
+
+    A preconditioner may also have ``refine() -> bool`` (switch to a finer metric; False when
+    there is none) and ``state_dict()`` / ``load_state_dict(state)`` for checkpoints.
+    """
 
     def __call__(self, grad: Tensor) -> Tensor:
         ...
@@ -48,19 +57,51 @@ class SobolevPreconditioner:
 
     Args:
         length: Smoothing length l in scene units (converted to grid cells with the grid spacing
-            from ``setup``); finer detail than l is damped, broader detail passes unchanged.
+            from ``setup``); finer detail than l is damped, broader detail passes unchanged. A
+            decreasing list of lengths is a coarse-to-fine schedule (see :meth:`refine`).
         order: Exponent p > 0 (2 matches the |k|^4 growth of the data term's Hessian).
     """
 
-    def __init__(self, length: float = 0.125, order: float = 2.0) -> None:
-        if not (math.isfinite(float(length)) and float(length) > 0.0):
-            raise ValueError(f"preconditioner length={length!r} must be a positive length in scene units, e.g. 0.125")
+    def __init__(self, length: float | Sequence[float] = 0.125, order: float = 2.0) -> None:
+        lengths = [length] if isinstance(length, (int, float)) else list(length)
+        if not lengths or not all(isinstance(v, (int, float)) and math.isfinite(v) and v > 0.0 for v in lengths):
+            raise ValueError(f"preconditioner length={length!r} must be a positive length in scene units "
+                             "(e.g. 0.125) or a list of them (e.g. [0.125, 0.0625])")
+        if any(b >= a for a, b in zip(lengths, lengths[1:])):
+            raise ValueError(f"preconditioner length={length!r}: a schedule must decrease (coarse to fine), "
+                             "e.g. [0.125, 0.0625]")
         if not (math.isfinite(float(order)) and float(order) > 0.0):
             raise ValueError(f"preconditioner order={order!r} must be positive, e.g. 2")
-        self.length = float(length)
+        self.lengths = [float(v) for v in lengths]
+        self.stage = 0
         self.order = float(order)
         self._spacing: float | None = None
         self._filters: dict[int, np.ndarray] = {}
+
+    @property
+    def length(self) -> float:
+        """The smoothing length of the current stage (scene units)."""
+        return self.lengths[self.stage]
+
+    def refine(self) -> bool:
+        """Go to the next, finer length of the schedule; False (and no change) at the last one."""
+        if self.stage + 1 >= len(self.lengths):
+            return False
+        self.stage += 1
+        self._filters.clear()
+        return True
+
+    def state_dict(self) -> dict[str, Any]:
+        """The schedule position, for checkpoints."""
+        return {"stage": self.stage}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        """Restore :meth:`state_dict` (a checkpoint of the same schedule)."""
+        stage = int(state.get("stage", 0))
+        if not 0 <= stage < len(self.lengths):
+            raise ValueError(f"checkpoint preconditioner stage {stage} does not exist in the schedule {self.lengths}")
+        self.stage = stage
+        self._filters.clear()
 
     def setup(self, context: Any) -> None:
         """Take the grid spacing sqrt(a) (scene units) from a context with ``pixel_area`` a."""

@@ -128,6 +128,18 @@ class ProximalGradientSolver(IterativeSolver):
             d = u(d)
         return {**candidate, "d": d}
 
+    def refine(self, d: Tensor) -> bool:
+        """Switch the preconditioner to its next, finer stage and continue from ``d`` (m, m) (the
+        best iterate so far). False, and nothing changes, when the preconditioner has no finer
+        stage (or there is none)."""
+        refine = getattr(self.preconditioner, "refine", None)
+        if not callable(refine) or not refine():
+            return False
+        self.state.d = d.detach().clone()
+        self._evaluation = None
+        self._direction = None
+        return True
+
     # -- the iteration -------------------------------------------------------------------------
     def _current_evaluation(self) -> DataEvaluation:
         if self._evaluation is None:
@@ -179,6 +191,8 @@ class ProximalGradientSolver(IterativeSolver):
                 "regularization": regularization,
                 "trials": float(choice.trials),
                 "forward_evaluations": float(choice.forward_evaluations),
+                **({"preconditioner_length": float(self.preconditioner.length)}
+                   if isinstance(getattr(self.preconditioner, "length", None), float) else {}),
             },
         )
         self.history.append(record)
@@ -189,6 +203,8 @@ class ProximalGradientSolver(IterativeSolver):
         """Adds the step-size state and the cached evaluation at d (so a resume re-evaluates nothing)."""
         state = super().state_dict()
         state["step_size"] = self.step_size.state_dict()
+        if callable(getattr(self.preconditioner, "state_dict", None)):
+            state["preconditioner"] = self.preconditioner.state_dict()
         ev = self._evaluation
         state["evaluation"] = None if ev is None else {
             "value": ev.value, "grad": ev.grad, "image": ev.image, "rel_discrepancy": ev.rel_discrepancy,
@@ -198,6 +214,8 @@ class ProximalGradientSolver(IterativeSolver):
     def load_state_dict(self, state: dict[str, Any]) -> None:  # noqa: D102
         super().load_state_dict(state)
         self.step_size.load_state_dict(state.get("step_size", {}))
+        if callable(getattr(self.preconditioner, "load_state_dict", None)):
+            self.preconditioner.load_state_dict(state.get("preconditioner", {}))
         self._direction = None
         ev = state.get("evaluation")
         like = self.state.d

@@ -101,6 +101,12 @@ class WaveletLandweber(ProximalGradientSolver):
         d = super()._finalize(candidate)["d"]
         return {"d": d, "w": self.wavelet.forward(d)}
 
+    def refine(self, d: Tensor) -> bool:  # noqa: D102 (coefficients follow d, as after every iteration)
+        if not super().refine(d):
+            return False
+        self.state.coefficients = self.wavelet.forward(self.state.d)
+        return True
+
     def load_state_dict(self, state: dict[str, Any]) -> None:  # noqa: D102
         if state.get("coefficients") is None:
             raise ValueError("landweber_wavelet checkpoint has no wavelet coefficients; was it written by M3?")

@@ -106,19 +106,52 @@ def test_non_callbacks_are_refused():
 
 
 def test_stagnation_stops_after_patience_iterations_without_improvement_and_keeps_the_best_iterate():
-    # best at iteration 4 (0.2); 0.1999 is not a 0.1% improvement; iterations 5..7 make 3 without.
+    # progress until iteration 4 (0.2); 0.1999 is not a 0.1% improvement, so iterations 5..7 make
+    # 3 without, but it is the lowest discrepancy and so the best iterate.
     stagnation = StagnationStopping(patience=3, min_improvement=1e-3)
     result = ScriptedSolver([0.5, 0.4, 0.3, 0.2, 0.25, 0.1999, 0.3, 0.1, 0.05]).run(9, [stagnation])
     assert result.iterations == 7 and result.stopped_by == "StagnationStopping"
-    assert stagnation.best_iteration == 4 and math.isclose(stagnation.best_discrepancy, 0.2)
-    torch.testing.assert_close(stagnation.best_d, torch.full((2, 2), 4.0, dtype=DTYPE))
-    assert "iteration 4" in result.stop_reason
+    assert stagnation.best_iteration == 6 and math.isclose(stagnation.best_discrepancy, 0.1999)
+    torch.testing.assert_close(stagnation.best_d, torch.full((2, 2), 6.0, dtype=DTYPE))
+    assert "iteration 6" in result.stop_reason
 
 
 def test_stagnation_does_not_stop_a_run_that_keeps_improving():
     stagnation = StagnationStopping(patience=2)
     result = ScriptedSolver([0.5, 0.4, 0.3, 0.2, 0.1]).run(5, [stagnation])
     assert result.stopped_by == "max_iter" and stagnation.best_iteration == 5
+
+
+class RefiningSolver(ScriptedSolver):
+    """A scripted solver with ``stages`` finer stages: refine(d) records d and continues."""
+
+    def __init__(self, discrepancies, stages):
+        super().__init__(discrepancies)
+        self.stages, self.refined_from = stages, []
+
+    def refine(self, d):
+        if len(self.refined_from) >= self.stages:
+            return False
+        self.refined_from.append(float(d[0, 0]))
+        return True
+
+
+def test_stagnation_refines_from_the_best_iterate_before_it_stops():
+    # best 0.3 at iteration 3, no progress on 4..6 -> refine from iterate 3 after iteration 6;
+    # 0.2 at 7, no progress on 8..10 -> no finer stage left: stop after 10, best iterate 7.
+    stagnation = StagnationStopping(patience=3)
+    solver = RefiningSolver([0.5, 0.4, 0.3, 0.3, 0.31, 0.3, 0.2, 0.2, 0.25, 0.2, 0.1], stages=1)
+    result = solver.run(11, [stagnation])
+    assert solver.refined_from == [3.0] and stagnation.refined_at == [6]
+    assert result.iterations == 10 and result.stopped_by == "StagnationStopping"
+    assert stagnation.best_iteration == 7
+    torch.testing.assert_close(stagnation.best_d, torch.full((2, 2), 7.0, dtype=DTYPE))
+
+
+def test_stagnation_keeps_the_lowest_discrepancy_even_below_the_improvement_threshold():
+    stagnation = StagnationStopping(patience=2, min_improvement=0.1)
+    result = ScriptedSolver([0.5, 0.3, 0.29, 0.28, 0.27]).run(5, [stagnation])
+    assert result.iterations == 4 and stagnation.best_iteration == 4  # 0.28: lowest, though < 10% better
 
 
 @pytest.mark.parametrize("kwargs", [{"patience": 0}, {"patience": 2.5}, {"min_improvement": 1.0}])

@@ -34,6 +34,21 @@ def test_gradient_matches_finite_differences_and_autograd_helper():
     torch.testing.assert_close(g_auto, g_ref)
 
 
+def test_a_gradient_evaluation_reuses_the_image_of_a_value_evaluation_at_the_same_heights():
+    data, op, A, b, _, _ = make_problem()
+    d = torch.rand(8, 8, dtype=DTYPE, generator=torch.Generator().manual_seed(6))
+    value_only = data.evaluate(d, with_grad=False)
+    calls = op.calls
+    reused = data.evaluate(d.clone())
+    assert op.calls == calls  # the operator got the image instead of rendering it again
+    fresh = DataFidelity(op, b).evaluate(d)
+    assert op.calls == calls + 1
+    assert reused.value == pytest.approx(fresh.value, rel=1e-14) == pytest.approx(value_only.value, rel=1e-14)
+    torch.testing.assert_close(reused.grad, fresh.grad, rtol=1e-14, atol=0)
+    data.evaluate(d + 1e-3)  # other heights: rendered afresh
+    assert op.calls == calls + 2
+
+
 def test_step_unit_does_not_depend_on_brightness():
     data, op, A, b, _, _ = make_problem()
     bright = DataFidelity(LinearOperator(1000.0 * A, 8, (1, 10, 10)), 1000.0 * b)

@@ -90,3 +90,25 @@ def test_preconditioned_descent_recovers_a_broad_shape_far_faster_on_a_laplacian
     plain, sobolev = error_after(None), error_after(preconditioner(4 * 2.0 / (m - 1), 2.0, spacing=2.0 / (m - 1)))
     assert sobolev < 0.05
     assert plain > 5 * sobolev
+
+
+def test_a_length_schedule_refines_coarse_to_fine_and_checkpoints_its_stage():
+    g = torch.randn(12, 12, dtype=DTYPE, generator=torch.Generator().manual_seed(3))
+    schedule = preconditioner([0.5, 0.25], 2.0)
+    assert schedule.length == 0.5
+    torch.testing.assert_close(schedule(g), preconditioner(0.5, 2.0)(g), rtol=0, atol=0)
+    assert schedule.refine() and schedule.length == 0.25
+    torch.testing.assert_close(schedule(g), preconditioner(0.25, 2.0)(g), rtol=0, atol=0)
+    assert not schedule.refine() and schedule.length == 0.25  # the last stage stays
+    restored = preconditioner([0.5, 0.25], 2.0)
+    restored.load_state_dict(schedule.state_dict())
+    torch.testing.assert_close(restored(g), schedule(g), rtol=0, atol=0)
+    with pytest.raises(ValueError, match="stage 5"):
+        restored.load_state_dict({"stage": 5})
+
+
+@pytest.mark.parametrize("length, match", [([0.1, 0.2], "decrease"), ([0.1, 0.1], "decrease"), ([], "positive"),
+                                           ([0.1, -0.05], "positive"), ([0.1, float("nan")], "positive")])
+def test_bad_length_schedules_are_refused(length, match):
+    with pytest.raises(ValueError, match=match):
+        SobolevPreconditioner(length=length)

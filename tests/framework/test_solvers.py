@@ -1,4 +1,5 @@
 import math
+from types import SimpleNamespace
 
 import pytest
 import torch
@@ -10,6 +11,7 @@ from framework.solvers import (
     GradientDescent,
     IterativeSolver,
     PixelLandweber,
+    SobolevPreconditioner,
     WaveletLandweber,
 )
 from tests.framework.toy import DTYPE, L1, Bounds, OrthogonalTransform, SpyPostStep, WaveletL1, make_problem
@@ -90,6 +92,46 @@ def test_m3_with_backtracking_decreases_the_objective():
                               wavelet_regularizer=WaveletL1(W, 1e-3, log), pixel_regularizers=[Bounds()])
     hist = solver.run(30).history
     assert all(b <= a for a, b in zip([r.objective for r in hist], [r.objective for r in hist][1:]))
+
+
+def _schedule() -> SobolevPreconditioner:
+    pre = SobolevPreconditioner(length=[0.5, 0.25])
+    pre.setup(SimpleNamespace(pixel_area=0.125 ** 2))
+    return pre
+
+
+def test_refine_restarts_from_the_given_iterate_with_the_finer_preconditioner_and_checkpoints_the_stage():
+    data, *_, L = make_problem()
+    solver = PixelLandweber(data, torch.zeros(8, 8, dtype=DTYPE), BacktrackingStep(20.0 / L),
+                            regularizers=[L1(2e-3), Bounds()], preconditioner=_schedule())
+    first = solver.run(3)
+    best, best_objective = solver.d.clone(), first.history[-1].objective
+    assert first.history[-1].extras["preconditioner_length"] == 0.5
+    solver.run(5)
+    assert solver.refine(best) and torch.equal(solver.d, best)
+    record = solver.step()
+    assert record.iteration == 6 and record.extras["preconditioner_length"] == 0.25
+    assert record.objective <= best_objective  # a descent step from the restored iterate
+    after = solver.d.clone()
+    assert not solver.refine(best) and torch.equal(solver.d, after)  # no finer stage: nothing changes
+    restored = PixelLandweber(data, torch.zeros(8, 8, dtype=DTYPE), BacktrackingStep(20.0 / L),
+                              regularizers=[L1(2e-3), Bounds()], preconditioner=_schedule())
+    restored.load_state_dict(solver.state_dict())
+    assert restored.preconditioner.length == 0.25
+
+
+def test_m3_refine_keeps_w_equal_to_W_d():
+    data, *_, L = make_problem()
+    W = OrthogonalTransform(8, [])
+    solver = WaveletLandweber(data, torch.zeros(8, 8, dtype=DTYPE), BacktrackingStep(10.0 / L), wavelet=W,
+                              wavelet_regularizer=WaveletL1(W, 1e-3, []), pixel_regularizers=[Bounds()],
+                              preconditioner=_schedule())
+    solver.run(2)
+    best = solver.d.clone()
+    solver.run(4)
+    assert solver.refine(best)
+    torch.testing.assert_close(solver.state.coefficients, W.Q @ best.reshape(-1))
+    assert solver.step().iteration == 5
 
 
 class _NoProx:

@@ -24,8 +24,8 @@ class LinearOperator:
             image = image + self.noise * torch.randn(self.image_shape, dtype=image.dtype)
         return image
 
-    def loss_and_grad(self, d: Tensor, target: Tensor) -> tuple[float, Tensor, Tensor]:
-        image = self(d)
+    def loss_and_grad(self, d: Tensor, target: Tensor, image: Tensor | None = None) -> tuple[float, Tensor, Tensor]:
+        image = self(d) if image is None else image
         r = (image - target).reshape(-1)
         return 0.5 * float(r @ r), (self.A.T @ r).reshape(d.shape), image
 

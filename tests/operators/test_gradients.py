@@ -42,6 +42,10 @@ def test_loss_and_grad_is_the_gradient_of_the_squared_loss_and_independent_of_ch
     leaf = heights.clone().requires_grad_(True)
     (0.5 * ((op(leaf) - target) ** 2).sum()).backward()
     assert torch.allclose(leaf.grad, grad_a, rtol=1e-9, atol=1e-12 * float(grad_a.abs().max()))
+    # A rendered image handed in (a line search's accepted trial) gives the same loss and gradient.
+    loss_c, grad_c, image_c = op.loss_and_grad(heights, target, image=op.render(heights))
+    assert abs(loss_c - loss_a) <= 1e-12 * loss_a and torch.equal(image_c, op.render(heights))
+    assert torch.allclose(grad_c, grad_a, rtol=1e-9, atol=1e-12 * float(grad_a.abs().max()))
 
 
 def test_gradient_stays_finite_when_steep_lines_cause_total_internal_reflection():

@@ -65,16 +65,38 @@ def test_position_and_metric_gradients_match_finite_differences():
         assert abs(float(numeric - analytic)) <= 1e-6 * max(1.0, abs(float(analytic))), (numeric, analytic)
 
 
-def test_native_and_reference_gradients_agree():
-    pos, metric, flux, channel = random_photons(count=80, seed=4)
-    g = torch.randn(2, 24, 24, dtype=torch.float64, generator=torch.Generator().manual_seed(9))
+def native_and_reference_gradients(pos, metric, flux, channel, g):
+    """Gradients of <splat, g> w.r.t. (pos, metric, flux) by the native and the reference splat."""
     grads = []
     for splat in (splat_photons, splat_photons_reference):
         leaves = [t.clone().requires_grad_(True) for t in (pos, metric, flux)]
-        loss = (splat(*leaves, channel, 2, 24) * g).sum()
+        loss = (splat(*leaves, channel, g.shape[0], g.shape[1]) * g).sum()
         grads.append(torch.autograd.grad(loss, leaves))
-    for native, reference in zip(*grads):
+    return grads
+
+
+def test_native_and_reference_gradients_agree():
+    pos, metric, flux, channel = random_photons(count=80, seed=4)
+    g = torch.randn(2, 24, 24, dtype=torch.float64, generator=torch.Generator().manual_seed(9))
+    for native, reference in zip(*native_and_reference_gradients(pos, metric, flux, channel, g)):
         assert torch.allclose(native, reference, rtol=1e-8, atol=1e-10)
+
+
+def test_gather_handles_photons_wider_than_the_image_and_far_off_it():
+    """The padded gather: footprints larger than the 24 px image and photons whose footprint
+    misses the image entirely (their gradients are exactly zero)."""
+    pos = torch.tensor([[12.0, -30.0, 10.0, 60.0], [11.5, 12.0, 35.0, 60.0]], dtype=torch.float64)
+    footprint = torch.tensor([[[30.0, 3.0, 4.0, 2.0], [5.0, 1.0, 0.0, 0.0]],
+                              [[-4.0, 0.5, 0.0, 0.0], [20.0, 2.0, 4.0, 2.0]]], dtype=torch.float64)
+    metric = footprint_metric(footprint, 1.0, 40.0)
+    flux = torch.tensor([1.0, 2.0, 0.5, 3.0], dtype=torch.float64)
+    channel = torch.zeros(4, dtype=torch.int64)
+    g = torch.randn(1, 24, 24, dtype=torch.float64, generator=torch.Generator().manual_seed(2))
+    grads = native_and_reference_gradients(pos, metric, flux, channel, g)
+    for native, reference in zip(*grads):
+        assert torch.allclose(native, reference, rtol=1e-9, atol=1e-12)
+    assert all(float(t[..., 1:].abs().max()) == 0.0 for t in grads[0])  # photons 2-4 miss the image
+    assert float(grads[0][2][0].abs()) > 0.0
 
 
 def test_footprint_metric_is_the_inverse_covariance_with_pixel_filter_and_cut_off():
