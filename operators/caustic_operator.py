@@ -158,10 +158,10 @@ class CausticOperator:
         if grad_image.shape != self.output_shape:
             raise ValueError(f"grad_image has shape {tuple(grad_image.shape)}, expected {self.output_shape}")
         d = to_numpy(heights).astype(np.float64)
-        g = to_numpy(grad_image).astype(np.float64) / self.pixel_area
+        padded = self.fused.pad_gradient(to_numpy(grad_image).astype(np.float64) / self.pixel_area)
         out = np.zeros((nb.get_num_threads(), *d.shape))
         for start, stop in self.chunks():
-            self.fused.vjp(d, start, stop, g, out)
+            self.fused.vjp(d, start, stop, padded, out)
         return torch.from_numpy(out.sum(axis=0)).to(self.dtype).to(dtype=heights.dtype, device=heights.device)
 
     def render_reference(self, heights: torch.Tensor) -> torch.Tensor:

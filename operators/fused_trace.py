@@ -57,9 +57,13 @@ class FusedTracer:
             return render_photons(d, self.constants(d), self.shifts, self.indices, start, stop, out,
                                   self.capacity, splat)
 
-    def vjp(self, d: np.ndarray, start: int, stop: int, grad_image: np.ndarray, out: np.ndarray) -> None:
+    def pad_gradient(self, grad_image: np.ndarray) -> np.ndarray:
+        """The adjoint image G (c, n, n) as :meth:`vjp` takes it: float64 with a zero border wide
+        enough for every footprint (pad it once per gradient, not per chunk)."""
+        return pad_for_gather(grad_image, self.gather_pad)
+
+    def vjp(self, d: np.ndarray, start: int, stop: int, padded: np.ndarray, out: np.ndarray) -> None:
         """Add to ``out`` (threads, m, m) the gradient w.r.t. d of <flux per pixel of photons
-        start .. stop-1, grad_image (c, n, n) float64>."""
+        start .. stop-1, G>, ``padded`` = :meth:`pad_gradient` (G)."""
         with nb.parallel_chunksize(1):
-            vjp_photons(d, self.constants(d), self.shifts, self.indices, start, stop,
-                        pad_for_gather(grad_image, self.gather_pad), self.gather_pad, out)
+            vjp_photons(d, self.constants(d), self.shifts, self.indices, start, stop, padded, self.gather_pad, out)
