@@ -130,7 +130,7 @@ class ProximalGradientSolver(IterativeSolver):
 
     def refine(self, d: Tensor) -> bool:
         """Switch the preconditioner to its next, finer stage and continue from ``d`` (m, m) (the
-        best iterate so far). False, and nothing changes, when the preconditioner has no finer
+        best iterate so far); the step-size search starts afresh. False, and nothing changes, when the preconditioner has no finer
         stage (or there is none)."""
         refine = getattr(self.preconditioner, "refine", None)
         if not callable(refine) or not refine():
@@ -138,6 +138,7 @@ class ProximalGradientSolver(IterativeSolver):
         self.state.d = d.detach().clone()
         self._evaluation = None
         self._direction = None
+        self.step_size.reset()
         return True
 
     # -- the iteration -------------------------------------------------------------------------

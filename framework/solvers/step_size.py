@@ -63,6 +63,9 @@ class StepSizePolicy(ABC):
     ) -> StepChoice:
         """Pick tau and the candidate x+(tau); may raise :class:`LineSearchFailed`."""
 
+    def reset(self) -> None:
+        """Forget what earlier iterations learnt about the step (the metric changed)."""
+
     def state_dict(self) -> dict[str, float]:
         """Mutable state (for checkpoints)."""
         return {}
@@ -159,6 +162,11 @@ class BacktrackingStep(StepSizePolicy):
             f"no sufficient decrease after {self.max_trials} trials (last tau={tau / self.shrink:.3g}, "
             f"F={last:.6g} vs F(x)={objective_now:.6g}); the objective may be non-smooth here"
         )
+
+    def reset(self) -> None:
+        """Start the next search from tau0 again (e.g. after a change of preconditioner, when the
+        steps that suited the old metric say nothing about the new one)."""
+        self.tau = self.tau0
 
     def state_dict(self) -> dict[str, float]:
         return {"tau": self.tau}

@@ -120,6 +120,20 @@ def test_refine_restarts_from_the_given_iterate_with_the_finer_preconditioner_an
     assert restored.preconditioner.length == 0.25
 
 
+def test_refine_starts_the_step_search_afresh_from_tau0():
+    data, *_, L = make_problem()
+    policy = BacktrackingStep(20.0 / L, shrink=0.5, grow=1.25)
+    solver = PixelLandweber(data, torch.zeros(8, 8, dtype=DTYPE), policy,
+                            regularizers=[L1(2e-3), Bounds()], preconditioner=_schedule())
+    solver.run(6)
+    assert policy.current_step != pytest.approx(20.0 / L)  # the search has moved on
+    assert solver.refine(solver.d.clone())
+    assert policy.current_step == pytest.approx(20.0 / L)
+    constant = ConstantStep(0.1)
+    constant.reset()
+    assert constant.current_step == 0.1
+
+
 def test_m3_refine_keeps_w_equal_to_W_d():
     data, *_, L = make_problem()
     W = OrthogonalTransform(8, [])
