@@ -9,7 +9,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import time
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -25,6 +25,7 @@ from framework.objective import DataFidelity
 from framework.report_figures import save_reconstruction_figures
 from framework.scene_config import build_heights, build_operator, build_scene, to_plain
 from framework.solver_config import build_solver
+from framework.solvers import IterationRecord
 from framework.tracking import MlflowTracker
 from operators.caustic_operator import CausticOperator
 from operators.scene import Scene
@@ -95,6 +96,13 @@ def _resolve(path: str, base_dir: Path) -> Path:
     return p if p.is_absolute() else base_dir / p
 
 
+def stage_changes(history: Sequence[IterationRecord]) -> list[int]:
+    """Iterations after which the preconditioner moved to its next length, whether the stagnation
+    rule or a failed line search asked for it (from the records' ``preconditioner_length``)."""
+    lengths = [(r.iteration, r.extras.get("preconditioner_length")) for r in history]
+    return [i for (i, a), (_, b) in zip(lengths, lengths[1:]) if a is not None and b is not None and a != b]
+
+
 def run_reconstruction(cfg: Mapping[str, Any], output_dir: Path, base_dir: Path,
                        sweep_id: str | None = None) -> dict[str, Any]:
     """Reconstruct the configured scene into ``output_dir``; returns the metrics written to metrics.json."""
@@ -146,7 +154,7 @@ def run_reconstruction(cfg: Mapping[str, Any], output_dir: Path, base_dir: Path,
         metrics: dict[str, Any] = {
             "method": cfg.get("method", "custom"), "iterations": result.iterations,
             "returned_iteration": returned_iteration,
-            "refined_at": [] if stagnation is None else stagnation.refined_at,
+            "refined_at": stage_changes(result.history),
             "stop_reason": result.stop_reason, "stopped_by": result.stopped_by,
             "run_time_s": solve_seconds, "data_time_s": data_seconds,
             "rel_discrepancy": residual / float(torch.linalg.vector_norm(data.target.double())),

@@ -95,6 +95,22 @@ class WaveletTransform:
         d = pywt.waverec2(coeffs, self.wavelet, mode=self.mode)
         return torch.from_numpy(np.ascontiguousarray(d)).to(dtype=w.dtype, device=w.device)
 
+    def subbands(self) -> list[tuple[torch.Tensor, int]]:
+        """One (mask, centre) per subband: the approximation, then (horizontal, vertical, diagonal)
+        detail from the coarsest level to the finest. ``mask`` (m1*m2,) bool selects the subband's
+        flat coefficients; ``centre`` is the flat index of its middle coefficient, whose basis function
+        lies away from the grid's border."""
+        bands = [self._slices[0]] + [level[key] for level in self._slices[1:] for key in ("ad", "da", "dd")]
+        out = []
+        for rows, cols in bands:
+            mask = np.zeros(self._array_shape, dtype=bool)
+            mask[rows, cols] = True
+            r0, r1, _ = rows.indices(self._array_shape[0])
+            c0, c1, _ = cols.indices(self._array_shape[1])
+            centre = ((r0 + r1) // 2) * self._array_shape[1] + (c0 + c1) // 2
+            out.append((torch.from_numpy(mask.reshape(-1)), int(centre)))
+        return out
+
     # --- adjoints (exact because W is orthogonal) --------------------------------------------
     def forward_adjoint(self, w: torch.Tensor) -> torch.Tensor:
         """W^* w = W^-1 w (W orthogonal); shape (m1, m2)."""
@@ -167,11 +183,13 @@ class WaveletL1(Regularizer):
         check_height_field(d)
         return self.alpha_w * float(self.transform_for(tuple(d.shape)).forward(d).abs().sum())
 
-    def prox_coefficients(self, w: torch.Tensor, step: float) -> torch.Tensor:
-        """S(w, step * alpha_w): prox of step * alpha_w * ||.||_1 on flat coefficients w."""
+    def prox_coefficients(self, w: torch.Tensor, step: float, metric: torch.Tensor | None = None) -> torch.Tensor:
+        """S(w, step * alpha_w * metric): prox of step * alpha_w * ||.||_1 on flat coefficients w,
+        in the metric diag(1 / metric) if ``metric`` (flat, positive) is given, else the plain one."""
         if not isinstance(w, torch.Tensor) or not bool(torch.isfinite(w).all()):
             raise ValueError("wavelet coefficients must be a finite torch.Tensor; check the step size or gradient")
-        return soft_shrink(w, self._check_step(step) * self.alpha_w)
+        k = self._check_step(step) * self.alpha_w
+        return soft_shrink(w, k if metric is None else k * metric.to(w))
 
     def prox(self, d: torch.Tensor, step: float) -> torch.Tensor:
         """W^-1 S(W d, step * alpha_w), shape (m, m) (exact because W is orthogonal)."""

@@ -164,6 +164,11 @@ class ProximalGradientSolver(IterativeSolver):
         try:
             choice = self.step_size.select(self._propose, self._objective, sq_distance, objective_now)
         except LineSearchFailed as err:
+            # No step of this metric decreases F any more (typically the last digits of the
+            # render): go on from here with the next, finer preconditioner stage if there is one.
+            if self.refine(d):
+                self.state.elapsed_s += time.perf_counter() - t0
+                return self.step()
             raise IterationFailed(str(err)) from err
         new = self._finalize(choice.candidate)
         if not bool(torch.isfinite(new["d"]).all()):

@@ -100,3 +100,17 @@ def test_bad_configuration_is_refused_clearly(tmp_path, overrides, error, messag
     cfg = compose_reconstruct([*SMALL, *overrides, "solver.max_iter=1"], tmp_path)
     with pytest.raises(error, match=message):
         run_reconstruction(cfg, tmp_path / "run", tmp_path)
+
+
+def test_stage_changes_come_from_the_records_whoever_asked_for_them():
+    from framework.reconstruction import stage_changes
+    from framework.solvers import IterationRecord
+
+    def record(i, length):
+        extras = {} if length is None else {"preconditioner_length": length}
+        return IterationRecord(iteration=i, objective=1.0, data_fidelity=1.0, rel_discrepancy=0.1, step_size=0.1,
+                               elapsed_s=0.0, extras=extras)
+
+    lengths = [0.125, 0.125, 0.125, 0.0625, 0.0625, 0.03125]
+    assert stage_changes([record(i + 1, v) for i, v in enumerate(lengths)]) == [3, 5]
+    assert stage_changes([record(i + 1, None) for i in range(4)]) == []  # no preconditioner

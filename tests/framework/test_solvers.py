@@ -7,6 +7,7 @@ import torch
 from framework.registry import _REGISTRY
 from framework.solvers import (
     BacktrackingStep,
+    LineSearchFailed,
     ConstantStep,
     GradientDescent,
     IterativeSolver,
@@ -134,6 +135,32 @@ def test_refine_starts_the_step_search_afresh_from_tau0():
     assert constant.current_step == 0.1
 
 
+class _FailsOnce(BacktrackingStep):
+    """Backtracking whose first search finds no decrease (as at the float floor of a render)."""
+
+    failed = False
+
+    def select(self, propose, objective, sq_distance, objective_now):
+        if not self.failed:
+            self.failed = True
+            raise LineSearchFailed("no sufficient decrease (scripted)")
+        return super().select(propose, objective, sq_distance, objective_now)
+
+
+def test_a_failed_line_search_moves_to_the_finer_stage_and_only_then_stops_the_run():
+    data, *_, L = make_problem()
+    solver = PixelLandweber(data, torch.zeros(8, 8, dtype=DTYPE), _FailsOnce(20.0 / L),
+                            regularizers=[L1(2e-3), Bounds()], preconditioner=_schedule())
+    record = solver.step()
+    assert record.iteration == 1 and record.extras["preconditioner_length"] == 0.25
+    assert record.objective < data.value(torch.zeros(8, 8, dtype=DTYPE))
+    last_stage = PixelLandweber(data, solver.d, _FailsOnce(20.0 / L), regularizers=[L1(2e-3), Bounds()],
+                                preconditioner=_schedule())
+    last_stage.preconditioner.refine()
+    result = last_stage.run(5)
+    assert result.stopped_by == "solver" and "scripted" in result.stop_reason and result.iterations == 0
+
+
 def test_m3_refine_keeps_w_equal_to_W_d():
     data, *_, L = make_problem()
     W = OrthogonalTransform(8, [])
@@ -227,3 +254,26 @@ def test_divergence_and_failed_line_search_stop_the_run_cleanly():
     solver = PixelLandweber(data, d0 + 0.01, BacktrackingStep(1.0 / L, max_trials=3), regularizers=[Increasing()])
     result = solver.run(5)
     assert result.stopped_by == "solver" and "sufficient decrease" in result.stop_reason
+
+
+def test_preconditioned_m3_shrinks_in_the_preconditioners_metric_and_descends():
+    from regularizers import WaveletL1 as DaubechiesL1, WaveletTransform
+
+    data, *_, L = make_problem(m=16, n=18)
+    W = WaveletTransform((16, 16), "haar", 2)
+    pre = SobolevPreconditioner(length=0.25)
+    pre.setup(SimpleNamespace(pixel_area=(2.0 / 15.0) ** 2))
+    solver = WaveletLandweber(data, torch.zeros(16, 16, dtype=DTYPE), BacktrackingStep(10.0 / L), wavelet=W,
+                              wavelet_regularizer=DaubechiesL1(5e-3, "haar", 2), pixel_regularizers=[Bounds()],
+                              preconditioner=pre)
+    metric = solver._shrink_metric()
+    # brute force: the diagonal of W P W^* from every basis vector
+    exact = torch.stack([W.forward(pre(W.inverse(e)))[i] for i, e in enumerate(torch.eye(256, dtype=DTYPE))])
+    for mask, centre in W.subbands():
+        assert float(metric[centre]) == pytest.approx(float(exact[centre]), rel=1e-12)
+        assert bool((metric[mask] == metric[centre]).all())
+    assert float(metric.max()) < 1.0 and float(metric.min()) > 0.0  # P damps, finest scales most
+    start = data.value(torch.zeros(16, 16, dtype=DTYPE))
+    objectives = [start] + [r.objective for r in solver.run(25).history]
+    assert all(b <= a for a, b in zip(objectives, objectives[1:]))
+    assert objectives[-1] < 0.5 * start

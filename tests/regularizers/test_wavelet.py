@@ -94,3 +94,27 @@ def test_wavelet_l1_moreau_identity(rng: np.random.Generator) -> None:
     y = (w - p) / step
     assert float(reg.transform_for((64, 64)).forward(y).abs().max()) <= alpha * (1 + 1e-10)
     assert reg.value(p) == pytest.approx(dot(p, y), rel=1e-10)
+
+
+def test_subbands_partition_the_coefficients_and_each_centre_sits_in_its_band() -> None:
+    transform = WaveletTransform((32, 32), "db3", 3)
+    bands = transform.subbands()
+    assert len(bands) == 1 + 3 * 3
+    masks = torch.stack([mask for mask, _ in bands])
+    assert bool((masks.sum(0) == 1).all())  # every coefficient in exactly one subband
+    assert [int(mask.sum()) for mask, _ in bands] == [16] + [16] * 3 + [64] * 3 + [256] * 3
+    assert all(bool(mask[centre]) for mask, centre in bands)
+    # each middle coefficient's basis function peaks a quarter of the grid or more from the border
+    for _, centre in bands:
+        basis = torch.zeros(32 * 32, dtype=torch.float64)
+        basis[centre] = 1.0
+        ys, xs = np.unravel_index(int(transform.inverse(basis).abs().argmax()), (32, 32))
+        assert 8 <= ys <= 24 and 8 <= xs <= 24, (centre, ys, xs)
+
+
+def test_weighted_coefficient_prox_shrinks_each_coefficient_by_its_own_threshold() -> None:
+    prior = WaveletL1(alpha_w=0.5)
+    w = torch.tensor([2.0, -2.0, 0.3, 1.0], dtype=torch.float64)
+    metric = torch.tensor([1.0, 0.5, 1.0, 4.0], dtype=torch.float64)
+    out = prior.prox_coefficients(w, 0.8, metric)  # thresholds 0.4, 0.2, 0.4, 1.6
+    torch.testing.assert_close(out, torch.tensor([1.6, -1.8, 0.0, 0.0], dtype=torch.float64))
