@@ -100,7 +100,10 @@ class StagnationStopping(Callback):
         min_improvement: Relative decrease that counts as an improvement, in [0, 1).
 
     Attributes:
-        refined_at: Iterations after which the solver switched to a finer stage.
+        refined_at: Iterations after which this rule switched the solver to a finer stage (a
+            solver may also switch by itself when its line search fails; the records'
+            ``preconditioner_length`` show every switch, see
+            :func:`framework.reconstruction.stage_changes`).
     """
 
     def __init__(self, patience: int = 8, min_improvement: float = 1e-3) -> None:

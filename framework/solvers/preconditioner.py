@@ -14,8 +14,8 @@ damps what is finer than l and so admits a much larger step for everything broad
 positive definite and leaves a constant field unchanged.
 
 Coarse to fine: with a schedule of lengths l_1 > l_2 > ..., the solver starts with l_1 and, when
-the fit stalls (:class:`framework.callbacks.StagnationStopping`), calls :meth:`refine` and goes on
-from its best iterate with the next length, so detail finer than l_1 is fitted once the broad
+the fit stalls (:class:`framework.callbacks.StagnationStopping`) or its line search finds no
+decrease, calls :meth:`refine` and goes on with the next length, so detail finer than l_1 is fitted once the broad
 shape is in place.
 """
 

@@ -130,8 +130,8 @@ class ProximalGradientSolver(IterativeSolver):
 
     def refine(self, d: Tensor) -> bool:
         """Switch the preconditioner to its next, finer stage and continue from ``d`` (m, m) (the
-        best iterate so far); the step-size search starts afresh. False, and nothing changes, when the preconditioner has no finer
-        stage (or there is none)."""
+        best iterate so far); the step-size search starts afresh. False, and nothing changes, when
+        the preconditioner has no finer stage (or there is none)."""
         refine = getattr(self.preconditioner, "refine", None)
         if not callable(refine) or not refine():
             return False

@@ -15,10 +15,12 @@ With a preconditioner P the gradient step is w - tau W P grad_d f, a step in the
 (W P W^*)^-1, and the shrinkage must be taken in the same metric: otherwise it moves the fine
 scales, which P has damped, by tau alpha_w, and the step is no longer a descent direction (measured:
 M3V1 stopped at iteration 15 with every trial step increasing f). The shrinkage therefore uses the
-diagonal of W P W^* (one value per subband, probed at the subband's centre coefficient; exact for a
+diagonal of W P W^* (one value per subband, probed at the subband's middle coefficient; exact for a
 translation-invariant P away from the border): S(w_i, tau alpha_w [W P W^*]_ii). The fixed points
-are those of the unpreconditioned iteration up to that diagonal approximation. The step-size policy chooses tau_w; the pixel prox step follows it
-with the fixed ratio ``pixel_step_ratio`` (the paper: tau_p = tau_w = 0.1, ratio 1).
+are those of the unpreconditioned iteration up to that diagonal approximation.
+
+The step-size policy chooses tau_w; the pixel prox step follows it with the fixed ratio
+``pixel_step_ratio`` (the paper: tau_p = tau_w = 0.1, ratio 1).
 """
 
 from __future__ import annotations
