@@ -34,7 +34,7 @@ class FusedScene(NamedTuple):
 
     light_*: light position; half: substrate half width (also the height grid's extent);
     base: substrate thickness (z of d = 0); spacing: height-grid spacing; zlo / zhi: planes that
-    bracket the surface; per_channel: photons per channel; flux_scale: P / (4 pi c) A_cell
+    bracket the surface, zstart: plane where the hit search starts Newton (HeightFieldGrid.z_planes); per_channel: photons per channel; flux_scale: P / (4 pi c) A_cell
     (l_z - h), so flux = flux_scale / r^3; radius: emission footprint radius on z = h;
     receiver_z, receiver_half: receiver plane and half width; to_px: pixels per scene unit;
     min_px, max_px: footprint pixel filter and cut-off radii (pixels); fresnel: Fresnel weights.
@@ -47,6 +47,7 @@ class FusedScene(NamedTuple):
     base: float
     spacing: float
     zlo: float
+    zstart: float
     zhi: float
     per_channel: int
     flux_scale: float
@@ -88,7 +89,8 @@ def hit_top(d, sc, w, wx, wy, patch, order):
     weight tables (up to ``order``) and the patch of the hit cell loaded. Returns (t, jet, ix, iy)."""
     m = d.shape[0]
     x0 = -sc.half
-    t = solve_hit(d, sc.base, sc.light_x, sc.light_y, sc.light_z, w[0], w[1], w[2], x0, sc.spacing, sc.zlo, sc.zhi)
+    t = solve_hit(d, sc.base, sc.light_x, sc.light_y, sc.light_z, w[0], w[1], w[2], x0, sc.spacing, sc.zlo, sc.zstart,
+                  sc.zhi)
     ix = axis_weights(sc.light_x + t * w[0], x0, sc.spacing, m, order, wx)
     iy = axis_weights(sc.light_y + t * w[1], x0, sc.spacing, m, order, wy)
     load_patch(d, ix, iy, patch)

@@ -42,8 +42,8 @@ class FusedTracer:
     def constants(self, d: np.ndarray) -> FusedScene:
         """Kernel constants for heights ``d`` (m, m) (the bracketing planes depend on them)."""
         grid = HeightFieldGrid(self.scene.substrate.thickness, self.scene.substrate.half_width, d.shape[0])
-        zlo, zhi = grid.z_bounds(d)
-        return FusedScene(spacing=grid.spacing, zlo=zlo, zhi=zhi, **self._constants)
+        zlo, zstart, zhi = grid.z_planes(d)
+        return FusedScene(spacing=grid.spacing, zlo=zlo, zstart=zstart, zhi=zhi, **self._constants)
 
     def image_buffers(self, dtype: np.dtype) -> np.ndarray:
         """Zeroed per-thread images (threads, c, n, n) for :meth:`render`."""

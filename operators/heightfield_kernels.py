@@ -21,19 +21,25 @@ from operators.catmull_rom import axis_weights, contract, load_patch, scatter_pa
 
 MAX_MARCH_STEPS = 512
 NEWTON_ITERATIONS = 40
+SETTLE = 1e-8  # Newton step (relative to the z scale) below which the next step is taken unchecked
 
 
 @nb.njit(cache=True, fastmath=FAST_MATH, error_model="numpy")
-def solve_hit(d, base, ox, oy, oz, wx_, wy_, wz_, x0, spacing, zlo, zhi) -> float:
+def solve_hit(d, base, ox, oy, oz, wx_, wy_, wz_, x0, spacing, zlo, zstart, zhi) -> float:
     """First root of the gap (ray height above the surface): march between the bounding planes
-    in half-cell steps, then Newton safeguarded by bisection inside the bracket."""
+    zhi and zlo in half-cell steps, then Newton safeguarded by bisection inside the bracket,
+    started at the first crossing the march found or, if it found none, at the plane zstart.
+
+    Newton stops when the gap is within rounding or its step falls below SETTLE (relative to
+    the scene's z scale): convergence is quadratic there, so the step it takes is accurate to
+    about SETTLE^2 and needs no further evaluation of the surface.
+    """
     t_a = (zhi - oz) / wz_
     t_b = (zlo - oz) / wz_
     travel = math.sqrt(wx_ * wx_ + wy_ * wy_) * (t_b - t_a)
     steps = int(min(max(math.ceil(travel / (0.5 * spacing)), 1.0), MAX_MARCH_STEPS))
     dt = (t_b - t_a) / steps
     lo, hi = t_a, t_b
-    t = t_b
     known = False  # whether (g, slope) below already belong to t
     g = slope = 0.0
     for k in range(1, steps):
@@ -41,12 +47,15 @@ def solve_hit(d, base, ox, oy, oz, wx_, wy_, wz_, x0, spacing, zlo, zhi) -> floa
         s, sx, sy = surface_gradient(d, ox + t_k * wx_, oy + t_k * wy_, x0, spacing)
         g = oz + t_k * wz_ - base - s
         if g <= 0.0:
-            t = hi = t_k
+            hi = t_k
             slope = wz_ - sx * wx_ - sy * wy_
             known = True
             break
         lo = t_k
-    tol = 1e-12 * (abs(oz) + abs(zhi) + 1.0)
+    t = hi if known else min(max((zstart - oz) / wz_, lo), hi)
+    z_scale = abs(oz) + abs(zhi) + 1.0
+    tol = 1e-12 * z_scale
+    settle = SETTLE * z_scale
     for _ in range(NEWTON_ITERATIONS):
         if not known:
             s, sx, sy = surface_gradient(d, ox + t * wx_, oy + t * wy_, x0, spacing)
@@ -61,11 +70,12 @@ def solve_hit(d, base, ox, oy, oz, wx_, wy_, wz_, x0, spacing, zlo, zhi) -> floa
             hi = t
         t_new = t - g / slope if slope != 0.0 else 0.5 * (lo + hi)
         if not (lo <= t_new <= hi):
-            t_new = 0.5 * (lo + hi)
-        if abs(t_new - t) <= tol:
-            t = t_new
-            break
+            t = 0.5 * (lo + hi)
+            continue
+        settled = abs(t_new - t) <= settle
         t = t_new
+        if settled:
+            break
     return t
 
 
@@ -107,7 +117,7 @@ def scatter_hit_adjoint(grad, ix, iy, wx, wy, patch, wx_, wy_, wz_, g_t, g_sx, g
 
 
 @nb.njit(parallel=True, cache=True, fastmath=FAST_MATH, error_model="numpy")
-def hit_forward(d, base, origin, dirs, x0, spacing, zlo, zhi, t_out, jet_out, nthreads):
+def hit_forward(d, base, origin, dirs, x0, spacing, zlo, zstart, zhi, t_out, jet_out, nthreads):
     """Fill t_out (N,) and jet_out (5, N) = (S_x, S_y, S_xx, S_xy, S_yy) at each photon's hit."""
     n = dirs.shape[1]
     m = d.shape[0]
@@ -118,7 +128,7 @@ def hit_forward(d, base, origin, dirs, x0, spacing, zlo, zhi, t_out, jet_out, nt
         patch = np.empty((4, 4))
         for p in range(th * per, min(n, (th + 1) * per)):
             wx_, wy_, wz_ = dirs[0, p], dirs[1, p], dirs[2, p]
-            t = solve_hit(d, base, origin[0], origin[1], origin[2], wx_, wy_, wz_, x0, spacing, zlo, zhi)
+            t = solve_hit(d, base, origin[0], origin[1], origin[2], wx_, wy_, wz_, x0, spacing, zlo, zstart, zhi)
             ix = axis_weights(origin[0] + t * wx_, x0, spacing, m, 2, wx)
             iy = axis_weights(origin[1] + t * wy_, x0, spacing, m, 2, wy)
             load_patch(d, ix, iy, patch)

@@ -11,8 +11,10 @@ import torch
 from operators.native import to_numpy
 from operators.heightfield_kernels import hit_backward, hit_forward
 
-# Catmull-Rom can overshoot the sample range by at most 9/16 of it (sum of |weights| in 2-D).
-OVERSHOOT = 0.5625
+# Catmull-Rom overshoots the sample range by at most 9/32 of it: along one axis the negative
+# weights sum to -s (1 - s) / 2 >= -1/8 and the positive ones to at most 9/8, so in 2-D the
+# negative products sum to at least -(2 * 1/8 * 9/8 + ...) = -9/32 (reached at the cell centre).
+OVERSHOOT = 9.0 / 32.0
 
 
 @dataclass(frozen=True)
@@ -27,10 +29,13 @@ class HeightFieldGrid:
     def spacing(self) -> float:
         return 2.0 * self.half_width / (self.resolution - 1)
 
-    def z_bounds(self, d: np.ndarray) -> tuple[float, float]:
-        """Planes (zlo, zhi) that bracket the interpolated surface of samples ``d`` (m, m)."""
+    def z_planes(self, d: np.ndarray) -> tuple[float, float, float]:
+        """Planes (zlo, zstart, zhi) for samples ``d`` (m, m): zlo and zhi bracket the interpolated
+        surface; zstart = base + min d, where the hit search starts its Newton iteration when the
+        march finds no crossing (exact on unprinted areas, where d is at its minimum)."""
         lo, hi = float(d.min()), float(d.max())
-        return (self.base + lo - OVERSHOOT * (hi - lo) - 1e-9, self.base + hi + OVERSHOOT * (hi - lo) + 1e-9)
+        return (self.base + lo - OVERSHOOT * (hi - lo) - 1e-9, self.base + lo,
+                self.base + hi + OVERSHOOT * (hi - lo) + 1e-9)
 
 
 class _HeightFieldHit(torch.autograd.Function):
@@ -40,11 +45,11 @@ class _HeightFieldHit(torch.autograd.Function):
         d = to_numpy(heights).astype(np.float64)
         o = to_numpy(origin).astype(np.float64)
         w = to_numpy(direction)
-        zlo, zhi = grid.z_bounds(d)
+        zlo, zstart, zhi = grid.z_planes(d)
         n = w.shape[1]
         t = np.empty(n, dtype=w.dtype)
         jet = np.empty((5, n), dtype=w.dtype)
-        hit_forward(d, grid.base, o, w, -grid.half_width, grid.spacing, zlo, zhi, t, jet,
+        hit_forward(d, grid.base, o, w, -grid.half_width, grid.spacing, zlo, zstart, zhi, t, jet,
                     nb.get_num_threads())
         t_out = torch.from_numpy(t).to(direction.device)
         ctx.grid = grid

@@ -1,0 +1,56 @@
+"""Ray / height-field intersection: the bracketing planes and the hit search."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from operators.catmull_rom import surface_gradient
+from operators.heightfield_kernels import solve_hit
+from operators.heightfield_surface import OVERSHOOT, HeightFieldGrid
+
+
+def sampled_surface(d: np.ndarray, grid: HeightFieldGrid, samples: int) -> np.ndarray:
+    xs = np.linspace(-grid.half_width, grid.half_width, samples)
+    return np.array([[surface_gradient(d, x, y, -grid.half_width, grid.spacing)[0] for x in xs] for y in xs])
+
+
+def test_bracketing_planes_hold_random_surfaces_and_are_reached_by_the_worst_patch():
+    grid = HeightFieldGrid(base=0.1, half_width=1.0, resolution=9)
+    rng = np.random.default_rng(3)
+    for _ in range(5):
+        d = rng.uniform(0.0, 0.05, (9, 9))
+        zlo, zstart, zhi = grid.z_planes(d)
+        s = grid.base + sampled_surface(d, grid, 161)
+        assert zlo <= s.min() and s.max() <= zhi and zstart == grid.base + d.min()
+    # Maximum where the Catmull-Rom weight products at a cell centre are positive, minimum where
+    # negative: the surface there rises 9/32 of the range above the maximum, as far as zhi allows.
+    sign = np.array([-1.0, 1.0, 1.0, -1.0])
+    d = np.zeros((9, 9))
+    d[2:6, 2:6] = (np.outer(sign, sign) > 0) * 0.04
+    centre = -grid.half_width + 3.5 * grid.spacing
+    peak = surface_gradient(d, centre, centre, -grid.half_width, grid.spacing)[0]
+    assert np.isclose(peak, 0.04 + OVERSHOOT * 0.04, rtol=1e-12)
+    assert np.isclose(grid.base + peak, grid.z_planes(d)[2], atol=2e-9)
+
+
+def test_hit_is_the_first_root_of_the_gap_along_oblique_rays():
+    grid = HeightFieldGrid(base=0.1, half_width=1.0, resolution=33)
+    x = np.linspace(-1.0, 1.0, 33)
+    # Two narrow ridges: oblique rays can graze one and must stop at the first crossing.
+    d = 0.08 * (np.exp(-((x[None, :] - 0.1) / 0.06) ** 2) + np.exp(-((x[None, :] + 0.05) / 0.06) ** 2)
+                ) * np.ones((33, 1))
+    zlo, zstart, zhi = grid.z_planes(d)
+    rng = np.random.default_rng(7)
+    origin = np.array([-2.0, 0.0, 2.0])
+    for _ in range(200):
+        target = np.array([rng.uniform(-0.3, 0.3), rng.uniform(-0.5, 0.5), grid.base])
+        w = (target - origin) / np.linalg.norm(target - origin)
+        t = solve_hit(d, grid.base, *origin, *w, -grid.half_width, grid.spacing, zlo, zstart, zhi)
+
+        def gap(tt: float) -> float:
+            p = origin + tt * w
+            return p[2] - grid.base - surface_gradient(d, p[0], p[1], -grid.half_width, grid.spacing)[0]
+
+        assert abs(gap(t)) < 1e-11
+        before = np.linspace((zhi - origin[2]) / w[2], t, 400, endpoint=False)
+        assert min(gap(tt) for tt in before) > 0.0
