@@ -28,6 +28,7 @@ from framework.solver_config import build_solver
 from framework.solvers import IterationRecord
 from framework.tracking import MlflowTracker
 from operators.caustic_operator import CausticOperator
+from operators.precompile import BackgroundCompile
 from operators.scene import Scene
 from regularizers import RegularizerContext, mask_from_height_field
 
@@ -107,6 +108,12 @@ def run_reconstruction(cfg: Mapping[str, Any], output_dir: Path, base_dir: Path,
                        sweep_id: str | None = None) -> dict[str, Any]:
     """Reconstruct the configured scene into ``output_dir``; returns the metrics written to metrics.json."""
     output_dir.mkdir(parents=True, exist_ok=True)
+    with BackgroundCompile(enabled=bool(cfg.get("compile_in_background", True))) as compiling:
+        return _reconstruct(cfg, output_dir, base_dir, sweep_id, compiling)
+
+
+def _reconstruct(cfg: Mapping[str, Any], output_dir: Path, base_dir: Path, sweep_id: str | None,
+                 compiling: BackgroundCompile) -> dict[str, Any]:
     scene = build_scene(cfg)
     operator = build_operator(cfg, scene)
     m = int(cfg["height_field"]["resolution"])
@@ -139,6 +146,7 @@ def run_reconstruction(cfg: Mapping[str, Any], output_dir: Path, base_dir: Path,
             truth_error = GroundTruthError(data.ground_truth.to(operator.dtype), scene.substrate.thickness)
             callbacks.append(truth_error)
         max_iter = int(cfg["solver"]["max_iter"])
+        compiling.wait()
         solve_start = time.perf_counter()
         if cfg.get("resume"):
             result = resume_solver(solver, _resolve(str(cfg["resume"]), base_dir), max_iter, callbacks)

@@ -1,0 +1,47 @@
+"""Compiling the gradient kernel in a second process for the first run after an install."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import textwrap
+
+import operators.precompile as precompile
+from operators.precompile import BackgroundCompile
+
+# A fresh process that takes a gradient of an operator as sfc-reconstruct builds it (other sizes
+# and settings than the precompile's) and reports whether numba loaded the kernel from its cache.
+_FRESH_GRADIENT = textwrap.dedent("""
+    import torch
+    from operators.caustic_operator import CausticOperator, OperatorSettings
+    from operators.fused_kernels import vjp_photons
+    from operators.scene import Receiver, Scene
+    op = CausticOperator(Scene(receiver=Receiver(resolution=32)),
+                         OperatorSettings(photons=5000, footprint_px=2.0, fresnel=True, dtype="float64"))
+    op.vjp(torch.rand(16, 16, dtype=torch.float64) * 0.01, torch.rand(op.output_shape, dtype=torch.float64))
+    print(sum(vjp_photons.stats.cache_hits.values()), sum(vjp_photons.stats.cache_misses.values()))
+""")
+
+
+def test_precompiled_gradient_kernel_is_loaded_by_a_later_process(tmp_path):
+    # An empty cache of its own, so the precompile really compiles (about 1.5 min on one core).
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path)}
+    subprocess.run([sys.executable, "-m", "operators.precompile"], check=True, timeout=900, env=env)
+    out = subprocess.run([sys.executable, "-c", _FRESH_GRADIENT], check=True, capture_output=True, text=True,
+                         timeout=900, env=env)
+    hits, misses = map(int, out.stdout.split())
+    assert (hits, misses) == (1, 0)
+
+
+def test_background_compile_starts_only_without_a_cached_kernel_and_stops_with_its_context(monkeypatch):
+    monkeypatch.setattr(precompile, "gradient_kernel_cached", lambda: True)
+    with BackgroundCompile() as compiling:
+        assert compiling.process is None
+        compiling.wait()
+    monkeypatch.setattr(precompile, "gradient_kernel_cached", lambda: False)
+    with BackgroundCompile(enabled=False) as compiling:
+        assert compiling.process is None
+    with BackgroundCompile() as compiling:
+        assert compiling.process is not None and compiling.process.poll() is None
+    assert compiling.process.returncode is not None  # killed on leaving the context, not left running
