@@ -146,6 +146,9 @@ def _reconstruct(cfg: Mapping[str, Any], output_dir: Path, base_dir: Path, sweep
             truth_error = GroundTruthError(data.ground_truth.to(operator.dtype), scene.substrate.thickness)
             callbacks.append(truth_error)
         max_iter = int(cfg["solver"]["max_iter"])
+        if compiling.running:
+            print("waiting for the gradient kernel to compile (first run after an install; cached afterwards)",
+                  flush=True)
         compiling.wait()
         solve_start = time.perf_counter()
         if cfg.get("resume"):

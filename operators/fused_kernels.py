@@ -34,8 +34,9 @@ class FusedScene(NamedTuple):
 
     light_*: light position; half: substrate half width (also the height grid's extent);
     base: substrate thickness (z of d = 0); spacing: height-grid spacing; zlo / zhi: planes that
-    bracket the surface, zstart: plane where the hit search starts Newton (HeightFieldGrid.z_planes); per_channel: photons per channel; flux_scale: P / (4 pi c) A_cell
-    (l_z - h), so flux = flux_scale / r^3; radius: emission footprint radius on z = h;
+    bracket the surface, zstart: plane where the hit search starts Newton (HeightFieldGrid.z_planes);
+    per_channel: photons per channel; flux_scale: P / (4 pi c) A_cell (l_z - h), so
+    flux = flux_scale / r^3; radius: emission footprint radius on z = h;
     receiver_z, receiver_half: receiver plane and half width; to_px: pixels per scene unit;
     min_px, max_px: footprint pixel filter and cut-off radii (pixels); fresnel: Fresnel weights.
     """

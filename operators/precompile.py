@@ -43,6 +43,11 @@ class BackgroundCompile:
             self.process = subprocess.Popen([sys.executable, "-m", "operators.precompile"],
                                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
 
+    @property
+    def running(self) -> bool:
+        """Whether the compiling process is still at work."""
+        return self.process is not None and self.process.poll() is None
+
     def wait(self) -> None:
         """Block until the background compilation is done (at once if none was started)."""
         if self.process is not None:
