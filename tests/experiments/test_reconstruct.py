@@ -65,6 +65,14 @@ def test_every_experiment_preset_runs_two_iterations(tmp_path, experiment):
     assert metrics["method"] == experiment.upper()
 
 
+def test_the_papers_plain_iteration_runs_with_the_readme_overrides(tmp_path):
+    # Hydra merges a dict override into the default step size: the README deletes it first.
+    plain = ["solver.preconditioner=null", "~solver.step_size", "+solver.step_size={policy: constant, tau: 2.5e-4}"]
+    cfg = compose_reconstruct([*SMALL, *plain, "solver.max_iter=2"], tmp_path)
+    assert cfg["solver"]["step_size"] == {"policy": "constant", "tau": 2.5e-4}
+    assert run_reconstruction(cfg, tmp_path / "plain", tmp_path)["iterations"] == 2
+
+
 def test_measured_data_from_files(tmp_path):
     image = torch.rand(1, 64, 64).numpy() + 0.5
     np.save(tmp_path / "caustic.npy", image)
