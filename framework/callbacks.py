@@ -55,12 +55,18 @@ class MorozovStopping(Callback):
     solution is about delta, so tau_dis <= 1 may never trigger, or only by chance); we therefore
     refuse tau_dis <= 1. The paper uses 1.01 to 1.2.
 
+    When the deposited volume is known (a volume band [q1, q2] of the height sum, from V1 or V2),
+    it is data too: an iterate is then admissible only if its height sum lies in the band as
+    well. Without that, a smooth print whose caustic barely sees volume spread over the mask stops
+    as soon as it fits the image, with a fraction of its volume (a 0.05-high bump: at 31%).
+
     Args:
         delta: Relative noise level of the data, 0 < delta < 1 (the paper: 0.05).
         tau_dis: Safety factor > 1.
+        volume_band: (q1, q2), bounds of sum(d) for an admissible iterate; None: no volume condition.
     """
 
-    def __init__(self, delta: float, tau_dis: float = 1.1) -> None:
+    def __init__(self, delta: float, tau_dis: float = 1.1, volume_band: tuple[float, float] | None = None) -> None:
         delta, tau_dis = float(delta), float(tau_dis)
         if not (math.isfinite(delta) and 0.0 < delta < 1.0):
             raise ValueError(f"delta (relative noise level) must lie in (0, 1), got {delta!r}; 5% noise is 0.05")
@@ -70,15 +76,23 @@ class MorozovStopping(Callback):
             )
         self.delta, self.tau_dis = delta, tau_dis
         self.threshold = tau_dis * delta
+        self.volume_band = volume_band
 
     def on_iteration(self, solver, record) -> bool:  # noqa: D102
-        if record.rel_discrepancy <= self.threshold:
-            self.stop_reason = (
-                f"discrepancy principle: rel. discrepancy {record.rel_discrepancy:.4g} <= "
-                f"tau_dis * delta = {self.tau_dis:g} * {self.delta:g} at iteration {record.iteration}"
-            )
-            return True
-        return False
+        if record.rel_discrepancy > self.threshold:
+            return False
+        volume = ""
+        if self.volume_band is not None:
+            q1, q2 = self.volume_band
+            total = float(solver.d.sum())
+            if not q1 <= total <= q2:
+                return False
+            volume = f" with the height sum {total:.4g} in the volume band [{q1:.4g}, {q2:.4g}]"
+        self.stop_reason = (
+            f"discrepancy principle: rel. discrepancy {record.rel_discrepancy:.4g} <= "
+            f"tau_dis * delta = {self.tau_dis:g} * {self.delta:g}{volume} at iteration {record.iteration}"
+        )
+        return True
 
 
 class StagnationStopping(Callback):

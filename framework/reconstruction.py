@@ -97,6 +97,16 @@ def _resolve(path: str, base_dir: Path) -> Path:
     return p if p.is_absolute() else base_dir / p
 
 
+def volume_band(solver: Any) -> tuple[float, float] | None:
+    """The band [q1, q2] of the height sum that the solver's volume regulariser (V1 or V2)
+    enforces, or None when it has none."""
+    for part in [*getattr(solver, "regularizers", []), *getattr(solver, "post_steps", [])]:
+        band = getattr(part, "band", None)
+        if band is not None:
+            return band
+    return None
+
+
 def stage_changes(history: Sequence[IterationRecord]) -> list[int]:
     """Iterations after which the preconditioner moved to its next length, whether the stagnation
     rule or a failed line search asked for it (from the records' ``preconditioner_length``)."""
@@ -133,7 +143,7 @@ def _reconstruct(cfg: Mapping[str, Any], output_dir: Path, base_dir: Path, sweep
         solver = build_solver(cfg["solver"], fidelity, d0, cfg.get("regularizers"), cfg.get("post_steps"),
                               cfg.get("wavelet"), context)
         history = MetricsHistory()
-        callbacks = [history, MorozovStopping(data.delta, float(cfg["solver"]["tau_dis"])),
+        callbacks = [history, MorozovStopping(data.delta, float(cfg["solver"]["tau_dis"]), volume_band(solver)),
                      ProgressBar(desc=str(cfg.get("method", "reconstruct"))),
                      Checkpointer(output_dir / CHECKPOINT, every=int(cfg["checkpoint_every"])),
                      tracker.metrics_callback()]
@@ -158,7 +168,8 @@ def _reconstruct(cfg: Mapping[str, Any], output_dir: Path, base_dir: Path, sweep
         solve_seconds = time.perf_counter() - solve_start
         d = result.d.detach()
         returned_iteration = result.iterations
-        if stagnation is not None and stagnation.best_d is not None:  # the lowest discrepancy seen
+        if result.stopped_by != "MorozovStopping" and stagnation is not None and stagnation.best_d is not None:
+            # No admissible iterate: return the one with the lowest discrepancy seen.
             d, returned_iteration = stagnation.best_d, stagnation.best_iteration
         prediction = operator.render(d)
         residual = float(torch.linalg.vector_norm((prediction - data.target.to(prediction)).double()))

@@ -59,6 +59,18 @@ def test_morozov_threshold_is_inclusive_and_cap_wins_first():
     assert result.iterations == 2 and result.stopped_by == "max_iter"
 
 
+def test_morozov_with_a_volume_band_waits_for_an_admissible_height_sum():
+    # The scripted iterate k is k everywhere: height sum 4 k. The fit is below the threshold from
+    # iteration 2 on; the band [14, 30] admits iterations 4 to 7.
+    discrepancies = [0.5, 0.09, 0.08, 0.07, 0.06, 0.05, 0.04, 0.03]
+    assert ScriptedSolver(discrepancies).run(100, [MorozovStopping(0.1, 1.05)]).iterations == 2
+    result = ScriptedSolver(discrepancies).run(100, [MorozovStopping(0.1, 1.05, volume_band=(14.0, 30.0))])
+    assert result.iterations == 4 and result.stopped_by == "MorozovStopping"
+    assert "height sum 16 in the volume band [14, 30]" in result.stop_reason
+    unfit = ScriptedSolver([0.5, 0.4, 0.3, 0.2, 0.15]).run(5, [MorozovStopping(0.1, 1.05, volume_band=(14.0, 30.0))])
+    assert unfit.stopped_by == "max_iter"
+
+
 @pytest.mark.parametrize("delta, tau_dis, match", [(0.05, 1.0, "tau_dis"), (0.05, 0.9, "tau_dis"),
                                                    (0.0, 1.1, "delta"), (1.5, 1.1, "delta"),
                                                    (float("nan"), 1.1, "delta")])
