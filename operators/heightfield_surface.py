@@ -13,7 +13,8 @@ from operators.heightfield_kernels import hit_backward, hit_forward
 
 # Catmull-Rom overshoots the sample range by at most 9/32 of it: along one axis the negative
 # weights sum to -s (1 - s) / 2 >= -1/8 and the positive ones to at most 9/8, so in 2-D the
-# negative products sum to at least -(2 * 1/8 * 9/8 + ...) = -9/32 (reached at the cell centre).
+# products of one negative and one positive weight sum to at least -2 * 1/8 * 9/8 = -9/32
+# (reached at the cell centre).
 OVERSHOOT = 9.0 / 32.0
 
 

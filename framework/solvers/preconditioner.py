@@ -15,8 +15,8 @@ positive definite and leaves a constant field unchanged.
 
 Coarse to fine: with a schedule of lengths l_1 > l_2 > ..., the solver starts with l_1 and, when
 the fit stalls (:class:`framework.callbacks.StagnationStopping`) or its line search finds no
-decrease, calls :meth:`refine` and goes on with the next length, so detail finer than l_1 is fitted once the broad
-shape is in place.
+decrease, calls :meth:`refine` and goes on with the next length, so detail finer than l_1 is
+fitted once the broad shape is in place.
 """
 
 from __future__ import annotations
