@@ -118,7 +118,8 @@ def run_reconstruction(cfg: Mapping[str, Any], output_dir: Path, base_dir: Path,
                        sweep_id: str | None = None) -> dict[str, Any]:
     """Reconstruct the configured scene into ``output_dir``; returns the metrics written to metrics.json."""
     output_dir.mkdir(parents=True, exist_ok=True)
-    with BackgroundCompile(enabled=bool(cfg.get("compile_in_background", True))) as compiling:
+    on_cpu = not str(cfg.get("operator", {}).get("device", "cpu")).startswith("cuda")
+    with BackgroundCompile(enabled=bool(cfg.get("compile_in_background", True)) and on_cpu) as compiling:
         return _reconstruct(cfg, output_dir, base_dir, sweep_id, compiling)
 
 

@@ -6,7 +6,8 @@ photon differentials. Two implementations of the same photons:
 - the fused native path (:mod:`operators.fused_trace`), used by :meth:`CausticOperator.render`
   and :meth:`CausticOperator.vjp`: one numba pass per chunk, per photon from emission to splat
   (or, for the gradient, from emission to the splat adjoint and back into the heights), with no
-  per-photon arrays;
+  per-photon arrays; with ``device: cuda`` the same per-photon code runs as CUDA kernels, one GPU
+  thread per photon (:mod:`operators.cuda_trace`);
 - the torch path (:mod:`operators.substrate_trace`, :mod:`operators.splat`), kept as the
   independent reference (:meth:`CausticOperator.render_reference`,
   :meth:`CausticOperator.vjp_reference`), differentiated by torch autograd.
@@ -103,6 +104,10 @@ class CausticOperator:
         self.glass_index = torch.tensor(scene.indices, dtype=self.dtype, device=self.device)
         self.fused = FusedTracer(scene, self.emitter, self.settings.min_footprint_px,
                                  self.settings.max_pixel_radius, self.settings.fresnel)
+        self.gpu = None
+        if self.device.type == "cuda":
+            from operators.cuda_trace import CudaTracer  # imports numba.cuda only where it is used
+            self.gpu = CudaTracer(self.fused)
         receiver = scene.receiver
         self.pixel_area = receiver.pixel_size ** 2
         self._to_pixels = receiver.resolution / (2.0 * receiver.half_width)
@@ -143,14 +148,16 @@ class CausticOperator:
         self.scene.check_heights_below_light(float(heights.max()))
 
     def render(self, heights: torch.Tensor, progress: bool = False) -> torch.Tensor:
-        """Irradiance (c, n, n) by the fused native path, no autograd graph; ``progress`` shows a
-        bar over the chunks."""
+        """Irradiance (c, n, n) by the fused native path (on the GPU with ``device: cuda``), no
+        autograd graph, on the device of ``heights``; ``progress`` shows a bar over the chunks."""
         self._check(heights)
         d = to_numpy(heights).astype(np.float64)
+        if self.gpu is not None:
+            return self._render_gpu(d, progress).to(heights.device)
         out = self.fused.image_buffers(np.dtype(self.settings.dtype))
         for start, stop in tqdm(self.chunks(), desc="photons", unit="chunk", disable=not progress):
             self.fused.render(d, start, stop, out)
-        return torch.from_numpy(out.sum(axis=0) / self.pixel_area).to(self.device)
+        return torch.from_numpy(out.sum(axis=0) / self.pixel_area).to(heights.device)
 
     def vjp(self, heights: torch.Tensor, grad_image: torch.Tensor) -> torch.Tensor:
         """F'(d)^* grad_image: the gradient (m, m) of <F(d), grad_image>, by the fused native path."""
@@ -158,11 +165,33 @@ class CausticOperator:
         if grad_image.shape != self.output_shape:
             raise ValueError(f"grad_image has shape {tuple(grad_image.shape)}, expected {self.output_shape}")
         d = to_numpy(heights).astype(np.float64)
+        if self.gpu is not None:
+            return self._vjp_gpu(d, grad_image).to(self.dtype).to(dtype=heights.dtype, device=heights.device)
         padded = self.fused.pad_gradient(to_numpy(grad_image).astype(np.float64) / self.pixel_area)
         out = np.zeros((nb.get_num_threads(), *d.shape))
         for start, stop in self.chunks():
             self.fused.vjp(d, start, stop, padded, out)
         return torch.from_numpy(out.sum(axis=0)).to(self.dtype).to(dtype=heights.dtype, device=heights.device)
+
+    def _render_gpu(self, d: np.ndarray, progress: bool) -> torch.Tensor:
+        """:meth:`render` on the GPU: one image (c, n, n) that all photons add into (the chunk
+        size, which bounds per-photon memory on the CPU, does not apply: the GPU stores none)."""
+        image = torch.zeros(self.output_shape, dtype=self.dtype, device=self.device)
+        d_gpu = torch.from_numpy(d).to(self.device)
+        sc = self.fused.constants(d)
+        for start, stop in tqdm(self.gpu.launches(0, self.photons), desc="photons", unit="launch",
+                                disable=not progress):
+            self.gpu.render(sc, d_gpu, start, stop, image)
+        return image / self.pixel_area
+
+    def _vjp_gpu(self, d: np.ndarray, grad_image: torch.Tensor) -> torch.Tensor:
+        """:meth:`vjp` on the GPU, all photons in one pass (no per-photon memory to bound)."""
+        pad = self.gpu.gather_pad
+        g = grad_image.detach().to(dtype=torch.float64, device=self.device) / self.pixel_area
+        padded = torch.nn.functional.pad(g, (pad, pad, pad, pad)).contiguous()
+        grad = torch.zeros(d.shape, dtype=torch.float64, device=self.device)
+        self.gpu.vjp(self.fused.constants(d), torch.from_numpy(d).to(self.device), 0, self.photons, padded, grad)
+        return grad
 
     def render_reference(self, heights: torch.Tensor) -> torch.Tensor:
         """Irradiance (c, n, n) by the torch path, no autograd graph (the reference for render)."""

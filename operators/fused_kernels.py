@@ -6,7 +6,7 @@ One numba pass per chunk of photons does what :mod:`operators.emission`,
 ``render_photons`` scatters into per-thread images, ``vjp_photons`` recomputes each photon's path,
 gathers the splat adjoint, back-propagates it through the optics (hand-written reverse mode,
 :mod:`operators.photon_optics`) to the hit's ray parameter and surface jet, and from there into the
-16 Catmull-Rom control heights (:func:`operators.heightfield_kernels.scatter_hit_adjoint`),
+16 Catmull-Rom control heights (:func:`operators.heightfield_kernels.hit_adjoint_patch`),
 accumulating per-thread gradients. All arithmetic is float64; only the images may be float32.
 """
 
@@ -18,9 +18,9 @@ from typing import NamedTuple
 import numba as nb
 import numpy as np
 
-from operators.catmull_rom import axis_weights, load_patch
+from operators.catmull_rom import axis_weights, load_patch, scatter_patch
 from operators.emission import R2_STEP
-from operators.heightfield_kernels import scatter_hit_adjoint, solve_hit, surface_jet
+from operators.heightfield_kernels import hit_adjoint_patch, solve_hit, surface_jet
 from operators.native import FAST_MATH
 from operators.photon_optics import (UP, ZERO, add, away_from_zero, footprint_metric, footprint_metric_adjoint,
                                      fresnel, fresnel_adjoint, height_field_normal, height_field_normal_adjoint,
@@ -180,16 +180,18 @@ def render_photons(d, sc, shifts, indices, start, stop, out, capacity, splat):
 
 
 @_jit
-def _photon_vjp(d, sc, shifts, indices, index, padded, pad, wx, wy, patch, grad):
-    """Add photon ``index``'s contribution to the gradient ``grad`` (m, m) of <splat, G>, G given
-    with ``pad`` zero pixels on every side (``padded``, see :func:`operators.splat_kernels.gather_photon`)."""
+def photon_vjp(d, sc, shifts, indices, index, padded, pad, wx, wy, patch):
+    """Photon ``index``'s contribution to the gradient of <splat, G> w.r.t. the 16 heights around
+    its hit, G given with ``pad`` zero pixels on every side (``padded``, see
+    :func:`operators.splat_kernels.gather_photon`). Returns (contributes, ix, iy); when it
+    contributes, ``patch`` holds the gradient to add at cell (ix, iy) (:func:`scatter_patch`)."""
     (c, w, dwu, dwv, flux0, t, jet, ix, iy, n1, p1, dpu1, dpv1, dnu, dnv, eta, w1, dwu1, dwv1, ci1, ct1
      ) = through_top(d, sc, shifts, indices, index, wx, wy, patch, 3)
     sx, sy, sxx, sxy, syy = jet
     (lost, dist2, p2, dpu2, dpv2, w2, dwu2, dwv2, ci2, ct2, dist3, p3, dpu3, dpv3
      ) = below_top(p1, dpu1, dpv1, w1, dwu1, dwv1, eta, sc)
     if lost:
-        return
+        return False, ix, iy
     t1 = fresnel(ci1, ct1, 1.0 / eta) if sc.fresnel else 1.0
     t2 = fresnel(ci2, ct2, eta) if sc.fresnel else 1.0
     k = sc.to_px
@@ -199,7 +201,7 @@ def _photon_vjp(d, sc, shifts, indices, index, padded, pad, wx, wy, patch, grad)
                                                       (p3[1] + sc.receiver_half) * k - 0.5, q00, q01, q11,
                                                       flux0 * t1 * t2)
     if g_flux == 0.0 and g_px == 0.0 and g_py == 0.0 and g00 == 0.0 and g01 == 0.0 and g11 == 0.0:
-        return
+        return False, ix, iy
     g_ux, g_uy, g_vx, g_vy = footprint_metric_adjoint(fu_x, fu_y, fv_x, fv_y, sc.min_px, sc.max_px, g00, g01, g11)
     # Receiver plane.
     g_p3 = (g_px * k, g_py * k, 0.0)
@@ -229,8 +231,9 @@ def _photon_vjp(d, sc, shifts, indices, index, padded, pad, wx, wy, patch, grad)
     _, _, _, _, _, g_t, g_nt = transfer_adjoint(ZERO, ZERO, w, dwu, dwv, t, n1, g_p1, add(g_dpu1, g_dpu),
                                                 add(g_dpv1, g_dpv))
     g_sx, g_sy = height_field_normal_adjoint(sx, sy, add(add(g_n1, g_nu), add(g_nv, g_nt)))
-    scatter_hit_adjoint(grad, ix, iy, wx, wy, patch, w[0], w[1], w[2], g_t, g_sx, g_sy,
-                        g_sxx + g_sxx2, g_sxy + g_sxy2, g_syy + g_syy2)
+    hit_adjoint_patch(wx, wy, patch, w[0], w[1], w[2], g_t, g_sx, g_sy, g_sxx + g_sxx2, g_sxy + g_sxy2,
+                      g_syy + g_syy2)
+    return True, ix, iy
 
 
 @nb.njit(cache=True, fastmath=FAST_MATH, error_model="numpy")
@@ -240,7 +243,9 @@ def _vjp_range(d, sc, shifts, indices, lo, hi, padded, pad, grad) -> None:
     wy = np.empty((4, 4))
     patch = np.empty((4, 4))
     for index in range(lo, hi):
-        _photon_vjp(d, sc, shifts, indices, index, padded, pad, wx, wy, patch, grad)
+        contributes, ix, iy = photon_vjp(d, sc, shifts, indices, index, padded, pad, wx, wy, patch)
+        if contributes:
+            scatter_patch(grad, ix, iy, patch)
 
 
 @nb.njit(parallel=True, cache=True, fastmath=FAST_MATH, error_model="numpy")

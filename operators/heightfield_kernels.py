@@ -87,11 +87,11 @@ def surface_jet(patch, wx, wy) -> tuple[float, float, float, float, float]:
 
 
 @nb.njit(cache=True, inline="always", fastmath=FAST_MATH, error_model="numpy")
-def scatter_hit_adjoint(grad, ix, iy, wx, wy, patch, wx_, wy_, wz_, g_t, g_sx, g_sy, g_sxx, g_sxy, g_syy) -> None:
-    """Add to grad (m, m) the gradient w.r.t. d of g_t t + <g_jet, jet> at one photon's hit.
+def hit_adjoint_patch(wx, wy, patch, wx_, wy_, wz_, g_t, g_sx, g_sy, g_sxx, g_sxy, g_syy) -> None:
+    """Overwrite ``patch`` (the samples around one photon's hit) with the gradient of
+    g_t t + <g_jet, jet> w.r.t. those samples (add it into the heights with :func:`scatter_patch`).
 
-    ``patch`` holds the samples around the hit (it is overwritten), wx / wy weight tables of
-    order 3 at the hit, (wx_, wy_, wz_) the ray direction.
+    wx / wy are weight tables of order 3 at the hit, (wx_, wy_, wz_) the ray direction.
     """
     sx = contract(patch, wx, 1, wy, 0)
     sy = contract(patch, wx, 0, wy, 1)
@@ -113,6 +113,13 @@ def scatter_hit_adjoint(grad, ix, iy, wx, wy, patch, wx_, wy_, wz_, g_t, g_sx, g
             patch[a, b] = (wy[0, a] * (c * wx[0, b] + g_sx * wx[1, b] + g_sxx * wx[2, b])
                            + wy[1, a] * (g_sy * wx[0, b] + g_sxy * wx[1, b])
                            + wy[2, a] * g_syy * wx[0, b])
+
+
+@nb.njit(cache=True, inline="always", fastmath=FAST_MATH, error_model="numpy")
+def scatter_hit_adjoint(grad, ix, iy, wx, wy, patch, wx_, wy_, wz_, g_t, g_sx, g_sy, g_sxx, g_sxy, g_syy) -> None:
+    """Add to grad (m, m) the gradient w.r.t. d of g_t t + <g_jet, jet> at one photon's hit
+    (:func:`hit_adjoint_patch`, then scattered into the cell's samples; ``patch`` is overwritten)."""
+    hit_adjoint_patch(wx, wy, patch, wx_, wy_, wz_, g_t, g_sx, g_sy, g_sxx, g_sxy, g_syy)
     scatter_patch(grad, ix, iy, patch)
 
 
