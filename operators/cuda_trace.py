@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 from numba import cuda
+from numba.core import config as numba_config
 
 from operators.cuda_kernels import THREADS_PER_BLOCK, render_kernel, vjp_kernel
 from operators.fused_kernels import FusedScene
@@ -18,10 +19,23 @@ from operators.fused_trace import FusedTracer
 LAUNCH = 1 << 22  # photons per kernel launch: fills any current GPU many times over
 
 
+def require_cuda_target() -> None:
+    """Refuse numba's deprecated built-in CUDA target (it cannot compile these kernels) and machines
+    where numba sees no GPU, naming the fix; numba's CUDA simulator (tests) passes."""
+    if getattr(numba_config, "ENABLE_CUDASIM", 0):
+        return
+    if getattr(cuda, "implementation", "Built-in") != "NVIDIA":
+        raise RuntimeError("operator.device=cuda needs NVIDIA's numba-cuda (numba's built-in CUDA target "
+                           "cannot compile these kernels): pip install -e '.[cuda]'")
+    if not cuda.is_available():
+        raise RuntimeError("operator.device=cuda: numba sees no CUDA GPU or driver here; use operator.device=cpu")
+
+
 class CudaTracer:
     """Runs the photons of ``fused`` (its emitter, scene constants and padding) on the GPU."""
 
     def __init__(self, fused: FusedTracer) -> None:
+        require_cuda_target()
         self.fused = fused
         self.shifts = cuda.to_device(fused.shifts)
         self.indices = cuda.to_device(fused.indices)

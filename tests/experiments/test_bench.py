@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import json
 
+import pytest
+import torch
+
 from experiments.bench import main
 
 
@@ -18,3 +21,10 @@ def test_bench_prints_the_promised_figures(capsys):
     comparison = report["splat_comparison"]
     assert comparison["relative_image_difference"] < 1e-5 and comparison["speedup"] > 0
     assert report["gradient_paper_photons"]["photons"] == 30000
+
+
+@pytest.mark.skipif(torch.cuda.is_available(), reason="checks the refusal on a machine without a GPU")
+def test_bench_on_cuda_without_a_gpu_is_refused(capsys):
+    with pytest.raises(SystemExit):
+        main(["--device", "cuda"])
+    assert "needs a CUDA GPU" in capsys.readouterr().err

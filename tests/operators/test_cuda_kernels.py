@@ -93,3 +93,18 @@ def test_cuda_operator_matches_the_cpu_operator():
     g = torch.randn(cpu.output_shape, dtype=torch.float64, generator=torch.Generator().manual_seed(2))
     cpu_grad, gpu_grad = cpu.vjp(heights, g), gpu.vjp(heights.cuda(), g.cuda())
     assert torch.allclose(gpu_grad.cpu(), cpu_grad, rtol=1e-8, atol=1e-8 * float(cpu_grad.abs().max()))
+
+
+def test_cuda_target_check_names_the_fix():
+    """Without NVIDIA's numba-cuda, or without a GPU, building the CUDA tracer fails with the fix."""
+    from numba import cuda
+
+    from operators.cuda_trace import require_cuda_target
+    if getattr(cuda, "implementation", "Built-in") != "NVIDIA":
+        with pytest.raises(RuntimeError, match=r"pip install -e '\.\[cuda\]'"):
+            require_cuda_target()
+    elif not cuda.is_available():
+        with pytest.raises(RuntimeError, match="operator.device=cpu"):
+            require_cuda_target()
+    else:
+        require_cuda_target()
