@@ -20,6 +20,7 @@ from framework.callbacks import (Checkpointer, GroundTruthError, MetricsHistory,
                                  StagnationStopping)
 from framework.checkpoint import resume as resume_solver
 from framework.data import ReconstructionData, measured_data, synthetic_data
+from framework.height_field_io import load_height_field
 from framework.image_io import load_caustic_image, load_mask
 from framework.objective import DataFidelity
 from framework.report_figures import save_reconstruction_figures
@@ -97,6 +98,26 @@ def _resolve(path: str, base_dir: Path) -> Path:
     return p if p.is_absolute() else base_dir / p
 
 
+def initial_heights(cfg: Mapping[str, Any], m: int, dtype: torch.dtype, base_dir: Path) -> torch.Tensor:
+    """The iteration's start d0 (m, m), scene units, from ``initial``: ``zero`` (flat glass, the
+    paper), ``design`` (the configured height field, with ``data=file`` the print's design) or
+    the path of a .npy/.png height field (resampled to m), each times ``initial_scale``."""
+    spec = cfg.get("initial", "zero")
+    scale = cfg.get("initial_scale", 1.0)
+    if isinstance(scale, bool) or not isinstance(scale, (int, float)) or not 0.0 <= scale < float("inf"):
+        raise ValueError(f"initial_scale={scale!r} must be a finite number >= 0, e.g. 0.5")
+    if spec in (None, "zero"):
+        return torch.zeros(m, m, dtype=dtype)
+    if spec == "design":
+        d = build_heights(cfg, base_dir=base_dir) * float(scale)
+    else:
+        d = torch.from_numpy(load_height_field(_resolve(str(spec), base_dir), resolution=m, scale=float(scale)))
+    if tuple(d.shape) != (m, m):
+        raise ValueError(f"initial={spec!r} gives heights of shape {tuple(d.shape)}, the reconstruction has "
+                         f"({m}, {m}); set height_field.resolution to match")
+    return d.to(dtype)
+
+
 def volume_band(solver: Any) -> tuple[float, float] | None:
     """The band [q1, q2] of the height sum that the solver's volume regulariser (V1 or V2)
     enforces, or None when it has none."""
@@ -140,7 +161,7 @@ def _reconstruct(cfg: Mapping[str, Any], output_dir: Path, base_dir: Path, sweep
         cell_area = height_pixel_area(scene, m)
         context = RegularizerContext(mask=data.mask, volume=data.volume, pixel_area=cell_area)
         fidelity = DataFidelity(operator, data.target.to(operator.dtype), cell_area=cell_area)
-        d0 = torch.zeros(m, m, dtype=operator.dtype)
+        d0 = initial_heights(cfg, m, operator.dtype, base_dir)
         solver = build_solver(cfg["solver"], fidelity, d0, cfg.get("regularizers"), cfg.get("post_steps"),
                               cfg.get("wavelet"), context)
         history = MetricsHistory()

@@ -8,6 +8,8 @@ photons whatever the operator's chunk size.
 
 from __future__ import annotations
 
+import logging
+
 import numpy as np
 from numba import cuda
 from numba.core import config as numba_config
@@ -17,6 +19,10 @@ from operators.fused_kernels import FusedScene
 from operators.fused_trace import FusedTracer
 
 LAUNCH = 1 << 22  # photons per kernel launch: fills any current GPU many times over
+
+# numba's CUDA driver logs every allocation at INFO; under Hydra's INFO root logger that floods the
+# run log (seen with sfc-simulate operator.device=cuda).
+logging.getLogger("numba.cuda").setLevel(logging.WARNING)
 
 
 def require_cuda_target() -> None:

@@ -10,7 +10,8 @@ import pytest
 import torch
 from mlflow.tracking import MlflowClient
 
-from framework.reconstruction import CHECKPOINT, run_reconstruction
+from framework.reconstruction import CHECKPOINT, initial_heights, run_reconstruction
+from framework.scene_config import build_heights
 from tests.experiments.conftest import SMALL, compose_reconstruct
 
 # A bump that focuses light visibly at 64 x 64 (a weak one is hidden by the noise: Morozov stops at
@@ -55,6 +56,30 @@ def test_resume_continues_an_interrupted_run_to_the_same_result(tmp_path):
     assert resumed["iterations"] == full["iterations"] == 6
     assert np.array_equal(np.load(tmp_path / "full" / "height_field.npy"),
                           np.load(tmp_path / "resumed" / "height_field.npy"))
+
+
+def test_initial_heights_from_zero_design_or_file(tmp_path):
+    cfg = compose_reconstruct([*SMALL, *BUMP], tmp_path)
+    assert torch.equal(initial_heights(cfg, 32, torch.float32, tmp_path), torch.zeros(32, 32))
+    half = initial_heights({**cfg, "initial": "design", "initial_scale": 0.5}, 32, torch.float64, tmp_path)
+    assert torch.allclose(half, 0.5 * build_heights(cfg)) and float(half.max()) > 0.02
+    np.save(tmp_path / "start.npy", np.full((16, 16), 0.01))
+    from_file = initial_heights({**cfg, "initial": "start.npy", "initial_scale": 2.0}, 32, torch.float64, tmp_path)
+    assert from_file.shape == (32, 32) and torch.allclose(from_file, torch.full((32, 32), 0.02, dtype=torch.float64))
+    with pytest.raises(FileNotFoundError, match="missing.npy"):
+        initial_heights({**cfg, "initial": "missing.npy"}, 32, torch.float64, tmp_path)
+    with pytest.raises(ValueError, match="initial_scale=-1"):
+        initial_heights({**cfg, "initial": "design", "initial_scale": -1}, 32, torch.float64, tmp_path)
+    with pytest.raises(ValueError, match="height_field.resolution"):
+        initial_heights({**cfg, "initial": "design"}, 64, torch.float64, tmp_path)
+
+
+def test_a_start_from_half_the_design_beats_the_flat_start(tmp_path):
+    base = [*SMALL, *BUMP, "solver.max_iter=6"]
+    flat = run_reconstruction(compose_reconstruct(base, tmp_path), tmp_path / "flat", tmp_path)
+    half = run_reconstruction(compose_reconstruct([*base, "initial=design", "initial_scale=0.5"], tmp_path),
+                              tmp_path / "half", tmp_path)
+    assert half["rel_error_d"] < 0.5 * flat["rel_error_d"], (half, flat)
 
 
 @pytest.mark.parametrize("experiment", ["m1", "m2v0", "m2v1", "m2v2", "m3v0", "m3v1", "m3v2"])
