@@ -24,11 +24,16 @@ import numba
 import numpy as np
 import torch
 
+from experiments.bench_stages import stage_profile
 from framework.shapes import make_shape
 from operators.caustic_operator import CausticOperator, OperatorSettings
 from operators.scene import Scene
 from operators.splat import splat_photons
 from operators.splat_reference import splat_photons_reference
+
+# Throughput targets of the CPU path (issue 2, on the 2-core machine): photons/s.
+TARGET_FORWARD = 5e6
+TARGET_FORWARD_BACKWARD = 2e6
 
 
 def peak_rss_mb() -> float:
@@ -176,6 +181,21 @@ def cuda_report(heights: torch.Tensor, photons: int, grad_photons: int, footprin
     }
 
 
+def profile_stages(op: CausticOperator, heights: torch.Tensor, target: torch.Tensor, photons: int
+                   ) -> dict[str, object]:
+    """The one-thread stage profile (experiments.bench_stages) with the per-photon time budget
+    that the throughput targets leave each thread."""
+    threads = numba.get_num_threads()
+    residual = (op.render(heights) - target).double().numpy()
+    return {
+        "threads": 1, "photons": photons,
+        **stage_profile(op.fused, heights.double().numpy(), residual, photons),
+        # What one thread may spend per photon for the targets with all threads busy.
+        "budget_at_targets_ns": {"forward": threads / TARGET_FORWARD * 1e9,
+                                 "forward_backward": threads / TARGET_FORWARD_BACKWARD * 1e9},
+    }
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--photons", type=int, default=1 << 22, help="photons for the speed runs")
@@ -184,6 +204,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--splat-photons", type=int, default=1 << 20, help="photons of the splat comparison")
     parser.add_argument("--reference-photons", type=int, default=1 << 20,
                         help="photons for the speed of the torch reference path")
+    parser.add_argument("--stage-photons", type=int, default=1 << 20,
+                        help="photons of the one-thread per-stage profile (0: leave it out)")
     parser.add_argument("--footprint-px", type=float, default=3.0)
     parser.add_argument("--chunk-size", type=int, default=1 << 18)
     parser.add_argument("--device", choices=("cpu", "cuda"), default="cpu",
@@ -218,6 +240,8 @@ def main(argv: list[str] | None = None) -> None:
     report["torch_reference_path"] = time_reference(heights, target, args.reference_photons, args.footprint_px,
                                                     args.chunk_size)
     report["splat_comparison"] = compare_splats(op, heights, args.splat_photons)
+    if args.stage_photons > 0:
+        report["stage_profile"] = profile_stages(op, heights, target, args.stage_photons)
     print(json.dumps(report, indent=2))
 
 

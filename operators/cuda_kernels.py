@@ -14,7 +14,7 @@ from numba import cuda, float64
 
 from operators.catmull_rom import _node
 from operators.fused_kernels import photon_vjp, trace_photon
-from operators.splat_kernels import _box, _usable
+from operators.splat_kernels import _box, _usable, falloff, row_terms
 
 THREADS_PER_BLOCK = 128
 
@@ -28,12 +28,10 @@ def _splat_photon_atomic(img, c, px, py, q00, q01, q11, f) -> None:
     x0, x1, y0, y1 = _box(px, py, q00, q01, q11)
     s = 0.0
     for iy in range(y0, y1 + 1):
-        ry = iy - py
-        b = 2.0 * q01 * ry
-        e = q11 * ry * ry
+        b, e = row_terms(q01, q11, iy - py)
         rx = x0 - px
         for _ in range(x0, x1 + 1):
-            u = max(1.0 - ((q00 * rx + b) * rx + e), 0.0)
+            u = max(falloff(q00, rx, b, e), 0.0)
             s += u * u
             rx += 1.0
     if s <= 0.0:
@@ -41,12 +39,9 @@ def _splat_photon_atomic(img, c, px, py, q00, q01, q11, f) -> None:
     n = img.shape[1]
     scale = f / s
     for iy in range(max(y0, 0), min(y1, n - 1) + 1):
-        ry = iy - py
-        b = 2.0 * q01 * ry
-        e = q11 * ry * ry
+        b, e = row_terms(q01, q11, iy - py)
         for ix in range(max(x0, 0), min(x1, n - 1) + 1):
-            rx = ix - px
-            u = 1.0 - ((q00 * rx + b) * rx + e)
+            u = falloff(q00, ix - px, b, e)
             if u > 0.0:
                 cuda.atomic.add(img, (c, iy, ix), scale * u * u)
 

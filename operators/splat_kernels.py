@@ -43,6 +43,19 @@ def _box(px, py, q00, q01, q11) -> tuple[int, int, int, int]:
 
 
 @nb.njit(cache=True, inline="always", fastmath=FAST_MATH, error_model="numpy")
+def row_terms(q01, q11, ry) -> tuple[float, float]:
+    """(b, e) of the footprint's row at offset ``ry`` (pixels): t(rx, ry) = (q00 rx + b) rx + e."""
+    return 2.0 * q01 * ry, q11 * ry * ry
+
+
+@nb.njit(cache=True, inline="always", fastmath=FAST_MATH, error_model="numpy")
+def falloff(q00, rx, b, e) -> float:
+    """1 - t(r) at column offset ``rx`` of a row with terms (b, e) (:func:`row_terms`); the
+    Silverman weight is its square where positive."""
+    return 1.0 - ((q00 * rx + b) * rx + e)
+
+
+@nb.njit(cache=True, inline="always", fastmath=FAST_MATH, error_model="numpy")
 def splat_photon(img, c, px, py, q00, q01, q11, f, buf) -> None:
     """Add one photon's flux ``f`` into channel ``c`` of ``img`` (c, n, n).
 
@@ -60,13 +73,10 @@ def splat_photon(img, c, px, py, q00, q01, q11, f, buf) -> None:
     s = 0.0
     k = 0
     for iy in range(y0, y1 + 1):
-        ry = iy - py
-        b = 2.0 * q01 * ry
-        e = q11 * ry * ry
+        b, e = row_terms(q01, q11, iy - py)
         rx0 = x0 - px
         for j in range(width):
-            rx = rx0 + j
-            u = max(1.0 - ((q00 * rx + b) * rx + e), 0.0)
+            u = max(falloff(q00, rx0 + j, b, e), 0.0)
             buf[k + j] = u * u
             s += u * u
         k += width
@@ -128,14 +138,13 @@ def gather_photon(padded, pad, c, px, py, q00, q01, q11, f) -> tuple[float, floa
     u0 = u1 = u2 = u3 = u4 = 0.0  # sum_k G_k dw_k / dtheta, over -2
     for iy in range(y0, y1 + 1):
         ry = iy - py
-        b = 2.0 * q01 * ry
-        e = q11 * ry * ry
+        b, e = row_terms(q01, q11, ry)
         row = padded[c, iy + pad]
         rx = x0 - px
         sw = a0 = a1 = a2 = 0.0
         gsw = g0 = g1 = g2 = 0.0
         for ix in range(x0 + pad, x0 + pad + width):
-            u = max(1.0 - ((q00 * rx + b) * rx + e), 0.0)
+            u = max(falloff(q00, rx, b, e), 0.0)
             g = row[ix]
             sw += u * u
             a0 += u

@@ -3,16 +3,22 @@
 from __future__ import annotations
 
 import json
+import os
+import subprocess
+import sys
+from pathlib import Path
 
 import pytest
 import torch
 
 from experiments.bench import main
 
+ROOT = Path(__file__).resolve().parents[2]
+
 
 def test_bench_prints_the_promised_figures(capsys):
     main(["--photons", "200000", "--grad-photons", "30000", "--splat-photons", "3000", "--chunk-size", "8192",
-          "--reference-photons", "20000"])
+          "--reference-photons", "20000", "--stage-photons", "0"])
     report = json.loads(capsys.readouterr().out)
     assert report["forward_photons_per_s"] > 0 and report["forward_backward_photons_per_s"] > 0
     assert 0.0 < report["forward_split"]["trace_fraction"] < 1.0
@@ -21,6 +27,33 @@ def test_bench_prints_the_promised_figures(capsys):
     comparison = report["splat_comparison"]
     assert comparison["relative_image_difference"] < 1e-5 and comparison["speedup"] > 0
     assert report["gradient_paper_photons"]["photons"] == 30000
+    assert "stage_profile" not in report  # --stage-photons 0 leaves it out
+
+
+# The stage kernels cost 1.5 min of compiling on a cold cache; as plain Python (JIT off) the
+# profile's bookkeeping runs in seconds, and every stage still does real, measurable work.
+PROFILE = """
+import json, numba, torch
+from experiments.bench import make_operator, heights_print_lines, profile_stages
+op = make_operator(2000, 3.0, 1000)
+heights = heights_print_lines()
+print(json.dumps(profile_stages(op, heights, torch.zeros(op.output_shape), 300)))
+"""
+
+
+def test_stage_profile_times_every_stage():
+    env = dict(os.environ, NUMBA_DISABLE_JIT="1", NUMBA_NUM_THREADS="2", PYTHONPATH=str(ROOT))
+    proc = subprocess.run([sys.executable, "-c", PROFILE], cwd=ROOT, env=env, capture_output=True, text=True,
+                          timeout=600)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    profile = json.loads(proc.stdout.strip().splitlines()[-1])
+    stages = ("emission_ns", "hit_search_ns", "surface_jet_ns", "optics_and_footprint_ns", "splat_ns")
+    assert all(profile[name] > 0 for name in stages), profile
+    # The adjoint traces the photon again, so it costs more than the trace without the splat.
+    assert profile["adjoint_per_photon_ns"] > profile["forward_total_ns"] - profile["splat_ns"]
+    # The hit search evaluates the surface at least once, plus its march and Newton bookkeeping.
+    assert 0 < profile["one_surface_evaluation_ns"] < profile["hit_search_ns"]
+    assert profile["budget_at_targets_ns"] == {"forward": 400.0, "forward_backward": 1000.0}
 
 
 @pytest.mark.skipif(torch.cuda.is_available(), reason="checks the refusal on a machine without a GPU")

@@ -1,0 +1,123 @@
+"""Per-stage cost of the fused CPU photon kernels, for ``sfc-bench``'s ``stage_profile``.
+
+One thread runs the kernels' own per-photon functions (:mod:`operators.fused_kernels`) cut after
+each stage: emission; emission + hit search; + the surface jet at the hit; the whole trace
+(optics with differentials, footprint); trace + splat; and, for the gradient, the per-photon
+adjoint (trace again, splat-adjoint gather, reverse-mode optics, 4 x 4 height patch) + its scatter.
+Each stage's cost is the difference of consecutive cuts, in nanoseconds per photon. Beside them:
+the cost of one evaluation of the surface and its gradient (the hit search's inner step) in a loop
+of independent evaluations, i.e. its throughput, not its latency.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numba as nb
+import numpy as np
+
+from operators.catmull_rom import scatter_patch, surface_gradient
+from operators.fused_kernels import emit, hit_top, photon_vjp, trace_photon
+from operators.heightfield_kernels import solve_hit
+from operators.native import FAST_MATH
+from operators.splat_kernels import splat_photon
+
+# Cuts of the forward photon path, in order; each includes the ones before.
+FORWARD_CUTS = ("emission", "hit_search", "surface_jet", "optics_and_footprint", "splat")
+
+
+@nb.njit(cache=True, fastmath=FAST_MATH, error_model="numpy")
+def _forward_cut(d, sc, shifts, indices, count, cut, img, buf) -> float:
+    """Photons 0 .. count-1 run up to cut ``cut`` (index into FORWARD_CUTS); returns a checksum
+    that keeps the compiler from dropping the work."""
+    wx = np.empty((4, 4))
+    wy = np.empty((4, 4))
+    patch = np.empty((4, 4))
+    acc = 0.0
+    for index in range(count):
+        if cut <= 1:
+            _, w, _, _, flux = emit(index, sc, shifts)
+            acc += w[0] + flux
+            if cut == 1:
+                acc += solve_hit(d, sc.base, sc.light_x, sc.light_y, sc.light_z, w[0], w[1], w[2], -sc.half,
+                                 sc.spacing, sc.zlo, sc.zstart, sc.zhi)
+        elif cut == 2:
+            _, w, _, _, flux = emit(index, sc, shifts)
+            t, jet, _, _ = hit_top(d, sc, w, wx, wy, patch, 2)
+            acc += t + jet[0] + jet[4]
+        else:
+            c, px, py, q00, q01, q11, flux = trace_photon(d, sc, shifts, indices, index, wx, wy, patch)
+            acc += px + q01 + flux
+            if cut == 4:
+                splat_photon(img, c, px, py, q00, q01, q11, flux, buf)
+    return acc
+
+
+@nb.njit(cache=True, fastmath=FAST_MATH, error_model="numpy")
+def _adjoint_cut(d, sc, shifts, indices, count, padded, pad, grad, scatter) -> float:
+    """Per-photon adjoint of photons 0 .. count-1, scattered into ``grad`` if ``scatter``."""
+    wx = np.empty((4, 4))
+    wy = np.empty((4, 4))
+    patch = np.empty((4, 4))
+    acc = 0.0
+    for index in range(count):
+        contributes, ix, iy = photon_vjp(d, sc, shifts, indices, index, padded, pad, wx, wy, patch)
+        if contributes:
+            acc += patch[1, 1]
+            if scatter:
+                scatter_patch(grad, ix, iy, patch)
+    return acc
+
+
+@nb.njit(cache=True, fastmath=FAST_MATH, error_model="numpy")
+def _surface_evaluations(d, sc, shifts, count) -> float:
+    """S, S_x, S_y at the emission targets of photons 0 .. count-1 (independent evaluations)."""
+    acc = 0.0
+    for index in range(count):
+        _, w, _, _, _ = emit(index, sc, shifts)
+        t = (sc.base - sc.light_z) / w[2]
+        s, sx, sy = surface_gradient(d, sc.light_x + t * w[0], sc.light_y + t * w[1], -sc.half, sc.spacing)
+        acc += s + sx + sy
+    return acc
+
+
+def _best_ns(run, count: int, repeats: int) -> float:
+    """Shortest of ``repeats`` runs, in nanoseconds per photon."""
+    best = np.inf
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        run()
+        best = min(best, time.perf_counter() - t0)
+    return best / count * 1e9
+
+
+def stage_profile(fused, d: np.ndarray, grad_image: np.ndarray, count: int, repeats: int = 3
+                  ) -> dict[str, float]:
+    """Nanoseconds per photon of each stage on one thread (see the module docstring).
+
+    ``fused`` is the operator's :class:`operators.fused_trace.FusedTracer`, ``d`` (m, m) float64
+    heights, ``grad_image`` (c, n, n) an adjoint image for the gradient stages.
+    """
+    sc = fused.constants(d)
+    img = fused.image_buffers(np.dtype(np.float32))[0]
+    buf = np.empty(fused.capacity)
+    padded = fused.pad_gradient(grad_image)
+    grad = np.zeros_like(d)
+    args = (d, sc, fused.shifts, fused.indices)
+    warm = min(count, 1000)  # photons of the compile / warm-up calls
+    cumulative = []
+    for cut in range(len(FORWARD_CUTS)):
+        _forward_cut(*args, warm, cut, img, buf)  # compile / warm up
+        cumulative.append(_best_ns(lambda: _forward_cut(*args, count, cut, img, buf), count, repeats))
+    report = {name: cumulative[k] - (cumulative[k - 1] if k else 0.0) for k, name in enumerate(FORWARD_CUTS)}
+    report["forward_total"] = cumulative[-1]
+    _adjoint_cut(*args, warm, padded, fused.gather_pad, grad, True)
+    adjoint = _best_ns(lambda: _adjoint_cut(*args, count, padded, fused.gather_pad, grad, False), count, repeats)
+    scattered = _best_ns(lambda: _adjoint_cut(*args, count, padded, fused.gather_pad, grad, True), count, repeats)
+    report["adjoint_per_photon"] = adjoint
+    report["adjoint_scatter"] = scattered - adjoint
+    report["forward_backward_total"] = cumulative[-1] + scattered
+    _surface_evaluations(d, sc, fused.shifts, warm)
+    report["one_surface_evaluation"] = _best_ns(lambda: _surface_evaluations(d, sc, fused.shifts, count), count,
+                                                repeats) - report["emission"]
+    return {f"{name}_ns": value for name, value in report.items()}
