@@ -2,9 +2,10 @@
 
 One thread runs the kernels' own per-photon functions (:mod:`operators.fused_kernels`) cut after
 each stage: emission; emission + hit search; + the surface jet at the hit; the whole trace
-(optics with differentials, footprint); trace + splat; and, for the gradient, the per-photon
-adjoint (trace again, splat-adjoint gather, reverse-mode optics, 4 x 4 height patch) + its scatter.
-Each stage's cost is the difference of consecutive cuts, in nanoseconds per photon. Beside them:
+(optics with differentials, footprint); trace + splat. Each stage's cost is the difference of
+consecutive cuts, in nanoseconds per photon (differences of best-of-three timings: a few tens of
+ns of noise). For the gradient: the whole per-photon adjoint (trace again, splat-adjoint gather,
+reverse-mode optics, 4 x 4 height patch and its scatter). Beside them:
 the cost of one evaluation of the surface and its gradient (the hit search's inner step) in a loop
 of independent evaluations, i.e. its throughput, not its latency.
 """
@@ -40,7 +41,7 @@ def _forward_cut(d, sc, shifts, indices, count, cut, img, buf) -> float:
             acc += w[0] + flux
             if cut == 1:
                 acc += solve_hit(d, sc.base, sc.light_x, sc.light_y, sc.light_z, w[0], w[1], w[2], -sc.half,
-                                 sc.spacing, sc.zlo, sc.zstart, sc.zhi)
+                                 sc.spacing, sc.zlo, sc.zstart, sc.zhi, sc.slope_x, sc.slope_y)
         elif cut == 2:
             _, w, _, _, flux = emit(index, sc, shifts)
             t, jet, _, _ = hit_top(d, sc, w, wx, wy, patch, 2)
@@ -54,19 +55,15 @@ def _forward_cut(d, sc, shifts, indices, count, cut, img, buf) -> float:
 
 
 @nb.njit(cache=True, fastmath=FAST_MATH, error_model="numpy")
-def _adjoint_cut(d, sc, shifts, indices, count, padded, pad, grad, scatter) -> float:
-    """Per-photon adjoint of photons 0 .. count-1, scattered into ``grad`` if ``scatter``."""
+def _adjoint(d, sc, shifts, indices, count, padded, pad, grad) -> None:
+    """Per-photon adjoint of photons 0 .. count-1, scattered into ``grad`` (m, m)."""
     wx = np.empty((4, 4))
     wy = np.empty((4, 4))
     patch = np.empty((4, 4))
-    acc = 0.0
     for index in range(count):
         contributes, ix, iy = photon_vjp(d, sc, shifts, indices, index, padded, pad, wx, wy, patch)
         if contributes:
-            acc += patch[1, 1]
-            if scatter:
-                scatter_patch(grad, ix, iy, patch)
-    return acc
+            scatter_patch(grad, ix, iy, patch)
 
 
 @nb.njit(cache=True, fastmath=FAST_MATH, error_model="numpy")
@@ -111,12 +108,10 @@ def stage_profile(fused, d: np.ndarray, grad_image: np.ndarray, count: int, repe
         cumulative.append(_best_ns(lambda: _forward_cut(*args, count, cut, img, buf), count, repeats))
     report = {name: cumulative[k] - (cumulative[k - 1] if k else 0.0) for k, name in enumerate(FORWARD_CUTS)}
     report["forward_total"] = cumulative[-1]
-    _adjoint_cut(*args, warm, padded, fused.gather_pad, grad, True)
-    adjoint = _best_ns(lambda: _adjoint_cut(*args, count, padded, fused.gather_pad, grad, False), count, repeats)
-    scattered = _best_ns(lambda: _adjoint_cut(*args, count, padded, fused.gather_pad, grad, True), count, repeats)
-    report["adjoint_per_photon"] = adjoint
-    report["adjoint_scatter"] = scattered - adjoint
-    report["forward_backward_total"] = cumulative[-1] + scattered
+    _adjoint(*args, warm, padded, fused.gather_pad, grad)
+    report["adjoint_per_photon"] = _best_ns(lambda: _adjoint(*args, count, padded, fused.gather_pad, grad), count,
+                                            repeats)
+    report["forward_backward_total"] = cumulative[-1] + report["adjoint_per_photon"]
     _surface_evaluations(d, sc, fused.shifts, warm)
     report["one_surface_evaluation"] = _best_ns(lambda: _surface_evaluations(d, sc, fused.shifts, count), count,
                                                 repeats) - report["emission"]

@@ -35,6 +35,7 @@ class FusedScene(NamedTuple):
     light_*: light position; half: substrate half width (also the height grid's extent);
     base: substrate thickness (z of d = 0); spacing: height-grid spacing; zlo / zhi: planes that
     bracket the surface, zstart: plane where the hit search starts Newton (HeightFieldGrid.z_planes);
+    slope_x, slope_y: bounds on the surface's slopes (HeightFieldGrid.slope_bounds);
     per_channel: photons per channel; flux_scale: P / (4 pi c) A_cell (l_z - h), so
     flux = flux_scale / r^3; radius: emission footprint radius on z = h;
     receiver_z, receiver_half: receiver plane and half width; to_px: pixels per scene unit;
@@ -50,6 +51,8 @@ class FusedScene(NamedTuple):
     zlo: float
     zstart: float
     zhi: float
+    slope_x: float
+    slope_y: float
     per_channel: int
     flux_scale: float
     radius: float
@@ -91,7 +94,7 @@ def hit_top(d, sc, w, wx, wy, patch, order):
     m = d.shape[0]
     x0 = -sc.half
     t = solve_hit(d, sc.base, sc.light_x, sc.light_y, sc.light_z, w[0], w[1], w[2], x0, sc.spacing, sc.zlo, sc.zstart,
-                  sc.zhi)
+                  sc.zhi, sc.slope_x, sc.slope_y)
     ix = axis_weights(sc.light_x + t * w[0], x0, sc.spacing, m, order, wx)
     iy = axis_weights(sc.light_y + t * w[1], x0, sc.spacing, m, order, wy)
     load_patch(d, ix, iy, patch)

@@ -40,10 +40,12 @@ class FusedTracer:
             max_px=float(max_pixel_radius), fresnel=bool(fresnel))
 
     def constants(self, d: np.ndarray) -> FusedScene:
-        """Kernel constants for heights ``d`` (m, m) (the bracketing planes depend on them)."""
+        """Kernel constants for heights ``d`` (m, m) (the bracketing planes and slope bounds depend on them)."""
         grid = HeightFieldGrid(self.scene.substrate.thickness, self.scene.substrate.half_width, d.shape[0])
         zlo, zstart, zhi = grid.z_planes(d)
-        return FusedScene(spacing=grid.spacing, zlo=zlo, zstart=zstart, zhi=zhi, **self._constants)
+        slope_x, slope_y = grid.slope_bounds(d)
+        return FusedScene(spacing=grid.spacing, zlo=zlo, zstart=zstart, zhi=zhi, slope_x=slope_x, slope_y=slope_y,
+                          **self._constants)
 
     def image_buffers(self, dtype: np.dtype) -> np.ndarray:
         """Zeroed per-thread images (threads, c, n, n) for :meth:`render`."""

@@ -25,10 +25,13 @@ SETTLE = 1e-8  # Newton step (relative to the z scale) below which the next step
 
 
 @nb.njit(cache=True, fastmath=FAST_MATH, error_model="numpy")
-def solve_hit(d, base, ox, oy, oz, wx_, wy_, wz_, x0, spacing, zlo, zstart, zhi) -> float:
+def solve_hit(d, base, ox, oy, oz, wx_, wy_, wz_, x0, spacing, zlo, zstart, zhi, slope_x, slope_y) -> float:
     """First root of the gap (ray height above the surface): march between the bounding planes
     zhi and zlo in half-cell steps, then Newton safeguarded by bisection inside the bracket,
     started at the first crossing the march found or, if it found none, at the plane zstart.
+    The march is skipped where the gap provably falls monotonically along the ray (its only root
+    is the first): slope_x |w_x| + slope_y |w_y| < |w_z| for bounds slope_x >= |S_x|,
+    slope_y >= |S_y| (HeightFieldGrid.slope_bounds).
 
     Newton stops when the gap is within rounding or its step falls below SETTLE (relative to
     the scene's z scale): convergence is quadratic there, so the step it takes is accurate to
@@ -38,6 +41,8 @@ def solve_hit(d, base, ox, oy, oz, wx_, wy_, wz_, x0, spacing, zlo, zstart, zhi)
     t_b = (zlo - oz) / wz_
     travel = math.sqrt(wx_ * wx_ + wy_ * wy_) * (t_b - t_a)
     steps = int(min(max(math.ceil(travel / (0.5 * spacing)), 1.0), MAX_MARCH_STEPS))
+    if slope_x * abs(wx_) + slope_y * abs(wy_) < abs(wz_):
+        steps = 1
     dt = (t_b - t_a) / steps
     lo, hi = t_a, t_b
     known = False  # whether (g, slope) below already belong to t
@@ -124,8 +129,9 @@ def scatter_hit_adjoint(grad, ix, iy, wx, wy, patch, wx_, wy_, wz_, g_t, g_sx, g
 
 
 @nb.njit(parallel=True, cache=True, fastmath=FAST_MATH, error_model="numpy")
-def hit_forward(d, base, origin, dirs, x0, spacing, zlo, zstart, zhi, t_out, jet_out, nthreads):
-    """Fill t_out (N,) and jet_out (5, N) = (S_x, S_y, S_xx, S_xy, S_yy) at each photon's hit."""
+def hit_forward(d, base, origin, dirs, x0, spacing, zlo, zstart, zhi, slope_x, slope_y, t_out, jet_out, nthreads):
+    """Fill t_out (N,) and jet_out (5, N) = (S_x, S_y, S_xx, S_xy, S_yy) at each photon's hit
+    (:func:`solve_hit`)."""
     n = dirs.shape[1]
     m = d.shape[0]
     per = (n + nthreads - 1) // nthreads
@@ -135,7 +141,8 @@ def hit_forward(d, base, origin, dirs, x0, spacing, zlo, zstart, zhi, t_out, jet
         patch = np.empty((4, 4))
         for p in range(th * per, min(n, (th + 1) * per)):
             wx_, wy_, wz_ = dirs[0, p], dirs[1, p], dirs[2, p]
-            t = solve_hit(d, base, origin[0], origin[1], origin[2], wx_, wy_, wz_, x0, spacing, zlo, zstart, zhi)
+            t = solve_hit(d, base, origin[0], origin[1], origin[2], wx_, wy_, wz_, x0, spacing, zlo, zstart, zhi,
+                          slope_x, slope_y)
             ix = axis_weights(origin[0] + t * wx_, x0, spacing, m, 2, wx)
             iy = axis_weights(origin[1] + t * wy_, x0, spacing, m, 2, wy)
             load_patch(d, ix, iy, patch)

@@ -45,7 +45,8 @@ def test_hit_is_the_first_root_of_the_gap_along_oblique_rays():
     for _ in range(200):
         target = np.array([rng.uniform(-0.3, 0.3), rng.uniform(-0.5, 0.5), grid.base])
         w = (target - origin) / np.linalg.norm(target - origin)
-        t = solve_hit(d, grid.base, *origin, *w, -grid.half_width, grid.spacing, zlo, zstart, zhi)
+        t = solve_hit(d, grid.base, *origin, *w, -grid.half_width, grid.spacing, zlo, zstart, zhi,
+                      *grid.slope_bounds(d))
 
         def gap(tt: float) -> float:
             p = origin + tt * w
@@ -54,3 +55,36 @@ def test_hit_is_the_first_root_of_the_gap_along_oblique_rays():
         assert abs(gap(t)) < 1e-11
         before = np.linspace((zhi - origin[2]) / w[2], t, 400, endpoint=False)
         assert min(gap(tt) for tt in before) > 0.0
+
+
+def test_slope_bounds_hold_on_random_surfaces():
+    grid = HeightFieldGrid(base=0.1, half_width=1.0, resolution=9)
+    rng = np.random.default_rng(5)
+    xs = np.linspace(-grid.half_width, grid.half_width, 161)
+    for _ in range(5):
+        d = rng.uniform(0.0, 0.05, (9, 9))
+        bound_x, bound_y = grid.slope_bounds(d)
+        slopes = np.array([[surface_gradient(d, x, y, -grid.half_width, grid.spacing)[1:] for x in xs] for y in xs])
+        steepest_x, steepest_y = np.abs(slopes).max(axis=(0, 1))
+        assert steepest_x <= bound_x and steepest_y <= bound_y
+        # Not so loose that rays which could skip the march are denied it.
+        assert steepest_x > 0.3 * bound_x and steepest_y > 0.3 * bound_y
+
+
+def test_skipping_the_march_on_monotone_rays_finds_the_same_hits():
+    grid = HeightFieldGrid(base=0.1, half_width=1.0, resolution=33)
+    x = np.linspace(-1.0, 1.0, 33)
+    d = 0.05 * np.exp(-(x[None, :] ** 2 + x[:, None] ** 2) / 0.1)
+    zlo, zstart, zhi = grid.z_planes(d)
+    slope_x, slope_y = grid.slope_bounds(d)
+    origin = np.array([0.0, 0.0, 10.0])
+    rng = np.random.default_rng(11)
+    for _ in range(300):
+        target = np.array([rng.uniform(-1.0, 1.0), rng.uniform(-1.0, 1.0), grid.base])
+        w = (target - origin) / np.linalg.norm(target - origin)
+        assert slope_x * abs(w[0]) + slope_y * abs(w[1]) < abs(w[2])  # the skip applies
+        skipped = solve_hit(d, grid.base, *origin, *w, -grid.half_width, grid.spacing, zlo, zstart, zhi,
+                            slope_x, slope_y)
+        marched = solve_hit(d, grid.base, *origin, *w, -grid.half_width, grid.spacing, zlo, zstart, zhi,
+                            np.inf, np.inf)
+        assert abs(skipped - marched) <= 1e-12 * marched
