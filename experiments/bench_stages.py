@@ -1,10 +1,12 @@
 """Per-stage cost of the fused CPU photon kernels, for ``sfc-bench``'s ``stage_profile``.
 
-One thread runs the kernels' own per-photon functions (:mod:`operators.fused_kernels`) cut after
-each stage: emission; emission + hit search; + the surface jet at the hit; the whole trace
-(optics with differentials, footprint); trace + splat. Each stage's cost is the difference of
-consecutive cuts, in nanoseconds per photon (differences of best-of-three timings: a few tens of
-ns of noise). For the gradient: the whole per-photon adjoint (trace again, splat-adjoint gather,
+One thread runs the kernels' own functions (:mod:`operators.fused_kernels`) cut after each
+stage: emission; emission + hit search; + the surface jet at the hit (all photon by photon, as
+in the kernels); then the kernels' own loop (:func:`operators.fused_kernels.render_range`)
+without the splat (adds the optics with differentials and the footprint, vectorised across each
+packet of photons) and with it. Each stage's cost is the difference of consecutive cuts, in
+nanoseconds per photon (differences of best-of-three timings: a few tens of ns of noise). For the
+gradient: :func:`operators.fused_kernels.vjp_range` (trace again, splat-adjoint gather,
 reverse-mode optics, 4 x 4 height patch and its scatter). Beside them:
 the cost of one evaluation of the surface and its gradient (the hit search's inner step) in a loop
 of independent evaluations, i.e. its throughput, not its latency.
@@ -17,53 +19,33 @@ import time
 import numba as nb
 import numpy as np
 
-from operators.catmull_rom import scatter_patch, surface_gradient
-from operators.fused_kernels import emit, hit_top, photon_vjp, trace_photon
+from operators.catmull_rom import surface_gradient
+from operators.fused_kernels import emit, hit_top, render_range, vjp_range
 from operators.heightfield_kernels import solve_hit
 from operators.native import FAST_MATH
-from operators.splat_kernels import splat_photon
 
 # Cuts of the forward photon path, in order; each includes the ones before.
 FORWARD_CUTS = ("emission", "hit_search", "surface_jet", "optics_and_footprint", "splat")
 
 
 @nb.njit(cache=True, fastmath=FAST_MATH, error_model="numpy")
-def _forward_cut(d, sc, shifts, indices, count, cut, img, buf) -> float:
-    """Photons 0 .. count-1 run up to cut ``cut`` (index into FORWARD_CUTS); returns a checksum
-    that keeps the compiler from dropping the work."""
+def _hit_cut(d, sc, shifts, count, cut) -> float:
+    """Photons 0 .. count-1 emitted (cut 0), and their hit searched (1) and surface jet taken (2);
+    returns a checksum that keeps the compiler from dropping the work."""
     wx = np.empty((4, 4))
     wy = np.empty((4, 4))
     patch = np.empty((4, 4))
     acc = 0.0
     for index in range(count):
-        if cut <= 1:
-            _, w, _, _, flux = emit(index, sc, shifts)
-            acc += w[0] + flux
-            if cut == 1:
-                acc += solve_hit(d, sc.base, sc.light_x, sc.light_y, sc.light_z, w[0], w[1], w[2], -sc.half,
-                                 sc.spacing, sc.zlo, sc.zstart, sc.zhi, sc.slope_x, sc.slope_y)
+        _, w, _, _, flux = emit(index, sc, shifts)
+        acc += w[0] + flux
+        if cut == 1:
+            acc += solve_hit(d, sc.base, sc.light_x, sc.light_y, sc.light_z, w[0], w[1], w[2], -sc.half,
+                             sc.spacing, sc.zlo, sc.zstart, sc.zhi, sc.slope_x, sc.slope_y)
         elif cut == 2:
-            _, w, _, _, flux = emit(index, sc, shifts)
             t, jet, _, _ = hit_top(d, sc, w, wx, wy, patch, 2)
             acc += t + jet[0] + jet[4]
-        else:
-            c, px, py, q00, q01, q11, flux = trace_photon(d, sc, shifts, indices, index, wx, wy, patch)
-            acc += px + q01 + flux
-            if cut == 4:
-                splat_photon(img, c, px, py, q00, q01, q11, flux, buf)
     return acc
-
-
-@nb.njit(cache=True, fastmath=FAST_MATH, error_model="numpy")
-def _adjoint(d, sc, shifts, indices, count, padded, pad, grad) -> None:
-    """Per-photon adjoint of photons 0 .. count-1, scattered into ``grad`` (m, m)."""
-    wx = np.empty((4, 4))
-    wy = np.empty((4, 4))
-    patch = np.empty((4, 4))
-    for index in range(count):
-        contributes, ix, iy = photon_vjp(d, sc, shifts, indices, index, padded, pad, wx, wy, patch)
-        if contributes:
-            scatter_patch(grad, ix, iy, patch)
 
 
 @nb.njit(cache=True, fastmath=FAST_MATH, error_model="numpy")
@@ -97,20 +79,21 @@ def stage_profile(fused, d: np.ndarray, grad_image: np.ndarray, count: int, repe
     """
     sc = fused.constants(d)
     img = fused.image_buffers(np.dtype(np.float32))[0]
-    buf = np.empty(fused.capacity)
     padded = fused.pad_gradient(grad_image)
     grad = np.zeros_like(d)
     args = (d, sc, fused.shifts, fused.indices)
     warm = min(count, 1000)  # photons of the compile / warm-up calls
+    cuts = [lambda n, cut=cut: _hit_cut(d, sc, fused.shifts, n, cut) for cut in range(3)]
+    cuts += [lambda n, splat=splat: render_range(*args, 0, n, img, fused.capacity, splat) for splat in (False, True)]
     cumulative = []
-    for cut in range(len(FORWARD_CUTS)):
-        _forward_cut(*args, warm, cut, img, buf)  # compile / warm up
-        cumulative.append(_best_ns(lambda: _forward_cut(*args, count, cut, img, buf), count, repeats))
+    for run in cuts:
+        run(warm)  # compile / warm up
+        cumulative.append(_best_ns(lambda: run(count), count, repeats))
     report = {name: cumulative[k] - (cumulative[k - 1] if k else 0.0) for k, name in enumerate(FORWARD_CUTS)}
     report["forward_total"] = cumulative[-1]
-    _adjoint(*args, warm, padded, fused.gather_pad, grad)
-    report["adjoint_per_photon"] = _best_ns(lambda: _adjoint(*args, count, padded, fused.gather_pad, grad), count,
-                                            repeats)
+    vjp_range(*args, 0, warm, padded, fused.gather_pad, grad)
+    report["adjoint_per_photon"] = _best_ns(lambda: vjp_range(*args, 0, count, padded, fused.gather_pad, grad),
+                                            count, repeats)
     report["forward_backward_total"] = cumulative[-1] + report["adjoint_per_photon"]
     _surface_evaluations(d, sc, fused.shifts, warm)
     report["one_surface_evaluation"] = _best_ns(lambda: _surface_evaluations(d, sc, fused.shifts, count), count,

@@ -102,20 +102,16 @@ def hit_top(d, sc, w, wx, wy, patch, order):
 
 
 @_jit
-def through_top(d, sc, shifts, indices, index, wx, wy, patch, order):
-    """Photon ``index`` emitted, hit on the printed surface (weight tables up to ``order``) and
-    refracted into the glass, with every intermediate the adjoint needs:
-    (c, w, Dw, flux, t, jet, ix, iy, n, p1, Dp1, Dn, eta, w1, Dw1, cos_i, cos_t), each D a u, v pair."""
-    c, w, dwu, dwv, flux = emit(index, sc, shifts)
-    t, jet, ix, iy = hit_top(d, sc, w, wx, wy, patch, order)
+def refract_top(sc, w, dwu, dwv, t, jet, eta):
+    """Photon along w (differentials Dw) from the light, refracted into the glass at its hit t
+    (surface jet there): (n, p1, Dp1, Dn, w1, Dw1, cos_i, cos_t), each D a u, v pair."""
     sx, sy, sxx, sxy, syy = jet
     n1 = height_field_normal(sx, sy)
     p1, dpu1, dpv1 = transfer((sc.light_x, sc.light_y, sc.light_z), ZERO, ZERO, w, dwu, dwv, t, n1)
     dnu = normal_differential(sxx, sxy, syy, n1, dpu1)
     dnv = normal_differential(sxx, sxy, syy, n1, dpv1)
-    eta = indices[c]
     w1, dwu1, dwv1, ci1, ct1, _ = refract(w, dwu, dwv, n1, dnu, dnv, 1.0 / eta)
-    return c, w, dwu, dwv, flux, t, jet, ix, iy, n1, p1, dpu1, dpv1, dnu, dnv, eta, w1, dwu1, dwv1, ci1, ct1
+    return n1, p1, dpu1, dpv1, dnu, dnv, w1, dwu1, dwv1, ci1, ct1
 
 
 @_jit
@@ -131,34 +127,97 @@ def below_top(p1, dpu1, dpv1, w1, dwu1, dwv1, eta, sc):
 
 
 @_jit
-def trace_photon(d, sc, shifts, indices, index, wx, wy, patch):
-    """Photon ``index`` on the receiver: (channel, px, py, q00, q01, q11, flux) in pixels; flux 0 if lost."""
-    (c, _, _, _, flux, _, _, _, _, _, p1, dpu1, dpv1, _, _, eta, w1, dwu1, dwv1, ci1, ct1
-     ) = through_top(d, sc, shifts, indices, index, wx, wy, patch, 2)
-    lost, _, _, _, _, _, _, _, ci2, ct2, _, p3, dpu3, dpv3 = below_top(p1, dpu1, dpv1, w1, dwu1, dwv1, eta, sc)
-    if lost:
-        return c, 0.0, 0.0, 1.0, 0.0, 1.0, 0.0
+def optics_state(sc, w, dwu, dwv, t, jet, eta):
+    """Every intermediate of a photon's optics from its hit at t to the receiver that the adjoint
+    needs: (top, below, Du, Dv) with top = :func:`refract_top`, below = :func:`below_top`, and
+    Du, Dv the receiver footprint vectors in pixels."""
+    top = refract_top(sc, w, dwu, dwv, t, jet, eta)
+    _, p1, dpu1, dpv1, _, _, w1, dwu1, dwv1, _, _ = top
+    below = below_top(p1, dpu1, dpv1, w1, dwu1, dwv1, eta, sc)
+    dpu3, dpv3 = below[12], below[13]
+    k = sc.to_px
+    return top, below, (dpu3[0] * k, dpu3[1] * k), (dpv3[0] * k, dpv3[1] * k)
+
+
+@_jit
+def splat_arguments(sc, flux, eta, state):
+    """(px, py, q00, q01, q11, flux) of a photon on the receiver from its :func:`optics_state`
+    (flux with the Fresnel weights if on; 0 if lost)."""
+    top, below, fu, fv = state
+    ci1, ct1 = top[9], top[10]
+    lost, ci2, ct2, p3 = below[0], below[8], below[9], below[11]
     if sc.fresnel:
         flux *= fresnel(ci1, ct1, 1.0 / eta) * fresnel(ci2, ct2, eta)
-    q = footprint_metric(dpu3[0] * sc.to_px, dpu3[1] * sc.to_px, dpv3[0] * sc.to_px, dpv3[1] * sc.to_px,
-                         sc.min_px, sc.max_px)
-    return (c, (p3[0] + sc.receiver_half) * sc.to_px - 0.5, (p3[1] + sc.receiver_half) * sc.to_px - 0.5,
-            q[0], q[1], q[2], flux)
+    q00, q01, q11 = footprint_metric(fu[0], fu[1], fv[0], fv[1], sc.min_px, sc.max_px)
+    if lost:
+        return 0.0, 0.0, 1.0, 0.0, 1.0, 0.0
+    k = sc.to_px
+    return (p3[0] + sc.receiver_half) * k - 0.5, (p3[1] + sc.receiver_half) * k - 0.5, q00, q01, q11, flux
+
+
+@_jit
+def trace_photon(d, sc, shifts, indices, index, wx, wy, patch):
+    """Photon ``index`` on the receiver: (channel, px, py, q00, q01, q11, flux) in pixels; flux 0 if lost."""
+    c, w, dwu, dwv, flux = emit(index, sc, shifts)
+    t, jet, _, _ = hit_top(d, sc, w, wx, wy, patch, 2)
+    eta = indices[c]
+    px, py, q00, q01, q11, flux = splat_arguments(sc, flux, eta, optics_state(sc, w, dwu, dwv, t, jet, eta))
+    return c, px, py, q00, q01, q11, flux
+
+
+@_jit
+def _store_hit(hits, k, w, dwu, dwv, flux, t, jet, eta) -> None:
+    """Column k of a packet's hit table (17, PACKET): w, Dw_u, Dw_v, flux, t, jet, eta."""
+    hits[0, k], hits[1, k], hits[2, k] = w
+    hits[3, k], hits[4, k], hits[5, k] = dwu
+    hits[6, k], hits[7, k], hits[8, k] = dwv
+    hits[9, k], hits[10, k] = flux, t
+    hits[11, k], hits[12, k], hits[13, k], hits[14, k], hits[15, k] = jet
+    hits[16, k] = eta
+
+
+@_jit
+def _load_hit(hits, k):
+    """(w, Dw_u, Dw_v, flux, t, jet, eta) from column k of a packet's hit table."""
+    return ((hits[0, k], hits[1, k], hits[2, k]), (hits[3, k], hits[4, k], hits[5, k]),
+            (hits[6, k], hits[7, k], hits[8, k]), hits[9, k], hits[10, k],
+            (hits[11, k], hits[12, k], hits[13, k], hits[14, k], hits[15, k]), hits[16, k])
+
+
+# Photons traced together by one thread: the hit search runs photon by photon, then the optics of
+# the whole packet as one loop that LLVM vectorises (SIMD across photons), then the splats.
+PACKET = 128
 
 
 @nb.njit(cache=True, fastmath=FAST_MATH, error_model="numpy")
-def _render_range(d, sc, shifts, indices, lo, hi, img, capacity, splat) -> float:
-    """Serial body of :func:`render_photons` for photons lo .. hi-1 (one thread, its own image)."""
+def render_range(d, sc, shifts, indices, lo, hi, img, capacity, splat) -> float:
+    """One thread's share of :func:`render_photons`: photons lo .. hi-1 into its own image ``img``
+    (c, n, n); returns the flux that reached the receiver."""
     wx = np.empty((4, 4))
     wy = np.empty((4, 4))
     patch = np.empty((4, 4))
     buf = np.empty(capacity)
+    hits = np.empty((17, PACKET))  # per photon: w, Dw_u, Dw_v, flux, t, jet, eta
+    channel = np.empty(PACKET, dtype=np.int64)
+    spots = np.empty((6, PACKET))  # per photon: px, py, q00, q01, q11, flux
     reached = 0.0
-    for index in range(lo, hi):
-        c, px, py, q00, q01, q11, flux = trace_photon(d, sc, shifts, indices, index, wx, wy, patch)
-        reached += flux
-        if splat:
-            splat_photon(img, c, px, py, q00, q01, q11, flux, buf)
+    for first in range(lo, hi, PACKET):
+        count = min(PACKET, hi - first)
+        for k in range(count):
+            c, w, dwu, dwv, flux = emit(first + k, sc, shifts)
+            t, jet, _, _ = hit_top(d, sc, w, wx, wy, patch, 2)
+            channel[k] = c
+            _store_hit(hits, k, w, dwu, dwv, flux, t, jet, indices[c])
+        for k in range(count):
+            w, dwu, dwv, flux, t, jet, eta = _load_hit(hits, k)
+            spot = splat_arguments(sc, flux, eta, optics_state(sc, w, dwu, dwv, t, jet, eta))
+            for j in range(6):
+                spots[j, k] = spot[j]
+        for k in range(count):
+            reached += spots[5, k]
+            if splat:
+                splat_photon(img, channel[k], spots[0, k], spots[1, k], spots[2, k], spots[3, k], spots[4, k],
+                             spots[5, k], buf)
     return reached
 
 
@@ -177,35 +236,24 @@ def render_photons(d, sc, shifts, indices, start, stop, out, capacity, splat):
     reached = np.zeros(blocks)
     for b in nb.prange(blocks):
         lo = start + b * BLOCK
-        reached[b] = _render_range(d, sc, shifts, indices, lo, min(stop, lo + BLOCK), out[nb.get_thread_id()],
+        reached[b] = render_range(d, sc, shifts, indices, lo, min(stop, lo + BLOCK), out[nb.get_thread_id()],
                                    capacity, splat)
     return reached.sum()
 
 
 @_jit
-def photon_vjp(d, sc, shifts, indices, index, padded, pad, wx, wy, patch):
-    """Photon ``index``'s contribution to the gradient of <splat, G> w.r.t. the 16 heights around
-    its hit, G given with ``pad`` zero pixels on every side (``padded``, see
-    :func:`operators.splat_kernels.gather_photon`). Returns (contributes, ix, iy); when it
-    contributes, ``patch`` holds the gradient to add at cell (ix, iy) (:func:`scatter_patch`)."""
-    (c, w, dwu, dwv, flux0, t, jet, ix, iy, n1, p1, dpu1, dpv1, dnu, dnv, eta, w1, dwu1, dwv1, ci1, ct1
-     ) = through_top(d, sc, shifts, indices, index, wx, wy, patch, 3)
+def optics_adjoint(sc, w, dwu, dwv, flux0, t, jet, eta, state, g_flux, g_px, g_py, g00, g01, g11):
+    """Reverse mode through the optics: gradients of a loss with the given gradients w.r.t. the
+    splat arguments (:func:`splat_arguments`) back to the hit, (g_t, g_sx, g_sy, g_sxx, g_sxy, g_syy)."""
     sx, sy, sxx, sxy, syy = jet
-    (lost, dist2, p2, dpu2, dpv2, w2, dwu2, dwv2, ci2, ct2, dist3, p3, dpu3, dpv3
-     ) = below_top(p1, dpu1, dpv1, w1, dwu1, dwv1, eta, sc)
-    if lost:
-        return False, ix, iy
+    top, below, fu, fv = state
+    n1, p1, dpu1, dpv1, dnu, dnv, w1, dwu1, dwv1, ci1, ct1 = top
+    _, dist2, p2, dpu2, dpv2, w2, dwu2, dwv2, ci2, ct2, dist3, p3, dpu3, dpv3 = below
     t1 = fresnel(ci1, ct1, 1.0 / eta) if sc.fresnel else 1.0
     t2 = fresnel(ci2, ct2, eta) if sc.fresnel else 1.0
     k = sc.to_px
-    fu_x, fu_y, fv_x, fv_y = dpu3[0] * k, dpu3[1] * k, dpv3[0] * k, dpv3[1] * k
-    q00, q01, q11 = footprint_metric(fu_x, fu_y, fv_x, fv_y, sc.min_px, sc.max_px)
-    g_flux, g_px, g_py, g00, g01, g11 = gather_photon(padded, pad, c, (p3[0] + sc.receiver_half) * k - 0.5,
-                                                      (p3[1] + sc.receiver_half) * k - 0.5, q00, q01, q11,
-                                                      flux0 * t1 * t2)
-    if g_flux == 0.0 and g_px == 0.0 and g_py == 0.0 and g00 == 0.0 and g01 == 0.0 and g11 == 0.0:
-        return False, ix, iy
-    g_ux, g_uy, g_vx, g_vy = footprint_metric_adjoint(fu_x, fu_y, fv_x, fv_y, sc.min_px, sc.max_px, g00, g01, g11)
+    g_ux, g_uy, g_vx, g_vy = footprint_metric_adjoint(fu[0], fu[1], fv[0], fv[1], sc.min_px, sc.max_px,
+                                                      g00, g01, g11)
     # Receiver plane.
     g_p3 = (g_px * k, g_py * k, 0.0)
     g_dpu2, g_dpv2, g_w2, g_dwu2, g_dwv2, g_dist3, _ = transfer_adjoint(
@@ -234,20 +282,78 @@ def photon_vjp(d, sc, shifts, indices, index, padded, pad, wx, wy, patch):
     _, _, _, _, _, g_t, g_nt = transfer_adjoint(ZERO, ZERO, w, dwu, dwv, t, n1, g_p1, add(g_dpu1, g_dpu),
                                                 add(g_dpv1, g_dpv))
     g_sx, g_sy = height_field_normal_adjoint(sx, sy, add(add(g_n1, g_nu), add(g_nv, g_nt)))
-    hit_adjoint_patch(wx, wy, patch, w[0], w[1], w[2], g_t, g_sx, g_sy, g_sxx + g_sxx2, g_sxy + g_sxy2,
-                      g_syy + g_syy2)
+    return g_t, g_sx, g_sy, g_sxx + g_sxx2, g_sxy + g_sxy2, g_syy + g_syy2
+
+
+@_jit
+def _contributes(g) -> bool:
+    """Whether a photon's splat-adjoint gradients (:func:`gather_photon`) are not all zero."""
+    return not (g[0] == 0.0 and g[1] == 0.0 and g[2] == 0.0 and g[3] == 0.0 and g[4] == 0.0 and g[5] == 0.0)
+
+
+@_jit
+def photon_vjp(d, sc, shifts, indices, index, padded, pad, wx, wy, patch):
+    """Photon ``index``'s contribution to the gradient of <splat, G> w.r.t. the 16 heights around
+    its hit, G given with ``pad`` zero pixels on every side (``padded``, see
+    :func:`operators.splat_kernels.gather_photon`). Returns (contributes, ix, iy); when it
+    contributes, ``patch`` holds the gradient to add at cell (ix, iy) (:func:`scatter_patch`)."""
+    c, w, dwu, dwv, flux = emit(index, sc, shifts)
+    t, jet, ix, iy = hit_top(d, sc, w, wx, wy, patch, 3)
+    eta = indices[c]
+    state = optics_state(sc, w, dwu, dwv, t, jet, eta)
+    px, py, q00, q01, q11, f = splat_arguments(sc, flux, eta, state)
+    g = gather_photon(padded, pad, c, px, py, q00, q01, q11, f)
+    if not _contributes(g):
+        return False, ix, iy
+    g_t, g_sx, g_sy, g_sxx, g_sxy, g_syy = optics_adjoint(sc, w, dwu, dwv, flux, t, jet, eta, state, *g)
+    hit_adjoint_patch(wx, wy, patch, w[0], w[1], w[2], g_t, g_sx, g_sy, g_sxx, g_sxy, g_syy)
     return True, ix, iy
 
 
 @nb.njit(cache=True, fastmath=FAST_MATH, error_model="numpy")
-def _vjp_range(d, sc, shifts, indices, lo, hi, padded, pad, grad) -> None:
-    """Serial body of :func:`vjp_photons` for photons lo .. hi-1 (one thread, its own gradient)."""
+def vjp_range(d, sc, shifts, indices, lo, hi, padded, pad, grad) -> None:
+    """One thread's share of :func:`vjp_photons`: photons lo .. hi-1 into its own gradient ``grad`` (m, m);
+    packets of PACKET photons, the hit searches, splat-adjoint gathers and height scatters photon
+    by photon, the optics and their adjoint as loops over the packet that LLVM vectorises."""
+    m = d.shape[0]
     wx = np.empty((4, 4))
     wy = np.empty((4, 4))
     patch = np.empty((4, 4))
-    for index in range(lo, hi):
-        contributes, ix, iy = photon_vjp(d, sc, shifts, indices, index, padded, pad, wx, wy, patch)
-        if contributes:
+    hits = np.empty((17, PACKET))  # per photon: w, Dw_u, Dw_v, flux, t, jet, eta
+    channel = np.empty(PACKET, dtype=np.int64)
+    spots = np.empty((6, PACKET))  # per photon: splat arguments, then their gradients
+    for first in range(lo, hi, PACKET):
+        count = min(PACKET, hi - first)
+        for k in range(count):
+            c, w, dwu, dwv, flux = emit(first + k, sc, shifts)
+            t, jet, _, _ = hit_top(d, sc, w, wx, wy, patch, 2)
+            channel[k] = c
+            _store_hit(hits, k, w, dwu, dwv, flux, t, jet, indices[c])
+        for k in range(count):
+            w, dwu, dwv, flux, t, jet, eta = _load_hit(hits, k)
+            spot = splat_arguments(sc, flux, eta, optics_state(sc, w, dwu, dwv, t, jet, eta))
+            for j in range(6):
+                spots[j, k] = spot[j]
+        for k in range(count):
+            g = gather_photon(padded, pad, channel[k], spots[0, k], spots[1, k], spots[2, k], spots[3, k],
+                              spots[4, k], spots[5, k])
+            for j in range(6):
+                spots[j, k] = g[j]
+        for k in range(count):
+            w, dwu, dwv, flux, t, jet, eta = _load_hit(hits, k)
+            g_hit = optics_adjoint(sc, w, dwu, dwv, flux, t, jet, eta, optics_state(sc, w, dwu, dwv, t, jet, eta),
+                                   spots[0, k], spots[1, k], spots[2, k], spots[3, k], spots[4, k], spots[5, k])
+            for j in range(6):
+                hits[11 + j, k] = g_hit[j]  # jet and eta are no longer needed
+        for k in range(count):
+            if not _contributes((spots[0, k], spots[1, k], spots[2, k], spots[3, k], spots[4, k], spots[5, k])):
+                continue
+            wx_, wy_, wz_, t = hits[0, k], hits[1, k], hits[2, k], hits[10, k]
+            ix = axis_weights(sc.light_x + t * wx_, -sc.half, sc.spacing, m, 3, wx)
+            iy = axis_weights(sc.light_y + t * wy_, -sc.half, sc.spacing, m, 3, wy)
+            load_patch(d, ix, iy, patch)
+            hit_adjoint_patch(wx, wy, patch, wx_, wy_, wz_, hits[11, k], hits[12, k], hits[13, k], hits[14, k],
+                              hits[15, k], hits[16, k])
             scatter_patch(grad, ix, iy, patch)
 
 
@@ -259,5 +365,5 @@ def vjp_photons(d, sc, shifts, indices, start, stop, padded, pad, out):
     blocks = (stop - start + BLOCK - 1) // BLOCK
     for b in nb.prange(blocks):
         lo = start + b * BLOCK
-        _vjp_range(d, sc, shifts, indices, lo, min(stop, lo + BLOCK), padded, pad,
+        vjp_range(d, sc, shifts, indices, lo, min(stop, lo + BLOCK), padded, pad,
                    out[nb.get_thread_id()])
