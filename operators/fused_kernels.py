@@ -305,7 +305,8 @@ def photon_vjp(d, sc, shifts, indices, index, padded, pad, wx, wy, patch):
     g = gather_photon(padded, pad, c, px, py, q00, q01, q11, f)
     if not _contributes(g):
         return False, ix, iy
-    g_t, g_sx, g_sy, g_sxx, g_sxy, g_syy = optics_adjoint(sc, w, dwu, dwv, flux, t, jet, eta, state, *g)
+    g_t, g_sx, g_sy, g_sxx, g_sxy, g_syy = optics_adjoint(sc, w, dwu, dwv, flux, t, jet, eta, state, g[0], g[1], g[2],
+                                                          g[3], g[4], g[5])
     hit_adjoint_patch(wx, wy, patch, w[0], w[1], w[2], g_t, g_sx, g_sy, g_sxx, g_sxy, g_syy)
     return True, ix, iy
 
