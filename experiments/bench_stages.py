@@ -20,7 +20,7 @@ import numba as nb
 import numpy as np
 
 from operators.catmull_rom import surface_gradient
-from operators.fused_kernels import emit, hit_top, render_range, vjp_range
+from operators.fused_kernels import emit, hit_jet, render_range, vjp_range
 from operators.heightfield_kernels import solve_hit
 from operators.native import FAST_MATH
 
@@ -32,9 +32,6 @@ FORWARD_CUTS = ("emission", "hit_search", "surface_jet", "optics_and_footprint",
 def _hit_cut(d, sc, shifts, count, cut) -> float:
     """Photons 0 .. count-1 emitted (cut 0), and their hit searched (1) and surface jet taken (2);
     returns a checksum that keeps the compiler from dropping the work."""
-    wx = np.empty((4, 4))
-    wy = np.empty((4, 4))
-    patch = np.empty((4, 4))
     acc = 0.0
     for index in range(count):
         _, w, _, _, flux = emit(index, sc, shifts)
@@ -43,7 +40,7 @@ def _hit_cut(d, sc, shifts, count, cut) -> float:
             acc += solve_hit(d, sc.base, sc.light_x, sc.light_y, sc.light_z, w[0], w[1], w[2], -sc.half,
                              sc.spacing, sc.zlo, sc.zstart, sc.zhi, sc.slope_x, sc.slope_y)
         elif cut == 2:
-            t, jet, _, _ = hit_top(d, sc, w, wx, wy, patch, 2)
+            t, jet = hit_jet(d, sc, w)
             acc += t + jet[0] + jet[4]
     return acc
 

@@ -111,6 +111,43 @@ def surface_gradient(d: np.ndarray, x: float, y: float, origin: float, spacing: 
 
 
 @nb.njit(cache=True, inline="always", fastmath=FAST_MATH, error_model="numpy")
+def _curvature_basis(s: float, k2: float) -> tuple[float, float, float, float]:
+    """Second s-derivatives of the Catmull-Rom weights times k2 (row 2 of _fill_basis)."""
+    return k2 * (-3.0 * s + 2.0), k2 * (9.0 * s - 5.0), k2 * (-9.0 * s + 4.0), k2 * (3.0 * s - 1.0)
+
+
+@nb.njit(cache=True, inline="always", fastmath=FAST_MATH, error_model="numpy")
+def surface_jet_at(d: np.ndarray, x: float, y: float, origin: float, spacing: float
+                   ) -> tuple[float, float, float, float, float]:
+    """(S_x, S_y, S_xx, S_xy, S_yy) at (x, y): the values of axis_weights / load_patch /
+    surface_jet, in scalar code (no weight tables), for the photon kernels' forward trace."""
+    m = d.shape[0]
+    ix, sx, kx = _cell(x, origin, spacing, m)
+    iy, sy, ky = _cell(y, origin, spacing, m)
+    a0, a1, a2, a3, b0, b1, b2, b3 = _basis(sx, kx)
+    c0, c1, c2, c3 = _curvature_basis(sx, kx * kx)
+    e0, e1, e2, e3, f0, f1, f2, f3 = _basis(sy, ky)
+    g0, g1, g2, g3 = _curvature_basis(sy, ky * ky)
+    n0, n1, n2, n3 = max(ix - 1, 0), ix, ix + 1, min(ix + 2, m - 1)
+    s_x = s_y = s_xx = s_xy = s_yy = 0.0
+    for a in range(4):
+        r = _node(iy - 1 + a, m)
+        d0, d1, d2, d3 = d[r, n0], d[r, n1], d[r, n2], d[r, n3]
+        v = a0 * d0 + a1 * d1 + a2 * d2 + a3 * d3
+        vx = b0 * d0 + b1 * d1 + b2 * d2 + b3 * d3
+        vxx = c0 * d0 + c1 * d1 + c2 * d2 + c3 * d3
+        ey = e0 if a == 0 else e1 if a == 1 else e2 if a == 2 else e3
+        fy = f0 if a == 0 else f1 if a == 1 else f2 if a == 2 else f3
+        gy = g0 if a == 0 else g1 if a == 1 else g2 if a == 2 else g3
+        s_x += ey * vx
+        s_xx += ey * vxx
+        s_y += fy * v
+        s_xy += fy * vx
+        s_yy += gy * v
+    return s_x, s_y, s_xx, s_xy, s_yy
+
+
+@nb.njit(cache=True, inline="always", fastmath=FAST_MATH, error_model="numpy")
 def _node(i: int, m: int) -> int:
     return min(max(i, 0), m - 1)
 

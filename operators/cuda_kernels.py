@@ -56,10 +56,7 @@ def render_kernel(d, sc, shifts, indices, start, stop, img, reached, splat):
     index = start + cuda.grid(1)
     flux = 0.0
     if index < stop:
-        wx = cuda.local.array((4, 4), float64)
-        wy = cuda.local.array((4, 4), float64)
-        patch = cuda.local.array((4, 4), float64)
-        c, px, py, q00, q01, q11, flux = trace_photon(d, sc, shifts, indices, index, wx, wy, patch)
+        c, px, py, q00, q01, q11, flux = trace_photon(d, sc, shifts, indices, index)
         if splat:
             _splat_photon_atomic(img, c, px, py, q00, q01, q11, flux)
     flux_sum[tid] = flux

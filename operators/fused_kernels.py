@@ -18,7 +18,7 @@ from typing import NamedTuple
 import numba as nb
 import numpy as np
 
-from operators.catmull_rom import axis_weights, load_patch, scatter_patch
+from operators.catmull_rom import axis_weights, load_patch, scatter_patch, surface_jet_at
 from operators.emission import R2_STEP
 from operators.heightfield_kernels import hit_adjoint_patch, solve_hit, surface_jet
 from operators.native import FAST_MATH
@@ -85,6 +85,14 @@ def emit(index, sc, shifts):
     dwu = (s - w[0] * w[0] * s, -w[1] * w[0] * s, -w[2] * w[0] * s)
     dwv = (-w[0] * w[1] * s, s - w[1] * w[1] * s, -w[2] * w[1] * s)
     return c, w, dwu, dwv, sc.flux_scale * inv_r * inv_r * inv_r
+
+
+@_jit
+def hit_jet(d, sc, w):
+    """Ray parameter t of the first hit on the printed surface and the jet there, (t, jet)."""
+    t = solve_hit(d, sc.base, sc.light_x, sc.light_y, sc.light_z, w[0], w[1], w[2], -sc.half, sc.spacing, sc.zlo,
+                  sc.zstart, sc.zhi, sc.slope_x, sc.slope_y)
+    return t, surface_jet_at(d, sc.light_x + t * w[0], sc.light_y + t * w[1], -sc.half, sc.spacing)
 
 
 @_jit
@@ -156,10 +164,10 @@ def splat_arguments(sc, flux, eta, state):
 
 
 @_jit
-def trace_photon(d, sc, shifts, indices, index, wx, wy, patch):
+def trace_photon(d, sc, shifts, indices, index):
     """Photon ``index`` on the receiver: (channel, px, py, q00, q01, q11, flux) in pixels; flux 0 if lost."""
     c, w, dwu, dwv, flux = emit(index, sc, shifts)
-    t, jet, _, _ = hit_top(d, sc, w, wx, wy, patch, 2)
+    t, jet = hit_jet(d, sc, w)
     eta = indices[c]
     px, py, q00, q01, q11, flux = splat_arguments(sc, flux, eta, optics_state(sc, w, dwu, dwv, t, jet, eta))
     return c, px, py, q00, q01, q11, flux
@@ -193,9 +201,6 @@ PACKET = 128
 def render_range(d, sc, shifts, indices, lo, hi, img, capacity, splat) -> float:
     """One thread's share of :func:`render_photons`: photons lo .. hi-1 into its own image ``img``
     (c, n, n); returns the flux that reached the receiver."""
-    wx = np.empty((4, 4))
-    wy = np.empty((4, 4))
-    patch = np.empty((4, 4))
     buf = np.empty(capacity)
     hits = np.empty((17, PACKET))  # per photon: w, Dw_u, Dw_v, flux, t, jet, eta
     channel = np.empty(PACKET, dtype=np.int64)
@@ -205,7 +210,7 @@ def render_range(d, sc, shifts, indices, lo, hi, img, capacity, splat) -> float:
         count = min(PACKET, hi - first)
         for k in range(count):
             c, w, dwu, dwv, flux = emit(first + k, sc, shifts)
-            t, jet, _, _ = hit_top(d, sc, w, wx, wy, patch, 2)
+            t, jet = hit_jet(d, sc, w)
             channel[k] = c
             _store_hit(hits, k, w, dwu, dwv, flux, t, jet, indices[c])
         for k in range(count):
@@ -327,7 +332,7 @@ def vjp_range(d, sc, shifts, indices, lo, hi, padded, pad, grad) -> None:
         count = min(PACKET, hi - first)
         for k in range(count):
             c, w, dwu, dwv, flux = emit(first + k, sc, shifts)
-            t, jet, _, _ = hit_top(d, sc, w, wx, wy, patch, 2)
+            t, jet = hit_jet(d, sc, w)
             channel[k] = c
             _store_hit(hits, k, w, dwu, dwv, flux, t, jet, indices[c])
         for k in range(count):
