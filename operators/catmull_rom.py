@@ -119,8 +119,8 @@ def _curvature_basis(s: float, k2: float) -> tuple[float, float, float, float]:
 @nb.njit(cache=True, inline="always", fastmath=FAST_MATH, error_model="numpy")
 def surface_jet_at(d: np.ndarray, x: float, y: float, origin: float, spacing: float
                    ) -> tuple[float, float, float, float, float]:
-    """(S_x, S_y, S_xx, S_xy, S_yy) at (x, y): the values of axis_weights / load_patch /
-    surface_jet, in scalar code (no weight tables), for the photon kernels' forward trace."""
+    """(S_x, S_y, S_xx, S_xy, S_yy) at (x, y): the values that weight tables (axis_weights,
+    load_patch, contract) give, in scalar code, for the hit searches' surface jet."""
     m = d.shape[0]
     ix, sx, kx = _cell(x, origin, spacing, m)
     iy, sy, ky = _cell(y, origin, spacing, m)

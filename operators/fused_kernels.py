@@ -20,7 +20,7 @@ import numpy as np
 
 from operators.catmull_rom import axis_weights, load_patch, scatter_patch, surface_jet_at
 from operators.emission import R2_STEP
-from operators.heightfield_kernels import hit_adjoint_patch, solve_hit, surface_jet
+from operators.heightfield_kernels import hit_adjoint_patch, solve_hit
 from operators.native import FAST_MATH
 from operators.photon_optics import (UP, ZERO, add, away_from_zero, footprint_metric, footprint_metric_adjoint,
                                      fresnel, fresnel_adjoint, height_field_normal, height_field_normal_adjoint,
@@ -96,17 +96,14 @@ def hit_jet(d, sc, w):
 
 
 @_jit
-def hit_top(d, sc, w, wx, wy, patch, order):
-    """Ray parameter t of the first hit on the printed surface and the jet there; leaves the
-    weight tables (up to ``order``) and the patch of the hit cell loaded. Returns (t, jet, ix, iy)."""
+def hit_cell(d, sc, w, t, wx, wy, patch):
+    """Load the weight tables of order 3 (wx, wy) and the 16 samples (patch) of the cell where
+    the ray along w meets the surface at t; returns the cell (ix, iy)."""
     m = d.shape[0]
-    x0 = -sc.half
-    t = solve_hit(d, sc.base, sc.light_x, sc.light_y, sc.light_z, w[0], w[1], w[2], x0, sc.spacing, sc.zlo, sc.zstart,
-                  sc.zhi, sc.slope_x, sc.slope_y)
-    ix = axis_weights(sc.light_x + t * w[0], x0, sc.spacing, m, order, wx)
-    iy = axis_weights(sc.light_y + t * w[1], x0, sc.spacing, m, order, wy)
+    ix = axis_weights(sc.light_x + t * w[0], -sc.half, sc.spacing, m, 3, wx)
+    iy = axis_weights(sc.light_y + t * w[1], -sc.half, sc.spacing, m, 3, wy)
     load_patch(d, ix, iy, patch)
-    return t, surface_jet(patch, wx, wy), ix, iy
+    return ix, iy
 
 
 @_jit
@@ -197,6 +194,24 @@ def _load_hit(hits, k):
 PACKET = 128
 
 
+@_jit
+def trace_packet(d, sc, shifts, indices, first, count, hits, channel, spots) -> None:
+    """Photons first .. first+count-1 traced to the receiver: their hits in ``hits`` (17, PACKET)
+    (:func:`_store_hit`), channels in ``channel`` and splat arguments (px, py, q00, q01, q11,
+    flux) in ``spots`` (6, PACKET). The hit searches run photon by photon, the optics as one loop
+    over the packet that LLVM vectorises."""
+    for k in range(count):
+        c, w, dwu, dwv, flux = emit(first + k, sc, shifts)
+        t, jet = hit_jet(d, sc, w)
+        channel[k] = c
+        _store_hit(hits, k, w, dwu, dwv, flux, t, jet, indices[c])
+    for k in range(count):
+        w, dwu, dwv, flux, t, jet, eta = _load_hit(hits, k)
+        spot = splat_arguments(sc, flux, eta, optics_state(sc, w, dwu, dwv, t, jet, eta))
+        for j in range(6):
+            spots[j, k] = spot[j]
+
+
 @nb.njit(cache=True, fastmath=FAST_MATH, error_model="numpy")
 def render_range(d, sc, shifts, indices, lo, hi, img, capacity, splat) -> float:
     """One thread's share of :func:`render_photons`: photons lo .. hi-1 into its own image ``img``
@@ -208,16 +223,7 @@ def render_range(d, sc, shifts, indices, lo, hi, img, capacity, splat) -> float:
     reached = 0.0
     for first in range(lo, hi, PACKET):
         count = min(PACKET, hi - first)
-        for k in range(count):
-            c, w, dwu, dwv, flux = emit(first + k, sc, shifts)
-            t, jet = hit_jet(d, sc, w)
-            channel[k] = c
-            _store_hit(hits, k, w, dwu, dwv, flux, t, jet, indices[c])
-        for k in range(count):
-            w, dwu, dwv, flux, t, jet, eta = _load_hit(hits, k)
-            spot = splat_arguments(sc, flux, eta, optics_state(sc, w, dwu, dwv, t, jet, eta))
-            for j in range(6):
-                spots[j, k] = spot[j]
+        trace_packet(d, sc, shifts, indices, first, count, hits, channel, spots)
         for k in range(count):
             reached += spots[5, k]
             if splat:
@@ -301,17 +307,19 @@ def photon_vjp(d, sc, shifts, indices, index, padded, pad, wx, wy, patch):
     """Photon ``index``'s contribution to the gradient of <splat, G> w.r.t. the 16 heights around
     its hit, G given with ``pad`` zero pixels on every side (``padded``, see
     :func:`operators.splat_kernels.gather_photon`). Returns (contributes, ix, iy); when it
-    contributes, ``patch`` holds the gradient to add at cell (ix, iy) (:func:`scatter_patch`)."""
+    contributes, ``patch`` holds the gradient to add at cell (ix, iy) (:func:`scatter_patch`),
+    and wx / wy the weight tables there."""
     c, w, dwu, dwv, flux = emit(index, sc, shifts)
-    t, jet, ix, iy = hit_top(d, sc, w, wx, wy, patch, 3)
+    t, jet = hit_jet(d, sc, w)
     eta = indices[c]
     state = optics_state(sc, w, dwu, dwv, t, jet, eta)
     px, py, q00, q01, q11, f = splat_arguments(sc, flux, eta, state)
     g = gather_photon(padded, pad, c, px, py, q00, q01, q11, f)
     if not _contributes(g):
-        return False, ix, iy
+        return False, 0, 0
     g_t, g_sx, g_sy, g_sxx, g_sxy, g_syy = optics_adjoint(sc, w, dwu, dwv, flux, t, jet, eta, state, g[0], g[1], g[2],
                                                           g[3], g[4], g[5])
+    ix, iy = hit_cell(d, sc, w, t, wx, wy, patch)
     hit_adjoint_patch(wx, wy, patch, w[0], w[1], w[2], g_t, g_sx, g_sy, g_sxx, g_sxy, g_syy)
     return True, ix, iy
 
@@ -321,7 +329,6 @@ def vjp_range(d, sc, shifts, indices, lo, hi, padded, pad, grad) -> None:
     """One thread's share of :func:`vjp_photons`: photons lo .. hi-1 into its own gradient ``grad`` (m, m);
     packets of PACKET photons, the hit searches, splat-adjoint gathers and height scatters photon
     by photon, the optics and their adjoint as loops over the packet that LLVM vectorises."""
-    m = d.shape[0]
     wx = np.empty((4, 4))
     wy = np.empty((4, 4))
     patch = np.empty((4, 4))
@@ -330,16 +337,7 @@ def vjp_range(d, sc, shifts, indices, lo, hi, padded, pad, grad) -> None:
     spots = np.empty((6, PACKET))  # per photon: splat arguments, then their gradients
     for first in range(lo, hi, PACKET):
         count = min(PACKET, hi - first)
-        for k in range(count):
-            c, w, dwu, dwv, flux = emit(first + k, sc, shifts)
-            t, jet = hit_jet(d, sc, w)
-            channel[k] = c
-            _store_hit(hits, k, w, dwu, dwv, flux, t, jet, indices[c])
-        for k in range(count):
-            w, dwu, dwv, flux, t, jet, eta = _load_hit(hits, k)
-            spot = splat_arguments(sc, flux, eta, optics_state(sc, w, dwu, dwv, t, jet, eta))
-            for j in range(6):
-                spots[j, k] = spot[j]
+        trace_packet(d, sc, shifts, indices, first, count, hits, channel, spots)
         for k in range(count):
             g = gather_photon(padded, pad, channel[k], spots[0, k], spots[1, k], spots[2, k], spots[3, k],
                               spots[4, k], spots[5, k])
@@ -354,11 +352,9 @@ def vjp_range(d, sc, shifts, indices, lo, hi, padded, pad, grad) -> None:
         for k in range(count):
             if not _contributes((spots[0, k], spots[1, k], spots[2, k], spots[3, k], spots[4, k], spots[5, k])):
                 continue
-            wx_, wy_, wz_, t = hits[0, k], hits[1, k], hits[2, k], hits[10, k]
-            ix = axis_weights(sc.light_x + t * wx_, -sc.half, sc.spacing, m, 3, wx)
-            iy = axis_weights(sc.light_y + t * wy_, -sc.half, sc.spacing, m, 3, wy)
-            load_patch(d, ix, iy, patch)
-            hit_adjoint_patch(wx, wy, patch, wx_, wy_, wz_, hits[11, k], hits[12, k], hits[13, k], hits[14, k],
+            w = (hits[0, k], hits[1, k], hits[2, k])
+            ix, iy = hit_cell(d, sc, w, hits[10, k], wx, wy, patch)
+            hit_adjoint_patch(wx, wy, patch, w[0], w[1], w[2], hits[11, k], hits[12, k], hits[13, k], hits[14, k],
                               hits[15, k], hits[16, k])
             scatter_patch(grad, ix, iy, patch)
 

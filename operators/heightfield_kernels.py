@@ -17,7 +17,7 @@ import numpy as np
 
 from operators.native import FAST_MATH
 
-from operators.catmull_rom import axis_weights, contract, load_patch, scatter_patch, surface_gradient
+from operators.catmull_rom import axis_weights, contract, load_patch, scatter_patch, surface_gradient, surface_jet_at
 
 MAX_MARCH_STEPS = 512
 NEWTON_ITERATIONS = 40
@@ -85,13 +85,6 @@ def solve_hit(d, base, ox, oy, oz, wx_, wy_, wz_, x0, spacing, zlo, zstart, zhi,
 
 
 @nb.njit(cache=True, inline="always", fastmath=FAST_MATH, error_model="numpy")
-def surface_jet(patch, wx, wy) -> tuple[float, float, float, float, float]:
-    """(S_x, S_y, S_xx, S_xy, S_yy) from a loaded patch and weight tables of order >= 2."""
-    return (contract(patch, wx, 1, wy, 0), contract(patch, wx, 0, wy, 1), contract(patch, wx, 2, wy, 0),
-            contract(patch, wx, 1, wy, 1), contract(patch, wx, 0, wy, 2))
-
-
-@nb.njit(cache=True, inline="always", fastmath=FAST_MATH, error_model="numpy")
 def hit_adjoint_patch(wx, wy, patch, wx_, wy_, wz_, g_t, g_sx, g_sy, g_sxx, g_sxy, g_syy) -> None:
     """Overwrite ``patch`` (the samples around one photon's hit) with the gradient of
     g_t t + <g_jet, jet> w.r.t. those samples (add it into the heights with :func:`scatter_patch`).
@@ -133,21 +126,14 @@ def hit_forward(d, base, origin, dirs, x0, spacing, zlo, zstart, zhi, slope_x, s
     """Fill t_out (N,) and jet_out (5, N) = (S_x, S_y, S_xx, S_xy, S_yy) at each photon's hit
     (:func:`solve_hit`)."""
     n = dirs.shape[1]
-    m = d.shape[0]
     per = (n + nthreads - 1) // nthreads
     for th in nb.prange(nthreads):
-        wx = np.empty((4, 4))
-        wy = np.empty((4, 4))
-        patch = np.empty((4, 4))
         for p in range(th * per, min(n, (th + 1) * per)):
             wx_, wy_, wz_ = dirs[0, p], dirs[1, p], dirs[2, p]
             t = solve_hit(d, base, origin[0], origin[1], origin[2], wx_, wy_, wz_, x0, spacing, zlo, zstart, zhi,
                           slope_x, slope_y)
-            ix = axis_weights(origin[0] + t * wx_, x0, spacing, m, 2, wx)
-            iy = axis_weights(origin[1] + t * wy_, x0, spacing, m, 2, wy)
-            load_patch(d, ix, iy, patch)
             t_out[p] = t
-            jet = surface_jet(patch, wx, wy)
+            jet = surface_jet_at(d, origin[0] + t * wx_, origin[1] + t * wy_, x0, spacing)
             for k in range(5):
                 jet_out[k, p] = jet[k]
 

@@ -3,17 +3,12 @@
 from __future__ import annotations
 
 import json
-import os
-import subprocess
-import sys
-from pathlib import Path
 
 import pytest
 import torch
 
 from experiments.bench import main
-
-ROOT = Path(__file__).resolve().parents[2]
+from tests.python_subprocess import run_json_script
 
 
 def test_bench_prints_the_promised_figures(capsys):
@@ -42,11 +37,7 @@ print(json.dumps(profile_stages(op, heights, torch.zeros(op.output_shape), 300))
 
 
 def test_stage_profile_times_every_stage():
-    env = dict(os.environ, NUMBA_DISABLE_JIT="1", NUMBA_NUM_THREADS="2", PYTHONPATH=str(ROOT))
-    proc = subprocess.run([sys.executable, "-c", PROFILE], cwd=ROOT, env=env, capture_output=True, text=True,
-                          timeout=600)
-    assert proc.returncode == 0, proc.stderr[-3000:]
-    profile = json.loads(proc.stdout.strip().splitlines()[-1])
+    profile = run_json_script(PROFILE, NUMBA_DISABLE_JIT="1", NUMBA_NUM_THREADS="2")
     stages = ("emission_ns", "hit_search_ns", "surface_jet_ns", "optics_and_footprint_ns", "splat_ns")
     assert all(profile[name] > 0 for name in stages), profile
     # The adjoint traces the photon again, so it costs more than the trace without the splat.

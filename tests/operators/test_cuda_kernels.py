@@ -11,19 +11,12 @@ compared with the CPU operator at a realistic photon count.
 
 from __future__ import annotations
 
-import json
-import os
-import subprocess
-import sys
-from pathlib import Path
-
 import pytest
 import torch
 
 from tests.operators.conftest import make_operator
 from tests.operators.test_fused import smooth_random_heights
-
-ROOT = Path(__file__).resolve().parents[2]
+from tests.python_subprocess import run_json_script
 
 SIMULATED = """
 import json
@@ -60,11 +53,7 @@ print(json.dumps({
 
 
 def test_simulated_cuda_kernels_match_the_cpu_kernels():
-    env = dict(os.environ, NUMBA_ENABLE_CUDASIM="1", NUMBA_DISABLE_JIT="1", PYTHONPATH=str(ROOT))
-    proc = subprocess.run([sys.executable, "-c", SIMULATED], cwd=ROOT, env=env, capture_output=True, text=True,
-                          timeout=600)
-    assert proc.returncode == 0, proc.stderr[-3000:]
-    result = json.loads(proc.stdout.strip().splitlines()[-1])
+    result = run_json_script(SIMULATED, NUMBA_ENABLE_CUDASIM="1", NUMBA_DISABLE_JIT="1")
     cpu_reached, gpu_reached = result["reached"]
     assert cpu_reached > 0 and gpu_reached == pytest.approx(cpu_reached, rel=1e-12)
     assert result["image_total"] > 0.5 * cpu_reached  # most footprints land on the receiver
