@@ -62,11 +62,11 @@ LANES = 8
 
 
 @nb.njit(cache=True, inline="always", fastmath=FAST_MATH, error_model="numpy")
-def _fits_fixed_box(x0, x1, y0, y1, x_hi, y_hi) -> bool:
+def _fits_fixed_box(x0, x1, y0, y1, lo, hi) -> bool:
     """Whether the bounding box x0 .. x1, y0 .. y1 fits in a LANES x LANES box at (x0, y0) that
-    lies in columns 0 .. x_hi and rows 0 .. y_hi."""
-    return (x1 - x0 < LANES and y1 - y0 < LANES and x0 >= 0 and y0 >= 0
-            and x0 + LANES - 1 <= x_hi and y0 + LANES - 1 <= y_hi)
+    lies in columns and rows lo .. hi."""
+    return (x1 - x0 < LANES and y1 - y0 < LANES and x0 >= lo and y0 >= lo
+            and x0 + LANES - 1 <= hi and y0 + LANES - 1 <= hi)
 
 
 @nb.njit(cache=True, inline="always", fastmath=FAST_MATH, error_model="numpy")
@@ -109,7 +109,7 @@ def splat_photon(img, c, px, py, q00, q01, q11, f, buf) -> None:
         return
     x0, x1, y0, y1 = _box(px, py, q00, q01, q11)
     n = img.shape[1]
-    if _fits_fixed_box(x0, x1, y0, y1, n - 1, n - 1) and buf.shape[0] >= LANES * LANES:
+    if _fits_fixed_box(x0, x1, y0, y1, 0, n - 1) and buf.shape[0] >= LANES * LANES:
         s = _box_weights(buf, x0, y0, LANES, LANES, px, py, q00, q01, q11)
         if s > 0.0:
             _deposit(img, c, buf, x0, y0, LANES, x0, x0 + LANES - 1, y0, y0 + LANES - 1, f / s)
@@ -160,7 +160,7 @@ def gather_photon(padded, pad, c, px, py, q00, q01, q11, f) -> tuple[float, floa
     x0, x1, y0, y1 = _box(px, py, q00, q01, q11)
     if x1 < 0 or y1 < 0 or x0 > n - 1 or y0 > n - 1 or x1 < x0 or y1 < y0:
         return 0.0, 0.0, 0.0, 0.0, 0.0, 0.0  # nothing on the image: G = 0 on the whole footprint
-    if _fits_fixed_box(x0, x1, y0, y1, n - 1 + pad, n - 1 + pad) and x0 >= -pad and y0 >= -pad:
+    if _fits_fixed_box(x0, x1, y0, y1, -pad, n - 1 + pad):
         sums = _gather_box(padded, pad, c, x0, y0, LANES, LANES, px, py, q00, q01, q11)
     else:
         x0, x1 = max(x0, -pad), min(x1, n - 1 + pad)
