@@ -7,7 +7,8 @@ without the splat (adds the optics with differentials and the footprint, vectori
 packet of photons) and with it. Each stage's cost is the difference of consecutive cuts, in
 nanoseconds per photon (differences of best-of-three timings: a few tens of ns of noise). For the
 gradient: :func:`operators.fused_kernels.vjp_range` (trace again, splat-adjoint gather,
-reverse-mode optics, 4 x 4 height patch and its scatter). Beside them:
+reverse-mode optics, 4 x 4 height patch and its scatter), once searching the hits again and once
+replaying the hits that the forward pass recorded (what ``loss_and_grad`` does). Beside them:
 the cost of one evaluation of the surface and its gradient (the hit search's inner step) in a loop
 of independent evaluations, i.e. its throughput, not its latency.
 """
@@ -81,17 +82,22 @@ def stage_profile(fused, d: np.ndarray, grad_image: np.ndarray, count: int, repe
     args = (d, sc, fused.shifts, fused.indices)
     warm = min(count, 1000)  # photons of the compile / warm-up calls
     cuts = [lambda n, cut=cut: _hit_cut(d, sc, fused.shifts, n, cut) for cut in range(3)]
-    cuts += [lambda n, splat=splat: render_range(*args, 0, n, img, fused.capacity, splat) for splat in (False, True)]
+    no_hits = np.empty(0)
+    cuts += [lambda n, splat=splat: render_range(*args, 0, n, img, fused.capacity, splat, no_hits, 0)
+             for splat in (False, True)]
     cumulative = []
     for run in cuts:
         run(warm)  # compile / warm up
         cumulative.append(_best_ns(lambda: run(count), count, repeats))
     report = {name: cumulative[k] - (cumulative[k - 1] if k else 0.0) for k, name in enumerate(FORWARD_CUTS)}
     report["forward_total"] = cumulative[-1]
-    vjp_range(*args, 0, warm, padded, fused.gather_pad, grad)
-    report["adjoint_per_photon"] = _best_ns(lambda: vjp_range(*args, 0, count, padded, fused.gather_pad, grad),
-                                            count, repeats)
-    report["forward_backward_total"] = cumulative[-1] + report["adjoint_per_photon"]
+    hit_t = np.empty(count)
+    render_range(*args, 0, count, img, fused.capacity, True, hit_t, 0)  # record the hits
+    for name, hits in (("adjoint_searching_hits", no_hits), ("adjoint_replaying_hits", hit_t)):
+        vjp_range(*args, 0, warm, padded, fused.gather_pad, grad, hits, 0)
+        report[name] = _best_ns(lambda: vjp_range(*args, 0, count, padded, fused.gather_pad, grad, hits, 0),
+                                count, repeats)
+    report["forward_backward_total"] = cumulative[-1] + report["adjoint_replaying_hits"]
     _surface_evaluations(d, sc, fused.shifts, warm)
     report["one_surface_evaluation"] = _best_ns(lambda: _surface_evaluations(d, sc, fused.shifts, count), count,
                                                 repeats) - report["emission"]

@@ -46,7 +46,7 @@ MATERIAL_KEYS: dict[str, tuple[str, ...]] = {
     "constant": ("n",),
 }
 HEIGHT_FIELD_KEYS = ("shape", "resolution", "path", "scale", "params")
-OPERATOR_KEYS = ("footprint_px", "min_footprint_px", "max_pixel_radius", "chunk_size", "fresnel", "dtype", "device")
+OPERATOR_KEYS = ("footprint_px", "min_footprint_px", "max_pixel_radius", "chunk_size", "hit_cache_mb", "fresnel", "dtype", "device")
 DEFAULT_RESOLUTION = 128
 
 

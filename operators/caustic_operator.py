@@ -13,7 +13,9 @@ photon differentials. Two implementations of the same photons:
   :meth:`CausticOperator.vjp_reference`), differentiated by torch autograd.
 
 Photons flow in chunks of ``chunk_size``; the backward pass re-traces each chunk with the same
-photons (deterministic emission), so memory does not grow with the photon count.
+photons (deterministic emission), so memory does not grow with the photon count. Only the ray
+parameters of the surface hits (8 bytes per photon, up to ``hit_cache_mb``) are kept from a render
+for a gradient of the same heights, which then skips the hit search.
 """
 
 from __future__ import annotations
@@ -28,7 +30,7 @@ from tqdm.auto import tqdm
 
 from framework.registry import register
 from operators.emission import PointLightEmitter
-from operators.fused_trace import FusedTracer
+from operators.fused_trace import FusedTracer, HitCache
 from operators.native import to_numpy
 from operators.scene import Scene
 from operators.splat import footprint_metric, splat_photons, splat_photons_vjp
@@ -47,6 +49,8 @@ class OperatorSettings:
     min_footprint_px: pixel-filter radius added in quadrature to every footprint.
     max_pixel_radius: cut-off for the footprint's major semi-axis, in pixels (paper: 20).
     chunk_size: photons traced at once; sets the peak memory.
+    hit_cache_mb: memory (MiB, 8 bytes per photon) for the surface hits that a render records
+        and a gradient of the same heights replays instead of searching again; 0 turns it off.
     fresnel: weight by Fresnel transmittance (the paper ignores Fresnel losses).
     """
 
@@ -56,6 +60,7 @@ class OperatorSettings:
     min_footprint_px: float = 1.0
     max_pixel_radius: float = 20.0
     chunk_size: int = 1 << 18
+    hit_cache_mb: float = 256.0
     fresnel: bool = False
     dtype: str = "float32"
     device: str = "cpu"
@@ -65,6 +70,8 @@ class OperatorSettings:
             raise ValueError(f"dtype={self.dtype!r} is not supported; use float32 or float64")
         if int(self.chunk_size) != self.chunk_size or self.chunk_size < 1:
             raise ValueError(f"chunk_size={self.chunk_size} must be a positive integer, e.g. 262144")
+        if not self.hit_cache_mb >= 0.0:
+            raise ValueError(f"hit_cache_mb={self.hit_cache_mb} must be >= 0 (MiB; 0 turns the hit cache off)")
         if not 0.0 < self.min_footprint_px < self.max_pixel_radius:
             raise ValueError(f"need 0 < min_footprint_px ({self.min_footprint_px}) < max_pixel_radius "
                              f"({self.max_pixel_radius})")
@@ -104,6 +111,7 @@ class CausticOperator:
         self.glass_index = torch.tensor(scene.indices, dtype=self.dtype, device=self.device)
         self.fused = FusedTracer(scene, self.emitter, self.settings.min_footprint_px,
                                  self.settings.max_pixel_radius, self.settings.fresnel)
+        self.hit_cache = HitCache(self.settings.hit_cache_mb)
         self.gpu = None
         if self.device.type == "cuda":
             from operators.cuda_trace import CudaTracer  # imports numba.cuda only where it is used
@@ -155,8 +163,10 @@ class CausticOperator:
         if self.gpu is not None:
             return self._render_gpu(d, progress).to(heights.device)
         out = self.fused.image_buffers(np.dtype(self.settings.dtype))
+        self.hit_cache.start_render(d)
         for start, stop in tqdm(self.chunks(), desc="photons", unit="chunk", disable=not progress):
-            self.fused.render(d, start, stop, out)
+            self.fused.render(d, start, stop, out, hit_t=self.hit_cache.slot(start, stop))
+        self.hit_cache.finish_render()
         return torch.from_numpy(out.sum(axis=0) / self.pixel_area).to(heights.device)
 
     def vjp(self, heights: torch.Tensor, grad_image: torch.Tensor) -> torch.Tensor:
@@ -170,7 +180,7 @@ class CausticOperator:
         padded = self.fused.pad_gradient(to_numpy(grad_image).astype(np.float64) / self.pixel_area)
         out = np.zeros((nb.get_num_threads(), *d.shape))
         for start, stop in self.chunks():
-            self.fused.vjp(d, start, stop, padded, out)
+            self.fused.vjp(d, start, stop, padded, out, hit_t=self.hit_cache.hits(d, start, stop))
         return torch.from_numpy(out.sum(axis=0)).to(self.dtype).to(dtype=heights.dtype, device=heights.device)
 
     def _render_gpu(self, d: np.ndarray, progress: bool) -> torch.Tensor:

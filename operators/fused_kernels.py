@@ -88,11 +88,23 @@ def emit(index, sc, shifts):
 
 
 @_jit
+def find_hit(d, sc, w):
+    """Ray parameter t of the first hit of the photon along w on the printed surface."""
+    return solve_hit(d, sc.base, sc.light_x, sc.light_y, sc.light_z, w[0], w[1], w[2], -sc.half, sc.spacing, sc.zlo,
+                     sc.zstart, sc.zhi, sc.slope_x, sc.slope_y)
+
+
+@_jit
+def jet_at(d, sc, w, t):
+    """Surface jet (S_x, S_y, S_xx, S_xy, S_yy) where the photon along w meets the surface at t."""
+    return surface_jet_at(d, sc.light_x + t * w[0], sc.light_y + t * w[1], -sc.half, sc.spacing)
+
+
+@_jit
 def hit_jet(d, sc, w):
     """Ray parameter t of the first hit on the printed surface and the jet there, (t, jet)."""
-    t = solve_hit(d, sc.base, sc.light_x, sc.light_y, sc.light_z, w[0], w[1], w[2], -sc.half, sc.spacing, sc.zlo,
-                  sc.zstart, sc.zhi, sc.slope_x, sc.slope_y)
-    return t, surface_jet_at(d, sc.light_x + t * w[0], sc.light_y + t * w[1], -sc.half, sc.spacing)
+    t = find_hit(d, sc, w)
+    return t, jet_at(d, sc, w, t)
 
 
 @_jit
@@ -195,16 +207,27 @@ PACKET = 128
 
 
 @_jit
-def trace_packet(d, sc, shifts, indices, first, count, hits, channel, spots) -> None:
+def trace_packet(d, sc, shifts, indices, first, count, hits, channel, spots, hit_t, t_first, replay) -> None:
     """Photons first .. first+count-1 traced to the receiver: their hits in ``hits`` (17, PACKET)
     (:func:`_store_hit`), channels in ``channel`` and splat arguments (px, py, q00, q01, q11,
     flux) in ``spots`` (6, PACKET). The hit searches run photon by photon, the optics as one loop
-    over the packet that LLVM vectorises."""
+    over the packet that LLVM vectorises.
+
+    ``hit_t`` holds the hits' ray parameters of photons t_first, t_first + 1, ... (a hit cache,
+    :class:`operators.fused_trace.HitCache`): with ``replay`` they are read from it instead of
+    searched for; otherwise, unless it is empty, the searched ones are written into it."""
+    record = hit_t.shape[0] > 0 and not replay
     for k in range(count):
         c, w, dwu, dwv, flux = emit(first + k, sc, shifts)
-        t, jet = hit_jet(d, sc, w)
+        slot = first + k - t_first
+        if replay:
+            t = hit_t[slot]
+        else:
+            t = find_hit(d, sc, w)
+            if record:
+                hit_t[slot] = t
         channel[k] = c
-        _store_hit(hits, k, w, dwu, dwv, flux, t, jet, indices[c])
+        _store_hit(hits, k, w, dwu, dwv, flux, t, jet_at(d, sc, w, t), indices[c])
     for k in range(count):
         w, dwu, dwv, flux, t, jet, eta = _load_hit(hits, k)
         spot = splat_arguments(sc, flux, eta, optics_state(sc, w, dwu, dwv, t, jet, eta))
@@ -213,9 +236,10 @@ def trace_packet(d, sc, shifts, indices, first, count, hits, channel, spots) -> 
 
 
 @nb.njit(cache=True, fastmath=FAST_MATH, error_model="numpy")
-def render_range(d, sc, shifts, indices, lo, hi, img, capacity, splat) -> float:
+def render_range(d, sc, shifts, indices, lo, hi, img, capacity, splat, hit_t, t_first) -> float:
     """One thread's share of :func:`render_photons`: photons lo .. hi-1 into its own image ``img``
-    (c, n, n); returns the flux that reached the receiver."""
+    (c, n, n), their hits recorded in ``hit_t`` unless it is empty; returns the flux that reached
+    the receiver."""
     buf = np.empty(capacity)
     hits = np.empty((17, PACKET))  # per photon: w, Dw_u, Dw_v, flux, t, jet, eta
     channel = np.empty(PACKET, dtype=np.int64)
@@ -223,7 +247,7 @@ def render_range(d, sc, shifts, indices, lo, hi, img, capacity, splat) -> float:
     reached = 0.0
     for first in range(lo, hi, PACKET):
         count = min(PACKET, hi - first)
-        trace_packet(d, sc, shifts, indices, first, count, hits, channel, spots)
+        trace_packet(d, sc, shifts, indices, first, count, hits, channel, spots, hit_t, t_first, False)
         for k in range(count):
             reached += spots[5, k]
             if splat:
@@ -238,17 +262,19 @@ BLOCK = 4096
 
 
 @nb.njit(parallel=True, cache=True, fastmath=FAST_MATH, error_model="numpy")
-def render_photons(d, sc, shifts, indices, start, stop, out, capacity, splat):
+def render_photons(d, sc, shifts, indices, start, stop, out, capacity, splat, hit_t):
     """Splat photons start .. stop-1 into ``out`` (threads, c, n, n) (flux per pixel, sum over
     axis 0 after). ``d`` (m, m) float64 heights, ``shifts`` (c, 2) emission offsets, ``indices``
     (c,) refractive indices, ``capacity`` the pixels of the largest footprint. With ``splat``
-    False only the traces run (for timing); returns the total flux that reached the receiver."""
+    False only the traces run (for timing). ``hit_t`` (stop - start,) receives the hits' ray
+    parameters, for :func:`vjp_photons` to replay (empty: not recorded). Returns the total flux
+    that reached the receiver."""
     blocks = (stop - start + BLOCK - 1) // BLOCK
     reached = np.zeros(blocks)
     for b in nb.prange(blocks):
         lo = start + b * BLOCK
         reached[b] = render_range(d, sc, shifts, indices, lo, min(stop, lo + BLOCK), out[nb.get_thread_id()],
-                                   capacity, splat)
+                                   capacity, splat, hit_t, start)
     return reached.sum()
 
 
@@ -325,10 +351,11 @@ def photon_vjp(d, sc, shifts, indices, index, padded, pad, wx, wy, patch):
 
 
 @nb.njit(cache=True, fastmath=FAST_MATH, error_model="numpy")
-def vjp_range(d, sc, shifts, indices, lo, hi, padded, pad, grad) -> None:
+def vjp_range(d, sc, shifts, indices, lo, hi, padded, pad, grad, hit_t, t_first) -> None:
     """One thread's share of :func:`vjp_photons`: photons lo .. hi-1 into its own gradient ``grad`` (m, m);
-    packets of PACKET photons, the hit searches, splat-adjoint gathers and height scatters photon
-    by photon, the optics and their adjoint as loops over the packet that LLVM vectorises."""
+    packets of PACKET photons, the hit searches (or, when ``hit_t`` is not empty, the hits it
+    recorded), splat-adjoint gathers and height scatters photon by photon, the optics and their
+    adjoint as loops over the packet that LLVM vectorises."""
     wx = np.empty((4, 4))
     wy = np.empty((4, 4))
     patch = np.empty((4, 4))
@@ -337,7 +364,8 @@ def vjp_range(d, sc, shifts, indices, lo, hi, padded, pad, grad) -> None:
     spots = np.empty((6, PACKET))  # per photon: splat arguments, then their gradients
     for first in range(lo, hi, PACKET):
         count = min(PACKET, hi - first)
-        trace_packet(d, sc, shifts, indices, first, count, hits, channel, spots)
+        trace_packet(d, sc, shifts, indices, first, count, hits, channel, spots, hit_t, t_first,
+                     hit_t.shape[0] > 0)
         for k in range(count):
             g = gather_photon(padded, pad, channel[k], spots[0, k], spots[1, k], spots[2, k], spots[3, k],
                               spots[4, k], spots[5, k])
@@ -360,12 +388,14 @@ def vjp_range(d, sc, shifts, indices, lo, hi, padded, pad, grad) -> None:
 
 
 @nb.njit(parallel=True, cache=True, fastmath=FAST_MATH, error_model="numpy")
-def vjp_photons(d, sc, shifts, indices, start, stop, padded, pad, out):
+def vjp_photons(d, sc, shifts, indices, start, stop, padded, pad, out, hit_t):
     """Add to ``out`` (threads, m, m) the gradient w.r.t. d of <splat of photons start .. stop-1,
     G> (G (c, n, n), per pixel flux, given as ``padded`` float64 with ``pad`` zero pixels on every
-    side: :func:`operators.splat_kernels.pad_for_gather`); sum over axis 0 after."""
+    side: :func:`operators.splat_kernels.pad_for_gather`); sum over axis 0 after. ``hit_t``
+    (stop - start,): the hits' ray parameters that :func:`render_photons` recorded for these
+    heights, replayed instead of searching again (empty: search)."""
     blocks = (stop - start + BLOCK - 1) // BLOCK
     for b in nb.prange(blocks):
         lo = start + b * BLOCK
         vjp_range(d, sc, shifts, indices, lo, min(stop, lo + BLOCK), padded, pad,
-                   out[nb.get_thread_id()])
+                   out[nb.get_thread_id()], hit_t, start)

@@ -13,6 +13,8 @@ from operators.heightfield_surface import HeightFieldGrid
 from operators.scene import Scene
 from operators.splat_kernels import gather_padding, pad_for_gather
 
+NO_HITS = np.empty(0)  # kernels' marker for "no hit cache"
+
 
 class FusedTracer:
     """Photons ``start .. stop-1`` of ``emitter`` traced through ``scene`` in one native pass each.
@@ -52,20 +54,64 @@ class FusedTracer:
         n = self.scene.receiver.resolution
         return np.zeros((nb.get_num_threads(), self.scene.channels, n, n), dtype=dtype)
 
-    def render(self, d: np.ndarray, start: int, stop: int, out: np.ndarray, splat: bool = True) -> float:
+    def render(self, d: np.ndarray, start: int, stop: int, out: np.ndarray, splat: bool = True,
+               hit_t: np.ndarray | None = None) -> float:
         """Add the flux per pixel of photons start .. stop-1 to ``out`` (threads, c, n, n) for
-        float64 heights ``d`` (m, m); returns the flux that reached the receiver (W)."""
+        float64 heights ``d`` (m, m); returns the flux that reached the receiver (W). ``hit_t``
+        (stop - start,) float64, if given, receives the hits' ray parameters for :meth:`vjp`."""
         with nb.parallel_chunksize(1):
             return render_photons(d, self.constants(d), self.shifts, self.indices, start, stop, out,
-                                  self.capacity, splat)
+                                  self.capacity, splat, NO_HITS if hit_t is None else hit_t)
 
     def pad_gradient(self, grad_image: np.ndarray) -> np.ndarray:
         """The adjoint image G (c, n, n) as :meth:`vjp` takes it: float64 with a zero border wide
         enough for every footprint (pad it once per gradient, not per chunk)."""
         return pad_for_gather(grad_image, self.gather_pad)
 
-    def vjp(self, d: np.ndarray, start: int, stop: int, padded: np.ndarray, out: np.ndarray) -> None:
+    def vjp(self, d: np.ndarray, start: int, stop: int, padded: np.ndarray, out: np.ndarray,
+            hit_t: np.ndarray | None = None) -> None:
         """Add to ``out`` (threads, m, m) the gradient w.r.t. d of <flux per pixel of photons
-        start .. stop-1, G>, ``padded`` = :meth:`pad_gradient` (G)."""
+        start .. stop-1, G>, ``padded`` = :meth:`pad_gradient` (G). ``hit_t``: the hits that
+        :meth:`render` recorded for these photons and these heights, replayed instead of searched."""
         with nb.parallel_chunksize(1):
-            vjp_photons(d, self.constants(d), self.shifts, self.indices, start, stop, padded, self.gather_pad, out)
+            vjp_photons(d, self.constants(d), self.shifts, self.indices, start, stop, padded, self.gather_pad, out,
+                        NO_HITS if hit_t is None else hit_t)
+
+
+class HitCache:
+    """The hits' ray parameters of the last render, chunk by chunk, so that a gradient of the same
+    heights replays them instead of searching again (the hit search is about a third of a trace).
+
+    8 bytes per photon, for the chunks that fit in ``budget_mb`` (the rest are searched again), so
+    the memory stays bounded whatever the photon count. Arrays are kept and reused across renders.
+    """
+
+    def __init__(self, budget_mb: float) -> None:
+        self.budget = int(budget_mb * 2 ** 20) // 8  # photons
+        self.slots: dict[tuple[int, int], np.ndarray] = {}
+        self.heights: np.ndarray | None = None  # the heights the slots hold hits for; None: none valid
+
+    def start_render(self, d: np.ndarray) -> None:
+        """Forget the hits held: a render of heights ``d`` is about to record new ones."""
+        self.heights = None
+        self._pending = d.copy()
+
+    def slot(self, start: int, stop: int) -> np.ndarray | None:
+        """The array that records chunk start .. stop-1 of the render under way, or None if it
+        would not fit in the budget."""
+        key = (start, stop)
+        if key not in self.slots:
+            if sum(a.shape[0] for a in self.slots.values()) + stop - start > self.budget:
+                return None
+            self.slots[key] = np.empty(stop - start)
+        return self.slots[key]
+
+    def finish_render(self) -> None:
+        """The render under way completed: its hits are valid for its heights."""
+        self.heights = self._pending
+
+    def hits(self, d: np.ndarray, start: int, stop: int) -> np.ndarray | None:
+        """The recorded hits of chunk start .. stop-1 if the last completed render had heights ``d``."""
+        if self.heights is None or not np.array_equal(self.heights, d):
+            return None
+        return self.slots.get((start, stop))

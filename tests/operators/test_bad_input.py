@@ -36,6 +36,8 @@ def test_bad_scenes():
         PointLightEmitter(Scene(), 0, 0, 3.0)
     with pytest.raises(ValueError, match="dtype"):
         make_operator(dtype="float16")
+    with pytest.raises(ValueError, match="hit_cache_mb=-1"):
+        make_operator(hit_cache_mb=-1)
 
 
 def test_target_of_wrong_shape():

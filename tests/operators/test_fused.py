@@ -70,3 +70,31 @@ def test_trace_only_pass_reports_the_flux_that_the_image_holds():
     splatted = op.fused.render(heights, 0, op.photons, out)
     assert reached == pytest.approx(splatted, rel=1e-12)
     assert float(out.sum()) == pytest.approx(reached, rel=1e-3)  # up to kernel truncation at the border
+
+
+def test_gradient_replaying_the_hits_of_a_render_equals_searching_them_again():
+    # Three chunks; a budget of 60 KiB holds the hits of the first one only (7,680 photons).
+    op = make_operator(photons=20_000, resolution=32, chunk_size=7_000, hit_cache_mb=0.06)
+    searching = make_operator(photons=20_000, resolution=32, chunk_size=7_000, hit_cache_mb=0.0)
+    heights, other = smooth_random_heights(seed=5), smooth_random_heights(seed=6)
+    weights = torch.randn(op.output_shape, dtype=torch.float64, generator=torch.Generator().manual_seed(7))
+    expected = searching.vjp(heights, weights)
+    d = heights.numpy()
+    op.render(heights)
+    assert op.hit_cache.hits(d, 0, 7_000) is not None and op.hit_cache.hits(d, 7_000, 14_000) is None
+    assert torch.allclose(op.vjp(heights, weights), expected, rtol=0, atol=1e-12 * float(expected.abs().max()))
+    # Hits of other heights are never replayed: after a render of `other`, the gradient at `heights` searches.
+    op.render(other)
+    assert op.hit_cache.hits(d, 0, 7_000) is None
+    assert torch.allclose(op.vjp(heights, weights), expected, rtol=0, atol=1e-12 * float(expected.abs().max()))
+
+
+def test_replayed_hits_are_the_ones_used():
+    # Corrupting the recorded hits must change the gradient: the cache is really read.
+    op = make_operator(photons=20_000, resolution=32, chunk_size=7_000)
+    heights = smooth_random_heights(seed=5)
+    weights = torch.randn(op.output_shape, dtype=torch.float64, generator=torch.Generator().manual_seed(7))
+    op.render(heights)
+    honest = op.vjp(heights, weights)
+    op.hit_cache.hits(heights.numpy(), 0, 7_000)[:] += 1e-3
+    assert float((op.vjp(heights, weights) - honest).abs().max()) > 1e-3 * float(honest.abs().max())
