@@ -1,8 +1,8 @@
 """Per-stage cost of the fused CPU photon kernels, for ``sfc-bench``'s ``stage_profile``.
 
 One thread runs the kernels' own functions (:mod:`operators.fused_kernels`) cut after each
-stage: emission; emission + hit search; + the surface jet at the hit (all photon by photon, as
-in the kernels); then the kernels' own loop (:func:`operators.fused_kernels.render_range`)
+stage: emission; emission + hit search (in lockstep over packets); + the surface jet at the hit
+(as in the kernels); then the kernels' own loop (:func:`operators.fused_kernels.render_range`)
 without the splat (adds the optics with differentials and the footprint, vectorised across each
 packet of photons) and with it. Each stage's cost is the difference of consecutive cuts, in
 nanoseconds per photon (differences of best-of-three timings: a few tens of ns of noise). For the
@@ -21,8 +21,8 @@ import numba as nb
 import numpy as np
 
 from operators.catmull_rom import surface_gradient
-from operators.fused_kernels import emit, hit_jet, render_range, vjp_range
-from operators.heightfield_kernels import solve_hit
+from operators.fused_kernels import PACKET, emit, jet_at, render_range, vjp_range
+from operators.heightfield_kernels import solve_hits
 from operators.native import FAST_MATH
 
 # Cuts of the forward photon path, in order; each includes the ones before.
@@ -31,18 +31,27 @@ FORWARD_CUTS = ("emission", "hit_search", "surface_jet", "optics_and_footprint",
 
 @nb.njit(cache=True, fastmath=FAST_MATH, error_model="numpy")
 def _hit_cut(d, sc, shifts, count, cut) -> float:
-    """Photons 0 .. count-1 emitted (cut 0), and their hit searched (1) and surface jet taken (2);
-    returns a checksum that keeps the compiler from dropping the work."""
+    """Photons 0 .. count-1 emitted (cut 0), and, packet by packet as in the kernels, their hits
+    searched in lockstep (1) and the surface jets there taken (2); returns a checksum that keeps
+    the compiler from dropping the work."""
+    dirs = np.empty((3, PACKET))
+    t = np.zeros(PACKET)
+    search = np.empty((3, PACKET))
     acc = 0.0
-    for index in range(count):
-        _, w, _, _, flux = emit(index, sc, shifts)
-        acc += w[0] + flux
-        if cut == 1:
-            acc += solve_hit(d, sc.base, sc.light_x, sc.light_y, sc.light_z, w[0], w[1], w[2], -sc.half,
-                             sc.spacing, sc.zlo, sc.zstart, sc.zhi, sc.slope_x, sc.slope_y)
-        elif cut == 2:
-            t, jet = hit_jet(d, sc, w)
-            acc += t + jet[0] + jet[4]
+    for first in range(0, count, PACKET):
+        size = min(PACKET, count - first)
+        for k in range(size):
+            _, w, _, _, flux = emit(first + k, sc, shifts)
+            dirs[0, k], dirs[1, k], dirs[2, k] = w
+            acc += w[0] + flux
+        if cut >= 1:
+            solve_hits(d, sc.base, sc.light_x, sc.light_y, sc.light_z, dirs, size, -sc.half, sc.spacing, sc.zlo,
+                       sc.zstart, sc.zhi, sc.slope_x, sc.slope_y, t, search)
+        for k in range(size):
+            acc += t[k]
+            if cut == 2:
+                jet = jet_at(d, sc, (dirs[0, k], dirs[1, k], dirs[2, k]), t[k])
+                acc += jet[0] + jet[4]
     return acc
 
 
