@@ -90,6 +90,7 @@ class HitCache:
         self.budget = int(budget_mb * 2 ** 20) // 8  # photons
         self.slots: dict[tuple[int, int], np.ndarray] = {}
         self.heights: np.ndarray | None = None  # the heights the slots hold hits for; None: none valid
+        self._pending: np.ndarray | None = None  # the heights of the render under way
 
     def start_render(self, d: np.ndarray) -> None:
         """Forget the hits held: a render of heights ``d`` is about to record new ones."""
