@@ -22,6 +22,7 @@ import numpy as np
 
 from operators.catmull_rom import surface_gradient
 from operators.fused_kernels import PACKET, emit, jet_at, render_range, vjp_range
+from operators.fused_trace import NO_HITS
 from operators.heightfield_kernels import solve_hits
 from operators.native import FAST_MATH
 
@@ -91,8 +92,7 @@ def stage_profile(fused, d: np.ndarray, grad_image: np.ndarray, count: int, repe
     args = (d, sc, fused.shifts, fused.indices)
     warm = min(count, 1000)  # photons of the compile / warm-up calls
     cuts = [lambda n, cut=cut: _hit_cut(d, sc, fused.shifts, n, cut) for cut in range(3)]
-    no_hits = np.empty(0)
-    cuts += [lambda n, splat=splat: render_range(*args, 0, n, img, fused.capacity, splat, no_hits, 0)
+    cuts += [lambda n, splat=splat: render_range(*args, 0, n, img, fused.capacity, splat, NO_HITS, 0)
              for splat in (False, True)]
     cumulative = []
     for run in cuts:
@@ -102,7 +102,7 @@ def stage_profile(fused, d: np.ndarray, grad_image: np.ndarray, count: int, repe
     report["forward_total"] = cumulative[-1]
     hit_t = np.empty(count)
     render_range(*args, 0, count, img, fused.capacity, True, hit_t, 0)  # record the hits
-    for name, hits in (("adjoint_searching_hits", no_hits), ("adjoint_replaying_hits", hit_t)):
+    for name, hits in (("adjoint_searching_hits", NO_HITS), ("adjoint_replaying_hits", hit_t)):
         vjp_range(*args, 0, warm, padded, fused.gather_pad, grad, hits, 0)
         report[name] = _best_ns(lambda: vjp_range(*args, 0, count, padded, fused.gather_pad, grad, hits, 0),
                                 count, repeats)

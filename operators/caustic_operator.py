@@ -163,10 +163,10 @@ class CausticOperator:
         if self.gpu is not None:
             return self._render_gpu(d, progress).to(heights.device)
         out = self.fused.image_buffers(np.dtype(self.settings.dtype))
-        self.hit_cache.start_render(d)
+        self.hit_cache.start_render()
         for start, stop in tqdm(self.chunks(), desc="photons", unit="chunk", disable=not progress):
             self.fused.render(d, start, stop, out, hit_t=self.hit_cache.slot(start, stop))
-        self.hit_cache.finish_render()
+        self.hit_cache.finish_render(d)
         return torch.from_numpy(out.sum(axis=0) / self.pixel_area).to(heights.device)
 
     def vjp(self, heights: torch.Tensor, grad_image: torch.Tensor) -> torch.Tensor:

@@ -88,13 +88,6 @@ def emit(index, sc, shifts):
 
 
 @_jit
-def find_hit(d, sc, w):
-    """Ray parameter t of the first hit of the photon along w on the printed surface."""
-    return solve_hit(d, sc.base, sc.light_x, sc.light_y, sc.light_z, w[0], w[1], w[2], -sc.half, sc.spacing, sc.zlo,
-                     sc.zstart, sc.zhi, sc.slope_x, sc.slope_y)
-
-
-@_jit
 def jet_at(d, sc, w, t):
     """Surface jet (S_x, S_y, S_xx, S_xy, S_yy) where the photon along w meets the surface at t."""
     return surface_jet_at(d, sc.light_x + t * w[0], sc.light_y + t * w[1], -sc.half, sc.spacing)
@@ -103,7 +96,8 @@ def jet_at(d, sc, w, t):
 @_jit
 def hit_jet(d, sc, w):
     """Ray parameter t of the first hit on the printed surface and the jet there, (t, jet)."""
-    t = find_hit(d, sc, w)
+    t = solve_hit(d, sc.base, sc.light_x, sc.light_y, sc.light_z, w[0], w[1], w[2], -sc.half, sc.spacing, sc.zlo,
+                  sc.zstart, sc.zhi, sc.slope_x, sc.slope_y)
     return t, jet_at(d, sc, w, t)
 
 

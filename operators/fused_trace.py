@@ -90,12 +90,10 @@ class HitCache:
         self.budget = int(budget_mb * 2 ** 20) // 8  # photons
         self.slots: dict[tuple[int, int], np.ndarray] = {}
         self.heights: np.ndarray | None = None  # the heights the slots hold hits for; None: none valid
-        self._pending: np.ndarray | None = None  # the heights of the render under way
 
-    def start_render(self, d: np.ndarray) -> None:
-        """Forget the hits held: a render of heights ``d`` is about to record new ones."""
+    def start_render(self) -> None:
+        """Forget the hits held: a render is about to record new ones."""
         self.heights = None
-        self._pending = d.copy()
 
     def slot(self, start: int, stop: int) -> np.ndarray | None:
         """The array that records chunk start .. stop-1 of the render under way, or None if it
@@ -107,9 +105,9 @@ class HitCache:
             self.slots[key] = np.empty(stop - start)
         return self.slots[key]
 
-    def finish_render(self) -> None:
-        """The render under way completed: its hits are valid for its heights."""
-        self.heights = self._pending
+    def finish_render(self, d: np.ndarray) -> None:
+        """The render under way, of heights ``d``, completed: its hits are valid for them."""
+        self.heights = d.copy()
 
     def hits(self, d: np.ndarray, start: int, stop: int) -> np.ndarray | None:
         """The recorded hits of chunk start .. stop-1 if the last completed render had heights ``d``."""
