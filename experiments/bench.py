@@ -3,8 +3,9 @@
 Measures, at the default scene (print_lines, 128 x 128 heights, 512 x 512 receiver):
 forward and forward+backward photons/s of the operator (the fused native path), the same for the
 torch reference path in the same process (side by side: timings on a shared machine are noisy),
-the time split between tracing and splatting in the fused kernel (a pass with the splat switched
-off against the full pass), the peak memory of a gradient evaluation with the paper's 8.4 million
+the same with the numba kernels in place of the AVX2 splat and gather (``operator.simd: false``),
+alternating with them, the time split between tracing and splatting in the fused kernel (a pass
+with the splat switched off against the full pass), the peak memory of a gradient evaluation with the paper's 8.4 million
 photons, and the native splat against the straightforward PyTorch splat on the same photons,
 side by side, each in a fresh process so that their peak memories are comparable.
 """
@@ -41,9 +42,9 @@ def peak_rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
-def make_operator(photons: int, footprint_px: float, chunk_size: int) -> CausticOperator:
+def make_operator(photons: int, footprint_px: float, chunk_size: int, simd: bool = True) -> CausticOperator:
     return CausticOperator(Scene(), OperatorSettings(photons=photons, footprint_px=footprint_px,
-                                                     chunk_size=chunk_size))
+                                                     chunk_size=chunk_size, simd=simd))
 
 
 def heights_print_lines() -> torch.Tensor:
@@ -58,6 +59,20 @@ def best_seconds(run, repeats: int = 3) -> float:
         run()
         times.append(time.perf_counter() - t0)
     return min(times)
+
+
+def time_side_by_side(ops: tuple[CausticOperator, ...], heights: torch.Tensor, target: torch.Tensor,
+                      rounds: int = 2) -> list[tuple[float, float]]:
+    """(forward s, forward + backward s) of each operator: the best of ``rounds`` rounds that run
+    them in turn, so that all see the same background load (after one warm-up call each)."""
+    best = [[math.inf, math.inf] for _ in ops]
+    for op in ops:
+        op.loss_and_grad(heights, target)  # warm up: numba compilation
+    for _ in range(rounds):
+        for k, op in enumerate(ops):
+            best[k][0] = min(best[k][0], best_seconds(lambda: op.render(heights), repeats=1))
+            best[k][1] = min(best[k][1], best_seconds(lambda: op.loss_and_grad(heights, target), repeats=1))
+    return [(forward, gradient) for forward, gradient in best]
 
 
 def time_split(op: CausticOperator, heights: torch.Tensor, repeats: int = 5) -> dict[str, float]:
@@ -220,16 +235,20 @@ def main(argv: list[str] | None = None) -> None:
                          indent=2))
         return
     op = make_operator(args.photons, args.footprint_px, args.chunk_size)
+    plain = make_operator(args.photons, args.footprint_px, args.chunk_size, simd=False)
     target = make_operator(args.photons, args.footprint_px, args.chunk_size).render(torch.zeros(128, 128))
-    op.loss_and_grad(heights, target)  # warm up: numba compilation
-    forward_s = best_seconds(lambda: op.render(heights), repeats=2)
-    gradient_s = best_seconds(lambda: op.loss_and_grad(heights, target), repeats=2)
+    (forward_s, gradient_s), (plain_forward_s, plain_gradient_s) = time_side_by_side((op, plain), heights, target)
     report = {
         "scene": "print_lines, m=128, n=512, light (0,0,10)",
         "threads": {"torch": torch.get_num_threads(), "numba": numba.get_num_threads()},
         "photons": op.photons, "footprint_px": args.footprint_px, "chunk_size": args.chunk_size,
+        "simd": op.fused.constants(heights.double().numpy()).simd,
         "forward_photons_per_s": op.photons / forward_s,
         "forward_backward_photons_per_s": op.photons / gradient_s,
+        "numba_kernels_only": {"forward_photons_per_s": op.photons / plain_forward_s,
+                               "forward_backward_photons_per_s": op.photons / plain_gradient_s,
+                               "simd_speedup": {"forward": plain_forward_s / forward_s,
+                                                "forward_backward": plain_gradient_s / gradient_s}},
         "forward_split": time_split(op, heights),
     }
     big = make_operator(args.grad_photons, args.footprint_px, args.chunk_size)

@@ -20,10 +20,9 @@ import time
 import numba as nb
 import numpy as np
 
-from operators.catmull_rom import surface_gradient
-from operators.fused_kernels import PACKET, emit, jet_at, render_range, vjp_range
+from operators.fused_kernels import PACKET, emit, packet_jets, render_range, vjp_range
 from operators.fused_trace import NO_HITS
-from operators.heightfield_kernels import solve_hits
+from operators.heightfield_kernels import packet_gaps, solve_hits
 from operators.native import FAST_MATH
 
 # Cuts of the forward photon path, in order; each includes the ones before.
@@ -37,7 +36,8 @@ def _hit_cut(d, sc, shifts, count, cut) -> float:
     the compiler from dropping the work."""
     dirs = np.empty((3, PACKET))
     t = np.zeros(PACKET)
-    search = np.empty((3, PACKET))
+    search = np.empty((5, PACKET))
+    jets = np.zeros((5, PACKET))
     acc = 0.0
     for first in range(0, count, PACKET):
         size = min(PACKET, count - first)
@@ -48,23 +48,30 @@ def _hit_cut(d, sc, shifts, count, cut) -> float:
         if cut >= 1:
             solve_hits(d, sc.base, sc.light_x, sc.light_y, sc.light_z, dirs, size, -sc.half, sc.spacing, sc.zlo,
                        sc.zstart, sc.zhi, sc.slope_x, sc.slope_y, t, search)
+        if cut == 2:
+            packet_jets(d, sc, dirs, t, size, jets)
         for k in range(size):
-            acc += t[k]
-            if cut == 2:
-                jet = jet_at(d, sc, (dirs[0, k], dirs[1, k], dirs[2, k]), t[k])
-                acc += jet[0] + jet[4]
+            acc += t[k] + jets[0, k] + jets[4, k]
     return acc
 
 
 @nb.njit(cache=True, fastmath=FAST_MATH, error_model="numpy")
 def _surface_evaluations(d, sc, shifts, count) -> float:
-    """S, S_x, S_y at the emission targets of photons 0 .. count-1 (independent evaluations)."""
+    """Gap and slope (S, S_x, S_y) of each photon's ray at the plane of the substrate top, as one
+    round of the lockstep hit search takes them (independent evaluations, a packet at a time)."""
+    dirs = np.empty((3, PACKET))
+    search = np.ones((5, PACKET))
+    t = np.empty(PACKET)
     acc = 0.0
-    for index in range(count):
-        _, w, _, _, _ = emit(index, sc, shifts)
-        t = (sc.base - sc.light_z) / w[2]
-        s, sx, sy = surface_gradient(d, sc.light_x + t * w[0], sc.light_y + t * w[1], -sc.half, sc.spacing)
-        acc += s + sx + sy
+    for first in range(0, count, PACKET):
+        size = min(PACKET, count - first)
+        for k in range(size):
+            _, w, _, _, _ = emit(first + k, sc, shifts)
+            dirs[0, k], dirs[1, k], dirs[2, k] = w
+            t[k] = (sc.base - sc.light_z) / w[2]
+        packet_gaps(d, sc.base, sc.light_x, sc.light_y, sc.light_z, dirs, size, -sc.half, sc.spacing, t, search)
+        for k in range(size):
+            acc += search[3, k] + search[4, k]
     return acc
 
 

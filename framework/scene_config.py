@@ -46,7 +46,8 @@ MATERIAL_KEYS: dict[str, tuple[str, ...]] = {
     "constant": ("n",),
 }
 HEIGHT_FIELD_KEYS = ("shape", "resolution", "path", "scale", "params")
-OPERATOR_KEYS = ("footprint_px", "min_footprint_px", "max_pixel_radius", "chunk_size", "hit_cache_mb", "fresnel", "dtype", "device")
+OPERATOR_KEYS = ("footprint_px", "min_footprint_px", "max_pixel_radius", "chunk_size", "hit_cache_mb", "fresnel", "simd",
+                 "dtype", "device")
 DEFAULT_RESOLUTION = 128
 
 
@@ -159,8 +160,9 @@ def build_operator(cfg: Mapping[str, Any], scene: Scene) -> CausticOperator:
             settings[key] = _number(f"operator.{key}", settings[key])
     if "chunk_size" in settings:
         settings["chunk_size"] = _number("operator.chunk_size", settings["chunk_size"], int)
-    if "fresnel" in settings and not isinstance(settings["fresnel"], bool):
-        raise ValueError(f"operator.fresnel={settings['fresnel']!r} must be true or false")
+    for key in ("fresnel", "simd"):
+        if key in settings and not isinstance(settings[key], bool):
+            raise ValueError(f"operator.{key}={settings[key]!r} must be true or false")
     device = str(settings.get("device", "cpu"))
     try:
         torch.device(device)

@@ -52,6 +52,9 @@ class OperatorSettings:
     hit_cache_mb: memory (MiB, 8 bytes per photon) for the surface hits that a render records
         and a gradient of the same heights replays instead of searching again; 0 turns it off.
     fresnel: weight by Fresnel transmittance (the paper ignores Fresnel losses).
+    simd: splat and gather footprints that fit an 8 x 8 pixel box with the AVX2 kernels of the
+        compiled extension (operators/simd_kernels.c) where it was built and the CPU has AVX2;
+        elsewhere, or with False, the numba kernels do it (same results to rounding).
     """
 
     photons: int = 1 << 22
@@ -62,6 +65,7 @@ class OperatorSettings:
     chunk_size: int = 1 << 18
     hit_cache_mb: float = 256.0
     fresnel: bool = False
+    simd: bool = True
     dtype: str = "float32"
     device: str = "cpu"
 
@@ -72,6 +76,8 @@ class OperatorSettings:
             raise ValueError(f"chunk_size={self.chunk_size} must be a positive integer, e.g. 262144")
         if not self.hit_cache_mb >= 0.0:
             raise ValueError(f"hit_cache_mb={self.hit_cache_mb} must be >= 0 (MiB; 0 turns the hit cache off)")
+        if not isinstance(self.simd, bool):
+            raise ValueError(f"simd={self.simd!r} must be true or false")
         if not 0.0 < self.min_footprint_px < self.max_pixel_radius:
             raise ValueError(f"need 0 < min_footprint_px ({self.min_footprint_px}) < max_pixel_radius "
                              f"({self.max_pixel_radius})")
@@ -110,7 +116,7 @@ class CausticOperator:
                                          self.settings.footprint_px, self.dtype, self.device)
         self.glass_index = torch.tensor(scene.indices, dtype=self.dtype, device=self.device)
         self.fused = FusedTracer(scene, self.emitter, self.settings.min_footprint_px,
-                                 self.settings.max_pixel_radius, self.settings.fresnel)
+                                 self.settings.max_pixel_radius, self.settings.fresnel, self.settings.simd)
         self.hit_cache = HitCache(self.settings.hit_cache_mb)
         self.gpu = None
         if self.device.type == "cuda":

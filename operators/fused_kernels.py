@@ -26,7 +26,8 @@ from operators.photon_optics import (UP, ZERO, add, away_from_zero, footprint_me
                                      fresnel, fresnel_adjoint, height_field_normal, height_field_normal_adjoint,
                                      normal_differential, normal_differential_adjoint, passes, refract,
                                      refract_adjoint, transfer, transfer_adjoint)
-from operators.splat_kernels import gather_photon, splat_photon
+from operators.simd import data_pointer, hit_adjoint, surface_jets
+from operators.splat_kernels import gather_photon, gather_photon_simd, splat_photon
 
 
 class FusedScene(NamedTuple):
@@ -39,7 +40,9 @@ class FusedScene(NamedTuple):
     per_channel: photons per channel; flux_scale: P / (4 pi c) A_cell (l_z - h), so
     flux = flux_scale / r^3; radius: emission footprint radius on z = h;
     receiver_z, receiver_half: receiver plane and half width; to_px: pixels per scene unit;
-    min_px, max_px: footprint pixel filter and cut-off radii (pixels); fresnel: Fresnel weights.
+    min_px, max_px: footprint pixel filter and cut-off radii (pixels); fresnel: Fresnel weights;
+    simd: the CPU kernels splat and gather fixed boxes with the AVX2 extension
+    (:mod:`operators.simd`; only where it is available).
     """
 
     light_x: float
@@ -62,6 +65,7 @@ class FusedScene(NamedTuple):
     min_px: float
     max_px: float
     fresnel: bool
+    simd: bool
 
 
 _jit = nb.njit(cache=True, inline="always", fastmath=FAST_MATH, error_model="numpy")
@@ -91,6 +95,19 @@ def emit(index, sc, shifts):
 def jet_at(d, sc, w, t):
     """Surface jet (S_x, S_y, S_xx, S_xy, S_yy) where the photon along w meets the surface at t."""
     return surface_jet_at(d, sc.light_x + t * w[0], sc.light_y + t * w[1], -sc.half, sc.spacing)
+
+
+@_jit
+def packet_jets(d, sc, dirs, t, count, jets) -> None:
+    """Surface jets (:func:`jet_at`) of rays k < count along dirs[0:3, k] at t[k] into
+    jets[0:5, k]; dirs and jets with the same row stride, rows unit-stride (AVX2 with sc.simd)."""
+    if sc.simd:
+        surface_jets(data_pointer(d), d.shape[0], -sc.half, 1.0 / sc.spacing, sc.light_x, sc.light_y,
+                     data_pointer(dirs), dirs.strides[0] // 8, data_pointer(t), count, data_pointer(jets))
+        return
+    for k in range(count):
+        jets[0, k], jets[1, k], jets[2, k], jets[3, k], jets[4, k] = jet_at(d, sc, (dirs[0, k], dirs[1, k], dirs[2, k]),
+                                                                            t[k])
 
 
 @_jit
@@ -204,7 +221,7 @@ PACKET = 128
 def trace_packet(d, sc, shifts, indices, first, count, hits, channel, spots, search, hit_t, t_first, replay) -> None:
     """Photons first .. first+count-1 traced to the receiver: their hits in ``hits`` (17, PACKET)
     (w, Dw_u, Dw_v, flux, t, jet, eta; :func:`_load_hit`), channels in ``channel`` and splat
-    arguments (px, py, q00, q01, q11, flux) in ``spots`` (6, PACKET); ``search`` (3, PACKET) is
+    arguments (px, py, q00, q01, q11, flux) in ``spots`` (6, PACKET); ``search`` (5, PACKET) is
     the hit search's scratch. The hit searches run in lockstep over the packet
     (:func:`operators.heightfield_kernels.solve_hits`), the optics as one loop over the packet
     that LLVM vectorises.
@@ -227,9 +244,7 @@ def trace_packet(d, sc, shifts, indices, first, count, hits, channel, spots, sea
         if hit_t.shape[0] > 0:
             for k in range(count):
                 hit_t[offset + k] = t[k]
-    for k in range(count):
-        hits[11, k], hits[12, k], hits[13, k], hits[14, k], hits[15, k] = jet_at(
-            d, sc, (hits[0, k], hits[1, k], hits[2, k]), t[k])
+    packet_jets(d, sc, hits, t, count, hits[11:16])
     for k in range(count):
         w, dwu, dwv, flux, t_k, jet, eta = _load_hit(hits, k)
         spot = splat_arguments(sc, flux, eta, optics_state(sc, w, dwu, dwv, t_k, jet, eta))
@@ -244,7 +259,7 @@ def render_range(d, sc, shifts, indices, lo, hi, img, capacity, splat, hit_t, t_
     the receiver."""
     buf = np.empty(capacity)
     hits = np.empty((17, PACKET))  # per photon: w, Dw_u, Dw_v, flux, t, jet, eta
-    search = np.empty((3, PACKET))  # the hit search's brackets and state
+    search = np.empty((5, PACKET))  # the hit search's brackets, state, gaps and slopes
     channel = np.empty(PACKET, dtype=np.int64)
     spots = np.empty((6, PACKET))  # per photon: px, py, q00, q01, q11, flux
     reached = 0.0
@@ -255,7 +270,7 @@ def render_range(d, sc, shifts, indices, lo, hi, img, capacity, splat, hit_t, t_
             reached += spots[5, k]
             if splat:
                 splat_photon(img, channel[k], spots[0, k], spots[1, k], spots[2, k], spots[3, k], spots[4, k],
-                             spots[5, k], buf)
+                             spots[5, k], buf, sc.simd)
     return reached
 
 
@@ -363,16 +378,17 @@ def vjp_range(d, sc, shifts, indices, lo, hi, padded, pad, grad, hit_t, t_first)
     wy = np.empty((4, 4))
     patch = np.empty((4, 4))
     hits = np.empty((17, PACKET))  # per photon: w, Dw_u, Dw_v, flux, t, jet, eta
-    search = np.empty((3, PACKET))  # the hit search's brackets and state
+    search = np.empty((5, PACKET))  # the hit search's brackets, state, gaps and slopes
     channel = np.empty(PACKET, dtype=np.int64)
     spots = np.empty((6, PACKET))  # per photon: splat arguments, then their gradients
+    sums = np.empty(12)  # the AVX2 gather's sums
     for first in range(lo, hi, PACKET):
         count = min(PACKET, hi - first)
         trace_packet(d, sc, shifts, indices, first, count, hits, channel, spots, search, hit_t, t_first,
                      hit_t.shape[0] > 0)
         for k in range(count):
-            g = gather_photon(padded, pad, channel[k], spots[0, k], spots[1, k], spots[2, k], spots[3, k],
-                              spots[4, k], spots[5, k])
+            g = gather_photon_simd(padded, pad, channel[k], spots[0, k], spots[1, k], spots[2, k], spots[3, k],
+                                   spots[4, k], spots[5, k], sc.simd, sums)
             for j in range(6):
                 spots[j, k] = g[j]
         for k in range(count):
@@ -385,6 +401,11 @@ def vjp_range(d, sc, shifts, indices, lo, hi, padded, pad, grad, hit_t, t_first)
             if not _contributes((spots[0, k], spots[1, k], spots[2, k], spots[3, k], spots[4, k], spots[5, k])):
                 continue
             w = (hits[0, k], hits[1, k], hits[2, k])
+            if sc.simd:
+                hit_adjoint(data_pointer(d), data_pointer(grad), d.shape[0], sc.light_x + hits[10, k] * w[0],
+                            sc.light_y + hits[10, k] * w[1], -sc.half, 1.0 / sc.spacing, w[0], w[1], w[2], hits[11, k],
+                            hits[12, k], hits[13, k], hits[14, k], hits[15, k], hits[16, k])
+                continue
             ix, iy = hit_cell(d, sc, w, hits[10, k], wx, wy, patch)
             hit_adjoint_patch(wx, wy, patch, w[0], w[1], w[2], hits[11, k], hits[12, k], hits[13, k], hits[14, k],
                               hits[15, k], hits[16, k])

@@ -11,6 +11,7 @@ from operators.emission import PointLightEmitter
 from operators.fused_kernels import FusedScene, render_photons, vjp_photons
 from operators.heightfield_surface import HeightFieldGrid
 from operators.scene import Scene
+from operators.simd import AVAILABLE as SIMD_AVAILABLE
 from operators.splat_kernels import gather_padding, pad_for_gather
 
 NO_HITS = np.empty(0)  # kernels' marker for "no hit cache"
@@ -24,7 +25,7 @@ class FusedTracer:
     """
 
     def __init__(self, scene: Scene, emitter: PointLightEmitter, min_footprint_px: float,
-                 max_pixel_radius: float, fresnel: bool) -> None:
+                 max_pixel_radius: float, fresnel: bool, simd: bool) -> None:
         self.scene = scene
         self.shifts = np.ascontiguousarray(emitter.shifts.numpy(), dtype=np.float64)
         self.indices = np.asarray(scene.indices, dtype=np.float64)
@@ -39,7 +40,7 @@ class FusedTracer:
             * (light.position[2] - sub.thickness),
             radius=float(emitter.footprint_radius), receiver_z=float(rec.z), receiver_half=float(rec.half_width),
             to_px=rec.resolution / (2.0 * rec.half_width), min_px=float(min_footprint_px),
-            max_px=float(max_pixel_radius), fresnel=bool(fresnel))
+            max_px=float(max_pixel_radius), fresnel=bool(fresnel), simd=bool(simd) and SIMD_AVAILABLE)
 
     def constants(self, d: np.ndarray) -> FusedScene:
         """Kernel constants for heights ``d`` (m, m) (the bracketing planes and slope bounds depend on them)."""
@@ -59,6 +60,7 @@ class FusedTracer:
         """Add the flux per pixel of photons start .. stop-1 to ``out`` (threads, c, n, n) for
         float64 heights ``d`` (m, m); returns the flux that reached the receiver (W). ``hit_t``
         (stop - start,) float64, if given, receives the hits' ray parameters for :meth:`vjp`."""
+        _check_contiguous(d=d, out=out)
         with nb.parallel_chunksize(1):
             return render_photons(d, self.constants(d), self.shifts, self.indices, start, stop, out,
                                   self.capacity, splat, NO_HITS if hit_t is None else hit_t)
@@ -73,9 +75,17 @@ class FusedTracer:
         """Add to ``out`` (threads, m, m) the gradient w.r.t. d of <flux per pixel of photons
         start .. stop-1, G>, ``padded`` = :meth:`pad_gradient` (G). ``hit_t``: the hits that
         :meth:`render` recorded for these photons and these heights, replayed instead of searched."""
+        _check_contiguous(d=d, padded=padded, out=out)
         with nb.parallel_chunksize(1):
             vjp_photons(d, self.constants(d), self.shifts, self.indices, start, stop, padded, self.gather_pad, out,
                         NO_HITS if hit_t is None else hit_t)
+
+
+def _check_contiguous(**arrays: np.ndarray) -> None:
+    """The kernels (the AVX2 ones address rows by pointer) take C-contiguous arrays only."""
+    for name, array in arrays.items():
+        if not array.flags.c_contiguous:
+            raise ValueError(f"{name} must be a C-contiguous array (np.ascontiguousarray)")
 
 
 class HitCache:

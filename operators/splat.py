@@ -9,6 +9,7 @@ import numpy as np
 import torch
 
 from operators.native import to_numpy
+from operators.simd import AVAILABLE as SIMD_AVAILABLE
 from operators.splat_kernels import gather_padding, pad_for_gather, splat_backward, splat_forward
 
 
@@ -62,7 +63,7 @@ class _Splat(torch.autograd.Function):
         f = to_numpy(flux)
         out = np.zeros((nb.get_num_threads(), channels, resolution, resolution), dtype=f.dtype)
         splat_forward(to_numpy(pos).astype(f.dtype), to_numpy(metric).astype(f.dtype), f, to_numpy(channel), out,
-                      footprint_capacity(to_numpy(metric)))
+                      footprint_capacity(to_numpy(metric)), SIMD_AVAILABLE)
         ctx.save_for_backward(pos, metric, flux, channel)
         return torch.from_numpy(out.sum(axis=0)).to(flux.device)
 
@@ -83,7 +84,7 @@ def splat_photons_vjp(pos: torch.Tensor, metric: torch.Tensor, flux: torch.Tenso
     q = to_numpy(metric).astype(f.dtype)
     pad = gather_padding(footprint_half_extent(q))
     splat_backward(to_numpy(pos).astype(f.dtype), q, f, to_numpy(channel), pad_for_gather(to_numpy(grad_image), pad),
-                   pad, g_pos, g_metric, g_flux)
+                   pad, g_pos, g_metric, g_flux, SIMD_AVAILABLE)
 
     def back(a: np.ndarray, like: torch.Tensor) -> torch.Tensor:
         return torch.from_numpy(a).to(dtype=like.dtype, device=like.device)

@@ -19,7 +19,10 @@ import math
 import numba as nb
 import numpy as np
 
+from numba.extending import overload
+
 from operators.native import FAST_MATH
+from operators.simd import data_pointer, gather_box8, splat_box8_f32, splat_box8_f64
 
 
 # Photons farther than this from the image (pixels) are skipped: nothing of theirs can land.
@@ -96,20 +99,45 @@ def _deposit(img, c, buf, x0, y0, width, lo, hi, ylo, yhi, scale) -> None:
             row[j] += scale * weights[j]
 
 
+@nb.njit(cache=True, inline="always")
+def _offset(a, c, y, x) -> int:
+    """Element offset of a[c, y, x] from a's first element (a's last axis unit-stride)."""
+    return (c * a.strides[0] + y * a.strides[1]) // a.itemsize + x
+
+
+def _splat_box8_simd(img, c, x0, y0, px, py, q00, q01, q11, f) -> None:
+    """The AVX2 splat of the fixed box from (x0, y0) (:mod:`operators.simd`), for numba."""
+
+
+@overload(_splat_box8_simd, inline="always")
+def _splat_box8_simd_impl(img, c, x0, y0, px, py, q00, q01, q11, f):
+    native = splat_box8_f32 if img.dtype == nb.types.float32 else splat_box8_f64
+
+    def impl(img, c, x0, y0, px, py, q00, q01, q11, f):
+        native(data_pointer(img), _offset(img, c, y0, x0), img.strides[1] // img.itemsize, x0 - px, y0 - py,
+               q00, q01, q11, f)
+
+    return impl
+
+
 @nb.njit(cache=True, inline="always", fastmath=FAST_MATH, error_model="numpy")
-def splat_photon(img, c, px, py, q00, q01, q11, f, buf) -> None:
-    """Add one photon's flux ``f`` into channel ``c`` of ``img`` (c, n, n).
+def splat_photon(img, c, px, py, q00, q01, q11, f, buf, simd) -> None:
+    """Add one photon's flux ``f`` into channel ``c`` of ``img`` (c, n, n), rows unit-stride.
 
     Two passes over the footprint's bounding box (a fixed LANES x LANES box where it fits, see
     LANES): the weights go into ``buf`` while their sum s is taken, then f / s times each weight
     lands on the pixels that lie on the image. Photons whose box has more pixels than ``buf``
-    holds are left out (the caller sizes it for the largest footprint).
+    holds are left out (the caller sizes it for the largest footprint). With ``simd`` (only where
+    :data:`operators.simd.AVAILABLE`) the fixed box is done by the AVX2 kernel.
     """
     if not _usable(f, px, py, q00, q01, q11):
         return
     x0, x1, y0, y1 = _box(px, py, q00, q01, q11)
     n = img.shape[1]
     if _fits_fixed_box(x0, x1, y0, y1, 0, n - 1) and buf.shape[0] >= LANES * LANES:
+        if simd:
+            _splat_box8_simd(img, c, x0, y0, px, py, q00, q01, q11, f)
+            return
         s = _box_weights(buf, x0, y0, LANES, LANES, px, py, q00, q01, q11)
         if s > 0.0:
             _deposit(img, c, buf, x0, y0, LANES, x0, x0 + LANES - 1, y0, y0 + LANES - 1, f / s)
@@ -123,11 +151,12 @@ def splat_photon(img, c, px, py, q00, q01, q11, f, buf) -> None:
 
 
 @nb.njit(parallel=True, cache=True, fastmath=FAST_MATH, error_model="numpy")
-def splat_forward(pos, metric, flux, channel, out, capacity):
+def splat_forward(pos, metric, flux, channel, out, capacity, simd):
     """Accumulate photons into ``out`` (threads, c, n, n) (flux per pixel); sum over axis 0 after.
 
     pos (2, N) pixel coordinates (x = column, y = row), metric (3, N) = (q00, q01, q11),
-    flux (N,), channel (N,) int; ``capacity`` bounds the pixels of one footprint.
+    flux (N,), channel (N,) int; ``capacity`` bounds the pixels of one footprint; ``simd``: see
+    :func:`splat_photon`.
     """
     nthreads = out.shape[0]
     count = flux.shape[0]
@@ -137,7 +166,7 @@ def splat_forward(pos, metric, flux, channel, out, capacity):
         buf = np.empty(capacity)
         for p in range(th * per, min(count, (th + 1) * per)):
             splat_photon(img, channel[p], pos[0, p], pos[1, p], metric[0, p], metric[1, p], metric[2, p],
-                         flux[p], buf)
+                         flux[p], buf, simd)
 
 
 @nb.njit(cache=True, inline="always", fastmath=FAST_MATH, error_model="numpy")
@@ -154,18 +183,50 @@ def gather_photon(padded, pad, c, px, py, q00, q01, q11, f) -> tuple[float, floa
     without G (branch-free; w = max(1 - t, 0)^2 is zero outside the ellipse), over the fixed
     LANES x LANES box where the bounding box fits it.
     """
-    if not _usable(f, px, py, q00, q01, q11):
+    x0, y0, width, rows = _gather_plan(padded, pad, px, py, q00, q01, q11, f)
+    if width == 0:
         return 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+    return _gather_result(_gather_box(padded, pad, c, x0, y0, width, rows, px, py, q00, q01, q11), f)
+
+
+@nb.njit(cache=True, inline="always", fastmath=FAST_MATH, error_model="numpy")
+def gather_photon_simd(padded, pad, c, px, py, q00, q01, q11, f, simd, sums
+                       ) -> tuple[float, float, float, float, float, float]:
+    """:func:`gather_photon` with the fixed box's sums taken by the AVX2 kernel when ``simd``
+    (only where :data:`operators.simd.AVAILABLE`); ``sums`` (12,) is its scratch. CPU only."""
+    x0, y0, width, rows = _gather_plan(padded, pad, px, py, q00, q01, q11, f)
+    if width == 0:
+        return 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+    if simd and width == LANES and rows == LANES:
+        gather_box8(data_pointer(padded), _offset(padded, c, y0 + pad, x0 + pad), padded.strides[1] // 8,
+                    x0 - px, y0 - py, q00, q01, q11, data_pointer(sums))
+        return _gather_result((sums[0], sums[1], sums[2], sums[3], sums[4], sums[5], sums[6], sums[7], sums[8],
+                               sums[9], sums[10], sums[11]), f)
+    return _gather_result(_gather_box(padded, pad, c, x0, y0, width, rows, px, py, q00, q01, q11), f)
+
+
+@nb.njit(cache=True, inline="always", fastmath=FAST_MATH, error_model="numpy")
+def _gather_plan(padded, pad, px, py, q00, q01, q11, f) -> tuple[int, int, int, int]:
+    """(x0, y0, width, rows) of the pixels :func:`gather_photon` sums over: the fixed
+    LANES x LANES box where the footprint's bounding box fits it, else the bounding box cut to
+    the padded image; width 0 where the photon contributes nothing (unusable, or off the image,
+    where G = 0 on its whole footprint)."""
+    if not _usable(f, px, py, q00, q01, q11):
+        return 0, 0, 0, 0
     n = padded.shape[1] - 2 * pad
     x0, x1, y0, y1 = _box(px, py, q00, q01, q11)
     if x1 < 0 or y1 < 0 or x0 > n - 1 or y0 > n - 1 or x1 < x0 or y1 < y0:
-        return 0.0, 0.0, 0.0, 0.0, 0.0, 0.0  # nothing on the image: G = 0 on the whole footprint
+        return 0, 0, 0, 0
     if _fits_fixed_box(x0, x1, y0, y1, -pad, n - 1 + pad):
-        sums = _gather_box(padded, pad, c, x0, y0, LANES, LANES, px, py, q00, q01, q11)
-    else:
-        x0, x1 = max(x0, -pad), min(x1, n - 1 + pad)
-        y0, y1 = max(y0, -pad), min(y1, n - 1 + pad)
-        sums = _gather_box(padded, pad, c, x0, y0, x1 - x0 + 1, y1 - y0 + 1, px, py, q00, q01, q11)
+        return x0, y0, LANES, LANES
+    x0, x1 = max(x0, -pad), min(x1, n - 1 + pad)
+    y0, y1 = max(y0, -pad), min(y1, n - 1 + pad)
+    return x0, y0, x1 - x0 + 1, y1 - y0 + 1
+
+
+@nb.njit(cache=True, inline="always", fastmath=FAST_MATH, error_model="numpy")
+def _gather_result(sums, f) -> tuple[float, float, float, float, float, float]:
+    """The gradients (flux, px, py, q00, q01, q11) from the box's sums (:func:`_gather_box`)."""
     s, gw, v0, v1, v2, v3, v4, u0, u1, u2, u3, u4 = sums
     if s <= 0.0:
         return 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
@@ -227,17 +288,30 @@ def pad_for_gather(grad_image: np.ndarray, pad: int) -> np.ndarray:
     return np.pad(np.asarray(grad_image, dtype=np.float64), ((0, 0), (pad, pad), (pad, pad)))
 
 
+GATHER_BLOCK = 4096  # photons per task of splat_backward's threads
+
+
 @nb.njit(parallel=True, cache=True, fastmath=FAST_MATH, error_model="numpy")
-def splat_backward(pos, metric, flux, channel, padded, pad, g_pos, g_metric, g_flux):
+def splat_backward(pos, metric, flux, channel, padded, pad, g_pos, g_metric, g_flux, simd):
     """Gather the adjoint (see :func:`gather_photon`): gradients of <G, splat(...)> w.r.t.
     pos (2, N), metric (3, N) and flux (N,), written into g_pos, g_metric and g_flux; ``padded``
-    is G with ``pad`` zero pixels on every side (:func:`pad_for_gather`)."""
-    for p in nb.prange(flux.shape[0]):
-        g = gather_photon(padded, pad, channel[p], pos[0, p], pos[1, p], metric[0, p], metric[1, p],
-                          metric[2, p], flux[p])
-        g_flux[p] = g[0]
-        g_pos[0, p] = g[1]
-        g_pos[1, p] = g[2]
-        g_metric[0, p] = g[3]
-        g_metric[1, p] = g[4]
-        g_metric[2, p] = g[5]
+    is G with ``pad`` zero pixels on every side (:func:`pad_for_gather`); ``simd``: see
+    :func:`gather_photon_simd`."""
+    count = flux.shape[0]
+    for b in nb.prange((count + GATHER_BLOCK - 1) // GATHER_BLOCK):
+        sums = np.empty(12)
+        for p in range(b * GATHER_BLOCK, min(count, (b + 1) * GATHER_BLOCK)):
+            _gather_into(padded, pad, pos, metric, flux, channel, p, g_pos, g_metric, g_flux, simd, sums)
+
+
+@nb.njit(cache=True, inline="always", fastmath=FAST_MATH, error_model="numpy")
+def _gather_into(padded, pad, pos, metric, flux, channel, p, g_pos, g_metric, g_flux, simd, sums) -> None:
+    """Photon p's gradients (:func:`gather_photon_simd`) into g_pos, g_metric and g_flux."""
+    g = gather_photon_simd(padded, pad, channel[p], pos[0, p], pos[1, p], metric[0, p], metric[1, p],
+                           metric[2, p], flux[p], simd, sums)
+    g_flux[p] = g[0]
+    g_pos[0, p] = g[1]
+    g_pos[1, p] = g[2]
+    g_metric[0, p] = g[3]
+    g_metric[1, p] = g[4]
+    g_metric[2, p] = g[5]

@@ -149,6 +149,7 @@ def test_bad_height_field_configs(groups: dict[str, Any], message: str) -> None:
     ({"operator": {"dtype": "float16"}}, "dtype='float16'"),
     ({"operator": {"device": "gpu0"}}, "operator.device='gpu0'"),
     ({"operator": {"fresnel": "yes"}}, "operator.fresnel='yes'"),
+    ({"operator": {"simd": "on"}}, "operator.simd='on' must be true or false"),
     ({"operator": {"chunk_size": 0}}, "chunk_size=0"),
 ])
 def test_bad_operator_configs(groups: dict[str, Any], message: str) -> None:

@@ -16,6 +16,9 @@ def test_bench_prints_the_promised_figures(capsys):
           "--reference-photons", "20000", "--stage-photons", "0"])
     report = json.loads(capsys.readouterr().out)
     assert report["forward_photons_per_s"] > 0 and report["forward_backward_photons_per_s"] > 0
+    plain = report["numba_kernels_only"]
+    assert plain["forward_photons_per_s"] > 0 and plain["forward_backward_photons_per_s"] > 0
+    assert plain["simd_speedup"]["forward"] > 0 and isinstance(report["simd"], bool)
     assert 0.0 < report["forward_split"]["trace_fraction"] < 1.0
     reference = report["torch_reference_path"]
     assert reference["forward_photons_per_s"] > 0 and reference["forward_backward_photons_per_s"] > 0

@@ -106,7 +106,7 @@ def test_lockstep_search_of_a_packet_finds_the_hits_of_the_ray_by_ray_search():
     assert 50 < marching.sum() < count - 50  # both kinds of ray in one packet
     t = np.empty(count)
     solve_hits(d, grid.base, *origin, dirs, count, -grid.half_width, grid.spacing, zlo, zstart, zhi, slope_x,
-               slope_y, t, np.empty((3, count)))
+               slope_y, t, np.empty((5, count)))
     one_by_one = np.array([solve_hit(d, grid.base, *origin, *dirs[:, k], -grid.half_width, grid.spacing, zlo,
                                      zstart, zhi, slope_x, slope_y) for k in range(count)])
     assert np.abs(t - one_by_one).max() <= 1e-12 * one_by_one.max()

@@ -1,0 +1,77 @@
+"""The AVX2 kernels of ``operators/simd_kernels.c`` for numba: the splat and gather of the fixed
+8 x 8 pixel box, the surface jets at the hits of a packet, and the adjoint of a surface hit into the 4 x 4 heights around it.
+
+numba calls the C functions by symbol name (``ExternalFunction``), so kernels that call them can
+still be cached on disk: the symbols are resolved again in every process. Where the extension
+was not built (no C compiler at install) or the CPU lacks AVX2 / FMA, the symbols are bound to a
+function that does nothing, so the kernels still link, and ``AVAILABLE`` is False: the kernels
+then take their numba branch (they test ``FusedScene.simd`` / their ``simd`` argument, which
+the host sets from ``AVAILABLE`` and ``operator.simd``).
+"""
+
+from __future__ import annotations
+
+import ctypes
+import importlib.util
+
+import llvmlite.binding as llvm
+from numba import config, types
+from numba.extending import intrinsic
+
+
+def _load() -> bool:
+    """Load the extension's symbols into numba's JIT; whether its kernels can run here (not with
+    the JIT off: plain Python cannot call them)."""
+    if config.DISABLE_JIT:
+        return False
+    spec = importlib.util.find_spec("operators._simd")
+    if spec is None or spec.origin is None:
+        return False
+    try:
+        supported = ctypes.CDLL(spec.origin).sfc_simd_supported()
+        llvm.load_library_permanently(spec.origin)
+    except (OSError, AttributeError, RuntimeError):
+        return False
+    return bool(supported)
+
+
+AVAILABLE = _load()
+
+_SPLAT_ARGS = (types.int64, types.int64, types.float64, types.float64, types.float64, types.float64,
+               types.float64, types.float64)
+# (image, first pixel's element offset, row stride (elements), rx0, ry0, q00, q01, q11, flux)
+splat_box8_f64 = types.ExternalFunction("sfc_splat_box8_f64", types.void(types.CPointer(types.float64), *_SPLAT_ARGS))
+splat_box8_f32 = types.ExternalFunction("sfc_splat_box8_f32", types.void(types.CPointer(types.float32), *_SPLAT_ARGS))
+# (G, first pixel's element offset, row stride, rx0, ry0, q00, q01, q11, sums (12,))
+gather_box8 = types.ExternalFunction(
+    "sfc_gather_box8", types.void(types.CPointer(types.float64), types.int64, types.int64, types.float64,
+                                  types.float64, types.float64, types.float64, types.float64,
+                                  types.CPointer(types.float64)))
+# (d, grad, m, x, y, origin, 1 / spacing, w_x, w_y, w_z, g_t, g_sx, g_sy, g_sxx, g_sxy, g_syy)
+hit_adjoint = types.ExternalFunction(
+    "sfc_hit_adjoint", types.void(types.CPointer(types.float64), types.CPointer(types.float64), types.int64,
+                                  *[types.float64] * 13))
+
+_F64P = types.CPointer(types.float64)
+# (d, m, origin, 1 / spacing, ox, oy, dirs, row stride, t, count, jets)
+surface_jets = types.ExternalFunction(
+    "sfc_surface_jets", types.void(_F64P, types.int64, *[types.float64] * 4, _F64P, types.int64, _F64P,
+                                   types.int64, _F64P))
+
+if not AVAILABLE:
+    _NEVER_CALLED = ctypes.CFUNCTYPE(None)(lambda: None)
+    for _name in ("sfc_splat_box8_f64", "sfc_splat_box8_f32", "sfc_gather_box8", "sfc_hit_adjoint",
+                  "sfc_surface_jets"):
+        if not llvm.address_of_symbol(_name):
+            llvm.add_symbol(_name, ctypes.cast(_NEVER_CALLED, ctypes.c_void_p).value)
+
+
+@intrinsic
+def data_pointer(typingctx, array):
+    """Pointer to the first element of a numba array (its data, whatever its layout)."""
+    signature = types.CPointer(array.dtype)(array)
+
+    def codegen(context, builder, sig, args):
+        return context.make_array(sig.args[0])(context, builder, args[0]).data
+
+    return signature, codegen
