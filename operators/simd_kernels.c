@@ -21,6 +21,10 @@
 #define SFC_AVX2 __attribute__((target("avx2,fma")))
 #endif
 
+/* Version of the functions' signatures; operators/simd.py refuses a build whose version differs
+ * from its own (a stale build after the sources changed: pip install -e . rebuilds it). */
+int sfc_abi_version(void) { return 2; }
+
 /* 1 when the CPU runs the AVX2 / FMA kernels below, else 0 (they must not be called). */
 int sfc_simd_supported(void) {
 #ifdef SFC_X86
@@ -47,14 +51,14 @@ static inline SFC_AVX2 void row_falloff(__m256d q00, __m256d rx_lo, __m256d rx_h
     *u_hi = _mm256_max_pd(_mm256_sub_pd(one, _mm256_fmadd_pd(_mm256_fmadd_pd(q00, rx_hi, b), rx_hi, e)), zero);
 }
 
-/* The Silverman weights of the box (16 vectors, row by row) and their sum. */
-static inline SFC_AVX2 double box_weights(double rx0, double ry0, double q00, double q01, double q11,
+/* The Silverman weights of the box's first `rows` rows (two vectors a row) and their sum. */
+static inline SFC_AVX2 double box_weights(int64_t rows, double rx0, double ry0, double q00, double q01, double q11,
                                           __m256d w[16]) {
     const __m256d rx_lo = _mm256_add_pd(_mm256_setr_pd(0.0, 1.0, 2.0, 3.0), _mm256_set1_pd(rx0));
     const __m256d rx_hi = _mm256_add_pd(rx_lo, _mm256_set1_pd(4.0));
     const __m256d a = _mm256_set1_pd(q00);
     __m256d s = _mm256_setzero_pd();
-    for (int r = 0; r < 8; r++) {
+    for (int r = 0; r < rows; r++) {
         __m256d u_lo, u_hi;
         row_falloff(a, rx_lo, rx_hi, q01, q11, ry0 + r, &u_lo, &u_hi);
         w[2 * r] = _mm256_mul_pd(u_lo, u_lo);
@@ -64,16 +68,17 @@ static inline SFC_AVX2 double box_weights(double rx0, double ry0, double q00, do
     return sum4(s);
 }
 
-/* Splat one photon into the 8 x 8 box whose first pixel is img[offset] (rows `stride` elements
- * apart), rx0 / ry0 the column / row offsets of that pixel from the photon (pixels), Q = (q00,
- * q01, q11) its footprint metric and f its flux: each pixel gets f w / sum(w). */
-SFC_AVX2 void sfc_splat_box8_f64(double *img, int64_t offset, int64_t stride, double rx0, double ry0,
-                                 double q00, double q01, double q11, double f) {
+/* Splat one photon into the box of `rows` (at most 8) rows of 8 pixels whose first pixel is
+ * img[offset] (rows `stride` elements apart), rx0 / ry0 the column / row offsets of that pixel
+ * from the photon (pixels), Q = (q00, q01, q11) its footprint metric and f its flux: each pixel
+ * gets f w / sum(w). */
+SFC_AVX2 void sfc_splat_box8_f64(double *img, int64_t offset, int64_t stride, int64_t rows, double rx0,
+                                 double ry0, double q00, double q01, double q11, double f) {
     __m256d w[16];
-    double s = box_weights(rx0, ry0, q00, q01, q11, w);
+    double s = box_weights(rows, rx0, ry0, q00, q01, q11, w);
     if (!(s > 0.0)) return;
     const __m256d scale = _mm256_set1_pd(f / s);
-    for (int r = 0; r < 8; r++) {
+    for (int r = 0; r < rows; r++) {
         double *row = img + offset + r * stride;
         _mm256_storeu_pd(row, _mm256_fmadd_pd(scale, w[2 * r], _mm256_loadu_pd(row)));
         _mm256_storeu_pd(row + 4, _mm256_fmadd_pd(scale, w[2 * r + 1], _mm256_loadu_pd(row + 4)));
@@ -81,13 +86,13 @@ SFC_AVX2 void sfc_splat_box8_f64(double *img, int64_t offset, int64_t stride, do
 }
 
 /* sfc_splat_box8_f64 into a float32 image (the weights in float64, the sums rounded once). */
-SFC_AVX2 void sfc_splat_box8_f32(float *img, int64_t offset, int64_t stride, double rx0, double ry0,
-                                 double q00, double q01, double q11, double f) {
+SFC_AVX2 void sfc_splat_box8_f32(float *img, int64_t offset, int64_t stride, int64_t rows, double rx0,
+                                 double ry0, double q00, double q01, double q11, double f) {
     __m256d w[16];
-    double s = box_weights(rx0, ry0, q00, q01, q11, w);
+    double s = box_weights(rows, rx0, ry0, q00, q01, q11, w);
     if (!(s > 0.0)) return;
     const __m256d scale = _mm256_set1_pd(f / s);
-    for (int r = 0; r < 8; r++) {
+    for (int r = 0; r < rows; r++) {
         float *row = img + offset + r * stride;
         __m128 lo = _mm256_cvtpd_ps(_mm256_mul_pd(scale, w[2 * r]));
         __m128 hi = _mm256_cvtpd_ps(_mm256_mul_pd(scale, w[2 * r + 1]));
@@ -96,12 +101,12 @@ SFC_AVX2 void sfc_splat_box8_f32(float *img, int64_t offset, int64_t stride, dou
     }
 }
 
-/* The gather's sums over the 8 x 8 box of G whose first pixel is g[offset] (rows `stride`
- * apart): sums[0 .. 11] = (s, sum G w, v0 .. v4, u0 .. u4) exactly as _gather_box in
- * operators/splat_kernels.py defines them (v_i = sum dw / dtheta_i, u_i = sum G dw / dtheta_i
+/* The gather's sums over the box of `rows` (at most 8) rows of 8 pixels of G whose first pixel
+ * is g[offset] (rows `stride` apart): sums[0 .. 11] = (s, sum G w, v0 .. v4, u0 .. u4) exactly
+ * as _gather_box in operators/splat_kernels.py defines them (v_i = sum dw / dtheta_i, u_i = sum G dw / dtheta_i
  * over -2, theta = (px, py, q00, q01, q11)). */
-SFC_AVX2 void sfc_gather_box8(const double *g, int64_t offset, int64_t stride, double rx0, double ry0,
-                              double q00, double q01, double q11, double *sums) {
+SFC_AVX2 void sfc_gather_box8(const double *g, int64_t offset, int64_t stride, int64_t rows, double rx0,
+                              double ry0, double q00, double q01, double q11, double *sums) {
     const __m256d rx_lo = _mm256_add_pd(_mm256_setr_pd(0.0, 1.0, 2.0, 3.0), _mm256_set1_pd(rx0));
     const __m256d rx_hi = _mm256_add_pd(rx_lo, _mm256_set1_pd(4.0));
     const __m256d a = _mm256_set1_pd(q00), zero = _mm256_setzero_pd();
@@ -109,7 +114,7 @@ SFC_AVX2 void sfc_gather_box8(const double *g, int64_t offset, int64_t stride, d
     __m256d s = zero, gs = zero;
     __m256d a0l = zero, a1l = zero, a2l = zero, a0h = zero, a1h = zero, a2h = zero;
     __m256d g0l = zero, g1l = zero, g2l = zero, g0h = zero, g1h = zero, g2h = zero;
-    for (int r = 0; r < 8; r++) {
+    for (int r = 0; r < rows; r++) {
         const double ry = ry0 + r;
         const __m256d vry = _mm256_set1_pd(ry), vry2 = _mm256_set1_pd(ry * ry);
         const double *row = g + offset + r * stride;
@@ -273,12 +278,12 @@ SFC_AVX2 void sfc_hit_adjoint(const double *d, double *grad, int64_t m, double x
 
 #else /* not x86-64: never called, sfc_simd_supported() is 0 */
 
-void sfc_splat_box8_f64(double *img, int64_t offset, int64_t stride, double rx0, double ry0, double q00,
-                        double q01, double q11, double f) {}
-void sfc_splat_box8_f32(float *img, int64_t offset, int64_t stride, double rx0, double ry0, double q00,
-                        double q01, double q11, double f) {}
-void sfc_gather_box8(const double *g, int64_t offset, int64_t stride, double rx0, double ry0, double q00,
-                     double q01, double q11, double *sums) {}
+void sfc_splat_box8_f64(double *img, int64_t offset, int64_t stride, int64_t rows, double rx0, double ry0,
+                        double q00, double q01, double q11, double f) {}
+void sfc_splat_box8_f32(float *img, int64_t offset, int64_t stride, int64_t rows, double rx0, double ry0,
+                        double q00, double q01, double q11, double f) {}
+void sfc_gather_box8(const double *g, int64_t offset, int64_t stride, int64_t rows, double rx0, double ry0,
+                     double q00, double q01, double q11, double *sums) {}
 void sfc_surface_jets(const double *d, int64_t m, double origin, double inv_spacing, double ox, double oy,
                       const double *dirs, int64_t stride, const double *t, int64_t count, double *jets) {}
 void sfc_hit_adjoint(const double *d, double *grad, int64_t m, double x, double y, double origin, double inv_spacing,

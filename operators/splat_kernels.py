@@ -18,7 +18,6 @@ import math
 
 import numba as nb
 import numpy as np
-
 from numba.extending import overload
 
 from operators.native import FAST_MATH
@@ -105,16 +104,17 @@ def _offset(a, c, y, x) -> int:
     return (c * a.strides[0] + y * a.strides[1]) // a.itemsize + x
 
 
-def _splat_box8_simd(img, c, x0, y0, px, py, q00, q01, q11, f) -> None:
-    """The AVX2 splat of the fixed box from (x0, y0) (:mod:`operators.simd`), for numba."""
+def _splat_box8_simd(img, c, x0, y0, rows, px, py, q00, q01, q11, f) -> None:
+    """The AVX2 splat (:mod:`operators.simd`) of the first ``rows`` rows of the fixed box from
+    (x0, y0), for numba."""
 
 
 @overload(_splat_box8_simd, inline="always")
-def _splat_box8_simd_impl(img, c, x0, y0, px, py, q00, q01, q11, f):
+def _splat_box8_simd_impl(img, c, x0, y0, rows, px, py, q00, q01, q11, f):
     native = splat_box8_f32 if img.dtype == nb.types.float32 else splat_box8_f64
 
-    def impl(img, c, x0, y0, px, py, q00, q01, q11, f):
-        native(data_pointer(img), _offset(img, c, y0, x0), img.strides[1] // img.itemsize, x0 - px, y0 - py,
+    def impl(img, c, x0, y0, rows, px, py, q00, q01, q11, f):
+        native(data_pointer(img), _offset(img, c, y0, x0), img.strides[1] // img.itemsize, rows, x0 - px, y0 - py,
                q00, q01, q11, f)
 
     return impl
@@ -128,7 +128,8 @@ def splat_photon(img, c, px, py, q00, q01, q11, f, buf, simd) -> None:
     LANES): the weights go into ``buf`` while their sum s is taken, then f / s times each weight
     lands on the pixels that lie on the image. Photons whose box has more pixels than ``buf``
     holds are left out (the caller sizes it for the largest footprint). With ``simd`` (only where
-    :data:`operators.simd.AVAILABLE`) the fixed box is done by the AVX2 kernel.
+    :data:`operators.simd.AVAILABLE`) the AVX2 kernel does the fixed box, over the bounding
+    box's rows only.
     """
     if not _usable(f, px, py, q00, q01, q11):
         return
@@ -136,7 +137,7 @@ def splat_photon(img, c, px, py, q00, q01, q11, f, buf, simd) -> None:
     n = img.shape[1]
     if _fits_fixed_box(x0, x1, y0, y1, 0, n - 1) and buf.shape[0] >= LANES * LANES:
         if simd:
-            _splat_box8_simd(img, c, x0, y0, px, py, q00, q01, q11, f)
+            _splat_box8_simd(img, c, x0, y0, y1 - y0 + 1, px, py, q00, q01, q11, f)
             return
         s = _box_weights(buf, x0, y0, LANES, LANES, px, py, q00, q01, q11)
         if s > 0.0:
@@ -183,7 +184,7 @@ def gather_photon(padded, pad, c, px, py, q00, q01, q11, f) -> tuple[float, floa
     without G (branch-free; w = max(1 - t, 0)^2 is zero outside the ellipse), over the fixed
     LANES x LANES box where the bounding box fits it.
     """
-    x0, y0, width, rows = _gather_plan(padded, pad, px, py, q00, q01, q11, f)
+    x0, y0, width, rows, _ = _gather_plan(padded, pad, px, py, q00, q01, q11, f)
     if width == 0:
         return 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
     return _gather_result(_gather_box(padded, pad, c, x0, y0, width, rows, px, py, q00, q01, q11), f)
@@ -194,11 +195,11 @@ def gather_photon_simd(padded, pad, c, px, py, q00, q01, q11, f, simd, sums
                        ) -> tuple[float, float, float, float, float, float]:
     """:func:`gather_photon` with the fixed box's sums taken by the AVX2 kernel when ``simd``
     (only where :data:`operators.simd.AVAILABLE`); ``sums`` (12,) is its scratch. CPU only."""
-    x0, y0, width, rows = _gather_plan(padded, pad, px, py, q00, q01, q11, f)
+    x0, y0, width, rows, span = _gather_plan(padded, pad, px, py, q00, q01, q11, f)
     if width == 0:
         return 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
     if simd and width == LANES and rows == LANES:
-        gather_box8(data_pointer(padded), _offset(padded, c, y0 + pad, x0 + pad), padded.strides[1] // 8,
+        gather_box8(data_pointer(padded), _offset(padded, c, y0 + pad, x0 + pad), padded.strides[1] // 8, span,
                     x0 - px, y0 - py, q00, q01, q11, data_pointer(sums))
         return _gather_result((sums[0], sums[1], sums[2], sums[3], sums[4], sums[5], sums[6], sums[7], sums[8],
                                sums[9], sums[10], sums[11]), f)
@@ -206,22 +207,23 @@ def gather_photon_simd(padded, pad, c, px, py, q00, q01, q11, f, simd, sums
 
 
 @nb.njit(cache=True, inline="always", fastmath=FAST_MATH, error_model="numpy")
-def _gather_plan(padded, pad, px, py, q00, q01, q11, f) -> tuple[int, int, int, int]:
-    """(x0, y0, width, rows) of the pixels :func:`gather_photon` sums over: the fixed
+def _gather_plan(padded, pad, px, py, q00, q01, q11, f) -> tuple[int, int, int, int, int]:
+    """(x0, y0, width, rows, span) of the pixels :func:`gather_photon` sums over: the fixed
     LANES x LANES box where the footprint's bounding box fits it, else the bounding box cut to
     the padded image; width 0 where the photon contributes nothing (unusable, or off the image,
-    where G = 0 on its whole footprint)."""
+    where G = 0 on its whole footprint). ``span``: the first rows that hold the bounding box
+    (the rest of a fixed box weighs 0)."""
     if not _usable(f, px, py, q00, q01, q11):
-        return 0, 0, 0, 0
+        return 0, 0, 0, 0, 0
     n = padded.shape[1] - 2 * pad
     x0, x1, y0, y1 = _box(px, py, q00, q01, q11)
     if x1 < 0 or y1 < 0 or x0 > n - 1 or y0 > n - 1 or x1 < x0 or y1 < y0:
-        return 0, 0, 0, 0
+        return 0, 0, 0, 0, 0
     if _fits_fixed_box(x0, x1, y0, y1, -pad, n - 1 + pad):
-        return x0, y0, LANES, LANES
+        return x0, y0, LANES, LANES, y1 - y0 + 1
     x0, x1 = max(x0, -pad), min(x1, n - 1 + pad)
     y0, y1 = max(y0, -pad), min(y1, n - 1 + pad)
-    return x0, y0, x1 - x0 + 1, y1 - y0 + 1
+    return x0, y0, x1 - x0 + 1, y1 - y0 + 1, y1 - y0 + 1
 
 
 @nb.njit(cache=True, inline="always", fastmath=FAST_MATH, error_model="numpy")
