@@ -41,8 +41,8 @@ class FusedScene(NamedTuple):
     flux = flux_scale / r^3; radius: emission footprint radius on z = h;
     receiver_z, receiver_half: receiver plane and half width; to_px: pixels per scene unit;
     min_px, max_px: footprint pixel filter and cut-off radii (pixels); fresnel: Fresnel weights;
-    simd: the CPU kernels splat and gather fixed boxes with the AVX2 extension
-    (:mod:`operators.simd`; only where it is available).
+    simd: the CPU kernels take the splat, its gather, the jets and the hit adjoint from the AVX2
+    extension (:mod:`operators.simd`; only where it is available).
     """
 
     light_x: float

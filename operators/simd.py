@@ -53,20 +53,16 @@ def _load() -> bool:
 
 AVAILABLE = _load()
 
-_SPLAT_ARGS = (types.int64, types.int64, types.int64, *[types.float64] * 6)
+_F64P = types.CPointer(types.float64)
 # (image, first pixel's element offset, row stride (elements), rows, rx0, ry0, q00, q01, q11, flux)
-splat_box8_f64 = types.ExternalFunction("sfc_splat_box8_f64", types.void(types.CPointer(types.float64), *_SPLAT_ARGS))
+_SPLAT_ARGS = (types.int64, types.int64, types.int64, *[types.float64] * 6)
+splat_box8_f64 = types.ExternalFunction("sfc_splat_box8_f64", types.void(_F64P, *_SPLAT_ARGS))
 splat_box8_f32 = types.ExternalFunction("sfc_splat_box8_f32", types.void(types.CPointer(types.float32), *_SPLAT_ARGS))
 # (G, first pixel's element offset, row stride, rows, rx0, ry0, q00, q01, q11, sums (12,))
 gather_box8 = types.ExternalFunction(
-    "sfc_gather_box8", types.void(types.CPointer(types.float64), types.int64, types.int64, types.int64,
-                                  *[types.float64] * 5, types.CPointer(types.float64)))
+    "sfc_gather_box8", types.void(_F64P, types.int64, types.int64, types.int64, *[types.float64] * 5, _F64P))
 # (d, grad, m, x, y, origin, 1 / spacing, w_x, w_y, w_z, g_t, g_sx, g_sy, g_sxx, g_sxy, g_syy)
-hit_adjoint = types.ExternalFunction(
-    "sfc_hit_adjoint", types.void(types.CPointer(types.float64), types.CPointer(types.float64), types.int64,
-                                  *[types.float64] * 13))
-
-_F64P = types.CPointer(types.float64)
+hit_adjoint = types.ExternalFunction("sfc_hit_adjoint", types.void(_F64P, _F64P, types.int64, *[types.float64] * 13))
 # (d, m, origin, 1 / spacing, ox, oy, dirs, row stride, t, count, jets)
 surface_jets = types.ExternalFunction(
     "sfc_surface_jets", types.void(_F64P, types.int64, *[types.float64] * 4, _F64P, types.int64, _F64P,
@@ -74,10 +70,9 @@ surface_jets = types.ExternalFunction(
 
 if not AVAILABLE:
     _NEVER_CALLED = ctypes.CFUNCTYPE(None)(lambda: None)
-    for _name in ("sfc_splat_box8_f64", "sfc_splat_box8_f32", "sfc_gather_box8", "sfc_hit_adjoint",
-                  "sfc_surface_jets"):
-        if not llvm.address_of_symbol(_name):
-            llvm.add_symbol(_name, ctypes.cast(_NEVER_CALLED, ctypes.c_void_p).value)
+    for _kernel in (splat_box8_f64, splat_box8_f32, gather_box8, hit_adjoint, surface_jets):
+        if not llvm.address_of_symbol(_kernel.symbol):
+            llvm.add_symbol(_kernel.symbol, ctypes.cast(_NEVER_CALLED, ctypes.c_void_p).value)
 
 
 @intrinsic

@@ -15,6 +15,7 @@ from operators.caustic_operator import CausticOperator, OperatorSettings
 from operators.scene import Receiver, Scene
 from operators.splat_kernels import gather_padding, pad_for_gather, splat_backward, splat_forward
 from framework.shapes import make_shape
+from tests.python_subprocess import run_json_script
 
 needs_simd = pytest.mark.skipif(not simd.AVAILABLE, reason="AVX2 extension not built or CPU without AVX2")
 
@@ -87,3 +88,38 @@ def test_operator_image_and_gradient_do_not_depend_on_simd():
         grads.append(op.vjp(heights, grad_image))
     assert torch.allclose(images[0], images[1], rtol=1e-12, atol=1e-12 * float(images[1].abs().max()))
     assert torch.allclose(grads[0], grads[1], rtol=1e-9, atol=1e-10 * float(grads[1].abs().max()))
+
+
+WITHOUT_EXTENSION = """
+import importlib.abc, importlib.machinery, json, sys
+
+class HideExtension(importlib.abc.MetaPathFinder):
+    def find_spec(self, name, path=None, target=None):
+        if name == "operators._simd":  # a spec without a file: as on an install without a C compiler
+            return importlib.machinery.ModuleSpec(name, None)
+        return None
+
+sys.meta_path.insert(0, HideExtension())
+import torch
+from operators import simd
+from operators.caustic_operator import CausticOperator, OperatorSettings
+from operators.scene import Receiver, Scene
+from framework.shapes import make_shape
+
+op = CausticOperator(Scene(receiver=Receiver(resolution=64)), OperatorSettings(photons=20000, dtype="float64"))
+heights = torch.from_numpy(make_shape("gaussian", 32))
+image = op.render(heights)
+grad = op.vjp(heights, image)
+print(json.dumps({"available": simd.AVAILABLE, "image": float(image.sum()), "grad": float(grad.abs().sum())}))
+"""
+
+
+def test_operator_runs_on_the_numba_kernels_without_the_extension():
+    result = run_json_script(WITHOUT_EXTENSION)
+    assert result["available"] is False
+    op = CausticOperator(Scene(receiver=Receiver(resolution=64)),
+                         OperatorSettings(photons=20000, dtype="float64", simd=False))
+    heights = torch.from_numpy(make_shape("gaussian", 32))
+    image = op.render(heights)
+    assert result["image"] == pytest.approx(float(image.sum()), rel=1e-12)
+    assert result["grad"] == pytest.approx(float(op.vjp(heights, image).abs().sum()), rel=1e-12)
