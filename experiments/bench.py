@@ -3,11 +3,12 @@
 Measures, at the default scene (print_lines, 128 x 128 heights, 512 x 512 receiver):
 forward and forward+backward photons/s of the operator (the fused native path), the same for the
 torch reference path in the same process (side by side: timings on a shared machine are noisy),
-the same with the numba kernels in place of the AVX2 splat and gather (``operator.simd: false``),
+the same with the numba kernels in place of the AVX2 ones (``operator.simd: false``),
 alternating with them, the time split between tracing and splatting in the fused kernel (a pass
-with the splat switched off against the full pass), the peak memory of a gradient evaluation with the paper's 8.4 million
-photons, and the native splat against the straightforward PyTorch splat on the same photons,
-side by side, each in a fresh process so that their peak memories are comparable.
+with the splat switched off against the full pass), the peak memory of a gradient evaluation
+with the paper's 8.4 million photons, and the native splat against the straightforward PyTorch
+splat on the same photons, side by side, each in a fresh process so that their peak memories are
+comparable.
 """
 
 from __future__ import annotations
@@ -242,7 +243,7 @@ def main(argv: list[str] | None = None) -> None:
         "scene": "print_lines, m=128, n=512, light (0,0,10)",
         "threads": {"torch": torch.get_num_threads(), "numba": numba.get_num_threads()},
         "photons": op.photons, "footprint_px": args.footprint_px, "chunk_size": args.chunk_size,
-        "simd": op.fused.constants(heights.double().numpy()).simd,
+        "simd": op.fused.simd,
         "forward_photons_per_s": op.photons / forward_s,
         "forward_backward_photons_per_s": op.photons / gradient_s,
         "numba_kernels_only": {"forward_photons_per_s": op.photons / plain_forward_s,

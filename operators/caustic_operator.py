@@ -52,9 +52,10 @@ class OperatorSettings:
     hit_cache_mb: memory (MiB, 8 bytes per photon) for the surface hits that a render records
         and a gradient of the same heights replays instead of searching again; 0 turns it off.
     fresnel: weight by Fresnel transmittance (the paper ignores Fresnel losses).
-    simd: splat and gather footprints that fit an 8 x 8 pixel box with the AVX2 kernels of the
-        compiled extension (operators/simd_kernels.c) where it was built and the CPU has AVX2;
-        elsewhere, or with False, the numba kernels do it (same results to rounding).
+    simd: take the splat and its gather (footprints that fit an 8 x 8 pixel box), the surface
+        jets and the hit adjoint from the AVX2 kernels of the compiled extension
+        (operators/simd_kernels.c) where it was built and the CPU has AVX2; elsewhere, or with
+        False, the numba kernels do them (same results to rounding).
     """
 
     photons: int = 1 << 22

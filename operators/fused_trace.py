@@ -27,6 +27,7 @@ class FusedTracer:
     def __init__(self, scene: Scene, emitter: PointLightEmitter, min_footprint_px: float,
                  max_pixel_radius: float, fresnel: bool, simd: bool) -> None:
         self.scene = scene
+        self.simd = bool(simd) and SIMD_AVAILABLE  # whether the kernels use the AVX2 extension
         self.shifts = np.ascontiguousarray(emitter.shifts.numpy(), dtype=np.float64)
         self.indices = np.asarray(scene.indices, dtype=np.float64)
         self.capacity = (2 * math.ceil(max_pixel_radius) + 3) ** 2
@@ -40,7 +41,7 @@ class FusedTracer:
             * (light.position[2] - sub.thickness),
             radius=float(emitter.footprint_radius), receiver_z=float(rec.z), receiver_half=float(rec.half_width),
             to_px=rec.resolution / (2.0 * rec.half_width), min_px=float(min_footprint_px),
-            max_px=float(max_pixel_radius), fresnel=bool(fresnel), simd=bool(simd) and SIMD_AVAILABLE)
+            max_px=float(max_pixel_radius), fresnel=bool(fresnel), simd=self.simd)
 
     def constants(self, d: np.ndarray) -> FusedScene:
         """Kernel constants for heights ``d`` (m, m) (the bracketing planes and slope bounds depend on them)."""
