@@ -23,6 +23,7 @@ from hydra.types import RunMode
 from hydra.utils import get_original_cwd
 from omegaconf import DictConfig
 
+from experiments.input_errors import one_line_input_errors
 from framework.reconstruction import run_reconstruction
 from framework.scene_config import to_plain
 
@@ -30,6 +31,7 @@ CONFIG_DIR = str(Path(__file__).resolve().parent.parent / "conf")
 
 
 @hydra.main(version_base=None, config_path=CONFIG_DIR, config_name="reconstruct")
+@one_line_input_errors
 def main(cfg: DictConfig) -> None:
     """Hydra entry point: one reconstruction per job; multirun jobs share an MLflow sweep id."""
     hydra_cfg = HydraConfig.get()

@@ -21,6 +21,7 @@ from hydra.core.hydra_config import HydraConfig
 from hydra.utils import get_original_cwd
 from omegaconf import DictConfig
 
+from experiments.input_errors import one_line_input_errors
 from framework.plotting import save_caustic_png, save_height_and_caustic_figure
 from framework.scene_config import build_heights, build_operator, build_scene
 
@@ -57,6 +58,7 @@ def simulate(cfg: DictConfig, output_dir: Path, base_dir: Path | None = None) ->
 
 
 @hydra.main(version_base=None, config_path=CONFIG_DIR, config_name="simulate")
+@one_line_input_errors
 def main(cfg: DictConfig) -> None:
     """Hydra entry point: simulate, then report where the files went, the power and the speed."""
     output_dir = Path(HydraConfig.get().runtime.output_dir)

@@ -67,6 +67,21 @@ def test_height_field_path_and_three_wavelengths(tmp_path: Path) -> None:
 def test_unknown_shape_fails_with_a_clear_message(tmp_path: Path) -> None:
     out = tmp_path / "run"
     result = run_app(TINY + [f"hydra.run.dir={out}", "height_field.shape=spiral"], cwd=tmp_path)
-    assert result.returncode != 0
-    assert "unknown shape 'spiral'; known shapes: bump, flat, gaussian, oblique_lines, print_lines" in result.stderr
+    assert result.returncode == 1
+    assert result.stderr.strip().splitlines() == [
+        "error: unknown shape 'spiral'; known shapes: bump, flat, gaussian, oblique_lines, print_lines "
+        "(SFC_TRACEBACK=1 shows the traceback)"]
     assert not (out / "caustic.npy").exists()
+
+
+def test_missing_height_file_fails_in_one_line_and_the_traceback_is_on_request(tmp_path: Path,
+                                                                              monkeypatch: pytest.MonkeyPatch) -> None:
+    args = TINY + [f"hydra.run.dir={tmp_path / 'run'}", "height_field.path=missing.npy"]
+    result = run_app(args, cwd=tmp_path)
+    assert result.returncode == 1
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: height field file") and "missing.npy" in lines[0]
+    monkeypatch.setenv("SFC_TRACEBACK", "1")
+    traced = run_app(args, cwd=tmp_path)
+    assert traced.returncode == 1
+    assert "Traceback" in traced.stderr and "FileNotFoundError: height field file" in traced.stderr

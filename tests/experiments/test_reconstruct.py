@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import json
 import math
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -147,3 +149,14 @@ def test_stage_changes_come_from_the_records_whoever_asked_for_them():
     lengths = [0.125, 0.125, 0.125, 0.0625, 0.0625, 0.03125]
     assert stage_changes([record(i + 1, v) for i, v in enumerate(lengths)]) == [3, 5]
     assert stage_changes([record(i + 1, None) for i in range(4)]) == []  # no preconditioner
+
+
+def test_the_app_refuses_a_bad_value_in_one_line(tmp_path):
+    done = subprocess.run([sys.executable, "-m", "experiments.reconstruct", *SMALL, "solver.patience=0",
+                           f"hydra.run.dir={tmp_path / 'run'}", f"tracking.store_dir={tmp_path / 'mlruns'}"],
+                          cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 1
+    assert "Traceback" not in done.stderr  # above the message only MLflow's log of creating its store
+    assert done.stderr.strip().splitlines()[-1] == (
+        "error: patience=0 must be an integer >= 1 (iterations), e.g. 8; null disables the rule "
+        "(SFC_TRACEBACK=1 shows the traceback)")

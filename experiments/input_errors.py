@@ -1,0 +1,33 @@
+"""Bad input to the command-line apps ends in its one-line message, not in a traceback."""
+
+from __future__ import annotations
+
+import functools
+import os
+from typing import Callable, TypeVar
+
+# What the config, file and shape checks raise on bad input (each with a message naming the
+# value and the fix).
+INPUT_ERRORS = (ValueError, KeyError, FileNotFoundError)
+TRACEBACK_VARIABLE = "SFC_TRACEBACK"  # set to 1: input errors propagate with their traceback
+
+Config = TypeVar("Config")
+
+
+def one_line_input_errors(task: Callable[[Config], None]) -> Callable[[Config], None]:
+    """Wrap a Hydra task function: an input error (INPUT_ERRORS) exits with status 1 and
+    ``error: <message>`` as the one line on stderr, unless the environment sets
+    SFC_TRACEBACK=1 (then it propagates, traceback and all, as any other exception does)."""
+
+    @functools.wraps(task)
+    def run(cfg: Config) -> None:
+        try:
+            task(cfg)
+        except INPUT_ERRORS as error:
+            if os.environ.get(TRACEBACK_VARIABLE) == "1":
+                raise
+            # str() of a KeyError quotes its message; args[0] is the message itself.
+            message = error.args[0] if isinstance(error, KeyError) and error.args else error
+            raise SystemExit(f"error: {message} ({TRACEBACK_VARIABLE}=1 shows the traceback)") from None
+
+    return run
