@@ -25,7 +25,7 @@ from framework.image_io import load_caustic_image, load_mask
 from framework.objective import DataFidelity
 from framework.report_figures import save_reconstruction_figures
 from framework.scene_config import build_heights, build_operator, build_scene, to_plain
-from framework.solver_config import build_solver
+from framework.solver_config import solver_recipe
 from framework.solvers import IterationRecord
 from framework.tracking import MlflowTracker
 from operators.caustic_operator import CausticOperator
@@ -146,9 +146,14 @@ def run_reconstruction(cfg: Mapping[str, Any], output_dir: Path, base_dir: Path,
 
 def _reconstruct(cfg: Mapping[str, Any], output_dir: Path, base_dir: Path, sweep_id: str | None,
                  compiling: BackgroundCompile) -> dict[str, Any]:
+    # Everything built from config alone comes first, so that a bad value fails before the data's renders.
     scene = build_scene(cfg)
     operator = build_operator(cfg, scene)
     m = int(cfg["height_field"]["resolution"])
+    d0 = initial_heights(cfg, m, operator.dtype, base_dir)
+    recipe = solver_recipe(cfg["solver"], cfg.get("regularizers"), cfg.get("post_steps"), cfg.get("wavelet"), (m, m))
+    patience = cfg["solver"].get("patience")
+    stagnation = StagnationStopping(patience) if patience is not None else None
     tracking = cfg["tracking"]
     tags = {"method": cfg.get("method", "custom"), "scene": cfg["height_field"].get("shape", "file"),
             "data": cfg["data"]["kind"]}
@@ -161,16 +166,12 @@ def _reconstruct(cfg: Mapping[str, Any], output_dir: Path, base_dir: Path, sweep
         cell_area = height_pixel_area(scene, m)
         context = RegularizerContext(mask=data.mask, volume=data.volume, pixel_area=cell_area)
         fidelity = DataFidelity(operator, data.target.to(operator.dtype), cell_area=cell_area)
-        d0 = initial_heights(cfg, m, operator.dtype, base_dir)
-        solver = build_solver(cfg["solver"], fidelity, d0, cfg.get("regularizers"), cfg.get("post_steps"),
-                              cfg.get("wavelet"), context)
+        solver = recipe.build(fidelity, d0, context)
         history = MetricsHistory()
         callbacks = [history, MorozovStopping(data.delta, float(cfg["solver"]["tau_dis"]), volume_band(solver)),
                      ProgressBar(desc=str(cfg.get("method", "reconstruct"))),
                      Checkpointer(output_dir / CHECKPOINT, every=int(cfg["checkpoint_every"])),
                      tracker.metrics_callback()]
-        patience = cfg["solver"].get("patience")
-        stagnation = StagnationStopping(patience) if patience is not None else None
         if stagnation is not None:
             callbacks.append(stagnation)
         truth_error = None

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import inspect
 from collections.abc import Mapping
+from dataclasses import dataclass
 from typing import Any
 
 import torch
@@ -43,10 +44,26 @@ def build_plugins(specs: Mapping[str, Any] | None) -> list[Any]:
     return [build("regularizer", name, **dict(params or {})) for name, params in (specs or {}).items()]
 
 
-def build_solver(solver_cfg: Mapping[str, Any], data: DataFidelity, d0: torch.Tensor,
-                 regularizer_cfg: Mapping[str, Any] | None, post_step_cfg: Mapping[str, Any] | None,
-                 wavelet_cfg: Mapping[str, Any] | None, context: RegularizerContext) -> Any:
-    """Instantiate the registered solver ``solver_cfg.name`` with the parts it takes.
+@dataclass
+class SolverRecipe:
+    """A registered solver class with its configured parts (step size, preconditioner,
+    regularisers, post-steps, wavelet), built, and so checked, from config before any data
+    exists; :meth:`build` makes the solver once the data term and the start are known."""
+
+    cls: type
+    parts: dict[str, Any]
+    takes_context: bool
+
+    def build(self, data: DataFidelity, d0: torch.Tensor, context: RegularizerContext) -> Any:
+        """The solver for data term ``data``, start ``d0`` (m, m) and the regularisers' ``context``."""
+        extra = {"context": context} if self.takes_context else {}
+        return self.cls(data=data, d0=d0, **self.parts, **extra)
+
+
+def solver_recipe(solver_cfg: Mapping[str, Any], regularizer_cfg: Mapping[str, Any] | None,
+                  post_step_cfg: Mapping[str, Any] | None, wavelet_cfg: Mapping[str, Any] | None,
+                  shape: tuple[int, int]) -> SolverRecipe:
+    """The registered solver ``solver_cfg.name`` with the parts it takes, for heights of ``shape``.
 
     A part that is configured but that the solver does not use (e.g. regularisers for gradient
     descent) is an error rather than silently ignored.
@@ -55,19 +72,18 @@ def build_solver(solver_cfg: Mapping[str, Any], data: DataFidelity, d0: torch.Te
     cls = lookup("solver", name)
     accepted = set(inspect.signature(cls.__init__).parameters)
     regularizers = build_plugins(regularizer_cfg)
-    parts: dict[str, Any] = {"data": data, "d0": d0, "step_size": make_step_size(solver_cfg["step_size"])}
+    parts: dict[str, Any] = {"step_size": make_step_size(solver_cfg["step_size"])}
     preconditioner_cfg = solver_cfg.get("preconditioner")
     offered: dict[str, tuple[Any, bool]] = {
         "preconditioner": (build_preconditioner(preconditioner_cfg), bool(preconditioner_cfg)),
         "regularizers": (regularizers, bool(regularizers)),
         "pixel_regularizers": (regularizers, bool(regularizers)),
         "post_steps": (build_plugins(post_step_cfg), bool(post_step_cfg)),
-        "context": (context, False),
     }
     if wavelet_cfg:
         wavelet_regularizer = build("regularizer", "l1_wavelet", **dict(wavelet_cfg))
         offered["wavelet_regularizer"] = (wavelet_regularizer, True)
-        offered["wavelet"] = (wavelet_regularizer.transform_for(tuple(d0.shape)), True)
+        offered["wavelet"] = (wavelet_regularizer.transform_for(tuple(shape)), True)
     for key, (value, configured) in offered.items():
         if key in accepted:
             parts[key] = value
@@ -78,4 +94,4 @@ def build_solver(solver_cfg: Mapping[str, Any], data: DataFidelity, d0: torch.Te
     if unused:
         raise ValueError(f"solver {name} does not use {', '.join(sorted(unused))}; remove them from the config "
                          "or pick a solver that does (landweber_pixel, landweber_wavelet)")
-    return cls(**parts)
+    return SolverRecipe(cls, parts, "context" in accepted)

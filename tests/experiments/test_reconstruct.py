@@ -14,6 +14,7 @@ from mlflow.tracking import MlflowClient
 
 from framework.reconstruction import CHECKPOINT, initial_heights, run_reconstruction
 from framework.scene_config import build_heights
+from operators.caustic_operator import CausticOperator
 from tests.experiments.conftest import SMALL, compose_reconstruct
 
 # A bump that focuses light visibly at 64 x 64 (a weak one is hidden by the noise: Morozov stops at
@@ -160,3 +161,21 @@ def test_the_app_refuses_a_bad_value_in_one_line(tmp_path):
     assert done.stderr.strip().splitlines()[-1] == (
         "error: patience=0 must be an integer >= 1 (iterations), e.g. 8; null disables the rule "
         "(SFC_TRACEBACK=1 shows the traceback)")
+
+
+@pytest.mark.parametrize("overrides, message", [
+    (["solver.patience=0"], "patience=0"),
+    (["solver.step_size.policy=adam"], "adam"),
+    (["+regularizers.no_such_prior={}"], "no_such_prior"),
+    (["experiment=m1", "+regularizers.l1_pixel.alpha=0.1"], "does not use regularizers"),
+    (["initial=missing.npy"], "missing.npy"),
+])
+def test_bad_solver_configuration_fails_before_the_data_is_rendered(tmp_path, monkeypatch, overrides, message):
+    def no_render(*args, **kwargs):
+        raise AssertionError("rendered before the configuration was checked")
+
+    monkeypatch.setattr(CausticOperator, "render", no_render)
+    cfg = compose_reconstruct([*SMALL, *overrides, "solver.max_iter=1"], tmp_path)
+    with pytest.raises((ValueError, KeyError, FileNotFoundError), match=message):
+        run_reconstruction(cfg, tmp_path / "run", tmp_path)
+    assert not (tmp_path / "mlruns").exists()  # no MLflow run was opened either
