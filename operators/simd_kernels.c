@@ -1,5 +1,6 @@
-/* AVX2 kernels for the fixed 8 x 8 pixel box of the splat and of its adjoint gather, and for the
- * adjoint of a photon's surface hit w.r.t. the 4 x 4 heights around it.
+/* AVX2 kernels for the fixed 8 x 8 pixel box of the splat and of its adjoint gather, for the
+ * surface jets at a packet's hits, and for the adjoint of a photon's surface hit w.r.t. the 4 x 4
+ * heights around it.
  *
  * Built as the extension module operators._simd (setup.py; optional: without a C compiler the
  * package installs and the numba kernels do this work). The numba kernels call these functions
@@ -294,7 +295,8 @@ void sfc_hit_adjoint(const double *d, double *grad, int64_t m, double x, double 
 
 static struct PyModuleDef simd_module = {
     PyModuleDef_HEAD_INIT, "_simd",
-    "AVX2 splat and gather kernels, called from numba by symbol name (see operators/simd.py).", -1, NULL,
+    "AVX2 splat, gather, surface-jet and hit-adjoint kernels, called from numba by symbol name (see "
+    "operators/simd.py).", -1, NULL,
 };
 
 PyMODINIT_FUNC PyInit__simd(void) { return PyModule_Create(&simd_module); }
