@@ -76,7 +76,7 @@ def write_table(runs: list, client, out: Path) -> list[dict]:
             "rel_dis": metrics.get("rel_discrepancy"), "rel_err": metrics.get("rel_error"),
             "rel_err_d": metrics.get("rel_error_d"), "iter": int(metrics.get("iterations", 0)),
             "returned_iter": int(metrics.get("returned_iteration", metrics.get("iterations", 0))),
-            "tau_dis": params.get("solver.tau_dis"), "tau": params.get("solver.step_size.tau"),
+            "tau_dis": params.get("stopping.morozov.tau_dis"), "tau": params.get("solver.step_size.tau"),
             "paper_run_time_min": paper[0], "paper_rel_dis": paper[1], "paper_rel_err": paper[2],
             "paper_iter": paper[3]})
     with open(out / "table1.csv", "w", newline="") as f:

@@ -1,10 +1,9 @@
-"""Callbacks of the solver loop: stopping rules, metrics, progress, checkpoints.
+"""Callbacks of the solver loop (:class:`framework.solvers.base.Callback`): stopping rules,
+metrics, progress, checkpoints.
 
-``IterativeSolver.run`` calls ``on_start(solver)`` once, ``on_iteration(solver, record)`` after
-every iteration (a truthy return asks to stop; the callback's ``stop_reason`` says why) and
-``on_end(solver, result)`` once. Callbacks run in ascending ``order``: metric callbacks
-(order < 0) first, so that stopping rules and loggers see the numbers they add to
-``record.extras``.
+The stopping rules are plugins of kind ``stopping`` (``morozov``, ``stagnation``), built from the
+config's ``stopping`` group; a rule that needs the problem (the noise level delta) gets it from
+``setup(problem)`` before the run.
 """
 
 from __future__ import annotations
@@ -13,39 +12,27 @@ import math
 import os
 from collections import defaultdict
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Sequence
+from typing import TYPE_CHECKING, Any
 
 import torch
 from torch import Tensor
 
 from framework.checkpoint import save_checkpoint
+from framework.solvers.base import Callback
 
 if TYPE_CHECKING:
-    from framework.solvers.base import IterationRecord, IterativeSolver, RunResult
+    from framework.problem import Problem
+    from framework.solvers.base import IterationRecord
 
-__all__ = ["Callback", "MorozovStopping", "StagnationStopping", "MetricsHistory", "ProgressBar", "Checkpointer", "GroundTruthError", "default_callbacks"]
+__all__ = ["Callback", "MorozovStopping", "StagnationStopping", "MetricsHistory", "ProgressBar", "Checkpointer",
+           "GroundTruthError"]
 
 
-class Callback:
-    """Base class; every hook is a no-op.
-
-    Attributes:
-        order: Call order within a run (ascending); metric callbacks use negative values.
-        stop_reason: Set by a callback before it returns True from :meth:`on_iteration`.
-    """
-
-    order: int = 0
-    stop_reason: str | None = None
-
-    def on_start(self, solver: "IterativeSolver") -> None:
-        """Called once before the first iteration of ``run``."""
-
-    def on_iteration(self, solver: "IterativeSolver", record: "IterationRecord") -> bool | None:
-        """Called after each iteration; return True to stop (set ``stop_reason`` first)."""
-        return None
-
-    def on_end(self, solver: "IterativeSolver", result: "RunResult") -> None:
-        """Called once when ``run`` ends normally (not on an exception)."""
+def _checked_delta(delta: float) -> float:
+    delta = float(delta)
+    if not (math.isfinite(delta) and 0.0 < delta < 1.0):
+        raise ValueError(f"delta (relative noise level) must lie in (0, 1), got {delta!r}; 5% noise is 0.05")
+    return delta
 
 
 class MorozovStopping(Callback):
@@ -61,22 +48,46 @@ class MorozovStopping(Callback):
     as soon as it fits the image, with a fraction of its volume (a 0.05-high bump: at 31%).
 
     Args:
-        delta: Relative noise level of the data, 0 < delta < 1 (the paper: 0.05).
+        delta: Relative noise level of the data, 0 < delta < 1 (the paper: 0.05); None: set by
+            :meth:`setup`.
         tau_dis: Safety factor > 1.
-        volume_band: (q1, q2), bounds of sum(d) for an admissible iterate; None: no volume condition.
+        volume_band: (q1, q2), bounds of sum(d) for an admissible iterate; None: the solver's
+            (:meth:`framework.solvers.base.IterativeSolver.volume_band`), if it has one.
     """
 
-    def __init__(self, delta: float, tau_dis: float = 1.1, volume_band: tuple[float, float] | None = None) -> None:
-        delta, tau_dis = float(delta), float(tau_dis)
-        if not (math.isfinite(delta) and 0.0 < delta < 1.0):
-            raise ValueError(f"delta (relative noise level) must lie in (0, 1), got {delta!r}; 5% noise is 0.05")
+    stop_accepts_iterate = True
+
+    def __init__(self, delta: float | None = None, tau_dis: float = 1.1,
+                 volume_band: tuple[float, float] | None = None) -> None:
+        tau_dis = float(tau_dis)
         if not (math.isfinite(tau_dis) and tau_dis > 1.0):
             raise ValueError(
                 f"tau_dis must be > 1 for the discrepancy principle, got {tau_dis!r}; the paper uses 1.01-1.2"
             )
-        self.delta, self.tau_dis = delta, tau_dis
-        self.threshold = tau_dis * delta
+        self.delta = None if delta is None else _checked_delta(delta)
+        self.tau_dis = tau_dis
         self.volume_band = volume_band
+
+    @classmethod
+    def from_config(cls, tau_dis: float = 1.1) -> MorozovStopping:
+        """The rule of the config's ``stopping.morozov``; delta comes from the data (:meth:`setup`)."""
+        return cls(None, tau_dis)
+
+    def setup(self, problem: Problem) -> None:
+        """Take the noise level delta from the problem's data."""
+        self.delta = _checked_delta(problem.data.delta)
+
+    @property
+    def threshold(self) -> float:
+        """tau_dis * delta, the relative discrepancy at which the rule stops."""
+        if self.delta is None:
+            raise RuntimeError("MorozovStopping has no noise level; pass delta or call setup(problem)")
+        return self.tau_dis * self.delta
+
+    def on_start(self, solver) -> None:  # noqa: D102 (the solver's volume band, unless one was given)
+        self.threshold  # refuses a rule without delta before the first iteration
+        if self.volume_band is None:
+            self.volume_band = solver.volume_band()
 
     def on_iteration(self, solver, record) -> bool:  # noqa: D102
         if record.rel_discrepancy > self.threshold:
@@ -155,6 +166,12 @@ class StagnationStopping(Callback):
             f"iterations; the best iterate (iteration {self.best_iteration}, {self.best_discrepancy:.4g}) is returned"
         )
         return True
+
+    def best_iterate(self) -> tuple[Tensor, int] | None:
+        """(d, iteration) of the lowest discrepancy seen, or None before the first iteration."""
+        if self.best_d is None or self.best_iteration is None:
+            return None
+        return self.best_d, self.best_iteration
 
 
 class MetricsHistory(Callback):
@@ -286,15 +303,3 @@ class GroundTruthError(Callback):
 
     def on_iteration(self, solver, record) -> None:  # noqa: D102
         record.extras.update(self.errors(solver.d))
-
-
-def default_callbacks(
-    delta: float | None = None, tau_dis: float = 1.1, progress: bool = True
-) -> Sequence[Callback]:
-    """Morozov stopping (if ``delta`` is given), a metrics history and a progress bar."""
-    cbs: list[Callback] = [MetricsHistory()]
-    if delta is not None:
-        cbs.append(MorozovStopping(delta, tau_dis))
-    if progress:
-        cbs.append(ProgressBar())
-    return cbs

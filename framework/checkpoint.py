@@ -1,8 +1,8 @@
 """Save, load and resume solver state (one ``torch.save`` file, written atomically).
 
-A checkpoint holds the solver's ``state_dict()`` (d, wavelet coefficients, iteration, elapsed
-time, history, step-size state and the cached data-term evaluation at d) plus the torch (CPU and
-CUDA) and NumPy global RNG states. Restoring all of it makes a resumed run continue exactly as
+A checkpoint holds the solver's ``state_dict()`` (d, iteration, elapsed time, history, and what
+the solver adds: wavelet coefficients, step-size state, the cached data-term evaluation at d) plus
+the torch (CPU and CUDA) and NumPy global RNG states. Restoring all of it makes a resumed run continue exactly as
 the uninterrupted one would: bit-for-bit for a deterministic operator, and also for a stochastic
 one that draws from the global torch/NumPy generators (an operator's private generator is not
 covered). Files are read with ``torch.load(weights_only=True)``: only tensors and plain data.
@@ -18,8 +18,7 @@ import numpy as np
 import torch
 
 if TYPE_CHECKING:
-    from framework.callbacks import Callback
-    from framework.solvers.base import IterativeSolver, RunResult
+    from framework.solvers.base import Callback, IterativeSolver, RunResult
 
 __all__ = ["save_checkpoint", "load_checkpoint", "restore", "resume", "CHECKPOINT_FORMAT"]
 

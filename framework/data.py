@@ -17,7 +17,7 @@ from typing import Callable
 import torch
 import torch.nn.functional as F
 
-from regularizers import mask_from_height_field
+from framework.masks import mask_from_height_field
 
 
 @dataclass
@@ -51,7 +51,8 @@ def resample_image(image: torch.Tensor, resolution: int) -> torch.Tensor:
 
 
 def validate_delta(delta: float) -> float:
-    if not 0.0 < delta < 1.0:
+    """The relative noise level delta as a float; refused unless it lies in (0, 1)."""
+    if isinstance(delta, bool) or not isinstance(delta, (int, float)) or not 0.0 < delta < 1.0:
         raise ValueError(f"data.delta={delta} must be a relative noise level in (0, 1), e.g. 0.05")
     return float(delta)
 

@@ -37,8 +37,9 @@ class ForwardOperator(Protocol):
     Implementations compute the gradient memory-efficiently (architecture.md: image without a
     graph first, then per photon chunk a recomputation with graph and a backward of
     <image_chunk, residual>), so peak memory is set by the chunk size, not the photon count.
-    An operator may expose ``image_shape: tuple[int, int, int]``; the data term then checks the
-    target against it.
+    An operator may expose ``output_shape: tuple[int, int, int]``; the data term then checks the
+    target against it before the first evaluation. An operator *plugin* (kind ``operator``) has
+    more: see :class:`framework.problem.OperatorPlugin`.
     """
 
     def __call__(self, d: Tensor) -> Tensor:
@@ -155,10 +156,10 @@ class DataFidelity:
                 f"target's negative mass is {negative / positive:.3g} of its positive mass "
                 f"(allowed {max_negative_fraction}); noise gives small negatives only, check sign and offset"
             )
-        expected = getattr(operator, "image_shape", None)
+        expected = getattr(operator, "output_shape", None)
         if expected is not None and tuple(expected) != tuple(target.shape):
             raise ValueError(
-                f"target shape {tuple(target.shape)} does not match the operator's image_shape "
+                f"target shape {tuple(target.shape)} does not match the operator's output_shape "
                 f"{tuple(expected)}; resample the image or configure the operator's resolution"
             )
         return target.detach()

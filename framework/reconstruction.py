@@ -1,4 +1,5 @@
-"""One reconstruction, end to end: data -> operator -> solver -> outputs, tracked in MLflow.
+"""One reconstruction, end to end: build every plugin by key, then data -> problem -> solver ->
+outputs, tracked in MLflow.
 
 Used by ``sfc-reconstruct`` (experiments/reconstruct.py); kept here so that the app stays thin
 and tests can run a reconstruction without Hydra's command line.
@@ -6,96 +7,29 @@ and tests can run a reconstruction without Hydra's command line.
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import time
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
 
-from framework.callbacks import (Checkpointer, GroundTruthError, MetricsHistory, MorozovStopping, ProgressBar,
-                                 StagnationStopping)
+from framework.callbacks import Checkpointer, GroundTruthError, MetricsHistory, ProgressBar
 from framework.checkpoint import resume as resume_solver
-from framework.data import ReconstructionData, measured_data, synthetic_data
+from framework.data_sources import DataRequest, DataSource, resolve_path
 from framework.height_field_io import load_height_field
-from framework.image_io import load_caustic_image, load_mask
-from framework.objective import DataFidelity
+from framework.plugin_config import as_mapping, build_plugin, split_name
+from framework.problem import HeightGrid, OperatorPlugin, Problem
 from framework.report_figures import save_reconstruction_figures
-from framework.scene_config import build_heights, build_operator, build_scene, to_plain
-from framework.solver_config import solver_recipe
-from framework.solvers import IterationRecord
+from framework.scene_config import build_heights, build_operator, build_scene, height_grid, to_plain
+from framework.solvers import Callback, IterationRecord, SolverBuilder
 from framework.tracking import MlflowTracker
-from operators.caustic_operator import CausticOperator
-from operators.precompile import BackgroundCompile
 from operators.scene import Scene
-from regularizers import RegularizerContext, mask_from_height_field
 
 CHECKPOINT = "checkpoint.pt"
-
-
-def height_pixel_area(scene: Scene, resolution: int) -> float:
-    """Area a of one height sample (scene units^2): samples are spaced 2 W / (m - 1)."""
-    return (2.0 * scene.substrate.half_width / (resolution - 1)) ** 2
-
-
-def _reference_operator(cfg: Mapping[str, Any], scene: Scene, seed: int) -> CausticOperator:
-    """Operator that renders synthetic references: more photons, own receiver size, own seed."""
-    data = cfg["data"]
-    resolution = int(data["reference_resolution"])
-    receiver = dataclasses.replace(scene.receiver, resolution=resolution)
-    # Footprints are given in receiver pixels: scale them so the reference blurs like the model.
-    zoom = resolution / scene.receiver.resolution
-    settings = dict(cfg["operator"])
-    for key in ("footprint_px", "min_footprint_px", "max_pixel_radius"):
-        if key in settings:
-            settings[key] = float(settings[key]) * zoom
-    ref_cfg = {**cfg, "photons": int(data["reference_photons"]), "seed": seed, "operator": settings}
-    return build_operator(ref_cfg, dataclasses.replace(scene, receiver=receiver))
-
-
-def build_data(cfg: Mapping[str, Any], scene: Scene, operator: CausticOperator, base_dir: Path) -> ReconstructionData:
-    """Synthetic data from the configured height field, or measured data from files (``data.kind``)."""
-    data = cfg["data"]
-    kind = data["kind"]
-    m = int(cfg["height_field"]["resolution"])
-    if kind == "synthetic":
-        truth = build_heights(cfg, base_dir=base_dir)
-        seed = int(cfg["seed"])
-        first = _reference_operator(cfg, scene, seed + 1000)
-        second = _reference_operator(cfg, scene, seed + 2000)
-        return synthetic_data(truth.to(operator.dtype), first.render, second.render, scene.receiver.resolution,
-                              float(data["delta"]), seed, height_pixel_area(scene, m),
-                              float(data["mask_threshold"]), float(data["mask_dilation"]))
-    if kind == "file":
-        if not data.get("image"):
-            raise ValueError("data.kind=file needs data.image=<caustic .npy/.png/.tif>")
-        image = load_caustic_image(_resolve(data["image"], base_dir))
-        if image.shape[0] != scene.channels:
-            raise ValueError(f"data.image has {image.shape[0]} channel(s) but the scene has {scene.channels} "
-                             "wavelength(s); set wavelengths=[...] to match")
-        mask_spec = data.get("mask")
-        if mask_spec in (None, "none"):
-            mask = torch.ones(m, m, dtype=torch.bool)
-        elif mask_spec == "design":
-            mask = mask_from_height_field(build_heights(cfg, base_dir=base_dir), float(data["mask_threshold"]),
-                                          float(data["mask_dilation"]))
-        else:
-            mask = load_mask(_resolve(mask_spec, base_dir), m)
-        flat_total = None
-        if data.get("brightness", "energy") == "energy":
-            flat_total = float(operator.render(torch.zeros(m, m, dtype=operator.dtype)).sum())
-        volume = data.get("volume")
-        return measured_data(image, scene.receiver.resolution, float(data["delta"]), mask,
-                             None if volume is None else float(volume), flat_total)
-    raise ValueError(f"unknown data.kind {kind!r}; use synthetic or file")
-
-
-def _resolve(path: str, base_dir: Path) -> Path:
-    p = Path(path).expanduser()
-    return p if p.is_absolute() else base_dir / p
 
 
 def initial_heights(cfg: Mapping[str, Any], m: int, dtype: torch.dtype, base_dir: Path) -> torch.Tensor:
@@ -111,21 +45,11 @@ def initial_heights(cfg: Mapping[str, Any], m: int, dtype: torch.dtype, base_dir
     if spec == "design":
         d = build_heights(cfg, base_dir=base_dir) * float(scale)
     else:
-        d = torch.from_numpy(load_height_field(_resolve(str(spec), base_dir), resolution=m, scale=float(scale)))
+        d = torch.from_numpy(load_height_field(resolve_path(str(spec), base_dir), resolution=m, scale=float(scale)))
     if tuple(d.shape) != (m, m):
         raise ValueError(f"initial={spec!r} gives heights of shape {tuple(d.shape)}, the reconstruction has "
                          f"({m}, {m}); set height_field.resolution to match")
     return d.to(dtype)
-
-
-def volume_band(solver: Any) -> tuple[float, float] | None:
-    """The band [q1, q2] of the height sum that the solver's volume regulariser (V1 or V2)
-    enforces, or None when it has none."""
-    for part in [*getattr(solver, "regularizers", []), *getattr(solver, "post_steps", [])]:
-        band = getattr(part, "band", None)
-        if band is not None:
-            return band
-    return None
 
 
 def stage_changes(history: Sequence[IterationRecord]) -> list[int]:
@@ -135,69 +59,121 @@ def stage_changes(history: Sequence[IterationRecord]) -> list[int]:
     return [i for (i, a), (_, b) in zip(lengths, lengths[1:]) if a is not None and b is not None and a != b]
 
 
+def _positive_int(value: Any, where: str) -> int:
+    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+        raise ValueError(f"{where}={value!r} must be an integer >= 1")
+    return value
+
+
+@dataclass
+class Reconstruction:
+    """Everything a reconstruction is built from, checked against the config before any render.
+
+    Attributes:
+        cfg: The plain config (logged as the run's params).
+        operator: The forward-operator plugin.
+        scene: The scene (light, substrate, receiver, material, wavelengths).
+        grid: The height grid.
+        data_source: The ``data`` plugin.
+        make_solver: The solver plugin's builder: (problem, d0) -> solver.
+        stopping: The ``stopping`` plugins, in config order.
+        d0: The start (m, m).
+        max_iter: The solver's iteration cap.
+    """
+
+    cfg: dict[str, Any]
+    operator: OperatorPlugin
+    scene: Scene
+    grid: HeightGrid
+    data_source: DataSource
+    make_solver: SolverBuilder
+    stopping: list[Callback]
+    d0: torch.Tensor
+    max_iter: int
+
+    @classmethod
+    def from_config(cls, cfg: Mapping[str, Any], base_dir: Path) -> Reconstruction:
+        """Build every part by its registry key (scene, operator, data, solver, stopping rules) and
+        the start; a bad value fails here, before anything is rendered."""
+        cfg = dict(to_plain(cfg))
+        scene = build_scene(cfg)
+        operator = build_operator(cfg, scene)
+        grid = height_grid(cfg, scene)
+        data_name, data_params = split_name(cfg.get("data"), "data")
+        data_source = build_plugin("data", data_name, data_params, "data")
+        solver_name, solver_params = split_name(cfg.get("solver"), "solver")
+        max_iter = _positive_int(solver_params.pop("max_iter", None), "solver.max_iter")  # the loop's, not the solver's
+        make_solver = build_plugin("solver", solver_name, solver_params, "solver")
+        stopping = [build_plugin("stopping", name, params, f"stopping.{name}")
+                    for name, params in as_mapping(cfg.get("stopping"), "stopping").items()]
+        _positive_int(cfg.get("checkpoint_every"), "checkpoint_every")
+        d0 = initial_heights(cfg, grid.resolution, operator.dtype, base_dir)
+        return cls(cfg, operator, scene, grid, data_source, make_solver, stopping, d0, max_iter)
+
+    def data_request(self, base_dir: Path) -> DataRequest:
+        """What the data source may use: the operator, the grid, the configured heights, the seed."""
+        return DataRequest(self.operator, self.grid, lambda: build_heights(self.cfg, base_dir=base_dir),
+                           int(self.cfg.get("seed", 0)), base_dir)
+
+
 def run_reconstruction(cfg: Mapping[str, Any], output_dir: Path, base_dir: Path,
                        sweep_id: str | None = None) -> dict[str, Any]:
     """Reconstruct the configured scene into ``output_dir``; returns the metrics written to metrics.json."""
     output_dir.mkdir(parents=True, exist_ok=True)
-    on_cpu = not str(cfg.get("operator", {}).get("device", "cpu")).startswith("cuda")
-    with BackgroundCompile(enabled=bool(cfg.get("compile_in_background", True)) and on_cpu) as compiling:
-        return _reconstruct(cfg, output_dir, base_dir, sweep_id, compiling)
+    parts = Reconstruction.from_config(cfg, base_dir)
+    warm_up = getattr(parts.operator, "warm_up", None)
+    if callable(warm_up) and bool(parts.cfg.get("compile_in_background", True)):
+        with warm_up() as compiling:
+            return _reconstruct(parts, output_dir, base_dir, sweep_id, compiling)
+    return _reconstruct(parts, output_dir, base_dir, sweep_id, None)
 
 
-def _reconstruct(cfg: Mapping[str, Any], output_dir: Path, base_dir: Path, sweep_id: str | None,
-                 compiling: BackgroundCompile) -> dict[str, Any]:
-    # Everything built from config alone comes first, so that a bad value fails before the data's renders.
-    scene = build_scene(cfg)
-    operator = build_operator(cfg, scene)
-    m = int(cfg["height_field"]["resolution"])
-    d0 = initial_heights(cfg, m, operator.dtype, base_dir)
-    recipe = solver_recipe(cfg["solver"], cfg.get("regularizers"), cfg.get("post_steps"), cfg.get("wavelet"), (m, m))
-    patience = cfg["solver"].get("patience")
-    stagnation = StagnationStopping(patience) if patience is not None else None
-    tracking = cfg["tracking"]
-    tags = {"method": cfg.get("method", "custom"), "scene": cfg["height_field"].get("shape", "file"),
-            "data": cfg["data"]["kind"]}
+def _reconstruct(parts: Reconstruction, output_dir: Path, base_dir: Path, sweep_id: str | None,
+                 compiling: Any) -> dict[str, Any]:
+    cfg, operator = parts.cfg, parts.operator
+    method = cfg.get("method", "custom")
+    tracking = as_mapping(cfg.get("tracking"), "tracking")
+    data_name = cfg["data"]["name"]
+    tags = {"method": method, "scene": cfg["height_field"].get("shape", "file"), "data": data_name,
+            "operator": cfg["operator"]["name"], "solver": cfg["solver"]["name"]}
     with MlflowTracker(experiment=tracking["experiment"], run_name=cfg.get("method"),
-                       store_dir=_resolve(tracking["store_dir"], base_dir), tracking_uri=tracking.get("uri"),
-                       params=to_plain(cfg), tags=tags, sweep_id=sweep_id) as tracker:
+                       store_dir=resolve_path(tracking["store_dir"], base_dir), tracking_uri=tracking.get("uri"),
+                       params=cfg, tags=tags, sweep_id=sweep_id) as tracker:
         start = time.perf_counter()
-        data = build_data(cfg, scene, operator, base_dir)
+        data = parts.data_source.load(parts.data_request(base_dir))
         data_seconds = time.perf_counter() - start
-        cell_area = height_pixel_area(scene, m)
-        context = RegularizerContext(mask=data.mask, volume=data.volume, pixel_area=cell_area)
-        fidelity = DataFidelity(operator, data.target.to(operator.dtype), cell_area=cell_area)
-        solver = recipe.build(fidelity, d0, context)
+        problem = Problem(operator, data, parts.grid, parts.scene)
+        solver = parts.make_solver(problem, parts.d0)
+        for rule in parts.stopping:
+            if callable(getattr(rule, "setup", None)):
+                rule.setup(problem)
         history = MetricsHistory()
-        callbacks = [history, MorozovStopping(data.delta, float(cfg["solver"]["tau_dis"]), volume_band(solver)),
-                     ProgressBar(desc=str(cfg.get("method", "reconstruct"))),
-                     Checkpointer(output_dir / CHECKPOINT, every=int(cfg["checkpoint_every"])),
-                     tracker.metrics_callback()]
-        if stagnation is not None:
-            callbacks.append(stagnation)
+        callbacks: list[Callback] = [history, *parts.stopping, ProgressBar(desc=str(method)),
+                                     Checkpointer(output_dir / CHECKPOINT, every=int(cfg["checkpoint_every"])),
+                                     tracker.metrics_callback()]
         truth_error = None
         if data.ground_truth is not None:
-            truth_error = GroundTruthError(data.ground_truth.to(operator.dtype), scene.substrate.thickness)
+            truth_error = GroundTruthError(data.ground_truth.to(operator.dtype), parts.grid.base)
             callbacks.append(truth_error)
-        max_iter = int(cfg["solver"]["max_iter"])
-        if compiling.running:
+        if compiling is not None and compiling.running:
             print("waiting for the gradient kernel to compile (first run after an install; cached afterwards)",
                   flush=True)
-        compiling.wait()
+            compiling.wait()
         solve_start = time.perf_counter()
         if cfg.get("resume"):
-            result = resume_solver(solver, _resolve(str(cfg["resume"]), base_dir), max_iter, callbacks)
+            result = resume_solver(solver, resolve_path(str(cfg["resume"]), base_dir), parts.max_iter, callbacks)
         else:
-            result = solver.run(max_iter, callbacks)
+            result = solver.run(parts.max_iter, callbacks)
         solve_seconds = time.perf_counter() - solve_start
-        d = result.d.detach()
-        returned_iteration = result.iterations
-        if result.stopped_by != "MorozovStopping" and stagnation is not None and stagnation.best_d is not None:
-            # No admissible iterate: return the one with the lowest discrepancy seen.
-            d, returned_iteration = stagnation.best_d, stagnation.best_iteration
+        d, returned_iteration = result.d.detach(), result.iterations
+        if not result.accepted:  # no accepted iterate: report the best one a stopping rule kept
+            best = next((b for b in (rule.best_iterate() for rule in parts.stopping) if b is not None), None)
+            if best is not None:
+                d, returned_iteration = best
         prediction = operator.render(d)
         residual = float(torch.linalg.vector_norm((prediction - data.target.to(prediction)).double()))
         metrics: dict[str, Any] = {
-            "method": cfg.get("method", "custom"), "iterations": result.iterations,
+            "method": method, "iterations": result.iterations,
             "returned_iteration": returned_iteration,
             "refined_at": stage_changes(result.history),
             "stop_reason": result.stop_reason, "stopped_by": result.stopped_by,
@@ -207,7 +183,7 @@ def _reconstruct(cfg: Mapping[str, Any], output_dir: Path, base_dir: Path, sweep
             "photons_per_iteration": operator.photons, **(truth_error.errors(d) if truth_error else {})}
         np.save(output_dir / "height_field.npy", d.cpu().numpy().astype(np.float64))
         (output_dir / "metrics.json").write_text(json.dumps(metrics, indent=2))
-        save_reconstruction_figures(output_dir, d, data, prediction, history.columns(), scene)
+        save_reconstruction_figures(output_dir, d, problem, prediction, history.columns())
         tracker.log_metrics({k: v for k, v in metrics.items() if isinstance(v, (int, float)) and v is not None
                              and not isinstance(v, bool)})
         tracker.log_artifacts(output_dir)

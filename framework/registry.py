@@ -1,74 +1,86 @@
-"""Plugin registry: configs name plugins by ``kind/name``; only registered classes can be built.
+"""Plugin registry: configs name plugins by kind and name; only registered objects can be built.
 
-Our own plugins register with the :func:`register` decorator when their module is imported.
-Third-party packages add plugins through the ``shape_from_caustics.plugins`` entry-point group;
-each entry point names a module that registers its classes on import, e.g. in their
-pyproject.toml::
+A leaf module: it imports nothing of this project. Plugins come from two places:
 
-    [project.entry-points."shape_from_caustics.plugins"]
-    my_solver = "my_package.my_solver"
+- Python entry points, one group per kind, ``shape_from_caustics.<kind>``, each entry naming the
+  plugin object (``name = "package.module:Object"``). This project declares its own built-ins
+  this way in pyproject.toml, and a third-party package does the same in its own::
+
+      [project.entry-points."shape_from_caustics.solver"]
+      my_solver = "my_package.my_solver:MySolver"
+
+  An entry point is imported only when its plugin is looked up.
+- :func:`register`, for plugins defined in a running program (a notebook, a test).
+
+Kinds (what a plugin of each kind is, docs/plugins.md):
+``operator``, ``solver``, ``regularizer``, ``post_step``, ``step_size``, ``preconditioner``,
+``stopping`` and ``data``.
 """
 
 from __future__ import annotations
 
-import importlib
-from importlib.metadata import entry_points
+from importlib.metadata import EntryPoint, entry_points
 from typing import Any, Callable, TypeVar
 
 T = TypeVar("T")
 
-ENTRY_POINT_GROUP = "shape_from_caustics.plugins"
-# Modules of this project that register plugins; imported lazily on first lookup.
-BUILTIN_PLUGIN_MODULES: tuple[str, ...] = (
-    "regularizers",
-    "framework.solvers",
-    "operators.caustic_operator",
-)
+KINDS: tuple[str, ...] = ("operator", "solver", "regularizer", "post_step", "step_size", "preconditioner",
+                          "stopping", "data")
+ENTRY_POINT_PREFIX = "shape_from_caustics."
 
-_REGISTRY: dict[str, dict[str, Callable[..., Any]]] = {}
-_loaded = False
+_registered: dict[str, dict[str, Any]] = {kind: {} for kind in KINDS}
+_loaded: dict[str, dict[str, Any]] = {kind: {} for kind in KINDS}
+_entry_point_cache: dict[str, dict[str, EntryPoint]] = {}
+
+
+def _check_kind(kind: str) -> None:
+    if kind not in KINDS:
+        raise ValueError(f"unknown plugin kind {kind!r}; kinds: {', '.join(KINDS)}")
+
+
+def _entry_points(kind: str) -> dict[str, EntryPoint]:
+    """The installed entry points of ``kind`` by name (read once per process)."""
+    if kind not in _entry_point_cache:
+        found: dict[str, EntryPoint] = {}
+        for ep in entry_points(group=ENTRY_POINT_PREFIX + kind):
+            known = found.get(ep.name)
+            if known is not None and known.value != ep.value:
+                raise ValueError(f"plugin {kind}/{ep.name} is declared twice ({known.value} and {ep.value}); "
+                                 "uninstall one of the packages")
+            found[ep.name] = ep
+        _entry_point_cache[kind] = found
+    return _entry_point_cache[kind]
 
 
 def register(kind: str, name: str) -> Callable[[T], T]:
-    """Class decorator: make ``cls`` buildable as ``kind/name``."""
+    """Decorator: make ``obj`` the plugin ``kind/name`` in this process (shadows no entry point)."""
+    _check_kind(kind)
 
-    def decorator(cls: T) -> T:
-        slot = _REGISTRY.setdefault(kind, {})
-        if name in slot and slot[name] is not cls:
+    def decorator(obj: T) -> T:
+        slot = _registered[kind]
+        if (name in slot and slot[name] is not obj) or name in _entry_points(kind):
             raise ValueError(f"plugin {kind}/{name} is registered twice; pick another name")
-        slot[name] = cls  # type: ignore[assignment]
-        return cls
+        slot[name] = obj
+        return obj
 
     return decorator
 
 
-def _load_plugins() -> None:
-    global _loaded
-    if _loaded:
-        return
-    _loaded = True
-    for module in BUILTIN_PLUGIN_MODULES:
-        importlib.import_module(module)
-    for ep in entry_points(group=ENTRY_POINT_GROUP):
-        importlib.import_module(ep.value)
-
-
 def available(kind: str) -> list[str]:
-    """Names registered under ``kind``, sorted."""
-    _load_plugins()
-    return sorted(_REGISTRY.get(kind, {}))
+    """Names of the plugins of ``kind``, sorted."""
+    _check_kind(kind)
+    return sorted({*_registered[kind], *_entry_points(kind)})
 
 
-def lookup(kind: str, name: str) -> Callable[..., Any]:
-    """The class registered as ``kind/name``; a clear error lists the known names otherwise."""
-    _load_plugins()
-    try:
-        return _REGISTRY[kind][name]
-    except KeyError:
-        known = ", ".join(available(kind)) or "none"
-        raise KeyError(f"unknown {kind} plugin {name!r}; registered {kind} plugins: {known}") from None
-
-
-def build(kind: str, name: str, **params: Any) -> Any:
-    """Instantiate the plugin ``kind/name`` with keyword ``params``."""
-    return lookup(kind, name)(**params)
+def lookup(kind: str, name: str) -> Any:
+    """The plugin ``kind/name``; a KeyError lists the known names otherwise."""
+    _check_kind(kind)
+    if name in _registered[kind]:
+        return _registered[kind][name]
+    if name not in _loaded[kind]:
+        ep = _entry_points(kind).get(name)
+        if ep is None:
+            known = ", ".join(available(kind)) or "none (is the project installed? pip install -e .)"
+            raise KeyError(f"unknown {kind} plugin {name!r}; {kind} plugins: {known}")
+        _loaded[kind][name] = ep.load()
+    return _loaded[kind][name]

@@ -12,17 +12,18 @@ from matplotlib.figure import Figure
 from framework.plotting import normalise
 
 if TYPE_CHECKING:
-    from framework.data import ReconstructionData
-    from operators.scene import Scene
+    from framework.problem import Problem
 
 
-def save_reconstruction_figures(output_dir: Path, heights: torch.Tensor, data: "ReconstructionData",
-                                prediction: torch.Tensor, history: dict[str, list[float]], scene: "Scene") -> None:
-    """Write heights.png, centre_slice.png, caustics.png and convergence.png into ``output_dir``."""
+def save_reconstruction_figures(output_dir: Path, heights: torch.Tensor, problem: "Problem",
+                                prediction: torch.Tensor, history: dict[str, list[float]]) -> None:
+    """Write heights.png, centre_slice.png, caustics.png and convergence.png into ``output_dir``:
+    ``heights`` (m, m) and ``prediction`` (c, n, n) against the problem's data."""
     d = heights.detach().cpu().double().numpy()
+    data = problem.data
     truth = None if data.ground_truth is None else data.ground_truth.cpu().numpy()
-    half = scene.substrate.half_width
-    extent = (-half, half, -half, half)
+    half = problem.grid.half_width
+    extent = problem.grid.extent
 
     panels = [("reconstruction", d)] + ([("ground truth", truth)] if truth is not None else [])
     fig = Figure(figsize=(5 * len(panels), 4.2))
@@ -46,7 +47,7 @@ def save_reconstruction_figures(output_dir: Path, heights: torch.Tensor, data: "
     ax.legend()
     fig.savefig(output_dir / "centre_slice.png", dpi=120, bbox_inches="tight")
 
-    rh = scene.receiver.half_width
+    rh = problem.scene.receiver.half_width
     target = data.target.cpu().double().numpy().sum(axis=0)
     predicted = prediction.detach().cpu().double().numpy().sum(axis=0)
     fig = Figure(figsize=(10, 4.2))

@@ -1,6 +1,6 @@
-"""Build the scene, the heights and the caustic operator from a (Hydra) config.
+"""Build the scene, the heights, their grid and the forward operator from a (Hydra) config.
 
-Config layout (top-level keys; see conf/scene/*.yaml and conf/operator/default.yaml)::
+Config layout (top-level keys; see conf/scene/*.yaml and conf/operator/*.yaml)::
 
     light:        {position: [x, y, z], power: W}
     substrate:    {thickness: h, half_width: W}
@@ -10,10 +10,10 @@ Config layout (top-level keys; see conf/scene/*.yaml and conf/operator/default.y
     height_field: {shape, resolution, path, scale, params}
     photons: N
     seed: int
-    operator:     {footprint_px, min_footprint_px, max_pixel_radius, chunk_size, fresnel, dtype, device}
+    operator:     {name: <operator plugin>, ...its own settings}
 
 Lengths are in scene units. Groups may omit keys (dataclass defaults apply); unknown keys in
-a group are refused with an error naming the key.
+a group are refused with an error naming the key. The operator plugin checks its own settings.
 """
 
 from __future__ import annotations
@@ -27,12 +27,14 @@ import torch
 from omegaconf import DictConfig, ListConfig, OmegaConf
 
 from framework.height_field_io import load_height_field
+from framework.objective import ForwardOperator
+from framework.plugin_config import build_plugin, split_name
+from framework.problem import HeightGrid
 from framework.shapes import make_shape
-from operators.caustic_operator import CausticOperator, OperatorSettings
 from operators.materials import make_material
 from operators.scene import PointLight, Receiver, Scene, Substrate
 
-__all__ = ["build_scene", "build_heights", "build_operator", "to_plain"]
+__all__ = ["build_scene", "build_heights", "build_operator", "height_grid", "to_plain"]
 
 SCENE_KEYS: dict[str, tuple[str, ...]] = {
     "light": ("position", "power"),
@@ -46,8 +48,6 @@ MATERIAL_KEYS: dict[str, tuple[str, ...]] = {
     "constant": ("n",),
 }
 HEIGHT_FIELD_KEYS = ("shape", "resolution", "path", "scale", "params")
-OPERATOR_KEYS = ("footprint_px", "min_footprint_px", "max_pixel_radius", "chunk_size", "hit_cache_mb", "fresnel", "simd",
-                 "dtype", "device")
 DEFAULT_RESOLUTION = 128
 
 
@@ -148,26 +148,17 @@ def build_heights(cfg: Mapping[str, Any], base_dir: str | Path | None = None) ->
     return torch.from_numpy(np.ascontiguousarray(heights, dtype=np.float64))
 
 
-def build_operator(cfg: Mapping[str, Any], scene: Scene) -> CausticOperator:
-    """CausticOperator from ``photons``, ``seed`` and the ``operator`` group (OperatorSettings fields)."""
-    settings = _group(cfg, "operator", OPERATOR_KEYS)
-    photons = _number("photons", cfg.get("photons", OperatorSettings.photons), int)
-    if photons < scene.channels:
-        raise ValueError(f"photons={photons} is too few; need at least one per wavelength ({scene.channels})")
+def height_grid(cfg: Mapping[str, Any], scene: Scene) -> HeightGrid:
+    """The grid of the reconstructed heights: ``height_field.resolution`` samples over the substrate."""
+    spec = _group(cfg, "height_field", HEIGHT_FIELD_KEYS)
+    resolution = _number("height_field.resolution", spec.get("resolution", DEFAULT_RESOLUTION), int)
+    return HeightGrid(resolution, scene.substrate.half_width, scene.substrate.thickness)
+
+
+def build_operator(cfg: Mapping[str, Any], scene: Scene) -> ForwardOperator:
+    """The operator plugin named by ``operator.name``, for ``scene``, ``photons`` and ``seed``,
+    from the rest of the ``operator`` group (which the plugin checks)."""
+    name, params = split_name(to_plain(cfg.get("operator")), "operator")
+    photons = _number("photons", cfg.get("photons"), int)
     seed = _number("seed", cfg.get("seed", 0), int)
-    for key in ("footprint_px", "min_footprint_px", "max_pixel_radius"):
-        if key in settings:
-            settings[key] = _number(f"operator.{key}", settings[key])
-    if "chunk_size" in settings:
-        settings["chunk_size"] = _number("operator.chunk_size", settings["chunk_size"], int)
-    for key in ("fresnel", "simd"):
-        if key in settings and not isinstance(settings[key], bool):
-            raise ValueError(f"operator.{key}={settings[key]!r} must be true or false")
-    device = str(settings.get("device", "cpu"))
-    try:
-        torch.device(device)
-    except RuntimeError:
-        raise ValueError(f"operator.device={device!r} is not a torch device; use cpu or cuda") from None
-    if device.startswith("cuda") and not torch.cuda.is_available():
-        raise ValueError(f"operator.device={device} but CUDA is not available here; use operator.device=cpu")
-    return CausticOperator(scene, OperatorSettings(photons=photons, seed=seed, **settings))
+    return build_plugin("operator", name, params, "operator", scene=scene, photons=photons, seed=seed)

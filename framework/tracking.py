@@ -24,7 +24,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from framework.callbacks import Callback
+from framework.solvers.base import Callback
 
 if TYPE_CHECKING:
     from framework.solvers.base import IterationRecord, IterativeSolver, RunResult

@@ -20,23 +20,27 @@ for a gradient of the same heights, which then skips the hit search.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numba as nb
 import numpy as np
 import torch
 from tqdm.auto import tqdm
 
-from framework.registry import register
 from operators.emission import PointLightEmitter
 from operators.fused_trace import FusedTracer, HitCache
 from operators.native import to_numpy
+from operators.precompile import BackgroundCompile
 from operators.scene import Scene
 from operators.splat import footprint_metric, splat_photons, splat_photons_vjp
 from operators.substrate_trace import trace_substrate
 
 DTYPES = {"float32": torch.float32, "float64": torch.float64}
+# Settings given in receiver pixels: a render at another receiver resolution scales them.
+PIXEL_SETTINGS = ("footprint_px", "min_footprint_px", "max_pixel_radius")
 
 
 @dataclass(frozen=True)
@@ -71,14 +75,33 @@ class OperatorSettings:
     device: str = "cpu"
 
     def __post_init__(self) -> None:
-        if self.dtype not in DTYPES:
+        for key in ("photons", "seed", "chunk_size"):
+            value = getattr(self, key)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or int(value) != value:
+                raise ValueError(f"{key}={value!r} must be an integer")
+            object.__setattr__(self, key, int(value))
+        for key in (*PIXEL_SETTINGS, "hit_cache_mb"):
+            value = getattr(self, key)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+                raise ValueError(f"operator.{key}={value!r} must be a finite number")
+            object.__setattr__(self, key, float(value))
+        for key in ("fresnel", "simd"):
+            if not isinstance(getattr(self, key), bool):
+                raise ValueError(f"operator.{key}={getattr(self, key)!r} must be true or false")
+        try:
+            device = torch.device(self.device)
+        except (RuntimeError, TypeError):
+            raise ValueError(f"operator.device={self.device!r} is not a torch device; use cpu or cuda") from None
+        if device.type == "cuda" and not torch.cuda.is_available():
+            raise ValueError(f"operator.device={self.device} but CUDA is not available here; use operator.device=cpu")
+        if self.photons < 1:
+            raise ValueError(f"photons={self.photons} must be positive, e.g. 1048576")
+        if not isinstance(self.dtype, str) or self.dtype not in DTYPES:
             raise ValueError(f"dtype={self.dtype!r} is not supported; use float32 or float64")
         if int(self.chunk_size) != self.chunk_size or self.chunk_size < 1:
             raise ValueError(f"chunk_size={self.chunk_size} must be a positive integer, e.g. 262144")
         if not self.hit_cache_mb >= 0.0:
             raise ValueError(f"hit_cache_mb={self.hit_cache_mb} must be >= 0 (MiB; 0 turns the hit cache off)")
-        if not isinstance(self.simd, bool):
-            raise ValueError(f"simd={self.simd!r} must be true or false")
         if not 0.0 < self.min_footprint_px < self.max_pixel_radius:
             raise ValueError(f"need 0 < min_footprint_px ({self.min_footprint_px}) < max_pixel_radius "
                              f"({self.max_pixel_radius})")
@@ -100,13 +123,40 @@ def validate_heights(heights: torch.Tensor, thickness: float) -> None:
                          f"(d must exceed -thickness = {-thickness}); printed heights are >= 0")
 
 
-@register("operator", "height_field")
 class CausticOperator:
     """Differentiable caustic of a printed height field on a flat substrate.
 
     Call it on heights (m, m) in scene units: returns irradiance (c, n, n) in W per scene unit^2,
-    differentiable w.r.t. the heights with memory bounded by the chunk size.
+    differentiable w.r.t. the heights with memory bounded by the chunk size. The plugin
+    ``operator/height_field`` (built by :meth:`from_config`).
     """
+
+    @classmethod
+    def from_config(cls, scene: Scene, photons: int, seed: int, **settings: Any) -> CausticOperator:
+        """The operator for ``scene`` from the config's ``operator`` group (the fields of
+        :class:`OperatorSettings` but photons and seed, which the run gives); checks every value."""
+        fields = {f.name for f in dataclasses.fields(OperatorSettings)} - {"photons", "seed"}
+        for key in settings:
+            if key not in fields:
+                raise ValueError(f"unknown key operator.{key}; operator/height_field takes: {', '.join(sorted(fields))}")
+        if photons < scene.channels:
+            raise ValueError(f"photons={photons} is too few; need at least one per wavelength ({scene.channels})")
+        return cls(scene, OperatorSettings(photons=photons, seed=seed, **settings))
+
+    def variant(self, photons: int, seed: int, resolution: int) -> CausticOperator:
+        """The same physics with another sampling: ``photons``, ``seed`` and an n = ``resolution``
+        receiver, whose footprints (set in pixels) are scaled so that it blurs like this one."""
+        zoom = resolution / self.scene.receiver.resolution
+        scaled = {key: getattr(self.settings, key) * zoom for key in PIXEL_SETTINGS}
+        receiver = dataclasses.replace(self.scene.receiver, resolution=resolution)
+        return CausticOperator(dataclasses.replace(self.scene, receiver=receiver),
+                               dataclasses.replace(self.settings, photons=photons, seed=seed, **scaled))
+
+    def warm_up(self) -> BackgroundCompile:
+        """Context for a run that will take gradients: on the CPU, compiles the gradient kernel in a
+        second process while this one goes on (first run after an install, operators/precompile.py);
+        ``wait()`` on what it yields before the first gradient."""
+        return BackgroundCompile(enabled=self.device.type != "cuda")
 
     def __init__(self, scene: Scene, settings: OperatorSettings | None = None) -> None:
         self.scene = scene

@@ -3,7 +3,7 @@
 The first run after an install compiles the fused kernels into numba's on-disk cache: about
 30 s for the render kernel and 80 s for the gradient (vjp) kernel, one after the other, since one
 process compiles one function at a time. :class:`BackgroundCompile` starts
-``python -m operators.precompile`` when the gradient kernel is not cached yet; that process
+``python -m operators.compile_kernels`` when the gradient kernel is not cached yet; that process
 compiles it on the second core and writes it to the cache, and :meth:`BackgroundCompile.wait`
 holds the caller until it is there, so the caller's first gradient loads it instead of
 compiling it again. On every later run the cache is warm and no process is started.
@@ -15,7 +15,7 @@ import subprocess
 import sys
 from types import TracebackType
 
-import torch
+COMPILE_MODULE = "operators.compile_kernels"  # run as a script: compiles the gradient kernel
 
 
 def gradient_kernel_cached() -> bool:
@@ -40,7 +40,7 @@ class BackgroundCompile:
     def __init__(self, enabled: bool = True) -> None:
         self.process: subprocess.Popen | None = None
         if enabled and not gradient_kernel_cached():
-            self.process = subprocess.Popen([sys.executable, "-m", "operators.precompile"],
+            self.process = subprocess.Popen([sys.executable, "-m", COMPILE_MODULE],
                                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
 
     @property
@@ -61,18 +61,3 @@ class BackgroundCompile:
         if self.process is not None and self.process.poll() is None:
             self.process.kill()
             self.process.wait()
-
-
-def compile_gradient_kernel() -> None:
-    """Compile (or load) the gradient kernel with the argument types every operator passes it:
-    one vjp of a small operator (the kernel's types do not depend on sizes or settings)."""
-    from operators.caustic_operator import CausticOperator, OperatorSettings
-    from operators.scene import Receiver, Scene
-
-    op = CausticOperator(Scene(receiver=Receiver(resolution=8)), OperatorSettings(photons=64, chunk_size=64))
-    op.vjp(torch.zeros(4, 4, dtype=op.dtype), torch.zeros(op.output_shape, dtype=op.dtype))
-
-
-if __name__ == "__main__":
-    compile_gradient_kernel()
-    sys.exit(0 if gradient_kernel_cached() else 1)

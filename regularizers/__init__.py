@@ -1,17 +1,17 @@
 """Regularizers of the height-field reconstruction: values, proximal maps and post-step updates.
 
-Importing this package registers every plugin (kind ``"regularizer"``):
+The plugins (declared as entry points in pyproject.toml; kind ``regularizer`` unless noted):
 
 - ``l1_pixel``   :class:`PixelL1`            alpha ||d||_1
 - ``bounds``     :class:`HeightBounds`       indicator of [p1, p2] on the mask N^, 0 off it
 - ``l1_bounds``  :class:`PixelL1Bounds`      both at once; its prox is the paper's eq. (7)
 - ``l1_wavelet`` :class:`WaveletL1`          alpha_w ||W d||_1, orthogonal Daubechies DWT
-- ``volume_v1``  :class:`VolumeHeuristic`    the paper's volume heuristic eq. (8) (post-step update)
+- ``volume_v1``  :class:`VolumeHeuristic`    the paper's volume heuristic eq. (8) (kind ``post_step``)
 - ``volume_v2``  :class:`VolumeSlabL1Bounds` eq. (7) plus an exact volume slab constraint (a prox)
 """
 
 from .base import PostStepUpdate, Regularizer, RegularizerContext
-from .bounds import HeightBounds, mask_from_height_field
+from .bounds import HeightBounds
 from .pixel_l1 import PixelL1
 from .pixel_step import PixelL1Bounds
 from .shrinkage import clamp_on_mask, soft_shrink
@@ -31,7 +31,6 @@ __all__ = [
     "WaveletL1",
     "WaveletTransform",
     "clamp_on_mask",
-    "mask_from_height_field",
     "soft_shrink",
     "volume_band",
     "window_mean",

@@ -4,14 +4,12 @@ from __future__ import annotations
 
 import torch
 
-from framework.registry import register
 
 from ._checks import check_height_field, check_nonnegative
 from .base import Regularizer
 from .shrinkage import soft_shrink
 
 
-@register("regularizer", "l1_pixel")
 class PixelL1(Regularizer):
     """R(d) = alpha * sum_j |d_j| over all samples of the height field.
 

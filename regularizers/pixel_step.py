@@ -6,14 +6,12 @@ import math
 
 import torch
 
-from framework.registry import register
 
 from ._checks import check_bounds, check_height_field, check_nonnegative
 from .base import Regularizer
 from .shrinkage import clamp_on_mask, soft_shrink
 
 
-@register("regularizer", "l1_bounds")
 class PixelL1Bounds(Regularizer):
     """R(d) = alpha * ||d||_1 + iota_C(d), C = {p1 <= d_j <= p2 on N^, d_j = 0 on N°}.
 

@@ -7,7 +7,6 @@ import math
 import torch
 import torch.nn.functional as F
 
-from framework.registry import register
 
 from ._checks import check_height_field, check_nonnegative, check_relative_tolerance
 from .base import PostStepUpdate, RegularizerContext
@@ -39,7 +38,6 @@ def window_mean(d: torch.Tensor, radius: int) -> torch.Tensor:
     return F.avg_pool2d(d[None, None], kernel_size=k, stride=1, padding=radius, count_include_pad=True)[0, 0]
 
 
-@register("regularizer", "volume_v1")
 class VolumeHeuristic(PostStepUpdate):
     """Eq. (8): push the total height sum v(d) = sum_j d_j back into [q1, q2].
 

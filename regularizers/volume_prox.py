@@ -12,7 +12,6 @@ import math
 
 import torch
 
-from framework.registry import register
 
 from ._checks import check_bounds, check_height_field, check_nonnegative, check_positive, check_relative_tolerance
 from .base import Regularizer, RegularizerContext
@@ -20,7 +19,6 @@ from .shrinkage import clamp_on_mask, soft_shrink
 from .volume_heuristic import volume_band
 
 
-@register("regularizer", "volume_v2")
 class VolumeSlabL1Bounds(Regularizer):
     """R(d) = alpha ||d||_1 + iota_C(d) + iota_{q1 <= sum_{N^} d <= q2}(d).
 

@@ -22,7 +22,6 @@ import numpy as np
 import pywt
 import torch
 
-from framework.registry import register
 
 from ._checks import check_height_field, check_nonnegative
 from .base import Regularizer, RegularizerContext
@@ -143,7 +142,6 @@ class WaveletTransform:
         )
 
 
-@register("regularizer", "l1_wavelet")
 class WaveletL1(Regularizer):
     """R(d) = alpha_w * ||W d||_1 with the orthogonal DWT W (method M3).
 

@@ -32,14 +32,14 @@ def plain(**groups: Any) -> dict[str, Any]:
                            "receiver": {"z": -0.05, "resolution": 32, "half_width": 1.0},
                            "material": {"kind": "fused_silica"}, "wavelengths": [0.633],
                            "height_field": {"shape": "flat", "resolution": 8},
-                           "photons": 1000, "seed": 0, "operator": {}}
+                           "photons": 1000, "seed": 0, "operator": {"name": "height_field"}}
     cfg.update(groups)
     return cfg
 
 
 def test_the_expected_configs_exist() -> None:
     assert SCENES == ["bump", "flat", "gaussian", "oblique_lines", "print_lines"]
-    assert OPERATORS == ["default"]
+    assert OPERATORS == ["height_field"]
 
 
 @pytest.mark.parametrize("operator", OPERATORS)
@@ -144,15 +144,17 @@ def test_bad_height_field_configs(groups: dict[str, Any], message: str) -> None:
 
 @pytest.mark.parametrize("groups, message", [
     ({"photons": 0}, "photons=0 is too few"),
-    ({"operator": {"footprint": 3}}, "unknown key operator.footprint"),
+    ({"operator": {"name": "height_field", "footprint": 3}}, "unknown key operator.footprint"),
+    ({"operator": {"footprint_px": 3}}, "operator needs a plugin name"),
+    ({"operator": {"name": "raytracer"}}, "unknown operator plugin 'raytracer'; operator plugins: height_field"),
     ({"photons": 10.5}, "photons=10.5 must be an integer"),
-    ({"operator": {"dtype": "float16"}}, "dtype='float16'"),
-    ({"operator": {"device": "gpu0"}}, "operator.device='gpu0'"),
-    ({"operator": {"fresnel": "yes"}}, "operator.fresnel='yes'"),
-    ({"operator": {"simd": "on"}}, "operator.simd='on' must be true or false"),
-    ({"operator": {"chunk_size": 0}}, "chunk_size=0"),
+    ({"operator": {"name": "height_field", "dtype": "float16"}}, "dtype='float16'"),
+    ({"operator": {"name": "height_field", "device": "gpu0"}}, "operator.device='gpu0'"),
+    ({"operator": {"name": "height_field", "fresnel": "yes"}}, "operator.fresnel='yes'"),
+    ({"operator": {"name": "height_field", "simd": "on"}}, "operator.simd='on' must be true or false"),
+    ({"operator": {"name": "height_field", "chunk_size": 0}}, "chunk_size=0"),
 ])
 def test_bad_operator_configs(groups: dict[str, Any], message: str) -> None:
     cfg = plain(**groups)
-    with pytest.raises(ValueError, match=message):
+    with pytest.raises((ValueError, KeyError), match=message):
         build_operator(cfg, build_scene(cfg))

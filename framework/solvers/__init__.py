@@ -1,16 +1,21 @@
-"""Iterative solvers (registered as ``solver/<name>``) and their step-size policies.
+"""Iterative solvers and their step-size policies and preconditioners.
 
-Importing this package registers every solver: ``gradient_descent`` (M1), ``landweber_pixel``
-(M2) and ``landweber_wavelet`` (M3), all configurations of one proximal-gradient iteration.
+The plugins (entry points in pyproject.toml): solvers ``gradient_descent`` (M1),
+``landweber_pixel`` (M2) and ``landweber_wavelet`` (M3), all configurations of one
+proximal-gradient iteration; step sizes ``constant`` and ``backtracking``; the preconditioner
+``sobolev``. A solver plugin's ``from_config(**solver keys)`` checks its config and returns a
+builder ``(problem, d0) -> solver`` (framework/problem.py).
 """
 
-from .base import IterationFailed, IterationRecord, IterativeSolver, RunResult, SolverState
+from .base import Callback, IterationFailed, IterationRecord, IterativeSolver, RunResult, SolverState
 from .preconditioner import GradientPreconditioner, SobolevPreconditioner
-from .proximal_gradient import GradientDescent, PixelLandweber, ProximalGradientSolver
+from .proximal_gradient import GradientDescent, PixelLandweber, ProximalGradientSolver, SolverBuilder
 from .step_size import BacktrackingStep, ConstantStep, LineSearchFailed, StepChoice, StepSizePolicy, as_step_policy
 from .wavelet_landweber import WaveletLandweber
 
 __all__ = [
+    "Callback",
+    "SolverBuilder",
     "IterativeSolver",
     "IterationRecord",
     "RunResult",

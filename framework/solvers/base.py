@@ -1,7 +1,8 @@
 """The solver loop shared by all methods: ``step()`` does one iteration, ``run()`` drives it.
 
-Stopping rules, logging, progress and checkpoints are callbacks (:mod:`framework.callbacks`);
-``run`` only enforces the iteration cap. The cap is *absolute*: ``run(max_iter)`` stops when
+Stopping rules, logging, progress and checkpoints are :class:`Callback` objects
+(:mod:`framework.callbacks`); ``run`` only enforces the iteration cap and asks the solver whether
+it has finished (:meth:`IterativeSolver.finished`, e.g. a direct method after its one step). The cap is *absolute*: ``run(max_iter)`` stops when
 ``solver.iteration == max_iter``, so a solver restored from a checkpoint and run with the same
 cap finishes exactly where an uninterrupted run would.
 """
@@ -10,15 +11,12 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from dataclasses import asdict, dataclass, field
-from typing import TYPE_CHECKING, Any, ClassVar, Sequence
+from typing import Any, ClassVar, Sequence
 
 import torch
 from torch import Tensor
 
-if TYPE_CHECKING:
-    from framework.callbacks import Callback
-
-__all__ = ["IterationRecord", "RunResult", "SolverState", "IterativeSolver", "IterationFailed"]
+__all__ = ["Callback", "IterationRecord", "RunResult", "SolverState", "IterativeSolver", "IterationFailed"]
 
 
 class IterationFailed(RuntimeError):
@@ -65,7 +63,9 @@ class RunResult:
         stopped_by: Name of the callback that stopped it, "max_iter", or "solver" on failure.
         history: All iteration records (including those before a resume).
         elapsed_s: Total solver time, seconds.
-        coefficients: Final wavelet coefficients (M3) or None.
+        accepted: Whether ``d`` is an accepted solution: the solver finished, or a callback with
+            ``stop_accepts_iterate`` (Morozov's rule) stopped the run; otherwise a stopping rule
+            may hold a better iterate (:meth:`Callback.best_iterate`).
     """
 
     d: Tensor
@@ -74,7 +74,7 @@ class RunResult:
     stopped_by: str
     history: list[IterationRecord]
     elapsed_s: float
-    coefficients: Tensor | None = None
+    accepted: bool = False
 
     @property
     def last(self) -> IterationRecord | None:
@@ -90,13 +90,46 @@ class SolverState:
         d: Height field (m, m), scene units.
         iteration: Completed iterations.
         elapsed_s: Accumulated solver time, seconds.
-        coefficients: Wavelet coefficients w = W d (M3), flat, or None.
     """
 
     d: Tensor
     iteration: int = 0
     elapsed_s: float = 0.0
-    coefficients: Tensor | None = None
+
+
+class Callback:
+    """A hook of the solver loop; every hook is a no-op.
+
+    ``run`` calls ``on_start(solver)`` once, ``on_iteration(solver, record)`` after every
+    iteration (a truthy return asks to stop; set ``stop_reason`` first) and
+    ``on_end(solver, result)`` once, in ascending ``order``: metric callbacks (order < 0) first,
+    so that stopping rules and loggers see the numbers they add to ``record.extras``.
+
+    Attributes:
+        order: Call order within a run (ascending); metric callbacks use negative values.
+        stop_reason: Set by a callback before it returns True from :meth:`on_iteration`.
+        stop_accepts_iterate: True for a rule whose stop means the current iterate is the
+            solution (Morozov's discrepancy principle); False for a rule that gives up.
+    """
+
+    order: int = 0
+    stop_reason: str | None = None
+    stop_accepts_iterate: bool = False
+
+    def on_start(self, solver: "IterativeSolver") -> None:
+        """Called once before the first iteration of ``run``."""
+
+    def on_iteration(self, solver: "IterativeSolver", record: IterationRecord) -> bool | None:
+        """Called after each iteration; return True to stop (set ``stop_reason`` first)."""
+        return None
+
+    def on_end(self, solver: "IterativeSolver", result: RunResult) -> None:
+        """Called once when ``run`` ends normally (not on an exception)."""
+
+    def best_iterate(self) -> tuple[Tensor, int] | None:
+        """(d, iteration) to report instead of the last iterate when the run was not accepted
+        (e.g. the lowest discrepancy seen), or None."""
+        return None
 
 
 class IterativeSolver(ABC):
@@ -132,7 +165,16 @@ class IterativeSolver(ABC):
     def step(self) -> IterationRecord:
         """One iteration: update ``state``, append and return its record."""
 
-    def run(self, max_iter: int, callbacks: Sequence["Callback"] = ()) -> RunResult:
+    def finished(self) -> str | None:
+        """Why no further iteration is needed (a direct method after its step), or None."""
+        return None
+
+    def volume_band(self) -> tuple[float, float] | None:
+        """The band [q1, q2] of the height sum sum_j d_j that the solver enforces (a known
+        deposited volume), or None; Morozov's rule accepts only iterates inside it."""
+        return None
+
+    def run(self, max_iter: int, callbacks: Sequence[Callback] = ()) -> RunResult:
         """Iterate until a callback asks to stop, an iteration fails, or ``iteration == max_iter``.
 
         Callbacks are called in ascending ``order`` (metric callbacks first, so that loggers and
@@ -141,7 +183,7 @@ class IterativeSolver(ABC):
 
         Args:
             max_iter: Absolute iteration cap (counts iterations done before a resume).
-            callbacks: :class:`framework.callbacks.Callback` instances.
+            callbacks: :class:`Callback` instances.
         """
         if isinstance(max_iter, bool) or not isinstance(max_iter, int) or max_iter < 0:
             raise ValueError(f"max_iter must be an int >= 0, got {max_iter!r}")
@@ -152,8 +194,12 @@ class IterativeSolver(ABC):
         self.max_iter = max_iter
         for cb in ordered:
             cb.on_start(self)
-        stop_reason, stopped_by = "", ""
+        stop_reason, stopped_by, accepted = "", "", False
         while not stop_reason:
+            done = self.finished()
+            if done:
+                stop_reason, stopped_by, accepted = done, "solver", True
+                break
             if self.iteration >= max_iter:
                 stop_reason, stopped_by = f"reached max_iter={max_iter}", "max_iter"
                 break
@@ -164,7 +210,7 @@ class IterativeSolver(ABC):
                 break
             for cb in ordered:
                 if cb.on_iteration(self, record) and not stop_reason:
-                    stopped_by = type(cb).__name__
+                    stopped_by, accepted = type(cb).__name__, bool(getattr(cb, "stop_accepts_iterate", False))
                     stop_reason = getattr(cb, "stop_reason", None) or f"stopped by {stopped_by}"
         result = RunResult(
             d=self.state.d,
@@ -173,7 +219,7 @@ class IterativeSolver(ABC):
             stopped_by=stopped_by,
             history=list(self.history),
             elapsed_s=self.state.elapsed_s,
-            coefficients=self.state.coefficients,
+            accepted=accepted,
         )
         for cb in ordered:
             cb.on_end(self, result)
@@ -185,7 +231,6 @@ class IterativeSolver(ABC):
         return {
             "solver": type(self).__name__,
             "d": self.state.d,
-            "coefficients": self.state.coefficients,
             "iteration": self.state.iteration,
             "elapsed_s": self.state.elapsed_s,
             "history": [asdict(r) for r in self.history],
@@ -201,11 +246,9 @@ class IterativeSolver(ABC):
         if tuple(d.shape) != tuple(self.state.d.shape):
             raise ValueError(f"checkpoint d has shape {tuple(d.shape)}, solver has {tuple(self.state.d.shape)}")
         like = self.state.d
-        coeffs = state.get("coefficients")
         self.state = SolverState(
             d=d.to(device=like.device, dtype=like.dtype),
             iteration=int(state["iteration"]),
             elapsed_s=float(state["elapsed_s"]),
-            coefficients=None if coeffs is None else coeffs.to(device=like.device),
         )
         self.history = [IterationRecord(**r) for r in state["history"]]

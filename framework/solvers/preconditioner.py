@@ -29,7 +29,6 @@ import scipy.fft
 import torch
 from torch import Tensor
 
-from framework.registry import register
 
 __all__ = ["GradientPreconditioner", "SobolevPreconditioner", "neumann_laplacian_eigenvalues"]
 
@@ -51,7 +50,6 @@ def neumann_laplacian_eigenvalues(m: int) -> np.ndarray:
     return 2.0 - 2.0 * np.cos(np.pi * np.arange(m) / m)
 
 
-@register("preconditioner", "sobolev")
 class SobolevPreconditioner:
     """P = (I - l^2 Laplace)^(-p) on the height grid, reflecting borders, applied by a 2-D DCT.
 

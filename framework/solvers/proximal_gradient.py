@@ -16,21 +16,47 @@ from __future__ import annotations
 
 import math
 import time
-from typing import Any, Callable, Sequence
+from collections.abc import Mapping
+from typing import TYPE_CHECKING, Any, Callable, Sequence
 
 import torch
 from torch import Tensor
 
 from framework.objective import DataEvaluation, DataFidelity
-from framework.registry import register
+from framework.plugin_config import build_plugin, build_plugin_map, split_name
 
 from .base import IterationFailed, IterationRecord, IterativeSolver
 from .preconditioner import GradientPreconditioner
 from .step_size import LineSearchFailed, StepSizePolicy, as_step_policy
 
-__all__ = ["ProximalGradientSolver", "GradientDescent", "PixelLandweber"]
+if TYPE_CHECKING:
+    from framework.problem import Problem
+
+__all__ = ["ProximalGradientSolver", "GradientDescent", "PixelLandweber", "SolverBuilder", "build_parts"]
 
 Candidate = dict[str, Tensor]
+# What a solver plugin's ``from_config`` returns: makes the solver once the problem and the start
+# d0 (m, m) are known.
+SolverBuilder = Callable[["Problem", Tensor], IterativeSolver]
+
+
+def build_parts(step_size: Mapping[str, Any], preconditioner: Mapping[str, Any] | None = None,
+                regularizers: Mapping[str, Any] | None = None,
+                post_steps: Mapping[str, Any] | None = None) -> dict[str, Any]:
+    """The configured parts of a proximal-gradient solver, by registry key: the step size
+    ``{name: backtracking, tau: ...}``, the preconditioner ``{name: sobolev, ...}`` (or None), the
+    regularisers and post steps ``{name: {params}}`` in config order."""
+    step_name, step_params = split_name(step_size, "solver.step_size")
+    parts: dict[str, Any] = {
+        "step_size": build_plugin("step_size", step_name, step_params, "solver.step_size"),
+        "preconditioner": None,
+        "regularizers": build_plugin_map("regularizer", regularizers, "solver.regularizers"),
+        "post_steps": build_plugin_map("post_step", post_steps, "solver.post_steps"),
+    }
+    if preconditioner:
+        name, params = split_name(preconditioner, "solver.preconditioner")
+        parts["preconditioner"] = build_plugin("preconditioner", name, params, "solver.preconditioner")
+    return parts
 
 
 def _check_regularizers(regularizers: Sequence[Any], solver: str, role: str = "regularizers") -> list[Any]:
@@ -128,6 +154,19 @@ class ProximalGradientSolver(IterativeSolver):
             d = u(d)
         return {**candidate, "d": d}
 
+    def _accept(self, candidate: Candidate) -> None:
+        """Make the finalised candidate the current iterate."""
+        self.state.d = candidate["d"]
+
+    def volume_band(self) -> tuple[float, float] | None:
+        """The band of the first regulariser or post step that enforces the deposited volume
+        (V1, V2: a ``band`` (q1, q2)), or None."""
+        for part in [*self.regularizers, *self.post_steps]:
+            band = getattr(part, "band", None)
+            if band is not None:
+                return band
+        return None
+
     def refine(self, d: Tensor) -> bool:
         """Switch the preconditioner to its next, finer stage and continue from ``d`` (m, m) (the
         best iterate so far); the step-size search starts afresh. False, and nothing changes, when
@@ -180,8 +219,7 @@ class ProximalGradientSolver(IterativeSolver):
         if not math.isfinite(evaluation.value):
             raise IterationFailed(f"data term is {evaluation.value} at the new iterate; reduce the step size")
         regularization = self.regularization_value(new["d"])
-        self.state.d = new["d"]
-        self.state.coefficients = new.get("w")
+        self._accept(new)
         self.state.iteration += 1
         self.state.elapsed_s += time.perf_counter() - t0
         self._evaluation = evaluation
@@ -233,7 +271,6 @@ class ProximalGradientSolver(IterativeSolver):
         )
 
 
-@register("solver", "gradient_descent")
 class GradientDescent(ProximalGradientSolver):
     """M1: d <- d - tau grad f(d). No regulariser, no post step (method.md section 4).
 
@@ -249,8 +286,15 @@ class GradientDescent(ProximalGradientSolver):
                  preconditioner: GradientPreconditioner | None = None, context: Any = None) -> None:
         super().__init__(data, d0, step_size, preconditioner=preconditioner, context=context)
 
+    @classmethod
+    def from_config(cls, step_size: Mapping[str, Any], preconditioner: Mapping[str, Any] | None = None
+                    ) -> SolverBuilder:
+        """The plugin ``solver/gradient_descent`` from its config keys (see :func:`build_parts`)."""
+        parts = build_parts(step_size, preconditioner)
+        return lambda problem, d0: cls(problem.fidelity, d0, parts["step_size"], parts["preconditioner"],
+                                       context=problem.context)
 
-@register("solver", "landweber_pixel")
+
 class PixelLandweber(ProximalGradientSolver):
     """M2: thresholded nonlinear Landweber, d <- P(d - tau grad f(d), tau), then post steps (eq. 4-7).
 
@@ -271,9 +315,23 @@ class PixelLandweber(ProximalGradientSolver):
         preconditioner: GradientPreconditioner | None = None,
         context: Any = None,
     ) -> None:
+        self._require_regularizers(regularizers)
+        super().__init__(data, d0, step_size, regularizers, post_steps, preconditioner, context)
+
+    @staticmethod
+    def _require_regularizers(regularizers: Sequence[Any]) -> None:
         if not list(regularizers):
             raise ValueError(
-                "landweber_pixel needs at least one regulariser with a prox (e.g. L1 + bounds); "
-                "for plain gradient descent use solver 'gradient_descent'"
+                "landweber_pixel needs at least one regulariser with a prox (e.g. solver.regularizers: "
+                "{l1_bounds: {alpha: 2e-3}}); for plain gradient descent use solver 'gradient_descent'"
             )
-        super().__init__(data, d0, step_size, regularizers, post_steps, preconditioner, context)
+
+    @classmethod
+    def from_config(cls, step_size: Mapping[str, Any], regularizers: Mapping[str, Any] | None = None,
+                    post_steps: Mapping[str, Any] | None = None, preconditioner: Mapping[str, Any] | None = None
+                    ) -> SolverBuilder:
+        """The plugin ``solver/landweber_pixel`` from its config keys (see :func:`build_parts`)."""
+        parts = build_parts(step_size, preconditioner, regularizers, post_steps)
+        cls._require_regularizers(parts["regularizers"])
+        _check_regularizers(parts["regularizers"], cls.name)
+        return lambda problem, d0: cls(problem.fidelity, d0, context=problem.context, **parts)

@@ -110,7 +110,7 @@ class BacktrackingStep(StepSizePolicy):
     overshoots. Post-step heuristics are applied after acceptance and are not part of the test.
 
     Args:
-        tau0: First trial step > 0.
+        tau: First trial step tau0 > 0 (the config's ``step_size.tau``).
         shrink: Factor in (0, 1) applied after a rejected trial.
         grow: Factor >= 1 applied after an accepted step (1 = never grow).
         sufficient_decrease: c in (0, 1].
@@ -120,14 +120,14 @@ class BacktrackingStep(StepSizePolicy):
 
     def __init__(
         self,
-        tau0: float,
+        tau: float,
         shrink: float = 0.5,
         grow: float = 1.25,
         sufficient_decrease: float = 1e-4,
         max_trials: int = 30,
         tau_max: float = math.inf,
     ) -> None:
-        self.tau0 = _positive(tau0, "tau0")
+        self.tau0 = _positive(tau, "tau")
         if not 0.0 < float(shrink) < 1.0:
             raise ValueError(f"shrink must lie in (0, 1), got {shrink!r}")
         if not (math.isfinite(float(grow)) and float(grow) >= 1.0):
@@ -137,7 +137,7 @@ class BacktrackingStep(StepSizePolicy):
         if int(max_trials) < 1:
             raise ValueError(f"max_trials must be >= 1, got {max_trials!r}")
         if not float(tau_max) >= self.tau0:
-            raise ValueError(f"tau_max ({tau_max!r}) must be >= tau0 ({tau0!r})")
+            raise ValueError(f"tau_max ({tau_max!r}) must be >= tau ({tau!r})")
         self.shrink, self.grow = float(shrink), float(grow)
         self.sufficient_decrease, self.max_trials, self.tau_max = float(sufficient_decrease), int(max_trials), float(tau_max)
         self.tau = self.tau0
@@ -186,5 +186,5 @@ def as_step_policy(step_size: StepSizePolicy | float) -> StepSizePolicy:
         return ConstantStep(step_size)
     raise ValueError(
         f"step_size must be a StepSizePolicy or a positive number, got {type(step_size).__name__}; "
-        "use ConstantStep(tau) or BacktrackingStep(tau0)"
+        "use ConstantStep(tau) or BacktrackingStep(tau)"
     )

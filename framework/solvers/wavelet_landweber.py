@@ -25,22 +25,22 @@ The step-size policy chooses tau_w; the pixel prox step follows it with the fixe
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from typing import Any, Sequence
 
 import torch
 from torch import Tensor
 
 from framework.objective import DataFidelity
-from framework.registry import register
+from framework.plugin_config import build_plugin, split_name
 
 from .preconditioner import GradientPreconditioner
-from .proximal_gradient import Candidate, ProximalGradientSolver
+from .proximal_gradient import Candidate, ProximalGradientSolver, SolverBuilder, build_parts
 from .step_size import StepSizePolicy
 
 __all__ = ["WaveletLandweber"]
 
 
-@register("solver", "landweber_wavelet")
 class WaveletLandweber(ProximalGradientSolver):
     """M3 (eq. 9): soft shrinkage of wavelet coefficients, then the pixel prox and post steps.
 
@@ -75,6 +75,7 @@ class WaveletLandweber(ProximalGradientSolver):
         preconditioner: GradientPreconditioner | None = None,
         context: Any = None,
     ) -> None:
+        self._check_pixel_step_ratio(pixel_step_ratio)
         missing = [m for m in ("forward", "inverse", "inverse_adjoint") if not callable(getattr(wavelet, m, None))]
         if wavelet is None or missing:
             raise ValueError(
@@ -88,14 +89,40 @@ class WaveletLandweber(ProximalGradientSolver):
                 "landweber_wavelet needs a wavelet regulariser with prox_coefficients(w, step) and value(d); "
                 f"got {type(wavelet_regularizer).__name__}"
             )
-        if not float(pixel_step_ratio) > 0.0:
-            raise ValueError(f"pixel_step_ratio (tau_p / tau_w) must be > 0, got {pixel_step_ratio!r}")
         self.wavelet = wavelet
         self.wavelet_regularizer = wavelet_regularizer
         self.pixel_step_ratio = float(pixel_step_ratio)
         super().__init__(data, d0, step_size, pixel_regularizers, post_steps, preconditioner, context)
-        self.state.coefficients = self.wavelet.forward(self.state.d)
+        self.coefficients: Tensor = self.wavelet.forward(self.state.d)  # w = W d, flat
         self._metric: Tensor | None = None  # diag of W P W^* for the current preconditioner stage
+
+    @staticmethod
+    def _check_pixel_step_ratio(ratio: float) -> None:
+        if isinstance(ratio, bool) or not isinstance(ratio, (int, float)) or not float(ratio) > 0.0:
+            raise ValueError(f"pixel_step_ratio (tau_p / tau_w) must be > 0, got {ratio!r}")
+
+    @classmethod
+    def from_config(cls, step_size: Mapping[str, Any], wavelet_regularizer: Mapping[str, Any],
+                    regularizers: Mapping[str, Any] | None = None, post_steps: Mapping[str, Any] | None = None,
+                    pixel_step_ratio: float = 1.0, preconditioner: Mapping[str, Any] | None = None
+                    ) -> SolverBuilder:
+        """The plugin ``solver/landweber_wavelet``: ``wavelet_regularizer`` is a regulariser by key
+        with ``prox_coefficients`` and ``transform_for`` (``{name: l1_wavelet, alpha_w: 1e-2,
+        wavelet: db3, levels: 3}``); the other keys as :func:`build_parts`."""
+        parts = build_parts(step_size, preconditioner, regularizers, post_steps)
+        name, params = split_name(wavelet_regularizer, "solver.wavelet_regularizer")
+        shrink = build_plugin("regularizer", name, params, "solver.wavelet_regularizer")
+        if not callable(getattr(shrink, "transform_for", None)):
+            raise ValueError(f"solver.wavelet_regularizer={name} has no wavelet transform (transform_for); "
+                             "use l1_wavelet")
+        cls._check_pixel_step_ratio(pixel_step_ratio)
+        pixel = parts.pop("regularizers")
+
+        def build(problem, d0: Tensor) -> WaveletLandweber:
+            return cls(problem.fidelity, d0, wavelet=shrink.transform_for(problem.grid.shape), wavelet_regularizer=shrink,
+                       pixel_regularizers=pixel, pixel_step_ratio=pixel_step_ratio, context=problem.context, **parts)
+
+        return build
 
     def _shrink_metric(self) -> Tensor | None:
         """Flat (m*m,) diagonal of W P W^* per subband, or None without a preconditioner (or for a
@@ -123,7 +150,7 @@ class WaveletLandweber(ProximalGradientSolver):
     def _propose(self, tau: float) -> Candidate:
         grad_w = self.wavelet.inverse_adjoint(self._step_direction())
         shrink, metric = self.wavelet_regularizer.prox_coefficients, self._shrink_metric()
-        moved = self.state.coefficients - tau * grad_w
+        moved = self.coefficients - tau * grad_w
         w = shrink(moved, tau) if metric is None else shrink(moved, tau, metric)
         d = self.wavelet.inverse(w)
         return {"d": self._prox_pixels(d, tau * self.pixel_step_ratio)}
@@ -132,14 +159,23 @@ class WaveletLandweber(ProximalGradientSolver):
         d = super()._finalize(candidate)["d"]
         return {"d": d, "w": self.wavelet.forward(d)}
 
+    def _accept(self, candidate: Candidate) -> None:
+        super()._accept(candidate)
+        self.coefficients = candidate["w"]
+
     def refine(self, d: Tensor) -> bool:  # noqa: D102 (coefficients follow d, as after every iteration)
         if not super().refine(d):
             return False
-        self.state.coefficients = self.wavelet.forward(self.state.d)
+        self.coefficients = self.wavelet.forward(self.state.d)
         self._metric = None
         return True
+
+    def state_dict(self) -> dict[str, Any]:
+        """Adds the wavelet coefficients w."""
+        return {**super().state_dict(), "coefficients": self.coefficients}
 
     def load_state_dict(self, state: dict[str, Any]) -> None:  # noqa: D102
         if state.get("coefficients") is None:
             raise ValueError("landweber_wavelet checkpoint has no wavelet coefficients; was it written by M3?")
         super().load_state_dict(state)
+        self.coefficients = state["coefficients"].to(device=self.state.d.device)

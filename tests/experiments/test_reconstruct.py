@@ -95,9 +95,9 @@ def test_every_experiment_preset_runs_two_iterations(tmp_path, experiment):
 
 def test_the_papers_plain_iteration_runs_with_the_readme_overrides(tmp_path):
     # Hydra merges a dict override into the default step size: the README deletes it first.
-    plain = ["solver.preconditioner=null", "~solver.step_size", "+solver.step_size={policy: constant, tau: 2.5e-4}"]
+    plain = ["solver.preconditioner=null", "~solver.step_size", "+solver.step_size={name: constant, tau: 2.5e-4}"]
     cfg = compose_reconstruct([*SMALL, *plain, "solver.max_iter=2"], tmp_path)
-    assert cfg["solver"]["step_size"] == {"policy": "constant", "tau": 2.5e-4}
+    assert cfg["solver"]["step_size"] == {"name": "constant", "tau": 2.5e-4}
     assert run_reconstruction(cfg, tmp_path / "plain", tmp_path)["iterations"] == 2
 
 
@@ -122,12 +122,21 @@ def test_measured_data_from_files(tmp_path):
     (["data=file", "data.image=nan.npy"], ValueError, "NaN"),
     (["data.delta=0.0001"], ValueError, "intrinsic noise"),
     (["data.delta=1.5"], ValueError, "data.delta=1.5"),
-    (["experiment=m1", "+regularizers.l1_pixel.alpha=0.1"], ValueError, "does not use regularizers"),
-    (["+regularizers.no_such_prior={}"], KeyError, "no_such_prior"),
-    (["solver.step_size.policy=adam"], ValueError, "adam"),
+    (["experiment=m1", "+solver.regularizers.l1_pixel.alpha=0.1"], ValueError,
+     "unknown key solver.regularizers; solver/gradient_descent takes: step_size, preconditioner"),
+    (["+solver.regularizers.no_such_prior={}"], KeyError, "no_such_prior"),
+    (["solver.step_size.name=adam"], KeyError, "unknown step_size plugin 'adam'"),
+    (["solver.step_size.shrink=2"], ValueError, "shrink must lie in"),
+    (["experiment=m1", "+solver.step_size.shrink=0.5"], ValueError, "unknown key solver.step_size.shrink"),
+    (["+solver.pixel_step_ratio=2"], ValueError, "unknown key solver.pixel_step_ratio"),
+    (["experiment=m3v1", "solver.pixel_step_ratio=0"], ValueError, "pixel_step_ratio"),
+    (["+stopping.patience={}"], KeyError, "unknown stopping plugin 'patience'"),
+    (["stopping.morozov.tau_dis=1.0"], ValueError, "tau_dis must be > 1"),
+    (["operator.name=mesh"], KeyError, "unknown operator plugin 'mesh'"),
+    (["data.name=photo"], KeyError, "unknown data plugin 'photo'"),
     (["solver.preconditioner.length=-1"], ValueError, "length=-1"),
     (["solver.preconditioner.name=multigrid"], KeyError, "multigrid"),
-    (["solver.patience=0"], ValueError, "patience=0"),
+    (["stopping.stagnation.patience=0"], ValueError, "patience=0"),
 ])
 def test_bad_configuration_is_refused_clearly(tmp_path, overrides, error, message):
     np.save(tmp_path / "caustic.npy", np.ones((1, 64, 64)))
@@ -153,7 +162,7 @@ def test_stage_changes_come_from_the_records_whoever_asked_for_them():
 
 
 def test_the_app_refuses_a_bad_value_in_one_line(tmp_path):
-    done = subprocess.run([sys.executable, "-m", "experiments.reconstruct", *SMALL, "solver.patience=0",
+    done = subprocess.run([sys.executable, "-m", "experiments.reconstruct", *SMALL, "stopping.stagnation.patience=0",
                            f"hydra.run.dir={tmp_path / 'run'}", f"tracking.store_dir={tmp_path / 'mlruns'}"],
                           cwd=tmp_path, capture_output=True, text=True, timeout=300)
     assert done.returncode == 1
@@ -164,10 +173,13 @@ def test_the_app_refuses_a_bad_value_in_one_line(tmp_path):
 
 
 @pytest.mark.parametrize("overrides, message", [
-    (["solver.patience=0"], "patience=0"),
-    (["solver.step_size.policy=adam"], "adam"),
-    (["+regularizers.no_such_prior={}"], "no_such_prior"),
-    (["experiment=m1", "+regularizers.l1_pixel.alpha=0.1"], "does not use regularizers"),
+    (["stopping.stagnation.patience=0"], "patience=0"),
+    (["solver.step_size.name=adam"], "adam"),
+    (["+solver.regularizers.no_such_prior={}"], "no_such_prior"),
+    (["experiment=m1", "+solver.regularizers.l1_pixel.alpha=0.1"], "unknown key solver.regularizers"),
+    (["experiment=m3v1", "~solver.wavelet_regularizer", "+solver.wavelet_regularizer={name: l1_pixel}"],
+     "has no wavelet transform"),
+    (["stopping.morozov.tau_dis=0.5"], "tau_dis"),
     (["initial=missing.npy"], "missing.npy"),
 ])
 def test_bad_solver_configuration_fails_before_the_data_is_rendered(tmp_path, monkeypatch, overrides, message):

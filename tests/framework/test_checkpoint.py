@@ -65,7 +65,7 @@ def test_m3_checkpoint_restores_wavelet_coefficients(tmp_path):
     a.run(3)
     save_checkpoint(a, tmp_path / "m3.pt")
     b = restore(build(), tmp_path / "m3.pt")
-    assert torch.equal(b.state.coefficients, a.state.coefficients) and b.iteration == 3
+    assert torch.equal(b.coefficients, a.coefficients) and b.iteration == 3
     assert torch.equal(b.run(6).d, full.d)
 
 

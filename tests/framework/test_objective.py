@@ -70,7 +70,7 @@ def test_step_unit_does_not_depend_on_brightness():
         (torch.full((1, 10, 10), float("nan"), dtype=DTYPE), "non-finite"),
         (torch.zeros(1, 10, 10, dtype=DTYPE), "no positive energy"),
         (-torch.ones(1, 10, 10, dtype=DTYPE) + 1.5 * torch.eye(10, dtype=DTYPE), "negative mass"),
-        (torch.ones(1, 12, 12, dtype=DTYPE), "image_shape"),
+        (torch.ones(1, 12, 12, dtype=DTYPE), "output_shape"),
     ],
 )
 def test_bad_targets_are_refused(target, match):

@@ -13,15 +13,15 @@ DTYPE = torch.float64
 class LinearOperator:
     """F(d) = A vec(d) reshaped to (c, n, n); gradient of 1/2||F(d) - b||^2 is A^T (A d - b)."""
 
-    def __init__(self, A: Tensor, m: int, image_shape: tuple[int, int, int], noise: float = 0.0) -> None:
-        self.A, self.m, self.image_shape, self.noise = A, m, image_shape, noise
+    def __init__(self, A: Tensor, m: int, output_shape: tuple[int, int, int], noise: float = 0.0) -> None:
+        self.A, self.m, self.output_shape, self.noise = A, m, output_shape, noise
         self.calls = 0
 
     def __call__(self, d: Tensor) -> Tensor:
         self.calls += 1
-        image = (self.A @ d.reshape(-1)).reshape(self.image_shape)
+        image = (self.A @ d.reshape(-1)).reshape(self.output_shape)
         if self.noise:  # a "stochastic" operator drawing from the global torch RNG
-            image = image + self.noise * torch.randn(self.image_shape, dtype=image.dtype)
+            image = image + self.noise * torch.randn(self.output_shape, dtype=image.dtype)
         return image
 
     def loss_and_grad(self, d: Tensor, target: Tensor, image: Tensor | None = None) -> tuple[float, Tensor, Tensor]:

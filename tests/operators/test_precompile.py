@@ -27,7 +27,7 @@ _FRESH_GRADIENT = textwrap.dedent("""
 def test_precompiled_gradient_kernel_is_loaded_by_a_later_process(tmp_path):
     # An empty cache of its own, so the precompile really compiles (about 1.5 min on one core).
     env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path)}
-    subprocess.run([sys.executable, "-m", "operators.precompile"], check=True, timeout=900, env=env)
+    subprocess.run([sys.executable, "-m", "operators.compile_kernels"], check=True, timeout=900, env=env)
     out = subprocess.run([sys.executable, "-c", _FRESH_GRADIENT], check=True, capture_output=True, text=True,
                          timeout=900, env=env)
     hits, misses = map(int, out.stdout.split())

@@ -6,11 +6,10 @@ import doctest
 
 import pytest
 
-import regularizers.bounds
 import regularizers.shrinkage
 
 
-@pytest.mark.parametrize("module", [regularizers.shrinkage, regularizers.bounds])
+@pytest.mark.parametrize("module", [regularizers.shrinkage])
 def test_docstring_examples(module) -> None:
     result = doctest.testmod(module, extraglobs={"torch": __import__("torch")})
     assert result.failed == 0 and result.attempted > 0

@@ -13,7 +13,6 @@ from regularizers import (
     VolumeHeuristic,
     VolumeSlabL1Bounds,
     WaveletTransform,
-    mask_from_height_field,
 )
 
 
@@ -87,11 +86,6 @@ def test_wavelet_grid_mode_and_family() -> None:
         WaveletTransform((128, 128), "bior2.2")
     with pytest.raises(ValueError, match=r"\(64, 64\)"):
         WaveletTransform((128, 128)).forward(torch.zeros(64, 64))
-
-
-def test_mask_helper_footprint() -> None:
-    with pytest.raises(ValueError, match="'diamond'"):
-        mask_from_height_field(torch.zeros(8, 8), footprint="diamond")  # type: ignore[arg-type]
 
 
 def test_use_before_setup() -> None:

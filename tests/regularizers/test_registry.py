@@ -1,4 +1,4 @@
-"""Every regularizer plugin is registered and builds with its defaults."""
+"""Every regularizer and post-step plugin is declared and builds with its defaults."""
 
 from __future__ import annotations
 
@@ -6,32 +6,27 @@ import pytest
 import torch
 
 import regularizers
-from framework import registry
-from framework.registry import available, build
+from framework.plugin_config import build_plugin
+from framework.registry import available
 from regularizers import PostStepUpdate, Regularizer, RegularizerContext
 
-NAMES = ["bounds", "l1_bounds", "l1_pixel", "l1_wavelet", "volume_v1", "volume_v2"]
+PLUGINS = [("regularizer", "bounds"), ("regularizer", "l1_bounds"), ("regularizer", "l1_pixel"),
+           ("regularizer", "l1_wavelet"), ("regularizer", "volume_v2"), ("post_step", "volume_v1")]
 
 
-@pytest.fixture(autouse=True)
-def only_regularizer_plugins(monkeypatch: pytest.MonkeyPatch) -> None:
-    """Load just this package's plugins, so these tests do not depend on other packages importing."""
-    monkeypatch.setattr(registry, "BUILTIN_PLUGIN_MODULES", ("regularizers",))
-    monkeypatch.setattr(registry, "_loaded", False)
+def test_all_plugins_declared() -> None:
+    for kind, name in PLUGINS:
+        assert name in available(kind), (kind, name)
 
 
-def test_all_plugins_registered() -> None:
-    assert set(NAMES) <= set(available("regularizer"))
-
-
-@pytest.mark.parametrize("name", NAMES)
-def test_build_setup_and_apply_with_defaults(name: str) -> None:
+@pytest.mark.parametrize("kind, name", PLUGINS)
+def test_build_setup_and_apply_with_defaults(kind: str, name: str) -> None:
     m = 128
-    plugin = build("regularizer", name)
+    plugin = build_plugin(kind, name, {}, name)
     plugin.setup(RegularizerContext.full(m, volume=0.0669, pixel_area=(2 / m) ** 2))
     d = torch.full((m, m), 0.05, dtype=torch.float64)
-    if isinstance(plugin, Regularizer):
-        assert plugin.has_prox and not plugin.smooth
+    if kind == "regularizer":
+        assert isinstance(plugin, Regularizer) and plugin.has_prox and not plugin.smooth
         out = plugin.prox(d, 0.1)
         assert isinstance(plugin.value(out), float)
     else:

@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+import doctest
+
+import pytest
 import torch
 
-from regularizers import mask_from_height_field
+from framework.masks import mask_from_height_field
 
 
 def test_single_spike_dilates_by_six_pixels_at_m128() -> None:
@@ -38,3 +41,15 @@ def test_threshold_and_zero_dilation() -> None:
     d[8, 9] = 2e-3
     mask = mask_from_height_field(d, dilation_fraction=0.0)
     assert mask.nonzero().tolist() == [[8, 9]]
+
+
+def test_footprint_must_be_square_or_disk() -> None:
+    with pytest.raises(ValueError, match="'diamond'"):
+        mask_from_height_field(torch.zeros(8, 8), footprint="diamond")  # type: ignore[arg-type]
+
+
+def test_docstring_example() -> None:
+    import framework.masks
+
+    result = doctest.testmod(framework.masks, extraglobs={"torch": torch})
+    assert result.failed == 0 and result.attempted > 0

@@ -1,0 +1,155 @@
+"""Where the data of a reconstruction come from: plugins of kind ``data`` (config group ``data``).
+
+- ``synthetic`` (:class:`SyntheticData`): the configured height field is the ground truth; two
+  independent reference renders give the clean caustic and its intrinsic noise, then noise is
+  added up to the level delta (framework/data.py).
+- ``file`` (:class:`MeasuredData`): a caustic image from a file, with the printed-area mask and
+  the deposited volume when known.
+
+Each is built from its config alone (every value checked, nothing read or rendered) and then
+``load(request)`` produces the :class:`framework.data.ReconstructionData`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable, Protocol
+
+import torch
+
+from framework.data import ReconstructionData, measured_data, synthetic_data, validate_delta
+from framework.image_io import load_caustic_image, load_mask
+from framework.masks import mask_from_height_field
+from framework.objective import ForwardOperator
+from framework.problem import HeightGrid
+
+__all__ = ["DataRequest", "DataSource", "SyntheticData", "MeasuredData", "resolve_path"]
+
+
+def resolve_path(path: str | Path, base_dir: Path) -> Path:
+    """``path`` with ~ expanded, relative to ``base_dir`` unless absolute."""
+    p = Path(path).expanduser()
+    return p if p.is_absolute() else base_dir / p
+
+
+def _non_negative(name: str, value: float) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not (math.isfinite(value) and value >= 0):
+        raise ValueError(f"data.{name}={value!r} must be a finite number >= 0")
+    return float(value)
+
+
+def _count(name: str, value: int, minimum: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or int(value) != value or value < minimum:
+        raise ValueError(f"data.{name}={value!r} must be an integer >= {minimum}")
+    return int(value)
+
+
+@dataclass(frozen=True)
+class DataRequest:
+    """What a data source may use.
+
+    Attributes:
+        operator: The reconstruction's forward operator (its ``variant`` renders references).
+        grid: The height grid of the reconstruction.
+        design: Returns the configured height field (m, m), float64, scene units: the ground
+            truth of synthetic data, the print's design for measured data.
+        seed: The run's seed (reference renders and noise derive their seeds from it).
+        base_dir: Directory against which relative file names are resolved.
+    """
+
+    operator: ForwardOperator
+    grid: HeightGrid
+    design: Callable[[], torch.Tensor]
+    seed: int
+    base_dir: Path
+
+
+class DataSource(Protocol):
+    """A ``data`` plugin: built from its config keys, it produces the data on request."""
+
+    def load(self, request: DataRequest) -> ReconstructionData:
+        """The target image, mask, volume and noise level (and, for synthetic data, the truth)."""
+        ...
+
+
+class SyntheticData:
+    """Noisy caustic of the configured height field (framework/data.py, :func:`synthetic_data`).
+
+    Args:
+        delta: Relative noise level ||b^delta - b|| / ||b|| in (0, 1).
+        reference_photons: Photons of each of the two independent reference renders.
+        reference_resolution: Receiver pixels of the references (resampled to the reconstruction's).
+        mask_threshold: Printed area N^: |d_true| >= threshold ...
+        mask_dilation: ... dilated by this fraction of the grid width.
+    """
+
+    def __init__(self, delta: float = 0.05, reference_photons: int = 1 << 22, reference_resolution: int = 256,
+                 mask_threshold: float = 1e-3, mask_dilation: float = 0.05) -> None:
+        self.delta = validate_delta(delta)
+        self.reference_photons = _count("reference_photons", reference_photons, 1)
+        self.reference_resolution = _count("reference_resolution", reference_resolution, 2)
+        self.mask_threshold = _non_negative("mask_threshold", mask_threshold)
+        self.mask_dilation = _non_negative("mask_dilation", mask_dilation)
+
+    def load(self, request: DataRequest) -> ReconstructionData:
+        """Render the ground truth twice (seeds seed + 1000 and seed + 2000) and add the noise."""
+        operator = request.operator
+        truth = request.design().to(operator.dtype)
+        first, second = (operator.variant(self.reference_photons, request.seed + offset, self.reference_resolution)
+                         for offset in (1000, 2000))
+        return synthetic_data(truth, first.render, second.render, operator.output_shape[-1], self.delta,
+                              request.seed, request.grid.cell_area, self.mask_threshold, self.mask_dilation)
+
+
+class MeasuredData:
+    """A caustic image from a file (``data=file``).
+
+    Args:
+        image: Caustic .npy (as written by sfc-simulate) or 8/16-bit .png/.tif.
+        mask: Printed-area mask file, ``design`` (the configured height field, thresholded and
+            dilated) or None (everywhere).
+        volume: Deposited volume, scene units^3, or None when unknown.
+        delta: Estimated relative noise level of the image.
+        brightness: ``energy``: scale the image to the power the model puts on the receiver with the
+            bare substrate; ``as_is``: use the values.
+        mask_threshold, mask_dilation: The rule of ``mask: design``.
+    """
+
+    BRIGHTNESS = ("energy", "as_is")
+
+    def __init__(self, image: str | None = None, mask: str | None = None, volume: float | None = None,
+                 delta: float = 0.05, brightness: str = "energy", mask_threshold: float = 1e-3,
+                 mask_dilation: float = 0.05) -> None:
+        if not image:
+            raise ValueError("data=file needs data.image=<caustic .npy/.png/.tif>")
+        if brightness not in self.BRIGHTNESS:
+            raise ValueError(f"data.brightness={brightness!r}; use {' or '.join(self.BRIGHTNESS)}")
+        if volume is not None and (isinstance(volume, bool) or not isinstance(volume, (int, float))):
+            raise ValueError(f"data.volume={volume!r} must be a number (scene units^3) or null")
+        self.image, self.mask, self.brightness = str(image), mask, brightness
+        self.volume = None if volume is None else float(volume)
+        self.delta = validate_delta(delta)
+        self.mask_threshold = _non_negative("mask_threshold", mask_threshold)
+        self.mask_dilation = _non_negative("mask_dilation", mask_dilation)
+
+    def load(self, request: DataRequest) -> ReconstructionData:
+        """Read the image and the mask; scale the image (``brightness: energy``)."""
+        operator = request.operator
+        image = load_caustic_image(resolve_path(self.image, request.base_dir))
+        channels = operator.output_shape[0]
+        if image.shape[0] != channels:
+            raise ValueError(f"data.image has {image.shape[0]} channel(s) but the scene has {channels} "
+                             "wavelength(s); set wavelengths=[...] to match")
+        m = request.grid.resolution
+        if self.mask in (None, "none"):
+            mask = torch.ones(m, m, dtype=torch.bool)
+        elif self.mask == "design":
+            mask = mask_from_height_field(request.design(), self.mask_threshold, self.mask_dilation)
+        else:
+            mask = load_mask(resolve_path(self.mask, request.base_dir), m)
+        flat_total = None
+        if self.brightness == "energy":
+            flat_total = float(operator.render(torch.zeros(m, m, dtype=operator.dtype)).sum())
+        return measured_data(image, operator.output_shape[-1], self.delta, mask, self.volume, flat_total)

@@ -1,0 +1,119 @@
+"""The project's import graph, read from the sources (every import statement, including those
+inside functions and under TYPE_CHECKING), and what is wrong with it.
+
+    python -m tests.architecture.import_graph [ROOT]     # prints the cycles and upward arrows
+"""
+
+from __future__ import annotations
+
+import ast
+import sys
+from pathlib import Path
+
+PACKAGES = ("framework", "operators", "regularizers", "experiments")
+# Packages that must not import framework/ (physics and regularisers know nothing of the glue).
+LOWER = ("operators", "regularizers")
+
+
+def module_names(root: Path) -> dict[str, Path]:
+    """Dotted module name -> file, for every .py file of the project's packages."""
+    names = {}
+    for package in PACKAGES:
+        for path in sorted((root / package).rglob("*.py")):
+            parts = list(path.relative_to(root).with_suffix("").parts)
+            if parts[-1] == "__init__":
+                parts = parts[:-1]
+            names[".".join(parts)] = path
+    return names
+
+
+def _targets(node: ast.AST, module: str, is_package: bool, known: set[str]) -> list[str]:
+    if isinstance(node, ast.Import):
+        candidates = [alias.name for alias in node.names]
+    elif isinstance(node, ast.ImportFrom):
+        base = node.module or ""
+        if node.level:
+            anchor = module.split(".")
+            anchor = anchor if is_package else anchor[:-1]
+            anchor = anchor[: len(anchor) - (node.level - 1)]
+            base = ".".join([*anchor, *([base] if base else [])])
+        candidates = [f"{base}.{alias.name}" if f"{base}.{alias.name}" in known else base for alias in node.names]
+    else:
+        return []
+    out = []
+    for name in candidates:
+        while name and name not in known:  # import a.b.c of a module a.b: the arrow goes to a.b
+            name = name.rpartition(".")[0]
+        if name:
+            out.append(name)
+    return out
+
+
+def import_graph(root: Path) -> dict[str, set[str]]:
+    """Module -> the project's modules it imports."""
+    files = module_names(root)
+    known = set(files)
+    graph: dict[str, set[str]] = {}
+    for module, path in files.items():
+        tree = ast.parse(path.read_text(), filename=str(path))
+        is_package = path.name == "__init__.py"
+        graph[module] = {t for node in ast.walk(tree) for t in _targets(node, module, is_package, known)
+                         if t != module}
+    return graph
+
+
+def cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """The strongly connected components with more than one module (Tarjan), each sorted."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    found: list[list[str]] = []
+
+    def visit(v: str) -> None:
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on_stack.add(v)
+        for w in sorted(graph.get(v, ())):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on_stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            component = []
+            while True:
+                w = stack.pop()
+                on_stack.discard(w)
+                component.append(w)
+                if w == v:
+                    break
+            if len(component) > 1:
+                found.append(sorted(component))
+
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    return found
+
+
+def upward_arrows(graph: dict[str, set[str]]) -> list[tuple[str, str]]:
+    """Imports from operators/ or regularizers/ into framework/, and from the registry into the project."""
+    arrows = [(a, b) for a, targets in graph.items() for b in targets
+              if a.split(".")[0] in LOWER and b.split(".")[0] == "framework"]
+    arrows += [("framework.registry", b) for b in graph.get("framework.registry", ())]
+    return sorted(arrows)
+
+
+def main(argv: list[str]) -> None:
+    root = Path(argv[0]) if argv else Path(__file__).resolve().parents[2]
+    graph = import_graph(root)
+    print(f"{len(graph)} modules, {sum(map(len, graph.values()))} arrows")
+    for component in cycles(graph):
+        print("cycle:", " <-> ".join(component))
+    for a, b in upward_arrows(graph):
+        print(f"upward: {a} -> {b}")
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])

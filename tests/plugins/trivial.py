@@ -1,0 +1,93 @@
+"""Plugins defined only in the test suite, as a third-party package would write them.
+
+- ``operator/shadow`` (:class:`ShadowOperator`): a linear stand-in for the caustic, each height
+  sample lights a square of receiver pixels: F(d) = 1 + gain * U d, U the nearest-neighbour
+  upsampling from the m x m heights to the n x n receiver (n a multiple of m).
+- ``solver/exact_step`` (:class:`ExactStepSolver`): a non-iterative solver, one steepest-descent
+  step with the exact step length of a quadratic data term. For ``shadow`` (U^T U = (n/m)^2 I) that
+  one step is the least-squares solution.
+
+They reach the framework only through the public plugin mechanism (entry points of the groups
+``shape_from_caustics.operator`` and ``shape_from_caustics.solver``) and their config files
+(tests/plugins/conf, on Hydra's search path).
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+import torch
+import torch.nn.functional as F
+
+from framework.objective import loss_and_grad_by_autograd
+from framework.solvers import IterationRecord, IterativeSolver
+
+
+class ShadowOperator:
+    """F(d) = 1 + gain * U d on the scene's receiver; float64, differentiable by autograd."""
+
+    dtype = torch.float64
+
+    def __init__(self, channels: int, resolution: int, half_width: float, photons: int, gain: float) -> None:
+        self.channels, self.resolution, self.half_width = channels, resolution, half_width
+        self.photons, self.gain = photons, gain
+        self.pixel_area = (2.0 * half_width / resolution) ** 2
+
+    @classmethod
+    def from_config(cls, scene: Any, photons: int, seed: int, gain: float = 1.0) -> ShadowOperator:
+        if not gain > 0:
+            raise ValueError(f"operator.gain={gain!r} must be positive")
+        return cls(scene.channels, scene.receiver.resolution, scene.receiver.half_width, photons, float(gain))
+
+    @property
+    def output_shape(self) -> tuple[int, int, int]:
+        return (self.channels, self.resolution, self.resolution)
+
+    def variant(self, photons: int, seed: int, resolution: int) -> ShadowOperator:
+        return ShadowOperator(self.channels, resolution, self.half_width, photons, self.gain)
+
+    def __call__(self, heights: torch.Tensor) -> torch.Tensor:
+        factor = self.resolution // heights.shape[-1]
+        lit = F.interpolate(heights.to(self.dtype)[None, None], scale_factor=factor, mode="nearest")[0]
+        return (1.0 + self.gain * lit).expand(self.output_shape)
+
+    def render(self, heights: torch.Tensor, progress: bool = False) -> torch.Tensor:
+        with torch.no_grad():
+            return self(heights).clone()
+
+    def loss_and_grad(self, heights: torch.Tensor, target: torch.Tensor, image: torch.Tensor | None = None):
+        return loss_and_grad_by_autograd(self, heights, target)
+
+
+class ExactStepSolver(IterativeSolver):
+    """d = d0 - t g, g = grad f(d0), t = <r, J g> / ||J g||^2 (r = F(d0) - b, J g = F(d0 + g) - F(d0))."""
+
+    name = "exact_step"
+
+    def __init__(self, problem: Any, d0: torch.Tensor) -> None:
+        super().__init__(d0)
+        self.problem = problem
+
+    @classmethod
+    def from_config(cls):
+        return cls
+
+    def step(self) -> IterationRecord:
+        t0 = time.perf_counter()
+        fidelity, render, d = self.problem.fidelity, self.problem.operator.render, self.state.d
+        g = fidelity.evaluate(d, with_grad=True).grad
+        residual = render(d) - fidelity.target
+        direction = render(d + g) - render(d)
+        step = float((residual * direction).sum() / (direction * direction).sum())
+        self.state.d = d - step * g
+        after = fidelity.evaluate(self.state.d, with_grad=False)
+        self.state.iteration += 1
+        self.state.elapsed_s += time.perf_counter() - t0
+        record = IterationRecord(self.state.iteration, after.value, after.value, after.rel_discrepancy, step,
+                                 self.state.elapsed_s)
+        self.history.append(record)
+        return record
+
+    def finished(self) -> str | None:
+        return "one exact step minimises the quadratic data term" if self.iteration >= 1 else None
