@@ -8,7 +8,9 @@ Examples::
     sfc-reconstruct data=file data.image=caustic.npy data.mask=mask.png data.volume=0.0669
     sfc-reconstruct resume=outputs/<date>/<time>/checkpoint.pt
 
-Writes height_field.npy, metrics.json, figures and checkpoint.pt into the Hydra run directory
+Writes height_field.npy, metrics.json, the target and predicted caustics (caustic_target.npy,
+caustic_predicted.npy, (c, n, n)), the ground truth of synthetic data (ground_truth.npy), figures
+and checkpoint.pt into the Hydra run directory
 and logs the run to MLflow (conf/tracking/mlflow.yaml).
 """
 

@@ -13,15 +13,12 @@ from __future__ import annotations
 
 import argparse
 import csv
-import json
-import subprocess
-import sys
-import tempfile
 from pathlib import Path
 
 import numpy as np
 from matplotlib.figure import Figure
 
+from experiments.mlflow_store import artifact, latest_runs, run_sweep
 from framework.shapes import make_shape
 
 METHODS = ["M2V1", "M3V1", "M1", "M2V0", "M3V0", "M2V2", "M3V2"]
@@ -31,39 +28,10 @@ PAPER = {"M2V1": (2.95, 0.0504, 0.0648, 72), "M3V1": (2.77, 0.0505, 0.0658, 65),
 EXPERIMENT = "table1"
 
 
-def run_sweep(store: Path, methods: list[str], extra: list[str]) -> None:
-    """One Hydra multirun over the presets; each job is an MLflow run tagged with the sweep."""
-    presets = ",".join(m.lower() for m in methods)
-    cmd = [sys.executable, "-m", "experiments.reconstruct", "-m", f"experiment={presets}",
-           f"tracking.experiment={EXPERIMENT}", f"tracking.store_dir={store}", *extra]
-    done = subprocess.run(cmd, check=False)
-    if done.returncode != 0:
-        print(f"warning: some jobs failed (exit {done.returncode}); tabulating the finished ones", file=sys.stderr)
-
-
-def latest_runs(store: Path) -> list:
-    """The most recent finished run of each method in the store (so one method can be re-run alone)."""
-    from mlflow.tracking import MlflowClient
-
-    client = MlflowClient(tracking_uri=f"sqlite:///{store / 'mlflow.db'}")
-    experiment = client.get_experiment_by_name(EXPERIMENT)
-    if experiment is None:
-        raise SystemExit(f"no '{EXPERIMENT}' experiment in {store}; run without --table-only first")
-    runs = client.search_runs([experiment.experiment_id], "attributes.status = 'FINISHED'",
-                              order_by=["attributes.start_time DESC"])
-    if not runs:
-        raise SystemExit(f"no finished runs in {store}")
-    chosen: dict[str, object] = {}
-    for run in runs:
-        chosen.setdefault(run.data.tags.get("method"), run)
-    return [chosen[m] for m in METHODS if m in chosen], client
-
-
 def final_metrics(run, client) -> dict:
     """The run's metrics.json artefact: the reported (returned) iterate. MLflow's latest value of a
     per-iteration metric is that of the last iteration, which differs after a stagnation stop."""
-    with tempfile.TemporaryDirectory() as tmp:
-        return json.loads(Path(client.download_artifacts(run.info.run_id, "metrics.json", tmp)).read_text())
+    return artifact(client, run, "metrics.json")
 
 
 def write_table(runs: list, client, out: Path) -> list[dict]:
@@ -107,11 +75,9 @@ def write_fig5(runs: list, client, out: Path) -> None:
     fig = Figure(figsize=(8, 4))
     ax = fig.add_subplot(1, 1, 1)
     ax.plot(x, truth[truth.shape[0] // 2], "k-", lw=2, label="ground truth")
-    with tempfile.TemporaryDirectory() as tmp:
-        for run in runs:
-            path = client.download_artifacts(run.info.run_id, "height_field.npy", tmp)
-            d = np.load(path)
-            ax.plot(np.linspace(-1, 1, d.shape[1]), d[d.shape[0] // 2], label=run.data.tags["method"])
+    for run in runs:
+        d = artifact(client, run, "height_field.npy")
+        ax.plot(np.linspace(-1, 1, d.shape[1]), d[d.shape[0] // 2], label=run.data.tags["method"])
     ax.set_xlabel("x (scene units)")
     ax.set_ylabel("height d at y = 0 (scene units)")
     ax.legend(fontsize=8)
@@ -128,8 +94,9 @@ def main(argv: list[str] | None = None) -> None:
     args = parser.parse_args(argv)
     store = args.store.resolve()
     if not args.table_only:
-        run_sweep(store, args.methods, args.overrides)
-    runs, client = latest_runs(store)
+        run_sweep(store, EXPERIMENT, [f"experiment={','.join(m.lower() for m in args.methods)}"], args.overrides)
+    chosen, client = latest_runs(store, EXPERIMENT, key=lambda run: run.data.tags.get("method"))
+    runs = [chosen[m] for m in METHODS if m in chosen]
     args.out.mkdir(parents=True, exist_ok=True)
     write_table(runs, client, args.out)
     write_fig5(runs, client, args.out)

@@ -182,6 +182,10 @@ def _reconstruct(parts: Reconstruction, output_dir: Path, base_dir: Path, sweep_
             "delta": data.delta, "intrinsic_noise": data.intrinsic_noise,
             "photons_per_iteration": operator.photons, **(truth_error.errors(d) if truth_error else {})}
         np.save(output_dir / "height_field.npy", d.cpu().numpy().astype(np.float64))
+        np.save(output_dir / "caustic_target.npy", data.target.cpu().numpy().astype(np.float32))
+        np.save(output_dir / "caustic_predicted.npy", prediction.detach().cpu().numpy().astype(np.float32))
+        if data.ground_truth is not None:
+            np.save(output_dir / "ground_truth.npy", data.ground_truth.cpu().numpy().astype(np.float64))
         (output_dir / "metrics.json").write_text(json.dumps(metrics, indent=2))
         save_reconstruction_figures(output_dir, d, problem, prediction, history.columns())
         tracker.log_metrics({k: v for k, v in metrics.items() if isinstance(v, (int, float)) and v is not None

@@ -24,7 +24,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 __all__ = ["SHAPES", "make_shape", "grid", "g", "G2", "line_v", "line_h", "print_lines_on",
-           "flat", "gaussian", "print_lines", "oblique_lines", "bump"]
+           "flat", "gaussian", "print_lines", "oblique_lines", "bump", "letter_a", "segment_distance"]
 
 COORDINATE_SCALE = 6.0  # X = 6x, Y = 6y (method.md section 7)
 OBLIQUE_ANGLE_DEG = 15.0
@@ -120,6 +120,32 @@ def bump(x: np.ndarray, y: np.ndarray, center: Sequence[float] = (0.0, 0.0), sig
     return float(height) * np.exp(-r2 / (2.0 * float(sigma) ** 2))
 
 
+def segment_distance(x: np.ndarray, y: np.ndarray, start: Sequence[float], end: Sequence[float]) -> np.ndarray:
+    """Distance of the points (x, y) to the segment from ``start`` to ``end`` (scene units)."""
+    ax, ay = float(start[0]), float(start[1])
+    bx, by = float(end[0]), float(end[1])
+    length2 = (bx - ax) ** 2 + (by - ay) ** 2
+    t = np.clip(((x - ax) * (bx - ax) + (y - ay) * (by - ay)) / length2, 0.0, 1.0)
+    return np.hypot(x - ax - t * (bx - ax), y - ay - t * (by - ay))
+
+
+def letter_a(x: np.ndarray, y: np.ndarray, height: float = 0.08, stroke: float = 0.05, size: float = 1.4
+             ) -> np.ndarray:
+    """A printed letter "A": two legs from the apex (0, size/2) to the feet (+-0.36 size, -size/2)
+    and a crossbar at y = -0.1 size, each stroke with a Gaussian cross-section of standard deviation
+    ``stroke`` and peak ``height`` (where strokes meet, the higher one counts). The defaults give
+    the print lines' peak height (0.08) on narrower strokes (0.05 against 0.083): steeper slopes,
+    on lines that are not aligned with the grid."""
+    if not (height >= 0.0 and stroke > 0.0 and size > 0.0):
+        raise ValueError(f"letter_a needs height >= 0, stroke > 0 and size > 0; got {height}, {stroke}, {size}")
+    half, foot = 0.5 * size, 0.36 * size
+    bar_y = -0.1 * size
+    bar_x = foot * (half - bar_y) / size  # where the crossbar meets the legs
+    strokes = [((0.0, half), (-foot, -half)), ((0.0, half), (foot, -half)), ((-bar_x, bar_y), (bar_x, bar_y))]
+    nearest = np.min([segment_distance(x, y, a, b) for a, b in strokes], axis=0)
+    return float(height) * np.exp(-nearest ** 2 / (2.0 * float(stroke) ** 2))
+
+
 ShapeFunction = Callable[..., np.ndarray]
 
 SHAPES: dict[str, ShapeFunction] = {
@@ -128,6 +154,7 @@ SHAPES: dict[str, ShapeFunction] = {
     "print_lines": print_lines,
     "oblique_lines": oblique_lines,
     "bump": bump,
+    "letter_a": letter_a,
 }
 
 

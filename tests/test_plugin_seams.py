@@ -32,7 +32,8 @@ CONF = ROOT / "conf"
 SMALL = ["photons=60000", "receiver.resolution=64", "height_field.resolution=32"]
 # Each option of each group of conf/reconstruct.yaml, with what it needs beside it.
 NEEDS = {("solver", "gradient_descent"): ["experiment=m1"], ("solver", "gradient_descent_paper"): ["experiment=m1"],
-         ("solver", "landweber_wavelet"): ["experiment=m3v1"], ("data", "file"): ["data.image=caustic.npy"]}
+         ("solver", "landweber_wavelet"): ["experiment=m3v1"], ("solver", "schwartzburg"): ["experiment=schwartzburg"],
+         ("data", "file"): ["data.image=caustic.npy"]}
 GROUPS = ["scene", "operator", "reconstruct_operator", "data", "solver", "stopping", "tracking", "experiment"]
 OPTIONS = [(group, path.stem) for group in GROUPS for path in sorted((CONF / group).glob("*.yaml"))]
 
@@ -45,7 +46,8 @@ def test_every_config_group_option_composes_and_builds(tmp_path, group, option):
                                      resolve=True)
     parts = Reconstruction.from_config(cfg, tmp_path)  # every plugin built and checked, nothing rendered
     assert parts.d0.shape == (32, 32) and parts.operator.output_shape == (1, 64, 64)
-    assert parts.max_iter >= 1 and len(parts.stopping) == 2
+    assert parts.max_iter >= 1 and [type(rule).__name__ for rule in parts.stopping] == [
+        {"morozov": "MorozovStopping", "stagnation": "StagnationStopping"}[name] for name in cfg.get("stopping") or {}]
 
 
 def small_problem() -> Problem:
@@ -64,6 +66,7 @@ MINIMAL = {
                                      "post_steps": {"volume_v1": {}}}, {}),
     ("solver", "landweber_wavelet"): ({"step_size": STEP, "wavelet_regularizer": {"name": "l1_wavelet", "levels": 1},
                                        "preconditioner": {"name": "sobolev"}}, {}),
+    ("solver", "schwartzburg"): ({"outer_tolerance": 0.5}, {}),
     ("regularizer", "bounds"): ({}, {}), ("regularizer", "l1_bounds"): ({}, {}), ("regularizer", "l1_pixel"): ({}, {}),
     ("regularizer", "l1_wavelet"): ({}, {}), ("regularizer", "volume_v2"): ({}, {}),
     ("post_step", "volume_v1"): ({}, {}),

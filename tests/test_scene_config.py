@@ -38,7 +38,7 @@ def plain(**groups: Any) -> dict[str, Any]:
 
 
 def test_the_expected_configs_exist() -> None:
-    assert SCENES == ["bump", "flat", "gaussian", "oblique_lines", "print_lines"]
+    assert SCENES == ["bump", "flat", "gaussian", "letter_a", "oblique_lines", "print_lines"]
     assert OPERATORS == ["height_field"]
 
 

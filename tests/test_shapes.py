@@ -122,3 +122,21 @@ def test_bump_rejects_bad_params(params: dict, message: str) -> None:
 def test_bad_resolution(resolution: object) -> None:
     with pytest.raises(ValueError, match="resolution"):
         make_shape("flat", resolution)  # type: ignore[arg-type]
+
+
+def test_letter_a_strokes_peak_at_their_height_and_fall_off_with_their_width() -> None:
+    from framework.shapes import letter_a, segment_distance
+
+    x, y = grid(257)
+    d = letter_a(x, y)
+    assert abs(float(d.max()) - 0.08) < 1e-3 and np.allclose(d, d[:, ::-1])  # mirror symmetric in x
+    # On the left leg, half way down: the peak; one stroke width beside it: exp(-1/2) of it.
+    apex, foot = (0.0, 0.7), (-0.504, -0.7)
+    middle = np.array([[-0.252], [0.0]])
+    assert float(letter_a(middle[0], middle[1])[0]) == pytest.approx(0.08)
+    normal = np.array([1.4, -0.504]) / np.hypot(1.4, 0.504)  # perpendicular to the leg
+    beside = middle[:, 0] + 0.05 * normal
+    assert float(segment_distance(np.array([beside[0]]), np.array([beside[1]]), apex, foot)[0]) == pytest.approx(0.05)
+    value = float(letter_a(np.array([beside[0]]), np.array([beside[1]]))[0])
+    assert value == pytest.approx(0.08 * np.exp(-0.5), rel=1e-6)
+    assert float(d[0, 0]) < 1e-12 and float(letter_a(np.array([0.0]), np.array([0.2]))[0]) < 1e-3  # inside the A
