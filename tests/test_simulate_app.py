@@ -69,7 +69,7 @@ def test_unknown_shape_fails_with_a_clear_message(tmp_path: Path) -> None:
     result = run_app(TINY + [f"hydra.run.dir={out}", "height_field.shape=spiral"], cwd=tmp_path)
     assert result.returncode == 1
     assert result.stderr.strip().splitlines() == [
-        "error: unknown shape 'spiral'; known shapes: bump, flat, gaussian, oblique_lines, print_lines "
+        "error: unknown shape 'spiral'; known shapes: bump, flat, gaussian, letter_a, oblique_lines, print_lines "
         "(SFC_TRACEBACK=1 shows the traceback)"]
     assert not (out / "caustic.npy").exists()
 
