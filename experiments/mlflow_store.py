@@ -3,6 +3,7 @@ and reading its finished runs and their artefacts back."""
 
 from __future__ import annotations
 
+import argparse
 import json
 import subprocess
 import sys
@@ -52,3 +53,13 @@ def artifact(client: Any, run: Any, name: str) -> Any:
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(client.download_artifacts(run.info.run_id, name, tmp))
         return json.loads(path.read_text()) if path.suffix == ".json" else np.load(path)
+
+
+def reproduction_parser(description: str) -> argparse.ArgumentParser:
+    """The options every reproduction script takes: --store, --out, --table-only, --overrides."""
+    parser = argparse.ArgumentParser(description=description)
+    parser.add_argument("--store", type=Path, default=Path("mlruns"), help="MLflow store directory")
+    parser.add_argument("--out", type=Path, default=Path("docs/results"))
+    parser.add_argument("--table-only", action="store_true", help="do not run; build from the latest runs")
+    parser.add_argument("--overrides", nargs="*", default=[], help="extra Hydra overrides for every run")
+    return parser

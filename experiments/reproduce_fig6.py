@@ -14,14 +14,13 @@ Writes fig6.png, fig6.md and fig6.csv into --out (default docs/results).
 
 from __future__ import annotations
 
-import argparse
 import csv
 from pathlib import Path
 
 import numpy as np
 from matplotlib.figure import Figure
 
-from experiments.mlflow_store import artifact, latest_runs, run_sweep
+from experiments.mlflow_store import artifact, latest_runs, reproduction_parser, run_sweep
 from framework.plotting import normalise
 
 EXPERIMENT = "fig6"
@@ -113,11 +112,7 @@ def write_figure(cases: dict[tuple[str, str], dict], out: Path) -> None:
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--store", type=Path, default=Path("mlruns"), help="MLflow store directory")
-    parser.add_argument("--out", type=Path, default=Path("docs/results"))
-    parser.add_argument("--table-only", action="store_true", help="do not run; build from the latest runs")
-    parser.add_argument("--overrides", nargs="*", default=[], help="extra Hydra overrides for every run")
+    parser = reproduction_parser(__doc__.splitlines()[0])
     args = parser.parse_args(argv)
     store = args.store.resolve()
     if not args.table_only:

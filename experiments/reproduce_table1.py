@@ -11,14 +11,13 @@ Writes table1.md, table1.csv and fig5_centre_slices.png into --out (default docs
 
 from __future__ import annotations
 
-import argparse
 import csv
 from pathlib import Path
 
 import numpy as np
 from matplotlib.figure import Figure
 
-from experiments.mlflow_store import artifact, latest_runs, run_sweep
+from experiments.mlflow_store import artifact, latest_runs, reproduction_parser, run_sweep
 from framework.shapes import make_shape
 
 METHODS = ["M2V1", "M3V1", "M1", "M2V0", "M3V0", "M2V2", "M3V2"]
@@ -85,12 +84,8 @@ def write_fig5(runs: list, client, out: Path) -> None:
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--store", type=Path, default=Path("mlruns"), help="MLflow store directory")
-    parser.add_argument("--out", type=Path, default=Path("docs/results"))
-    parser.add_argument("--table-only", action="store_true", help="do not run; tabulate the latest runs")
+    parser = reproduction_parser(__doc__.splitlines()[0])
     parser.add_argument("--methods", nargs="*", default=METHODS, choices=METHODS, help="methods to (re-)run")
-    parser.add_argument("--overrides", nargs="*", default=[], help="extra Hydra overrides for every run")
     args = parser.parse_args(argv)
     store = args.store.resolve()
     if not args.table_only:
