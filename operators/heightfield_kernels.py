@@ -190,24 +190,24 @@ def scatter_hit_adjoint(grad, ix, iy, wx, wy, patch, wx_, wy_, wz_, g_t, g_sx, g
 
 
 @nb.njit(parallel=True, cache=True, fastmath=FAST_MATH, error_model="numpy")
-def hit_forward(d, base, origin, dirs, x0, spacing, zlo, zstart, zhi, slope_x, slope_y, t_out, jet_out, nthreads):
-    """Fill t_out (N,) and jet_out (5, N) = (S_x, S_y, S_xx, S_xy, S_yy) at each photon's hit
-    (:func:`solve_hit`)."""
+def hit_forward(d, base, origins, dirs, x0, spacing, zlo, zstart, zhi, slope_x, slope_y, t_out, jet_out, nthreads):
+    """Fill t_out (N,) and jet_out (5, N) = (S_x, S_y, S_xx, S_xy, S_yy) at the hit of each ray
+    origins[:, p] + t dirs[:, p] (:func:`solve_hit`)."""
     n = dirs.shape[1]
     per = (n + nthreads - 1) // nthreads
     for th in nb.prange(nthreads):
         for p in range(th * per, min(n, (th + 1) * per)):
             wx_, wy_, wz_ = dirs[0, p], dirs[1, p], dirs[2, p]
-            t = solve_hit(d, base, origin[0], origin[1], origin[2], wx_, wy_, wz_, x0, spacing, zlo, zstart, zhi,
-                          slope_x, slope_y)
+            ox, oy, oz = origins[0, p], origins[1, p], origins[2, p]
+            t = solve_hit(d, base, ox, oy, oz, wx_, wy_, wz_, x0, spacing, zlo, zstart, zhi, slope_x, slope_y)
             t_out[p] = t
-            jet = surface_jet_at(d, origin[0] + t * wx_, origin[1] + t * wy_, x0, spacing)
+            jet = surface_jet_at(d, ox + t * wx_, oy + t * wy_, x0, spacing)
             for k in range(5):
                 jet_out[k, p] = jet[k]
 
 
 @nb.njit(parallel=True, cache=True, fastmath=FAST_MATH, error_model="numpy")
-def hit_backward(d, origin, dirs, t, grad_t, grad_jet, x0, spacing, nthreads):
+def hit_backward(d, origins, dirs, t, grad_t, grad_jet, x0, spacing, nthreads):
     """Gradient (nthreads, m, m) w.r.t. d of <grad_t, t> + <grad_jet, jet>; sum over axis 0."""
     n = dirs.shape[1]
     m = d.shape[0]
@@ -220,8 +220,8 @@ def hit_backward(d, origin, dirs, t, grad_t, grad_jet, x0, spacing, nthreads):
         grad = out[th]
         for p in range(th * per, min(n, (th + 1) * per)):
             wx_, wy_, wz_ = dirs[0, p], dirs[1, p], dirs[2, p]
-            ix = axis_weights(origin[0] + t[p] * wx_, x0, spacing, m, 3, wx)
-            iy = axis_weights(origin[1] + t[p] * wy_, x0, spacing, m, 3, wy)
+            ix = axis_weights(origins[0, p] + t[p] * wx_, x0, spacing, m, 3, wx)
+            iy = axis_weights(origins[1, p] + t[p] * wy_, x0, spacing, m, 3, wy)
             load_patch(d, ix, iy, patch)
             scatter_hit_adjoint(grad, ix, iy, wx, wy, patch, wx_, wy_, wz_, grad_t[p], grad_jet[0, p],
                                 grad_jet[1, p], grad_jet[2, p], grad_jet[3, p], grad_jet[4, p])

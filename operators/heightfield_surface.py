@@ -53,13 +53,18 @@ class HeightFieldGrid:
         return SLOPE_GAIN * step_x / self.spacing, SLOPE_GAIN * step_y / self.spacing
 
 
+def _ray_origins(origin: torch.Tensor, n: int) -> np.ndarray:
+    """Origins (3, n), float64, C-contiguous, from one origin (3,) shared by all rays or one per ray."""
+    return np.ascontiguousarray(np.broadcast_to(to_numpy(origin).astype(np.float64).reshape(3, -1), (3, n)))
+
+
 class _HeightFieldHit(torch.autograd.Function):
     @staticmethod
     def forward(ctx, heights: torch.Tensor, grid: HeightFieldGrid, origin: torch.Tensor,
                 direction: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         d = to_numpy(heights).astype(np.float64)
-        o = to_numpy(origin).astype(np.float64)
         w = to_numpy(direction)
+        o = _ray_origins(origin, w.shape[1])
         zlo, zstart, zhi = grid.z_planes(d)
         slope_x, slope_y = grid.slope_bounds(d)
         n = w.shape[1]
@@ -79,7 +84,7 @@ class _HeightFieldHit(torch.autograd.Function):
         w = to_numpy(direction)
         gt = np.zeros(w.shape[1]) if grad_t is None else to_numpy(grad_t).astype(np.float64)
         gj = np.zeros((5, w.shape[1])) if grad_jet is None else to_numpy(grad_jet).astype(np.float64)
-        per_thread = hit_backward(to_numpy(heights).astype(np.float64), to_numpy(origin).astype(np.float64),
+        per_thread = hit_backward(to_numpy(heights).astype(np.float64), _ray_origins(origin, w.shape[1]),
                                   w, to_numpy(t), gt, gj, -grid.half_width, grid.spacing,
                                   nb.get_num_threads())
         grad = torch.from_numpy(per_thread.sum(axis=0)).to(dtype=heights.dtype, device=heights.device)
@@ -88,7 +93,8 @@ class _HeightFieldHit(torch.autograd.Function):
 
 def intersect_height_field(heights: torch.Tensor, grid: HeightFieldGrid, origin: torch.Tensor,
                            direction: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """First hit of rays origin + t w (w: (3, N), w_z < 0) with z = base + S(x, y).
+    """First hit of rays origin + t w (origin: (3,) for all rays or (3, N); w: (3, N), w_z < 0)
+    with z = base + S(x, y).
 
     Returns t (N,) and the surface jet (5, N) = (S_x, S_y, S_xx, S_xy, S_yy) at the hit, both
     differentiable w.r.t. ``heights`` (m, m) (not w.r.t. the rays).

@@ -5,7 +5,8 @@
 - :func:`height_field_solid`: a solid over a square whose top and bottom are height fields (a
   plate, a lens array: :func:`lens_array`);
 
-and :func:`crease_normals`, the shading normals of a mesh: at each corner of a face the
+and :func:`crease_normals`, the shading normals of a mesh (a lens carries its faces' exact
+normals instead, in ``mesh.metadata["corner_normals"]``): at each corner of a face the
 area-weighted mean of the normals of the faces around that vertex that meet this face at less
 than the crease angle (smooth across a lens face, split along a rim or a prism edge).
 All meshes are watertight with outward normals; (x, y, z) with z toward the light.
@@ -19,7 +20,7 @@ from typing import Callable
 import numpy as np
 import trimesh
 
-__all__ = ["conic_sag", "lens", "prism", "height_field_solid", "lens_array", "crease_normals"]
+__all__ = ["conic_sag", "conic_slope", "lens", "prism", "height_field_solid", "lens_array", "crease_normals"]
 
 
 def conic_sag(r: np.ndarray, radius: float, conic: float = 0.0) -> np.ndarray:
@@ -33,6 +34,13 @@ def conic_sag(r: np.ndarray, radius: float, conic: float = 0.0) -> np.ndarray:
         raise ValueError(f"a face of radius {radius} (conic {conic}) does not reach the aperture; "
                          "use a larger radius of curvature or a smaller lens radius")
     return r ** 2 / (radius * (1.0 + np.sqrt(argument)))
+
+
+def conic_slope(r: np.ndarray, radius: float, conic: float = 0.0) -> np.ndarray:
+    """d sag / dr of :func:`conic_sag`: r / (R sqrt(1 - (1 + k) r^2 / R^2)); 0 for a plane."""
+    if math.isinf(radius):
+        return np.zeros_like(r)
+    return r / (radius * np.sqrt(1.0 - (1.0 + conic) * r ** 2 / radius ** 2))
 
 
 def _polar_cap(rings: int, segments: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -76,7 +84,19 @@ def lens(radius: float, thickness: float, front_radius: float, back_radius: floa
     rim = np.concatenate([np.stack([rim_top, rim_bottom, rim_bottom[following]], 1),
                           np.stack([rim_top, rim_bottom[following], rim_top[following]], 1)])
     faces = np.concatenate([cap, cap[:, ::-1] + count, rim])
-    return _checked(trimesh.Trimesh(vertices, faces, process=False))
+    mesh = _checked(trimesh.Trimesh(vertices, faces, process=False))
+    # The faces' exact normals at the corners (a faceted mesh's averaged normals are off by up to
+    # a sixth near the apex, where the fan's triangles are long and thin).
+    cos, sin = np.cos(angle), np.sin(angle)
+    front, back = conic_slope(r, front_radius, front_conic), conic_slope(r, back_radius, back_conic)
+    exact = np.concatenate([np.stack([front * cos, front * sin, np.ones_like(r)], 1),
+                            np.stack([back * cos, back * sin, -np.ones_like(r)], 1)])
+    exact /= np.linalg.norm(exact, axis=1, keepdims=True)
+    corner = exact[faces]
+    radial = np.stack([np.tile(cos, 2), np.tile(sin, 2), np.zeros(2 * count)], 1)
+    corner[-len(rim):] = radial[rim]
+    mesh.metadata["corner_normals"] = corner
+    return mesh
 
 
 def prism(side: float, length: float) -> trimesh.Trimesh:

@@ -7,7 +7,8 @@ An element's config::
      position: [0, 0, 1.15], rotation_deg: [0, 0, 0], material: {kind: fused_silica}, crease_angle_deg: 30}
 
 ``shape`` is ``lens``, ``prism``, ``lens_array`` or ``file`` (then ``path`` names the mesh file);
-the rotation (degrees about x, then y, then z) and then the translation place the mesh. Every mesh
+the rotation (degrees about x, then y, then z) and then the translation place the mesh. Shading
+normals: a generated lens's exact ones, else crease-split averages (crease_angle_deg). Every mesh
 is checked: closed, consistently wound, normals outward; :func:`check_layout` refuses elements
 that overlap or do not lie between the receiver and the light. Lengths in scene units.
 """
@@ -126,9 +127,12 @@ def make_element(spec: Mapping[str, Any], base_dir: str | Path | None = None) ->
     else:
         raise ValueError(f"{what} has shape {shape!r}; use {', '.join([*GENERATORS, 'file'])}")
     _check_closed(mesh, what)
+    exact = mesh.metadata.get("corner_normals")
+    placement = _placement(position, rotation, what)
     mesh = mesh.copy()
-    mesh.apply_transform(_placement(position, rotation, what))
-    return OpticalElement(name, mesh, crease_normals(mesh, crease), material)
+    mesh.apply_transform(placement)
+    normals = crease_normals(mesh, crease) if exact is None else exact @ placement[:3, :3].T
+    return OpticalElement(name, mesh, normals, material)
 
 
 def check_layout(elements: Sequence[OpticalElement], light_z: float, receiver_z: float) -> None:

@@ -45,7 +45,8 @@ def test_every_config_group_option_composes_and_builds(tmp_path, group, option):
         cfg = OmegaConf.to_container(compose("reconstruct", overrides=[*SMALL, choice, *NEEDS.get((group, option), [])]),
                                      resolve=True)
     parts = Reconstruction.from_config(cfg, tmp_path)  # every plugin built and checked, nothing rendered
-    assert parts.d0.shape == (32, 32) and parts.operator.output_shape == (1, 64, 64)
+    channels = len(cfg["wavelengths"])
+    assert parts.d0.shape == (32, 32) and parts.operator.output_shape == (channels, 64, 64)
     assert parts.max_iter >= 1 and [type(rule).__name__ for rule in parts.stopping] == [
         {"morozov": "MorozovStopping", "stagnation": "StagnationStopping"}[name] for name in cfg.get("stopping") or {}]
 
@@ -61,6 +62,9 @@ STEP = {"name": "constant", "tau": 1e-3}
 # Every built-in registry key with a small config (and the arguments the framework supplies).
 MINIMAL = {
     ("operator", "height_field"): ({}, {"scene": Scene(receiver=Receiver(resolution=16)), "photons": 100, "seed": 0}),
+    ("operator", "mesh_scene"): ({"elements": [{"name": "lens", "shape": "lens", "position": [0, 0, 1.15], "params": {
+        "radius": 1.0, "thickness": 0.3, "front_radius": 4.0, "back_radius": 4.0}}]},
+        {"scene": Scene(receiver=Receiver(resolution=16)), "photons": 100, "seed": 0}),
     ("solver", "gradient_descent"): ({"step_size": STEP}, {}),
     ("solver", "landweber_pixel"): ({"step_size": STEP, "regularizers": {"l1_bounds": {}},
                                      "post_steps": {"volume_v1": {}}}, {}),

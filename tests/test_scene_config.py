@@ -39,7 +39,7 @@ def plain(**groups: Any) -> dict[str, Any]:
 
 def test_the_expected_configs_exist() -> None:
     assert SCENES == ["bump", "flat", "gaussian", "letter_a", "oblique_lines", "print_lines"]
-    assert OPERATORS == ["height_field"]
+    assert OPERATORS == ["height_field", "mesh_scene", "prism_lens_array", "two_lenses"]
 
 
 @pytest.mark.parametrize("operator", OPERATORS)
@@ -52,9 +52,10 @@ def test_every_config_composes_and_builds(scene_name: str, operator: str) -> Non
     assert cfg.height_field.shape == scene_name
     assert heights.shape == (16, 16) and heights.dtype == torch.float64
     np.testing.assert_array_equal(heights.numpy(), make_shape(scene_name, 16, **cfg.height_field.params))
-    assert op.output_shape == (1, 32, 32)
+    channels = len(cfg.wavelengths)
+    assert op.output_shape == (channels, 32, 32)
     image = op.render(heights)
-    assert image.shape == (1, 32, 32) and bool(torch.isfinite(image).all())
+    assert image.shape == (channels, 32, 32) and bool(torch.isfinite(image).all()) and float(image.sum()) > 0
 
 
 def test_defaults_are_the_official_ones() -> None:

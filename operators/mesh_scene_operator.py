@@ -1,0 +1,358 @@
+"""The mesh-scene forward operator: photons through optical elements, the printed substrate as a
+closed solid, and any number of refractions, onto the receiver (plugin ``operator/mesh_scene``).
+
+Each photon leaves the point light with its differentials (:mod:`operators.emission`, aimed at
+the square of half width ``aperture_half_width`` on the substrate top's plane) and is traced event
+by event, all photons of a chunk in lockstep, up to ``max_depth`` events. An event is the first
+of: a face of an element (Embree, :mod:`operators.mesh_intersect`), the printed top of the
+substrate (the exact C1 height-field hit, :func:`operators.heightfield_surface.intersect_height_field`),
+the substrate's side walls and bottom (planes), or the receiver plane. At an interface the photon
+refracts (Snell, with its differentials and the shading normal's derivative,
+:mod:`operators.optics`) or, under total internal reflection, reflects; with ``fresnel`` its flux
+is weighted by the transmittance and the reflected share is dropped and counted. Lost photons
+(escaped, past ``max_depth``, reaching the printed top from inside the glass, landing outside the
+receiver) are counted in
+:attr:`MeshSceneOperator.losses`. Photons on the receiver are splatted with the native kernels
+(:mod:`operators.splat`).
+
+Everything after the print is torch, so the gradient w.r.t. the heights passes through the
+refractions at fixed elements below the print by autograd; elements above the print do not
+depend on the heights. The gradient is computed chunk by chunk with bounded memory.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+import torch
+from tqdm.auto import tqdm
+
+from operators.caustic_operator import DTYPES, PIXEL_SETTINGS, validate_heights
+from operators.emission import PointLightEmitter
+from operators.heightfield_surface import HeightFieldGrid, intersect_height_field
+from operators.materials import refractive_indices
+from operators.mesh_intersect import MeshIntersector
+from operators.optical_elements import OpticalElement, check_layout, make_element
+from operators.optics import fresnel_transmittance, height_field_normal, height_field_normal_differential, refract, transfer
+from operators.scene import Scene
+from operators.splat import footprint_metric, splat_photons, splat_photons_vjp
+
+__all__ = ["MeshSceneSettings", "MeshSceneOperator", "reflect"]
+
+AIR = -1
+LOSSES = ("escaped", "max_depth", "inside_top", "fresnel_reflected", "missed_receiver")
+
+
+@dataclass(frozen=True)
+class MeshSceneSettings:
+    """Numerical settings (footprints in receiver pixels, as :class:`operators.caustic_operator.OperatorSettings`)."""
+
+    photons: int = 1 << 20
+    seed: int = 0
+    footprint_px: float = 3.0
+    min_footprint_px: float = 1.0
+    max_pixel_radius: float = 20.0
+    chunk_size: int = 1 << 17
+    fresnel: bool = False
+    max_depth: int = 16
+    aperture_half_width: float | None = None
+    dtype: str = "float32"
+
+    def __post_init__(self) -> None:
+        for key in ("photons", "chunk_size", "max_depth"):
+            value = getattr(self, key)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise ValueError(f"operator.{key}={value!r} must be an integer >= 1")
+        for key in PIXEL_SETTINGS:
+            value = getattr(self, key)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not value > 0:
+                raise ValueError(f"operator.{key}={value!r} must be a positive number (pixels)")
+        if not self.min_footprint_px < self.max_pixel_radius:
+            raise ValueError(f"need min_footprint_px ({self.min_footprint_px}) < max_pixel_radius ({self.max_pixel_radius})")
+        if not isinstance(self.fresnel, bool):
+            raise ValueError(f"operator.fresnel={self.fresnel!r} must be true or false")
+        if self.dtype not in DTYPES:
+            raise ValueError(f"operator.dtype={self.dtype!r}; use float32 or float64")
+        if self.aperture_half_width is not None and not self.aperture_half_width > 0:
+            raise ValueError(f"operator.aperture_half_width={self.aperture_half_width!r} must be positive or null")
+
+
+def reflect(direction: torch.Tensor, d_direction: torch.Tensor, normal: torch.Tensor,
+            d_normal: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Mirror reflection r = w - 2 (w . n) n with its differentials (Igehy 1999)."""
+    cos = (direction * normal).sum(0)
+    d_cos = (d_direction * normal).sum(1) + (direction * d_normal).sum(1)  # (2, N)
+    reflected = direction - 2 * cos * normal
+    d_reflected = d_direction - 2 * (d_cos.unsqueeze(1) * normal + cos * d_normal)
+    return reflected, d_reflected
+
+
+class MeshSceneOperator:
+    """F: printed heights (m, m) -> irradiance (c, n, n) through a scene of optical elements."""
+
+    dtype: torch.dtype
+
+    def __init__(self, scene: Scene, elements: Sequence[OpticalElement], settings: MeshSceneSettings) -> None:
+        self.scene, self.elements, self.settings = scene, list(elements), settings
+        check_layout(self.elements, scene.light.position[2], scene.receiver.z)
+        top = scene.substrate.thickness
+        for element in self.elements:
+            low, high = element.z_range
+            if low < top and high > 0.0 and _overlaps_square(element, scene.substrate.half_width):
+                raise ValueError(f"element {element.name} (z {low:.4g} .. {high:.4g}) overlaps the substrate "
+                                 f"(z 0 .. {top:g}); move it above or below")
+        self.dtype = DTYPES[settings.dtype]
+        aperture = settings.aperture_half_width or scene.substrate.half_width
+        aimed = dataclasses.replace(scene, substrate=dataclasses.replace(scene.substrate, half_width=aperture))
+        self.emitter = PointLightEmitter(aimed, settings.photons, settings.seed, settings.footprint_px, self.dtype)
+        self.intersector = MeshIntersector(self.elements)
+        self.substrate_index = torch.tensor(scene.indices, dtype=self.dtype)
+        self.element_index = torch.tensor([refractive_indices(e.material, scene.wavelengths) for e in self.elements]
+                                          or np.zeros((0, scene.channels)), dtype=self.dtype)
+        receiver = scene.receiver
+        self.pixel_area = receiver.pixel_size ** 2
+        self._to_pixels = receiver.resolution / (2.0 * receiver.half_width)
+        self.losses: dict[str, float] = {}
+
+    @classmethod
+    def from_config(cls, scene: Scene, photons: int, seed: int, elements: Sequence[Mapping[str, Any]] = (),
+                    **settings: Any) -> MeshSceneOperator:
+        """The plugin ``operator/mesh_scene``: ``elements`` is a list of element configs
+        (:func:`operators.optical_elements.make_element`), the rest are :class:`MeshSceneSettings`."""
+        fields = {f.name for f in dataclasses.fields(MeshSceneSettings)} - {"photons", "seed"}
+        for key in settings:
+            if key not in fields:
+                raise ValueError(f"unknown key operator.{key}; operator/mesh_scene takes: elements, "
+                                 f"{', '.join(sorted(fields))}")
+        built = [make_element(spec) for spec in (elements or ())]
+        return cls(scene, built, MeshSceneSettings(photons=photons, seed=seed, **settings))
+
+    # -- the framework's operator protocol ----------------------------------------------------
+    @property
+    def photons(self) -> int:
+        return self.emitter.total
+
+    @property
+    def output_shape(self) -> tuple[int, int, int]:
+        n = self.scene.receiver.resolution
+        return (self.scene.channels, n, n)
+
+    def variant(self, photons: int, seed: int, resolution: int) -> MeshSceneOperator:
+        """The same scene with another sampling; footprints scaled to blur alike."""
+        zoom = resolution / self.scene.receiver.resolution
+        scaled = {key: getattr(self.settings, key) * zoom for key in PIXEL_SETTINGS}
+        receiver = dataclasses.replace(self.scene.receiver, resolution=resolution)
+        return MeshSceneOperator(dataclasses.replace(self.scene, receiver=receiver), self.elements,
+                                 dataclasses.replace(self.settings, photons=photons, seed=seed, **scaled))
+
+    def chunks(self) -> list[tuple[int, int]]:
+        size = self.settings.chunk_size
+        return [(a, min(a + size, self.photons)) for a in range(0, self.photons, size)]
+
+    def _check(self, heights: torch.Tensor) -> None:
+        validate_heights(heights, self.scene.substrate.thickness)
+        top = self.scene.substrate.thickness + float(heights.max())
+        for element in self.elements:
+            low, high = element.z_range
+            if low < top and high > 0.0 and _overlaps_square(element, self.scene.substrate.half_width):
+                raise ValueError(f"the print reaches z={top:.4g}, into element {element.name} (from z={low:.4g})")
+
+    def render(self, heights: torch.Tensor, progress: bool = False) -> torch.Tensor:
+        """Irradiance (c, n, n), W per scene unit^2, without a graph; :attr:`losses` holds the
+        flux (W) each kind of loss took."""
+        self._check(heights)
+        image = torch.zeros(self.output_shape, dtype=self.dtype)
+        self.losses = dict.fromkeys(LOSSES, 0.0)
+        with torch.no_grad():
+            for start, stop in tqdm(self.chunks(), desc="photons", unit="chunk", disable=not progress):
+                pos, metric, flux, channel, losses = self.trace(heights.detach().to(self.dtype), start, stop)
+                image += splat_photons(pos, metric, flux, channel, self.scene.channels, self.scene.receiver.resolution)
+                for key, value in losses.items():
+                    self.losses[key] += value
+        return (image / self.pixel_area).to(heights.device)
+
+    def vjp(self, heights: torch.Tensor, grad_image: torch.Tensor) -> torch.Tensor:
+        """F'(d)^* grad_image (m, m), by autograd through each chunk's photons in turn."""
+        self._check(heights)
+        if tuple(grad_image.shape) != self.output_shape:
+            raise ValueError(f"grad_image has shape {tuple(grad_image.shape)}, expected {self.output_shape}")
+        leaf = heights.detach().to(self.dtype).requires_grad_(True)
+        g = grad_image.detach().to(self.dtype) / self.pixel_area
+        for start, stop in self.chunks():
+            with torch.enable_grad():
+                pos, metric, flux, channel, _ = self.trace(leaf, start, stop)
+                grads = splat_photons_vjp(pos, metric, flux, channel, g)
+                pairs = [(t, gt) for t, gt in zip((pos, metric, flux), grads) if t.requires_grad]
+                if pairs:
+                    torch.autograd.backward([t for t, _ in pairs], [gt for _, gt in pairs])
+        grad = leaf.grad if leaf.grad is not None else torch.zeros_like(leaf)
+        return grad.to(heights.dtype)
+
+    def loss_and_grad(self, heights: torch.Tensor, target: torch.Tensor, image: torch.Tensor | None = None
+                      ) -> tuple[float, torch.Tensor, torch.Tensor]:
+        """(1/2 ||F(d) - target||^2, its gradient (m, m), F(d))."""
+        if image is None:
+            image = self.render(heights)
+        residual = image - target.to(image)
+        return 0.5 * float((residual.double() ** 2).sum()), self.vjp(heights, residual), image
+
+    def __call__(self, heights: torch.Tensor) -> torch.Tensor:
+        return _MeshRender.apply(heights, self)
+
+    # -- the photon paths ---------------------------------------------------------------------
+    def trace(self, heights: torch.Tensor, start: int, stop: int
+              ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, dict[str, float]]:
+        """Photons start .. stop-1 through the scene: receiver pixel positions (2, N), footprint
+        metrics (3, N), flux (N,) (zero for lost photons), channel (N,), and the lost flux by kind."""
+        scene, dtype = self.scene, self.dtype
+        batch = self.emitter.batch(start, stop)
+        n = batch.direction.shape[1]
+        substrate = len(self.elements)  # the substrate's medium id; elements are 0 .. K-1
+        position = batch.origin.to(dtype).unsqueeze(-1).expand(3, n).clone()
+        d_position = torch.zeros(2, 3, n, dtype=dtype)
+        direction, d_direction, flux, channel = batch.direction, batch.direction_diff, batch.flux, batch.channel
+        medium = torch.full((n,), AIR, dtype=torch.int64)
+        alive = torch.ones(n, dtype=torch.bool)
+        landed = torch.zeros(n, dtype=torch.bool)
+        losses = dict.fromkeys(LOSSES, 0.0)
+        half, h = scene.substrate.half_width, scene.substrate.thickness
+        grid = HeightFieldGrid(h, half, heights.shape[0])
+        top_max = h + float(heights.detach().max()) + 1e-9
+        for _ in range(self.settings.max_depth):
+            if not bool(alive.any()):
+                break
+            in_air, in_sub = alive & (medium == AIR), alive & (medium == substrate)
+            in_element = alive & (medium >= 0) & (medium < substrate)
+            hits = self.intersector.intersect(position, direction)
+            mesh_ok = (in_air | in_element) & torch.isfinite(hits.t) & (hits.t > 0)
+            # The printed top from above: rays in air, going down, above the print, through the square.
+            t_plane = (h - position[2]) / torch.where(direction[2] < 0, direction[2], -torch.ones_like(direction[2]))
+            cross = position[:2] + t_plane * direction[:2]
+            top_ok = (in_air & (direction[2] < 0) & (position[2] > top_max)
+                      & (cross.abs() <= half).all(0))
+            t_top = torch.full((n,), math.inf, dtype=dtype)
+            jet = torch.zeros(5, n, dtype=dtype)
+            if bool(top_ok.any()):
+                index = top_ok.nonzero().squeeze(1)
+                t_sub, jet_sub = intersect_height_field(heights, grid, position[:, index].detach(),
+                                                        direction[:, index].detach())
+                t_top = t_top.index_copy(0, index, t_sub.to(dtype))
+                jet = jet.index_copy(1, index, jet_sub.to(dtype))
+            # The substrate's walls and bottom (planes; outward normals), from either side.
+            t_box, box_normal = _box_planes(position, direction, half, h, in_air, in_sub)
+            # The receiver plane, reached in air going down.
+            t_rec = torch.where(in_air & (direction[2] < 0),
+                                (scene.receiver.z - position[2]) / torch.where(direction[2] < 0, direction[2],
+                                                                               -torch.ones_like(direction[2])),
+                                torch.full_like(direction[2], math.inf))
+            # The printed top from inside the glass: a path this operator does not follow.
+            t_inside = torch.where(in_sub & (direction[2] > 0), (h - position[2]) / direction[2].clamp(min=1e-12),
+                                   torch.full_like(direction[2], math.inf))
+            candidates = torch.stack([torch.where(mesh_ok, hits.t, torch.full_like(hits.t, math.inf)).detach(),
+                                      t_top.detach(), t_box.detach(), t_rec.detach(), t_inside.detach()])
+            nearest, kind = candidates.min(0)
+            escaped = alive & ~torch.isfinite(nearest)
+            inside_top = alive & torch.isfinite(nearest) & (kind == 4)
+            losses["escaped"] += float(flux[escaped].sum())
+            losses["inside_top"] += float(flux[inside_top].sum())
+            alive = alive & ~escaped & ~inside_top
+            is_mesh, is_top, is_box, is_rec = (alive & (kind == k) for k in range(4))
+            t = torch.where(is_mesh, hits.t, torch.where(is_top, t_top, torch.where(is_box, t_box, t_rec)))
+            t = torch.where(alive, t, torch.zeros_like(t))
+            up = torch.tensor([0.0, 0.0, 1.0], dtype=dtype).unsqueeze(-1).expand(3, n)
+            top_normal = height_field_normal(jet)
+            plane = torch.where(is_mesh, hits.plane_normal,
+                                torch.where(is_top, top_normal, torch.where(is_box, box_normal, up)))
+            moved, d_moved = transfer(position, d_position, direction, d_direction, t,
+                                      torch.where(alive, plane, up))
+            position = torch.where(alive, moved, position)
+            d_position = torch.where(alive, d_moved, d_position)
+            # Photons on the receiver stop here.
+            landed = landed | is_rec
+            alive = alive & ~is_rec
+            # Interfaces: the outward normal, its differential, the indices on both sides.
+            d_mesh = torch.einsum("ijn,kjn->kin", hits.normal_gradient, d_position)
+            d_top = height_field_normal_differential(jet, top_normal, d_position)
+            outward = torch.where(is_mesh, hits.normal, torch.where(is_top, top_normal, box_normal))
+            d_outward = torch.where(is_mesh, d_mesh, torch.where(is_top, d_top, torch.zeros_like(d_mesh)))
+            entering = (direction * plane).sum(0) < 0
+            solid = torch.where(is_mesh, hits.element, torch.full_like(medium, substrate))
+            n_solid = self._index(solid, channel)
+            facing = torch.where(entering, outward, -outward)
+            d_facing = torch.where(entering, d_outward, -d_outward)
+            eta = torch.where(entering, 1.0 / n_solid, n_solid)
+            refracted, d_refracted, cos_i, cos_t, tir = refract(direction, d_direction, facing, d_facing, eta)
+            reflected, d_reflected = reflect(direction, d_direction, facing, d_facing)
+            interface = alive
+            through = interface & ~tir
+            direction = torch.where(through, refracted, torch.where(interface, reflected, direction))
+            d_direction = torch.where(through, d_refracted, torch.where(interface, d_reflected, d_direction))
+            if self.settings.fresnel:
+                kept = torch.where(through, fresnel_transmittance(cos_i, cos_t, eta), torch.ones_like(flux))
+                losses["fresnel_reflected"] += float((flux * (1 - kept)).detach().sum())
+                flux = flux * kept
+            medium = torch.where(through, torch.where(entering, solid, torch.full_like(medium, AIR)), medium)
+        losses["max_depth"] += float(flux[alive].detach().sum())
+        outside = landed & (position[:2].abs() > scene.receiver.half_width).any(0)
+        losses["missed_receiver"] += float(flux[outside].detach().sum())
+        landed = landed & ~outside
+        flux = torch.where(landed, flux, torch.zeros_like(flux))
+        pos = (position[:2] + scene.receiver.half_width) * self._to_pixels - 0.5
+        footprint = torch.where(landed, d_position[:, :2], torch.zeros_like(d_position[:, :2]))
+        metric = footprint_metric(footprint * self._to_pixels, self.settings.min_footprint_px,
+                                  self.settings.max_pixel_radius)
+        return pos, metric, flux, channel, losses
+
+    def _index(self, solid: torch.Tensor, channel: torch.Tensor) -> torch.Tensor:
+        """Refractive index (N,) of the solid (element k, or the substrate for k = K) per photon."""
+        table = torch.cat([self.element_index, self.substrate_index.unsqueeze(0)])
+        return table[solid.clamp(min=0), channel]
+
+
+def _overlaps_square(element: OpticalElement, half_width: float) -> bool:
+    low, high = element.mesh.bounds[0, :2], element.mesh.bounds[1, :2]
+    return bool(np.all(low < half_width) and np.all(high > -half_width))
+
+
+def _box_planes(position: torch.Tensor, direction: torch.Tensor, half: float, height: float,
+                in_air: torch.Tensor, in_sub: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Distance (N,) to the first of the substrate's walls (x, y = +-half, 0 <= z <= height) and
+    bottom (z = 0, |x|, |y| <= half) that a ray meets: leaving for rays inside, entering for rays in
+    air; and that plane's outward normal (3, N)."""
+    n = direction.shape[1]
+    best = torch.full((n,), math.inf, dtype=direction.dtype)
+    normal = torch.zeros(3, n, dtype=direction.dtype)
+    for axis, value, outward in ((0, half, 1.0), (0, -half, -1.0), (1, half, 1.0), (1, -half, -1.0), (2, 0.0, -1.0)):
+        w = direction[axis]
+        safe = torch.where(w.abs() > 1e-12, w, torch.ones_like(w))
+        t = (value - position[axis]) / safe
+        point = position + t * direction
+        others = [k for k in range(3) if k != axis]
+        inside_face = torch.ones(n, dtype=torch.bool)
+        for k in others:
+            inside_face &= (point[k] >= 0.0) & (point[k] <= height) if k == 2 else point[k].abs() <= half
+        leaving = in_sub & (w * outward > 0)
+        entering = in_air & (w * outward < 0)
+        ok = (leaving | entering) & (w.abs() > 1e-12) & (t > 1e-9) & inside_face & (t < best)
+        best = torch.where(ok, t, best)
+        unit = torch.zeros(3, 1, dtype=direction.dtype)
+        unit[axis] = outward
+        normal = torch.where(ok, unit.expand(3, n), normal)
+    return best, normal
+
+
+class _MeshRender(torch.autograd.Function):
+    @staticmethod
+    def forward(ctx, heights: torch.Tensor, operator: MeshSceneOperator) -> torch.Tensor:
+        ctx.operator = operator
+        ctx.save_for_backward(heights)
+        return operator.render(heights)
+
+    @staticmethod
+    def backward(ctx, grad_image: torch.Tensor):
+        (heights,) = ctx.saved_tensors
+        return ctx.operator.vjp(heights, grad_image), None

@@ -1,0 +1,118 @@
+"""The mesh-scene operator against independent truths: the plain scene equals the height-field
+operator inside the receiver and adds the side walls' light at its border; a plano-convex lens
+focuses at its paraxial thick-lens focus; energy is conserved up to the counted losses; gradients
+through a lens below the print match finite differences."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from framework.shapes import make_shape
+from operators.caustic_operator import CausticOperator, OperatorSettings
+from operators.materials import FUSED_SILICA, refractive_indices
+from operators.mesh_scene_operator import MeshSceneOperator, MeshSceneSettings
+from operators.optical_elements import make_element
+from operators.scene import PointLight, Receiver, Scene
+
+
+def lens_spec(z: float, radius: float, thickness: float, front: float, back: float = math.inf) -> dict:
+    return {"name": f"lens{z}", "shape": "lens", "position": [0.0, 0.0, z],
+            "params": {"radius": radius, "thickness": thickness, "front_radius": front, "back_radius": back}}
+
+
+def test_the_plain_scene_is_the_height_field_operator_inside_and_adds_the_side_walls_light():
+    scene = Scene(receiver=Receiver(resolution=64))
+    heights = torch.from_numpy(make_shape("print_lines", 64))
+    plain = CausticOperator(scene, OperatorSettings(photons=200_000, dtype="float64")).render(heights)
+    mesh = MeshSceneOperator(scene, [], MeshSceneSettings(photons=200_000, dtype="float64"))
+    image = mesh.render(heights)
+    inner = (0, slice(6, -6), slice(6, -6))  # footprints reach 3-4 px past the substrate's shadow
+    assert float((image - plain)[inner].norm() / plain[inner].norm()) < 1e-9  # the same photons, same paths
+    # The height-field operator drops the photons that leave through the side walls; here they
+    # reach the receiver's rim, and every emitted photon is accounted for.
+    emitted = float(mesh.emitter.batch(0, mesh.photons).flux.sum())
+    extra = float(image.sum() - plain.sum()) * mesh.pixel_area
+    assert extra > 0.002 * emitted  # measured: 0.32% of the light, all of it in the rim
+    assert mesh.losses["missed_receiver"] > 0.005 * emitted  # measured 0.95%: the slab's shadow is wider than the receiver
+
+
+def test_a_plano_convex_lens_focuses_at_its_thick_lens_focus():
+    n = refractive_indices(FUSED_SILICA, [0.633])[0]
+    focal, thickness, light_z = 1.5, 0.15, 1000.0
+    radius = focal * (n - 1)  # lensmaker, one face flat
+    back = 1.0  # the lens's flat face; its curved face toward the light
+    element = make_element(lens_spec(back + thickness / 2, 0.3, thickness, radius))
+    # Paraxial: the rear principal plane lies t / n above the flat face; the object at the light.
+    s = light_z - (back + thickness)
+    image_distance = 1.0 / (1.0 / focal - 1.0 / s)
+    h = 0.1
+    focus = back + thickness / n - image_distance - h * (1.0 - 1.0 / n)  # the flat slab shifts it down
+
+    def landing(receiver_z: float) -> np.ndarray:
+        scene = Scene(light=PointLight((0.0, 0.0, light_z)), receiver=Receiver(z=receiver_z, resolution=64))
+        op = MeshSceneOperator(scene, [element], MeshSceneSettings(photons=4000, dtype="float64",
+                                                                   aperture_half_width=0.01))
+        pos, _, flux, _, _ = op.trace(torch.zeros(16, 16, dtype=torch.float64), 0, op.photons)
+        assert bool((flux > 0).all())
+        return ((pos + 0.5) / op._to_pixels - scene.receiver.half_width).numpy()
+
+    # Straight rays between two planes; the plane of the smallest RMS spot in closed form.
+    upper, lower = landing(-0.3), landing(-0.5)
+    slope = (lower - upper) / -0.2
+    best = -0.3 - float((upper * slope).sum() / (slope * slope).sum())
+    assert abs(best - focus) < 2e-4, (best, focus)  # measured: 1e-4
+    spot = np.sqrt(((upper + slope * (best + 0.3)) ** 2).sum(0).mean())
+    assert spot < 1e-3 * np.sqrt((upper ** 2).sum(0).mean())  # a point, not a blur
+
+
+def test_energy_is_conserved_up_to_the_counted_losses():
+    scene = Scene(receiver=Receiver(z=-1.0, resolution=128, half_width=3.0))
+    elements = [make_element(lens_spec(1.15, 1.0, 0.3, 4.0, 4.0)), make_element(lens_spec(-0.6, 1.0, 0.2, -3.0, 2.0))]
+    op = MeshSceneOperator(scene, elements, MeshSceneSettings(photons=100_000, dtype="float64", fresnel=True,
+                                                              aperture_half_width=1.0))
+    image = op.render(torch.from_numpy(make_shape("bump", 32)))
+    emitted = float(op.emitter.batch(0, op.photons).flux.sum())
+    received = float(image.sum()) * op.pixel_area
+    lost = sum(op.losses.values())
+    assert op.losses["fresnel_reflected"] > 0.02 * emitted  # four air-glass interfaces, ~3.5% each
+    assert abs(received + lost - emitted) < 1e-6 * emitted, (received, lost, emitted)
+
+
+def test_gradients_through_a_lens_below_the_print_match_finite_differences():
+    # A lens wider than the light below the print: no photon comes near its rim, where the image
+    # is not differentiable (a photon that moves across the rim changes its path).
+    scene = Scene(receiver=Receiver(z=-1.6, resolution=32, half_width=2.0))
+    lower = make_element(lens_spec(-0.75, 1.4, 0.8, 3.0, 3.0))
+    op = MeshSceneOperator(scene, [lower], MeshSceneSettings(photons=20_000, dtype="float64", footprint_px=2.0,
+                                                             chunk_size=7_000))
+    heights = torch.from_numpy(make_shape("bump", 16, sigma=0.35, height=0.06)) + 0.01
+    weights = torch.randn(op.output_shape, dtype=torch.float64, generator=torch.Generator().manual_seed(1))
+    grad = op.vjp(heights, weights)
+    for seed in range(3):
+        direction = torch.randn(heights.shape, dtype=torch.float64, generator=torch.Generator().manual_seed(seed))
+        eps = 1e-7
+        numeric = float(((op.render(heights + eps * direction) - op.render(heights - eps * direction))
+                         * weights).sum()) / (2 * eps)
+        analytic = float((grad * direction).sum())
+        assert abs(numeric - analytic) <= 1e-5 * abs(analytic), (numeric, analytic)
+
+
+@pytest.mark.parametrize("elements, message", [
+    ([lens_spec(0.05, 0.5, 0.1, 4.0)], "overlaps the substrate"),
+    ([lens_spec(-1.2, 0.5, 0.1, 4.0)], "at or below the receiver"),
+])
+def test_impossible_layouts_are_refused(elements, message):
+    with pytest.raises(ValueError, match=message):
+        MeshSceneOperator.from_config(Scene(receiver=Receiver(z=-1.0, resolution=32)), 1000, 0, elements=elements)
+
+
+def test_unknown_settings_are_refused():
+    with pytest.raises(ValueError, match="unknown key operator.depth"):
+        MeshSceneOperator.from_config(Scene(), 1000, 0, depth=3)
+    with pytest.raises(ValueError, match="max_depth"):
+        MeshSceneOperator.from_config(Scene(), 1000, 0, max_depth=0)
