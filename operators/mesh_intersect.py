@@ -94,14 +94,27 @@ class MeshIntersector:
         self._scene = rtcore_scene.EmbreeScene()
         TriangleMesh(self._scene, vertices.astype(np.float32), faces.astype(np.int32))
 
-    def intersect(self, origin: torch.Tensor, direction: torch.Tensor) -> ElementHits:
-        """First element hit of rays origin + t w, origin and direction (3, N)."""
+    def intersect(self, origin: torch.Tensor, direction: torch.Tensor, which: torch.Tensor | None = None
+                  ) -> ElementHits:
+        """First element hit of rays origin + t w, origin and direction (3, N); only the rays
+        where ``which`` (N,) is True are traced (the others miss)."""
         n_rays = direction.shape[1]
         like = dict(dtype=direction.dtype, device=direction.device)
+        misses = ElementHits(torch.full((n_rays,), -1, dtype=torch.int64), torch.full((n_rays,), torch.inf, **like),
+                             torch.zeros(3, n_rays, **like), torch.zeros(3, n_rays, **like),
+                             torch.zeros(3, 3, n_rays, **like), torch.full((n_rays,), -1, dtype=torch.int64))
         if self.count == 0 or n_rays == 0:
-            return ElementHits(torch.full((n_rays,), -1, dtype=torch.int64), torch.full((n_rays,), torch.inf, **like),
-                               torch.zeros(3, n_rays, **like), torch.zeros(3, n_rays, **like),
-                               torch.zeros(3, 3, n_rays, **like), torch.full((n_rays,), -1, dtype=torch.int64))
+            return misses
+        if which is not None:
+            index = which.nonzero().squeeze(1)
+            if index.numel() == 0:
+                return misses
+            part = self.intersect(origin[:, index], direction[:, index])
+            return ElementHits(misses.face.index_copy(0, index, part.face), misses.t.index_copy(0, index, part.t),
+                               misses.plane_normal.index_copy(1, index, part.plane_normal),
+                               misses.normal.index_copy(1, index, part.normal),
+                               misses.normal_gradient.index_copy(2, index, part.normal_gradient),
+                               misses.element.index_copy(0, index, part.element))
         o = origin.detach().cpu().numpy().T
         w = direction.detach().cpu().numpy().T
         found = self._scene.run((o + START_OFFSET * w).astype(np.float32), w.astype(np.float32), output=1)

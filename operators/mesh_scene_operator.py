@@ -110,6 +110,7 @@ class MeshSceneOperator:
         aimed = dataclasses.replace(scene, substrate=dataclasses.replace(scene.substrate, half_width=aperture))
         self.emitter = PointLightEmitter(aimed, settings.photons, settings.seed, settings.footprint_px, self.dtype)
         self.intersector = MeshIntersector(self.elements)
+        self._lowest_element = min((e.z_range[0] for e in self.elements), default=math.inf)
         self.substrate_index = torch.tensor(scene.indices, dtype=self.dtype)
         self.element_index = torch.tensor([refractive_indices(e.material, scene.wavelengths) for e in self.elements]
                                           or np.zeros((0, scene.channels)), dtype=self.dtype)
@@ -207,110 +208,156 @@ class MeshSceneOperator:
     def trace(self, heights: torch.Tensor, start: int, stop: int
               ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, dict[str, float]]:
         """Photons start .. stop-1 through the scene: receiver pixel positions (2, N), footprint
-        metrics (3, N), flux (N,) (zero for lost photons), channel (N,), and the lost flux by kind."""
+        metrics (3, N), flux (N,) (zero for lost photons), channel (N,), and the lost flux by kind.
+        Each event is computed for the photons still under way only."""
         scene, dtype = self.scene, self.dtype
         batch = self.emitter.batch(start, stop)
         n = batch.direction.shape[1]
-        substrate = len(self.elements)  # the substrate's medium id; elements are 0 .. K-1
-        position = batch.origin.to(dtype).unsqueeze(-1).expand(3, n).clone()
-        d_position = torch.zeros(2, 3, n, dtype=dtype)
-        direction, d_direction, flux, channel = batch.direction, batch.direction_diff, batch.flux, batch.channel
-        medium = torch.full((n,), AIR, dtype=torch.int64)
+        ray = _Rays(position=batch.origin.to(dtype).unsqueeze(-1).expand(3, n).clone(),
+                    d_position=torch.zeros(2, 3, n, dtype=dtype), direction=batch.direction,
+                    d_direction=batch.direction_diff, flux=batch.flux, medium=torch.full((n,), AIR, dtype=torch.int64))
+        channel = batch.channel
         alive = torch.ones(n, dtype=torch.bool)
         landed = torch.zeros(n, dtype=torch.bool)
         losses = dict.fromkeys(LOSSES, 0.0)
-        half, h = scene.substrate.half_width, scene.substrate.thickness
-        grid = HeightFieldGrid(h, half, heights.shape[0])
-        top_max = h + float(heights.detach().max()) + 1e-9
+        surface = _Surface(HeightFieldGrid(scene.substrate.thickness, scene.substrate.half_width, heights.shape[0]),
+                           heights, scene.substrate.thickness + float(heights.detach().max()) + 1e-9)
         for _ in range(self.settings.max_depth):
-            if not bool(alive.any()):
+            index = alive.nonzero().squeeze(1)
+            if index.numel() == 0:
                 break
-            in_air, in_sub = alive & (medium == AIR), alive & (medium == substrate)
-            in_element = alive & (medium >= 0) & (medium < substrate)
-            hits = self.intersector.intersect(position, direction)
-            mesh_ok = (in_air | in_element) & torch.isfinite(hits.t) & (hits.t > 0)
-            # The printed top from above: rays in air, going down, above the print, through the square.
-            t_plane = (h - position[2]) / torch.where(direction[2] < 0, direction[2], -torch.ones_like(direction[2]))
-            cross = position[:2] + t_plane * direction[:2]
-            top_ok = (in_air & (direction[2] < 0) & (position[2] > top_max)
-                      & (cross.abs() <= half).all(0))
-            t_top = torch.full((n,), math.inf, dtype=dtype)
-            jet = torch.zeros(5, n, dtype=dtype)
-            if bool(top_ok.any()):
-                index = top_ok.nonzero().squeeze(1)
-                t_sub, jet_sub = intersect_height_field(heights, grid, position[:, index].detach(),
-                                                        direction[:, index].detach())
-                t_top = t_top.index_copy(0, index, t_sub.to(dtype))
-                jet = jet.index_copy(1, index, jet_sub.to(dtype))
-            # The substrate's walls and bottom (planes; outward normals), from either side.
-            t_box, box_normal = _box_planes(position, direction, half, h, in_air, in_sub)
-            # The receiver plane, reached in air going down.
-            t_rec = torch.where(in_air & (direction[2] < 0),
-                                (scene.receiver.z - position[2]) / torch.where(direction[2] < 0, direction[2],
-                                                                               -torch.ones_like(direction[2])),
-                                torch.full_like(direction[2], math.inf))
-            # The printed top from inside the glass: a path this operator does not follow.
-            t_inside = torch.where(in_sub & (direction[2] > 0), (h - position[2]) / direction[2].clamp(min=1e-12),
-                                   torch.full_like(direction[2], math.inf))
-            candidates = torch.stack([torch.where(mesh_ok, hits.t, torch.full_like(hits.t, math.inf)).detach(),
-                                      t_top.detach(), t_box.detach(), t_rec.detach(), t_inside.detach()])
-            nearest, kind = candidates.min(0)
-            escaped = alive & ~torch.isfinite(nearest)
-            inside_top = alive & torch.isfinite(nearest) & (kind == 4)
-            losses["escaped"] += float(flux[escaped].sum())
-            losses["inside_top"] += float(flux[inside_top].sum())
-            alive = alive & ~escaped & ~inside_top
-            is_mesh, is_top, is_box, is_rec = (alive & (kind == k) for k in range(4))
-            t = torch.where(is_mesh, hits.t, torch.where(is_top, t_top, torch.where(is_box, t_box, t_rec)))
-            t = torch.where(alive, t, torch.zeros_like(t))
-            up = torch.tensor([0.0, 0.0, 1.0], dtype=dtype).unsqueeze(-1).expand(3, n)
-            top_normal = height_field_normal(jet)
-            plane = torch.where(is_mesh, hits.plane_normal,
-                                torch.where(is_top, top_normal, torch.where(is_box, box_normal, up)))
-            moved, d_moved = transfer(position, d_position, direction, d_direction, t,
-                                      torch.where(alive, plane, up))
-            position = torch.where(alive, moved, position)
-            d_position = torch.where(alive, d_moved, d_position)
-            # Photons on the receiver stop here.
-            landed = landed | is_rec
-            alive = alive & ~is_rec
-            # Interfaces: the outward normal, its differential, the indices on both sides.
-            d_mesh = torch.einsum("ijn,kjn->kin", hits.normal_gradient, d_position)
-            d_top = height_field_normal_differential(jet, top_normal, d_position)
-            outward = torch.where(is_mesh, hits.normal, torch.where(is_top, top_normal, box_normal))
-            d_outward = torch.where(is_mesh, d_mesh, torch.where(is_top, d_top, torch.zeros_like(d_mesh)))
-            entering = (direction * plane).sum(0) < 0
-            solid = torch.where(is_mesh, hits.element, torch.full_like(medium, substrate))
-            n_solid = self._index(solid, channel)
-            facing = torch.where(entering, outward, -outward)
-            d_facing = torch.where(entering, d_outward, -d_outward)
-            eta = torch.where(entering, 1.0 / n_solid, n_solid)
-            refracted, d_refracted, cos_i, cos_t, tir = refract(direction, d_direction, facing, d_facing, eta)
-            reflected, d_reflected = reflect(direction, d_direction, facing, d_facing)
-            interface = alive
-            through = interface & ~tir
-            direction = torch.where(through, refracted, torch.where(interface, reflected, direction))
-            d_direction = torch.where(through, d_refracted, torch.where(interface, d_reflected, d_direction))
-            if self.settings.fresnel:
-                kept = torch.where(through, fresnel_transmittance(cos_i, cos_t, eta), torch.ones_like(flux))
-                losses["fresnel_reflected"] += float((flux * (1 - kept)).detach().sum())
-                flux = flux * kept
-            medium = torch.where(through, torch.where(entering, solid, torch.full_like(medium, AIR)), medium)
-        losses["max_depth"] += float(flux[alive].detach().sum())
+            moved, arrived, lost = self._step(ray.take(index), channel[index], surface, losses)
+            ray = ray.put(index, moved)
+            landed[index] |= arrived
+            alive[index] = ~(arrived | lost)
+        losses["max_depth"] += float(ray.flux[alive].detach().sum())
+        position, flux = ray.position, ray.flux
         outside = landed & (position[:2].abs() > scene.receiver.half_width).any(0)
         losses["missed_receiver"] += float(flux[outside].detach().sum())
         landed = landed & ~outside
         flux = torch.where(landed, flux, torch.zeros_like(flux))
         pos = (position[:2] + scene.receiver.half_width) * self._to_pixels - 0.5
-        footprint = torch.where(landed, d_position[:, :2], torch.zeros_like(d_position[:, :2]))
+        footprint = torch.where(landed, ray.d_position[:, :2], torch.zeros_like(ray.d_position[:, :2]))
         metric = footprint_metric(footprint * self._to_pixels, self.settings.min_footprint_px,
                                   self.settings.max_pixel_radius)
         return pos, metric, flux, channel, losses
+
+    def _step(self, ray: _Rays, channel: torch.Tensor, surface: _Surface, losses: dict[str, float]
+              ) -> tuple[_Rays, torch.Tensor, torch.Tensor]:
+        """One event for photons under way: the moved rays, which reached the receiver, which were lost."""
+        scene, dtype = self.scene, self.dtype
+        position, d_position, direction, d_direction = ray.position, ray.d_position, ray.direction, ray.d_direction
+        flux, medium = ray.flux, ray.medium
+        n = direction.shape[1]
+        substrate = len(self.elements)  # the substrate's medium id; elements are 0 .. K-1
+        half, h = scene.substrate.half_width, scene.substrate.thickness
+        in_air, in_sub = medium == AIR, medium == substrate
+        in_element = (medium >= 0) & (medium < substrate)
+        # Rays in air below every element and going down can meet only the receiver.
+        past = in_air & (direction[2] < 0) & (position[2] < self._lowest_element)
+        hits = self.intersector.intersect(position, direction, (in_air & ~past) | in_element)
+        mesh_ok = (in_air | in_element) & torch.isfinite(hits.t) & (hits.t > 0)
+        # The printed top from above: rays in air, going down, above the print, through the square.
+        down = torch.where(direction[2] < 0, direction[2], -torch.ones_like(direction[2]))
+        cross = position[:2] + ((h - position[2]) / down) * direction[:2]
+        top_ok = in_air & (direction[2] < 0) & (position[2] > surface.top_max) & (cross.abs() <= half).all(0)
+        t_top = torch.full((n,), math.inf, dtype=dtype)
+        jet = torch.zeros(5, n, dtype=dtype)
+        if bool(top_ok.any()):
+            index = top_ok.nonzero().squeeze(1)
+            t_sub, jet_sub = intersect_height_field(surface.heights, surface.grid, position[:, index].detach(),
+                                                    direction[:, index].detach())
+            t_top = t_top.index_copy(0, index, t_sub.to(dtype))
+            jet = jet.index_copy(1, index, jet_sub.to(dtype))
+        # The substrate's walls and bottom (planes; outward normals), from either side.
+        t_box, box_normal = _box_planes(position, direction, half, h, in_air, in_sub)
+        # The receiver plane, reached in air going down.
+        t_rec = torch.where(in_air & (direction[2] < 0), (scene.receiver.z - position[2]) / down,
+                            torch.full_like(direction[2], math.inf))
+        # The printed top from inside the glass: a path this operator does not follow.
+        t_inside = torch.where(in_sub & (direction[2] > 0), (h - position[2]) / direction[2].clamp(min=1e-12),
+                               torch.full_like(direction[2], math.inf))
+        candidates = torch.stack([torch.where(mesh_ok, hits.t, torch.full_like(hits.t, math.inf)).detach(),
+                                  t_top.detach(), t_box.detach(), t_rec.detach(), t_inside.detach()])
+        nearest, kind = candidates.min(0)
+        escaped = ~torch.isfinite(nearest)
+        inside_top = torch.isfinite(nearest) & (kind == 4)
+        losses["escaped"] += float(flux[escaped].detach().sum())
+        losses["inside_top"] += float(flux[inside_top].detach().sum())
+        going = ~escaped & ~inside_top
+        is_mesh, is_top, is_box, is_rec = (going & (kind == k) for k in range(4))
+        t = torch.where(is_mesh, hits.t, torch.where(is_top, t_top, torch.where(is_box, t_box, t_rec)))
+        t = torch.where(going, t, torch.zeros_like(t))
+        up = torch.tensor([0.0, 0.0, 1.0], dtype=dtype).unsqueeze(-1).expand(3, n)
+        top_normal = height_field_normal(jet)
+        plane = torch.where(is_mesh, hits.plane_normal,
+                            torch.where(is_top, top_normal, torch.where(is_box, box_normal, up)))
+        position, d_position = transfer(position, d_position, direction, d_direction, t, torch.where(going, plane, up))
+        # Interfaces (photons not on the receiver): the outward normal, its differential, the
+        # indices on both sides.
+        refracting = going & ~is_rec
+        d_mesh = torch.einsum("ijn,kjn->kin", hits.normal_gradient, d_position)
+        d_top = height_field_normal_differential(jet, top_normal, d_position)
+        outward = torch.where(is_mesh, hits.normal, torch.where(is_top, top_normal, box_normal))
+        d_outward = torch.where(is_mesh, d_mesh, torch.where(is_top, d_top, torch.zeros_like(d_mesh)))
+        entering = (direction * plane).sum(0) < 0
+        solid = torch.where(is_mesh, hits.element, torch.full_like(medium, substrate))
+        n_solid = self._index(solid, channel)
+        facing = torch.where(entering, outward, -outward)
+        d_facing = torch.where(entering, d_outward, -d_outward)
+        eta = torch.where(entering, 1.0 / n_solid, n_solid)
+        refracted, d_refracted, cos_i, cos_t, tir = refract(direction, d_direction, facing, d_facing, eta)
+        reflected, d_reflected = reflect(direction, d_direction, facing, d_facing)
+        through = refracting & ~tir
+        direction_out = torch.where(through, refracted, torch.where(refracting, reflected, direction))
+        d_direction_out = torch.where(through, d_refracted, torch.where(refracting, d_reflected, d_direction))
+        if self.settings.fresnel:
+            kept = torch.where(through, fresnel_transmittance(cos_i, cos_t, eta), torch.ones_like(flux))
+            losses["fresnel_reflected"] += float((flux * (1 - kept)).detach().sum())
+            flux = flux * kept
+        medium = torch.where(through, torch.where(entering, solid, torch.full_like(medium, AIR)), medium)
+        moved = _Rays(position, d_position, direction_out, d_direction_out, flux, medium)
+        return moved, is_rec, escaped | inside_top
 
     def _index(self, solid: torch.Tensor, channel: torch.Tensor) -> torch.Tensor:
         """Refractive index (N,) of the solid (element k, or the substrate for k = K) per photon."""
         table = torch.cat([self.element_index, self.substrate_index.unsqueeze(0)])
         return table[solid.clamp(min=0), channel]
+
+
+@dataclass
+class _Rays:
+    """Photons under way: position, direction (3, N), their differentials (2, 3, N), flux (N,),
+    medium (N,): AIR, an element's index, or the substrate's (the element count)."""
+
+    position: torch.Tensor
+    d_position: torch.Tensor
+    direction: torch.Tensor
+    d_direction: torch.Tensor
+    flux: torch.Tensor
+    medium: torch.Tensor
+
+    def take(self, index: torch.Tensor) -> _Rays:
+        """The photons at ``index``."""
+        return _Rays(self.position[:, index], self.d_position[:, :, index], self.direction[:, index],
+                     self.d_direction[:, :, index], self.flux[index], self.medium[index])
+
+    def put(self, index: torch.Tensor, part: _Rays) -> _Rays:
+        """These photons with those at ``index`` replaced by ``part`` (differentiable)."""
+        return _Rays(self.position.index_copy(1, index, part.position),
+                     self.d_position.index_copy(2, index, part.d_position),
+                     self.direction.index_copy(1, index, part.direction),
+                     self.d_direction.index_copy(2, index, part.d_direction),
+                     self.flux.index_copy(0, index, part.flux), self.medium.index_copy(0, index, part.medium))
+
+
+@dataclass(frozen=True)
+class _Surface:
+    """The printed top: its grid, heights (m, m) and a plane above its highest point."""
+
+    grid: HeightFieldGrid
+    heights: torch.Tensor
+    top_max: float
 
 
 def _overlaps_square(element: OpticalElement, half_width: float) -> bool:
