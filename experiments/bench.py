@@ -8,12 +8,13 @@ alternating with them, the time split between tracing and splatting in the fused
 with the splat switched off against the full pass), the peak memory of a gradient evaluation
 with the paper's 8.4 million photons, and the native splat against the straightforward PyTorch
 splat on the same photons, side by side, each in a fresh process so that their peak memories are
-comparable.
+comparable; and the mesh-scene operator (plain scene, two lenses) beside the height-field operator.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import math
 import multiprocessing as mp
@@ -29,7 +30,7 @@ import torch
 from experiments.bench_stages import stage_profile
 from framework.shapes import make_shape
 from operators.caustic_operator import CausticOperator, OperatorSettings
-from operators.scene import Scene
+from operators.scene import Receiver, Scene
 from operators.splat import splat_photons
 from operators.splat_reference import splat_photons_reference
 
@@ -107,6 +108,43 @@ def time_reference(heights: torch.Tensor, target: torch.Tensor, photons: int, fo
     gradient_s = time.perf_counter() - t0
     return {"photons": op.photons, "forward_photons_per_s": op.photons / forward_s,
             "forward_backward_photons_per_s": op.photons / gradient_s}
+
+
+def mesh_scene_operators(photons: int, footprint_px: float) -> dict[str, object]:
+    """The height-field operator and the mesh-scene operator on the plain scene and through the
+    paper's two lenses (conf/operator/two_lenses.yaml), at the same photon count."""
+    from operators.mesh_scene_operator import MeshSceneOperator, MeshSceneSettings
+    from operators.optical_elements import make_element
+
+    lens_scene = Scene(receiver=Receiver(z=-1.0))
+    lenses = [make_element({"name": "top_lens", "shape": "lens", "position": [0.0, 0.0, 1.15], "params": {
+                  "radius": 1.08, "thickness": 0.3, "front_radius": 4.0, "back_radius": 4.0}}),
+              make_element({"name": "bottom_meniscus", "shape": "lens", "position": [0.0, 0.0, -0.725], "params": {
+                  "radius": 1.0, "thickness": 0.15, "front_radius": -2.125, "back_radius": 1.817}})]
+    settings = MeshSceneSettings(photons=photons, footprint_px=footprint_px)
+    return {"height_field": make_operator(photons, footprint_px, 1 << 18),
+            "mesh_scene_plain": MeshSceneOperator(Scene(), [], settings),
+            "mesh_scene_two_lenses": MeshSceneOperator(lens_scene, lenses, dataclasses.replace(
+                settings, aperture_half_width=1.08))}
+
+
+def time_mesh_scenes(heights: torch.Tensor, photons: int, footprint_px: float) -> dict[str, dict[str, float]]:
+    """Forward and forward + backward photons/s of :func:`mesh_scene_operators`, side by side
+    (the best of two rounds that run them in turn)."""
+    ops = mesh_scene_operators(photons, footprint_px)
+    names = list(ops)
+    targets = {name: op.render(torch.zeros_like(heights)) for name, op in ops.items()}
+    best = {name: [math.inf, math.inf] for name in names}
+    for _ in range(2):
+        for name in names:
+            op = ops[name]
+            best[name][0] = min(best[name][0], best_seconds(lambda: op.render(heights), repeats=1))
+            best[name][1] = min(best[name][1], best_seconds(lambda: op.loss_and_grad(heights, targets[name]),
+                                                            repeats=1))
+    plain = best["mesh_scene_plain"]
+    return {name: {"forward_photons_per_s": photons / forward, "forward_backward_photons_per_s": photons / gradient,
+                   "gradient_time_over_plain_mesh_scene": gradient / plain[1]}
+            for name, (forward, gradient) in best.items()}
 
 
 def _splat_worker(path: str, which: str, queue: mp.Queue) -> None:
@@ -222,6 +260,8 @@ def main(argv: list[str] | None = None) -> None:
                         help="photons for the speed of the torch reference path")
     parser.add_argument("--stage-photons", type=int, default=1 << 20,
                         help="photons of the one-thread per-stage profile (0: leave it out)")
+    parser.add_argument("--mesh-photons", type=int, default=1 << 18,
+                        help="photons of the mesh-scene comparison (0: leave it out)")
     parser.add_argument("--footprint-px", type=float, default=3.0)
     parser.add_argument("--chunk-size", type=int, default=1 << 18)
     parser.add_argument("--device", choices=("cpu", "cuda"), default="cpu",
@@ -262,6 +302,8 @@ def main(argv: list[str] | None = None) -> None:
     report["splat_comparison"] = compare_splats(op, heights, args.splat_photons)
     if args.stage_photons > 0:
         report["stage_profile"] = profile_stages(op, heights, target, args.stage_photons)
+    if args.mesh_photons > 0:
+        report["mesh_scene"] = time_mesh_scenes(heights, args.mesh_photons, args.footprint_px)
     print(json.dumps(report, indent=2))
 
 

@@ -13,7 +13,7 @@ from tests.python_subprocess import run_json_script
 
 def test_bench_prints_the_promised_figures(capsys):
     main(["--photons", "200000", "--grad-photons", "30000", "--splat-photons", "3000", "--chunk-size", "8192",
-          "--reference-photons", "20000", "--stage-photons", "0"])
+          "--reference-photons", "20000", "--stage-photons", "0", "--mesh-photons", "20000"])
     report = json.loads(capsys.readouterr().out)
     assert report["forward_photons_per_s"] > 0 and report["forward_backward_photons_per_s"] > 0
     plain = report["numba_kernels_only"]
@@ -26,6 +26,10 @@ def test_bench_prints_the_promised_figures(capsys):
     assert comparison["relative_image_difference"] < 1e-5 and comparison["speedup"] > 0
     assert report["gradient_paper_photons"]["photons"] == 30000
     assert "stage_profile" not in report  # --stage-photons 0 leaves it out
+    mesh = report["mesh_scene"]
+    assert set(mesh) == {"height_field", "mesh_scene_plain", "mesh_scene_two_lenses"}
+    assert mesh["mesh_scene_plain"]["gradient_time_over_plain_mesh_scene"] == 1.0
+    assert all(m["forward_photons_per_s"] > 0 and m["forward_backward_photons_per_s"] > 0 for m in mesh.values())
 
 
 # The stage kernels cost 1.5 min of compiling on a cold cache; as plain Python (JIT off) the
