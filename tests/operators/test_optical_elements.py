@@ -103,3 +103,17 @@ def test_layouts_that_overlap_or_leave_the_light_path_are_refused():
         check_layout([placed("a", -0.65)], light_z=10.0, receiver_z=-0.7)
     with pytest.raises(ValueError, match="at or above the light"):
         check_layout([placed("a", 9.9)], light_z=10.0, receiver_z=-1.0)
+
+
+def test_each_face_knows_its_neighbour_across_the_edge_opposite_each_corner():
+    from operators.mesh_intersect import _edge_neighbours
+
+    faces = trimesh.creation.icosphere(subdivisions=1).faces
+    neighbour = _edge_neighbours(faces)
+    for f, corners in enumerate(faces):
+        for k in range(3):
+            edge = {int(corners[(k + 1) % 3]), int(corners[(k + 2) % 3])}
+            other = faces[neighbour[f, k]]
+            assert neighbour[f, k] != f and edge <= set(other.tolist()) and int(corners[k]) not in other
+    open_mesh = faces[:-1]  # one face removed: its three neighbours now have an open edge
+    assert int((_edge_neighbours(open_mesh) == -1).sum()) == 3
