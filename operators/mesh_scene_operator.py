@@ -10,14 +10,16 @@ the substrate's side walls and bottom (planes), or the receiver plane. At an int
 refracts (Snell, with its differentials and the shading normal's derivative,
 :mod:`operators.optics`) or, under total internal reflection, reflects; with ``fresnel`` its flux
 is weighted by the transmittance and the reflected share is dropped and counted. Lost photons
-(escaped, past ``max_depth``, reaching the printed top from inside the glass, landing outside the
-receiver) are counted in
-:attr:`MeshSceneOperator.losses`. Photons on the receiver are splatted with the native kernels
-(:mod:`operators.splat`).
+(escaped, past ``max_depth``, reaching the printed top from inside the glass) are counted in
+:attr:`MeshSceneOperator.losses`, and so is the flux of photons that land beside the receiver
+(splatted all the same: their footprints may reach it). Photons on the receiver plane are
+splatted with the native kernels (:mod:`operators.splat`).
 
 Everything after the print is torch, so the gradient w.r.t. the heights passes through the
 refractions at fixed elements below the print by autograd; elements above the print do not
-depend on the heights. The gradient is computed chunk by chunk with bounded memory.
+depend on the heights. The gradient is computed chunk by chunk with bounded memory. On a mesh the
+shading normal is continuous but its derivative is constant on each face, so a photon's footprint
+steps where its hit crosses an edge: the image is piecewise smooth in the heights.
 """
 
 from __future__ import annotations
@@ -232,9 +234,10 @@ class MeshSceneOperator:
             alive[index] = ~(arrived | lost)
         losses["max_depth"] += float(ray.flux[alive].detach().sum())
         position, flux = ray.position, ray.flux
+        # Photons beside the receiver are splatted too (their footprints may reach it: the image
+        # stays continuous in the heights); their flux is counted as having missed it.
         outside = landed & (position[:2].abs() > scene.receiver.half_width).any(0)
         losses["missed_receiver"] += float(flux[outside].detach().sum())
-        landed = landed & ~outside
         flux = torch.where(landed, flux, torch.zeros_like(flux))
         pos = (position[:2] + scene.receiver.half_width) * self._to_pixels - 0.5
         footprint = torch.where(landed, ray.d_position[:, :2], torch.zeros_like(ray.d_position[:, :2]))

@@ -83,19 +83,22 @@ def test_energy_is_conserved_up_to_the_counted_losses():
     assert abs(received + lost - emitted) < 1e-6 * emitted, (received, lost, emitted)
 
 
-def test_gradients_through_a_lens_below_the_print_match_finite_differences():
+def test_gradients_through_lenses_above_and_below_the_print_match_finite_differences():
     # A lens wider than the light below the print: no photon comes near its rim, where the image
     # is not differentiable (a photon that moves across the rim changes its path).
     scene = Scene(receiver=Receiver(z=-1.6, resolution=32, half_width=2.0))
-    lower = make_element(lens_spec(-0.75, 1.4, 0.8, 3.0, 3.0))
-    op = MeshSceneOperator(scene, [lower], MeshSceneSettings(photons=20_000, dtype="float64", footprint_px=2.0,
-                                                             chunk_size=7_000))
+    lenses = [make_element(lens_spec(1.15, 1.6, 0.5, 6.0, 6.0)), make_element(lens_spec(-0.75, 1.4, 0.8, 3.0, 3.0))]
+    op = MeshSceneOperator(scene, lenses, MeshSceneSettings(photons=20_000, dtype="float64", footprint_px=2.0,
+                                                            chunk_size=7_000, aperture_half_width=0.9))
     heights = torch.from_numpy(make_shape("bump", 16, sigma=0.35, height=0.06)) + 0.01
     weights = torch.randn(op.output_shape, dtype=torch.float64, generator=torch.Generator().manual_seed(1))
     grad = op.vjp(heights, weights)
     for seed in range(3):
         direction = torch.randn(heights.shape, dtype=torch.float64, generator=torch.Generator().manual_seed(seed))
-        eps = 1e-7
+        # The shading normal's derivative is constant on each face: where a photon's hit crosses an
+        # edge its footprint steps (measured: 0.2% of one photon's metric for a 1e-7 move), so the
+        # image is only piecewise smooth; steps of 1e-9 cross no edge here.
+        eps = 1e-9
         numeric = float(((op.render(heights + eps * direction) - op.render(heights - eps * direction))
                          * weights).sum()) / (2 * eps)
         analytic = float((grad * direction).sum())
