@@ -20,7 +20,6 @@ for a gradient of the same heights, which then skips the hit search.
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from dataclasses import dataclass
 from typing import Any
@@ -33,14 +32,13 @@ from tqdm.auto import tqdm
 from operators.emission import PointLightEmitter
 from operators.fused_trace import FusedTracer, HitCache
 from operators.native import to_numpy
+from operators.photon_operator import PIXEL_SETTINGS, PhotonOperator, backward_through_splat, check_setting_keys
 from operators.precompile import BackgroundCompile
 from operators.scene import Scene
-from operators.splat import footprint_metric, splat_photons, splat_photons_vjp
+from operators.splat import footprint_metric, splat_photons
 from operators.substrate_trace import trace_substrate
 
 DTYPES = {"float32": torch.float32, "float64": torch.float64}
-# Settings given in receiver pixels: a render at another receiver resolution scales them.
-PIXEL_SETTINGS = ("footprint_px", "min_footprint_px", "max_pixel_radius")
 
 
 @dataclass(frozen=True)
@@ -123,7 +121,7 @@ def validate_heights(heights: torch.Tensor, thickness: float) -> None:
                          f"(d must exceed -thickness = {-thickness}); printed heights are >= 0")
 
 
-class CausticOperator:
+class CausticOperator(PhotonOperator):
     """Differentiable caustic of a printed height field on a flat substrate.
 
     Call it on heights (m, m) in scene units: returns irradiance (c, n, n) in W per scene unit^2,
@@ -135,22 +133,14 @@ class CausticOperator:
     def from_config(cls, scene: Scene, photons: int, seed: int, **settings: Any) -> CausticOperator:
         """The operator for ``scene`` from the config's ``operator`` group (the fields of
         :class:`OperatorSettings` but photons and seed, which the run gives); checks every value."""
-        fields = {f.name for f in dataclasses.fields(OperatorSettings)} - {"photons", "seed"}
-        for key in settings:
-            if key not in fields:
-                raise ValueError(f"unknown key operator.{key}; operator/height_field takes: {', '.join(sorted(fields))}")
+        check_setting_keys(settings, OperatorSettings, "height_field")
         if photons < scene.channels:
             raise ValueError(f"photons={photons} is too few; need at least one per wavelength ({scene.channels})")
         return cls(scene, OperatorSettings(photons=photons, seed=seed, **settings))
 
     def variant(self, photons: int, seed: int, resolution: int) -> CausticOperator:
-        """The same physics with another sampling: ``photons``, ``seed`` and an n = ``resolution``
-        receiver, whose footprints (set in pixels) are scaled so that it blurs like this one."""
-        zoom = resolution / self.scene.receiver.resolution
-        scaled = {key: getattr(self.settings, key) * zoom for key in PIXEL_SETTINGS}
-        receiver = dataclasses.replace(self.scene.receiver, resolution=resolution)
-        return CausticOperator(dataclasses.replace(self.scene, receiver=receiver),
-                               dataclasses.replace(self.settings, photons=photons, seed=seed, **scaled))
+        """The same physics with another sampling (:meth:`PhotonOperator.resampled`)."""
+        return CausticOperator(*self.resampled(photons, seed, resolution))
 
     def warm_up(self) -> BackgroundCompile:
         """Context for a run that will take gradients: on the CPU, compiles the gradient kernel in a
@@ -176,20 +166,6 @@ class CausticOperator:
         receiver = scene.receiver
         self.pixel_area = receiver.pixel_size ** 2
         self._to_pixels = receiver.resolution / (2.0 * receiver.half_width)
-
-    @property
-    def photons(self) -> int:
-        """Photons actually traced per evaluation (a multiple of the channel count)."""
-        return self.emitter.total
-
-    @property
-    def output_shape(self) -> tuple[int, int, int]:
-        n = self.scene.receiver.resolution
-        return (self.scene.channels, n, n)
-
-    def chunks(self) -> list[tuple[int, int]]:
-        size = self.settings.chunk_size
-        return [(a, min(a + size, self.photons)) for a in range(0, self.photons, size)]
 
     def splat_inputs(self, heights: torch.Tensor, start: int, stop: int
                      ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
@@ -276,28 +252,8 @@ class CausticOperator:
         g = grad_image.detach().to(dtype=self.dtype, device=self.device) / self.pixel_area
         for start, stop in self.chunks():
             with torch.enable_grad():
-                pos, metric, flux, channel = self.splat_inputs(leaf, start, stop)
-                # The splat's adjoint needs only the photons, not the image: gather directly.
-                grads = splat_photons_vjp(pos, metric, flux, channel, g)
-                pairs = [(t, gt) for t, gt in zip((pos, metric, flux), grads) if t.requires_grad]
-                torch.autograd.backward([t for t, _ in pairs], [gt for _, gt in pairs])
+                backward_through_splat(*self.splat_inputs(leaf, start, stop), g)
         return leaf.grad.to(heights.dtype)
-
-    def loss_and_grad(self, heights: torch.Tensor, target: torch.Tensor, image: torch.Tensor | None = None
-                      ) -> tuple[float, torch.Tensor, torch.Tensor]:
-        """(1/2 ||F(d) - target||^2, its gradient (m, m), F(d)) in two passes of bounded memory;
-        ``image`` = F(d) from an earlier :meth:`render` of these heights skips the first pass."""
-        if image is None:
-            image = self.render(heights)
-        elif image.shape != self.output_shape:
-            raise ValueError(f"image has shape {tuple(image.shape)}, the operator renders {self.output_shape}")
-        if target.shape != image.shape:
-            raise ValueError(f"target has shape {tuple(target.shape)}, the operator renders {tuple(image.shape)}")
-        residual = image - target.to(image)
-        return 0.5 * float((residual.double() ** 2).sum()), self.vjp(heights, residual), image
-
-    def __call__(self, heights: torch.Tensor) -> torch.Tensor:
-        return _Render.apply(heights, self)
 
     def describe(self) -> dict[str, float]:
         """Derived sampling figures, for logs."""
@@ -305,16 +261,3 @@ class CausticOperator:
                 "smoothing": self.emitter.smoothing,
                 "footprint_radius_units": self.emitter.footprint_radius,
                 "tiling_radius_units": math.sqrt(self.emitter.cell_area / math.pi)}
-
-
-class _Render(torch.autograd.Function):
-    @staticmethod
-    def forward(ctx, heights: torch.Tensor, operator: CausticOperator) -> torch.Tensor:
-        ctx.operator = operator
-        ctx.save_for_backward(heights)
-        return operator.render(heights)
-
-    @staticmethod
-    def backward(ctx, grad_image: torch.Tensor):
-        (heights,) = ctx.saved_tensors
-        return ctx.operator.vjp(heights, grad_image), None

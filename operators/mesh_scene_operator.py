@@ -33,15 +33,16 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
-from operators.caustic_operator import DTYPES, PIXEL_SETTINGS, validate_heights
+from operators.caustic_operator import DTYPES, validate_heights
 from operators.emission import PointLightEmitter
 from operators.heightfield_surface import HeightFieldGrid, intersect_height_field
 from operators.materials import refractive_indices
 from operators.mesh_intersect import MeshIntersector
 from operators.optical_elements import OpticalElement, check_layout, make_element
 from operators.optics import fresnel_transmittance, height_field_normal, height_field_normal_differential, refract, transfer
+from operators.photon_operator import PIXEL_SETTINGS, PhotonOperator, backward_through_splat, check_setting_keys
 from operators.scene import Scene
-from operators.splat import footprint_metric, splat_photons, splat_photons_vjp
+from operators.splat import footprint_metric, splat_photons
 
 __all__ = ["MeshSceneSettings", "MeshSceneOperator", "reflect"]
 
@@ -93,7 +94,7 @@ def reflect(direction: torch.Tensor, d_direction: torch.Tensor, normal: torch.Te
     return reflected, d_reflected
 
 
-class MeshSceneOperator:
+class MeshSceneOperator(PhotonOperator):
     """F: printed heights (m, m) -> irradiance (c, n, n) through a scene of optical elements."""
 
     dtype: torch.dtype
@@ -126,35 +127,14 @@ class MeshSceneOperator:
                     **settings: Any) -> MeshSceneOperator:
         """The plugin ``operator/mesh_scene``: ``elements`` is a list of element configs
         (:func:`operators.optical_elements.make_element`), the rest are :class:`MeshSceneSettings`."""
-        fields = {f.name for f in dataclasses.fields(MeshSceneSettings)} - {"photons", "seed"}
-        for key in settings:
-            if key not in fields:
-                raise ValueError(f"unknown key operator.{key}; operator/mesh_scene takes: elements, "
-                                 f"{', '.join(sorted(fields))}")
+        check_setting_keys(settings, MeshSceneSettings, "mesh_scene", extra=("elements",))
         built = [make_element(spec) for spec in (elements or ())]
         return cls(scene, built, MeshSceneSettings(photons=photons, seed=seed, **settings))
 
-    # -- the framework's operator protocol ----------------------------------------------------
-    @property
-    def photons(self) -> int:
-        return self.emitter.total
-
-    @property
-    def output_shape(self) -> tuple[int, int, int]:
-        n = self.scene.receiver.resolution
-        return (self.scene.channels, n, n)
-
     def variant(self, photons: int, seed: int, resolution: int) -> MeshSceneOperator:
-        """The same scene with another sampling; footprints scaled to blur alike."""
-        zoom = resolution / self.scene.receiver.resolution
-        scaled = {key: getattr(self.settings, key) * zoom for key in PIXEL_SETTINGS}
-        receiver = dataclasses.replace(self.scene.receiver, resolution=resolution)
-        return MeshSceneOperator(dataclasses.replace(self.scene, receiver=receiver), self.elements,
-                                 dataclasses.replace(self.settings, photons=photons, seed=seed, **scaled))
-
-    def chunks(self) -> list[tuple[int, int]]:
-        size = self.settings.chunk_size
-        return [(a, min(a + size, self.photons)) for a in range(0, self.photons, size)]
+        """The same scene with another sampling (:meth:`PhotonOperator.resampled`)."""
+        scene, settings = self.resampled(photons, seed, resolution)
+        return MeshSceneOperator(scene, self.elements, settings)
 
     def _check(self, heights: torch.Tensor) -> None:
         validate_heights(heights, self.scene.substrate.thickness)
@@ -187,24 +167,9 @@ class MeshSceneOperator:
         g = grad_image.detach().to(self.dtype) / self.pixel_area
         for start, stop in self.chunks():
             with torch.enable_grad():
-                pos, metric, flux, channel, _ = self.trace(leaf, start, stop)
-                grads = splat_photons_vjp(pos, metric, flux, channel, g)
-                pairs = [(t, gt) for t, gt in zip((pos, metric, flux), grads) if t.requires_grad]
-                if pairs:
-                    torch.autograd.backward([t for t, _ in pairs], [gt for _, gt in pairs])
+                backward_through_splat(*self.trace(leaf, start, stop)[:4], g)
         grad = leaf.grad if leaf.grad is not None else torch.zeros_like(leaf)
         return grad.to(heights.dtype)
-
-    def loss_and_grad(self, heights: torch.Tensor, target: torch.Tensor, image: torch.Tensor | None = None
-                      ) -> tuple[float, torch.Tensor, torch.Tensor]:
-        """(1/2 ||F(d) - target||^2, its gradient (m, m), F(d))."""
-        if image is None:
-            image = self.render(heights)
-        residual = image - target.to(image)
-        return 0.5 * float((residual.double() ** 2).sum()), self.vjp(heights, residual), image
-
-    def __call__(self, heights: torch.Tensor) -> torch.Tensor:
-        return _MeshRender.apply(heights, self)
 
     # -- the photon paths ---------------------------------------------------------------------
     def trace(self, heights: torch.Tensor, start: int, stop: int
@@ -393,16 +358,3 @@ def _box_planes(position: torch.Tensor, direction: torch.Tensor, half: float, he
         unit[axis] = outward
         normal = torch.where(ok, unit.expand(3, n), normal)
     return best, normal
-
-
-class _MeshRender(torch.autograd.Function):
-    @staticmethod
-    def forward(ctx, heights: torch.Tensor, operator: MeshSceneOperator) -> torch.Tensor:
-        ctx.operator = operator
-        ctx.save_for_backward(heights)
-        return operator.render(heights)
-
-    @staticmethod
-    def backward(ctx, grad_image: torch.Tensor):
-        (heights,) = ctx.saved_tensors
-        return ctx.operator.vjp(heights, grad_image), None

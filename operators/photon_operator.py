@@ -1,0 +1,116 @@
+"""What the photon operators share: the operator protocol around ``render`` and ``vjp``.
+
+:class:`PhotonOperator` gives a subclass with ``scene``, ``settings`` (photons, seed, chunk_size
+and the footprints in pixels), ``emitter``, ``render(heights)`` and ``vjp(heights, grad_image)``
+the rest: photon count, image shape, chunks, the squared loss and its gradient, autograd through
+``operator(heights)`` (:class:`RenderFunction`), resampled variants. :func:`backward_through_splat`
+sends an image gradient back through the splat's adjoint (a gather per photon, no image needed)
+into whatever a chunk of photons depends on.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import torch
+
+from operators.scene import Scene
+from operators.splat import splat_photons_vjp
+
+__all__ = ["PIXEL_SETTINGS", "PhotonOperator", "RenderFunction", "backward_through_splat", "check_setting_keys"]
+
+# Settings given in receiver pixels: a render at another receiver resolution scales them.
+PIXEL_SETTINGS = ("footprint_px", "min_footprint_px", "max_pixel_radius")
+
+
+def check_setting_keys(settings: dict[str, Any], settings_class: type, plugin: str, extra: tuple[str, ...] = ()) -> None:
+    """Refuse a key of the ``operator`` group that is not a field of ``settings_class`` (photons and
+    seed come from the run), naming the keys the plugin takes."""
+    fields = {f.name for f in dataclasses.fields(settings_class)} - {"photons", "seed"}
+    for key in settings:
+        if key not in fields:
+            raise ValueError(f"unknown key operator.{key}; operator/{plugin} takes: "
+                             f"{', '.join([*extra, *sorted(fields)])}")
+
+
+class PhotonOperator:
+    """Base of the photon operators (see the module docstring)."""
+
+    scene: Scene
+    settings: Any
+    emitter: Any
+
+    def render(self, heights: torch.Tensor, progress: bool = False) -> torch.Tensor:
+        """The image F(d) (c, n, n) of heights d (m, m), without a graph."""
+        raise NotImplementedError
+
+    def vjp(self, heights: torch.Tensor, grad_image: torch.Tensor) -> torch.Tensor:
+        """F'(d)^* grad_image (m, m)."""
+        raise NotImplementedError
+
+    @property
+    def photons(self) -> int:
+        """Photons actually traced per evaluation (a multiple of the channel count)."""
+        return self.emitter.total
+
+    @property
+    def output_shape(self) -> tuple[int, int, int]:
+        n = self.scene.receiver.resolution
+        return (self.scene.channels, n, n)
+
+    def chunks(self) -> list[tuple[int, int]]:
+        """Photon index ranges of at most ``settings.chunk_size``."""
+        size = self.settings.chunk_size
+        return [(a, min(a + size, self.photons)) for a in range(0, self.photons, size)]
+
+    def resampled(self, photons: int, seed: int, resolution: int) -> tuple[Scene, Any]:
+        """Scene and settings of the same physics with another sampling (photons, seed, an
+        n = resolution receiver), footprints scaled so that it blurs like this one."""
+        zoom = resolution / self.scene.receiver.resolution
+        scaled = {key: getattr(self.settings, key) * zoom for key in PIXEL_SETTINGS}
+        receiver = dataclasses.replace(self.scene.receiver, resolution=resolution)
+        return (dataclasses.replace(self.scene, receiver=receiver),
+                dataclasses.replace(self.settings, photons=photons, seed=seed, **scaled))
+
+    def loss_and_grad(self, heights: torch.Tensor, target: torch.Tensor, image: torch.Tensor | None = None
+                      ) -> tuple[float, torch.Tensor, torch.Tensor]:
+        """(1/2 ||F(d) - target||^2, its gradient (m, m), F(d)) in two passes of bounded memory;
+        ``image`` = F(d) from an earlier :meth:`render` of these heights skips the first pass."""
+        if image is None:
+            image = self.render(heights)
+        elif image.shape != self.output_shape:
+            raise ValueError(f"image has shape {tuple(image.shape)}, the operator renders {self.output_shape}")
+        if target.shape != image.shape:
+            raise ValueError(f"target has shape {tuple(target.shape)}, the operator renders {tuple(image.shape)}")
+        residual = image - target.to(image)
+        return 0.5 * float((residual.double() ** 2).sum()), self.vjp(heights, residual), image
+
+    def __call__(self, heights: torch.Tensor) -> torch.Tensor:
+        return RenderFunction.apply(heights, self)
+
+
+class RenderFunction(torch.autograd.Function):
+    """F(d) forward by ``operator.render``, backward by ``operator.vjp``."""
+
+    @staticmethod
+    def forward(ctx, heights: torch.Tensor, operator: Any) -> torch.Tensor:
+        ctx.operator = operator
+        ctx.save_for_backward(heights)
+        return operator.render(heights)
+
+    @staticmethod
+    def backward(ctx, grad_image: torch.Tensor):
+        (heights,) = ctx.saved_tensors
+        return ctx.operator.vjp(heights, grad_image), None
+
+
+def backward_through_splat(pos: torch.Tensor, metric: torch.Tensor, flux: torch.Tensor, channel: torch.Tensor,
+                           grad_image: torch.Tensor) -> None:
+    """Accumulate into the graph's leaves the gradient of <splat(photons), grad_image>: pixel
+    positions (2, N), footprint metrics (3, N), flux (N,), channel (N,); grad_image (c, n, n)
+    already divided by the pixel area."""
+    grads = splat_photons_vjp(pos, metric, flux, channel, grad_image)
+    pairs = [(t, g) for t, g in zip((pos, metric, flux), grads) if t.requires_grad]
+    if pairs:
+        torch.autograd.backward([t for t, _ in pairs], [g for _, g in pairs])
