@@ -14,7 +14,6 @@ comparable; and the mesh-scene operator (plain scene, two lenses) beside the hei
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import math
 import multiprocessing as mp
@@ -30,7 +29,7 @@ import torch
 from experiments.bench_stages import stage_profile
 from framework.shapes import make_shape
 from operators.caustic_operator import CausticOperator, OperatorSettings
-from operators.scene import Receiver, Scene
+from operators.scene import Scene
 from operators.splat import splat_photons
 from operators.splat_reference import splat_photons_reference
 
@@ -112,20 +111,20 @@ def time_reference(heights: torch.Tensor, target: torch.Tensor, photons: int, fo
 
 def mesh_scene_operators(photons: int, footprint_px: float) -> dict[str, object]:
     """The height-field operator and the mesh-scene operator on the plain scene and through the
-    paper's two lenses (conf/operator/two_lenses.yaml), at the same photon count."""
-    from operators.mesh_scene_operator import MeshSceneOperator, MeshSceneSettings
-    from operators.optical_elements import make_element
+    paper's two lenses (conf/operator/mesh_scene.yaml, two_lenses.yaml), at the same photon count."""
+    from hydra import compose, initialize_config_dir
+    from omegaconf import OmegaConf
 
-    lens_scene = Scene(receiver=Receiver(z=-1.0))
-    lenses = [make_element({"name": "top_lens", "shape": "lens", "position": [0.0, 0.0, 1.15], "params": {
-                  "radius": 1.08, "thickness": 0.3, "front_radius": 4.0, "back_radius": 4.0}}),
-              make_element({"name": "bottom_meniscus", "shape": "lens", "position": [0.0, 0.0, -0.725], "params": {
-                  "radius": 1.0, "thickness": 0.15, "front_radius": -2.125, "back_radius": 1.817}})]
-    settings = MeshSceneSettings(photons=photons, footprint_px=footprint_px)
+    from framework.scene_config import build_operator, build_scene
+
+    def configured(name: str) -> object:
+        with initialize_config_dir(config_dir=str(Path(__file__).resolve().parent.parent / "conf"), version_base=None):
+            cfg = OmegaConf.to_container(compose("simulate", overrides=[
+                f"operator={name}", f"photons={photons}", f"operator.footprint_px={footprint_px}"]), resolve=True)
+        return build_operator(cfg, build_scene(cfg))
+
     return {"height_field": make_operator(photons, footprint_px, 1 << 18),
-            "mesh_scene_plain": MeshSceneOperator(Scene(), [], settings),
-            "mesh_scene_two_lenses": MeshSceneOperator(lens_scene, lenses, dataclasses.replace(
-                settings, aperture_half_width=1.08))}
+            "mesh_scene_plain": configured("mesh_scene"), "mesh_scene_two_lenses": configured("two_lenses")}
 
 
 def time_mesh_scenes(heights: torch.Tensor, photons: int, footprint_px: float) -> dict[str, dict[str, float]]:

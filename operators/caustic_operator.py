@@ -35,7 +35,7 @@ from operators.native import to_numpy
 from operators.photon_operator import PIXEL_SETTINGS, PhotonOperator, backward_through_splat, check_setting_keys
 from operators.precompile import BackgroundCompile
 from operators.scene import Scene
-from operators.splat import footprint_metric, splat_photons
+from operators.splat import splat_photons
 from operators.substrate_trace import trace_substrate
 
 DTYPES = {"float32": torch.float32, "float64": torch.float64}
@@ -163,9 +163,6 @@ class CausticOperator(PhotonOperator):
         if self.device.type == "cuda":
             from operators.cuda_trace import CudaTracer  # imports numba.cuda only where it is used
             self.gpu = CudaTracer(self.fused)
-        receiver = scene.receiver
-        self.pixel_area = receiver.pixel_size ** 2
-        self._to_pixels = receiver.resolution / (2.0 * receiver.half_width)
 
     def splat_inputs(self, heights: torch.Tensor, start: int, stop: int
                      ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
@@ -173,9 +170,7 @@ class CausticOperator(PhotonOperator):
         metrics (3, N), flux (N,) and channel (N,); differentiable w.r.t. heights."""
         batch = self.emitter.batch(start, stop)
         hits = trace_substrate(heights.to(self.dtype), self.scene, batch, self.glass_index, self.settings.fresnel)
-        pos = (hits.position + self.scene.receiver.half_width) * self._to_pixels - 0.5
-        metric = footprint_metric(hits.footprint * self._to_pixels, self.settings.min_footprint_px,
-                                  self.settings.max_pixel_radius)
+        pos, metric = self.receiver_pixels(hits.position, hits.footprint)
         return pos, metric, hits.flux, hits.channel
 
     def trace_chunk(self, heights: torch.Tensor, start: int, stop: int) -> torch.Tensor:

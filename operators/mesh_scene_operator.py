@@ -42,7 +42,7 @@ from operators.optical_elements import OpticalElement, check_layout, make_elemen
 from operators.optics import fresnel_transmittance, height_field_normal, height_field_normal_differential, refract, transfer
 from operators.photon_operator import PIXEL_SETTINGS, PhotonOperator, backward_through_splat, check_setting_keys
 from operators.scene import Scene
-from operators.splat import footprint_metric, splat_photons
+from operators.splat import splat_photons
 
 __all__ = ["MeshSceneSettings", "MeshSceneOperator", "reflect"]
 
@@ -103,11 +103,11 @@ class MeshSceneOperator(PhotonOperator):
         self.scene, self.elements, self.settings = scene, list(elements), settings
         check_layout(self.elements, scene.light.position[2], scene.receiver.z)
         top = scene.substrate.thickness
-        for element in self.elements:
-            low, high = element.z_range
-            if low < top and high > 0.0 and _overlaps_square(element, scene.substrate.half_width):
-                raise ValueError(f"element {element.name} (z {low:.4g} .. {high:.4g}) overlaps the substrate "
-                                 f"(z 0 .. {top:g}); move it above or below")
+        inside = self._element_within(top)
+        if inside is not None:
+            low, high = inside.z_range
+            raise ValueError(f"element {inside.name} (z {low:.4g} .. {high:.4g}) overlaps the substrate "
+                             f"(z 0 .. {top:g}); move it above or below")
         self.dtype = DTYPES[settings.dtype]
         aperture = settings.aperture_half_width or scene.substrate.half_width
         aimed = dataclasses.replace(scene, substrate=dataclasses.replace(scene.substrate, half_width=aperture))
@@ -117,9 +117,6 @@ class MeshSceneOperator(PhotonOperator):
         self.substrate_index = torch.tensor(scene.indices, dtype=self.dtype)
         self.element_index = torch.tensor([refractive_indices(e.material, scene.wavelengths) for e in self.elements]
                                           or np.zeros((0, scene.channels)), dtype=self.dtype)
-        receiver = scene.receiver
-        self.pixel_area = receiver.pixel_size ** 2
-        self._to_pixels = receiver.resolution / (2.0 * receiver.half_width)
         self.losses: dict[str, float] = {}
 
     @classmethod
@@ -136,13 +133,22 @@ class MeshSceneOperator(PhotonOperator):
         scene, settings = self.resampled(photons, seed, resolution)
         return MeshSceneOperator(scene, self.elements, settings)
 
+    def _element_within(self, top: float) -> OpticalElement | None:
+        """The first element that reaches into the substrate's box, z 0 .. top over its square."""
+        half = self.scene.substrate.half_width
+        for element in self.elements:
+            low, high = element.z_range
+            corner_low, corner_high = element.mesh.bounds[0, :2], element.mesh.bounds[1, :2]
+            if low < top and high > 0.0 and np.all(corner_low < half) and np.all(corner_high > -half):
+                return element
+        return None
+
     def _check(self, heights: torch.Tensor) -> None:
         validate_heights(heights, self.scene.substrate.thickness)
         top = self.scene.substrate.thickness + float(heights.max())
-        for element in self.elements:
-            low, high = element.z_range
-            if low < top and high > 0.0 and _overlaps_square(element, self.scene.substrate.half_width):
-                raise ValueError(f"the print reaches z={top:.4g}, into element {element.name} (from z={low:.4g})")
+        inside = self._element_within(top)
+        if inside is not None:
+            raise ValueError(f"the print reaches z={top:.4g}, into element {inside.name} (from z={inside.z_range[0]:.4g})")
 
     def render(self, heights: torch.Tensor, progress: bool = False) -> torch.Tensor:
         """Irradiance (c, n, n), W per scene unit^2, without a graph; :attr:`losses` holds the
@@ -204,10 +210,8 @@ class MeshSceneOperator(PhotonOperator):
         outside = landed & (position[:2].abs() > scene.receiver.half_width).any(0)
         losses["missed_receiver"] += float(flux[outside].detach().sum())
         flux = torch.where(landed, flux, torch.zeros_like(flux))
-        pos = (position[:2] + scene.receiver.half_width) * self._to_pixels - 0.5
         footprint = torch.where(landed, ray.d_position[:, :2], torch.zeros_like(ray.d_position[:, :2]))
-        metric = footprint_metric(footprint * self._to_pixels, self.settings.min_footprint_px,
-                                  self.settings.max_pixel_radius)
+        pos, metric = self.receiver_pixels(position[:2], footprint)
         return pos, metric, flux, channel, losses
 
     def _step(self, ray: _Rays, channel: torch.Tensor, surface: _Surface, losses: dict[str, float]
@@ -326,11 +330,6 @@ class _Surface:
     grid: HeightFieldGrid
     heights: torch.Tensor
     top_max: float
-
-
-def _overlaps_square(element: OpticalElement, half_width: float) -> bool:
-    low, high = element.mesh.bounds[0, :2], element.mesh.bounds[1, :2]
-    return bool(np.all(low < half_width) and np.all(high > -half_width))
 
 
 def _box_planes(position: torch.Tensor, direction: torch.Tensor, half: float, height: float,

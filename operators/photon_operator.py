@@ -16,7 +16,7 @@ from typing import Any
 import torch
 
 from operators.scene import Scene
-from operators.splat import splat_photons_vjp
+from operators.splat import footprint_metric, splat_photons_vjp
 
 __all__ = ["PIXEL_SETTINGS", "PhotonOperator", "RenderFunction", "backward_through_splat", "check_setting_keys"]
 
@@ -58,6 +58,24 @@ class PhotonOperator:
     def output_shape(self) -> tuple[int, int, int]:
         n = self.scene.receiver.resolution
         return (self.scene.channels, n, n)
+
+    @property
+    def pixel_area(self) -> float:
+        """Area of one receiver pixel, scene units^2."""
+        return self.scene.receiver.pixel_size ** 2
+
+    @property
+    def _to_pixels(self) -> float:
+        """Receiver pixels per scene unit."""
+        return self.scene.receiver.resolution / (2.0 * self.scene.receiver.half_width)
+
+    def receiver_pixels(self, position: torch.Tensor, footprint: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Splat inputs from photons on the receiver: positions (2, N) and footprints (2, 2, N)
+        in scene units -> pixel positions (2, N) and footprint metrics (3, N)."""
+        pos = (position + self.scene.receiver.half_width) * self._to_pixels - 0.5
+        metric = footprint_metric(footprint * self._to_pixels, self.settings.min_footprint_px,
+                                  self.settings.max_pixel_radius)
+        return pos, metric
 
     def chunks(self) -> list[tuple[int, int]]:
         """Photon index ranges of at most ``settings.chunk_size``."""
