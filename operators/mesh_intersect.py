@@ -22,6 +22,8 @@ __all__ = ["ElementHits", "MeshIntersector"]
 # Rays start this far (scene units) along their direction, so that Embree does not report the
 # surface they leave.
 START_OFFSET = 1e-6
+# A face hit nearer than this is the face the ray leaves (Embree does not look that near): ignored.
+MIN_FACE_DISTANCE = 0.5 * START_OFFSET
 # Moves of a hit to the neighbouring face when Embree's float32 choice lies just beside it.
 REFINEMENTS = 2
 
@@ -121,7 +123,7 @@ class MeshIntersector:
         face = torch.from_numpy(np.asarray(found["primID"], dtype=np.int64))
         hit = face >= 0
         safe = torch.where(hit, face, torch.zeros_like(face))
-        for _ in range(REFINEMENTS + 1):
+        for attempt in range(REFINEMENTS + 1):
             v0 = self._v0[safe].T.to(**like)
             plane = self._n[safe].T.to(**like)
             cos = (direction * plane).sum(0)
@@ -138,7 +140,7 @@ class MeshIntersector:
             lowest, k = weights.min(0)
             across = self._neighbour[safe, k]
             move = hit & (lowest < 0) & (across >= 0)
-            if not bool(move.any()):
+            if attempt == REFINEMENTS or not bool(move.any()):
                 break
             safe = torch.where(move, across, safe)
         corner = self._shading[safe].to(**like)  # (N, 3, 3): corner k's normal

@@ -37,7 +37,8 @@ from operators.caustic_operator import DTYPES, validate_heights
 from operators.emission import PointLightEmitter
 from operators.heightfield_surface import HeightFieldGrid, intersect_height_field
 from operators.materials import refractive_indices
-from operators.mesh_intersect import MeshIntersector
+from operators.mesh_intersect import MIN_FACE_DISTANCE, MeshIntersector
+from operators.mesh_native import NativeMeshTracer
 from operators.optical_elements import OpticalElement, check_layout, make_element
 from operators.optics import fresnel_transmittance, height_field_normal, height_field_normal_differential, refract, transfer
 from operators.photon_operator import PIXEL_SETTINGS, PhotonOperator, backward_through_splat, check_setting_keys
@@ -64,6 +65,7 @@ class MeshSceneSettings:
     max_depth: int = 16
     aperture_half_width: float | None = None
     dtype: str = "float32"
+    native: bool = True
 
     def __post_init__(self) -> None:
         for key in ("photons", "chunk_size", "max_depth"):
@@ -76,8 +78,9 @@ class MeshSceneSettings:
                 raise ValueError(f"operator.{key}={value!r} must be a positive number (pixels)")
         if not self.min_footprint_px < self.max_pixel_radius:
             raise ValueError(f"need min_footprint_px ({self.min_footprint_px}) < max_pixel_radius ({self.max_pixel_radius})")
-        if not isinstance(self.fresnel, bool):
-            raise ValueError(f"operator.fresnel={self.fresnel!r} must be true or false")
+        for key in ("fresnel", "native"):
+            if not isinstance(getattr(self, key), bool):
+                raise ValueError(f"operator.{key}={getattr(self, key)!r} must be true or false")
         if self.dtype not in DTYPES:
             raise ValueError(f"operator.dtype={self.dtype!r}; use float32 or float64")
         if self.aperture_half_width is not None and not self.aperture_half_width > 0:
@@ -118,6 +121,7 @@ class MeshSceneOperator(PhotonOperator):
         self.element_index = torch.tensor([refractive_indices(e.material, scene.wavelengths) for e in self.elements]
                                           or np.zeros((0, scene.channels)), dtype=self.dtype)
         self.losses: dict[str, float] = {}
+        self.native = NativeMeshTracer(self) if settings.native else None
 
     @classmethod
     def from_config(cls, scene: Scene, photons: int, seed: int, elements: Sequence[Mapping[str, Any]] = (),
@@ -154,6 +158,9 @@ class MeshSceneOperator(PhotonOperator):
         """Irradiance (c, n, n), W per scene unit^2, without a graph; :attr:`losses` holds the
         flux (W) each kind of loss took."""
         self._check(heights)
+        if self.native is not None:
+            image, self.losses = self.native.render(heights.detach().double().cpu().numpy())
+            return (image / self.pixel_area).to(self.dtype).to(heights.device)
         image = torch.zeros(self.output_shape, dtype=self.dtype)
         self.losses = dict.fromkeys(LOSSES, 0.0)
         with torch.no_grad():
@@ -169,8 +176,11 @@ class MeshSceneOperator(PhotonOperator):
         self._check(heights)
         if tuple(grad_image.shape) != self.output_shape:
             raise ValueError(f"grad_image has shape {tuple(grad_image.shape)}, expected {self.output_shape}")
-        leaf = heights.detach().to(self.dtype).requires_grad_(True)
         g = grad_image.detach().to(self.dtype) / self.pixel_area
+        if self.native is not None:
+            grad = self.native.vjp(heights.detach().double().cpu().numpy(), g.cpu())
+            return torch.from_numpy(grad).to(dtype=heights.dtype, device=heights.device)
+        leaf = heights.detach().to(self.dtype).requires_grad_(True)
         for start, stop in self.chunks():
             with torch.enable_grad():
                 backward_through_splat(*self.trace(leaf, start, stop)[:4], g)
@@ -228,7 +238,7 @@ class MeshSceneOperator(PhotonOperator):
         # Rays in air below every element and going down can meet only the receiver.
         past = in_air & (direction[2] < 0) & (position[2] < self._lowest_element)
         hits = self.intersector.intersect(position, direction, (in_air & ~past) | in_element)
-        mesh_ok = (in_air | in_element) & torch.isfinite(hits.t) & (hits.t > 0)
+        mesh_ok = (in_air | in_element) & torch.isfinite(hits.t) & (hits.t > MIN_FACE_DISTANCE)
         # The printed top from above: rays in air, going down, above the print, through the square.
         down = torch.where(direction[2] < 0, direction[2], -torch.ones_like(direction[2]))
         cross = position[:2] + ((h - position[2]) / down) * direction[:2]

@@ -1,0 +1,238 @@
+"""The mesh-scene operator's native path: photons traced event by event by the kernels of
+:mod:`operators.mesh_kernels`, Embree (embreex) finding the faces between events.
+
+Everything a photon does before it first meets the printed top does not depend on the heights,
+so it is traced once per operator (:meth:`NativeMeshTracer.prefix`): photons that never reach the
+print add a fixed image and fixed losses, the others wait above the print with their state. Each
+render or gradient then starts from those states. The gradient replays a chunk's events, keeping
+each event's input state, and runs them backwards (:func:`operators.mesh_kernels.retreat`) from
+the splat's adjoint gather to the heights.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numba as nb
+import numpy as np
+import torch
+
+from operators import mesh_kernels as mk
+from operators.heightfield_surface import HeightFieldGrid
+from operators.mesh_intersect import START_OFFSET
+from operators.splat import splat_photons, splat_photons_vjp
+
+__all__ = ["NativeMeshTracer", "Prefix"]
+
+
+@dataclass
+class Prefix:
+    """Photons before their first hit on the printed top: state (N, STATE), channel and events
+    used so far (N,); the fixed image (c, n, n, flux per pixel) and losses (W) of all others."""
+
+    state: np.ndarray
+    channel: np.ndarray
+    events: np.ndarray
+    image: torch.Tensor
+    losses: dict[str, float]
+
+
+@dataclass
+class _Chunk:
+    """Photons under way: state (N, STATE), medium, channel, status and event count (N,)."""
+
+    state: np.ndarray
+    medium: np.ndarray
+    channel: np.ndarray
+    status: np.ndarray
+    events: np.ndarray
+
+
+class NativeMeshTracer:
+    """Traces a :class:`operators.mesh_scene_operator.MeshSceneOperator`'s photons natively."""
+
+    def __init__(self, operator) -> None:
+        self.operator = operator
+        self.substrate = len(operator.elements)
+        (self.face_element, self.v0, self.plane, self.dual, self.shading,
+         self.neighbour) = mk.face_arrays(operator.intersector)
+        self.indices = np.ascontiguousarray(torch.cat([operator.element_index, operator.substrate_index.unsqueeze(0)])
+                                            .double().numpy())
+        self._prefix: Prefix | None = None
+
+    # -- scene constants ----------------------------------------------------------------------
+    def constants(self, d: np.ndarray | None) -> mk.MeshConstants:
+        """Kernel constants for heights ``d`` (m, m) (None: before the print, no hit search)."""
+        op = self.operator
+        scene, settings = op.scene, op.settings
+        half, thickness = scene.substrate.half_width, scene.substrate.thickness
+        zlo = zstart = zhi = thickness
+        slope_x = slope_y = 0.0
+        spacing = 1.0
+        top_max = thickness
+        if d is not None:
+            grid = HeightFieldGrid(thickness, half, d.shape[0])
+            zlo, zstart, zhi = grid.z_planes(d)
+            slope_x, slope_y = grid.slope_bounds(d)
+            spacing = grid.spacing
+            top_max = thickness + float(d.max()) + 1e-9
+        return mk.MeshConstants(half, thickness, spacing, zlo, zstart, zhi, slope_x, slope_y, top_max,
+                                float(op._lowest_element), scene.receiver.z, settings.fresnel, op._to_pixels,
+                                scene.receiver.half_width, settings.min_footprint_px, settings.max_pixel_radius)
+
+    # -- events -------------------------------------------------------------------------------
+    def _faces(self, chunk: _Chunk, lowest: float) -> np.ndarray:
+        """Embree's first face (N,) for the photons under way in air or in an element (-1 else);
+        rays in air going down below every element can meet no face and are not traced."""
+        faces = np.full(len(chunk.state), -1, dtype=np.int64)
+        if self.substrate == 0:
+            return faces
+        p, w = chunk.state[:, mk.P:mk.P + 3], chunk.state[:, mk.W:mk.W + 3]
+        in_air = chunk.medium == mk.AIR
+        past = in_air & (w[:, 2] < 0) & (p[:, 2] < lowest)
+        traced = np.flatnonzero((chunk.status == mk.UNDER_WAY) & ((in_air & ~past) | (chunk.medium >= 0) &
+                                                                   (chunk.medium < self.substrate)))
+        if traced.size:
+            origin = (p[traced] + START_OFFSET * w[traced]).astype(np.float32)
+            faces[traced] = self.operator.intersector._scene.run(origin, w[traced].astype(np.float32))
+        return faces
+
+    def _run(self, d: np.ndarray, chunk: _Chunk, sc: mk.MeshConstants, wait_at_top: bool, losses: dict[str, float],
+             tape: list | None = None) -> None:
+        """Advance the chunk's photons until none is under way (or each has had max_depth
+        events), adding lost flux to ``losses``; with ``tape`` each event's input state, kind,
+        face or plane and distance are appended for the reverse pass."""
+        n = len(chunk.state)
+        kind = np.empty(n, dtype=np.int64)
+        which = np.empty(n, dtype=np.int64)
+        t = np.empty(n)
+        fresnel = np.zeros(n)
+        max_depth = self.operator.settings.max_depth
+        for _ in range(max_depth):
+            under_way = chunk.status == mk.UNDER_WAY
+            if not under_way.any():
+                break
+            faces = self._faces(chunk, sc.lowest)
+            before = chunk.state.copy() if tape is not None else None
+            mk.advance(d, chunk.state, chunk.medium, chunk.channel, chunk.status, faces, kind, which, t, fresnel,
+                       wait_at_top, self.substrate, self.face_element, self.indices, self.v0, self.plane, self.dual,
+                       self.shading, self.neighbour, sc)
+            chunk.events += under_way & (kind != mk.AT_TOP)
+            flux = chunk.state[:, mk.FLUX]
+            losses["escaped"] += float(flux[kind == mk.ESCAPED].sum())
+            losses["inside_top"] += float(flux[kind == mk.INSIDE_TOP].sum())
+            if tape is not None:
+                tape.append((before, kind.copy(), which.copy(), t.copy()))
+            done = (chunk.status == mk.UNDER_WAY) & (chunk.events >= max_depth)
+            losses["max_depth"] += float(flux[done].sum())
+            chunk.status[done] = mk.LOST
+        losses["fresnel_reflected"] += float(fresnel.sum())
+
+    def _splat_inputs(self, chunk: _Chunk, sc: mk.MeshConstants, losses: dict[str, float]
+                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Pixel positions (2, N), metrics (3, N) and flux (N,) of the chunk's landed photons
+        (flux 0 for the others); the flux landing beside the receiver is counted as missing it."""
+        n = len(chunk.state)
+        pos, metric, flux = np.empty((2, n)), np.empty((3, n)), np.empty(n)
+        mk.splat_arguments(chunk.state, chunk.status, sc, pos, metric, flux)
+        landed = chunk.status == mk.LANDED
+        outside = landed & (np.abs(chunk.state[:, mk.P:mk.P + 2]) > sc.receiver_half).any(1)
+        losses["missed_receiver"] += float(flux[outside].sum())
+        return pos, metric, flux
+
+    def _splat(self, chunk: _Chunk, sc: mk.MeshConstants, losses: dict[str, float]) -> torch.Tensor:
+        scene, dtype = self.operator.scene, self.operator.dtype
+        pos, metric, flux = self._splat_inputs(chunk, sc, losses)
+        return splat_photons(torch.from_numpy(pos).to(dtype), torch.from_numpy(metric).to(dtype),
+                             torch.from_numpy(flux).to(dtype), torch.from_numpy(chunk.channel),
+                             scene.channels, scene.receiver.resolution)
+
+    # -- the height-independent prefix --------------------------------------------------------
+    def prefix(self) -> Prefix:
+        """Trace every photon up to its first hit on the printed top (once per operator)."""
+        if self._prefix is not None:
+            return self._prefix
+        op = self.operator
+        sc = self.constants(None)
+        dummy = np.zeros((4, 4))
+        image = torch.zeros(op.output_shape, dtype=op.dtype)
+        losses = dict.fromkeys(("escaped", "max_depth", "inside_top", "fresnel_reflected", "missed_receiver"), 0.0)
+        waiting = []
+        for start, stop in op.chunks():
+            chunk = self._emitted(start, stop)
+            self._run(dummy, chunk, sc, True, losses)
+            image += self._splat(chunk, sc, losses)
+            keep = chunk.status == mk.WAITING
+            waiting.append((chunk.state[keep], chunk.channel[keep], chunk.events[keep]))
+        state, channel, events = (np.concatenate(parts) for parts in zip(*waiting))
+        self._prefix = Prefix(np.ascontiguousarray(state), channel, events, image, losses)
+        return self._prefix
+
+    def _emitted(self, start: int, stop: int) -> _Chunk:
+        """Photons start .. stop-1 at the light, as a chunk."""
+        batch = self.operator.emitter.batch(start, stop)
+        n = batch.direction.shape[1]
+        state = np.zeros((n, mk.STATE))
+        state[:, mk.P:mk.P + 3] = batch.origin.double().numpy()
+        state[:, mk.W:mk.W + 3] = batch.direction.double().numpy().T
+        state[:, mk.DWU:mk.DWU + 3] = batch.direction_diff[0].double().numpy().T
+        state[:, mk.DWV:mk.DWV + 3] = batch.direction_diff[1].double().numpy().T
+        state[:, mk.FLUX] = batch.flux.double().numpy()
+        return _Chunk(state, np.full(n, mk.AIR, dtype=np.int64), batch.channel.numpy().astype(np.int64),
+                      np.full(n, mk.UNDER_WAY, dtype=np.int64), np.zeros(n, dtype=np.int64))
+
+    def _waiting(self, start: int, stop: int) -> _Chunk:
+        """Prefix photons start .. stop-1, about to meet the print."""
+        pre = self.prefix()
+        n = stop - start
+        return _Chunk(pre.state[start:stop].copy(), np.full(n, mk.AIR, dtype=np.int64), pre.channel[start:stop],
+                      np.full(n, mk.UNDER_WAY, dtype=np.int64), pre.events[start:stop].copy())
+
+    def _waiting_chunks(self) -> list[tuple[int, int]]:
+        size, total = self.operator.settings.chunk_size, len(self.prefix().state)
+        return [(a, min(a + size, total)) for a in range(0, total, size)]
+
+    # -- render and gradient ------------------------------------------------------------------
+    def render(self, d: np.ndarray) -> tuple[torch.Tensor, dict[str, float]]:
+        """Flux per pixel (c, n, n) of heights ``d`` (m, m) float64 and the losses (W)."""
+        pre = self.prefix()
+        sc = self.constants(d)
+        self._check_above(sc)
+        image = pre.image.clone()
+        losses = dict(pre.losses)
+        for start, stop in self._waiting_chunks():
+            chunk = self._waiting(start, stop)
+            self._run(d, chunk, sc, False, losses)
+            image += self._splat(chunk, sc, losses)
+        return image, losses
+
+    def vjp(self, d: np.ndarray, grad_flux: torch.Tensor) -> np.ndarray:
+        """Gradient (m, m) w.r.t. d of <flux per pixel, grad_flux (c, n, n)>."""
+        sc = self.constants(d)
+        self._check_above(sc)
+        threads = nb.get_num_threads()
+        g_heights = np.zeros((threads, *d.shape))
+        unused: dict[str, float] = dict.fromkeys(self.prefix().losses, 0.0)
+        for start, stop in self._waiting_chunks():
+            chunk = self._waiting(start, stop)
+            tape: list = []
+            self._run(d, chunk, sc, False, unused, tape)
+            pos, metric, flux = self._splat_inputs(chunk, sc, unused)
+            dtype = self.operator.dtype
+            g_pos, g_metric, g_flux = (t.double().numpy() for t in splat_photons_vjp(
+                torch.from_numpy(pos).to(dtype), torch.from_numpy(metric).to(dtype), torch.from_numpy(flux).to(dtype),
+                torch.from_numpy(chunk.channel), grad_flux))
+            g_state = np.empty_like(chunk.state)
+            mk.splat_arguments_adjoint(chunk.state, chunk.status, sc, np.ascontiguousarray(g_pos),
+                                       np.ascontiguousarray(g_metric), np.ascontiguousarray(g_flux), g_state)
+            for before, kind, which, t in reversed(tape):
+                mk.retreat(d, before, kind, which, t, chunk.channel, self.substrate, self.face_element, self.indices,
+                           self.v0, self.plane, self.dual, self.shading, sc, g_state, g_heights)
+        return g_heights.sum(axis=0)
+
+    def _check_above(self, sc: mk.MeshConstants) -> None:
+        """Refuse a print that reaches photons waiting above it."""
+        state = self.prefix().state
+        if len(state) and float(state[:, mk.P + 2].min()) <= sc.top_max:
+            raise ValueError(f"the print reaches z={sc.top_max:.4g}, above where light meets it "
+                             f"(z={float(state[:, mk.P + 2].min()):.4g}); lower the print or move the elements up")
