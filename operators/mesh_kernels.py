@@ -43,6 +43,8 @@ STATE = 19
 MESH, TOP, BOX, RECEIVER, ESCAPED, INSIDE_TOP, AT_TOP = 0, 1, 2, 3, 4, 5, 6
 UNDER_WAY, LANDED, LOST, WAITING = 0, 1, 2, 3
 AIR = -1
+# Photons per block of a thread's work.
+BLOCK = 4096
 # Moves of a hit to the neighbouring face (as operators.mesh_intersect.REFINEMENTS).
 REFINEMENTS = 2
 # The substrate's walls and bottom: (axis, coordinate sign, outward sign); plane k is at
@@ -306,7 +308,7 @@ def _interface(w, dwu, dwv, n_plane, outward, dnu, dnv, n_solid):
     return entering, sign, eta, r, ru, rv, ci, ct, k > 0.0
 
 
-@_call
+@_jit
 def _advance_one(d, i, state, medium, channel, status, face, kind_out, which_out, t_out, lost_fresnel, wait_at_top,
                  substrate, face_element, indices, v0, plane, dual, shading, neighbour, sc) -> None:
     """One event of photon i (see :func:`advance`)."""
@@ -349,7 +351,18 @@ def advance(d, state, medium, channel, status, face, kind_out, which_out, t_out,
     flux that Fresnel reflection takes into ``lost_fresnel``. Ends photons: LANDED on the
     receiver, LOST (escaped or inside the glass under the top), WAITING before the top with
     ``wait_at_top``. ``indices`` (K + 1, c): refractive index of each element and the substrate."""
-    for i in nb.prange(state.shape[0]):
+    blocks = (state.shape[0] + BLOCK - 1) // BLOCK
+    for b in nb.prange(blocks):
+        _advance_block(b * BLOCK, min(state.shape[0], (b + 1) * BLOCK), d, state, medium, channel, status, face,
+                       kind_out, which_out, t_out, lost_fresnel, wait_at_top, substrate, face_element, indices, v0,
+                       plane, dual, shading, neighbour, sc)
+
+
+@_call
+def _advance_block(lo, hi, d, state, medium, channel, status, face, kind_out, which_out, t_out, lost_fresnel,
+                   wait_at_top, substrate, face_element, indices, v0, plane, dual, shading, neighbour, sc) -> None:
+    """:func:`advance` for photons lo .. hi-1 (one thread)."""
+    for i in range(lo, hi):
         if status[i] != UNDER_WAY:
             kind_out[i] = -1
             continue
@@ -357,10 +370,10 @@ def advance(d, state, medium, channel, status, face, kind_out, which_out, t_out,
                      substrate, face_element, indices, v0, plane, dual, shading, neighbour, sc)
 
 
-@_call
+@_jit
 def _retreat_one(d, i, before, kind, which, t, channel, substrate, face_element, indices, v0, plane, dual, shading, sc,
-                 g_after, g_heights) -> None:
-    """Reverse of photon i's event (see :func:`retreat`)."""
+                 g_after, g_heights, wx, wy, patch) -> None:
+    """Reverse of photon i's event (see :func:`retreat`); wx, wy, patch: (4, 4) scratch."""
     k = kind[i]
     row, g = before[i], g_after[i]
     p, dpu, dpv = _vec(row, P), _vec(row, DPU), _vec(row, DPV)
@@ -410,7 +423,7 @@ def _retreat_one(d, i, before, kind, which, t, channel, substrate, face_element,
             _, _, _, _, _, g_t, g_nt = transfer_adjoint(dpu, dpv, w, dwu, dwv, t[i], n_plane, g_q, g_dqu, g_dqv)
             g_sx, g_sy = height_field_normal_adjoint(jet[0], jet[1], add(g_n_plane, g_nt))
             _top_adjoint(d, p, w, t[i], g_t, g_sx, g_sy, g_sxx + g_sxx2, g_sxy + g_sxy2, g_syy + g_syy2, sc,
-                         g_heights)
+                         g_heights, wx, wy, patch)
             for j in range(STATE):
                 g[j] = 0.0
             return
@@ -436,21 +449,30 @@ def retreat(d, before, kind, which, t, channel, substrate, face_element, indices
     w.r.t. the state after it, becomes the gradient w.r.t. the state before it (``before``). On
     the printed top it goes into the heights instead: ``g_heights`` (threads, m, m), summed after.
     Photons with kind < 0 (not under way in that event) keep their gradient."""
-    for i in nb.prange(before.shape[0]):
+    blocks = (before.shape[0] + BLOCK - 1) // BLOCK
+    for b in nb.prange(blocks):
+        _retreat_block(b * BLOCK, min(before.shape[0], (b + 1) * BLOCK), d, before, kind, which, t, channel, substrate,
+                       face_element, indices, v0, plane, dual, shading, sc, g_after, g_heights[nb.get_thread_id()])
+
+
+@_call
+def _retreat_block(lo, hi, d, before, kind, which, t, channel, substrate, face_element, indices, v0, plane, dual,
+                   shading, sc, g_after, g_heights) -> None:
+    """:func:`retreat` for photons lo .. hi-1 (one thread, its own height gradient)."""
+    wx, wy, patch = np.empty((4, 4)), np.empty((4, 4)), np.empty((4, 4))
+    for i in range(lo, hi):
         k = kind[i]
         if k < 0 or k == ESCAPED or k == INSIDE_TOP or k == AT_TOP:
             continue
         _retreat_one(d, i, before, kind, which, t, channel, substrate, face_element, indices, v0, plane, dual, shading,
-                     sc, g_after, g_heights[nb.get_thread_id()])
+                     sc, g_after, g_heights, wx, wy, patch)
 
 
 @_jit
-def _top_adjoint(d, p, w, t, g_t, g_sx, g_sy, g_sxx, g_sxy, g_syy, sc, grad) -> None:
-    """Add to grad (m, m) the gradient w.r.t. the heights of g_t t + <g_jet, jet> at a hit on the top."""
+def _top_adjoint(d, p, w, t, g_t, g_sx, g_sy, g_sxx, g_sxy, g_syy, sc, grad, wx, wy, patch) -> None:
+    """Add to grad (m, m) the gradient w.r.t. the heights of g_t t + <g_jet, jet> at a hit on the
+    top; wx, wy, patch: (4, 4) scratch."""
     m = d.shape[0]
-    wx = np.empty((4, 4))
-    wy = np.empty((4, 4))
-    patch = np.empty((4, 4))
     ix = axis_weights(p[0] + t * w[0], -sc.half, sc.spacing, m, 3, wx)
     iy = axis_weights(p[1] + t * w[1], -sc.half, sc.spacing, m, 3, wy)
     load_patch(d, ix, iy, patch)

@@ -37,6 +37,10 @@ class Prefix:
     losses: dict[str, float]
 
 
+# Work continues on a compact copy of the photons under way once fewer than this share are.
+COMPACT = 0.5
+
+
 @dataclass
 class _Chunk:
     """Photons under way: state (N, STATE), medium, channel, status and event count (N,)."""
@@ -46,6 +50,19 @@ class _Chunk:
     channel: np.ndarray
     status: np.ndarray
     events: np.ndarray
+
+    def take(self, index: np.ndarray) -> _Chunk:
+        """A copy of the photons at ``index``."""
+        return _Chunk(self.state[index], self.medium[index], self.channel[index], self.status[index],
+                      self.events[index])
+
+
+def _write_back(chunk: _Chunk, index: np.ndarray | None, work: _Chunk) -> None:
+    """Copy ``work`` (the chunk's photons at ``index``; None: the chunk itself) into the chunk."""
+    if index is None:
+        return
+    chunk.state[index], chunk.medium[index], chunk.status[index], chunk.events[index] = (
+        work.state, work.medium, work.status, work.events)
 
 
 class NativeMeshTracer:
@@ -59,6 +76,7 @@ class NativeMeshTracer:
         self.indices = np.ascontiguousarray(torch.cat([operator.element_index, operator.substrate_index.unsqueeze(0)])
                                             .double().numpy())
         self._prefix: Prefix | None = None
+        self._faces_seen: tuple[np.ndarray, list[list[np.ndarray]]] | None = None
 
     # -- scene constants ----------------------------------------------------------------------
     def constants(self, d: np.ndarray | None) -> mk.MeshConstants:
@@ -98,35 +116,57 @@ class NativeMeshTracer:
         return faces
 
     def _run(self, d: np.ndarray, chunk: _Chunk, sc: mk.MeshConstants, wait_at_top: bool, losses: dict[str, float],
-             tape: list | None = None) -> None:
+             tape: list | None = None, faces_log: list | None = None, faces_replay: list | None = None) -> None:
         """Advance the chunk's photons until none is under way (or each has had max_depth
-        events), adding lost flux to ``losses``; with ``tape`` each event's input state, kind,
-        face or plane and distance are appended for the reverse pass."""
-        n = len(chunk.state)
-        kind = np.empty(n, dtype=np.int64)
-        which = np.empty(n, dtype=np.int64)
-        t = np.empty(n)
-        fresnel = np.zeros(n)
+        events), adding lost flux to ``losses``. Once fewer than half of the photons worked on are
+        under way, the work continues on a copy of those only (written back at the end). With
+        ``tape``, each event's photons (indices into the chunk, None for all), input states,
+        kinds, faces or planes and distances are appended for :meth:`_reverse`; Embree's faces
+        are appended to ``faces_log``, or taken from ``faces_replay`` instead of tracing."""
         max_depth = self.operator.settings.max_depth
-        for _ in range(max_depth):
-            under_way = chunk.status == mk.UNDER_WAY
-            if not under_way.any():
+        work, index = chunk, None
+        for event in range(max_depth):
+            under_way = work.status == mk.UNDER_WAY
+            count = int(under_way.sum())
+            if count == 0:
                 break
-            faces = self._faces(chunk, sc.lowest)
-            before = chunk.state.copy() if tape is not None else None
-            mk.advance(d, chunk.state, chunk.medium, chunk.channel, chunk.status, faces, kind, which, t, fresnel,
+            if count < COMPACT * len(work.state):
+                keep = np.flatnonzero(under_way)
+                _write_back(chunk, index, work)
+                index = keep if index is None else index[keep]
+                work = chunk.take(index)
+            faces = faces_replay[event] if faces_replay is not None else self._faces(work, sc.lowest)
+            if faces_log is not None:
+                faces_log.append(faces)
+            n = len(work.state)
+            kind, which, t, fresnel = np.empty(n, np.int64), np.empty(n, np.int64), np.empty(n), np.zeros(n)
+            before = work.state.copy() if tape is not None else None
+            mk.advance(d, work.state, work.medium, work.channel, work.status, faces, kind, which, t, fresnel,
                        wait_at_top, self.substrate, self.face_element, self.indices, self.v0, self.plane, self.dual,
                        self.shading, self.neighbour, sc)
-            chunk.events += under_way & (kind != mk.AT_TOP)
-            flux = chunk.state[:, mk.FLUX]
+            work.events += (kind >= 0) & (kind != mk.AT_TOP)
+            flux = work.state[:, mk.FLUX]
             losses["escaped"] += float(flux[kind == mk.ESCAPED].sum())
             losses["inside_top"] += float(flux[kind == mk.INSIDE_TOP].sum())
+            losses["fresnel_reflected"] += float(fresnel.sum())
             if tape is not None:
-                tape.append((before, kind.copy(), which.copy(), t.copy()))
-            done = (chunk.status == mk.UNDER_WAY) & (chunk.events >= max_depth)
+                tape.append((index, before, kind, which, t))
+            done = (work.status == mk.UNDER_WAY) & (work.events >= max_depth)
             losses["max_depth"] += float(flux[done].sum())
-            chunk.status[done] = mk.LOST
-        losses["fresnel_reflected"] += float(fresnel.sum())
+            work.status[done] = mk.LOST
+        _write_back(chunk, index, work)
+
+    def _reverse(self, d: np.ndarray, chunk: _Chunk, sc: mk.MeshConstants, tape: list, g_state: np.ndarray,
+                 g_heights: np.ndarray) -> None:
+        """Run a chunk's recorded events backwards: ``g_state`` (N, STATE), the gradient w.r.t.
+        the photons' final states, into ``g_heights`` (threads, m, m)."""
+        for index, before, kind, which, t in reversed(tape):
+            g = g_state if index is None else g_state[index]
+            channel = chunk.channel if index is None else chunk.channel[index]
+            mk.retreat(d, before, kind, which, t, channel, self.substrate, self.face_element, self.indices, self.v0,
+                       self.plane, self.dual, self.shading, sc, g, g_heights)
+            if index is not None:
+                g_state[index] = g
 
     def _splat_inputs(self, chunk: _Chunk, sc: mk.MeshConstants, losses: dict[str, float]
                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -194,40 +234,43 @@ class NativeMeshTracer:
 
     # -- render and gradient ------------------------------------------------------------------
     def render(self, d: np.ndarray) -> tuple[torch.Tensor, dict[str, float]]:
-        """Flux per pixel (c, n, n) of heights ``d`` (m, m) float64 and the losses (W)."""
+        """Flux per pixel (c, n, n) of heights ``d`` (m, m) float64 and the losses (W); Embree's
+        faces are kept for a :meth:`vjp` at the same heights."""
         pre = self.prefix()
         sc = self.constants(d)
         self._check_above(sc)
         image = pre.image.clone()
         losses = dict(pre.losses)
+        seen: list[list[np.ndarray]] = []
         for start, stop in self._waiting_chunks():
             chunk = self._waiting(start, stop)
-            self._run(d, chunk, sc, False, losses)
+            seen.append([])
+            self._run(d, chunk, sc, False, losses, faces_log=seen[-1])
             image += self._splat(chunk, sc, losses)
+        self._faces_seen = (d.copy(), seen)
         return image, losses
 
     def vjp(self, d: np.ndarray, grad_flux: torch.Tensor) -> np.ndarray:
-        """Gradient (m, m) w.r.t. d of <flux per pixel, grad_flux (c, n, n)>."""
+        """Gradient (m, m) w.r.t. d of <flux per pixel, grad_flux (c, n, n)>; Embree's faces are
+        replayed from the last :meth:`render` when it had the same heights."""
         sc = self.constants(d)
         self._check_above(sc)
-        threads = nb.get_num_threads()
-        g_heights = np.zeros((threads, *d.shape))
+        g_heights = np.zeros((nb.get_num_threads(), *d.shape))
         unused: dict[str, float] = dict.fromkeys(self.prefix().losses, 0.0)
-        for start, stop in self._waiting_chunks():
+        replay = self._faces_seen[1] if self._faces_seen is not None and np.array_equal(self._faces_seen[0], d) else None
+        dtype = self.operator.dtype
+        for k, (start, stop) in enumerate(self._waiting_chunks()):
             chunk = self._waiting(start, stop)
             tape: list = []
-            self._run(d, chunk, sc, False, unused, tape)
+            self._run(d, chunk, sc, False, unused, tape, faces_replay=None if replay is None else replay[k])
             pos, metric, flux = self._splat_inputs(chunk, sc, unused)
-            dtype = self.operator.dtype
             g_pos, g_metric, g_flux = (t.double().numpy() for t in splat_photons_vjp(
                 torch.from_numpy(pos).to(dtype), torch.from_numpy(metric).to(dtype), torch.from_numpy(flux).to(dtype),
                 torch.from_numpy(chunk.channel), grad_flux))
             g_state = np.empty_like(chunk.state)
             mk.splat_arguments_adjoint(chunk.state, chunk.status, sc, np.ascontiguousarray(g_pos),
                                        np.ascontiguousarray(g_metric), np.ascontiguousarray(g_flux), g_state)
-            for before, kind, which, t in reversed(tape):
-                mk.retreat(d, before, kind, which, t, chunk.channel, self.substrate, self.face_element, self.indices,
-                           self.v0, self.plane, self.dual, self.shading, sc, g_state, g_heights)
+            self._reverse(d, chunk, sc, tape, g_state, g_heights)
         return g_heights.sum(axis=0)
 
     def _check_above(self, sc: mk.MeshConstants) -> None:
