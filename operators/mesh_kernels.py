@@ -3,7 +3,8 @@ reverse, as numba loops over photons.
 
 A photon's state is a row of ``state`` (N, STATE): position p, its differentials D_u p, D_v p,
 direction w, its differentials D_u w, D_v w (each 3 floats) and the flux. An event moves a photon
-to the nearest of: the face of an element that Embree found for it (``face``; the exact hit on
+to the nearest of: the face of an element that Embree finds for it (:mod:`operators.embree_native`,
+on the kernel's own thread; the exact hit on
 that face's plane, moved to the neighbouring face where Embree's float32 choice lies just beside
 it), the printed top (from above), the
 substrate's walls and bottom, the receiver plane, or the printed top from inside the glass (a
@@ -29,7 +30,8 @@ import numpy as np
 
 from operators.catmull_rom import axis_weights, load_patch, scatter_patch, surface_jet_at
 from operators.heightfield_kernels import hit_adjoint_patch, solve_hit
-from operators.mesh_intersect import MIN_FACE_DISTANCE
+from operators.embree_native import first_face, ray_buffer
+from operators.mesh_intersect import MIN_FACE_DISTANCE, START_OFFSET
 from operators.native import FAST_MATH
 from operators.photon_optics import (UP, ZERO, add, away_from_zero, axpy, dot, footprint_metric,
                                      footprint_metric_adjoint, fresnel, fresnel_adjoint, height_field_normal,
@@ -227,13 +229,19 @@ def _over_print(p, w, sc) -> bool:
 
 
 @_jit
-def _next_event(d, row, medium, face, wait_at_top, substrate, v0, plane, dual, neighbour, sc):
+def _next_event(d, row, medium, handle, ray, wait_at_top, substrate, v0, plane, dual, neighbour, sc):
     """The photon's next event: (kind, face or box plane, distance), kind one of MESH, TOP, BOX,
-    RECEIVER, ESCAPED, INSIDE_TOP or, with ``wait_at_top``, AT_TOP (its next event is the top)."""
+    RECEIVER, ESCAPED, INSIDE_TOP or, with ``wait_at_top``, AT_TOP (its next event is the top).
+    Embree (scene ``handle``, ``ray`` buffer) is asked for the face of photons in air or in an
+    element, except in air going down below every element (where no face can be)."""
     p, w = _vec(row, P), _vec(row, W)
     in_air, in_sub = medium == AIR, medium == substrate
     best, kind, which = math.inf, ESCAPED, -1
-    if face >= 0 and not in_sub:
+    face = -1
+    if handle != 0 and not in_sub and not (in_air and w[2] < 0.0 and p[2] < sc.lowest):
+        face = first_face(handle, ray, p[0] + START_OFFSET * w[0], p[1] + START_OFFSET * w[1],
+                          p[2] + START_OFFSET * w[2], w[0], w[1], w[2])
+    if face >= 0:
         f, t, _, _ = _face_hit(p, w, face, v0, plane, dual, neighbour)
         if t > MIN_FACE_DISTANCE and t < best:
             best, kind, which = t, MESH, f
@@ -309,11 +317,12 @@ def _interface(w, dwu, dwv, n_plane, outward, dnu, dnv, n_solid):
 
 
 @_jit
-def _advance_one(d, i, state, medium, channel, status, face, kind_out, which_out, t_out, lost_fresnel, wait_at_top,
-                 substrate, face_element, indices, v0, plane, dual, shading, neighbour, sc) -> None:
+def _advance_one(d, i, state, medium, channel, status, handle, ray, kind_out, which_out, t_out, lost_fresnel,
+                 wait_at_top, substrate, face_element, indices, v0, plane, dual, shading, neighbour, sc) -> None:
     """One event of photon i (see :func:`advance`)."""
     row = state[i]
-    kind, which, t = _next_event(d, row, medium[i], face[i], wait_at_top, substrate, v0, plane, dual, neighbour, sc)
+    kind, which, t = _next_event(d, row, medium[i], handle, ray, wait_at_top, substrate, v0, plane, dual, neighbour,
+                                 sc)
     kind_out[i], which_out[i], t_out[i] = kind, which, t
     if kind == AT_TOP:
         status[i] = WAITING
@@ -343,31 +352,33 @@ def _advance_one(d, i, state, medium, channel, status, face, kind_out, which_out
 
 
 @_kernel
-def advance(d, state, medium, channel, status, face, kind_out, which_out, t_out, lost_fresnel, wait_at_top, substrate,
-            face_element, indices, v0, plane, dual, shading, neighbour, sc) -> None:
+def advance(d, state, medium, channel, status, handle, kind_out, which_out, t_out, lost_fresnel, wait_at_top,
+            substrate, face_element, indices, v0, plane, dual, shading, neighbour, sc) -> None:
     """One event of every photon with status UNDER_WAY (in place): ``state`` (N, STATE),
-    ``medium`` (N,) (AIR, an element, or ``substrate``), ``face`` (N,) Embree's face or -1;
+    ``medium`` (N,) (AIR, an element, or ``substrate``), ``handle`` the elements' Embree scene
+    (:class:`operators.embree_native.EmbreeTriangles`; 0 for none);
     records kind_out, which_out (face or box plane) and t_out (N,) for :func:`retreat`; adds the
     flux that Fresnel reflection takes into ``lost_fresnel``. Ends photons: LANDED on the
     receiver, LOST (escaped or inside the glass under the top), WAITING before the top with
     ``wait_at_top``. ``indices`` (K + 1, c): refractive index of each element and the substrate."""
     blocks = (state.shape[0] + BLOCK - 1) // BLOCK
     for b in nb.prange(blocks):
-        _advance_block(b * BLOCK, min(state.shape[0], (b + 1) * BLOCK), d, state, medium, channel, status, face,
+        _advance_block(b * BLOCK, min(state.shape[0], (b + 1) * BLOCK), d, state, medium, channel, status, handle,
                        kind_out, which_out, t_out, lost_fresnel, wait_at_top, substrate, face_element, indices, v0,
                        plane, dual, shading, neighbour, sc)
 
 
 @_call
-def _advance_block(lo, hi, d, state, medium, channel, status, face, kind_out, which_out, t_out, lost_fresnel,
+def _advance_block(lo, hi, d, state, medium, channel, status, handle, kind_out, which_out, t_out, lost_fresnel,
                    wait_at_top, substrate, face_element, indices, v0, plane, dual, shading, neighbour, sc) -> None:
     """:func:`advance` for photons lo .. hi-1 (one thread)."""
+    ray = ray_buffer()
     for i in range(lo, hi):
         if status[i] != UNDER_WAY:
             kind_out[i] = -1
             continue
-        _advance_one(d, i, state, medium, channel, status, face, kind_out, which_out, t_out, lost_fresnel, wait_at_top,
-                     substrate, face_element, indices, v0, plane, dual, shading, neighbour, sc)
+        _advance_one(d, i, state, medium, channel, status, handle, ray, kind_out, which_out, t_out, lost_fresnel,
+                     wait_at_top, substrate, face_element, indices, v0, plane, dual, shading, neighbour, sc)
 
 
 @_jit

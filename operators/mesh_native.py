@@ -1,5 +1,5 @@
 """The mesh-scene operator's native path: photons traced event by event by the kernels of
-:mod:`operators.mesh_kernels`, Embree (embreex) finding the faces between events.
+:mod:`operators.mesh_kernels`, which ask Embree for faces on their own threads.
 
 Everything a photon does before it first meets the printed top does not depend on the heights,
 so it is traced once per operator (:meth:`NativeMeshTracer.prefix`): photons that never reach the
@@ -19,7 +19,7 @@ import torch
 
 from operators import mesh_kernels as mk
 from operators.heightfield_surface import HeightFieldGrid
-from operators.mesh_intersect import START_OFFSET
+from operators.embree_native import EmbreeTriangles
 from operators.splat import splat_photons, splat_photons_vjp
 
 __all__ = ["NativeMeshTracer", "Prefix"]
@@ -57,6 +57,15 @@ class _Chunk:
                       self.events[index])
 
 
+def _triangles(elements) -> EmbreeTriangles | None:
+    """All elements' faces in one Embree scene, in the order of :class:`operators.mesh_intersect.MeshIntersector`."""
+    if not elements:
+        return None
+    offsets = np.cumsum([0] + [len(e.mesh.vertices) for e in elements])
+    return EmbreeTriangles(np.concatenate([e.mesh.vertices for e in elements]),
+                           np.concatenate([e.mesh.faces + o for e, o in zip(elements, offsets)]))
+
+
 def _write_back(chunk: _Chunk, index: np.ndarray | None, work: _Chunk) -> None:
     """Copy ``work`` (the chunk's photons at ``index``; None: the chunk itself) into the chunk."""
     if index is None:
@@ -76,7 +85,8 @@ class NativeMeshTracer:
         self.indices = np.ascontiguousarray(torch.cat([operator.element_index, operator.substrate_index.unsqueeze(0)])
                                             .double().numpy())
         self._prefix: Prefix | None = None
-        self._faces_seen: tuple[np.ndarray, list[list[np.ndarray]]] | None = None
+        self._triangles = _triangles(operator.elements)
+        self.embree = 0 if self._triangles is None else self._triangles.handle
 
     # -- scene constants ----------------------------------------------------------------------
     def constants(self, d: np.ndarray | None) -> mk.MeshConstants:
@@ -99,33 +109,16 @@ class NativeMeshTracer:
                                 scene.receiver.half_width, settings.min_footprint_px, settings.max_pixel_radius)
 
     # -- events -------------------------------------------------------------------------------
-    def _faces(self, chunk: _Chunk, lowest: float) -> np.ndarray:
-        """Embree's first face (N,) for the photons under way in air or in an element (-1 else);
-        rays in air going down below every element can meet no face and are not traced."""
-        faces = np.full(len(chunk.state), -1, dtype=np.int64)
-        if self.substrate == 0:
-            return faces
-        p, w = chunk.state[:, mk.P:mk.P + 3], chunk.state[:, mk.W:mk.W + 3]
-        in_air = chunk.medium == mk.AIR
-        past = in_air & (w[:, 2] < 0) & (p[:, 2] < lowest)
-        traced = np.flatnonzero((chunk.status == mk.UNDER_WAY) & ((in_air & ~past) | (chunk.medium >= 0) &
-                                                                   (chunk.medium < self.substrate)))
-        if traced.size:
-            origin = (p[traced] + START_OFFSET * w[traced]).astype(np.float32)
-            faces[traced] = self.operator.intersector._scene.run(origin, w[traced].astype(np.float32))
-        return faces
-
     def _run(self, d: np.ndarray, chunk: _Chunk, sc: mk.MeshConstants, wait_at_top: bool, losses: dict[str, float],
-             tape: list | None = None, faces_log: list | None = None, faces_replay: list | None = None) -> None:
+             tape: list | None = None) -> None:
         """Advance the chunk's photons until none is under way (or each has had max_depth
         events), adding lost flux to ``losses``. Once fewer than half of the photons worked on are
         under way, the work continues on a copy of those only (written back at the end). With
         ``tape``, each event's photons (indices into the chunk, None for all), input states,
-        kinds, faces or planes and distances are appended for :meth:`_reverse`; Embree's faces
-        are appended to ``faces_log``, or taken from ``faces_replay`` instead of tracing."""
+        kinds, faces or planes and distances are appended for :meth:`_reverse`."""
         max_depth = self.operator.settings.max_depth
         work, index = chunk, None
-        for event in range(max_depth):
+        for _ in range(max_depth):
             under_way = work.status == mk.UNDER_WAY
             count = int(under_way.sum())
             if count == 0:
@@ -135,13 +128,10 @@ class NativeMeshTracer:
                 _write_back(chunk, index, work)
                 index = keep if index is None else index[keep]
                 work = chunk.take(index)
-            faces = faces_replay[event] if faces_replay is not None else self._faces(work, sc.lowest)
-            if faces_log is not None:
-                faces_log.append(faces)
             n = len(work.state)
             kind, which, t, fresnel = np.empty(n, np.int64), np.empty(n, np.int64), np.empty(n), np.zeros(n)
             before = work.state.copy() if tape is not None else None
-            mk.advance(d, work.state, work.medium, work.channel, work.status, faces, kind, which, t, fresnel,
+            mk.advance(d, work.state, work.medium, work.channel, work.status, self.embree, kind, which, t, fresnel,
                        wait_at_top, self.substrate, self.face_element, self.indices, self.v0, self.plane, self.dual,
                        self.shading, self.neighbour, sc)
             work.events += (kind >= 0) & (kind != mk.AT_TOP)
@@ -234,35 +224,29 @@ class NativeMeshTracer:
 
     # -- render and gradient ------------------------------------------------------------------
     def render(self, d: np.ndarray) -> tuple[torch.Tensor, dict[str, float]]:
-        """Flux per pixel (c, n, n) of heights ``d`` (m, m) float64 and the losses (W); Embree's
-        faces are kept for a :meth:`vjp` at the same heights."""
+        """Flux per pixel (c, n, n) of heights ``d`` (m, m) float64 and the losses (W)."""
         pre = self.prefix()
         sc = self.constants(d)
         self._check_above(sc)
         image = pre.image.clone()
         losses = dict(pre.losses)
-        seen: list[list[np.ndarray]] = []
         for start, stop in self._waiting_chunks():
             chunk = self._waiting(start, stop)
-            seen.append([])
-            self._run(d, chunk, sc, False, losses, faces_log=seen[-1])
+            self._run(d, chunk, sc, False, losses)
             image += self._splat(chunk, sc, losses)
-        self._faces_seen = (d.copy(), seen)
         return image, losses
 
     def vjp(self, d: np.ndarray, grad_flux: torch.Tensor) -> np.ndarray:
-        """Gradient (m, m) w.r.t. d of <flux per pixel, grad_flux (c, n, n)>; Embree's faces are
-        replayed from the last :meth:`render` when it had the same heights."""
+        """Gradient (m, m) w.r.t. d of <flux per pixel, grad_flux (c, n, n)>."""
         sc = self.constants(d)
         self._check_above(sc)
         g_heights = np.zeros((nb.get_num_threads(), *d.shape))
         unused: dict[str, float] = dict.fromkeys(self.prefix().losses, 0.0)
-        replay = self._faces_seen[1] if self._faces_seen is not None and np.array_equal(self._faces_seen[0], d) else None
         dtype = self.operator.dtype
-        for k, (start, stop) in enumerate(self._waiting_chunks()):
+        for start, stop in self._waiting_chunks():
             chunk = self._waiting(start, stop)
             tape: list = []
-            self._run(d, chunk, sc, False, unused, tape, faces_replay=None if replay is None else replay[k])
+            self._run(d, chunk, sc, False, unused, tape)
             pos, metric, flux = self._splat_inputs(chunk, sc, unused)
             g_pos, g_metric, g_flux = (t.double().numpy() for t in splat_photons_vjp(
                 torch.from_numpy(pos).to(dtype), torch.from_numpy(metric).to(dtype), torch.from_numpy(flux).to(dtype),
