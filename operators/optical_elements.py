@@ -9,8 +9,10 @@ An element's config::
 ``shape`` is ``lens``, ``prism``, ``lens_array`` or ``file`` (then ``path`` names the mesh file);
 the rotation (degrees about x, then y, then z) and then the translation place the mesh. Shading
 normals: a generated lens's exact ones, else crease-split averages (crease_angle_deg). Every mesh
-is checked: closed, consistently wound, normals outward; :func:`check_layout` refuses elements
-that overlap or do not lie between the receiver and the light. Lengths in scene units.
+is checked: closed, consistently wound, normals outward, and not intersecting itself (no face
+crossing another; operators/mesh_crossings.py). :func:`check_layout` refuses elements that overlap
+(a vertex of one inside another, or surfaces that cross; elements may touch) or do not lie between
+the receiver and the light. Lengths in scene units.
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ import numpy as np
 import trimesh
 
 from operators.materials import DispersionCurve, make_material
+from operators.mesh_crossings import mutual_crossings, self_crossings
 from operators.mesh_shapes import crease_normals, lens, lens_array, prism
 
 __all__ = ["OpticalElement", "GENERATORS", "load_mesh", "make_element", "check_layout"]
@@ -87,6 +90,15 @@ def _check_closed(mesh: trimesh.Trimesh, what: str) -> None:
         raise ValueError(f"{what} has inward normals (signed volume {mesh.volume:.4g}); flip its faces")
 
 
+def _check_not_self_crossing(mesh: trimesh.Trimesh, what: str) -> None:
+    crossings = self_crossings(mesh)
+    if len(crossings):
+        x, y, z = crossings.points[0]
+        raise ValueError(f"{what} intersects itself ({len(crossings)} pairs of faces cross, the first at "
+                         f"({x:.4g}, {y:.4g}, {z:.4g}) in the mesh's coordinates); make it one surface that does "
+                         "not cross itself (e.g. a boolean union of its overlapping parts)")
+
+
 def _placement(position: Sequence[float], rotation_deg: Sequence[float], what: str) -> np.ndarray:
     if len(position) != 3 or len(rotation_deg) != 3:
         raise ValueError(f"{what}: position and rotation_deg must have three entries, got {position!r}, {rotation_deg!r}")
@@ -127,6 +139,7 @@ def make_element(spec: Mapping[str, Any], base_dir: str | Path | None = None) ->
     else:
         raise ValueError(f"{what} has shape {shape!r}; use {', '.join([*GENERATORS, 'file'])}")
     _check_closed(mesh, what)
+    _check_not_self_crossing(mesh, what)
     exact = mesh.metadata.get("corner_normals")
     placement = _placement(position, rotation, what)
     mesh = mesh.copy()
@@ -135,9 +148,25 @@ def make_element(spec: Mapping[str, Any], base_dir: str | Path | None = None) ->
     return OpticalElement(name, mesh, normals, material)
 
 
+def _check_apart(a: OpticalElement, b: OpticalElement) -> None:
+    """Refuse two elements that overlap: a vertex of one inside the other (ray parity), or their
+    surfaces crossing (operators/mesh_crossings.py); touching is allowed."""
+    if np.any(a.mesh.bounds[1] <= b.mesh.bounds[0]) or np.any(b.mesh.bounds[1] <= a.mesh.bounds[0]):
+        return
+    for inner, outer in ((a, b), (b, a)):
+        step = max(1, len(inner.mesh.vertices) // OVERLAP_SAMPLES)
+        if np.any(outer.mesh.contains(inner.mesh.vertices[::step])):
+            raise ValueError(f"elements {a.name} and {b.name} overlap; move them apart")
+    crossings = mutual_crossings(a.mesh, b.mesh)
+    if len(crossings):
+        x, y, z = crossings.points[0]
+        raise ValueError(f"elements {a.name} and {b.name} overlap (their surfaces cross at ({x:.4g}, {y:.4g}, "
+                         f"{z:.4g})); move them apart")
+
+
 def check_layout(elements: Sequence[OpticalElement], light_z: float, receiver_z: float) -> None:
     """Refuse elements that reach the light or the receiver, or that overlap one another (a vertex
-    of one inside the other, tested by ray parity)."""
+    of one inside the other, or surfaces that cross; elements may touch)."""
     for element in elements:
         low, high = element.z_range
         if high >= light_z:
@@ -148,9 +177,4 @@ def check_layout(elements: Sequence[OpticalElement], light_z: float, receiver_z:
                              f"(z={receiver_z}); move it up or lower the receiver")
     for i, a in enumerate(elements):
         for b in elements[i + 1:]:
-            if np.any(a.mesh.bounds[1] <= b.mesh.bounds[0]) or np.any(b.mesh.bounds[1] <= a.mesh.bounds[0]):
-                continue
-            for inner, outer in ((a, b), (b, a)):
-                step = max(1, len(inner.mesh.vertices) // OVERLAP_SAMPLES)
-                if np.any(outer.mesh.contains(inner.mesh.vertices[::step])):
-                    raise ValueError(f"elements {a.name} and {b.name} overlap; move them apart")
+            _check_apart(a, b)
