@@ -111,20 +111,23 @@ def time_reference(heights: torch.Tensor, target: torch.Tensor, photons: int, fo
 
 def mesh_scene_operators(photons: int, footprint_px: float) -> dict[str, object]:
     """The height-field operator and the mesh-scene operator on the plain scene and through the
-    paper's two lenses (conf/operator/mesh_scene.yaml, two_lenses.yaml), at the same photon count."""
+    paper's two lenses (conf/operator/mesh_scene.yaml, two_lenses.yaml; natively, and with the torch
+    tracer that the native path is tested against), at the same photon count."""
     from hydra import compose, initialize_config_dir
     from omegaconf import OmegaConf
 
     from framework.scene_config import build_operator, build_scene
 
-    def configured(name: str) -> object:
+    def configured(name: str, *extra: str) -> object:
         with initialize_config_dir(config_dir=str(Path(__file__).resolve().parent.parent / "conf"), version_base=None):
             cfg = OmegaConf.to_container(compose("simulate", overrides=[
-                f"operator={name}", f"photons={photons}", f"operator.footprint_px={footprint_px}"]), resolve=True)
+                f"operator={name}", f"photons={photons}", f"operator.footprint_px={footprint_px}", *extra]),
+                resolve=True)
         return build_operator(cfg, build_scene(cfg))
 
     return {"height_field": make_operator(photons, footprint_px, 1 << 18),
-            "mesh_scene_plain": configured("mesh_scene"), "mesh_scene_two_lenses": configured("two_lenses")}
+            "mesh_scene_plain": configured("mesh_scene"), "mesh_scene_two_lenses": configured("two_lenses"),
+            "mesh_scene_two_lenses_torch_tracer": configured("two_lenses", "operator.native=false")}
 
 
 def time_mesh_scenes(heights: torch.Tensor, photons: int, footprint_px: float) -> dict[str, dict[str, float]]:
@@ -140,9 +143,10 @@ def time_mesh_scenes(heights: torch.Tensor, photons: int, footprint_px: float) -
             best[name][0] = min(best[name][0], best_seconds(lambda: op.render(heights), repeats=1))
             best[name][1] = min(best[name][1], best_seconds(lambda: op.loss_and_grad(heights, targets[name]),
                                                             repeats=1))
-    plain = best["mesh_scene_plain"]
+    plain, height_field = best["mesh_scene_plain"], best["height_field"]
     return {name: {"forward_photons_per_s": photons / forward, "forward_backward_photons_per_s": photons / gradient,
-                   "gradient_time_over_plain_mesh_scene": gradient / plain[1]}
+                   "gradient_time_over_plain_mesh_scene": gradient / plain[1],
+                   "gradient_time_over_height_field": gradient / height_field[1]}
             for name, (forward, gradient) in best.items()}
 
 

@@ -1,8 +1,9 @@
-"""Reproduce the paper's Fig. 7: M2V1 reconstruction of the printed lines through two lenses (a
-biconvex lens above the print, a meniscus below it: conf/operator/two_lenses.yaml), beside the
-same reconstruction with no lenses and the receiver at the same distance, z = -1 (the height-field
-operator). Runs both as one Hydra multirun logged to MLflow, then rebuilds the figure and the
-table from the store: errors, discrepancies, iterations and seconds per iteration.
+"""Reproduce the paper's Fig. 7: M2V1 reconstruction through two lenses (a biconvex lens above the
+print, a meniscus below it: conf/operator/two_lenses.yaml), beside the same reconstruction with
+no lenses and the receiver at the same distance, z = -1 (the height-field operator), for the
+printed lines and a smooth bump. Runs the four cases as one Hydra multirun logged to MLflow, then
+rebuilds the figure and the table from the store: errors, discrepancies, iterations and seconds
+per iteration.
 
     python -m experiments.reproduce_fig7                   # run both, then the figure
     python -m experiments.reproduce_fig7 --table-only      # the figure from the latest runs
@@ -25,33 +26,37 @@ from framework.plotting import normalise
 EXPERIMENT = "fig7"
 RECEIVER_Z = -1.0
 CASES = {"two_lenses": "two lenses", "height_field": "no lenses"}
+SCENES = ("print_lines", "bump")
 # The paper's Fig. 7: M2V1 through the two lenses, relative error 17.1%, run time 2.05 min
 # without the lenses and 8.55 min with them.
 PAPER_ERROR = 0.171
 
 
-def case_of(run) -> str:
-    """Which case a run is: the mesh-scene operator with elements is the two-lens scene."""
+def case_of(run) -> tuple[str, str]:
+    """Which case a run is, (optics, scene): the mesh-scene operator with elements is the two-lens scene."""
     params = run.data.params
     if params.get("operator.name") == "mesh_scene" and params.get("operator.elements", "[]") not in ("[]", "None"):
-        return CASES["two_lenses"]
-    return CASES["height_field"] if params.get("operator.name") == "height_field" else "other"
+        optics = CASES["two_lenses"]
+    else:
+        optics = CASES["height_field"] if params.get("operator.name") == "height_field" else "other"
+    return optics, run.data.tags.get("scene", "")
 
 
-def collect(store: Path) -> dict[str, dict]:
-    """Per case: the latest finished run's metrics and arrays."""
+def collect(store: Path) -> dict[tuple[str, str], dict]:
+    """Per (optics, scene): the latest finished run's metrics and arrays."""
     chosen, client = latest_runs(store, EXPERIMENT, key=case_of)
-    return {label: {name: artifact(client, chosen[label], f"{name}.{ext}") for name, ext in (
+    return {key: {name: artifact(client, chosen[key], f"{name}.{ext}") for name, ext in (
         ("metrics", "json"), ("height_field", "npy"), ("ground_truth", "npy"), ("caustic_target", "npy"),
-        ("caustic_predicted", "npy"))} for label in CASES.values() if label in chosen}
+        ("caustic_predicted", "npy"))}
+        for key in ((optics, scene) for scene in SCENES for optics in CASES.values()) if key in chosen}
 
 
-def write_table(cases: dict[str, dict], out: Path) -> None:
+def write_table(cases: dict[tuple[str, str], dict], out: Path) -> None:
     """fig7.csv and fig7.md: per case the errors, discrepancy, iterations and seconds per iteration."""
     rows = []
-    for label, case in cases.items():
+    for (optics, scene), case in cases.items():
         m = case["metrics"]
-        rows.append({"case": label, "rel_dis": m["rel_discrepancy"], "rel_err": m["rel_error"],
+        rows.append({"case": optics, "scene": scene, "rel_dis": m["rel_discrepancy"], "rel_err": m["rel_error"],
                      "rel_err_d": m["rel_error_d"], "iterations": m["iterations"], "run_time_s": m["run_time_s"],
                      "s_per_iteration": m["run_time_s"] / max(m["iterations"], 1),
                      "photons": m["photons_per_iteration"]})
@@ -59,21 +64,22 @@ def write_table(cases: dict[str, dict], out: Path) -> None:
         writer = csv.DictWriter(f, fieldnames=list(rows[0]))
         writer.writeheader()
         writer.writerows(rows)
-    lines = ["| case | photons | rel. dis. | rel. err. | rel. err. (d) | #iter | run time (s) | s / iteration |",
-             "|---|---|---|---|---|---|---|---|"]
-    lines += [f"| {r['case']} | {r['photons']:,} | {r['rel_dis']:.4f} | {r['rel_err']:.4f} | {r['rel_err_d']:.4f} "
+    lines = ["| case | scene | photons | rel. dis. | rel. err. | rel. err. (d) | #iter | run time (s) | s / iteration |",
+             "|---|---|---|---|---|---|---|---|---|"]
+    lines += [f"| {r['case']} | {r['scene']} | {r['photons']:,} | {r['rel_dis']:.4f} | {r['rel_err']:.4f} | {r['rel_err_d']:.4f} "
               f"| {r['iterations']} | {r['run_time_s']:.0f} | {r['s_per_iteration']:.2f} |" for r in rows]
     lines.append(f"\nThe paper (Fig. 7): relative error {PAPER_ERROR} through the lenses, run time 2.05 min without "
                  "them and 8.55 min with them (4.2x).")
     (out / "fig7.md").write_text("\n".join(lines) + "\n")
 
 
-def write_figure(cases: dict[str, dict], out: Path) -> None:
+def write_figure(cases: dict[tuple[str, str], dict], out: Path) -> None:
     """fig7.png: per case the input caustic, the reconstruction's caustic, the ground truth and the
     reconstruction (one height scale), and the centre slices y = 0."""
     fig = Figure(figsize=(17, 3.6 * len(cases)))
-    top = max(max(float(c["ground_truth"].max()), float(c["height_field"].max())) for c in cases.values())
-    for row, (label, case) in enumerate(cases.items()):
+    for row, ((optics, scene), case) in enumerate(cases.items()):
+        label = f"{scene}, {optics}"
+        top = max(float(case["ground_truth"].max()), float(case["height_field"].max()))
         panels = [("input caustic", case["caustic_target"].sum(axis=0), True),
                   ("reconstruction's caustic", case["caustic_predicted"].sum(axis=0), True),
                   ("ground truth", case["ground_truth"], False), ("M2V1", case["height_field"], False)]
@@ -100,8 +106,8 @@ def main(argv: list[str] | None = None) -> None:
     args = parser.parse_args(argv)
     store = args.store.resolve()
     if not args.table_only:
-        run_sweep(store, EXPERIMENT, ["experiment=m2v1", f"operator={','.join(CASES)}", f"receiver.z={RECEIVER_Z}"],
-                  args.overrides)
+        run_sweep(store, EXPERIMENT, ["experiment=m2v1", f"operator={','.join(CASES)}", f"scene={','.join(SCENES)}",
+                                      f"receiver.z={RECEIVER_Z}"], args.overrides)
     cases = collect(store)
     if not cases:
         raise SystemExit(f"no finished Fig. 7 runs in {store}")
