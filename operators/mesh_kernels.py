@@ -317,13 +317,17 @@ def _interface(w, dwu, dwv, n_plane, outward, dnu, dnv, n_solid):
 
 
 @_jit
-def _advance_one(d, i, state, medium, channel, status, handle, ray, kind_out, which_out, t_out, lost_fresnel,
-                 wait_at_top, substrate, face_element, indices, v0, plane, dual, shading, neighbour, sc) -> None:
+def _advance_one(d, i, state, medium, channel, status, handle, ray, kind_out, which_out, t_out, replay,
+                 lost_fresnel, wait_at_top, substrate, face_element, indices, v0, plane, dual, shading, neighbour,
+                 sc) -> None:
     """One event of photon i (see :func:`advance`)."""
     row = state[i]
-    kind, which, t = _next_event(d, row, medium[i], handle, ray, wait_at_top, substrate, v0, plane, dual, neighbour,
-                                 sc)
-    kind_out[i], which_out[i], t_out[i] = kind, which, t
+    if replay:
+        kind, which, t = kind_out[i], which_out[i], t_out[i]
+    else:
+        kind, which, t = _next_event(d, row, medium[i], handle, ray, wait_at_top, substrate, v0, plane, dual,
+                                     neighbour, sc)
+        kind_out[i], which_out[i], t_out[i] = kind, which, t
     if kind == AT_TOP:
         status[i] = WAITING
         return
@@ -352,24 +356,25 @@ def _advance_one(d, i, state, medium, channel, status, handle, ray, kind_out, wh
 
 
 @_kernel
-def advance(d, state, medium, channel, status, handle, kind_out, which_out, t_out, lost_fresnel, wait_at_top,
+def advance(d, state, medium, channel, status, handle, kind_out, which_out, t_out, replay, lost_fresnel, wait_at_top,
             substrate, face_element, indices, v0, plane, dual, shading, neighbour, sc) -> None:
     """One event of every photon with status UNDER_WAY (in place): ``state`` (N, STATE),
     ``medium`` (N,) (AIR, an element, or ``substrate``), ``handle`` the elements' Embree scene
     (:class:`operators.embree_native.EmbreeTriangles`; 0 for none);
-    records kind_out, which_out (face or box plane) and t_out (N,) for :func:`retreat`; adds the
+    records kind_out, which_out (face or box plane) and t_out (N,) for :func:`retreat`, or with
+    ``replay`` takes the events from them (recorded at the same heights: no search); adds the
     flux that Fresnel reflection takes into ``lost_fresnel``. Ends photons: LANDED on the
     receiver, LOST (escaped or inside the glass under the top), WAITING before the top with
     ``wait_at_top``. ``indices`` (K + 1, c): refractive index of each element and the substrate."""
     blocks = (state.shape[0] + BLOCK - 1) // BLOCK
     for b in nb.prange(blocks):
         _advance_block(b * BLOCK, min(state.shape[0], (b + 1) * BLOCK), d, state, medium, channel, status, handle,
-                       kind_out, which_out, t_out, lost_fresnel, wait_at_top, substrate, face_element, indices, v0,
-                       plane, dual, shading, neighbour, sc)
+                       kind_out, which_out, t_out, replay, lost_fresnel, wait_at_top, substrate, face_element,
+                       indices, v0, plane, dual, shading, neighbour, sc)
 
 
 @_call
-def _advance_block(lo, hi, d, state, medium, channel, status, handle, kind_out, which_out, t_out, lost_fresnel,
+def _advance_block(lo, hi, d, state, medium, channel, status, handle, kind_out, which_out, t_out, replay, lost_fresnel,
                    wait_at_top, substrate, face_element, indices, v0, plane, dual, shading, neighbour, sc) -> None:
     """:func:`advance` for photons lo .. hi-1 (one thread)."""
     ray = ray_buffer()
@@ -377,8 +382,9 @@ def _advance_block(lo, hi, d, state, medium, channel, status, handle, kind_out, 
         if status[i] != UNDER_WAY:
             kind_out[i] = -1
             continue
-        _advance_one(d, i, state, medium, channel, status, handle, ray, kind_out, which_out, t_out, lost_fresnel,
-                     wait_at_top, substrate, face_element, indices, v0, plane, dual, shading, neighbour, sc)
+        _advance_one(d, i, state, medium, channel, status, handle, ray, kind_out, which_out, t_out, replay,
+                     lost_fresnel, wait_at_top, substrate, face_element, indices, v0, plane, dual, shading, neighbour,
+                     sc)
 
 
 @_jit

@@ -37,6 +37,8 @@ class Prefix:
     losses: dict[str, float]
 
 
+# Event kinds, faces or planes and distances as the kernels take them.
+_EVENT_DTYPES = (np.int64, np.int64, np.float64)
 # Work continues on a compact copy of the photons under way once fewer than this share are.
 COMPACT = 0.5
 
@@ -85,6 +87,7 @@ class NativeMeshTracer:
         self.indices = np.ascontiguousarray(torch.cat([operator.element_index, operator.substrate_index.unsqueeze(0)])
                                             .double().numpy())
         self._prefix: Prefix | None = None
+        self._events_seen: tuple[np.ndarray, list[list]] | None = None
         self._triangles = _triangles(operator.elements)
         self.embree = 0 if self._triangles is None else self._triangles.handle
 
@@ -110,15 +113,17 @@ class NativeMeshTracer:
 
     # -- events -------------------------------------------------------------------------------
     def _run(self, d: np.ndarray, chunk: _Chunk, sc: mk.MeshConstants, wait_at_top: bool, losses: dict[str, float],
-             tape: list | None = None) -> None:
+             tape: list | None = None, events_log: list | None = None, events_replay: list | None = None) -> None:
         """Advance the chunk's photons until none is under way (or each has had max_depth
         events), adding lost flux to ``losses``. Once fewer than half of the photons worked on are
         under way, the work continues on a copy of those only (written back at the end). With
         ``tape``, each event's photons (indices into the chunk, None for all), input states,
-        kinds, faces or planes and distances are appended for :meth:`_reverse`."""
+        kinds, faces or planes and distances are appended for :meth:`_reverse`. Each event's kinds,
+        faces or planes and distances are appended to ``events_log`` (compactly), or taken from
+        ``events_replay`` (logged at the same heights) instead of searched for."""
         max_depth = self.operator.settings.max_depth
         work, index = chunk, None
-        for _ in range(max_depth):
+        for event in range(max_depth):
             under_way = work.status == mk.UNDER_WAY
             count = int(under_way.sum())
             if count == 0:
@@ -129,9 +134,14 @@ class NativeMeshTracer:
                 index = keep if index is None else index[keep]
                 work = chunk.take(index)
             n = len(work.state)
-            kind, which, t, fresnel = np.empty(n, np.int64), np.empty(n, np.int64), np.empty(n), np.zeros(n)
+            if events_replay is not None:
+                kind, which, t = (a.astype(dtype) for a, dtype in zip(events_replay[event], _EVENT_DTYPES))
+            else:
+                kind, which, t = np.empty(n, np.int64), np.empty(n, np.int64), np.empty(n)
+            fresnel = np.zeros(n)
             before = work.state.copy() if tape is not None else None
-            mk.advance(d, work.state, work.medium, work.channel, work.status, self.embree, kind, which, t, fresnel,
+            mk.advance(d, work.state, work.medium, work.channel, work.status, self.embree, kind, which, t,
+                       events_replay is not None, fresnel,
                        wait_at_top, self.substrate, self.face_element, self.indices, self.v0, self.plane, self.dual,
                        self.shading, self.neighbour, sc)
             work.events += (kind >= 0) & (kind != mk.AT_TOP)
@@ -141,6 +151,8 @@ class NativeMeshTracer:
             losses["fresnel_reflected"] += float(fresnel.sum())
             if tape is not None:
                 tape.append((index, before, kind, which, t))
+            if events_log is not None:
+                events_log.append((kind.astype(np.int8), which.astype(np.int32), t))
             done = (work.status == mk.UNDER_WAY) & (work.events >= max_depth)
             losses["max_depth"] += float(flux[done].sum())
             work.status[done] = mk.LOST
@@ -224,29 +236,35 @@ class NativeMeshTracer:
 
     # -- render and gradient ------------------------------------------------------------------
     def render(self, d: np.ndarray) -> tuple[torch.Tensor, dict[str, float]]:
-        """Flux per pixel (c, n, n) of heights ``d`` (m, m) float64 and the losses (W)."""
+        """Flux per pixel (c, n, n) of heights ``d`` (m, m) float64 and the losses (W); the photons'
+        events are kept for a :meth:`vjp` at the same heights."""
         pre = self.prefix()
         sc = self.constants(d)
         self._check_above(sc)
         image = pre.image.clone()
         losses = dict(pre.losses)
+        seen: list[list] = []
         for start, stop in self._waiting_chunks():
             chunk = self._waiting(start, stop)
-            self._run(d, chunk, sc, False, losses)
+            seen.append([])
+            self._run(d, chunk, sc, False, losses, events_log=seen[-1])
             image += self._splat(chunk, sc, losses)
+        self._events_seen = (d.copy(), seen)
         return image, losses
 
     def vjp(self, d: np.ndarray, grad_flux: torch.Tensor) -> np.ndarray:
-        """Gradient (m, m) w.r.t. d of <flux per pixel, grad_flux (c, n, n)>."""
+        """Gradient (m, m) w.r.t. d of <flux per pixel, grad_flux (c, n, n)>; the photons' events
+        are replayed from the last :meth:`render` when it had the same heights."""
         sc = self.constants(d)
         self._check_above(sc)
         g_heights = np.zeros((nb.get_num_threads(), *d.shape))
         unused: dict[str, float] = dict.fromkeys(self.prefix().losses, 0.0)
         dtype = self.operator.dtype
-        for start, stop in self._waiting_chunks():
+        seen = self._events_seen[1] if self._events_seen is not None and np.array_equal(self._events_seen[0], d) else None
+        for k, (start, stop) in enumerate(self._waiting_chunks()):
             chunk = self._waiting(start, stop)
             tape: list = []
-            self._run(d, chunk, sc, False, unused, tape)
+            self._run(d, chunk, sc, False, unused, tape, events_replay=None if seen is None else seen[k])
             pos, metric, flux = self._splat_inputs(chunk, sc, unused)
             g_pos, g_metric, g_flux = (t.double().numpy() for t in splat_photons_vjp(
                 torch.from_numpy(pos).to(dtype), torch.from_numpy(metric).to(dtype), torch.from_numpy(flux).to(dtype),
