@@ -21,7 +21,7 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from experiments.mlflow_store import artifact, latest_runs, reproduction_parser, run_sweep
-from framework.plotting import normalise
+from framework.plotting import show_panel
 
 EXPERIMENT = "fig6"
 SCENES = {"print_lines": "Lines", "letter_a": "A"}
@@ -92,13 +92,7 @@ def write_figure(cases: dict[tuple[str, str], dict], out: Path) -> None:
         top = max(float(image.max()) for _, image, caustic in panels if not caustic)
         for col, (title, image, caustic) in enumerate(panels):
             ax = fig.add_subplot(len(labels), columns, columns * row + col + 1)
-            if caustic:
-                ax.imshow(normalise(image), origin="lower", extent=(-1, 1, -1, 1), cmap="inferno")
-            else:
-                ax.imshow(image, origin="lower", extent=(-1, 1, -1, 1), cmap="viridis", vmin=0.0, vmax=top)
-            ax.set_title(f"{label}: {title}", fontsize=8)
-            ax.set_xticks([])
-            ax.set_yticks([])
+            show_panel(ax, f"{label}: {title}", image, caustic, top)
         ax = fig.add_subplot(len(labels), columns, columns * (row + 1))
         x = np.linspace(-1, 1, truth.shape[1])
         ax.plot(x, truth[truth.shape[0] // 2], "k-", lw=2, label="ground truth")

@@ -21,7 +21,7 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from experiments.mlflow_store import artifact, latest_runs, reproduction_parser, run_sweep
-from framework.plotting import normalise
+from framework.plotting import show_panel
 
 EXPERIMENT = "fig7"
 RECEIVER_Z = -1.0
@@ -85,13 +85,7 @@ def write_figure(cases: dict[tuple[str, str], dict], out: Path) -> None:
                   ("ground truth", case["ground_truth"], False), ("M2V1", case["height_field"], False)]
         for col, (title, image, caustic) in enumerate(panels):
             ax = fig.add_subplot(len(cases), 5, 5 * row + col + 1)
-            if caustic:
-                ax.imshow(normalise(image), origin="lower", extent=(-1, 1, -1, 1), cmap="inferno")
-            else:
-                ax.imshow(image, origin="lower", extent=(-1, 1, -1, 1), cmap="viridis", vmin=0.0, vmax=top)
-            ax.set_title(f"{label}: {title}", fontsize=8)
-            ax.set_xticks([])
-            ax.set_yticks([])
+            show_panel(ax, f"{label}: {title}", image, caustic, top)
         ax = fig.add_subplot(len(cases), 5, 5 * row + 5)
         for name, d, style in (("ground truth", case["ground_truth"], "k-"), ("M2V1", case["height_field"], "r-")):
             ax.plot(np.linspace(-1, 1, d.shape[1]), d[d.shape[0] // 2], style, label=name)

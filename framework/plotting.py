@@ -28,6 +28,18 @@ def normalise(values: np.ndarray, percentile: float = 99.9) -> np.ndarray:
     return np.clip(values / top, 0.0, 1.0)
 
 
+def show_panel(ax, title: str, image: np.ndarray, caustic: bool, top: float) -> None:
+    """One panel of a comparison figure over [-1, 1]^2: a caustic (n, n), normalised, or heights
+    (m, m) on the colour scale 0 .. top (scene units); no ticks."""
+    if caustic:
+        ax.imshow(normalise(image), origin="lower", extent=(-1, 1, -1, 1), cmap="inferno")
+    else:
+        ax.imshow(image, origin="lower", extent=(-1, 1, -1, 1), cmap="viridis", vmin=0.0, vmax=top)
+    ax.set_title(title, fontsize=8)
+    ax.set_xticks([])
+    ax.set_yticks([])
+
+
 def caustic_rgb(image: np.ndarray, wavelengths: Sequence[float] | None = None,
                 percentile: float = 99.9) -> np.ndarray:
     """Display image (n, n) greyscale or (n, n, 3) RGB in [0, 1] from a caustic (c, n, n).
