@@ -89,7 +89,7 @@ def write_figure(cases: dict[tuple[str, str], dict], out: Path) -> None:
         ax = fig.add_subplot(len(cases), 5, 5 * row + 5)
         for name, d, style in (("ground truth", case["ground_truth"], "k-"), ("M2V1", case["height_field"], "r-")):
             ax.plot(np.linspace(-1, 1, d.shape[1]), d[d.shape[0] // 2], style, label=name)
-        ax.set_title(f"{label}: centre slice y = 0, error {case['metrics']['rel_error']:.3f}", fontsize=8)
+        ax.set_title(f"centre slice y = 0, error {case['metrics']['rel_error']:.3f}", fontsize=8)
         ax.set_xlabel("x (scene units)")
         ax.legend(fontsize=6)
     fig.savefig(out / "fig7.png", dpi=100, bbox_inches="tight")
