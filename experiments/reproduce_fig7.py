@@ -76,7 +76,8 @@ def write_table(cases: dict[tuple[str, str], dict], out: Path) -> None:
 def write_figure(cases: dict[tuple[str, str], dict], out: Path) -> None:
     """fig7.png: per case the input caustic, the reconstruction's caustic, the ground truth and the
     reconstruction (one height scale), and the centre slices y = 0."""
-    fig = Figure(figsize=(17, 3.6 * len(cases)))
+    fig = Figure(figsize=(17, 4.0 * len(cases)))
+    fig.subplots_adjust(hspace=0.4)
     for row, ((optics, scene), case) in enumerate(cases.items()):
         label = f"{scene}, {optics}"
         top = max(float(case["ground_truth"].max()), float(case["height_field"].max()))
