@@ -33,7 +33,7 @@ from operators.heightfield_kernels import hit_adjoint_patch, solve_hit
 from operators.embree_native import first_face, ray_buffer
 from operators.mesh_intersect import MIN_FACE_DISTANCE, START_OFFSET
 from operators.native import FAST_MATH
-from operators.photon_optics import (UP, ZERO, add, away_from_zero, axpy, dot, footprint_metric,
+from operators.photon_optics import (UP, ZERO, add, axpy, dot, footprint_metric,
                                      footprint_metric_adjoint, fresnel, fresnel_adjoint, height_field_normal,
                                      height_field_normal_adjoint, normal_differential, normal_differential_adjoint,
                                      refract, refract_adjoint, scale, transfer, transfer_adjoint)
@@ -399,7 +399,6 @@ def _retreat_one(d, i, before, kind, which, t, channel, substrate, face_element,
                                                             sc)
     g_q, g_dqu, g_dqv = _vec(g, P), _vec(g, DPU), _vec(g, DPV)
     g_w, g_dwu, g_dwv, g_flux = ZERO, ZERO, ZERO, g[FLUX]
-    g_n_plane = ZERO
     if k != RECEIVER:
         solid = face_element[which[i]] if k == MESH else substrate
         entering, sign, eta, r, ru, rv, ci, ct, through = _interface(

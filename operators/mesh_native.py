@@ -258,14 +258,14 @@ class NativeMeshTracer:
         sc = self.constants(d)
         self._check_above(sc)
         g_heights = np.zeros((nb.get_num_threads(), *d.shape))
-        unused: dict[str, float] = dict.fromkeys(self.prefix().losses, 0.0)
+        not_counted: dict[str, float] = dict.fromkeys(self.prefix().losses, 0.0)  # render counts them
         dtype = self.operator.dtype
         seen = self._events_seen[1] if self._events_seen is not None and np.array_equal(self._events_seen[0], d) else None
         for k, (start, stop) in enumerate(self._waiting_chunks()):
             chunk = self._waiting(start, stop)
             tape: list = []
-            self._run(d, chunk, sc, False, unused, tape, events_replay=None if seen is None else seen[k])
-            pos, metric, flux = self._splat_inputs(chunk, sc, unused)
+            self._run(d, chunk, sc, False, not_counted, tape, events_replay=None if seen is None else seen[k])
+            pos, metric, flux = self._splat_inputs(chunk, sc, not_counted)
             g_pos, g_metric, g_flux = (t.double().numpy() for t in splat_photons_vjp(
                 torch.from_numpy(pos).to(dtype), torch.from_numpy(metric).to(dtype), torch.from_numpy(flux).to(dtype),
                 torch.from_numpy(chunk.channel), grad_flux))
