@@ -22,6 +22,7 @@ from numba import types
 from numba.extending import intrinsic
 
 from operators.native import FAST_MATH
+from operators.simd import data_pointer
 
 __all__ = ["EmbreeTriangles", "first_face", "ray_buffer", "RAY_FLOATS"]
 
@@ -107,13 +108,6 @@ def _address(typingctx, array):
     return types.int64(array), codegen
 
 
-@intrinsic
-def _pointer(typingctx, array):
-    def codegen(context, builder, signature, args):
-        return context.make_array(signature.args[0])(context, builder, args[0]).data
-    return types.CPointer(array.dtype)(array), codegen
-
-
 _jit = nb.njit(cache=True, inline="always", fastmath=FAST_MATH, error_model="numpy")
 
 
@@ -135,5 +129,5 @@ def first_face(handle, ray, ox, oy, oz, wx, wy, wz) -> int:
     bits[9], bits[10], bits[11] = _INVALID_ID, 0, 0
     bits[_GEOM_ID] = _INVALID_ID
     bits[_PRIM_ID] = _INVALID_ID
-    _intersect1(handle, _pointer(ray), 0)
+    _intersect1(handle, data_pointer(ray), 0)
     return -1 if bits[_GEOM_ID] == _INVALID_ID else int(bits[_PRIM_ID])

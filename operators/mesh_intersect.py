@@ -74,8 +74,8 @@ class MeshIntersector:
         if not elements:
             return
         offsets = np.cumsum([0] + [len(e.mesh.vertices) for e in elements])
-        vertices = np.concatenate([e.mesh.vertices for e in elements])
-        faces = np.concatenate([e.mesh.faces + o for e, o in zip(elements, offsets)])
+        self.vertices = vertices = np.concatenate([e.mesh.vertices for e in elements])
+        self.faces = faces = np.concatenate([e.mesh.faces + o for e, o in zip(elements, offsets)])
         self.face_element = torch.from_numpy(np.concatenate([np.full(len(e.mesh.faces), k)
                                                              for k, e in enumerate(elements)]))
         corners = vertices[faces]  # (F, 3, 3)
@@ -95,6 +95,16 @@ class MeshIntersector:
         self._shading = torch.from_numpy(shading)
         self._scene = rtcore_scene.EmbreeScene()
         TriangleMesh(self._scene, vertices.astype(np.float32), faces.astype(np.int32))
+
+    def face_arrays(self) -> tuple[np.ndarray, ...]:
+        """(face_element (F,), v0 (F, 3), plane normal (F, 3), dual basis (F, 2, 3), corner shading
+        normals (F, 3, 3), neighbours (F, 3)) as contiguous arrays for native kernels; one dummy
+        face when there are no elements."""
+        if self.count == 0:
+            return (np.zeros(1, np.int64), np.zeros((1, 3)), np.zeros((1, 3)), np.zeros((1, 2, 3)),
+                    np.zeros((1, 3, 3)), np.full((1, 3), -1, np.int64))
+        return tuple(np.ascontiguousarray(a.numpy()) for a in (self.face_element, self._v0, self._n, self._dual,
+                                                               self._shading, self._neighbour))
 
     def intersect(self, origin: torch.Tensor, direction: torch.Tensor, which: torch.Tensor | None = None
                   ) -> ElementHits:

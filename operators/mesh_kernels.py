@@ -131,6 +131,14 @@ def _face_hit(p, w, f, v0, plane, dual, neighbour):
 
 
 @_jit
+def _face_shading(q, f, v0, dual, shading):
+    """:func:`_shading` of face f at the point q on its plane."""
+    rel = _sub(q, _row3(v0, f))
+    return _shading(f, dot(rel, (dual[f, 0, 0], dual[f, 0, 1], dual[f, 0, 2])),
+                    dot(rel, (dual[f, 1, 0], dual[f, 1, 1], dual[f, 1, 2])), shading, dual)
+
+
+@_jit
 def _shading(f, b1, b2, shading, dual):
     """Interpolated shading normal on face f at barycentrics (b1, b2): (N, |raw|, e1, e2, g1, g2)
     with raw = n0 + b1 e1 + b2 e2, e_k = n_k - n0, and g_k the face's dual basis (b_k = g_k . (p - v0))."""
@@ -289,10 +297,7 @@ def _surface(d, row, kind, which, t, shading, dual, plane, v0, sc):
     q, dqu, dqv = transfer(p, dpu, dpv, w, dwu, dwv, t, n_plane)
     outward, dnu, dnv = n_plane, ZERO, ZERO
     if kind == MESH:
-        rel = _sub(q, _row3(v0, which))
-        g1 = (dual[which, 0, 0], dual[which, 0, 1], dual[which, 0, 2])
-        g2 = (dual[which, 1, 0], dual[which, 1, 1], dual[which, 1, 2])
-        outward, length, e1, e2, g1, g2 = _shading(which, dot(rel, g1), dot(rel, g2), shading, dual)
+        outward, length, e1, e2, g1, g2 = _face_shading(q, which, v0, dual, shading)
         dnu = _shading_differential(outward, length, e1, e2, g1, g2, dqu)
         dnv = _shading_differential(outward, length, e1, e2, g1, g2, dqv)
     elif kind == TOP:
@@ -417,11 +422,7 @@ def _retreat_one(d, i, before, kind, which, t, channel, substrate, face_element,
             g_w, g_dwu, g_dwv, g_f, g_fu, g_fv = _reflect_adjoint(w, dwu, dwv, facing, dfu, dfv, g_r, g_ru, g_rv)
         g_out, g_dnu, g_dnv = scale(sign, g_f), scale(sign, g_fu), scale(sign, g_fv)
         if k == MESH:
-            f = which[i]
-            rel = _sub(q, _row3(v0, f))
-            g1 = (dual[f, 0, 0], dual[f, 0, 1], dual[f, 0, 2])
-            g2 = (dual[f, 1, 0], dual[f, 1, 1], dual[f, 1, 2])
-            normal, length, e1, e2, g1, g2 = _shading(f, dot(rel, g1), dot(rel, g2), shading, dual)
+            normal, length, e1, e2, g1, g2 = _face_shading(q, which[i], v0, dual, shading)
             gn_u, gl_u, gp_u = _shading_differential_adjoint(normal, length, e1, e2, g1, g2, dqu, dnu, g_dnu)
             gn_v, gl_v, gp_v = _shading_differential_adjoint(normal, length, e1, e2, g1, g2, dqv, dnv, g_dnv)
             g_dqu, g_dqv = add(g_dqu, gp_u), add(g_dqv, gp_v)
@@ -533,13 +534,3 @@ def splat_arguments_adjoint(state, status, sc, g_pos, g_metric, g_flux, g_state)
         g_state[i, DPV], g_state[i, DPV + 1] = g_vx * k, g_vy * k
         g_state[i, FLUX] = g_flux[i]
 
-
-def face_arrays(intersector) -> tuple[np.ndarray, ...]:
-    """(face_element, v0, plane, dual, shading, neighbour) of an :class:`operators.mesh_intersect.MeshIntersector`
-    as contiguous arrays (one dummy face when there are no elements)."""
-    if intersector.count == 0:
-        return (np.zeros(1, np.int64), np.zeros((1, 3)), np.zeros((1, 3)), np.zeros((1, 2, 3)), np.zeros((1, 3, 3)),
-                np.full((1, 3), -1, np.int64))
-    return tuple(np.ascontiguousarray(a.numpy()) for a in (intersector.face_element, intersector._v0, intersector._n,
-                                                           intersector._dual, intersector._shading,
-                                                           intersector._neighbour))

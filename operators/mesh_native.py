@@ -22,7 +22,10 @@ from operators.heightfield_surface import HeightFieldGrid
 from operators.embree_native import EmbreeTriangles
 from operators.splat import splat_photons, splat_photons_vjp
 
-__all__ = ["NativeMeshTracer", "Prefix"]
+__all__ = ["LOSSES", "NativeMeshTracer", "Prefix"]
+
+# The kinds of lost flux a render reports (W each).
+LOSSES = ("escaped", "max_depth", "inside_top", "fresnel_reflected", "missed_receiver")
 
 
 @dataclass
@@ -59,15 +62,6 @@ class _Chunk:
                       self.events[index])
 
 
-def _triangles(elements) -> EmbreeTriangles | None:
-    """All elements' faces in one Embree scene, in the order of :class:`operators.mesh_intersect.MeshIntersector`."""
-    if not elements:
-        return None
-    offsets = np.cumsum([0] + [len(e.mesh.vertices) for e in elements])
-    return EmbreeTriangles(np.concatenate([e.mesh.vertices for e in elements]),
-                           np.concatenate([e.mesh.faces + o for e, o in zip(elements, offsets)]))
-
-
 def _write_back(chunk: _Chunk, index: np.ndarray | None, work: _Chunk) -> None:
     """Copy ``work`` (the chunk's photons at ``index``; None: the chunk itself) into the chunk."""
     if index is None:
@@ -82,13 +76,14 @@ class NativeMeshTracer:
     def __init__(self, operator) -> None:
         self.operator = operator
         self.substrate = len(operator.elements)
+        intersector = operator.intersector
         (self.face_element, self.v0, self.plane, self.dual, self.shading,
-         self.neighbour) = mk.face_arrays(operator.intersector)
-        self.indices = np.ascontiguousarray(torch.cat([operator.element_index, operator.substrate_index.unsqueeze(0)])
-                                            .double().numpy())
+         self.neighbour) = intersector.face_arrays()
+        self.indices = np.ascontiguousarray(operator.index_table.double().numpy())
         self._prefix: Prefix | None = None
         self._events_seen: tuple[np.ndarray, list[list]] | None = None
-        self._triangles = _triangles(operator.elements)
+        # The same faces, in the same order, in an Embree scene that the kernels query.
+        self._triangles = EmbreeTriangles(intersector.vertices, intersector.faces) if intersector.count else None
         self.embree = 0 if self._triangles is None else self._triangles.handle
 
     # -- scene constants ----------------------------------------------------------------------
@@ -198,7 +193,7 @@ class NativeMeshTracer:
         sc = self.constants(None)
         dummy = np.zeros((4, 4))
         image = torch.zeros(op.output_shape, dtype=op.dtype)
-        losses = dict.fromkeys(("escaped", "max_depth", "inside_top", "fresnel_reflected", "missed_receiver"), 0.0)
+        losses = dict.fromkeys(LOSSES, 0.0)
         waiting = []
         for start, stop in op.chunks():
             chunk = self._emitted(start, stop)

@@ -38,7 +38,7 @@ from operators.emission import PointLightEmitter
 from operators.heightfield_surface import HeightFieldGrid, intersect_height_field
 from operators.materials import refractive_indices
 from operators.mesh_intersect import MIN_FACE_DISTANCE, MeshIntersector
-from operators.mesh_native import NativeMeshTracer
+from operators.mesh_native import LOSSES, NativeMeshTracer
 from operators.optical_elements import OpticalElement, check_layout, make_element
 from operators.optics import fresnel_transmittance, height_field_normal, height_field_normal_differential, refract, transfer
 from operators.photon_operator import PIXEL_SETTINGS, PhotonOperator, backward_through_splat, check_setting_keys
@@ -48,7 +48,6 @@ from operators.splat import splat_photons
 __all__ = ["MeshSceneSettings", "MeshSceneOperator", "reflect"]
 
 AIR = -1
-LOSSES = ("escaped", "max_depth", "inside_top", "fresnel_reflected", "missed_receiver")
 
 
 @dataclass(frozen=True)
@@ -120,6 +119,8 @@ class MeshSceneOperator(PhotonOperator):
         self.substrate_index = torch.tensor(scene.indices, dtype=self.dtype)
         self.element_index = torch.tensor([refractive_indices(e.material, scene.wavelengths) for e in self.elements]
                                           or np.zeros((0, scene.channels)), dtype=self.dtype)
+        # Refractive index (K + 1, c) of each element and, last, the substrate, per channel.
+        self.index_table = torch.cat([self.element_index, self.substrate_index.unsqueeze(0)])
         self.losses: dict[str, float] = {}
         self.native = NativeMeshTracer(self) if settings.native else None
 
@@ -303,8 +304,7 @@ class MeshSceneOperator(PhotonOperator):
 
     def _index(self, solid: torch.Tensor, channel: torch.Tensor) -> torch.Tensor:
         """Refractive index (N,) of the solid (element k, or the substrate for k = K) per photon."""
-        table = torch.cat([self.element_index, self.substrate_index.unsqueeze(0)])
-        return table[solid.clamp(min=0), channel]
+        return self.index_table[solid.clamp(min=0), channel]
 
 
 @dataclass
