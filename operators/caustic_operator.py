@@ -32,7 +32,8 @@ from tqdm.auto import tqdm
 from operators.emission import PointLightEmitter
 from operators.fused_trace import FusedTracer, HitCache
 from operators.native import to_numpy
-from operators.photon_operator import PIXEL_SETTINGS, PhotonOperator, backward_through_splat, check_setting_keys
+from operators.photon_operator import (PIXEL_SETTINGS, PhotonOperator, backward_through_splat, check_setting_keys,
+                                      filter_radius_px)
 from operators.precompile import BackgroundCompile
 from operators.scene import Scene
 from operators.splat import splat_photons
@@ -48,7 +49,11 @@ class OperatorSettings:
     photons: total photons per evaluation (split evenly over the wavelengths).
     seed: seeds the emission pattern; the same seed gives the same photons (common random numbers).
     footprint_px: nominal footprint radius on the receiver in pixels (the paper's smoothing).
-    min_footprint_px: pixel-filter radius added in quadrature to every footprint.
+    min_footprint_px: pixel-filter radius added in quadrature to every footprint (pixels).
+    pixel_integration: every pixel averages the irradiance over its area (a camera pixel, or an
+        image area-averaged from a finer render), modelled by widening every footprint by the
+        pixel box's second moment (operators/photon_operator.py, PIXEL_BOX_R2); False evaluates
+        the irradiance at the pixel centres.
     max_pixel_radius: cut-off for the footprint's major semi-axis, in pixels (paper: 20).
     chunk_size: photons traced at once; sets the peak memory.
     hit_cache_mb: memory (MiB, 8 bytes per photon) for the surface hits that a render records
@@ -64,6 +69,7 @@ class OperatorSettings:
     seed: int = 0
     footprint_px: float = 3.0
     min_footprint_px: float = 1.0
+    pixel_integration: bool = True
     max_pixel_radius: float = 20.0
     chunk_size: int = 1 << 18
     hit_cache_mb: float = 256.0
@@ -83,7 +89,7 @@ class OperatorSettings:
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
                 raise ValueError(f"operator.{key}={value!r} must be a finite number")
             object.__setattr__(self, key, float(value))
-        for key in ("fresnel", "simd"):
+        for key in ("fresnel", "simd", "pixel_integration"):
             if not isinstance(getattr(self, key), bool):
                 raise ValueError(f"operator.{key}={getattr(self, key)!r} must be true or false")
         try:
@@ -156,7 +162,8 @@ class CausticOperator(PhotonOperator):
         self.emitter = PointLightEmitter(scene, self.settings.photons, self.settings.seed,
                                          self.settings.footprint_px, self.dtype, self.device)
         self.glass_index = torch.tensor(scene.indices, dtype=self.dtype, device=self.device)
-        self.fused = FusedTracer(scene, self.emitter, self.settings.min_footprint_px,
+        self.fused = FusedTracer(scene, self.emitter,
+                                 filter_radius_px(self.settings.min_footprint_px, self.settings.pixel_integration),
                                  self.settings.max_pixel_radius, self.settings.fresnel, self.settings.simd)
         self.hit_cache = HitCache(self.settings.hit_cache_mb)
         self.gpu = None

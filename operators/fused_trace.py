@@ -24,7 +24,7 @@ class FusedTracer:
     splat_photons) photon by photon, computed in float64.
     """
 
-    def __init__(self, scene: Scene, emitter: PointLightEmitter, min_footprint_px: float,
+    def __init__(self, scene: Scene, emitter: PointLightEmitter, filter_px: float,
                  max_pixel_radius: float, fresnel: bool, simd: bool) -> None:
         self.scene = scene
         self.simd = bool(simd) and SIMD_AVAILABLE  # whether the kernels use the AVX2 extension
@@ -40,7 +40,7 @@ class FusedTracer:
             flux_scale=light.power / (4.0 * math.pi * scene.channels) * emitter.cell_area
             * (light.position[2] - sub.thickness),
             radius=float(emitter.footprint_radius), receiver_z=float(rec.z), receiver_half=float(rec.half_width),
-            to_px=rec.resolution / (2.0 * rec.half_width), min_px=float(min_footprint_px),
+            to_px=rec.resolution / (2.0 * rec.half_width), min_px=float(filter_px),
             max_px=float(max_pixel_radius), fresnel=bool(fresnel), simd=self.simd)
 
     def constants(self, d: np.ndarray) -> FusedScene:

@@ -18,8 +18,9 @@ import numpy as np
 import torch
 
 from operators import mesh_kernels as mk
-from operators.heightfield_surface import HeightFieldGrid
 from operators.embree_native import EmbreeTriangles
+from operators.heightfield_surface import HeightFieldGrid
+from operators.photon_operator import filter_radius_px
 from operators.splat import splat_photons, splat_photons_vjp
 
 __all__ = ["LOSSES", "NativeMeshTracer", "Prefix"]
@@ -104,7 +105,9 @@ class NativeMeshTracer:
             top_max = thickness + float(d.max()) + 1e-9
         return mk.MeshConstants(half, thickness, spacing, zlo, zstart, zhi, slope_x, slope_y, top_max,
                                 float(op._lowest_element), scene.receiver.z, settings.fresnel, op._to_pixels,
-                                scene.receiver.half_width, settings.min_footprint_px, settings.max_pixel_radius)
+                                scene.receiver.half_width,
+                                filter_radius_px(settings.min_footprint_px, settings.pixel_integration),
+                                settings.max_pixel_radius)
 
     # -- events -------------------------------------------------------------------------------
     def _run(self, d: np.ndarray, chunk: _Chunk, sc: mk.MeshConstants, wait_at_top: bool, losses: dict[str, float],

@@ -58,6 +58,7 @@ class MeshSceneSettings:
     seed: int = 0
     footprint_px: float = 3.0
     min_footprint_px: float = 1.0
+    pixel_integration: bool = True
     max_pixel_radius: float = 20.0
     chunk_size: int = 1 << 17
     fresnel: bool = False
@@ -77,7 +78,7 @@ class MeshSceneSettings:
                 raise ValueError(f"operator.{key}={value!r} must be a positive number (pixels)")
         if not self.min_footprint_px < self.max_pixel_radius:
             raise ValueError(f"need min_footprint_px ({self.min_footprint_px}) < max_pixel_radius ({self.max_pixel_radius})")
-        for key in ("fresnel", "native"):
+        for key in ("fresnel", "native", "pixel_integration"):
             if not isinstance(getattr(self, key), bool):
                 raise ValueError(f"operator.{key}={getattr(self, key)!r} must be true or false")
         if self.dtype not in DTYPES:

@@ -18,10 +18,23 @@ import torch
 from operators.scene import Scene
 from operators.splat import footprint_metric, splat_photons_vjp
 
-__all__ = ["PIXEL_SETTINGS", "PhotonOperator", "RenderFunction", "backward_through_splat", "check_setting_keys"]
+__all__ = ["PIXEL_SETTINGS", "PIXEL_BOX_R2", "PhotonOperator", "RenderFunction", "backward_through_splat",
+           "check_setting_keys", "filter_radius_px"]
 
 # Settings given in receiver pixels: a render at another receiver resolution scales them.
 PIXEL_SETTINGS = ("footprint_px", "min_footprint_px", "max_pixel_radius")
+
+# A pixel that averages the irradiance over its area blurs by a unit box: per axis a variance of
+# 1/12 pixel^2. Silverman's kernel of radius R has a per-axis variance of R^2 / 8, so the box is
+# matched in its second moment by widening every footprint by 8/12 pixel^2 in quadrature
+# (docs/method.md, "Pixel integration").
+PIXEL_BOX_R2 = 2.0 / 3.0
+
+
+def filter_radius_px(min_footprint_px: float, pixel_integration: bool) -> float:
+    """Radius (pixels) added in quadrature to every footprint: the pixel filter ``min_footprint_px``
+    and, with ``pixel_integration``, the pixel's own area (:data:`PIXEL_BOX_R2`)."""
+    return (min_footprint_px ** 2 + (PIXEL_BOX_R2 if pixel_integration else 0.0)) ** 0.5
 
 
 def check_setting_keys(settings: dict[str, Any], settings_class: type, plugin: str, extra: tuple[str, ...] = ()) -> None:
@@ -73,7 +86,8 @@ class PhotonOperator:
         """Splat inputs from photons on the receiver: positions (2, N) and footprints (2, 2, N)
         in scene units -> pixel positions (2, N) and footprint metrics (3, N)."""
         pos = (position + self.scene.receiver.half_width) * self._to_pixels - 0.5
-        metric = footprint_metric(footprint * self._to_pixels, self.settings.min_footprint_px,
+        metric = footprint_metric(footprint * self._to_pixels,
+                                  filter_radius_px(self.settings.min_footprint_px, self.settings.pixel_integration),
                                   self.settings.max_pixel_radius)
         return pos, metric
 

@@ -118,6 +118,12 @@ class Regularizer(_UsesContext, ABC):
             f"{type(self).__name__} has no proximal map (has_prox=False); use a solver that takes its gradient"
         )
 
+    def project(self, d: torch.Tensor) -> torch.Tensor:
+        """The nearest point of the set where :meth:`value` is finite, shape (m, m): identity for a
+        functional that is finite everywhere; indicator terms (bounds, mask) override it. A solver
+        uses it to bring a post-step update that left the set back into it."""
+        return d
+
     @staticmethod
     def _check_step(step: float) -> float:
         return check_positive(step, "step", "pass the solver step size tau > 0")

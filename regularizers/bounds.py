@@ -39,6 +39,11 @@ class HeightBounds(Regularizer):
         gap = (d - clamp_on_mask(d, mask, self.p1, self.p2)).abs().max()
         return 0.0 if float(gap) <= self.atol else math.inf
 
+    def project(self, d: torch.Tensor) -> torch.Tensor:
+        """Projection of d onto C: clamp to [p1, p2] on the mask, 0 off it; shape (m, m)."""
+        check_height_field(d)
+        return clamp_on_mask(d, self._mask_for(d), self.p1, self.p2)
+
     def prox(self, d: torch.Tensor, step: float) -> torch.Tensor:
         """Projection of d onto C, shape (m, m)."""
         check_height_field(d)

@@ -49,6 +49,11 @@ class PixelL1Bounds(Regularizer):
             return math.inf
         return self.alpha * float(d.abs().sum())
 
+    def project(self, d: torch.Tensor) -> torch.Tensor:
+        """Projection of d onto C: clamp to [p1, p2] on the mask, 0 off it; shape (m, m)."""
+        check_height_field(d)
+        return clamp_on_mask(d, self._mask_for(d), self.p1, self.p2)
+
     def prox(self, d: torch.Tensor, step: float) -> torch.Tensor:
         """Eq. (7): clamp_[p1,p2](S(d, step * alpha)) on the mask, 0 off it; shape (m, m)."""
         check_height_field(d)

@@ -32,7 +32,8 @@ from .step_size import LineSearchFailed, StepSizePolicy, as_step_policy
 if TYPE_CHECKING:
     from framework.problem import Problem
 
-__all__ = ["ProximalGradientSolver", "GradientDescent", "PixelLandweber", "SolverBuilder", "build_parts"]
+__all__ = ["ProximalGradientSolver", "GradientDescent", "PixelLandweber", "SolverBuilder", "build_parts",
+           "check_two_metric_from"]
 
 Candidate = dict[str, Tensor]
 # What a solver plugin's ``from_config`` returns: makes the solver once the problem and the start
@@ -42,21 +43,34 @@ SolverBuilder = Callable[["Problem", Tensor], IterativeSolver]
 
 def build_parts(step_size: Mapping[str, Any], preconditioner: Mapping[str, Any] | None = None,
                 regularizers: Mapping[str, Any] | None = None,
-                post_steps: Mapping[str, Any] | None = None) -> dict[str, Any]:
+                post_steps: Mapping[str, Any] | None = None,
+                two_metric_from: int | None = None) -> dict[str, Any]:
     """The configured parts of a proximal-gradient solver, by registry key: the step size
     ``{name: backtracking, tau: ...}``, the preconditioner ``{name: sobolev, ...}`` (or None), the
-    regularisers and post steps ``{name: {params}}`` in config order."""
+    regularisers and post steps ``{name: {params}}`` in config order; ``two_metric_from`` as
+    :class:`ProximalGradientSolver` takes it (checked here)."""
     step_name, step_params = split_name(step_size, "solver.step_size")
     parts: dict[str, Any] = {
         "step_size": build_plugin("step_size", step_name, step_params, "solver.step_size"),
         "preconditioner": None,
         "regularizers": build_plugin_map("regularizer", regularizers, "solver.regularizers"),
         "post_steps": build_plugin_map("post_step", post_steps, "solver.post_steps"),
+        "two_metric_from": check_two_metric_from(two_metric_from),
     }
     if preconditioner:
         name, params = split_name(preconditioner, "solver.preconditioner")
         parts["preconditioner"] = build_plugin("preconditioner", name, params, "solver.preconditioner")
     return parts
+
+
+def check_two_metric_from(stage: Any) -> int | None:
+    """``solver.two_metric_from`` as a preconditioner stage index >= 0, or None."""
+    if stage is None:
+        return None
+    if isinstance(stage, bool) or not isinstance(stage, int) or stage < 0:
+        raise ValueError(f"solver.two_metric_from={stage!r} must be a preconditioner stage index >= 0 "
+                         "(0: from the first length) or null (never)")
+    return stage
 
 
 def _check_regularizers(regularizers: Sequence[Any], solver: str, role: str = "regularizers") -> list[Any]:
@@ -91,6 +105,8 @@ class ProximalGradientSolver(IterativeSolver):
         post_steps: Heuristic updates ``u(d) -> d`` applied after the prox, in order.
         preconditioner: If given, the step goes along P grad f instead of grad f (a variable
             metric, e.g. :class:`framework.solvers.preconditioner.SobolevPreconditioner`).
+        two_metric_from: Preconditioner stage from which P acts on the free samples only
+            (:meth:`_pinned`); None: P acts on the whole gradient at every stage.
         context: If given, ``setup(context)`` is called on every regulariser and post step that
             has ``setup`` (e.g. a :class:`regularizers.base.RegularizerContext`); if None the
             caller must have set them up.
@@ -105,6 +121,7 @@ class ProximalGradientSolver(IterativeSolver):
         post_steps: Sequence[Any] = (),
         preconditioner: GradientPreconditioner | None = None,
         context: Any = None,
+        two_metric_from: int | None = None,
     ) -> None:
         super().__init__(d0)
         if not callable(getattr(data, "evaluate", None)):
@@ -116,6 +133,7 @@ class ProximalGradientSolver(IterativeSolver):
         if preconditioner is not None and not callable(preconditioner):
             raise ValueError(f"{self.name}: preconditioner {type(preconditioner).__name__} is not callable as P(grad)")
         self.preconditioner = preconditioner
+        self.two_metric_from = check_two_metric_from(two_metric_from)
         self._evaluation: DataEvaluation | None = None
         self._direction: Tensor | None = None
         if context is not None:
@@ -137,21 +155,60 @@ class ProximalGradientSolver(IterativeSolver):
         return x
 
     def _step_direction(self) -> Tensor:
-        """grad f at the current iterate, preconditioned if configured (computed once per iterate)."""
+        """The step direction at the current iterate (computed once per iterate): grad f, or with a
+        preconditioner P the two-metric direction of :meth:`_pinned`: P acts on the free samples
+        only, and the pinned ones take their plain gradient (which the prox then stops at the
+        constraint)."""
         if self._direction is None:
             grad = self._current_evaluation().grad
-            self._direction = grad if self.preconditioner is None else self.preconditioner(grad)
+            if self.preconditioner is None:
+                self._direction = grad
+            elif not self._two_metric():
+                self._direction = self.preconditioner(grad)
+            else:
+                pinned = self._pinned(grad)
+                free_grad = torch.where(pinned, torch.zeros_like(grad), grad)
+                self._direction = torch.where(pinned, grad, self.preconditioner(free_grad))
         return self._direction
+
+    def _two_metric(self) -> bool:
+        """Whether the current preconditioner stage takes the two-metric direction."""
+        return self.two_metric_from is not None and int(getattr(self.preconditioner, "stage", 0)) >= self.two_metric_from
+
+    def _pinned(self, grad: Tensor) -> Tensor:
+        """Samples (m, m, bool) that the regularisers hold where they are: a plain gradient step of
+        the current step size, followed by the proxes, leaves them unchanged (a bound pressed
+        against, zero under an L1 term whose weight outweighs the gradient, the outside of the
+        mask).
+
+        Why: a smoothing metric P followed by a pixel-wise prox is not a descent method. Where a
+        bound is active, P spreads its gradient into the free samples beside it, the prox then
+        cuts the step back, and the iteration stalls at points that are not constrained minima
+        (Bertsekas 1982, "Projected Newton methods for optimization problems with simple
+        constraints"). Restricting P to the free samples, with the pinned ones stepping along
+        their own gradient, makes every fixed point a stationary point of f + g again
+        (docs/method.md, "Two-metric steps"; measured there: print_lines stalled at discrepancy
+        0.083 without it).
+        """
+        d = self.state.d
+        step = self.step_size.current_step
+        return self._prox_pixels(d - step * grad, step) == d
 
     def _propose(self, tau: float) -> Candidate:
         """The proximal point for step tau (no operator call)."""
         return {"d": self._prox_pixels(self.state.d - tau * self._step_direction(), tau)}
 
     def _finalize(self, candidate: Candidate) -> Candidate:
-        """Apply the post-step updates to the accepted candidate."""
+        """Apply the post-step updates to the accepted candidate, then bring the result back into
+        the regularisers' constraint sets (a heuristic such as V1 may push a sample past a bound;
+        an infeasible iterate would make F infinite and the next step-size test meaningless)."""
         d = candidate["d"]
-        for u in self.post_steps:
-            d = u(d)
+        if self.post_steps:
+            for u in self.post_steps:
+                d = u(d)
+            for r in self.regularizers:
+                project = getattr(r, "project", None)  # duck-typed regularisers may have none
+                d = project(d) if callable(project) else d
         return {**candidate, "d": d}
 
     def _accept(self, candidate: Candidate) -> None:
@@ -272,27 +329,57 @@ class ProximalGradientSolver(IterativeSolver):
 
 
 class GradientDescent(ProximalGradientSolver):
-    """M1: d <- d - tau grad f(d). No regulariser, no post step (method.md section 4).
+    """M1: d <- d - t grad f(d), t <= tau. No regulariser, no post step (docs/method.md, "M1").
+
+    The only limit is physical: the glass top may not reach the substrate bottom (d = -h, where
+    the operator has no glass left to trace). A sample that a step would take below ``floor`` =
+    -(1 - min_thickness) h stops at the floor; nothing else is constrained (no mask, no upper
+    bound, no sparsity), so M1 stays the unregularised fit of the data term. Shortening the whole
+    step instead was measured to freeze the run: once one sample sits at the floor with its
+    gradient pointing down, every later step has length zero (docs/method.md, "M1").
 
     Args:
         data: The data term f.
         d0: Initial height field (m, m).
         step_size: Policy or constant tau (the paper: tau_p).
+        floor: Lowest height a sample may take (scene units, < 0); None: no limit.
     """
 
     name = "gradient_descent"
 
     def __init__(self, data: DataFidelity, d0: Tensor, step_size: StepSizePolicy | float,
-                 preconditioner: GradientPreconditioner | None = None, context: Any = None) -> None:
-        super().__init__(data, d0, step_size, preconditioner=preconditioner, context=context)
+                 preconditioner: GradientPreconditioner | None = None, context: Any = None,
+                 floor: float | None = None, two_metric_from: int | None = None) -> None:
+        super().__init__(data, d0, step_size, preconditioner=preconditioner, context=context,
+                         two_metric_from=two_metric_from)
+        if floor is not None and not (math.isfinite(float(floor)) and float(floor) < 0.0):
+            raise ValueError(f"gradient_descent floor={floor!r} must be a negative height (scene units) or None")
+        self.floor = None if floor is None else float(floor)
+
+    def _propose(self, tau: float) -> Candidate:
+        """d - tau P grad f, each sample kept at or above the floor."""
+        d = self.state.d - tau * self._step_direction()
+        return {"d": d if self.floor is None else d.clamp(min=self.floor)}
 
     @classmethod
-    def from_config(cls, step_size: Mapping[str, Any], preconditioner: Mapping[str, Any] | None = None
-                    ) -> SolverBuilder:
-        """The plugin ``solver/gradient_descent`` from its config keys (see :func:`build_parts`)."""
-        parts = build_parts(step_size, preconditioner)
-        return lambda problem, d0: cls(problem.fidelity, d0, parts["step_size"], parts["preconditioner"],
-                                       context=problem.context)
+    def from_config(cls, step_size: Mapping[str, Any], preconditioner: Mapping[str, Any] | None = None,
+                    min_thickness: float | None = 0.1, two_metric_from: int | None = None) -> SolverBuilder:
+        """The plugin ``solver/gradient_descent`` from its config keys (see :func:`build_parts`;
+        without regularisers no sample is pinned, so ``two_metric_from`` changes nothing);
+        ``min_thickness`` in [0, 1): the fraction of the substrate thickness h that every sample
+        keeps (floor = -(1 - min_thickness) h; null: no floor)."""
+        if min_thickness is not None and (isinstance(min_thickness, bool) or not isinstance(min_thickness, (int, float))
+                                          or not 0.0 <= float(min_thickness) < 1.0):
+            raise ValueError(f"solver.min_thickness={min_thickness!r} must lie in [0, 1) (fraction of the substrate "
+                             "thickness every sample keeps, e.g. 0.1) or be null")
+        parts = build_parts(step_size, preconditioner, two_metric_from=two_metric_from)
+
+        def build(problem, d0: Tensor) -> GradientDescent:
+            floor = None if min_thickness is None else -(1.0 - float(min_thickness)) * problem.scene.substrate.thickness
+            return cls(problem.fidelity, d0, parts["step_size"], parts["preconditioner"], context=problem.context,
+                       floor=floor, two_metric_from=parts["two_metric_from"])
+
+        return build
 
 
 class PixelLandweber(ProximalGradientSolver):
@@ -314,9 +401,10 @@ class PixelLandweber(ProximalGradientSolver):
         post_steps: Sequence[Any] = (),
         preconditioner: GradientPreconditioner | None = None,
         context: Any = None,
+        two_metric_from: int | None = None,
     ) -> None:
         self._require_regularizers(regularizers)
-        super().__init__(data, d0, step_size, regularizers, post_steps, preconditioner, context)
+        super().__init__(data, d0, step_size, regularizers, post_steps, preconditioner, context, two_metric_from)
 
     @staticmethod
     def _require_regularizers(regularizers: Sequence[Any]) -> None:
@@ -328,10 +416,10 @@ class PixelLandweber(ProximalGradientSolver):
 
     @classmethod
     def from_config(cls, step_size: Mapping[str, Any], regularizers: Mapping[str, Any] | None = None,
-                    post_steps: Mapping[str, Any] | None = None, preconditioner: Mapping[str, Any] | None = None
-                    ) -> SolverBuilder:
+                    post_steps: Mapping[str, Any] | None = None, preconditioner: Mapping[str, Any] | None = None,
+                    two_metric_from: int | None = None) -> SolverBuilder:
         """The plugin ``solver/landweber_pixel`` from its config keys (see :func:`build_parts`)."""
-        parts = build_parts(step_size, preconditioner, regularizers, post_steps)
+        parts = build_parts(step_size, preconditioner, regularizers, post_steps, two_metric_from)
         cls._require_regularizers(parts["regularizers"])
         _check_regularizers(parts["regularizers"], cls.name)
         return lambda problem, d0: cls(problem.fidelity, d0, context=problem.context, **parts)

@@ -127,7 +127,7 @@ def test_measured_data_from_files(tmp_path):
     (["+solver.regularizers.no_such_prior={}"], KeyError, "no_such_prior"),
     (["solver.step_size.name=adam"], KeyError, "unknown step_size plugin 'adam'"),
     (["solver.step_size.shrink=2"], ValueError, "shrink must lie in"),
-    (["experiment=m1", "+solver.step_size.shrink=0.5"], ValueError, "unknown key solver.step_size.shrink"),
+    (["experiment=m1", "+solver.step_size.growth=0.5"], ValueError, "unknown key solver.step_size.growth"),
     (["+solver.pixel_step_ratio=2"], ValueError, "unknown key solver.pixel_step_ratio"),
     (["experiment=m3v1", "solver.pixel_step_ratio=0"], ValueError, "pixel_step_ratio"),
     (["+stopping.patience={}"], KeyError, "unknown stopping plugin 'patience'"),
