@@ -43,9 +43,11 @@ def peak_rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
-def make_operator(photons: int, footprint_px: float, chunk_size: int, simd: bool = True) -> CausticOperator:
+def make_operator(photons: int, footprint_px: float, chunk_size: int, simd: bool = True,
+                  pixel_integration: bool = True) -> CausticOperator:
     return CausticOperator(Scene(), OperatorSettings(photons=photons, footprint_px=footprint_px,
-                                                     chunk_size=chunk_size, simd=simd))
+                                                     chunk_size=chunk_size, simd=simd,
+                                                     pixel_integration=pixel_integration))
 
 
 def heights_print_lines() -> torch.Tensor:
@@ -280,8 +282,10 @@ def main(argv: list[str] | None = None) -> None:
         return
     op = make_operator(args.photons, args.footprint_px, args.chunk_size)
     plain = make_operator(args.photons, args.footprint_px, args.chunk_size, simd=False)
+    point = make_operator(args.photons, args.footprint_px, args.chunk_size, pixel_integration=False)
     target = make_operator(args.photons, args.footprint_px, args.chunk_size).render(torch.zeros(128, 128))
-    (forward_s, gradient_s), (plain_forward_s, plain_gradient_s) = time_side_by_side((op, plain), heights, target)
+    (forward_s, gradient_s), (plain_forward_s, plain_gradient_s), (point_forward_s, point_gradient_s) = (
+        time_side_by_side((op, plain, point), heights, target))
     report = {
         "scene": "print_lines, m=128, n=512, light (0,0,10)",
         "threads": {"torch": torch.get_num_threads(), "numba": numba.get_num_threads()},
@@ -293,6 +297,10 @@ def main(argv: list[str] | None = None) -> None:
                                "forward_backward_photons_per_s": op.photons / plain_gradient_s,
                                "simd_speedup": {"forward": plain_forward_s / forward_s,
                                                 "forward_backward": plain_gradient_s / gradient_s}},
+        "point_sampled_pixels": {"forward_photons_per_s": op.photons / point_forward_s,
+                                 "forward_backward_photons_per_s": op.photons / point_gradient_s,
+                                 "pixel_integration_cost": {"forward": forward_s / point_forward_s,
+                                                            "forward_backward": gradient_s / point_gradient_s}},
         "forward_split": time_split(op, heights),
     }
     big = make_operator(args.grad_photons, args.footprint_px, args.chunk_size)

@@ -19,6 +19,8 @@ def test_bench_prints_the_promised_figures(capsys):
     plain = report["numba_kernels_only"]
     assert plain["forward_photons_per_s"] > 0 and plain["forward_backward_photons_per_s"] > 0
     assert plain["simd_speedup"]["forward"] > 0 and isinstance(report["simd"], bool)
+    point = report["point_sampled_pixels"]
+    assert point["forward_photons_per_s"] > 0 and point["pixel_integration_cost"]["forward_backward"] > 0
     assert 0.0 < report["forward_split"]["trace_fraction"] < 1.0
     reference = report["torch_reference_path"]
     assert reference["forward_photons_per_s"] > 0 and reference["forward_backward_photons_per_s"] > 0
