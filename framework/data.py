@@ -26,6 +26,7 @@ class ReconstructionData:
 
     target: b^delta (c, n, n); mask: printed area (m, m) bool; volume: deposited volume in scene
     units^3 (None if unknown); delta: relative noise level for the discrepancy principle;
+    weights (c, n, n) in [0, 1]: pixels the fit uses (None: all; a photo's saturated pixels get 0);
     ground_truth (m, m), clean (c, n, n) and intrinsic_noise: synthetic data only.
     """
 
@@ -33,6 +34,7 @@ class ReconstructionData:
     mask: torch.Tensor
     volume: float | None
     delta: float
+    weights: torch.Tensor | None = None
     ground_truth: torch.Tensor | None = None
     clean: torch.Tensor | None = None
     intrinsic_noise: float | None = None

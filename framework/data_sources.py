@@ -5,6 +5,7 @@
   added up to the level delta (framework/data.py).
 - ``file`` (:class:`MeasuredData`): a caustic image from a file, with the printed-area mask and
   the deposited volume when known.
+- ``photo`` (framework/photo_data.py): a camera photo of the screen, rectified onto the receiver.
 
 Each is built from its config alone (every value checked, nothing read or rendered) and then
 ``load(request)`` produces the :class:`framework.data.ReconstructionData`.
@@ -24,8 +25,10 @@ from framework.image_io import load_caustic_image, load_mask
 from framework.masks import mask_from_height_field
 from framework.objective import ForwardOperator
 from framework.problem import HeightGrid
+from framework.units import DEFAULT_MM_PER_UNIT, scene_volume
 
-__all__ = ["DataRequest", "DataSource", "SyntheticData", "MeasuredData", "resolve_path"]
+__all__ = ["DataRequest", "DataSource", "SyntheticData", "MeasuredData", "checked_volume", "printed_area_mask",
+           "resolve_path", "volume_in_scene_units"]
 
 
 def resolve_path(path: str | Path, base_dir: Path) -> Path:
@@ -34,7 +37,7 @@ def resolve_path(path: str | Path, base_dir: Path) -> Path:
     return p if p.is_absolute() else base_dir / p
 
 
-def _non_negative(name: str, value: float) -> float:
+def non_negative_setting(name: str, value: float) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not (math.isfinite(value) and value >= 0):
         raise ValueError(f"data.{name}={value!r} must be a finite number >= 0")
     return float(value)
@@ -57,6 +60,8 @@ class DataRequest:
             truth of synthetic data, the print's design for measured data.
         seed: The run's seed (reference renders and noise derive their seeds from it).
         base_dir: Directory against which relative file names are resolved.
+        output_dir: The run directory, for what a source shows of its work (figures, logs).
+        mm_per_unit: Millimetres per scene unit (framework/units.py), for volumes given in mm3.
     """
 
     operator: ForwardOperator
@@ -64,6 +69,8 @@ class DataRequest:
     design: Callable[[], torch.Tensor]
     seed: int
     base_dir: Path
+    output_dir: Path | None = None
+    mm_per_unit: float = DEFAULT_MM_PER_UNIT
 
 
 class DataSource(Protocol):
@@ -90,8 +97,8 @@ class SyntheticData:
         self.delta = validate_delta(delta)
         self.reference_photons = _count("reference_photons", reference_photons, 1)
         self.reference_resolution = _count("reference_resolution", reference_resolution, 2)
-        self.mask_threshold = _non_negative("mask_threshold", mask_threshold)
-        self.mask_dilation = _non_negative("mask_dilation", mask_dilation)
+        self.mask_threshold = non_negative_setting("mask_threshold", mask_threshold)
+        self.mask_dilation = non_negative_setting("mask_dilation", mask_dilation)
 
     def load(self, request: DataRequest) -> ReconstructionData:
         """Render the ground truth twice (seeds seed + 1000 and seed + 2000) and add the noise."""
@@ -103,6 +110,32 @@ class SyntheticData:
                               request.seed, request.grid.cell_area, self.mask_threshold, self.mask_dilation)
 
 
+def printed_area_mask(spec: str | None, request: DataRequest, threshold: float, dilation: float) -> torch.Tensor:
+    """The printed-area mask (m, m) bool: ``None``/``none`` (everywhere), ``design`` (the configured
+    height field above ``threshold``, dilated by ``dilation`` of the grid width) or a mask file."""
+    m = request.grid.resolution
+    if spec in (None, "none"):
+        return torch.ones(m, m, dtype=torch.bool)
+    if spec == "design":
+        return mask_from_height_field(request.design(), threshold, dilation)
+    return load_mask(resolve_path(spec, request.base_dir), m)
+
+
+def checked_volume(value: float | str | None) -> float | str | None:
+    """The deposited volume as configured (scene units^3, a string such as '1.7 mm3', or None);
+    converted by :func:`framework.units.scene_volume` when the run's units are known."""
+    if value is None or isinstance(value, str):
+        return value
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ValueError(f"data.volume={value!r} must be a number (scene units^3), a string such as '1.7 mm3', or null")
+    return float(value)
+
+
+def volume_in_scene_units(value: float | str | None, request: DataRequest) -> float | None:
+    """``value`` of :func:`checked_volume` in scene units^3 (None stays None)."""
+    return None if value is None else scene_volume(value, request.mm_per_unit, "data.volume")
+
+
 class MeasuredData:
     """A caustic image from a file (``data=file``).
 
@@ -110,7 +143,7 @@ class MeasuredData:
         image: Caustic .npy (as written by sfc-simulate) or 8/16-bit .png/.tif.
         mask: Printed-area mask file, ``design`` (the configured height field, thresholded and
             dilated) or None (everywhere).
-        volume: Deposited volume, scene units^3, or None when unknown.
+        volume: Deposited volume, scene units^3 or a string such as '1.7 mm3', or None when unknown.
         delta: Estimated relative noise level of the image.
         brightness: ``energy``: scale the image to the power the model puts on the receiver with the
             bare substrate; ``as_is``: use the values.
@@ -119,20 +152,18 @@ class MeasuredData:
 
     BRIGHTNESS = ("energy", "as_is")
 
-    def __init__(self, image: str | None = None, mask: str | None = None, volume: float | None = None,
+    def __init__(self, image: str | None = None, mask: str | None = None, volume: float | str | None = None,
                  delta: float = 0.05, brightness: str = "energy", mask_threshold: float = 1e-3,
                  mask_dilation: float = 0.05) -> None:
         if not image:
             raise ValueError("data=file needs data.image=<caustic .npy/.png/.tif>")
         if brightness not in self.BRIGHTNESS:
             raise ValueError(f"data.brightness={brightness!r}; use {' or '.join(self.BRIGHTNESS)}")
-        if volume is not None and (isinstance(volume, bool) or not isinstance(volume, (int, float))):
-            raise ValueError(f"data.volume={volume!r} must be a number (scene units^3) or null")
         self.image, self.mask, self.brightness = str(image), mask, brightness
-        self.volume = None if volume is None else float(volume)
+        self.volume = checked_volume(volume)
         self.delta = validate_delta(delta)
-        self.mask_threshold = _non_negative("mask_threshold", mask_threshold)
-        self.mask_dilation = _non_negative("mask_dilation", mask_dilation)
+        self.mask_threshold = non_negative_setting("mask_threshold", mask_threshold)
+        self.mask_dilation = non_negative_setting("mask_dilation", mask_dilation)
 
     def load(self, request: DataRequest) -> ReconstructionData:
         """Read the image and the mask; scale the image (``brightness: energy``)."""
@@ -143,13 +174,9 @@ class MeasuredData:
             raise ValueError(f"data.image has {image.shape[0]} channel(s) but the scene has {channels} "
                              "wavelength(s); set wavelengths=[...] to match")
         m = request.grid.resolution
-        if self.mask in (None, "none"):
-            mask = torch.ones(m, m, dtype=torch.bool)
-        elif self.mask == "design":
-            mask = mask_from_height_field(request.design(), self.mask_threshold, self.mask_dilation)
-        else:
-            mask = load_mask(resolve_path(self.mask, request.base_dir), m)
+        mask = printed_area_mask(self.mask, request, self.mask_threshold, self.mask_dilation)
         flat_total = None
         if self.brightness == "energy":
             flat_total = float(operator.render(torch.zeros(m, m, dtype=operator.dtype)).sum())
-        return measured_data(image, operator.output_shape[-1], self.delta, mask, self.volume, flat_total)
+        return measured_data(image, operator.output_shape[-1], self.delta, mask,
+                             volume_in_scene_units(self.volume, request), flat_total)

@@ -1,5 +1,7 @@
 """The data term of every reconstruction: f(d) = 1/2 ||F(d) - b||_F^2 / (||b||_F^2 a).
 
+(With per-pixel weights, both norms are weighted: :class:`DataFidelity`.)
+
 method.md section 4 writes the data term as f(d) = 1/2 ||F(d) - b^delta||_F^2. We divide it
 by ||b^delta||_F^2 so that f is dimensionless and does not depend on the brightness or units of
 the caustic image (photon count, exposure, flux normalisation). **This is our step-size unit**:
@@ -92,7 +94,10 @@ class DataEvaluation:
 
 
 class DataFidelity:
-    """f(d) = 1/2 ||F(d) - b||_F^2 / ||b||_F^2, its gradient and the relative discrepancy.
+    """f(d) = 1/2 ||F(d) - b||_W^2 / ||b||_W^2, its gradient and the relative discrepancy.
+
+    ||x||_W^2 = sum w x^2 with per-pixel weights w in [0, 1] (1 everywhere unless given: pixels
+    a photo cannot tell, such as saturated ones, get 0 and drop out of the fit).
 
     Args:
         operator: The forward operator F (see :class:`ForwardOperator`).
@@ -104,6 +109,9 @@ class DataFidelity:
             grad f the gradient in the L2 metric of the substrate (sum_j a u_j v_j) rather than of
             the sample vector: step sizes and L1 weights then mean the same at every height-field
             resolution m (the per-sample gradient of f shrinks like a as m grows).
+        weights: Per-pixel weights w (c, n, n) in [0, 1], or None for 1 everywhere. With weights
+            the operator needs ``render(d)`` and ``vjp(d, g)`` (framework/problem.py,
+            OperatorPlugin), which give the weighted gradient F'(d)^* (w (F(d) - b)).
 
     Example:
         >>> A = torch.eye(4, dtype=torch.float64)
@@ -116,7 +124,7 @@ class DataFidelity:
     """
 
     def __init__(self, operator: ForwardOperator, target: Tensor, max_negative_fraction: float = 0.25,
-                 cell_area: float = 1.0) -> None:
+                 cell_area: float = 1.0, weights: Tensor | None = None) -> None:
         if not (math.isfinite(cell_area) and cell_area > 0.0):
             raise ValueError(f"cell_area={cell_area} must be a positive area (scene units^2)")
         self.cell_area = float(cell_area)
@@ -127,11 +135,44 @@ class DataFidelity:
             )
         self.operator = operator
         self.target = self._validated_target(target, operator, max_negative_fraction)
-        self.target_norm_sq = float(torch.sum(self.target.double() ** 2))
+        self.weights = None if weights is None else self._validated_weights(weights, self.target, operator)
+        self.target_norm_sq = float(torch.sum(self._weighted(self.target.double() ** 2)))
+        if not self.target_norm_sq > 0.0:
+            raise ValueError("the target is zero wherever the weights are non-zero; check the image and its weights")
         self.target_norm = math.sqrt(self.target_norm_sq)
-        # The last value-only evaluation (d, F(d)): a gradient evaluation at the same d (the
-        # accepted trial of a line search) hands F(d) to the operator instead of rendering again.
-        self._last_forward: tuple[Tensor, Tensor] | None = None
+        # The last value-only evaluation (d, operator revision, F(d)): a gradient evaluation at the
+        # same d of the same operator (the accepted trial of a line search) hands F(d) to the
+        # operator instead of rendering again.
+        self._last_forward: tuple[Tensor, int, Tensor] | None = None
+
+    @staticmethod
+    def _validated_weights(weights: Tensor, target: Tensor, operator: object) -> Tensor:
+        if not isinstance(weights, Tensor) or tuple(weights.shape) != tuple(target.shape):
+            shape = tuple(weights.shape) if isinstance(weights, Tensor) else type(weights).__name__
+            raise ValueError(f"weights have shape {shape}; they must match the target {tuple(target.shape)}")
+        if not bool(torch.isfinite(weights).all()) or float(weights.min()) < 0.0 or float(weights.max()) > 1.0:
+            raise ValueError("weights must be finite and lie in [0, 1] (0: a pixel left out of the fit)")
+        if not (callable(getattr(operator, "render", None)) and callable(getattr(operator, "vjp", None))):
+            raise ValueError(f"operator {type(operator).__name__} has no render/vjp, which weighted data need")
+        return weights.detach().to(target)
+
+    def _weighted(self, squares: Tensor) -> Tensor:
+        return squares if self.weights is None else squares * self.weights.to(squares)
+
+    def _revision(self) -> int:
+        return int(getattr(self.operator, "revision", 0))
+
+    def _loss_and_grad(self, d: Tensor, rendered: Tensor | None) -> tuple[Tensor, Tensor]:
+        """(gradient of 1/2 ||F(d) - b||_W^2, F(d))."""
+        if self.weights is None:
+            if rendered is None:
+                _, grad, image = self.operator.loss_and_grad(d, self.target)
+            else:
+                _, grad, image = self.operator.loss_and_grad(d, self.target, image=rendered)
+            return grad, image
+        image = self.operator.render(d) if rendered is None else rendered
+        self._check_image(image)
+        return self.operator.vjp(d, self.weights.to(image) * (image - self.target.to(image))), image
 
     @staticmethod
     def _validated_target(target: Tensor, operator: object, max_negative_fraction: float) -> Tensor:
@@ -185,12 +226,10 @@ class DataFidelity:
         """
         self._check_d(d)
         known = self._last_forward
-        rendered = known[1] if known is not None and torch.equal(known[0], d) else None
+        fresh = known is not None and known[1] == self._revision() and torch.equal(known[0], d)
+        rendered = known[2] if fresh else None
         if with_grad:
-            if rendered is None:
-                raw, grad, image = self.operator.loss_and_grad(d, self.target)
-            else:
-                raw, grad, image = self.operator.loss_and_grad(d, self.target, image=rendered)
+            grad, image = self._loss_and_grad(d, rendered)
             if tuple(grad.shape) != tuple(d.shape):
                 raise ValueError(
                     f"operator {type(self.operator).__name__} returned a gradient of shape "
@@ -201,14 +240,18 @@ class DataFidelity:
             if rendered is None:
                 with torch.no_grad():
                     rendered = self.operator(d).detach()
-                self._last_forward = (d.detach().clone(), rendered)
+                self._last_forward = (d.detach().clone(), self._revision(), rendered)
             image = rendered
             grad = None
         image = image.detach()
         self._check_image(image)
-        residual_norm = float(torch.linalg.vector_norm((image - self.target).double()))
-        rel = residual_norm / self.target_norm
+        rel = self.relative_discrepancy(image)
         return DataEvaluation(value=0.5 * rel * rel / self.cell_area, grad=grad, image=image, rel_discrepancy=rel)
+
+    def relative_discrepancy(self, image: Tensor) -> float:
+        """||image - b||_W / ||b||_W."""
+        return math.sqrt(float(torch.sum(self._weighted((image.double() - self.target.double()) ** 2)))
+                         / self.target_norm_sq)
 
     def value(self, d: Tensor) -> float:
         """f(d) by one forward pass."""

@@ -115,8 +115,9 @@ class Problem:
 
     @cached_property
     def fidelity(self) -> DataFidelity:
-        """f(d) = 1/2 ||F(d) - b||^2 / (||b||^2 a), in the operator's dtype (framework/objective.py)."""
-        return DataFidelity(self.operator, self.data.target.to(self.operator.dtype), cell_area=self.grid.cell_area)
+        """f(d) = 1/2 ||F(d) - b||_W^2 / (||b||_W^2 a), in the operator's dtype (framework/objective.py)."""
+        return DataFidelity(self.operator, self.data.target.to(self.operator.dtype), cell_area=self.grid.cell_area,
+                            weights=self.data.weights)
 
     @cached_property
     def context(self) -> RegularizerContext:

@@ -17,9 +17,11 @@ from typing import Any
 import numpy as np
 import torch
 
+from framework.calibration import JointCalibration
 from framework.callbacks import Checkpointer, GroundTruthError, MetricsHistory, ProgressBar
 from framework.checkpoint import resume as resume_solver
 from framework.data_sources import DataRequest, DataSource, resolve_path
+from framework.export import export_outputs
 from framework.height_field_io import load_height_field
 from framework.plugin_config import as_mapping, build_plugin, split_name
 from framework.problem import HeightGrid, OperatorPlugin, Problem
@@ -27,9 +29,11 @@ from framework.report_figures import save_reconstruction_figures
 from framework.scene_config import build_heights, build_operator, build_scene, height_grid, to_plain
 from framework.solvers import Callback, IterationRecord, SolverBuilder
 from framework.tracking import MlflowTracker
+from framework.units import mm_per_unit
 from operators.scene import Scene
 
 CHECKPOINT = "checkpoint.pt"
+CALIBRATION_STATE = "calibration.json"
 
 
 def initial_heights(cfg: Mapping[str, Any], m: int, dtype: torch.dtype, base_dir: Path) -> torch.Tensor:
@@ -79,6 +83,7 @@ class Reconstruction:
         stopping: The ``stopping`` plugins, in config order.
         d0: The start (m, m).
         max_iter: The solver's iteration cap.
+        calibration: Joint calibration of the setup (framework/calibration.py), or None.
     """
 
     cfg: dict[str, Any]
@@ -90,6 +95,7 @@ class Reconstruction:
     stopping: list[Callback]
     d0: torch.Tensor
     max_iter: int
+    calibration: JointCalibration | None = None
 
     @classmethod
     def from_config(cls, cfg: Mapping[str, Any], base_dir: Path) -> Reconstruction:
@@ -97,7 +103,9 @@ class Reconstruction:
         the start; a bad value fails here, before anything is rendered."""
         cfg = dict(to_plain(cfg))
         scene = build_scene(cfg)
-        operator = build_operator(cfg, scene)
+        calibration_cfg = as_mapping(cfg.get("calibration") or {}, "calibration")
+        operator = build_operator(cfg, scene, imaging=bool(calibration_cfg.get("params")))
+        calibration = JointCalibration.from_config(operator, calibration_cfg)
         grid = height_grid(cfg, scene)
         data_name, data_params = split_name(cfg.get("data"), "data")
         data_source = build_plugin("data", data_name, data_params, "data")
@@ -108,12 +116,13 @@ class Reconstruction:
                     for name, params in as_mapping(cfg.get("stopping"), "stopping").items()]
         _positive_int(cfg.get("checkpoint_every"), "checkpoint_every")
         d0 = initial_heights(cfg, grid.resolution, operator.dtype, base_dir)
-        return cls(cfg, operator, scene, grid, data_source, make_solver, stopping, d0, max_iter)
+        return cls(cfg, operator, scene, grid, data_source, make_solver, stopping, d0, max_iter, calibration)
 
-    def data_request(self, base_dir: Path) -> DataRequest:
-        """What the data source may use: the operator, the grid, the configured heights, the seed."""
+    def data_request(self, base_dir: Path, output_dir: Path | None = None) -> DataRequest:
+        """What the data source may use: the operator, the grid, the configured heights, the seed,
+        the run directory and the units."""
         return DataRequest(self.operator, self.grid, lambda: build_heights(self.cfg, base_dir=base_dir),
-                           int(self.cfg.get("seed", 0)), base_dir)
+                           int(self.cfg.get("seed", 0)), base_dir, output_dir, mm_per_unit(self.cfg))
 
 
 def run_reconstruction(cfg: Mapping[str, Any], output_dir: Path, base_dir: Path,
@@ -140,7 +149,7 @@ def _reconstruct(parts: Reconstruction, output_dir: Path, base_dir: Path, sweep_
                        store_dir=resolve_path(tracking["store_dir"], base_dir), tracking_uri=tracking.get("uri"),
                        params=cfg, tags=tags, sweep_id=sweep_id) as tracker:
         start = time.perf_counter()
-        data = parts.data_source.load(parts.data_request(base_dir))
+        data = parts.data_source.load(parts.data_request(base_dir, output_dir))
         data_seconds = time.perf_counter() - start
         problem = Problem(operator, data, parts.grid, parts.scene)
         solver = parts.make_solver(problem, parts.d0)
@@ -151,6 +160,11 @@ def _reconstruct(parts: Reconstruction, output_dir: Path, base_dir: Path, sweep_
         callbacks: list[Callback] = [history, *parts.stopping, ProgressBar(desc=str(method)),
                                      Checkpointer(output_dir / CHECKPOINT, every=int(cfg["checkpoint_every"])),
                                      tracker.metrics_callback()]
+        calibration = parts.calibration
+        if calibration is not None:
+            resume_from = resolve_path(str(cfg["resume"]), base_dir).parent / CALIBRATION_STATE if cfg.get("resume") else None
+            calibration.setup(data.target, data.weights, output_dir / CALIBRATION_STATE, resume_from)
+            callbacks.append(calibration)
         truth_error = None
         if data.ground_truth is not None:
             truth_error = GroundTruthError(data.ground_truth.to(operator.dtype), parts.grid.base)
@@ -171,21 +185,25 @@ def _reconstruct(parts: Reconstruction, output_dir: Path, base_dir: Path, sweep_
             if best is not None:
                 d, returned_iteration = best
         prediction = operator.render(d)
-        residual = float(torch.linalg.vector_norm((prediction - data.target.to(prediction)).double()))
         metrics: dict[str, Any] = {
             "method": method, "iterations": result.iterations,
             "returned_iteration": returned_iteration,
             "refined_at": stage_changes(result.history),
             "stop_reason": result.stop_reason, "stopped_by": result.stopped_by,
             "run_time_s": solve_seconds, "data_time_s": data_seconds,
-            "rel_discrepancy": residual / float(torch.linalg.vector_norm(data.target.double())),
+            "rel_discrepancy": problem.fidelity.relative_discrepancy(prediction),
             "delta": data.delta, "intrinsic_noise": data.intrinsic_noise,
-            "photons_per_iteration": operator.photons, **(truth_error.errors(d) if truth_error else {})}
+            "photons_per_iteration": operator.photons, **(truth_error.errors(d) if truth_error else {}),
+            **(calibration.report() if calibration else {})}
         np.save(output_dir / "height_field.npy", d.cpu().numpy().astype(np.float64))
         np.save(output_dir / "caustic_target.npy", data.target.cpu().numpy().astype(np.float32))
         np.save(output_dir / "caustic_predicted.npy", prediction.detach().cpu().numpy().astype(np.float32))
         if data.ground_truth is not None:
             np.save(output_dir / "ground_truth.npy", data.ground_truth.cpu().numpy().astype(np.float64))
+        design = None if data.ground_truth is None else data.ground_truth.cpu().numpy()
+        exported = export_outputs(output_dir / "export", d.cpu().numpy(), parts.grid.half_width, parts.grid.base,
+                                  mm_per_unit(cfg), design=design)  # mm outputs (docs/export.md)
+        metrics.update({f"deviation_{key}": value for key, value in exported["deviation"].items()})
         (output_dir / "metrics.json").write_text(json.dumps(metrics, indent=2))
         save_reconstruction_figures(output_dir, d, problem, prediction, history.columns())
         tracker.log_metrics({k: v for k, v in metrics.items() if isinstance(v, (int, float)) and v is not None

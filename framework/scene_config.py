@@ -11,8 +11,10 @@ Config layout (top-level keys; see conf/scene/*.yaml and conf/operator/*.yaml)::
     photons: N
     seed: int
     operator:     {name: <operator plugin>, ...its own settings}
+    screen:       {psf: none | gaussian, sigma: s}  # the screen's blur (operators/imaging.py)
+    units:        {mm_per_unit: 25.0}               # framework/units.py
 
-Lengths are in scene units. Groups may omit keys (dataclass defaults apply); unknown keys in
+Lengths are in scene units, or strings with a unit such as "2.5 mm" (framework/units.py). Groups may omit keys (dataclass defaults apply); unknown keys in
 a group are refused with an error naming the key. The operator plugin checks its own settings.
 """
 
@@ -31,16 +33,19 @@ from framework.objective import ForwardOperator
 from framework.plugin_config import build_plugin, split_name
 from framework.problem import HeightGrid
 from framework.shapes import make_shape
+from framework.units import mm_per_unit, scene_length
+from operators.imaging import PSF_KINDS, ImagingOperator
 from operators.materials import make_material
 from operators.scene import PointLight, Receiver, Scene, Substrate
 
-__all__ = ["build_scene", "build_heights", "build_operator", "height_grid", "to_plain"]
+__all__ = ["build_scene", "build_heights", "build_operator", "height_grid", "screen_sigma", "to_plain"]
 
 SCENE_KEYS: dict[str, tuple[str, ...]] = {
     "light": ("position", "power"),
     "substrate": ("thickness", "half_width"),
     "receiver": ("z", "resolution", "half_width"),
 }
+SCREEN_KEYS = ("psf", "sigma")
 MATERIAL_KEYS: dict[str, tuple[str, ...]] = {
     "fused_silica": (),
     "sellmeier": ("b", "c"),
@@ -97,18 +102,22 @@ def _build_material(cfg: Mapping[str, Any]) -> Any:
 
 
 def build_scene(cfg: Mapping[str, Any]) -> Scene:
-    """Scene (light, substrate, receiver, material, wavelengths in um) from the config's top-level keys."""
+    """Scene (light, substrate, receiver, material, wavelengths in um) from the config's top-level
+    keys; lengths in scene units or with a unit (framework/units.py)."""
+    mm = mm_per_unit(cfg)
     light = _group(cfg, "light", SCENE_KEYS["light"])
     if "position" in light:
         position = light["position"]
         if not isinstance(position, (list, tuple)) or len(position) != 3:
             raise ValueError(f"light.position={position!r} must be [x, y, z], e.g. light.position=[0,0,10]")
-        light["position"] = tuple(_number(f"light.position[{i}]", v) for i, v in enumerate(position))
+        light["position"] = tuple(scene_length(v, mm, f"light.position[{i}]") for i, v in enumerate(position))
     if "power" in light:
         light["power"] = _number("light.power", light["power"])
-    substrate = {k: _number(f"substrate.{k}", v) for k, v in _group(cfg, "substrate", SCENE_KEYS["substrate"]).items()}
+    substrate = {k: scene_length(v, mm, f"substrate.{k}")
+                 for k, v in _group(cfg, "substrate", SCENE_KEYS["substrate"]).items()}
     receiver = _group(cfg, "receiver", SCENE_KEYS["receiver"])
-    receiver = {k: _number(f"receiver.{k}", v, int if k == "resolution" else float) for k, v in receiver.items()}
+    receiver = {k: _number(f"receiver.{k}", v, int) if k == "resolution" else scene_length(v, mm, f"receiver.{k}")
+                for k, v in receiver.items()}
     wavelengths = to_plain(cfg.get("wavelengths", [0.633]))
     if isinstance(wavelengths, (int, float)) and not isinstance(wavelengths, bool):
         wavelengths = [wavelengths]
@@ -124,11 +133,11 @@ def build_heights(cfg: Mapping[str, Any], base_dir: str | Path | None = None) ->
 
     ``path`` (a .npy or 8/16-bit .png/.tif, resolved against ``base_dir`` when relative) overrides
     ``shape``; ``resolution`` m defaults to 128; ``scale`` multiplies the heights (for images:
-    the height of full white); ``params`` go to the shape function.
+    the height of full white, in scene units or e.g. "0.4 mm"); ``params`` go to the shape function.
     """
     spec = _group(cfg, "height_field", HEIGHT_FIELD_KEYS)
     resolution = _number("height_field.resolution", spec.get("resolution", DEFAULT_RESOLUTION), int)
-    scale = _number("height_field.scale", spec.get("scale", 1.0))
+    scale = scene_length(spec.get("scale", 1.0), mm_per_unit(cfg), "height_field.scale")
     path = spec.get("path")
     if path:
         path = Path(path)
@@ -155,10 +164,31 @@ def height_grid(cfg: Mapping[str, Any], scene: Scene) -> HeightGrid:
     return HeightGrid(resolution, scene.substrate.half_width, scene.substrate.thickness)
 
 
-def build_operator(cfg: Mapping[str, Any], scene: Scene) -> ForwardOperator:
+def screen_sigma(cfg: Mapping[str, Any]) -> float:
+    """The screen's Gaussian spot (standard deviation, scene units) from ``screen``; 0 for none."""
+    screen = _group(cfg, "screen", SCREEN_KEYS)
+    psf = screen.get("psf", "none")
+    if psf not in PSF_KINDS:
+        raise ValueError(f"screen.psf={psf!r}; use {' or '.join(PSF_KINDS)}")
+    sigma = scene_length(screen.get("sigma", 0.0), mm_per_unit(cfg), "screen.sigma")
+    if psf == "gaussian" and not sigma > 0.0:
+        raise ValueError(f"screen.psf=gaussian needs screen.sigma > 0 (scene units or e.g. '0.1 mm'), got {sigma}")
+    return sigma if psf == "gaussian" else 0.0
+
+
+def build_operator(cfg: Mapping[str, Any], scene: Scene, imaging: bool = False) -> ForwardOperator:
     """The operator plugin named by ``operator.name``, for ``scene``, ``photons`` and ``seed``,
-    from the rest of the ``operator`` group (which the plugin checks)."""
+    from the rest of the ``operator`` group (which the plugin checks); seen through the screen
+    (operators/imaging.py) when ``screen.psf`` is set, or always with ``imaging`` (a setup that
+    joint calibration may change)."""
     name, params = split_name(to_plain(cfg.get("operator")), "operator")
     photons = _number("photons", cfg.get("photons"), int)
     seed = _number("seed", cfg.get("seed", 0), int)
-    return build_plugin("operator", name, params, "operator", scene=scene, photons=photons, seed=seed)
+    sigma = screen_sigma(cfg)
+
+    def build(for_scene: Scene) -> ForwardOperator:
+        return build_plugin("operator", name, dict(params), "operator", scene=for_scene, photons=photons, seed=seed)
+
+    if sigma > 0.0 or imaging:
+        return ImagingOperator(build, scene, psf_sigma=sigma)
+    return build(scene)

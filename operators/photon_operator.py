@@ -1,11 +1,11 @@
 """What the photon operators share: the operator protocol around ``render`` and ``vjp``.
 
-:class:`PhotonOperator` gives a subclass with ``scene``, ``settings`` (photons, seed, chunk_size
-and the footprints in pixels), ``emitter``, ``render(heights)`` and ``vjp(heights, grad_image)``
-the rest: photon count, image shape, chunks, the squared loss and its gradient, autograd through
-``operator(heights)`` (:class:`RenderFunction`), resampled variants. :func:`backward_through_splat`
-sends an image gradient back through the splat's adjoint (a gather per photon, no image needed)
-into whatever a chunk of photons depends on.
+:class:`ImageOperator` turns ``render(heights)`` and ``vjp(heights, grad_image)`` into the squared
+loss and its gradient and autograd through ``operator(heights)`` (:class:`RenderFunction`).
+:class:`PhotonOperator` adds, for a subclass with ``scene``, ``settings`` (photons, seed,
+chunk_size and the footprints in pixels) and ``emitter``: photon count, image shape, chunks and
+resampled variants. :func:`backward_through_splat` sends an image gradient back through the
+splat's adjoint (a gather per photon, no image needed) into whatever a chunk of photons depends on.
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ import torch
 from operators.scene import Scene
 from operators.splat import footprint_metric, splat_photons_vjp
 
-__all__ = ["PIXEL_SETTINGS", "PIXEL_BOX_R2", "PhotonOperator", "RenderFunction", "backward_through_splat",
+__all__ = ["PIXEL_SETTINGS", "PIXEL_BOX_R2", "ImageOperator", "PhotonOperator", "RenderFunction", "backward_through_splat",
            "check_setting_keys", "filter_radius_px"]
 
 # Settings given in receiver pixels: a render at another receiver resolution scales them.
@@ -47,12 +47,9 @@ def check_setting_keys(settings: dict[str, Any], settings_class: type, plugin: s
                              f"{', '.join([*extra, *sorted(fields)])}")
 
 
-class PhotonOperator:
-    """Base of the photon operators (see the module docstring)."""
-
-    scene: Scene
-    settings: Any
-    emitter: Any
+class ImageOperator:
+    """An operator given by ``render(heights)`` and ``vjp(heights, grad_image)``: the squared loss
+    and its gradient in two passes, and autograd through ``operator(heights)``."""
 
     def render(self, heights: torch.Tensor, progress: bool = False) -> torch.Tensor:
         """The image F(d) (c, n, n) of heights d (m, m), without a graph."""
@@ -61,6 +58,35 @@ class PhotonOperator:
     def vjp(self, heights: torch.Tensor, grad_image: torch.Tensor) -> torch.Tensor:
         """F'(d)^* grad_image (m, m)."""
         raise NotImplementedError
+
+    @property
+    def output_shape(self) -> tuple[int, int, int]:
+        """(c, n, n) of the images it renders."""
+        raise NotImplementedError
+
+    def loss_and_grad(self, heights: torch.Tensor, target: torch.Tensor, image: torch.Tensor | None = None
+                      ) -> tuple[float, torch.Tensor, torch.Tensor]:
+        """(1/2 ||F(d) - target||^2, its gradient (m, m), F(d)) in two passes of bounded memory;
+        ``image`` = F(d) from an earlier :meth:`render` of these heights skips the first pass."""
+        if image is None:
+            image = self.render(heights)
+        elif image.shape != self.output_shape:
+            raise ValueError(f"image has shape {tuple(image.shape)}, the operator renders {self.output_shape}")
+        if target.shape != image.shape:
+            raise ValueError(f"target has shape {tuple(target.shape)}, the operator renders {tuple(image.shape)}")
+        residual = image - target.to(image)
+        return 0.5 * float((residual.double() ** 2).sum()), self.vjp(heights, residual), image
+
+    def __call__(self, heights: torch.Tensor) -> torch.Tensor:
+        return RenderFunction.apply(heights, self)
+
+
+class PhotonOperator(ImageOperator):
+    """Base of the photon operators (see the module docstring)."""
+
+    scene: Scene
+    settings: Any
+    emitter: Any
 
     @property
     def photons(self) -> int:
@@ -104,22 +130,6 @@ class PhotonOperator:
         receiver = dataclasses.replace(self.scene.receiver, resolution=resolution)
         return (dataclasses.replace(self.scene, receiver=receiver),
                 dataclasses.replace(self.settings, photons=photons, seed=seed, **scaled))
-
-    def loss_and_grad(self, heights: torch.Tensor, target: torch.Tensor, image: torch.Tensor | None = None
-                      ) -> tuple[float, torch.Tensor, torch.Tensor]:
-        """(1/2 ||F(d) - target||^2, its gradient (m, m), F(d)) in two passes of bounded memory;
-        ``image`` = F(d) from an earlier :meth:`render` of these heights skips the first pass."""
-        if image is None:
-            image = self.render(heights)
-        elif image.shape != self.output_shape:
-            raise ValueError(f"image has shape {tuple(image.shape)}, the operator renders {self.output_shape}")
-        if target.shape != image.shape:
-            raise ValueError(f"target has shape {tuple(target.shape)}, the operator renders {tuple(image.shape)}")
-        residual = image - target.to(image)
-        return 0.5 * float((residual.double() ** 2).sum()), self.vjp(heights, residual), image
-
-    def __call__(self, heights: torch.Tensor) -> torch.Tensor:
-        return RenderFunction.apply(heights, self)
 
 
 class RenderFunction(torch.autograd.Function):

@@ -169,6 +169,10 @@ class IterativeSolver(ABC):
         """Why no further iteration is needed (a direct method after its step), or None."""
         return None
 
+    def setup_changed(self) -> None:
+        """The forward operator's setup changed (joint calibration, framework/calibration.py):
+        forget whatever was computed with the old one. Solvers that cache evaluations override it."""
+
     def volume_band(self) -> tuple[float, float] | None:
         """The band [q1, q2] of the height sum sum_j d_j that the solver enforces (a known
         deposited volume), or None; Morozov's rule accepts only iterates inside it."""

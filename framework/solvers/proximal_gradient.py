@@ -237,6 +237,11 @@ class ProximalGradientSolver(IterativeSolver):
         self.step_size.reset()
         return True
 
+    def setup_changed(self) -> None:
+        """Drop the cached evaluation and direction: they belong to the old setup."""
+        self._evaluation = None
+        self._direction = None
+
     # -- the iteration -------------------------------------------------------------------------
     def _current_evaluation(self) -> DataEvaluation:
         if self._evaluation is None:

@@ -86,3 +86,58 @@ def test_bad_operator_and_height_field_are_refused():
     data = DataFidelity(op, b)
     with pytest.raises(ValueError, match="square"):
         data.evaluate(torch.zeros(8, 7, dtype=DTYPE))
+
+
+class _RenderVjp(LinearOperator):
+    """The toy operator with render / vjp, as operator plugins have (weighted data need them)."""
+
+    revision = 0
+
+    def render(self, d):
+        return self(d)
+
+    def vjp(self, d, g):
+        return (self.A.T @ g.reshape(-1)).reshape(d.shape)
+
+
+def test_weighted_value_gradient_and_discrepancy():
+    _, op, A, b, _, _ = make_problem()
+    op = _RenderVjp(op.A, op.m, op.output_shape)
+    w = (torch.rand(b.shape, generator=torch.Generator().manual_seed(7), dtype=DTYPE) > 0.3).to(DTYPE)
+    data = DataFidelity(op, b, weights=w)
+    d = torch.rand(8, 8, dtype=DTYPE, generator=torch.Generator().manual_seed(8))
+    r = A @ d.reshape(-1) - b.reshape(-1)
+    wr, wb = w.reshape(-1) * r, w.reshape(-1) * b.reshape(-1)
+    nb2 = float(wb @ b.reshape(-1))
+    ev = data.evaluate(d)
+    assert ev.value == pytest.approx(0.5 * float(wr @ r) / nb2, rel=1e-12)
+    assert ev.rel_discrepancy == pytest.approx(math.sqrt(float(wr @ r) / nb2), rel=1e-12)
+    torch.testing.assert_close(ev.grad, (A.T @ wr).reshape(8, 8) / nb2)
+    # a pixel of weight 0 may hold anything: the fit does not see it
+    b_changed = b.clone().reshape(-1)
+    b_changed[torch.nonzero(w.reshape(-1) == 0)[0]] += 1e3
+    other = DataFidelity(op, b_changed.reshape(b.shape), weights=w).evaluate(d)
+    assert other.value == pytest.approx(ev.value, rel=1e-12)
+
+
+def test_a_new_operator_revision_renders_again():
+    _, op, A, b, _, _ = make_problem()
+    op = _RenderVjp(op.A, op.m, op.output_shape)
+    data = DataFidelity(op, b)
+    d = torch.rand(8, 8, dtype=DTYPE, generator=torch.Generator().manual_seed(9))
+    data.evaluate(d, with_grad=False)
+    calls = op.calls
+    op.revision = 1  # the setup changed (joint calibration): the cached image is stale
+    data.evaluate(d)
+    assert op.calls == calls + 1
+
+
+@pytest.mark.parametrize("weights, match", [
+    (torch.ones(1, 3, 3, dtype=DTYPE), "must match the target"),
+    (torch.full((1, 10, 10), 2.0, dtype=DTYPE), r"lie in \[0, 1\]"),
+    (torch.zeros(1, 10, 10, dtype=DTYPE), "zero wherever the weights"),
+])
+def test_bad_weights_are_refused(weights, match):
+    _, op, _, b, _, _ = make_problem()
+    with pytest.raises(ValueError, match=match):
+        DataFidelity(_RenderVjp(op.A, op.m, op.output_shape), b, weights=weights)

@@ -1,0 +1,117 @@
+"""sfc-export: the heights, the glass mesh and the deviation from the design of a reconstruction run,
+in millimetres (framework/export.py, docs/export.md).
+
+Examples::
+
+    sfc-export outputs/2026-01-05/14-03-12                     # glass.stl; design from the run
+    sfc-export RUN --format stl obj ply --out prints/sample_a
+    sfc-export RUN --design design.png --mm-per-unit 20        # a design file in scene units
+    sfc-export RUN --design none
+
+Reads RUN/height_field.npy and RUN/.hydra/config.yaml (substrate.thickness, substrate.half_width,
+height_field, units.mm_per_unit) and writes into RUN/export unless --out is given. A missing run
+directory or file ends in one line on stderr and exit status 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from omegaconf import OmegaConf
+
+from experiments.input_errors import one_line_input_errors
+from framework.export import MESH_FORMATS, export_outputs
+from framework.height_field_io import load_height_field
+from framework.scene_config import build_heights, build_scene, to_plain
+from framework.units import mm_per_unit
+
+INPUT_ERROR_STATUS = 2
+
+
+def parser() -> argparse.ArgumentParser:
+    """The command line of sfc-export."""
+    p = argparse.ArgumentParser(prog="sfc-export", description=__doc__.split("\n\n")[0],
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("run_dir", type=Path, metavar="RUN_DIR", help="directory of an sfc-reconstruct run")
+    p.add_argument("--design", default="config", metavar="PATH|config|none",
+                   help="config (default): the run's ground_truth.npy, else the configured height field "
+                        "when it is a shape or a path; none; or a .npy/.png height field in scene units")
+    p.add_argument("--format", nargs="+", default=["stl"], choices=MESH_FORMATS, dest="formats",
+                   help="mesh formats of the glass (default: stl)")
+    p.add_argument("--out", type=Path, help="output directory (default: RUN_DIR/export)")
+    p.add_argument("--mm-per-unit", type=float, help="mm per scene unit (default: the run's units.mm_per_unit)")
+    return p
+
+
+def _file(path: Path, what: str) -> Path:
+    if not path.is_file():
+        raise FileNotFoundError(f"{what} {str(path)!r} does not exist; pass the directory of an sfc-reconstruct run")
+    return path
+
+
+def _launch_dir(run_dir: Path) -> Path:
+    """Where the run was started (Hydra's runtime.cwd), which the config's relative paths are
+    relative to; the current directory when the run does not say."""
+    hydra_file = run_dir / ".hydra" / "hydra.yaml"
+    cwd = OmegaConf.select(OmegaConf.load(hydra_file), "hydra.runtime.cwd") if hydra_file.is_file() else None
+    return Path(cwd) if cwd else Path.cwd()
+
+
+def load_design(spec: str, run_dir: Path, cfg: Mapping[str, Any], m: int) -> tuple[np.ndarray | None, str]:
+    """The design (m, m), scene units, and where it came from, for ``--design`` ``spec``."""
+    if spec == "none":
+        return None, "none"
+    if spec != "config":
+        if not Path(spec).is_file():
+            raise FileNotFoundError(f"--design {spec!r} is not a file; pass a .npy/.png height field in scene "
+                                    "units, config or none")
+        return load_height_field(spec, resolution=m), spec
+    truth = run_dir / "ground_truth.npy"
+    if truth.is_file():
+        return np.load(truth), str(truth)
+    field = cfg.get("height_field") or {}
+    if field.get("shape") or field.get("path"):
+        return build_heights(cfg, base_dir=_launch_dir(run_dir)).numpy(), "the run's height_field"
+    return None, "none (the run has no ground truth and its config no height_field shape or path)"
+
+
+def export_run(args: argparse.Namespace) -> None:
+    """Write the mm outputs of ``args.run_dir`` and print the files and the deviation metrics."""
+    run_dir: Path = args.run_dir
+    if not run_dir.is_dir():
+        raise FileNotFoundError(f"run directory {str(run_dir)!r} does not exist; pass the directory of an "
+                                "sfc-reconstruct run (it holds height_field.npy and .hydra/config.yaml)")
+    d = np.load(_file(run_dir / "height_field.npy", "heights"))
+    cfg = to_plain(OmegaConf.load(_file(run_dir / ".hydra" / "config.yaml", "run config")))
+    substrate = build_scene(cfg).substrate
+    scale = mm_per_unit(cfg) if args.mm_per_unit is None else args.mm_per_unit
+    design, source = load_design(args.design, run_dir, cfg, d.shape[0])
+    result = export_outputs(args.out or run_dir / "export", d, substrate.half_width, substrate.thickness, scale,
+                            design=design, formats=args.formats)
+    print(f"{scale:g} mm per scene unit; design: {source}")
+    for path in result["files"]:
+        print(f"wrote {path}")
+    for key, value in result["deviation"].items():
+        print(f"deviation {key} = {'n/a' if value is None else f'{value:.6g}'}")
+
+
+def main(argv: Sequence[str] | None = None) -> None:
+    """Console entry point: an input error ends in its one line (experiments/input_errors.py) and
+    exit status 2."""
+    args = parser().parse_args(argv)
+    try:
+        one_line_input_errors(export_run)(args)
+    except SystemExit as stop:
+        if not isinstance(stop.code, str):
+            raise
+        print(stop.code, file=sys.stderr)
+        raise SystemExit(INPUT_ERROR_STATUS) from None
+
+
+if __name__ == "__main__":
+    main()

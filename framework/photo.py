@@ -1,0 +1,591 @@
+"""From a camera photo of the caustic on the screen to a receiver-aligned irradiance image.
+
+The chain (docs/photo_import.md): read the photo (values as a fraction of full scale, row 0 =
+top) -> mark saturated pixels on the raw values -> subtract the black level -> invert the camera
+response -> pick the channel -> subtract a dark frame -> divide by a flat field -> homography
+from the receiver's four corners in the photo -> average supersample^2 bilinear samples per
+receiver pixel. The result follows framework/image_io.py: (c, n, n) with [row, col] = [y, x],
+row 0 at y = -W, pixel centres at -W + (p + 0.5) 2W / n.
+
+Photo pixel coordinates are (col, row) = (x, y) with row 0 at the top and pixel centres at
+integer coordinates, so a photo of shape (H, W) covers [-0.5, W - 0.5] x [-0.5, H - 0.5].
+"""
+
+from __future__ import annotations
+
+import numbers
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+from matplotlib.figure import Figure
+from PIL import Image, UnidentifiedImageError
+
+from framework.image_io import _existing
+from framework.plotting import normalise
+
+__all__ = ["PhotoImport", "read_photo", "linearize", "check_corners", "homography", "rectify",
+           "saturated_receiver_pixels", "import_photo", "save_photo_figure", "vignetting_field",
+           "synthesize_photo"]
+
+Response = Literal["linear", "srgb", "gamma"]
+Channel = Literal["grey", "red", "green", "blue"]
+
+FULL_SCALE = {8: 255, 16: 65535}
+CORNER_NAMES = ("bottom-left (-W, -W)", "bottom-right (W, -W)", "top-right (W, W)", "top-left (-W, W)")
+CORNER_ORDER = "receiver bottom-left, bottom-right, top-right, top-left"
+FLAT_FLOOR = 1e-3  # flat pixels below this fraction of the flat's mean are unusable
+MIN_AREA_PX = 16.0  # a quadrilateral smaller than 4 x 4 photo pixels is degenerate
+_SAVE_AS = "save it as an 8- or 16-bit greyscale or RGB PNG/TIFF, or as a .npy float array of linear values"
+
+
+# --- reading -------------------------------------------------------------------------------------
+
+def _rawmode(img: Image.Image) -> str:
+    """The decoder's raw mode of the first tile ('RGB;16B' for a 16-bit RGB PNG), '' if unknown."""
+    try:
+        args = img.tile[0][3]
+    except (IndexError, TypeError, AttributeError):
+        return ""
+    return args if isinstance(args, str) else str(args[0]) if args else ""
+
+
+def _pillow_bit_depth(img: Image.Image, name: str, what: str = "photo") -> int:
+    """8 or 16 for a greyscale or RGB image Pillow decodes losslessly; ValueError otherwise."""
+    mode, raw = img.mode, _rawmode(img)
+    bits = getattr(img, "tag_v2", {}).get(258) if hasattr(img, "tag_v2") else None
+    bits = tuple(bits) if isinstance(bits, (tuple, list)) else (bits,) if bits else ()
+    if mode in ("L", "RGB") and (16 in bits or ";16" in raw):  # Pillow decodes these to 8 bits
+        raise ValueError(f"{what} {name} is a 16-bit {'RGB' if mode == 'RGB' else 'greyscale'} image (mode "
+                         f"{mode!r}, raw {raw!r}), which Pillow would truncate to 8 bits; save the channel you use "
+                         "(e.g. green) as a 16-bit greyscale PNG/TIFF, or the image as a .npy float array of "
+                         "linear values")
+    if mode == "L" and raw in ("L;1", "L;2", "L;4", "L;2I", "L;4I", "L;1I"):
+        raise ValueError(f"{what} {name} is a {raw[2]}-bit greyscale image (mode 'L', raw {raw!r}); {_SAVE_AS}")
+    if mode in ("L", "RGB"):
+        return 8
+    if mode in ("I;16", "I;16B", "I;16L", "I;16N"):
+        return 16
+    if mode == "I" and (bits == (16,) or ";16" in raw or img.format == "PNG"):
+        return 16  # some Pillow versions open 16-bit grey PNGs as mode 'I'
+    kind = {"1": "a 1-bit (black and white) image", "P": "a palette image", "F": "a 32-bit float image",
+            "I": "a 32-bit integer image", "RGBA": "an RGB image with an alpha channel",
+            "LA": "a greyscale image with an alpha channel"}.get(mode, "an image")
+    fix = "drop the alpha channel" if mode in ("RGBA", "LA") else _SAVE_AS
+    raise ValueError(f"{what} {name} is {kind} (mode {mode!r}); {fix}")
+
+
+def read_photo(path: str | Path, bit_depth: int | None = None) -> tuple[np.ndarray, int]:
+    """The photo as float64 (H, W) or (H, W, 3) in [0, 1] (value / full scale), row 0 = top,
+    and its bit depth (8, 16; 0 = a .npy float array of linear values).
+
+    ``bit_depth`` (8, 16 or None = either) is what the photo must have; a mismatch is refused.
+    """
+    if bit_depth is not None and (isinstance(bit_depth, bool) or bit_depth not in FULL_SCALE):
+        raise ValueError(f"data.bit_depth={bit_depth!r} must be 8, 16 or null (accept either)")
+    array, depth = _read_frame(path, "photo")
+    if bit_depth is not None and depth != bit_depth:
+        what = "a linear float array" if depth == 0 else f"{depth}-bit"
+        raise ValueError(f"photo {Path(path).name} is {what} but data.bit_depth={bit_depth}; set data.bit_depth="
+                         f"{depth or 'null'} or give the photo the camera actually wrote")
+    return array, depth
+
+
+def _read_frame(path: str | Path, what: str) -> tuple[np.ndarray, int]:
+    """:func:`read_photo` without the bit-depth requirement; ``what`` names the file in messages."""
+    p = _existing(path, what)
+    suffix = p.suffix.lower()
+    if suffix == ".npy":
+        array = np.load(p, allow_pickle=False)
+        if array.dtype.kind != "f":
+            raise ValueError(f"{what} {p.name} holds {array.dtype} values; a .npy photo must be a float array of "
+                             "linear values as a fraction of full scale (divide the counts by the white level)")
+        depth = 0
+    elif suffix in (".png", ".tif", ".tiff"):
+        try:
+            with Image.open(p) as img:
+                depth = _pillow_bit_depth(img, p.name, what)
+                array = np.asarray(img)
+        except (UnidentifiedImageError, OSError) as error:
+            raise ValueError(f"{what} {p.name} cannot be read as an image ({error}); {_SAVE_AS}") from None
+        array = array.astype(np.float64) / FULL_SCALE[depth]
+    else:
+        raise ValueError(f"{what} {p.name} has the unsupported suffix {p.suffix!r}; {_SAVE_AS}")
+    if not (array.ndim == 2 or (array.ndim == 3 and array.shape[2] == 3)):
+        raise ValueError(f"{what} {p.name} has shape {array.shape}; expected (H, W) or (H, W, 3)")
+    array = array.astype(np.float64)
+    if not np.isfinite(array).all():
+        raise ValueError(f"{what} {p.name} contains NaN or infinite values; clean it first")
+    if array.min() < 0.0 or array.max() > 1.0:
+        raise ValueError(f"{what} {p.name} holds values in [{array.min():.4g}, {array.max():.4g}]; .npy photos are "
+                         "linear values as a fraction of full scale in [0, 1]: divide by the white level")
+    return array, depth
+
+
+def linearize(values: np.ndarray, response: Response = "linear", gamma: float = 2.2) -> np.ndarray:
+    """Linear values from encoded ones (same shape, fraction of full scale): the inverse camera
+    response, ``linear`` (identity), ``srgb`` (inverse sRGB transfer) or ``gamma`` (v ** gamma).
+
+    Negative inputs (noise below a subtracted black level) map to minus the response of |v|.
+    """
+    values = np.asarray(values, dtype=np.float64)
+    if response == "linear":
+        return values
+    if response == "gamma":
+        if isinstance(gamma, bool) or not isinstance(gamma, (int, float)) or not (np.isfinite(gamma) and gamma > 0):
+            raise ValueError(f"data.gamma={gamma!r} must be a positive exponent, e.g. 2.2 (linear = v ** gamma)")
+        return np.sign(values) * np.abs(values) ** float(gamma)
+    if response == "srgb":
+        v = np.abs(values)
+        return np.sign(values) * np.where(v <= 0.04045, v / 12.92, ((v + 0.055) / 1.055) ** 2.4)
+    raise ValueError(f"data.response={response!r} must be 'linear', 'srgb' or 'gamma'")
+
+
+# --- geometry ------------------------------------------------------------------------------------
+
+def _as_corners(corners: object) -> np.ndarray:
+    try:
+        array = np.array(corners, dtype=np.float64)
+    except (TypeError, ValueError):
+        array = None
+    if array is None or array.shape != (4, 2):
+        shape = None if array is None else array.shape
+        raise ValueError(f"corners {corners!r} (shape {shape}) must be four [x, y] photo pixel coordinates "
+                         f"(x = column, y = row from the top) in the order {CORNER_ORDER}")
+    if not np.isfinite(array).all():
+        raise ValueError(f"corners {array.tolist()} contain NaN or infinite values")
+    return array
+
+
+def check_corners(corners: object, photo_shape: tuple[int, ...]) -> np.ndarray:
+    """The corners as float64 (4, 2) [[col, row], ...] after checking them against a photo of
+    shape (H, W[, 3]): inside it, a convex, non-degenerate quadrilateral in the order receiver
+    bottom-left, bottom-right, top-right, top-left (either orientation: a mirrored view is allowed).
+    """
+    array = _as_corners(corners)
+    height, width = photo_shape[0], photo_shape[1]
+    outside = ((array[:, 0] < -0.5) | (array[:, 0] > width - 0.5)
+               | (array[:, 1] < -0.5) | (array[:, 1] > height - 0.5))
+    if outside.any():
+        k = int(np.argmax(outside))
+        raise ValueError(f"corner {CORNER_NAMES[k]} [x, y] = {array[k].tolist()} lies outside the {width} x {height} "
+                         f"photo (x in [-0.5, {width - 0.5}], y in [-0.5, {height - 0.5}]); corners are photo pixel "
+                         "coordinates, column then row")
+    edges = np.roll(array, -1, axis=0) - array  # edge k runs from corner k to corner k + 1
+    before = np.roll(edges, 1, axis=0)
+    cross = before[:, 0] * edges[:, 1] - before[:, 1] * edges[:, 0]  # turn at each corner
+    area = 0.5 * abs(float(np.sum(array[:, 0] * np.roll(array[:, 1], -1) - np.roll(array[:, 0], -1) * array[:, 1])))
+    lengths = np.linalg.norm(edges, axis=1)
+    flat = np.abs(cross) <= 1e-3 * lengths * np.roll(lengths, 1)
+    if area < MIN_AREA_PX or flat.any():
+        raise ValueError(f"corners {array.tolist()} span a degenerate quadrilateral (area {area:.3g} photo pixels^2"
+                         + (f", collinear at {CORNER_NAMES[int(np.argmax(flat))]}" if flat.any() else "")
+                         + "); give the receiver's four distinct corners")
+    positive = int(np.sum(cross > 0))
+    if positive == 2:
+        raise ValueError(f"corners {array.tolist()} form a self-intersecting quadrilateral: the order must go "
+                         f"around the receiver, {CORNER_ORDER}")
+    if positive in (1, 3):
+        odd = int(np.argmax((cross > 0) != (positive == 3)))
+        raise ValueError(f"corners {array.tolist()} form a quadrilateral that is not convex (at corner "
+                         f"{CORNER_NAMES[odd]} {array[odd].tolist()}); a flat receiver is always seen convex: "
+                         "check the coordinates")
+    return array
+
+
+def homography(corners: object, half_width: float) -> np.ndarray:
+    """H (3, 3) mapping receiver (x, y) in scene units to photo (col, row) pixels, exact at the
+    four corners (DLT with normalised coordinates; H[2, 2] = 1).
+
+    >>> H = homography([[10, 90], [90, 90], [90, 10], [10, 10]], half_width=1.0)
+    >>> p = H @ [1.0, 1.0, 1.0]; (p[:2] / p[2]).round(9).tolist()
+    [90.0, 10.0]
+    """
+    dst = _as_corners(corners)
+    _check_half_width(half_width)
+    src = np.array([[-1.0, -1.0], [1.0, -1.0], [1.0, 1.0], [-1.0, 1.0]])  # receiver / half_width
+    centre = dst.mean(axis=0)
+    scale = np.sqrt(2.0) / max(float(np.linalg.norm(dst - centre, axis=1).mean()), 1e-300)
+    norm = (dst - centre) * scale
+    x, y, u, v = src[:, 0], src[:, 1], norm[:, 0], norm[:, 1]
+    one, zero = np.ones(4), np.zeros(4)
+    rows = np.stack([np.stack([x, y, one, zero, zero, zero, -u * x, -u * y, -u], axis=1),
+                     np.stack([zero, zero, zero, x, y, one, -v * x, -v * y, -v], axis=1)], axis=1).reshape(8, 9)
+    _, singular, vt = np.linalg.svd(rows)
+    if singular[-1] <= 1e-9 * singular[0]:
+        raise ValueError(f"corners {dst.tolist()} do not determine a homography (three are collinear)")
+    h_norm = vt[-1].reshape(3, 3)
+    to_pixels = np.array([[1.0 / scale, 0.0, centre[0]], [0.0, 1.0 / scale, centre[1]], [0.0, 0.0, 1.0]])
+    from_receiver = np.diag([1.0 / half_width, 1.0 / half_width, 1.0])
+    h = to_pixels @ h_norm @ from_receiver
+    return h / h[2, 2]
+
+
+def _project(h: np.ndarray, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Points (x, y) mapped through the homography h (arrays of one shape)."""
+    w = h[2, 0] * x + h[2, 1] * y + h[2, 2]
+    return (h[0, 0] * x + h[0, 1] * y + h[0, 2]) / w, (h[1, 0] * x + h[1, 1] * y + h[1, 2]) / w
+
+
+def _support(col: np.ndarray, row: np.ndarray, shape: tuple[int, int]):
+    """Top-left pixel (r0, c0) of the 2 x 2 bilinear support of points (col, row), clamped to the
+    photo (border padding), and the fractional offsets (tr, tc) inside it."""
+    height, width = shape
+    col = np.clip(col, 0.0, width - 1.0)
+    row = np.clip(row, 0.0, height - 1.0)
+    c0 = np.minimum(np.floor(col).astype(np.intp), max(width - 2, 0))
+    r0 = np.minimum(np.floor(row).astype(np.intp), max(height - 2, 0))
+    return r0, c0, row - r0, col - c0
+
+
+def _bilinear(image: np.ndarray, col: np.ndarray, row: np.ndarray) -> np.ndarray:
+    """Bilinear samples (..., C) of ``image`` (H, W, C) at (col, row), pixel centres at integers."""
+    height, width = image.shape[:2]
+    r0, c0, tr, tc = _support(col, row, (height, width))
+    r1, c1 = np.minimum(r0 + 1, height - 1), np.minimum(c0 + 1, width - 1)
+    tr, tc = tr[..., None], tc[..., None]
+    top = (1.0 - tc) * image[r0, c0] + tc * image[r0, c1]
+    bottom = (1.0 - tc) * image[r1, c0] + tc * image[r1, c1]
+    return (1.0 - tr) * top + tr * bottom
+
+
+def _check_grid(resolution: int, half_width: float, supersample: int) -> None:
+    for name, value in (("resolution", resolution), ("supersample", supersample)):
+        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+            raise ValueError(f"{name}={value!r} must be a positive integer")
+    _check_half_width(half_width)
+
+
+def _check_half_width(half_width: float) -> None:
+    if isinstance(half_width, bool) or not isinstance(half_width, numbers.Real) or not half_width > 0:
+        raise ValueError(f"receiver half width {half_width!r} must be positive (scene units)")
+
+
+def _receiver_blocks(h: np.ndarray, resolution: int, half_width: float, supersample: int):
+    """Photo (col, row) of the supersample^2 sub-samples of receiver pixels, in blocks of receiver
+    rows: yields (first row, last row + 1, col, row) with col/row of shape (rows * s, n * s)."""
+    s, n = supersample, resolution
+    coords = half_width * (2.0 * (np.arange(n * s) + 0.5) / (n * s) - 1.0)
+    rows_per_block = max(1, (1 << 21) // (n * s * s))
+    for first in range(0, n, rows_per_block):
+        last = min(n, first + rows_per_block)
+        x, y = np.meshgrid(coords, coords[first * s:last * s])
+        col, row = _project(h, x, y)
+        yield first, last, col, row
+
+
+def rectify(photo: np.ndarray, h: np.ndarray, resolution: int, half_width: float,
+            supersample: int = 4) -> np.ndarray:
+    """Receiver image (C, n, n), rows y-up, from ``photo`` (H, W) or (H, W, C) (row 0 = top).
+
+    Each receiver pixel is the mean of supersample x supersample bilinear photo samples at the
+    images under ``h`` (from :func:`homography`) of a uniform sub-grid of the pixel.
+    """
+    _check_grid(resolution, half_width, supersample)
+    photo = np.asarray(photo, dtype=np.float64)
+    photo = photo[..., None] if photo.ndim == 2 else photo
+    if photo.ndim != 3:
+        raise ValueError(f"photo has shape {photo.shape}; expected (H, W) or (H, W, C)")
+    s, n = supersample, resolution
+    out = np.empty((photo.shape[2], n, n))
+    for first, last, col, row in _receiver_blocks(np.asarray(h, dtype=np.float64), n, half_width, s):
+        samples = np.moveaxis(_bilinear(photo, col, row), -1, 0)
+        out[:, first:last] = samples.reshape(-1, last - first, s, n, s).mean(axis=(2, 4))
+    return out
+
+
+def saturated_receiver_pixels(saturated_photo_mask: np.ndarray, h: np.ndarray, resolution: int,
+                              half_width: float, supersample: int = 4) -> np.ndarray:
+    """(n, n) bool, rows y-up: receiver pixels any of whose sub-samples (as in :func:`rectify`)
+    has a photo pixel of ``saturated_photo_mask`` (H, W) in its 2 x 2 bilinear support."""
+    _check_grid(resolution, half_width, supersample)
+    mask = np.asarray(saturated_photo_mask, dtype=bool)
+    if mask.ndim != 2:
+        raise ValueError(f"saturated photo mask has shape {mask.shape}; expected (H, W)")
+    touched = mask.copy()  # touched[r, c]: the support with top-left pixel (r, c) holds a marked pixel
+    touched[:-1] |= mask[1:]
+    touched[:, :-1] |= touched[:, 1:].copy()
+    s, n = supersample, resolution
+    out = np.empty((n, n), dtype=bool)
+    for first, last, col, row in _receiver_blocks(np.asarray(h, dtype=np.float64), n, half_width, s):
+        r0, c0, _, _ = _support(col, row, mask.shape)
+        out[first:last] = touched[r0, c0].reshape(last - first, s, n, s).any(axis=(1, 3))
+    return out
+
+
+def _inside_receiver(h: np.ndarray, shape: tuple[int, int], half_width: float) -> np.ndarray:
+    """(H, W) bool: photo pixel centres whose receiver point lies in [-W, W]^2."""
+    unit = np.array([[-1.0, 1.0, 1.0, -1.0], [-1.0, -1.0, 1.0, 1.0]])
+    cols, rows = _project(h, half_width * unit[0], half_width * unit[1])
+    c0, r0 = max(0, int(np.ceil(cols.min()))), max(0, int(np.ceil(rows.min())))
+    c1, r1 = min(shape[1] - 1, int(np.floor(cols.max()))), min(shape[0] - 1, int(np.floor(rows.max())))
+    inside = np.zeros(shape, dtype=bool)
+    row, col = np.ogrid[r0:r1 + 1, c0:c1 + 1]  # only the quadrilateral's bounding box
+    x, y = _project(np.linalg.inv(h), col.astype(np.float64), row.astype(np.float64))
+    inside[r0:r1 + 1, c0:c1 + 1] = (np.abs(x) <= half_width) & (np.abs(y) <= half_width)
+    return inside
+
+
+# --- the import chain ----------------------------------------------------------------------------
+
+@dataclass
+class PhotoImport:
+    """A photo turned into receiver data.
+
+    image: (1, n, n) float64 linear irradiance, arbitrary scale, rows y-up; weights: (1, n, n)
+    float64 in {0, 1} (0: the pixel saw saturated or unusable photo pixels); steps: what was done,
+    in order; photo: (H, W) float64 the processed linear photo (row 0 = top); corners: (4, 2)
+    [col, row]; homography: (3, 3) receiver (x, y) -> photo (col, row); bad_photo_pixels: (H, W)
+    bool saturated or unusable photo pixels; half_width: receiver half width (scene units).
+    """
+
+    image: np.ndarray
+    weights: np.ndarray
+    steps: list[str]
+    photo: np.ndarray
+    corners: np.ndarray
+    homography: np.ndarray
+    bad_photo_pixels: np.ndarray
+    half_width: float
+    path: Path = field(default_factory=Path)
+
+
+def _select(values: np.ndarray, channel: Channel) -> np.ndarray:
+    """(H, W, k) of the channels ``channel`` uses (k = 1 for grey photos)."""
+    if values.ndim == 2:
+        return values[..., None]
+    return values if channel == "grey" else values[..., ["red", "green", "blue"].index(channel)][..., None]
+
+
+def _linear_frame(raw: np.ndarray, depth: int, channel: Channel, black: float, response: Response,
+                  gamma: float) -> np.ndarray:
+    """(H, W) linear values of one frame: black level (DN) off, inverse response, channel (mean)."""
+    encoded = _select(raw, channel) - black / FULL_SCALE.get(depth, 1)
+    return linearize(encoded, response, gamma).mean(axis=-1)
+
+
+def _read_like(path: str | Path, what: str, shape: tuple[int, ...], depth: int) -> np.ndarray:
+    raw, frame_depth = _read_frame(path, what)
+    if frame_depth != depth:
+        bits = lambda d: f"{d}-bit" if d else "a linear float array"  # noqa: E731
+        raise ValueError(f"{what} {Path(path).name} is {bits(frame_depth)} but the photo is {bits(depth)}; "
+                         f"save the {what} like the photo")
+    if raw.shape != shape:
+        size = lambda s: f"{s[1]} x {s[0]}" + (" RGB" if len(s) == 3 else " grey")  # noqa: E731
+        raise ValueError(f"{what} {Path(path).name} is {size(raw.shape)} but the photo is {size(shape)}; "
+                         f"take the {what} with the same camera settings")
+    return raw
+
+
+def import_photo(path: str | Path, corners: object, half_width: float, resolution: int, *,
+                 channel: Channel = "grey", bit_depth: int | None = None, response: Response = "linear",
+                 gamma: float = 2.2, black_level: float = 0.0, dark: str | Path | None = None,
+                 flat: str | Path | None = None, saturation: float = 0.98, supersample: int = 4,
+                 max_dropped: float = 0.5) -> PhotoImport:
+    """Photo of the caustic -> receiver image (1, n, n) and weights, every step recorded.
+
+    corners: receiver corners as photo [col, row] in the order bottom-left, bottom-right,
+    top-right, top-left; half_width: receiver half width W (scene units); resolution: n.
+    channel: 'grey' (mean of R, G, B; default), 'red', 'green' (matches a 525 nm filter) or
+    'blue'; ignored for grey photos. bit_depth: 8, 16 or None (either). response / gamma: see
+    :func:`linearize`. black_level: offset in the photo's digital numbers (e.g. 512 of 65535;
+    .npy: fraction of full scale), subtracted before linearising. dark / flat: paths of a dark
+    frame (processed alike, subtracted) and a flat-field photo (processed alike, dark-subtracted,
+    divided after normalising by its mean inside the receiver; its pixels below 1e-3 of that mean
+    or saturated are unusable). saturation: raw value (fraction of full scale) at or above which a photo pixel is
+    saturated in any used channel. Receiver pixels touching saturated or unusable photo pixels get
+    weight 0; more than ``max_dropped`` of them is refused.
+    """
+    raw, depth = read_photo(path, bit_depth)
+    name = Path(path).name
+    corners = check_corners(corners, raw.shape)
+    _check_grid(resolution, half_width, supersample)
+    if channel not in ("grey", "red", "green", "blue"):
+        raise ValueError(f"data.channel={channel!r} must be 'grey', 'red', 'green' or 'blue'")
+    full = FULL_SCALE.get(depth, 1)
+    unit = "DN" if depth else "(fraction of full scale)"
+    if isinstance(black_level, bool) or not isinstance(black_level, (int, float)) or not 0 <= black_level < full:
+        raise ValueError(f"data.black_level={black_level!r} must lie in [0, {full}) {unit} for photo {name}")
+    if isinstance(saturation, bool) or not isinstance(saturation, (int, float)) or not 0 < saturation <= 1:
+        raise ValueError(f"data.saturation={saturation!r} must be a fraction of full scale in (0, 1], e.g. 0.98")
+    if not 0 <= max_dropped < 1:
+        raise ValueError(f"max_dropped={max_dropped!r} must be a fraction in [0, 1)")
+    linearize(np.zeros(1), response, gamma)  # refuses an unknown response or a bad gamma
+    if depth == 0 and response != "linear":
+        raise ValueError(f"photo {name} is a .npy array of linear values but data.response={response!r}; "
+                         "set data.response=linear")
+    height, width = raw.shape[:2]
+    rgb = raw.ndim == 3
+    steps = [f"read {name}: {width} x {height} px, " + ("linear float .npy" if depth == 0 else f"{depth}-bit")
+             + (" RGB" if rgb else " grey")]
+
+    used = _select(raw, channel)
+    saturated = (used >= saturation).any(axis=-1)
+    if not (used > black_level / full).any():
+        raise ValueError(f"photo {name} is all zero after subtracting data.black_level={black_level} {unit} "
+                         f"(largest value {used.max() * full:.6g} {unit}); lower data.black_level or check the file")
+    values = _linear_frame(raw, depth, channel, black_level, response, gamma)
+    if black_level:
+        steps.append(f"black level {black_level:g} {unit} subtracted")
+    steps.append({"linear": "response linear (values kept)", "srgb": "inverse sRGB response applied",
+                  "gamma": f"inverse response v ** {gamma:g} applied"}[response])
+    if rgb:
+        steps.append("channel grey = mean of linear R, G, B" if channel == "grey" else f"channel {channel} used")
+    elif channel != "grey":
+        steps.append(f"grey photo: data.channel={channel} ignored")
+
+    dark_values = None
+    if dark is not None:
+        dark_values = _linear_frame(_read_like(dark, "dark frame", raw.shape, depth), depth, channel, black_level,
+                                    response, gamma)
+        values = values - dark_values
+        steps.append(f"dark frame {Path(dark).name} subtracted (mean {dark_values.mean():.4g})")
+
+    h = homography(corners, float(half_width))
+    unusable = np.zeros_like(saturated)
+    if flat is not None:
+        flat_raw = _read_like(flat, "flat field", raw.shape, depth)
+        flat_values = _linear_frame(flat_raw, depth, channel, black_level, response, gamma)
+        if dark_values is not None:
+            flat_values = flat_values - dark_values
+        mean = float(flat_values[_inside_receiver(h, (height, width), float(half_width))].mean())
+        if not mean > 0:
+            raise ValueError(f"flat field {Path(flat).name} has mean {mean:.4g} inside the receiver after the black "
+                             "level and dark frame; it must be a bright, evenly lit photo of the screen")
+        unusable = (flat_values < FLAT_FLOOR * mean) | (_select(flat_raw, channel) >= saturation).any(axis=-1)
+        values = np.where(unusable, 0.0, values * mean / np.where(unusable, 1.0, flat_values))
+        steps.append(f"flat field {Path(flat).name} divided (mean {mean:.4g} inside the receiver; "
+                     f"{int(unusable.sum())} photo pixels unusable)")
+
+    area = 0.5 * abs(float(np.sum(corners[:, 0] * np.roll(corners[:, 1], -1)
+                                  - np.roll(corners[:, 0], -1) * corners[:, 1])))
+    (ax, ay), (bx, by) = corners[1] - corners[0], corners[2] - corners[1]
+    turn = ax * by - ay * bx  # < 0: the usual view (row axis points down), > 0: mirrored
+    steps.append(f"homography from the corners: {np.sqrt(area) / resolution:.3g} photo px per receiver pixel"
+                 + ("; the receiver is seen mirrored (camera behind the screen?)" if turn > 0 else ""))
+
+    bad = saturated | unusable
+    dropped = saturated_receiver_pixels(bad, h, resolution, float(half_width), supersample)
+    n_dropped = int(dropped.sum())
+    if n_dropped > max_dropped * resolution ** 2:
+        raise ValueError(f"photo {name}: {n_dropped} of {resolution ** 2} receiver pixels "
+                         f"({100 * n_dropped / resolution ** 2:.0f}%, more than {100 * max_dropped:.0f}%) touch "
+                         f"{int(saturated.sum())} saturated photo pixels (raw >= data.saturation={saturation})"
+                         + (f" or {int(unusable.sum())} unusable flat-field pixels" if unusable.any() else "")
+                         + "; shorten the exposure or fix the flat field")
+    if saturated.any():
+        steps.append(f"{int(saturated.sum())} saturated photo pixels (raw >= {saturation:g}) "
+                     + (f"and {int(unusable.sum())} unusable flat-field pixels " if unusable.any() else "")
+                     + f"-> {n_dropped} receiver pixels weighted 0")
+    elif unusable.any():
+        steps.append(f"{int(unusable.sum())} unusable flat-field pixels -> {n_dropped} receiver pixels weighted 0")
+    else:
+        steps.append(f"no saturated photo pixels (raw >= {saturation:g})")
+
+    image = rectify(values, h, resolution, float(half_width), supersample)
+    weights = (~dropped).astype(np.float64)[None]
+    if not (image[weights > 0] > 0).any():
+        raise ValueError(f"photo {name} gives an all-zero receiver image after the dark frame and flat field; "
+                         "check the corners and the dark frame")
+    steps.append(f"rectified to {resolution} x {resolution} receiver pixels, {supersample} x {supersample} "
+                 "bilinear samples averaged per pixel")
+    return PhotoImport(image=image, weights=weights, steps=steps, photo=values, corners=corners, homography=h,
+                       bad_photo_pixels=bad, half_width=float(half_width), path=Path(path))
+
+
+# --- figure --------------------------------------------------------------------------------------
+
+def save_photo_figure(path: str | Path, photo_import: PhotoImport, dpi: int = 150) -> Path:
+    """One PNG: the processed photo with the receiver quadrilateral and labelled corners (bad
+    photo pixels in red), the rectified image (rows y-up) and the weights (0 in red)."""
+    result = photo_import
+    w = result.half_width
+    fig = Figure(figsize=(13.0, 4.4), dpi=dpi, layout="constrained")
+    ax_p, ax_i, ax_w = fig.subplots(1, 3)
+    ax_p.imshow(normalise(result.photo), cmap="gray")
+    if result.bad_photo_pixels.any():
+        overlay = np.zeros(result.photo.shape + (4,))
+        overlay[result.bad_photo_pixels] = (1.0, 0.0, 0.0, 1.0)
+        ax_p.imshow(overlay)
+    loop = np.vstack([result.corners, result.corners[:1]])
+    ax_p.plot(loop[:, 0], loop[:, 1], color="cyan", lw=1.0)
+    for (col, row), label in zip(result.corners, ("BL (-W,-W)", "BR (W,-W)", "TR (W,W)", "TL (-W,W)")):
+        ax_p.plot(col, row, "o", color="cyan", ms=3)
+        ax_p.annotate(label, (col, row), color="yellow", fontsize=7, xytext=(3, 3), textcoords="offset points",
+                      bbox={"facecolor": "black", "alpha": 0.6, "pad": 1, "lw": 0})
+    ax_p.set_title(f"photo {result.path.name} (linear)", fontsize=9)
+    ax_p.set_xlabel("column (px)")
+    ax_p.set_ylabel("row (px)")
+    extent = (-w, w, -w, w)
+    ax_i.imshow(normalise(result.image[0]), origin="lower", extent=extent, cmap="inferno")
+    ax_i.set_title("rectified receiver image", fontsize=9)
+    zero = result.weights[0] == 0
+    ax_w.imshow(normalise(result.image[0]), origin="lower", extent=extent, cmap="gray", alpha=0.5)
+    overlay = np.zeros(zero.shape + (4,))
+    overlay[zero] = (1.0, 0.0, 0.0, 1.0)
+    ax_w.imshow(overlay, origin="lower", extent=extent)
+    ax_w.set_title(f"weights: {int(zero.sum())} receiver pixels at 0 (red)", fontsize=9)
+    for ax in (ax_i, ax_w):
+        ax.set_xlabel("x (scene units)")
+        ax.set_ylabel("y (scene units)")
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path)
+    return path
+
+
+# --- synthetic photos ----------------------------------------------------------------------------
+
+def vignetting_field(photo_shape: tuple[int, ...], vignetting: float) -> np.ndarray:
+    """(H, W) factor 1 - vignetting * r^2, r = distance from the photo centre / half-diagonal."""
+    height, width = photo_shape[0], photo_shape[1]
+    row, col = np.mgrid[0:height, 0:width].astype(np.float64)
+    r = np.hypot(col - 0.5 * (width - 1), row - 0.5 * (height - 1)) / (0.5 * np.hypot(width, height))
+    return 1.0 - vignetting * r ** 2
+
+
+def synthesize_photo(image: np.ndarray, corners: object, photo_shape: tuple[int, int], half_width: float, *,
+                     gain: float = 1.0, vignetting: float = 0.0, gamma: float = 1.0, black_level_dn: float = 0.0,
+                     bit_depth: int = 16, noise: float = 0.0, saturate_above: float = 1.0, seed: int = 0,
+                     extend_edges: bool = False) -> np.ndarray:
+    """Synthetic uint8/uint16 photo (H, W), row 0 = top, of a receiver image (1, n, n) or (n, n)
+    (rows y-up) seen with the receiver's corners at ``corners`` (as for :func:`homography`).
+
+    Each photo pixel is the mean of 2 x 2 bilinear samples of the image at its sub-points mapped
+    back to the receiver (0 outside [-W, W]^2 unless ``extend_edges``: a screen larger than the
+    receiver, as in a flat field), times ``gain`` (full scale per image unit) and
+    :func:`vignetting_field`; then v ** (1 / gamma), Gaussian noise of sigma ``noise`` (fraction
+    of full scale, seeded), + black level (DN); raw values >= ``saturate_above`` (fraction of full
+    scale) read full scale; clipped to [0, full scale] and rounded.
+    """
+    image = np.asarray(image, dtype=np.float64)
+    image = image[0] if image.ndim == 3 and image.shape[0] == 1 else image
+    if image.ndim != 2 or image.shape[0] != image.shape[1]:
+        raise ValueError(f"image has shape {image.shape}; expected (1, n, n) or (n, n)")
+    if bit_depth not in FULL_SCALE:
+        raise ValueError(f"bit_depth={bit_depth!r} must be 8 or 16")
+    if not (gain > 0 and 0 <= vignetting < 1 and gamma > 0 and noise >= 0 and saturate_above > 0):
+        raise ValueError(f"gain={gain}, gamma={gamma}, saturate_above={saturate_above} must be positive, "
+                         f"vignetting={vignetting} in [0, 1) and noise={noise} >= 0")
+    full = FULL_SCALE[bit_depth]
+    height, width = photo_shape[0], photo_shape[1]
+    n = image.shape[0]
+    inverse = np.linalg.inv(homography(corners, half_width))
+    sub_rows = (np.arange(2 * height) + 0.5) / 2.0 - 0.5
+    sub_cols = (np.arange(2 * width) + 0.5) / 2.0 - 0.5
+    col, row = np.meshgrid(sub_cols, sub_rows)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        x, y = _project(inverse, col, row)
+    inside = (np.abs(x) <= half_width) & (np.abs(y) <= half_width)
+    keep = inside | (extend_edges & np.isfinite(x) & np.isfinite(y))
+    x, y = np.where(keep, x, 0.0), np.where(keep, y, 0.0)
+    scale = n / (2.0 * half_width)
+    samples = _bilinear(image[..., None], (x + half_width) * scale - 0.5, (y + half_width) * scale - 0.5)[..., 0]
+    value = np.where(keep, samples, 0.0).reshape(height, 2, width, 2).mean(axis=(1, 3))
+    value = np.maximum(value * gain * vignetting_field((height, width), vignetting), 0.0) ** (1.0 / gamma)
+    if noise > 0:
+        value = value + noise * np.random.default_rng(seed).standard_normal(value.shape)
+    value = value + black_level_dn / full
+    value = np.where(value >= saturate_above, 1.0, value)
+    return np.round(np.clip(value, 0.0, 1.0) * full).astype(np.uint8 if bit_depth == 8 else np.uint16)

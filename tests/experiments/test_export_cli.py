@@ -1,0 +1,111 @@
+"""sfc-export on a fake run directory: the files, the printed deviation metrics, the design picked
+from the run, and one-line errors with exit status 2."""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+from omegaconf import OmegaConf
+
+from experiments.export import main
+from framework.shapes import make_shape
+from tests.python_subprocess import ROOT
+
+M, H, W, MM = 16, 0.1, 1.0, 20.0
+
+
+def fake_run(run_dir: Path, d: np.ndarray, truth: np.ndarray | None, units: bool = True) -> Path:
+    """A run directory as sfc-reconstruct leaves it: heights, ground truth, the resolved config."""
+    (run_dir / ".hydra").mkdir(parents=True)
+    np.save(run_dir / "height_field.npy", d)
+    if truth is not None:
+        np.save(run_dir / "ground_truth.npy", truth)
+    cfg = {"substrate": {"thickness": H, "half_width": W}, "data": {"name": "synthetic"},
+           "height_field": {"shape": "bump", "resolution": M, "path": None, "scale": 1.0, "params": {}},
+           **({"units": {"mm_per_unit": MM}} if units else {})}
+    OmegaConf.save(OmegaConf.create(cfg), run_dir / ".hydra" / "config.yaml")
+    return run_dir
+
+
+def box(value: float) -> np.ndarray:
+    d = np.zeros((M, M))
+    d[5:11, 4:12] = value
+    return d
+
+
+def test_export_of_a_synthetic_run_in_a_subprocess(tmp_path):
+    run = fake_run(tmp_path / "run", box(0.04), box(0.05))
+    proc = subprocess.run([sys.executable, "-m", "experiments.export", str(run), "--format", "stl", "ply"],
+                          cwd=tmp_path, env=dict(os.environ, PYTHONPATH=str(ROOT)), capture_output=True,
+                          text=True, timeout=60)
+    assert proc.returncode == 0, proc.stderr
+    out = run / "export"
+    names = ["height_field_mm.npy", "height_field_mm.png", "glass.stl", "glass.ply", "deviation.json",
+             "deviation.png"]
+    assert re.findall(r"^wrote (.+)$", proc.stdout, flags=re.M) == [str(out / name) for name in names]
+    assert f"design: {run / 'ground_truth.npy'}" in proc.stdout
+    np.testing.assert_array_equal(np.load(out / "height_field_mm.npy"), box(0.04) * MM)
+    # 48 printed samples, 0.01 scene units = 0.2 mm too low each; cell (2 / 15)^2 scene units^2.
+    printed = {key: float(value) for key, value in re.findall(r"^deviation (\w+) = (\S+)$", proc.stdout, flags=re.M)}
+    assert printed["max_abs_mm"] == pytest.approx(0.2, rel=1e-5)
+    assert printed["mean_mm"] == pytest.approx(-0.2 * 48 / 256, rel=1e-5)
+    assert printed["rms_printed_mm"] == pytest.approx(0.2, rel=1e-5)
+    assert printed["planned_volume_mm3"] == pytest.approx(48 * 0.05 * (2 / 15) ** 2 * MM ** 3, rel=1e-5)
+    assert printed["volume_ratio"] == pytest.approx(0.8, rel=1e-5)
+    assert json.loads((out / "deviation.json").read_text())["max_abs_mm"] == pytest.approx(0.2)
+    mesh = trimesh.load(out / "glass.stl")
+    assert mesh.is_watertight
+    assert mesh.bounds[1] == pytest.approx([W * MM, W * MM, (H + 0.04) * MM])
+
+
+def test_design_from_the_config_a_file_or_none(tmp_path, capsys):
+    d = box(0.04)
+    run = fake_run(tmp_path / "run", d, None, units=False)  # no units: 25 mm per scene unit
+    main([str(run)])
+    design = make_shape("bump", M)
+    cell_mm3 = (2 / 15) ** 2 * 25.0 ** 3
+    report = json.loads((run / "export" / "deviation.json").read_text())
+    assert report["planned_volume_mm3"] == pytest.approx(design.sum() * cell_mm3)
+    assert report["max_abs_mm"] == pytest.approx(np.abs(d - design).max() * 25.0)
+    assert "25 mm per scene unit; design: the run's height_field" in capsys.readouterr().out
+
+    np.save(tmp_path / "design.npy", box(0.05))
+    main([str(run), "--design", str(tmp_path / "design.npy"), "--out", str(tmp_path / "file"), "--mm-per-unit", "10"])
+    report = json.loads((tmp_path / "file" / "deviation.json").read_text())
+    assert report["max_abs_mm"] == pytest.approx(0.1) and report["volume_ratio"] == pytest.approx(0.8)
+
+    main([str(run), "--design", "none", "--out", str(tmp_path / "none"), "--format", "obj"])
+    assert sorted(p.name for p in (tmp_path / "none").iterdir()) == ["glass.obj", "height_field_mm.npy",
+                                                                     "height_field_mm.png"]
+
+
+@pytest.mark.parametrize(("remove", "words"), [
+    (None, "run directory"), ("height_field.npy", "heights"), (".hydra/config.yaml", "run config")])
+def test_missing_run_dir_or_file_is_one_line_and_exit_status_2(tmp_path, capsys, monkeypatch, remove, words):
+    monkeypatch.delenv("SFC_TRACEBACK", raising=False)
+    run = tmp_path / "run"
+    if remove is not None:
+        fake_run(run, box(0.04), None)
+        (run / remove).unlink()
+    with pytest.raises(SystemExit) as stop:
+        main([str(run)])
+    assert stop.value.code == 2
+    err = capsys.readouterr().err
+    missing = run if remove is None else run / remove
+    assert err.count("\n") == 1 and err.startswith(f"error: {words} {str(missing)!r} does not exist")
+
+
+def test_a_missing_design_file_is_one_line_and_exit_status_2(tmp_path, capsys):
+    run = fake_run(tmp_path / "run", box(0.04), None)
+    with pytest.raises(SystemExit) as stop:
+        main([str(run), "--design", str(tmp_path / "nope.png")])
+    assert stop.value.code == 2
+    assert "--design" in capsys.readouterr().err and not (run / "export").exists()
