@@ -151,10 +151,10 @@ def _as_corners(corners: object) -> np.ndarray:
         array = None
     if array is None or array.shape != (4, 2):
         shape = None if array is None else array.shape
-        raise ValueError(f"corners {corners!r} (shape {shape}) must be four [x, y] photo pixel coordinates "
+        raise ValueError(f"data.corners {corners!r} (shape {shape}) must be four [x, y] photo pixel coordinates "
                          f"(x = column, y = row from the top) in the order {CORNER_ORDER}")
     if not np.isfinite(array).all():
-        raise ValueError(f"corners {array.tolist()} contain NaN or infinite values")
+        raise ValueError(f"data.corners {array.tolist()} contain NaN or infinite values")
     return array
 
 
@@ -169,26 +169,27 @@ def check_corners(corners: object, photo_shape: tuple[int, ...]) -> np.ndarray:
                | (array[:, 1] < -0.5) | (array[:, 1] > height - 0.5))
     if outside.any():
         k = int(np.argmax(outside))
-        raise ValueError(f"corner {CORNER_NAMES[k]} [x, y] = {array[k].tolist()} lies outside the {width} x {height} "
-                         f"photo (x in [-0.5, {width - 0.5}], y in [-0.5, {height - 0.5}]); corners are photo pixel "
-                         "coordinates, column then row")
+        raise ValueError(f"data.corners: corner {CORNER_NAMES[k]} [x, y] = {array[k].tolist()} lies outside the "
+                         f"{width} x {height} photo (x in [-0.5, {width - 0.5}], y in [-0.5, {height - 0.5}]); "
+                         "corners are photo pixel coordinates, column then row")
     edges = np.roll(array, -1, axis=0) - array  # edge k runs from corner k to corner k + 1
     before = np.roll(edges, 1, axis=0)
     cross = before[:, 0] * edges[:, 1] - before[:, 1] * edges[:, 0]  # turn at each corner
     area = 0.5 * abs(float(np.sum(array[:, 0] * np.roll(array[:, 1], -1) - np.roll(array[:, 0], -1) * array[:, 1])))
+    positive = int(np.sum(cross > 0))
+    if positive == 2:
+        raise ValueError(f"data.corners {array.tolist()} form a self-intersecting quadrilateral: the order must go "
+                         f"around the receiver, {CORNER_ORDER}")
     lengths = np.linalg.norm(edges, axis=1)
     flat = np.abs(cross) <= 1e-3 * lengths * np.roll(lengths, 1)
     if area < MIN_AREA_PX or flat.any():
-        raise ValueError(f"corners {array.tolist()} span a degenerate quadrilateral (area {area:.3g} photo pixels^2"
+        raise ValueError(f"data.corners {array.tolist()} span a degenerate quadrilateral "
+                         f"(area {area:.3g} photo pixels^2"
                          + (f", collinear at {CORNER_NAMES[int(np.argmax(flat))]}" if flat.any() else "")
                          + "); give the receiver's four distinct corners")
-    positive = int(np.sum(cross > 0))
-    if positive == 2:
-        raise ValueError(f"corners {array.tolist()} form a self-intersecting quadrilateral: the order must go "
-                         f"around the receiver, {CORNER_ORDER}")
     if positive in (1, 3):
         odd = int(np.argmax((cross > 0) != (positive == 3)))
-        raise ValueError(f"corners {array.tolist()} form a quadrilateral that is not convex (at corner "
+        raise ValueError(f"data.corners {array.tolist()} form a quadrilateral that is not convex (at corner "
                          f"{CORNER_NAMES[odd]} {array[odd].tolist()}); a flat receiver is always seen convex: "
                          "check the coordinates")
     return array
@@ -214,7 +215,7 @@ def homography(corners: object, half_width: float) -> np.ndarray:
                      np.stack([zero, zero, zero, x, y, one, -v * x, -v * y, -v], axis=1)], axis=1).reshape(8, 9)
     _, singular, vt = np.linalg.svd(rows)
     if singular[-1] <= 1e-9 * singular[0]:
-        raise ValueError(f"corners {dst.tolist()} do not determine a homography (three are collinear)")
+        raise ValueError(f"data.corners {dst.tolist()} do not determine a homography (three are collinear)")
     h_norm = vt[-1].reshape(3, 3)
     to_pixels = np.array([[1.0 / scale, 0.0, centre[0]], [0.0, 1.0 / scale, centre[1]], [0.0, 0.0, 1.0]])
     from_receiver = np.diag([1.0 / half_width, 1.0 / half_width, 1.0])

@@ -152,6 +152,9 @@ def _reconstruct(parts: Reconstruction, output_dir: Path, base_dir: Path, sweep_
         data = parts.data_source.load(parts.data_request(base_dir, output_dir))
         data_seconds = time.perf_counter() - start
         problem = Problem(operator, data, parts.grid, parts.scene)
+        # The design the mm outputs compare with: the truth of synthetic data, else the configured
+        # height field (the print's design); built now, so that a bad one fails before the solve.
+        design = data.ground_truth if data.ground_truth is not None else build_heights(cfg, base_dir=base_dir)
         solver = parts.make_solver(problem, parts.d0)
         for rule in parts.stopping:
             if callable(getattr(rule, "setup", None)):
@@ -162,8 +165,10 @@ def _reconstruct(parts: Reconstruction, output_dir: Path, base_dir: Path, sweep_
                                      tracker.metrics_callback()]
         calibration = parts.calibration
         if calibration is not None:
-            resume_from = resolve_path(str(cfg["resume"]), base_dir).parent / CALIBRATION_STATE if cfg.get("resume") else None
-            calibration.setup(data.target, data.weights, output_dir / CALIBRATION_STATE, resume_from)
+            resume_from = None
+            if cfg.get("resume"):
+                resume_from = resolve_path(str(cfg["resume"]), base_dir).parent / CALIBRATION_STATE
+            calibration.setup(data.target, data.weights, data.delta, output_dir / CALIBRATION_STATE, resume_from)
             callbacks.append(calibration)
         truth_error = None
         if data.ground_truth is not None:
@@ -198,11 +203,12 @@ def _reconstruct(parts: Reconstruction, output_dir: Path, base_dir: Path, sweep_
         np.save(output_dir / "height_field.npy", d.cpu().numpy().astype(np.float64))
         np.save(output_dir / "caustic_target.npy", data.target.cpu().numpy().astype(np.float32))
         np.save(output_dir / "caustic_predicted.npy", prediction.detach().cpu().numpy().astype(np.float32))
+        if data.weights is not None:
+            np.save(output_dir / "caustic_weights.npy", data.weights.cpu().numpy().astype(np.float32))
         if data.ground_truth is not None:
             np.save(output_dir / "ground_truth.npy", data.ground_truth.cpu().numpy().astype(np.float64))
-        design = None if data.ground_truth is None else data.ground_truth.cpu().numpy()
         exported = export_outputs(output_dir / "export", d.cpu().numpy(), parts.grid.half_width, parts.grid.base,
-                                  mm_per_unit(cfg), design=design)  # mm outputs (docs/export.md)
+                                  mm_per_unit(cfg), design=design.cpu().numpy())  # mm outputs (docs/export.md)
         metrics.update({f"deviation_{key}": value for key, value in exported["deviation"].items()})
         (output_dir / "metrics.json").write_text(json.dumps(metrics, indent=2))
         save_reconstruction_figures(output_dir, d, problem, prediction, history.columns())

@@ -14,8 +14,9 @@ Config layout (top-level keys; see conf/scene/*.yaml and conf/operator/*.yaml)::
     screen:       {psf: none | gaussian, sigma: s}  # the screen's blur (operators/imaging.py)
     units:        {mm_per_unit: 25.0}               # framework/units.py
 
-Lengths are in scene units, or strings with a unit such as "2.5 mm" (framework/units.py). Groups may omit keys (dataclass defaults apply); unknown keys in
-a group are refused with an error naming the key. The operator plugin checks its own settings.
+Lengths are in scene units, or strings with a unit such as "2.5 mm" (framework/units.py). Groups
+may omit keys (dataclass defaults apply); unknown keys in a group are refused with an error
+naming the key. The operator plugin checks its own settings.
 """
 
 from __future__ import annotations

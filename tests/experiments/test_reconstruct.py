@@ -136,6 +136,10 @@ def test_measured_data_from_files(tmp_path):
     (["data.name=camera"], KeyError, "unknown data plugin 'camera'"),
     (["data=photo"], ValueError, "data.photo"),
     (["data=photo", "data.photo=caustic.npy"], ValueError, "data.corners"),
+    (["data=photo", "data.photo=photo.npy", "data.corners=[[1,60],[90,60],[60,2],[2,2]]"], ValueError,
+     "outside the 64 x 64"),
+    (["data=photo", "data.photo=photo.npy", "data.corners=[[2,60],[60,60],[2,2],[60,2]]"], ValueError,
+     "self-intersecting"),
     (["units.mm_per_unit=0"], ValueError, "units.mm_per_unit=0"),
     (["screen.psf=lorentz"], ValueError, "screen.psf='lorentz'"),
     (["screen.psf=gaussian"], ValueError, "screen.sigma > 0"),
@@ -148,6 +152,7 @@ def test_bad_configuration_is_refused_clearly(tmp_path, overrides, error, messag
     np.save(tmp_path / "caustic.npy", np.ones((1, 64, 64)))
     np.save(tmp_path / "small_mask.npy", np.ones((16, 16)))
     np.save(tmp_path / "nan.npy", np.full((1, 64, 64), np.nan))
+    np.save(tmp_path / "photo.npy", np.full((64, 64), 0.5))
     cfg = compose_reconstruct([*SMALL, *overrides, "solver.max_iter=1"], tmp_path)
     with pytest.raises(error, match=message):
         run_reconstruction(cfg, tmp_path / "run", tmp_path)

@@ -30,7 +30,7 @@ def _case(seed: int = 0):
 def test_distance_and_gain_are_recovered_at_the_true_heights(tmp_path) -> None:
     op, truth, target = _case()
     calibration = JointCalibration(op, ["gain", "screen_distance"])
-    calibration.setup(target, None, tmp_path / "calibration.json")
+    calibration.setup(target, None, 0.05, tmp_path / "calibration.json")
     for _ in range(4):
         values = calibration.update(truth)
     assert abs(values["screen_distance"] - TRUE_DISTANCE) < 0.01 * TRUE_DISTANCE  # from 10% off
@@ -44,15 +44,15 @@ def test_distance_and_gain_are_recovered_at_the_true_heights(tmp_path) -> None:
 def test_a_resumed_calibration_starts_where_the_state_file_ends(tmp_path) -> None:
     op, truth, target = _case()
     first = JointCalibration(op, ["gain", "screen_distance"])
-    first.setup(target, None, tmp_path / "a.json")
+    first.setup(target, None, 0.05, tmp_path / "a.json")
     values = first.update(truth)
     fresh, _, _ = _case()
     resumed = JointCalibration(fresh, ["gain", "screen_distance"])
-    resumed.setup(target, None, tmp_path / "b.json", resume_from=tmp_path / "a.json")
+    resumed.setup(target, None, 0.05, tmp_path / "b.json", resume_from=tmp_path / "a.json")
     assert resumed.values() == pytest.approx(values)
     assert fresh.scene.receiver.z == pytest.approx(-values["screen_distance"])
     with pytest.raises(FileNotFoundError, match="missing.json"):
-        JointCalibration(fresh, ["gain"]).setup(target, None, tmp_path / "c.json", tmp_path / "missing.json")
+        JointCalibration(fresh, ["gain"]).setup(target, None, 0.05, tmp_path / "c.json", tmp_path / "missing.json")
 
 
 def test_weighted_out_pixels_do_not_pull_the_gain(tmp_path) -> None:
@@ -62,7 +62,7 @@ def test_weighted_out_pixels_do_not_pull_the_gain(tmp_path) -> None:
     spoiled = target.clone()
     spoiled[:, 20:30, 20:30] *= 50.0  # saturated or wrong pixels, left out of the fit
     calibration = JointCalibration(op, ["gain"])
-    calibration.setup(spoiled, weights, tmp_path / "calibration.json")
+    calibration.setup(spoiled, weights, 0.05, tmp_path / "calibration.json")
     op.set_setup(with_setup(op.scene, {"screen_distance": TRUE_DISTANCE}), 1.0)
     for _ in range(2):
         values = calibration.update(truth)
