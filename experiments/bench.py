@@ -33,7 +33,7 @@ from operators.scene import Scene
 from operators.splat import splat_photons
 from operators.splat_reference import splat_photons_reference
 
-# Throughput targets of the CPU path (issue 2, on the 2-core machine): photons/s.
+# Throughput the CPU path is held to on a 2-core machine (docs/performance.md): photons/s.
 TARGET_FORWARD = 5e6
 TARGET_FORWARD_BACKWARD = 2e6
 

@@ -23,7 +23,7 @@ from hydra import compose, initialize_config_dir
 from matplotlib.figure import Figure
 from omegaconf import OmegaConf
 
-from experiments.mlflow_store import artifact, latest_runs, reproduction_parser
+from experiments.mlflow_store import TrackingStore, artifact, latest_runs, reproduction_parser, tracking_store
 from framework.scene_config import build_heights, build_operator, build_scene
 from framework.tracking import MlflowTracker
 
@@ -56,12 +56,13 @@ def to_rgb(image: np.ndarray, percentile: float = 99.5) -> np.ndarray:
     return np.clip(np.moveaxis(channels[::-1], 0, -1) / scale, 0.0, 1.0)
 
 
-def run(store: Path, high: int, low: int, seed: int, overrides: list[str]) -> None:
+def run(store: TrackingStore, high: int, low: int, seed: int, overrides: list[str]) -> None:
     """Render every scene at both photon counts; one MLflow run each."""
     for name in SCENES:
         for photons in (high, low):
             image, noise, seconds = render_pair(name, photons, seed, overrides)
-            with MlflowTracker(EXPERIMENT, run_name=f"{name}-{photons}", store_dir=store,
+            with MlflowTracker(EXPERIMENT, run_name=f"{name}-{photons}", store_dir=store.directory,
+                               tracking_uri=store.uri,
                                params={"operator": name, "photons": photons, "seed": seed},
                                tags={"scene": name, "photons": str(photons)}) as tracker:
                 tracker.log_metrics({"intrinsic_noise": noise, "seconds": seconds, "photons": photons})
@@ -72,7 +73,7 @@ def run(store: Path, high: int, low: int, seed: int, overrides: list[str]) -> No
             print(f"{name}, {photons} photons: intrinsic noise {noise:.4f}, {seconds:.0f} s for two renders", flush=True)
 
 
-def build(store: Path, out: Path) -> None:
+def build(store: TrackingStore, out: Path) -> None:
     """fig4.png (every render in colour) and fig4.md (photons, intrinsic noise) from the store."""
     chosen, client = latest_runs(store, EXPERIMENT, key=lambda r: (r.data.tags.get("scene"), r.data.tags.get("photons")))
     cases = sorted(chosen.items(), key=lambda item: (SCENES.index(item[0][0]), -int(item[0][1])))
@@ -98,7 +99,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--low", type=int, default=1 << 21, help="photons of the high-noise renders")
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args(argv)
-    store = args.store.resolve()
+    store = tracking_store(args)
     if not args.table_only:
         run(store, args.high, args.low, args.seed, args.overrides)
     build(store, args.out)

@@ -20,7 +20,8 @@ from pathlib import Path
 import numpy as np
 from matplotlib.figure import Figure
 
-from experiments.mlflow_store import artifact, latest_runs, reproduction_parser, run_sweep
+from experiments.mlflow_store import (TrackingStore, artifact, latest_runs, reproduction_parser, run_sweep,
+                                      tracking_store)
 from framework.plotting import show_panel
 
 EXPERIMENT = "fig6"
@@ -37,7 +38,7 @@ def paper_numbers(method: str, label: str) -> tuple[float, float]:
     return PAPER[("M2V1" if method == "M2V1" else "Schwartzburg", label)]
 
 
-def collect(store: Path) -> tuple[dict[tuple[str, str], dict], list[str]]:
+def collect(store: TrackingStore) -> tuple[dict[tuple[str, str], dict], list[str]]:
     """Per (method, scene label): the run's metrics and arrays; and the cases that have no run."""
     chosen, client = latest_runs(store, EXPERIMENT, key=lambda run: (run.data.tags.get("method"),
                                                                       run.data.tags.get("scene")))
@@ -108,13 +109,13 @@ def write_figure(cases: dict[tuple[str, str], dict], out: Path) -> None:
 def main(argv: list[str] | None = None) -> None:
     parser = reproduction_parser(__doc__.splitlines()[0])
     args = parser.parse_args(argv)
-    store = args.store.resolve()
+    store = tracking_store(args)
     if not args.table_only:
         run_sweep(store, EXPERIMENT, [f"experiment={','.join(METHODS)}", f"scene={','.join(SCENES)}"],
-                  args.overrides)
+                  args.overrides, args.launcher)
     cases, missing = collect(store)
     if not cases:
-        raise SystemExit(f"no finished Fig. 6 runs in {store}")
+        raise SystemExit(f"no finished Fig. 6 runs in {store.uri or store.directory}")
     if missing:
         print(f"warning: no finished run for {', '.join(missing)}", flush=True)
     args.out.mkdir(parents=True, exist_ok=True)

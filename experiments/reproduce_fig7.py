@@ -20,7 +20,8 @@ from pathlib import Path
 import numpy as np
 from matplotlib.figure import Figure
 
-from experiments.mlflow_store import artifact, latest_runs, reproduction_parser, run_sweep
+from experiments.mlflow_store import (TrackingStore, artifact, latest_runs, reproduction_parser, run_sweep,
+                                      tracking_store)
 from framework.plotting import show_panel
 
 EXPERIMENT = "fig7"
@@ -42,7 +43,7 @@ def case_of(run) -> tuple[str, str]:
     return optics, run.data.tags.get("scene", "")
 
 
-def collect(store: Path) -> dict[tuple[str, str], dict]:
+def collect(store: TrackingStore) -> dict[tuple[str, str], dict]:
     """Per (optics, scene): the latest finished run's metrics and arrays."""
     chosen, client = latest_runs(store, EXPERIMENT, key=case_of)
     return {key: {name: artifact(client, chosen[key], f"{name}.{ext}") for name, ext in (
@@ -99,13 +100,13 @@ def write_figure(cases: dict[tuple[str, str], dict], out: Path) -> None:
 def main(argv: list[str] | None = None) -> None:
     parser = reproduction_parser(__doc__.splitlines()[0])
     args = parser.parse_args(argv)
-    store = args.store.resolve()
+    store = tracking_store(args)
     if not args.table_only:
         run_sweep(store, EXPERIMENT, ["experiment=m2v1", f"operator={','.join(CASES)}", f"scene={','.join(SCENES)}",
-                                      f"receiver.z={RECEIVER_Z}"], args.overrides)
+                                      f"receiver.z={RECEIVER_Z}"], args.overrides, args.launcher)
     cases = collect(store)
     if not cases:
-        raise SystemExit(f"no finished Fig. 7 runs in {store}")
+        raise SystemExit(f"no finished Fig. 7 runs in {store.uri or store.directory}")
     args.out.mkdir(parents=True, exist_ok=True)
     write_table(cases, args.out)
     write_figure(cases, args.out)

@@ -34,6 +34,7 @@ import torch
 from hydra import compose, initialize_config_dir
 from PIL import Image
 
+from experiments.mlflow_store import TrackingStore
 from framework.calibration import with_setup
 from framework.data import resample_image
 from framework.photo import synthesize_photo
@@ -108,12 +109,12 @@ def relative_error_after_scale(image: np.ndarray, reference: np.ndarray, weights
     return float(np.sqrt((w * (scale * image - reference) ** 2).sum() / (w * reference ** 2).sum()))
 
 
-def _run(overrides: list[str], out: Path, store: Path, name: str) -> dict[str, Any]:
-    cfg = reconstruct_config([*overrides, "tracking.experiment=lab", f"tracking.store_dir={store}"])
+def _run(overrides: list[str], out: Path, store: TrackingStore, name: str) -> dict[str, Any]:
+    cfg = reconstruct_config([*overrides, "tracking.experiment=lab", *store.overrides()])
     return run_reconstruction(cfg, out / name, out)
 
 
-def photo_study(scene: str, work: Path, store: Path, overrides: list[str],
+def photo_study(scene: str, work: Path, store: TrackingStore, overrides: list[str],
                 reference_photons: int = 1 << 22) -> dict[str, Any]:
     """One scene of the photo study: import error and both reconstruction errors; the truth's
     caustic is rendered with ``reference_photons``."""
@@ -155,7 +156,7 @@ def _error_against(truth: torch.Tensor, run_dir: Path, cfg: dict[str, Any]) -> f
     return float(np.linalg.norm(d - t) / np.linalg.norm(h + t))
 
 
-def calibration_study(scene: str, work: Path, store: Path, overrides: list[str],
+def calibration_study(scene: str, work: Path, store: TrackingStore, overrides: list[str],
                       reference_photons: int = 1 << 22) -> dict[str, Any]:
     """One scene of the calibration study: fixed (distance 10% off) against joint calibration; the
     data are the mean of two renders with ``reference_photons`` each."""
@@ -219,20 +220,22 @@ def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--study", choices=("photo", "calibration", "all"), default="all")
     parser.add_argument("--scenes", nargs="+", default=list(SCENES))
-    parser.add_argument("--store", type=Path, default=Path("mlruns"))
+    parser.add_argument("--store", type=Path, default=Path("mlruns"), help="MLflow store directory")
+    parser.add_argument("--tracking-uri", default=None, help="a shared MLflow tracking server instead of --store")
     parser.add_argument("--work", type=Path, default=Path("outputs/lab"))
     parser.add_argument("--out", type=Path, default=Path("docs/results"))
     parser.add_argument("--reference-photons", type=int, default=1 << 22, help="photons of the truth's renders")
     parser.add_argument("--overrides", nargs="*", default=[], help="extra Hydra overrides for every run")
     args = parser.parse_args(argv)
-    store, work = args.store.resolve(), args.work.resolve()
+    store, work = TrackingStore(args.store.resolve(), args.tracking_uri), args.work.resolve()
     args.out.mkdir(parents=True, exist_ok=True)
     if args.study in ("photo", "all"):
         rows = [photo_study(s, work / "photo", store, args.overrides, args.reference_photons) for s in args.scenes]
         (args.out / "lab_photo.md").write_text(photo_table(rows))
         print(photo_table(rows))
     if args.study in ("calibration", "all"):
-        rows = [calibration_study(s, work / "calibration", store, args.overrides, args.reference_photons) for s in args.scenes]
+        rows = [calibration_study(s, work / "calibration", store, args.overrides, args.reference_photons)
+                for s in args.scenes]
         (args.out / "lab_calibration.md").write_text(calibration_table(rows))
         print(calibration_table(rows))
 

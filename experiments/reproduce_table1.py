@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 from matplotlib.figure import Figure
 
-from experiments.mlflow_store import artifact, latest_runs, reproduction_parser, run_sweep
+from experiments.mlflow_store import artifact, latest_runs, reproduction_parser, run_sweep, tracking_store
 from framework.shapes import make_shape
 
 METHODS = ["M2V1", "M3V1", "M1", "M2V0", "M3V0", "M2V2", "M3V2"]
@@ -87,9 +87,10 @@ def main(argv: list[str] | None = None) -> None:
     parser = reproduction_parser(__doc__.splitlines()[0])
     parser.add_argument("--methods", nargs="*", default=METHODS, choices=METHODS, help="methods to (re-)run")
     args = parser.parse_args(argv)
-    store = args.store.resolve()
+    store = tracking_store(args)
     if not args.table_only:
-        run_sweep(store, EXPERIMENT, [f"experiment={','.join(m.lower() for m in args.methods)}"], args.overrides)
+        run_sweep(store, EXPERIMENT, [f"experiment={','.join(m.lower() for m in args.methods)}"], args.overrides,
+                  args.launcher)
     chosen, client = latest_runs(store, EXPERIMENT, key=lambda run: run.data.tags.get("method"))
     runs = [chosen[m] for m in METHODS if m in chosen]
     args.out.mkdir(parents=True, exist_ok=True)

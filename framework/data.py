@@ -1,8 +1,8 @@
 """Data for reconstructions: synthetic (ground truth -> noisy reference) or measured (files).
 
-Synthetic data follow method.md section 3: the ground truth is rendered twice with independent
-seeds (and usually more photons or pixels than the reconstruction uses), both renders are
-resampled to the reconstruction's receiver, their mean is the clean reference b and
+Synthetic data (docs/method.md, "Synthetic data and noise"): the ground truth is rendered twice
+with independent seeds (and usually more photons or pixels than the reconstruction uses), both
+renders are resampled to the reconstruction's receiver, their mean is the clean reference b and
 delta_sim = ||b1 - b2|| / (2 ||b||) estimates its intrinsic noise (the noise of a mean of two
 independent renders). Gaussian noise of norm (delta - delta_sim) ||b|| is then added, so that
 ||b^delta - b_exact|| <= delta ||b|| by the triangle inequality; delta < delta_sim is refused.

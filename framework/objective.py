@@ -2,17 +2,17 @@
 
 (With per-pixel weights, both norms are weighted: :class:`DataFidelity`.)
 
-method.md section 4 writes the data term as f(d) = 1/2 ||F(d) - b^delta||_F^2. We divide it
-by ||b^delta||_F^2 so that f is dimensionless and does not depend on the brightness or units of
-the caustic image (photon count, exposure, flux normalisation). **This is our step-size unit**:
-a step tau multiplies grad f of the *normalised* data term, so tau is in scene units^2 per unit
-of relative squared residual, and the same tau works for a dim and a bright image. Step sizes
-taken from the official code (tau_p = 0.1, ...) are in that code's own image scaling and must be
-re-tuned in this unit.
+The paper writes the data term as f(d) = 1/2 ||F(d) - b^delta||_F^2 (docs/method.md,
+"The data term"). We divide it by ||b^delta||_F^2 so that f is dimensionless and does not
+depend on the brightness or units of the caustic image (photon count, exposure, flux
+normalisation). **This is our step-size unit**: a step tau multiplies grad f of the
+*normalised* data term, so tau is in scene units^2 per unit of relative squared residual, and
+the same tau works for a dim and a bright image. Step sizes taken from the official code
+(tau_p = 0.1, ...) are in that code's own image scaling and must be re-tuned in this unit.
 
 The optional cell area a (default 1) makes the unit resolution independent as well (see
-:class:`DataFidelity`). The relative discrepancy ||F(d) - b||_F / ||b||_F (method.md section 3)
-equals sqrt(2 a f(d)).
+:class:`DataFidelity`). The relative discrepancy ||F(d) - b||_F / ||b||_F equals sqrt(2 a f(d))
+(docs/method.md, "The data term").
 """
 
 from __future__ import annotations
@@ -36,9 +36,9 @@ __all__ = [
 class ForwardOperator(Protocol):
     """A differentiable forward operator F: R^{m x m} -> R_+^{c x n x n} (height field to image).
 
-    Implementations compute the gradient memory-efficiently (architecture.md: image without a
-    graph first, then per photon chunk a recomputation with graph and a backward of
-    <image_chunk, residual>), so peak memory is set by the chunk size, not the photon count.
+    Implementations compute the gradient memory-efficiently (the image without a graph first,
+    then per photon chunk a recomputation with graph and a backward of <image_chunk, residual>),
+    so peak memory is set by the chunk size, not the photon count.
     An operator may expose ``output_shape: tuple[int, int, int]``; the data term then checks the
     target against it before the first evaluation. An operator *plugin* (kind ``operator``) has
     more: see :class:`framework.problem.OperatorPlugin`.

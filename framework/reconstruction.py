@@ -34,6 +34,7 @@ from operators.scene import Scene
 
 CHECKPOINT = "checkpoint.pt"
 CALIBRATION_STATE = "calibration.json"
+MLFLOW_RUN = "mlflow_run.json"  # the run's MLflow run id, so that a job resumed in its directory logs into it
 
 
 def initial_heights(cfg: Mapping[str, Any], m: int, dtype: torch.dtype, base_dir: Path) -> torch.Tensor:
@@ -54,6 +55,32 @@ def initial_heights(cfg: Mapping[str, Any], m: int, dtype: torch.dtype, base_dir
         raise ValueError(f"initial={spec!r} gives heights of shape {tuple(d.shape)}, the reconstruction has "
                          f"({m}, {m}); set height_field.resolution to match")
     return d.to(dtype)
+
+
+def resume_checkpoint(spec: Any, output_dir: Path, base_dir: Path) -> Path | None:
+    """The checkpoint a run continues from: ``auto`` takes the run directory's own checkpoint.pt
+    when there is one (a sweep job run again in its directory, e.g. requeued after pre-emption),
+    a path takes that file (which must exist), None starts afresh."""
+    if spec in (None, "none"):
+        return None
+    if spec == "auto":
+        own = output_dir / CHECKPOINT
+        return own if own.is_file() else None
+    path = resolve_path(str(spec), base_dir)
+    if not path.is_file():
+        raise FileNotFoundError(f"resume={spec!r}: {path} does not exist; give a checkpoint.pt of an earlier run, "
+                                "auto or null")
+    return path
+
+
+def interrupted_run(output_dir: Path, checkpoint: Path | None, store_dir: Path, uri: str | None) -> str | None:
+    """The MLflow run id of the interrupted job whose own checkpoint this run resumes (same run
+    directory, same tracking store), or None: then a new run starts."""
+    record = output_dir / MLFLOW_RUN
+    if checkpoint is None or checkpoint != output_dir / CHECKPOINT or not record.is_file():
+        return None
+    saved = json.loads(record.read_text())
+    return saved["run_id"] if saved["tracking_uri"] == (uri or f"sqlite:///{store_dir.resolve() / 'mlflow.db'}") else None
 
 
 def stage_changes(history: Sequence[IterationRecord]) -> list[int]:
@@ -145,12 +172,18 @@ def _reconstruct(parts: Reconstruction, output_dir: Path, base_dir: Path, sweep_
     data_name = cfg["data"]["name"]
     tags = {"method": method, "scene": cfg["height_field"].get("shape", "file"), "data": data_name,
             "operator": cfg["operator"]["name"], "solver": cfg["solver"]["name"]}
-    with MlflowTracker(experiment=tracking["experiment"], run_name=cfg.get("method"),
-                       store_dir=resolve_path(tracking["store_dir"], base_dir), tracking_uri=tracking.get("uri"),
-                       params=cfg, tags=tags, sweep_id=sweep_id) as tracker:
+    checkpoint = resume_checkpoint(cfg.get("resume"), output_dir, base_dir)
+    store_dir = resolve_path(tracking["store_dir"], base_dir)
+    with MlflowTracker(experiment=tracking["experiment"], run_name=cfg.get("method"), store_dir=store_dir,
+                       tracking_uri=tracking.get("uri"), params=cfg, tags=tags, sweep_id=sweep_id,
+                       continue_run_id=interrupted_run(output_dir, checkpoint, store_dir, tracking.get("uri"))
+                       ) as tracker:
+        (output_dir / MLFLOW_RUN).write_text(json.dumps({"run_id": tracker.run_id,
+                                                         "tracking_uri": tracker.tracking_uri}))
         start = time.perf_counter()
         data = parts.data_source.load(parts.data_request(base_dir, output_dir))
         data_seconds = time.perf_counter() - start
+        tracker.log_data(data, cfg, base_dir)
         problem = Problem(operator, data, parts.grid, parts.scene)
         # The design the mm outputs compare with: the truth of synthetic data, else the configured
         # height field (the print's design); built now, so that a bad one fails before the solve.
@@ -165,9 +198,7 @@ def _reconstruct(parts: Reconstruction, output_dir: Path, base_dir: Path, sweep_
                                      tracker.metrics_callback()]
         calibration = parts.calibration
         if calibration is not None:
-            resume_from = None
-            if cfg.get("resume"):
-                resume_from = resolve_path(str(cfg["resume"]), base_dir).parent / CALIBRATION_STATE
+            resume_from = None if checkpoint is None else checkpoint.parent / CALIBRATION_STATE
             calibration.setup(data.target, data.weights, data.delta, output_dir / CALIBRATION_STATE, resume_from)
             callbacks.append(calibration)
         truth_error = None
@@ -179,8 +210,9 @@ def _reconstruct(parts: Reconstruction, output_dir: Path, base_dir: Path, sweep_
                   flush=True)
             compiling.wait()
         solve_start = time.perf_counter()
-        if cfg.get("resume"):
-            result = resume_solver(solver, resolve_path(str(cfg["resume"]), base_dir), parts.max_iter, callbacks)
+        if checkpoint is not None:
+            print(f"resuming from {checkpoint}", flush=True)
+            result = resume_solver(solver, checkpoint, parts.max_iter, callbacks)
         else:
             result = solver.run(parts.max_iter, callbacks)
         solve_seconds = time.perf_counter() - solve_start
@@ -213,6 +245,6 @@ def _reconstruct(parts: Reconstruction, output_dir: Path, base_dir: Path, sweep_
         (output_dir / "metrics.json").write_text(json.dumps(metrics, indent=2))
         save_reconstruction_figures(output_dir, d, problem, prediction, history.columns())
         tracker.log_metrics({k: v for k, v in metrics.items() if isinstance(v, (int, float)) and v is not None
-                             and not isinstance(v, bool)})
+                             and not isinstance(v, bool)}, step=result.iterations)  # the summary: last step, not 0
         tracker.log_artifacts(output_dir)
     return metrics

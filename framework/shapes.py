@@ -1,4 +1,5 @@
-"""Built-in printed-glass height fields d(x, y) >= 0 (method.md section 7), in scene units.
+"""Built-in printed-glass height fields d(x, y) >= 0, in scene units (docs/method.md,
+"Built-in height fields").
 
 Every shape is sampled on an m x m grid with samples at linspace(-1, 1, m) on both axes and
 returned as a float64 array indexed [row, col] = [y, x] (y grows with the row index, so plots
@@ -26,7 +27,7 @@ import numpy as np
 __all__ = ["SHAPES", "make_shape", "grid", "g", "G2", "line_v", "line_h", "print_lines_on",
            "flat", "gaussian", "print_lines", "oblique_lines", "bump", "letter_a", "segment_distance"]
 
-COORDINATE_SCALE = 6.0  # X = 6x, Y = 6y (method.md section 7)
+COORDINATE_SCALE = 6.0  # X = 6x, Y = 6y (docs/method.md, "Built-in height fields")
 OBLIQUE_ANGLE_DEG = 15.0
 HEIGHT_SCALE = 0.1  # d = 0.1 * (l1 + ... + l6)
 
@@ -92,7 +93,8 @@ def gaussian(x: np.ndarray, y: np.ndarray) -> np.ndarray:
 
 
 def print_lines(x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """The paper's "print lines" ground truth (method.md section 7); peak ~ 0.1 / (0.5 sqrt(2 pi))."""
+    """The paper's "print lines" ground truth (docs/method.md, "Built-in height fields");
+    peak ~ 0.1 / (0.5 sqrt(2 pi))."""
     return print_lines_on(COORDINATE_SCALE * x, COORDINATE_SCALE * y)
 
 

@@ -9,6 +9,10 @@ parameters and tags, and ends the run as FINISHED, FAILED (exception) or KILLED
 :class:`MlflowMetricsCallback`. It uses ``MlflowClient`` only (no global active run), and mlflow
 is imported only inside this module's functions.
 
+Experiments are tagged as custom-model (not GenAI) experiments, every run carries the code
+version (git commit, dirty work tree, entry point) as tags, and :meth:`MlflowTracker.log_data`
+records the run's input data as an MLflow dataset (docs/dashboard.md).
+
 Example::
 
     with MlflowTracker("print-lines", tags={"method": "M2V1", "scene": "lines"}, params=cfg) as tr:
@@ -18,18 +22,32 @@ Example::
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
+import hashlib
+import json
 import os
+import subprocess
+import sys
 import time
-from collections.abc import Mapping
+import urllib.error
+import urllib.request
+from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
+
+import numpy as np
 
 from framework.solvers.base import Callback
 
 if TYPE_CHECKING:
+    from mlflow.data.numpy_dataset import NumpyDataset
+
+    from framework.data import ReconstructionData
     from framework.solvers.base import IterationRecord, IterativeSolver, RunResult
 
-__all__ = ["MlflowTracker", "MlflowMetricsCallback", "flatten_params", "MAX_PARAM_VALUE_LENGTH"]
+__all__ = ["MlflowTracker", "MlflowMetricsCallback", "flatten_params", "MAX_PARAM_VALUE_LENGTH", "code_version_tags",
+           "check_tracking_server", "data_dataset", "EXPERIMENT_KIND_TAG", "EXPERIMENT_KIND", "DATASET_CONTEXT"]
 
 # MLflow's limits (mlflow.utils.validation): param values 6000 chars, tag values 8000, keys 250.
 MAX_PARAM_VALUE_LENGTH = 6000
@@ -37,6 +55,20 @@ MAX_TAG_VALUE_LENGTH = 8000
 MAX_KEY_LENGTH = 250
 _BATCH = 100  # MLflow's max params/tags per log_batch call
 _TRUNCATED = "...[truncated]"
+
+# MLflow 3 records an experiment's kind in this tag (read by its UI, mlflow/server/js): "genai_development"
+# opens on traces, "custom_model_development" is the classic machine-learning kind with the runs table.
+# The UI of MLflow 3.17 prefers its own GenAI / Model training switch (docs/dashboard.md).
+EXPERIMENT_KIND_TAG = "mlflow.experimentKind"
+EXPERIMENT_KIND = "custom_model_development"
+DATASET_CONTEXT = "reconstruction"  # the runs' input tag mlflow.data.context
+GIT_COMMIT_TAG = "mlflow.source.git.commit"
+GIT_DIRTY_TAG = "git_dirty"
+SOURCE_NAME_TAG = "mlflow.source.name"
+SOURCE_TYPE_TAG = "mlflow.source.type"
+UNKNOWN = "unknown"
+REPO_ROOT = Path(__file__).resolve().parents[1]
+MEASURED_FILE_KEYS = ("image", "photo")  # the data.* key naming the measured file (data=file, data=photo)
 
 
 def _truncate(text: str, limit: int) -> str:
@@ -71,6 +103,123 @@ def flatten_params(params: Mapping[str, Any], sep: str = ".", max_value_length: 
     return out
 
 
+def _git(root: Path, *args: str) -> str | None:
+    """Stripped output of ``git -C root args``; None without git, outside a repository or on any error."""
+    try:
+        done = subprocess.run(["git", "--no-optional-locks", "-C", str(root), *args], capture_output=True, text=True,
+                              timeout=10, check=True)
+    except (OSError, subprocess.SubprocessError):
+        return None
+    return done.stdout.strip()
+
+
+def entry_point() -> str:
+    """The running program: the module of ``python -m`` (e.g. ``experiments.reconstruct``), else the
+    script's file name (e.g. ``sfc-reconstruct``), else "unknown"."""
+    spec = getattr(sys.modules.get("__main__"), "__spec__", None)
+    if spec is not None and spec.name:
+        return spec.name.removesuffix(".__main__")
+    script = sys.argv[0] if sys.argv else ""
+    return Path(script).name if script not in ("", "-", "-c") else UNKNOWN  # "-": stdin, "-c": a command
+
+
+def code_version_tags(root: Path = REPO_ROOT) -> dict[str, str]:
+    """Run tags naming the code: the git commit of the repository at ``root``, whether its tracked
+    files differ from that commit ("true"/"false") and the entry point; "unknown" where git or the
+    repository is absent (e.g. the package installed elsewhere)."""
+    toplevel = _git(root, "rev-parse", "--show-toplevel")
+    in_repo = toplevel is not None and Path(toplevel).resolve() == root.resolve()
+    commit = _git(root, "rev-parse", "HEAD") if in_repo else None
+    status = _git(root, "status", "--porcelain", "--untracked-files=no") if in_repo else None
+    return {GIT_COMMIT_TAG: commit or UNKNOWN, GIT_DIRTY_TAG: UNKNOWN if status is None else str(bool(status)).lower(),
+            SOURCE_NAME_TAG: entry_point(), SOURCE_TYPE_TAG: "LOCAL"}
+
+
+def check_tracking_server(uri: str, timeout: float = 5.0) -> None:
+    """Refuse an http(s) tracking URI whose server does not answer ``/health`` (other URIs pass)."""
+    if not uri.startswith(("http://", "https://")):
+        return
+    try:
+        with urllib.request.urlopen(f"{uri.rstrip('/')}/health", timeout=timeout):
+            return
+    except (urllib.error.URLError, OSError) as error:
+        reason = getattr(error, "reason", error)
+        raise ValueError(f"the MLflow tracking server tracking.uri={uri} does not answer ({reason}); start it "
+                         f"(mlflow server --host <host> --port <port>) or set tracking.uri=null for the local store "
+                         f"tracking.store_dir") from None
+
+
+def dataset_digest(arrays: Mapping[str, np.ndarray], values: Mapping[str, Any]) -> str:
+    """A 16-hex-digit SHA-256 of ``values`` (as sorted JSON) and each array's dtype, shape and bytes."""
+    sha = hashlib.sha256(json.dumps(values, sort_keys=True, default=str).encode())
+    for name in sorted(arrays):
+        array = np.ascontiguousarray(arrays[name])
+        sha.update(f"{name}:{array.dtype.str}:{array.shape}".encode())
+        sha.update(array.tobytes())
+    return sha.hexdigest()[:16]
+
+
+def _data_arrays(data: "ReconstructionData") -> dict[str, np.ndarray]:
+    """The caustic target (c, n, n), the mask (m, m) and, if known, the volume (1,) as numpy arrays."""
+    arrays = {"caustic": data.target.detach().cpu().numpy(), "mask": data.mask.detach().cpu().numpy()}
+    if data.volume is not None:
+        arrays["volume"] = np.array([data.volume], dtype=np.float64)
+    return arrays
+
+
+def _measured_file(data_cfg: Mapping[str, Any], base_dir: Path | None) -> Path | None:
+    """The measured caustic's file (data.image / data.photo), resolved against ``base_dir``."""
+    name = next((data_cfg[key] for key in MEASURED_FILE_KEYS if data_cfg.get(key)), None)
+    if name is None:
+        return None
+    path = Path(str(name)).expanduser()
+    return path if path.is_absolute() or base_dir is None else base_dir / path
+
+
+def _synthetic_description(cfg: Mapping[str, Any]) -> dict[str, Any]:
+    """What synthetic data are made from: the data settings (noise level delta, reference renders),
+    the height field (shape or path) and the seed."""
+    return {"data": dict(cfg.get("data") or {}), "height_field": dict(cfg.get("height_field") or {}),
+            "seed": cfg.get("seed", 0)}
+
+
+def data_dataset(data: "ReconstructionData", cfg: Mapping[str, Any], base_dir: Path | None = None) -> "NumpyDataset":
+    """The run's input data as an MLflow numpy dataset (features caustic, mask and volume).
+
+    Synthetic data (with a ground truth): named ``synthetic:<shape or file>``, a code source
+    describing the scene, seed and noise level, the digest of that description and the target.
+    Measured data: named after the file, a local source with its path, the digest of the arrays.
+    """
+    import mlflow.data
+    from mlflow.data.code_dataset_source import CodeDatasetSource
+    from mlflow.data.dataset_source_registry import get_dataset_source_from_json
+
+    arrays = _data_arrays(data)
+    if data.ground_truth is not None:
+        description = _synthetic_description(cfg)
+        field = description["height_field"]
+        scene = Path(str(field["path"])).name if field.get("path") else field.get("shape", UNKNOWN)
+        return mlflow.data.from_numpy(arrays, source=CodeDatasetSource(tags=description), name=f"synthetic:{scene}",
+                                      digest=dataset_digest({"caustic": arrays["caustic"]}, description))
+    path = _measured_file(cfg.get("data") or {}, base_dir)
+    uri = str(path.resolve()) if path is not None else UNKNOWN
+    source = get_dataset_source_from_json(json.dumps({"uri": uri}), source_type="local")
+    name = path.name if path is not None else str((cfg.get("data") or {}).get("name", UNKNOWN))
+    return mlflow.data.from_numpy(arrays, source=source, name=name, digest=dataset_digest(arrays, {"file": uri}))
+
+
+@contextlib.contextmanager
+def _store_lock(store_dir: Path) -> Iterator[None]:
+    """An exclusive lock on ``store_dir`` (a file lock, so across processes): the first job that
+    opens a new SQLite store creates its tables while the others wait, instead of racing."""
+    with open(store_dir / ".lock", "w") as handle:
+        fcntl.flock(handle, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(handle, fcntl.LOCK_UN)
+
+
 class MlflowTracker:
     """One MLflow run as a context manager.
 
@@ -78,12 +227,15 @@ class MlflowTracker:
         experiment: Experiment name (created if missing).
         run_name: Display name of the run.
         store_dir: Directory of the default local store (``mlflow.db`` + ``artifacts/``).
-        tracking_uri: Overrides the default store, e.g. ``http://host:5000`` or another
-            ``sqlite:///...`` file.
+        tracking_uri: Overrides the default store, e.g. another ``sqlite:///...`` file or a
+            tracking server ``http://host:5000`` (which must answer ``/health`` when the run starts).
         params: Nested parameters (e.g. the resolved config), logged flattened.
-        tags: Run tags, e.g. ``{"method": "M2V1", "scene": "print_lines"}``.
+        tags: Run tags, e.g. ``{"method": "M2V1", "scene": "print_lines"}`` (added to the code version
+            tags of :func:`code_version_tags`, which they override).
         parent_run_id: Make this run a child (nested) run of that run.
         sweep_id: Tag ``sweep_id`` grouping the runs of one multirun.
+        continue_run_id: Reopen this existing run instead of starting one (a job resumed in its
+            run directory after pre-emption logs into the run it started); its params stay.
     """
 
     def __init__(
@@ -96,6 +248,7 @@ class MlflowTracker:
         tags: Mapping[str, Any] | None = None,
         parent_run_id: str | None = None,
         sweep_id: str | None = None,
+        continue_run_id: str | None = None,
     ) -> None:
         if not experiment or not isinstance(experiment, str):
             raise ValueError(f"experiment must be a non-empty name, got {experiment!r}")
@@ -109,28 +262,28 @@ class MlflowTracker:
         self.params = dict(params or {})
         self.tags = {str(k): str(v) for k, v in (tags or {}).items()}
         self.parent_run_id, self.sweep_id = parent_run_id, sweep_id
+        self.continue_run_id = continue_run_id
         self.run_id: str | None = None
         self.experiment_id: str | None = None
         self._client: Any = None
 
     # -- lifecycle -----------------------------------------------------------------------------
     def __enter__(self) -> "MlflowTracker":
-        from mlflow.exceptions import MlflowException
         from mlflow.tracking import MlflowClient
         from mlflow.utils.mlflow_tags import MLFLOW_PARENT_RUN_ID
 
-        if self.tracking_uri.startswith("sqlite:"):
+        check_tracking_server(self.tracking_uri)
+        local = self.tracking_uri.startswith("sqlite:")
+        if local:
             self.store_dir.mkdir(parents=True, exist_ok=True)
-        self._client = MlflowClient(tracking_uri=self.tracking_uri)
-        exp = self._client.get_experiment_by_name(self.experiment)
-        if exp is None:
-            try:
-                self.experiment_id = self._client.create_experiment(self.experiment, artifact_location=self._artifact_location)
-            except MlflowException:  # created concurrently by another job of the same sweep
-                self.experiment_id = self._client.get_experiment_by_name(self.experiment).experiment_id
-        else:
-            self.experiment_id = exp.experiment_id
-        tags = dict(self.tags)
+        with _store_lock(self.store_dir) if local else contextlib.nullcontext():
+            self._client = MlflowClient(tracking_uri=self.tracking_uri)
+            self.experiment_id = self._experiment_id()
+        if self.continue_run_id is not None:
+            self._client.update_run(self.continue_run_id, status="RUNNING")
+            self.run_id = self.continue_run_id
+            return self
+        tags = {**code_version_tags(), **self.tags}
         if self.parent_run_id:
             tags[MLFLOW_PARENT_RUN_ID] = self.parent_run_id
         if self.sweep_id:
@@ -142,6 +295,22 @@ class MlflowTracker:
         if self.params:
             self.log_params(self.params)
         return self
+
+    def _experiment_id(self) -> str:
+        """The experiment's id: created as a custom-model (not GenAI) experiment, or found and given
+        that kind if it has none."""
+        from mlflow.exceptions import MlflowException
+
+        exp = self._client.get_experiment_by_name(self.experiment)
+        if exp is None:
+            try:
+                return self._client.create_experiment(self.experiment, artifact_location=self._artifact_location,
+                                                      tags={EXPERIMENT_KIND_TAG: EXPERIMENT_KIND})
+            except MlflowException:  # created concurrently by another job of the same sweep
+                exp = self._client.get_experiment_by_name(self.experiment)
+        if EXPERIMENT_KIND_TAG not in exp.tags:
+            self._client.set_experiment_tag(exp.experiment_id, EXPERIMENT_KIND_TAG, EXPERIMENT_KIND)
+        return exp.experiment_id
 
     def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: Any) -> bool:
         if self.run_id is None:
@@ -197,6 +366,17 @@ class MlflowTracker:
         items = [Metric(str(k), float(v), now, int(step or 0)) for k, v in metrics.items()]
         for i in range(0, len(items), 1000):
             self._client.log_batch(self.run_id, metrics=items[i : i + 1000])
+
+    def log_data(self, data: "ReconstructionData", cfg: Mapping[str, Any], base_dir: Path | None = None) -> None:
+        """Log the run's input data as an MLflow dataset in context "reconstruction" (see
+        :func:`data_dataset`; relative data paths are resolved against ``base_dir``)."""
+        from mlflow.entities import Dataset, DatasetInput, InputTag
+        from mlflow.utils.mlflow_tags import MLFLOW_DATASET_CONTEXT
+
+        self._require_run()
+        dataset = Dataset(**data_dataset(data, cfg, base_dir).to_dict())
+        self._client.log_inputs(self.run_id, datasets=[
+            DatasetInput(dataset, tags=[InputTag(MLFLOW_DATASET_CONTEXT, DATASET_CONTEXT)])])
 
     def log_artifact(self, path: str | os.PathLike[str], artifact_path: str | None = None) -> None:
         """Copy one file into the run's artefacts."""

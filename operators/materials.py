@@ -56,7 +56,7 @@ class ConstantIndex:
         return self.n
 
 
-# Malitson (1965) fit for fused silica, valid 0.21 um - 6.7 um (method.md section 1).
+# Malitson (1965) fit for fused silica, valid 0.21 um - 6.7 um (docs/method.md, "Setup and units").
 FUSED_SILICA = Sellmeier(b=(0.6961663, 0.4079426, 0.8974794), c=(0.0684043, 0.1162414, 9.896161))
 
 

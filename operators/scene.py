@@ -1,4 +1,4 @@
-"""Physical description of the caustic setup (method.md section 1); lengths in scene units.
+"""Physical description of the caustic setup (docs/method.md, "Setup and units"); lengths in scene units.
 
 The substrate occupies [-W, W]^2 with its flat bottom at z = 0 and its top at z = h + d(x, y);
 a point light shines on it from above and the receiver plane at z = receiver.z < 0 records the

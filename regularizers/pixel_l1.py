@@ -1,4 +1,4 @@
-"""Pixel-domain L1 sparsity R(d) = alpha * ||d||_1 (method.md section 4, M2)."""
+"""Pixel-domain L1 sparsity R(d) = alpha * ||d||_1 (M2; docs/method.md, "Regularisers")."""
 
 from __future__ import annotations
 

@@ -1,6 +1,6 @@
 """Elementwise building blocks of the pixel proximal maps: soft shrinkage and masked clamping.
 
-Both are the method's S(w, k) and I_[p1,p2] (method.md section 4, eq. (7)).
+Both are the method's S(w, k) and I_[p1,p2] (eq. (7); docs/method.md, "Regularisers").
 """
 
 from __future__ import annotations

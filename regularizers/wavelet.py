@@ -1,6 +1,6 @@
 """Orthogonal 2-D discrete wavelet transform W (Daubechies-3 by default) and the wavelet L1 prior.
 
-Used by the wavelet Landweber method M3 (method.md section 4, eq. (9)):
+Used by the wavelet Landweber method M3 (eq. (9); docs/method.md, "The methods M1, M2 and M3"):
     w_d <- S(w_d - tau_w grad_w f, tau_w alpha_w),  grad_w f = (W^-1)^* grad_d f.
 
 We fix the boundary mode to ``"periodization"`` with an orthogonal wavelet and a grid width

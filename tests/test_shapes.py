@@ -1,4 +1,4 @@
-"""Built-in height fields: facts derived from the formulas of method.md section 7."""
+"""Built-in height fields: facts derived from the formulas of docs/method.md, "Built-in height fields"."""
 
 from __future__ import annotations
 

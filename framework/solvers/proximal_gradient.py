@@ -1,4 +1,5 @@
-"""The one proximal-gradient iteration, and M1 / M2 as configurations of it (method.md section 4).
+"""The one proximal-gradient iteration, and M1 / M2 as configurations of it (docs/method.md,
+"One proximal-gradient iteration").
 
 One iteration from d (with g = sum of the regularisers, P = their proxes applied in list order):
 

@@ -1,4 +1,4 @@
-"""M3: wavelet-based thresholded Landweber, method.md section 4, eq. (9).
+"""M3: wavelet-based thresholded Landweber, eq. (9) (docs/method.md, "The methods M1, M2 and M3").
 
 One iteration, in exactly this order (w = W d, W a Daubechies-3 wavelet transform):
 

@@ -4,6 +4,7 @@ noise, imported and reconstructed; and a screen distance 10% off, calibrated wit
 
 from __future__ import annotations
 
+from experiments.mlflow_store import TrackingStore
 from experiments.reproduce_lab import calibration_study, photo_study
 
 # A 2-core budget: 64 x 64 receiver and heights, 2^17 photons per iteration.
@@ -13,14 +14,14 @@ REFERENCE_PHOTONS = 1 << 20
 
 
 def test_a_photo_reconstructs_as_well_as_the_render_it_shows(tmp_path) -> None:
-    row = photo_study("bump", tmp_path / "work", tmp_path / "mlruns", SMALL, REFERENCE_PHOTONS)
+    row = photo_study("bump", tmp_path / "work", TrackingStore(tmp_path / "mlruns"), SMALL, REFERENCE_PHOTONS)
     assert row["import_error"] < 0.02  # the rectified, linearised, flat-fielded photo against the render
     assert row["weighted_out"] > 0  # its saturated pixels left the fit
     assert row["photo_error"] <= 1.2 * row["clean_error"]
 
 
 def test_joint_calibration_finds_the_gain_and_keeps_the_geometry_sane(tmp_path) -> None:
-    row = calibration_study("bump", tmp_path / "work", tmp_path / "mlruns", SMALL, REFERENCE_PHOTONS)
+    row = calibration_study("bump", tmp_path / "work", TrackingStore(tmp_path / "mlruns"), SMALL, REFERENCE_PHOTONS)
     assert abs(row["gain"] - 1.7) < 0.01 * 1.7  # from the image as it is: nothing told
     # The screen distance (told 10% too large) trades off with the heights' scale in this geometry
     # (docs/results/lab_calibration.md): the estimate must stay within its bound (2 x 10% of the

@@ -1,9 +1,15 @@
+import json
+import subprocess
+import time
+
 import pytest
 import torch
 
 from framework.callbacks import GroundTruthError, MorozovStopping
+from framework.data import ReconstructionData
 from framework.solvers import GradientDescent
-from framework.tracking import MlflowTracker, flatten_params
+from framework.tracking import (EXPERIMENT_KIND, EXPERIMENT_KIND_TAG, MlflowTracker, check_tracking_server,
+                                code_version_tags, data_dataset, flatten_params)
 from tests.framework.toy import DTYPE, make_problem
 
 mlflow = pytest.importorskip("mlflow")
@@ -96,3 +102,73 @@ def test_tracker_without_active_run_is_an_error(store):
         MlflowTracker("toy", store_dir=store).log_metrics({"x": 1.0})
     with pytest.raises(ValueError, match="experiment"):
         MlflowTracker("")
+
+
+def test_experiments_are_custom_model_experiments_new_or_existing(store):
+    client = _client(store)
+    with MlflowTracker("kind-new", store_dir=store) as tracker:
+        pass
+    assert client.get_experiment(tracker.experiment_id).tags[EXPERIMENT_KIND_TAG] == EXPERIMENT_KIND
+    old = client.create_experiment("kind-old")  # as made before the tag, or by another tool
+    with MlflowTracker("kind-old", store_dir=store):
+        pass
+    assert client.get_experiment(old).tags[EXPERIMENT_KIND_TAG] == EXPERIMENT_KIND
+
+
+def test_runs_carry_the_code_version(store):
+    with MlflowTracker("toy", store_dir=store) as tracker:
+        pass
+    tags = _client(store).get_run(tracker.run_id).data.tags
+    assert len(tags["mlflow.source.git.commit"]) == 40 and tags["git_dirty"] in {"true", "false"}
+    assert tags["mlflow.source.name"] and tags["mlflow.source.type"] == "LOCAL"
+
+
+def test_code_version_is_unknown_outside_a_repository_or_without_git(tmp_path, monkeypatch):
+    outside = code_version_tags(tmp_path)
+    assert outside["mlflow.source.git.commit"] == "unknown" and outside["git_dirty"] == "unknown"
+
+    def no_git(*args, **kwargs):
+        raise FileNotFoundError("git")
+
+    monkeypatch.setattr(subprocess, "run", no_git)
+    assert code_version_tags()["mlflow.source.git.commit"] == "unknown"
+
+
+def _data(seed: int = 0, truth: bool = True) -> ReconstructionData:
+    target = torch.rand(1, 8, 8, generator=torch.Generator().manual_seed(seed), dtype=torch.float64)
+    mask = torch.ones(4, 4, dtype=torch.bool)
+    return ReconstructionData(target, mask, volume=0.01, delta=0.05,
+                              ground_truth=torch.zeros(4, 4, dtype=torch.float64) if truth else None)
+
+
+SYNTHETIC = {"data": {"name": "synthetic", "delta": 0.05}, "height_field": {"shape": "bump", "path": None}, "seed": 3}
+
+
+def test_synthetic_data_are_named_by_scene_described_by_seed_and_noise_and_digested():
+    dataset = data_dataset(_data(), SYNTHETIC)
+    assert dataset.name == "synthetic:bump" and dataset.source.to_dict()["tags"]["seed"] == 3
+    assert dataset.digest == data_dataset(_data(), SYNTHETIC).digest
+    assert dataset.digest != data_dataset(_data(), {**SYNTHETIC, "seed": 4}).digest
+    assert dataset.digest != data_dataset(_data(seed=1), SYNTHETIC).digest
+
+
+def test_measured_data_name_their_file_and_log_as_the_runs_input(store, tmp_path):
+    cfg = {"data": {"name": "file", "image": "caustic.npy", "mask": "mask.npy", "volume": 0.01}}
+    with MlflowTracker("toy", store_dir=store) as tracker:
+        tracker.log_data(_data(truth=False), cfg, base_dir=tmp_path)
+    (logged,) = _client(store).get_run(tracker.run_id).inputs.dataset_inputs
+    assert logged.dataset.name == "caustic.npy" and logged.dataset.source_type == "local"
+    assert json.loads(logged.dataset.source)["uri"] == str(tmp_path.resolve() / "caustic.npy")
+    assert logged.dataset.digest == data_dataset(_data(truth=False), cfg, tmp_path).digest
+    assert set(json.loads(logged.dataset.profile)["features_shape"]) == {"caustic", "mask", "volume"}
+    assert [(t.key, t.value) for t in logged.tags] == [("mlflow.data.context", "reconstruction")]
+
+
+def test_an_unreachable_tracking_server_is_refused_in_one_line():
+    url = "http://127.0.0.1:9"  # the discard port: nothing answers
+    start = time.perf_counter()
+    with pytest.raises(ValueError, match=rf"tracking.uri={url} does not answer.*tracking.uri=null") as refused:
+        with MlflowTracker("toy", tracking_uri=url):
+            pass
+    assert time.perf_counter() - start < 10 and "\n" not in str(refused.value)
+    check_tracking_server("sqlite:///elsewhere.db")  # not a server: nothing to check

@@ -1,0 +1,113 @@
+"""Screenshots of the MLflow dashboard (docs/dashboard.md): an experiment's runs table and one run's
+metric charts, taken with headless Chromium from a local ``mlflow server`` on an MLflow store.
+
+Example::
+
+    python -m experiments.dashboard_screenshots --store mlruns --experiment fig6 --out docs/images
+
+The MLflow 3 UI remembers per browser whether it shows GenAI or model-training pages; the URLs
+ask for the model-training pages (``?workflowType=machine_learning``), so that a fresh browser
+shows the runs table rather than the GenAI overview.
+"""
+
+from __future__ import annotations
+
+import argparse
+import shutil
+import subprocess
+import tempfile
+from pathlib import Path
+
+from experiments.mlflow_server import serve
+
+BROWSERS = ("chromium", "chromium-browser", "google-chrome")
+WORKFLOW = "workflowType=machine_learning"
+WINDOW = (1600, 1000)
+# Virtual time before the screenshot. The pages' timers (auto-refresh) run it out fast, in about 6 s of
+# real time here; 30 s of it sometimes shot the metric charts before they had fetched their data.
+RENDER_BUDGET_MS = 300_000
+NAMES = ("mlflow_runs.png", "mlflow_metrics.png")
+
+
+def chromium() -> str | None:
+    """The path of a Chromium (or Chrome) binary, or None."""
+    return next((found for name in BROWSERS if (found := shutil.which(name))), None)
+
+
+def runs_table_url(server: str, experiment_id: str) -> str:
+    """The UI page of an experiment's runs table."""
+    return f"{server}/#/experiments/{experiment_id}/runs?{WORKFLOW}"
+
+
+def metric_charts_url(server: str, experiment_id: str, run_id: str) -> str:
+    """The UI page of one run's metric charts (each metric against its step, the iteration)."""
+    return f"{server}/#/experiments/{experiment_id}/runs/{run_id}/model-metrics?{WORKFLOW}"
+
+
+def screenshot(browser: str, url: str, out: Path, window: tuple[int, int] = WINDOW) -> Path:
+    """Save a PNG of ``url`` as headless Chromium renders it in a fresh profile."""
+    out.parent.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(prefix="sfc-chromium-") as profile:
+        command = [browser, "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+                   "--disable-background-networking", "--disable-component-update", "--disable-sync",
+                   f"--user-data-dir={profile}", f"--window-size={window[0]},{window[1]}",
+                   f"--virtual-time-budget={RENDER_BUDGET_MS}", f"--screenshot={out.resolve()}", url]
+        done = subprocess.run(command, capture_output=True, text=True, timeout=180)
+    if done.returncode != 0 or not out.is_file():
+        raise RuntimeError(f"{browser} could not screenshot {url} (exit {done.returncode}): {done.stderr[-500:]}")
+    return out
+
+
+def pages(server: str, experiment: str, run_name: str | None = None) -> tuple[str, str]:
+    """The runs-table and metric-charts URLs of ``experiment``: the charts of its newest finished run
+    (named ``run_name`` if given)."""
+    from mlflow.tracking import MlflowClient
+
+    client = MlflowClient(tracking_uri=server)
+    found = client.get_experiment_by_name(experiment)
+    if found is None:
+        names = ", ".join(e.name for e in client.search_experiments())
+        raise SystemExit(f"error: no experiment {experiment!r} in the store; it has {names} (choose with --experiment)")
+    query = "attributes.status = 'FINISHED'" + (f" and attributes.run_name = '{run_name}'" if run_name else "")
+    runs = client.search_runs([found.experiment_id], query, order_by=["attributes.start_time DESC"], max_results=1)
+    if not runs:
+        what = f"finished run named {run_name!r}" if run_name else "finished run"
+        raise SystemExit(f"error: experiment {experiment!r} has no {what} to chart (see --run-name)")
+    return (runs_table_url(server, found.experiment_id),
+            metric_charts_url(server, found.experiment_id, runs[0].info.run_id))
+
+
+def take_screenshots(backend_uri: str, experiment: str, out_dir: Path, run_name: str | None = None,
+                     names: tuple[str, str] = NAMES) -> list[Path]:
+    """Serve ``backend_uri`` and save the runs table and the metric charts of ``experiment`` as PNGs
+    (see :func:`pages`)."""
+    browser = chromium()
+    if browser is None:
+        raise SystemExit(f"error: no Chromium binary ({', '.join(BROWSERS)}); install one: apt-get install chromium")
+    with tempfile.TemporaryDirectory(prefix="sfc-mlflow-ui-") as scratch:
+        with serve(backend_uri, Path(scratch) / "artifacts", Path(scratch) / "server.log") as server:
+            urls = pages(server, experiment, run_name)
+            for url in urls:
+                print(url.replace(server, "<server>"), flush=True)
+            return [screenshot(browser, url, out_dir / name) for url, name in zip(urls, names)]
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Command line: --store (mlruns, its mlflow.db) or --backend-store-uri, --experiment, --run-name, --out."""
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--store", type=Path, default=Path("mlruns"), help="MLflow store directory (its mlflow.db)")
+    parser.add_argument("--backend-store-uri", help="any MLflow backend store URI instead of --store")
+    parser.add_argument("--experiment", default="table1", help="experiment name")
+    parser.add_argument("--run-name", help="chart the newest finished run of this name (default: the newest)")
+    parser.add_argument("--out", type=Path, default=Path("docs/images"), help="directory of the PNGs")
+    args = parser.parse_args(argv)
+    database = args.store.resolve() / "mlflow.db"
+    if args.backend_store_uri is None and not database.is_file():
+        raise SystemExit(f"error: no MLflow store {database}; give --store or --backend-store-uri")
+    backend = args.backend_store_uri or f"sqlite:///{database}"
+    for path in take_screenshots(backend, args.experiment, args.out, args.run_name):
+        print(f"wrote {path}")
+
+
+if __name__ == "__main__":
+    main()
