@@ -28,13 +28,20 @@ def _sweep(tmp_path: Path, launcher: list[str], store: Path, extra: list[str] = 
     return subprocess.run(cmd, capture_output=True, text=True, timeout=600, cwd=tmp_path, env=env)
 
 
-def _runs(store: Path) -> list:
+def _runs(store: Path, sweep: Path | None = None) -> list:
     client = MlflowClient(tracking_uri=f"sqlite:///{store / 'mlflow.db'}")
-    return client.search_runs([client.get_experiment_by_name("shape-from-caustics").experiment_id])
+    runs = client.search_runs([client.get_experiment_by_name("shape-from-caustics").experiment_id])
+    return [r for r in runs if sweep is None or r.data.tags.get("sweep_id") == str(sweep)]
 
 
-def _check_two_finished_runs(store: Path) -> None:
-    runs = _runs(store)
+@pytest.fixture(scope="module")
+def shared_store(tmp_path_factory) -> Path:
+    """One MLflow store for the SLURM-path and the Ray sweeps."""
+    return tmp_path_factory.mktemp("shared") / "mlruns"
+
+
+def _check_two_finished_runs(store: Path, sweep: Path) -> None:
+    runs = _runs(store, sweep)
     assert sorted(r.data.params["seed"] for r in runs) == ["0", "1"]
     for run in runs:
         assert run.info.status == "FINISHED"
@@ -42,22 +49,20 @@ def _check_two_finished_runs(store: Path) -> None:
         assert run.data.params["solver.max_iter"] == "2" and len(run.data.params) > 40
 
 
-def test_a_sweep_through_submitits_local_executor(tmp_path) -> None:
+def test_a_sweep_through_submitits_local_executor(tmp_path, shared_store) -> None:
     pytest.importorskip("hydra_plugins.hydra_submitit_launcher")
-    store = tmp_path / "mlruns"
-    done = _sweep(tmp_path, ["hydra/launcher=submitit_local", "hydra.launcher.timeout_min=10"], store)
+    done = _sweep(tmp_path, ["hydra/launcher=submitit_local", "hydra.launcher.timeout_min=10"], shared_store)
     assert done.returncode == 0, done.stderr[-3000:]
-    _check_two_finished_runs(store)
+    _check_two_finished_runs(shared_store, tmp_path / "sweep")
     assert list((tmp_path / "sweep" / ".submitit").iterdir())  # the jobs went through submitit
 
 
-def test_a_sweep_on_a_local_ray_instance(tmp_path) -> None:
+def test_a_sweep_on_a_local_ray_instance(tmp_path, shared_store) -> None:
     pytest.importorskip("hydra_plugins.hydra_ray_launcher")
-    store = tmp_path / "mlruns"
     done = _sweep(tmp_path, ["hydra/launcher=ray_cluster", "hydra.launcher.ray.init.num_cpus=2",
-                             "+hydra.launcher.ray.init.include_dashboard=false"], store)
+                             "+hydra.launcher.ray.init.include_dashboard=false"], shared_store)
     assert done.returncode == 0, done.stderr[-3000:]
-    _check_two_finished_runs(store)
+    _check_two_finished_runs(shared_store, tmp_path / "sweep")
 
 
 def _iteration(checkpoint: Path) -> int:

@@ -45,3 +45,17 @@ def test_bad_units_are_refused(cfg, match) -> None:
 def test_bad_lengths_are_refused(value, match) -> None:
     with pytest.raises(ValueError, match=match):
         scene_length(value, 25.0, "substrate.thickness")
+
+
+def test_the_paper_sample_in_millimetres_is_the_scene_in_units() -> None:
+    from pathlib import Path
+
+    from hydra import compose, initialize_config_dir
+
+    from framework.scene_config import to_plain
+
+    conf = str(Path(__file__).resolve().parents[2] / "conf")
+    with initialize_config_dir(config_dir=conf, version_base=None):
+        in_mm, in_units = (build_scene(to_plain(compose("reconstruct", overrides=[f"scene={name}"])))
+                           for name in ("print_lines_mm", "print_lines"))
+    assert in_mm == in_units
