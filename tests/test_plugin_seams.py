@@ -33,7 +33,8 @@ SMALL = ["photons=60000", "receiver.resolution=64", "height_field.resolution=32"
 # Each option of each group of conf/reconstruct.yaml, with what it needs beside it.
 NEEDS = {("solver", "gradient_descent"): ["experiment=m1"], ("solver", "gradient_descent_paper"): ["experiment=m1"],
          ("solver", "landweber_wavelet"): ["experiment=m3v1"], ("solver", "schwartzburg"): ["experiment=schwartzburg"],
-         ("data", "file"): ["data.image=caustic.npy"]}
+         ("data", "file"): ["data.image=caustic.npy"],
+         ("data", "photo"): ["data.photo=photo.npy", "data.corners=[[0,63],[63,63],[63,0],[0,0]]"]}
 GROUPS = ["scene", "operator", "reconstruct_operator", "data", "solver", "stopping", "tracking", "experiment"]
 OPTIONS = [(group, path.stem) for group in GROUPS for path in sorted((CONF / group).glob("*.yaml"))]
 
@@ -78,6 +79,7 @@ MINIMAL = {
     ("preconditioner", "sobolev"): ({}, {}),
     ("stopping", "morozov"): ({"tau_dis": 1.05}, {}), ("stopping", "stagnation"): ({}, {}),
     ("data", "synthetic"): ({}, {}), ("data", "file"): ({"image": "caustic.npy"}, {}),
+    ("data", "photo"): ({"photo": "photo.npy", "corners": [[0, 63], [63, 63], [63, 0], [0, 0]]}, {}),
 }
 
 
