@@ -38,7 +38,7 @@ def plain(**groups: Any) -> dict[str, Any]:
 
 
 def test_the_expected_configs_exist() -> None:
-    assert SCENES == ["bump", "flat", "gaussian", "letter_a", "oblique_lines", "print_lines"]
+    assert SCENES == ["bump", "flat", "gaussian", "letter_a", "oblique_lines", "print_lines", "print_lines_mm"]
     assert OPERATORS == ["height_field", "mesh_scene", "prism_lens_array", "two_lenses"]
 
 
@@ -49,9 +49,10 @@ def test_every_config_composes_and_builds(scene_name: str, operator: str) -> Non
     scene = build_scene(cfg)
     heights = build_heights(cfg)
     op = build_operator(cfg, scene)
-    assert cfg.height_field.shape == scene_name
+    shape = scene_name.removesuffix("_mm")  # print_lines_mm: the same scene with lengths in mm
+    assert cfg.height_field.shape == shape
     assert heights.shape == (16, 16) and heights.dtype == torch.float64
-    np.testing.assert_array_equal(heights.numpy(), make_shape(scene_name, 16, **cfg.height_field.params))
+    np.testing.assert_array_equal(heights.numpy(), make_shape(shape, 16, **cfg.height_field.params))
     channels = len(cfg.wavelengths)
     assert op.output_shape == (channels, 32, 32)
     image = op.render(heights)
