@@ -16,6 +16,8 @@ from typing import Any
 
 import numpy as np
 
+from framework.tracking import local_store_uri
+
 
 @dataclass(frozen=True)
 class TrackingStore:
@@ -29,7 +31,7 @@ class TrackingStore:
         """An MLflow client of this store."""
         from mlflow.tracking import MlflowClient
 
-        return MlflowClient(tracking_uri=self.uri or f"sqlite:///{self.directory / 'mlflow.db'}")
+        return MlflowClient(tracking_uri=self.uri or local_store_uri(self.directory))
 
     def overrides(self) -> list[str]:
         """The sfc-reconstruct overrides that log to this store."""

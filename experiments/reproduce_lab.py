@@ -36,10 +36,11 @@ from PIL import Image
 
 from experiments.mlflow_store import TrackingStore
 from framework.calibration import with_setup
+from framework.callbacks import GroundTruthError
 from framework.data import resample_image
 from framework.photo import synthesize_photo
 from framework.reconstruction import Reconstruction, run_reconstruction
-from framework.scene_config import build_heights, build_operator, build_scene, to_plain
+from framework.scene_config import build_heights, build_operator, build_scene, height_grid, to_plain
 
 CONF = str(Path(__file__).resolve().parent.parent / "conf")
 SCENES = ("print_lines", "bump")
@@ -122,8 +123,7 @@ def photo_study(scene: str, work: Path, store: TrackingStore, overrides: list[st
     cfg = reconstruct_config(base)
     seed = int(cfg["seed"])
     files = write_photos(cfg, work / scene, reference_photons, seed)
-    truth = build_heights(cfg)
-    volume = float(truth.sum()) * (2.0 * float(cfg["substrate"]["half_width"]) / (truth.shape[0] - 1)) ** 2
+    truth, volume = truth_and_volume(cfg)
     photo_args = ["data=photo", f"data.photo={files['photo']}", f"data.flat={files['flat']}",
                   "data.flat_kind=substrate", "data.response=gamma", f"data.gamma={PHOTO['gamma']}",
                   f"data.black_level={PHOTO['black_level_dn']}", "data.mask=design", f"data.volume={volume}",
@@ -134,13 +134,11 @@ def photo_study(scene: str, work: Path, store: TrackingStore, overrides: list[st
     target, weights = imported.target.numpy(), imported.weights.numpy()
     import_error = relative_error_after_scale(target, files["clean"], weights)
     delta = max(import_error, 0.01)
-    noisy = files["clean"] + np.random.default_rng(seed).normal(size=files["clean"].shape) * (
-        delta * np.linalg.norm(files["clean"]) / np.sqrt(files["clean"].size))
-    np.save(work / scene / "clean_noisy.npy", noisy)
+    np.save(work / scene / "clean_noisy.npy", with_noise(files["clean"], delta, seed))
     from_photo = _run([*base, *photo_args, f"data.delta={delta}"], work / scene, store, "photo")
     from_clean = _run([*base, "data=file", f"data.image={work / scene / 'clean_noisy.npy'}", "data.mask=design",
                        f"data.volume={volume}", f"data.delta={delta}"], work / scene, store, "clean")
-    truth_error = lambda run: _error_against(truth, work / scene / run, cfg)  # noqa: E731
+    truth_error = lambda run: error_against(truth, work / scene / run, cfg)  # noqa: E731
     return {"scene": scene, "import_error": import_error, "delta": delta,
             "saturated_photo_pixels": files["saturated_photo_pixels"],
             "weighted_out": int((weights == 0).sum()), "photo_error": truth_error("photo"),
@@ -148,12 +146,22 @@ def photo_study(scene: str, work: Path, store: TrackingStore, overrides: list[st
             "clean_iterations": from_clean["iterations"]}
 
 
-def _error_against(truth: torch.Tensor, run_dir: Path, cfg: dict[str, Any]) -> float:
-    """Relative error of h + d against h + d_true (framework/callbacks.py, GroundTruthError)."""
-    d = np.load(run_dir / "height_field.npy")
-    h = float(cfg["substrate"]["thickness"])
-    t = truth.numpy()
-    return float(np.linalg.norm(d - t) / np.linalg.norm(h + t))
+def truth_and_volume(cfg: dict[str, Any]) -> tuple[torch.Tensor, float]:
+    """The configured heights (m, m) and their volume (scene units^3), as data=synthetic takes it."""
+    truth = build_heights(cfg)
+    return truth, float(truth.sum()) * height_grid(cfg, build_scene(cfg)).cell_area
+
+
+def with_noise(image: np.ndarray, delta: float, seed: int) -> np.ndarray:
+    """``image`` plus Gaussian noise of relative norm ``delta`` (seeded)."""
+    noise = np.random.default_rng(seed).normal(size=image.shape)
+    return image + noise * delta * np.linalg.norm(image) / np.sqrt(image.size)
+
+
+def error_against(truth: torch.Tensor, run_dir: Path, cfg: dict[str, Any]) -> float:
+    """The run's relative error of h + d against h + d_true (framework/callbacks.py, GroundTruthError)."""
+    d = torch.from_numpy(np.load(run_dir / "height_field.npy"))
+    return GroundTruthError(truth, float(cfg["substrate"]["thickness"])).errors(d)["rel_error"]
 
 
 def calibration_study(scene: str, work: Path, store: TrackingStore, overrides: list[str],
@@ -168,12 +176,9 @@ def calibration_study(scene: str, work: Path, store: TrackingStore, overrides: l
     n = int(cfg["receiver"]["resolution"])
     clean = TRUE_GAIN * resample_image(torch.from_numpy(0.5 * (renders[0] + renders[1])), n).numpy()
     delta = float(cfg["data"]["delta"])
-    noisy = clean + np.random.default_rng(seed).normal(size=clean.shape) * (
-        delta * np.linalg.norm(clean) / np.sqrt(clean.size))
     (work / scene).mkdir(parents=True, exist_ok=True)
-    np.save(work / scene / "caustic.npy", noisy)
-    truth = build_heights(cfg)
-    volume = float(truth.sum()) * (2.0 * float(cfg["substrate"]["half_width"]) / (truth.shape[0] - 1)) ** 2
+    np.save(work / scene / "caustic.npy", with_noise(clean, delta, seed))
+    truth, volume = truth_and_volume(cfg)
     data = [f"scene={scene}", "data=file", f"data.image={work / scene / 'caustic.npy'}", "data.mask=design",
             f"data.volume={volume}", f"data.delta={delta}", f"receiver.z={-DISTANCE_ERROR * true_distance}",
             *overrides]
@@ -184,11 +189,11 @@ def calibration_study(scene: str, work: Path, store: TrackingStore, overrides: l
     joint = _run([*data, "data.brightness=as_is", "calibration.params=[gain,screen_distance]"], work / scene, store,
                  "joint")
     return {"scene": scene, "true_distance": true_distance, "start_distance": DISTANCE_ERROR * true_distance,
-            "fixed_error": _error_against(truth, work / scene / "fixed", cfg),
-            "true_distance_error": _error_against(truth, work / scene / "fixed_true_distance", cfg),
+            "fixed_error": error_against(truth, work / scene / "fixed", cfg),
+            "true_distance_error": error_against(truth, work / scene / "fixed_true_distance", cfg),
             "true_distance_discrepancy": told_truth["rel_discrepancy"],
             "distance_at_bound": joint["calibration_screen_distance_at_bound"],
-            "joint_error": _error_against(truth, work / scene / "joint", cfg),
+            "joint_error": error_against(truth, work / scene / "joint", cfg),
             "fixed_discrepancy": fixed["rel_discrepancy"], "joint_discrepancy": joint["rel_discrepancy"],
             "distance": joint["calibration_screen_distance"], "distance_std": joint["calibration_screen_distance_std"],
             "gain": joint["calibration_gain"], "gain_std": joint["calibration_gain_std"],

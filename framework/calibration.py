@@ -169,13 +169,9 @@ class JointCalibration(Callback):
         self.operator.set_setup(with_setup(self.operator.scene, values), gain)
 
     def _render(self, d: Tensor, values: Mapping[str, float]) -> Tensor:
-        """G(d) (c, n, n) with ``values`` in place of the current parameters (state restored after)."""
-        current = self.values()
-        self._apply(values)
-        try:
-            return self.operator.render(d).double()
-        finally:
-            self._apply(current)
+        """G(d) (c, n, n) with ``values`` in place of the current parameters (the setup unchanged)."""
+        scene = with_setup(self.operator.scene, values)
+        return self.operator.render_with(scene, values.get("gain", self.operator.gain), d).double()
 
     def _weighted_sq(self, x: Tensor) -> float:
         return float((x ** 2 if self.weights is None else self.weights * x ** 2).sum())

@@ -95,8 +95,6 @@ def measured_data(image: torch.Tensor, resolution: int, delta: float, mask: torc
     receiver barely depends on the printed heights (energy conservation).
     """
     delta = validate_delta(delta)
-    if volume is not None and not volume > 0.0:
-        raise ValueError(f"data.volume={volume} must be positive (scene units^3) or null")
     target = resample_image(image.double(), resolution)
     if float(target.sum()) <= 0.0:
         raise ValueError("the caustic image is all zero (or negative); check the file")

@@ -27,8 +27,7 @@ from framework.objective import ForwardOperator
 from framework.problem import HeightGrid
 from framework.units import DEFAULT_MM_PER_UNIT, scene_volume
 
-__all__ = ["DataRequest", "DataSource", "SyntheticData", "MeasuredData", "checked_volume", "printed_area_mask",
-           "resolve_path", "volume_in_scene_units"]
+__all__ = ["DataRequest", "DataSource", "KnownPrint", "SyntheticData", "MeasuredData", "resolve_path"]
 
 
 def resolve_path(path: str | Path, base_dir: Path) -> Path:
@@ -110,37 +109,11 @@ class SyntheticData:
                               request.seed, request.grid.cell_area, self.mask_threshold, self.mask_dilation)
 
 
-def printed_area_mask(spec: str | None, request: DataRequest, threshold: float, dilation: float) -> torch.Tensor:
-    """The printed-area mask (m, m) bool: ``None``/``none`` (everywhere), ``design`` (the configured
-    height field above ``threshold``, dilated by ``dilation`` of the grid width) or a mask file."""
-    m = request.grid.resolution
-    if spec in (None, "none"):
-        return torch.ones(m, m, dtype=torch.bool)
-    if spec == "design":
-        return mask_from_height_field(request.design(), threshold, dilation)
-    return load_mask(resolve_path(spec, request.base_dir), m)
-
-
-def checked_volume(value: float | str | None) -> float | str | None:
-    """The deposited volume as configured (scene units^3, a string such as '1.7 mm3', or None);
-    converted by :func:`framework.units.scene_volume` when the run's units are known."""
-    if value is None or isinstance(value, str):
-        return value
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise ValueError(f"data.volume={value!r} must be a number (scene units^3), a string such as '1.7 mm3', or null")
-    return float(value)
-
-
-def volume_in_scene_units(value: float | str | None, request: DataRequest) -> float | None:
-    """``value`` of :func:`checked_volume` in scene units^3 (None stays None)."""
-    return None if value is None else scene_volume(value, request.mm_per_unit, "data.volume")
-
-
-class MeasuredData:
-    """A caustic image from a file (``data=file``).
+class KnownPrint:
+    """What a measured data source knows about the print besides its image (the shared settings of
+    ``data=file`` and ``data=photo``).
 
     Args:
-        image: Caustic .npy (as written by sfc-simulate) or 8/16-bit .png/.tif.
         mask: Printed-area mask file, ``design`` (the configured height field, thresholded and
             dilated) or None (everywhere).
         volume: Deposited volume, scene units^3 or a string such as '1.7 mm3', or None when unknown.
@@ -152,18 +125,62 @@ class MeasuredData:
 
     BRIGHTNESS = ("energy", "as_is")
 
+    def __init__(self, mask: str | None, volume: float | str | None, delta: float, brightness: str,
+                 mask_threshold: float, mask_dilation: float) -> None:
+        if brightness not in self.BRIGHTNESS:
+            raise ValueError(f"data.brightness={brightness!r}; use {' or '.join(self.BRIGHTNESS)}")
+        if volume is not None and not isinstance(volume, str) and (
+                isinstance(volume, bool) or not isinstance(volume, (int, float))):
+            raise ValueError(f"data.volume={volume!r} must be a number (scene units^3), a string such as '1.7 mm3', "
+                             "or null")
+        self.mask, self.volume, self.brightness = mask, volume, brightness
+        self.delta = validate_delta(delta)
+        self.mask_threshold = non_negative_setting("mask_threshold", mask_threshold)
+        self.mask_dilation = non_negative_setting("mask_dilation", mask_dilation)
+
+    def printed_area(self, request: DataRequest) -> torch.Tensor:
+        """The printed-area mask (m, m) bool: everywhere (no mask), the design's printed area
+        dilated, or the mask file."""
+        m = request.grid.resolution
+        if self.mask in (None, "none"):
+            return torch.ones(m, m, dtype=torch.bool)
+        if self.mask == "design":
+            return mask_from_height_field(request.design(), self.mask_threshold, self.mask_dilation)
+        return load_mask(resolve_path(self.mask, request.base_dir), m)
+
+    def deposited_volume(self, request: DataRequest) -> float | None:
+        """The deposited volume in scene units^3 (framework/units.py), or None when unknown."""
+        if self.volume is None:
+            return None
+        volume = scene_volume(self.volume, request.mm_per_unit, "data.volume")
+        if not volume > 0.0:
+            raise ValueError(f"data.volume={self.volume} must be positive (scene units^3 or e.g. '1.7 mm3') or null")
+        return volume
+
+    @staticmethod
+    def bare_substrate_caustic(request: DataRequest) -> torch.Tensor:
+        """The model's caustic (c, n, n) of the substrate without a print, float64."""
+        m = request.grid.resolution
+        operator = request.operator
+        return operator.render(torch.zeros(m, m, dtype=operator.dtype)).double()
+
+
+class MeasuredData(KnownPrint):
+    """A caustic image from a file (``data=file``).
+
+    Args:
+        image: Caustic .npy (as written by sfc-simulate) or 8/16-bit .png/.tif.
+        mask, volume, delta, brightness, mask_threshold, mask_dilation: What is known about the
+            print (:class:`KnownPrint`).
+    """
+
     def __init__(self, image: str | None = None, mask: str | None = None, volume: float | str | None = None,
                  delta: float = 0.05, brightness: str = "energy", mask_threshold: float = 1e-3,
                  mask_dilation: float = 0.05) -> None:
         if not image:
             raise ValueError("data=file needs data.image=<caustic .npy/.png/.tif>")
-        if brightness not in self.BRIGHTNESS:
-            raise ValueError(f"data.brightness={brightness!r}; use {' or '.join(self.BRIGHTNESS)}")
-        self.image, self.mask, self.brightness = str(image), mask, brightness
-        self.volume = checked_volume(volume)
-        self.delta = validate_delta(delta)
-        self.mask_threshold = non_negative_setting("mask_threshold", mask_threshold)
-        self.mask_dilation = non_negative_setting("mask_dilation", mask_dilation)
+        super().__init__(mask, volume, delta, brightness, mask_threshold, mask_dilation)
+        self.image = str(image)
 
     def load(self, request: DataRequest) -> ReconstructionData:
         """Read the image and the mask; scale the image (``brightness: energy``)."""
@@ -173,10 +190,6 @@ class MeasuredData:
         if image.shape[0] != channels:
             raise ValueError(f"data.image has {image.shape[0]} channel(s) but the scene has {channels} "
                              "wavelength(s); set wavelengths=[...] to match")
-        m = request.grid.resolution
-        mask = printed_area_mask(self.mask, request, self.mask_threshold, self.mask_dilation)
-        flat_total = None
-        if self.brightness == "energy":
-            flat_total = float(operator.render(torch.zeros(m, m, dtype=operator.dtype)).sum())
-        return measured_data(image, operator.output_shape[-1], self.delta, mask,
-                             volume_in_scene_units(self.volume, request), flat_total)
+        flat_total = float(self.bare_substrate_caustic(request).sum()) if self.brightness == "energy" else None
+        return measured_data(image, operator.output_shape[-1], self.delta, self.printed_area(request),
+                             self.deposited_volume(request), flat_total)

@@ -19,6 +19,7 @@ import trimesh
 from matplotlib.figure import Figure
 from PIL import Image, PngImagePlugin
 
+from framework.plotting import label_xy_axes, save_figure
 from framework.units import mm_per_unit as checked_mm_per_unit
 
 __all__ = ["MESH_FORMATS", "PNG_KEYS", "PRINTED", "glass_mesh", "write_height_png", "read_height_png",
@@ -193,9 +194,7 @@ def save_deviation_figure(path: str | Path, d: np.ndarray, design: np.ndarray, h
     shown = axes[2].imshow(error_um, origin="lower", extent=extent, cmap="RdBu_r", vmin=-limit, vmax=limit)
     axes[2].set_title("deviation: reconstruction - design")
     fig.colorbar(shown, ax=axes[2], label="deviation (µm)")
-    for ax in axes[:3]:
-        ax.set_xlabel("x (mm)")
-        ax.set_ylabel("y (mm)")
+    label_xy_axes(*axes[:3], unit="mm")
     m = d_mm.shape[0]
     x = np.linspace(-w_mm, w_mm, m)
     axes[3].plot(x, design_mm[m // 2], "k-", label="design")
@@ -204,10 +203,7 @@ def save_deviation_figure(path: str | Path, d: np.ndarray, design: np.ndarray, h
     axes[3].set_xlabel("x (mm)")
     axes[3].set_ylabel("height (mm)")
     axes[3].legend()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=120)
-    return path
+    return save_figure(fig, path, dpi=120)
 
 
 def export_outputs(out_dir: str | Path, d: np.ndarray, half_width: float, thickness: float, mm_per_unit: float,

@@ -23,7 +23,7 @@ from matplotlib.figure import Figure
 from PIL import Image, UnidentifiedImageError
 
 from framework.image_io import _existing
-from framework.plotting import normalise
+from framework.plotting import label_xy_axes, normalise, save_figure
 
 __all__ = ["PhotoImport", "read_photo", "linearize", "check_corners", "homography", "rectify",
            "saturated_receiver_pixels", "import_photo", "save_photo_figure", "vignetting_field",
@@ -527,13 +527,8 @@ def save_photo_figure(path: str | Path, photo_import: PhotoImport, dpi: int = 15
     overlay[zero] = (1.0, 0.0, 0.0, 1.0)
     ax_w.imshow(overlay, origin="lower", extent=extent)
     ax_w.set_title(f"weights: {int(zero.sum())} receiver pixels at 0 (red)", fontsize=9)
-    for ax in (ax_i, ax_w):
-        ax.set_xlabel("x (scene units)")
-        ax.set_ylabel("y (scene units)")
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path)
-    return path
+    label_xy_axes(ax_i, ax_w)
+    return save_figure(fig, path)
 
 
 # --- synthetic photos ----------------------------------------------------------------------------

@@ -22,9 +22,8 @@ import json
 
 import torch
 
-from framework.data import ReconstructionData, validate_delta
-from framework.data_sources import (DataRequest, checked_volume, non_negative_setting, printed_area_mask, resolve_path,
-                                    volume_in_scene_units)
+from framework.data import ReconstructionData
+from framework.data_sources import DataRequest, KnownPrint, resolve_path
 from framework.photo import import_photo, save_photo_figure
 
 __all__ = ["PhotoData"]
@@ -32,7 +31,7 @@ __all__ = ["PhotoData"]
 FLAT_KINDS = ("substrate", "uniform")
 
 
-class PhotoData:
+class PhotoData(KnownPrint):
     """A camera photo of the caustic on the screen (``data=photo``).
 
     Args:
@@ -42,11 +41,9 @@ class PhotoData:
         channel, bit_depth, response, gamma, black_level, dark, flat, saturation, supersample:
             The import's settings (framework/photo.py, import_photo).
         flat_kind: What the flat-field photo shows: ``substrate`` or ``uniform`` (module docstring).
-        mask, volume, delta, brightness, mask_threshold, mask_dilation: As for ``data=file``
-            (framework/data_sources.py, MeasuredData).
+        mask, volume, delta, brightness, mask_threshold, mask_dilation: What is known about the
+            print (framework/data_sources.py, KnownPrint).
     """
-
-    BRIGHTNESS = ("energy", "as_is")
 
     def __init__(self, photo: str | None = None, corners: list[list[float]] | None = None, channel: str = "grey",
                  bit_depth: int | None = None, response: str = "linear", gamma: float = 2.2,
@@ -61,16 +58,10 @@ class PhotoData:
                              "receiver's bottom-left, bottom-right, top-right and top-left corners in the photo")
         if flat_kind not in FLAT_KINDS:
             raise ValueError(f"data.flat_kind={flat_kind!r}; use {' or '.join(FLAT_KINDS)}")
-        if brightness not in self.BRIGHTNESS:
-            raise ValueError(f"data.brightness={brightness!r}; use {' or '.join(self.BRIGHTNESS)}")
-        self.photo, self.corners, self.flat, self.flat_kind = str(photo), corners, flat, flat_kind
+        super().__init__(mask, volume, delta, brightness, mask_threshold, mask_dilation)
+        self.photo, self.corners, self.flat, self.flat_kind, self.dark = str(photo), corners, flat, flat_kind, dark
         self.settings = {"channel": channel, "bit_depth": bit_depth, "response": response, "gamma": gamma,
                          "black_level": black_level, "saturation": saturation, "supersample": supersample}
-        self.dark, self.mask, self.brightness = dark, mask, brightness
-        self.volume = checked_volume(volume)
-        self.delta = validate_delta(delta)
-        self.mask_threshold = non_negative_setting("mask_threshold", mask_threshold)
-        self.mask_dilation = non_negative_setting("mask_dilation", mask_dilation)
 
     def load(self, request: DataRequest) -> ReconstructionData:
         """Import the photo onto the reconstruction's receiver; scale it; write the import's record."""
@@ -86,10 +77,9 @@ class PhotoData:
         target = torch.from_numpy(imported.image).double()
         weights = torch.from_numpy(imported.weights).double()
         steps = list(imported.steps)
-        m = request.grid.resolution
         flat_render = None
         if (self.flat is not None and self.flat_kind == "substrate") or self.brightness == "energy":
-            flat_render = operator.render(torch.zeros(m, m, dtype=operator.dtype)).double()
+            flat_render = self.bare_substrate_caustic(request)
         if self.flat is not None and self.flat_kind == "substrate":
             target = target * flat_render / float(flat_render.mean())
             steps.append("multiplied by the model's caustic of the bare substrate (flat_kind: substrate)")
@@ -105,8 +95,5 @@ class PhotoData:
             (request.output_dir / "photo_import.json").write_text(json.dumps(record, indent=2))
         for step in steps:
             print(f"photo: {step}", flush=True)
-        mask = printed_area_mask(self.mask, request, self.mask_threshold, self.mask_dilation)
-        volume = volume_in_scene_units(self.volume, request)
-        if volume is not None and not volume > 0.0:
-            raise ValueError(f"data.volume={self.volume} must be positive (scene units^3 or e.g. '1.7 mm3') or null")
-        return ReconstructionData(target=target, mask=mask, volume=volume, delta=self.delta, weights=weights)
+        return ReconstructionData(target=target, mask=self.printed_area(request), volume=self.deposited_volume(request),
+                                  delta=self.delta, weights=weights)

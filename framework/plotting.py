@@ -13,9 +13,25 @@ import numpy as np
 from matplotlib.figure import Figure
 from PIL import Image
 
-__all__ = ["normalise", "caustic_rgb", "save_caustic_png", "save_height_and_caustic_figure"]
+__all__ = ["normalise", "caustic_rgb", "label_xy_axes", "save_caustic_png", "save_figure",
+           "save_height_and_caustic_figure"]
 
 Extent = tuple[float, float, float, float]
+
+
+def label_xy_axes(*axes, unit: str = "scene units") -> None:
+    """Label the axes of plan-view panels x (unit) and y (unit)."""
+    for ax in axes:
+        ax.set_xlabel(f"x ({unit})")
+        ax.set_ylabel(f"y ({unit})")
+
+
+def save_figure(fig: Figure, path: str | Path, **savefig_options) -> Path:
+    """Write ``fig`` to ``path`` (its directory created as needed); returns the path."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, **savefig_options)
+    return path
 
 
 def normalise(values: np.ndarray, percentile: float = 99.9) -> np.ndarray:
@@ -94,10 +110,5 @@ def save_height_and_caustic_figure(heights: np.ndarray, image: np.ndarray, path:
     shown = ax_c.imshow(total, origin="lower", extent=receiver_extent, cmap=caustic_cmap, vmin=0.0, vmax=vmax)
     ax_c.set_title("caustic" if image.shape[0] == 1 else f"caustic (sum of {image.shape[0]} channels)")
     fig.colorbar(shown, ax=ax_c, label="irradiance (W / scene unit$^2$)")
-    for ax in (ax_h, ax_c):
-        ax.set_xlabel("x (scene units)")
-        ax.set_ylabel("y (scene units)")
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path)
-    return path
+    label_xy_axes(ax_h, ax_c)
+    return save_figure(fig, path)

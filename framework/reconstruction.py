@@ -28,7 +28,7 @@ from framework.problem import HeightGrid, OperatorPlugin, Problem
 from framework.report_figures import save_reconstruction_figures
 from framework.scene_config import build_heights, build_operator, build_scene, height_grid, to_plain
 from framework.solvers import Callback, IterationRecord, SolverBuilder
-from framework.tracking import MlflowTracker
+from framework.tracking import MlflowTracker, local_store_uri
 from framework.units import mm_per_unit
 from operators.scene import Scene
 
@@ -80,7 +80,7 @@ def interrupted_run(output_dir: Path, checkpoint: Path | None, store_dir: Path, 
     if checkpoint is None or checkpoint != output_dir / CHECKPOINT or not record.is_file():
         return None
     saved = json.loads(record.read_text())
-    return saved["run_id"] if saved["tracking_uri"] == (uri or f"sqlite:///{store_dir.resolve() / 'mlflow.db'}") else None
+    return saved["run_id"] if saved["tracking_uri"] == (uri or local_store_uri(store_dir)) else None
 
 
 def stage_changes(history: Sequence[IterationRecord]) -> list[int]:

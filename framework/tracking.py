@@ -47,7 +47,8 @@ if TYPE_CHECKING:
     from framework.solvers.base import IterationRecord, IterativeSolver, RunResult
 
 __all__ = ["MlflowTracker", "MlflowMetricsCallback", "flatten_params", "MAX_PARAM_VALUE_LENGTH", "code_version_tags",
-           "check_tracking_server", "data_dataset", "EXPERIMENT_KIND_TAG", "EXPERIMENT_KIND", "DATASET_CONTEXT"]
+           "check_tracking_server", "data_dataset", "local_store_uri", "EXPERIMENT_KIND_TAG", "EXPERIMENT_KIND",
+           "DATASET_CONTEXT"]
 
 # MLflow's limits (mlflow.utils.validation): param values 6000 chars, tag values 8000, keys 250.
 MAX_PARAM_VALUE_LENGTH = 6000
@@ -208,6 +209,11 @@ def data_dataset(data: "ReconstructionData", cfg: Mapping[str, Any], base_dir: P
     return mlflow.data.from_numpy(arrays, source=source, name=name, digest=dataset_digest(arrays, {"file": uri}))
 
 
+
+def local_store_uri(store_dir: str | os.PathLike[str]) -> str:
+    """The tracking URI of the local store in ``store_dir``: its SQLite file mlflow.db."""
+    return f"sqlite:///{Path(store_dir).resolve() / 'mlflow.db'}"
+
 @contextlib.contextmanager
 def _store_lock(store_dir: Path) -> Iterator[None]:
     """An exclusive lock on ``store_dir`` (a file lock, so across processes): the first job that
@@ -256,7 +262,7 @@ class MlflowTracker:
         self.store_dir = Path(store_dir).resolve()
         self._artifact_location: str | None = None
         if tracking_uri is None:
-            tracking_uri = f"sqlite:///{self.store_dir / 'mlflow.db'}"
+            tracking_uri = local_store_uri(self.store_dir)
             self._artifact_location = (self.store_dir / "artifacts").as_uri()
         self.tracking_uri = tracking_uri
         self.params = dict(params or {})

@@ -106,6 +106,12 @@ class ImagingOperator(ImageOperator):
         self.gain = float(gain)
         self.revision += 1
 
+    def render_with(self, scene: Scene, gain: float, heights: torch.Tensor) -> torch.Tensor:
+        """gain * K * F(d) (c, n, n) for another setup (the same receiver grid), leaving this
+        operator's own setup, and its wrapped operator, as they are."""
+        inner = self.inner if scene == self.scene else self._build(scene)
+        return gain * self.blur.apply(inner.render(heights))
+
     # -- what the framework uses of an operator plugin -------------------------------------------
     @property
     def dtype(self) -> torch.dtype:
