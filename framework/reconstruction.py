@@ -22,12 +22,12 @@ from framework.callbacks import Checkpointer, GroundTruthError, MetricsHistory, 
 from framework.checkpoint import resume as resume_solver
 from framework.data_sources import DataRequest, DataSource, resolve_path
 from framework.export import export_outputs
-from framework.height_field_io import load_height_field
 from framework.plugin_config import as_mapping, build_plugin, split_name
 from framework.problem import HeightGrid, OperatorPlugin, Problem
 from framework.report_figures import save_reconstruction_figures
 from framework.scene_config import build_heights, build_operator, build_scene, height_grid, to_plain
 from framework.solvers import Callback, IterationRecord, SolverBuilder
+from framework.starts import StartRequest
 from framework.tracking import MlflowTracker, local_store_uri
 from framework.units import mm_per_unit
 from operators.scene import Scene
@@ -37,24 +37,24 @@ CALIBRATION_STATE = "calibration.json"
 MLFLOW_RUN = "mlflow_run.json"  # the run's MLflow run id, so that a job resumed in its directory logs into it
 
 
-def initial_heights(cfg: Mapping[str, Any], m: int, dtype: torch.dtype, base_dir: Path) -> torch.Tensor:
-    """The iteration's start d0 (m, m), scene units, from ``initial``: ``zero`` (flat glass, the
-    paper), ``design`` (the configured height field, with ``data=file`` the print's design) or
-    the path of a .npy/.png height field (resampled to m), each times ``initial_scale``."""
-    spec = cfg.get("initial", "zero")
-    scale = cfg.get("initial_scale", 1.0)
-    if isinstance(scale, bool) or not isinstance(scale, (int, float)) or not 0.0 <= scale < float("inf"):
-        raise ValueError(f"initial_scale={scale!r} must be a finite number >= 0, e.g. 0.5")
-    if spec in (None, "zero"):
-        return torch.zeros(m, m, dtype=dtype)
-    if spec == "design":
-        d = build_heights(cfg, base_dir=base_dir) * float(scale)
-    else:
-        d = torch.from_numpy(load_height_field(resolve_path(str(spec), base_dir), resolution=m, scale=float(scale)))
-    if tuple(d.shape) != (m, m):
-        raise ValueError(f"initial={spec!r} gives heights of shape {tuple(d.shape)}, the reconstruction has "
-                         f"({m}, {m}); set height_field.resolution to match")
-    return d.to(dtype)
+def build_start(cfg: Mapping[str, Any]) -> Any:
+    """The ``initial`` plugin (framework/starts/), its config checked: ``{name: zero | design |
+    file | transport | auto, ...}``."""
+    spec = cfg.get("initial") or {"name": "zero"}
+    if isinstance(spec, str):
+        raise ValueError(f"initial={spec!r}: choose a start by name (initial=zero|design|file|transport|auto); "
+                         "a height-field file is initial=file initial.path=<file>")
+    name, params = split_name(spec, "initial")
+    return build_plugin("initial", name, params, "initial")
+
+
+def volume_report(d: torch.Tensor, volume: float | None, cell_area: float, tolerance: float = 0.02) -> dict[str, Any]:
+    """The result's volume against the known one: ``volume_ratio`` (sum d a / V) and whether it
+    holds within ``tolerance`` (``volume_held``); empty without a known volume."""
+    if volume is None:
+        return {}
+    ratio = float(d.double().sum()) * cell_area / volume
+    return {"volume_ratio": ratio, "volume_held": abs(ratio - 1.0) <= tolerance}
 
 
 def resume_checkpoint(spec: Any, output_dir: Path, base_dir: Path) -> Path | None:
@@ -108,7 +108,7 @@ class Reconstruction:
         data_source: The ``data`` plugin.
         make_solver: The solver plugin's builder: (problem, d0) -> solver.
         stopping: The ``stopping`` plugins, in config order.
-        d0: The start (m, m).
+        start: The ``initial`` plugin: computes the start d0 (m, m) once the data are loaded.
         max_iter: The solver's iteration cap.
         calibration: Joint calibration of the setup (framework/calibration.py), or None.
     """
@@ -120,7 +120,7 @@ class Reconstruction:
     data_source: DataSource
     make_solver: SolverBuilder
     stopping: list[Callback]
-    d0: torch.Tensor
+    start: Any
     max_iter: int
     calibration: JointCalibration | None = None
 
@@ -142,8 +142,8 @@ class Reconstruction:
         stopping = [build_plugin("stopping", name, params, f"stopping.{name}")
                     for name, params in as_mapping(cfg.get("stopping"), "stopping").items()]
         _positive_int(cfg.get("checkpoint_every"), "checkpoint_every")
-        d0 = initial_heights(cfg, grid.resolution, operator.dtype, base_dir)
-        return cls(cfg, operator, scene, grid, data_source, make_solver, stopping, d0, max_iter, calibration)
+        start = build_start(cfg)
+        return cls(cfg, operator, scene, grid, data_source, make_solver, stopping, start, max_iter, calibration)
 
     def data_request(self, base_dir: Path, output_dir: Path | None = None) -> DataRequest:
         """What the data source may use: the operator, the grid, the configured heights, the seed,
@@ -188,7 +188,16 @@ def _reconstruct(parts: Reconstruction, output_dir: Path, base_dir: Path, sweep_
         # The design the mm outputs compare with: the truth of synthetic data, else the configured
         # height field (the print's design); built now, so that a bad one fails before the solve.
         design = data.ground_truth if data.ground_truth is not None else build_heights(cfg, base_dir=base_dir)
-        solver = parts.make_solver(problem, parts.d0)
+        start_metrics: dict[str, Any] = {}
+        if checkpoint is None:  # a resumed run continues from its checkpoint's heights
+            start = parts.start(StartRequest(problem, lambda: build_heights(cfg, base_dir=base_dir), base_dir,
+                                             parts.make_solver))
+            d0, start_metrics = start.d.to(operator.dtype), {f"start_{k}": v for k, v in start.metrics.items()}
+            tracker.log_metrics(start_metrics, step=0)
+            start_metrics["start"] = start.name
+        else:
+            d0 = torch.zeros(parts.grid.shape, dtype=operator.dtype)
+        solver = parts.make_solver(problem, d0)
         for rule in parts.stopping:
             if callable(getattr(rule, "setup", None)):
                 rule.setup(problem)
@@ -231,7 +240,8 @@ def _reconstruct(parts: Reconstruction, output_dir: Path, base_dir: Path, sweep_
             "rel_discrepancy": problem.fidelity.relative_discrepancy(prediction),
             "delta": data.delta, "intrinsic_noise": data.intrinsic_noise,
             "photons_per_iteration": operator.photons, **(truth_error.errors(d) if truth_error else {}),
-            **(calibration.report() if calibration else {})}
+            **volume_report(d, data.volume, parts.grid.cell_area),
+            **start_metrics, **(calibration.report() if calibration else {})}
         np.save(output_dir / "height_field.npy", d.cpu().numpy().astype(np.float64))
         np.save(output_dir / "caustic_target.npy", data.target.cpu().numpy().astype(np.float32))
         np.save(output_dir / "caustic_predicted.npy", prediction.detach().cpu().numpy().astype(np.float32))

@@ -31,6 +31,7 @@ from tqdm.auto import tqdm
 
 from operators.emission import PointLightEmitter
 from operators.fused_trace import FusedTracer, HitCache
+from operators.light_paths import Arrivals, straight_landing
 from operators.native import to_numpy
 from operators.photon_operator import (PIXEL_SETTINGS, PhotonOperator, backward_through_splat, check_setting_keys,
                                       filter_radius_px)
@@ -256,6 +257,22 @@ class CausticOperator(PhotonOperator):
             with torch.enable_grad():
                 backward_through_splat(*self.splat_inputs(leaf, start, stop), g)
         return leaf.grad.to(heights.dtype)
+
+    # -- the light path around the print (operators/light_paths.py) ------------------------------
+    def arrivals(self, photons: int) -> Arrivals:
+        """``photons`` photons of this light where they meet the flat print's top plane z = h
+        (straight from the light: the emitter aims at that plane)."""
+        emitter = PointLightEmitter(self.scene, photons, self.settings.seed, self.settings.footprint_px, torch.float64)
+        batch = emitter.batch(0, emitter.total)
+        light = np.asarray(self.scene.light.position, dtype=np.float64)
+        direction = batch.direction.numpy().T
+        points = light[:2] + direction[:, :2] * ((self.scene.substrate.thickness - light[2]) / direction[:, 2:3])
+        return Arrivals(points, direction, batch.flux.numpy())
+
+    def land_from_bottom(self, points: np.ndarray, directions: np.ndarray) -> np.ndarray:
+        """Receiver points (N, 2) of rays leaving the bottom at ``points`` along ``directions``:
+        straight lines in air."""
+        return straight_landing(points, directions, self.scene.receiver.z)
 
     def describe(self) -> dict[str, float]:
         """Derived sampling figures, for logs."""

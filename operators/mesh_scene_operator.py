@@ -36,6 +36,7 @@ from tqdm.auto import tqdm
 from operators.caustic_operator import DTYPES, validate_heights
 from operators.emission import PointLightEmitter
 from operators.heightfield_surface import HeightFieldGrid, intersect_height_field
+from operators.light_paths import Arrivals
 from operators.materials import refractive_indices
 from operators.mesh_intersect import MIN_FACE_DISTANCE, MeshIntersector
 from operators.mesh_native import LOSSES, NativeMeshTracer
@@ -112,9 +113,7 @@ class MeshSceneOperator(PhotonOperator):
             raise ValueError(f"element {inside.name} (z {low:.4g} .. {high:.4g}) overlaps the substrate "
                              f"(z 0 .. {top:g}); move it above or below")
         self.dtype = DTYPES[settings.dtype]
-        aperture = settings.aperture_half_width or scene.substrate.half_width
-        aimed = dataclasses.replace(scene, substrate=dataclasses.replace(scene.substrate, half_width=aperture))
-        self.emitter = PointLightEmitter(aimed, settings.photons, settings.seed, settings.footprint_px, self.dtype)
+        self.emitter = PointLightEmitter(self._aimed_scene(), settings.photons, settings.seed, settings.footprint_px, self.dtype)
         self.intersector = MeshIntersector(self.elements)
         self._lowest_element = min((e.z_range[0] for e in self.elements), default=math.inf)
         self.substrate_index = torch.tensor(scene.indices, dtype=self.dtype)
@@ -302,6 +301,84 @@ class MeshSceneOperator(PhotonOperator):
         medium = torch.where(through, torch.where(entering, solid, torch.full_like(medium, AIR)), medium)
         moved = _Rays(position, d_position, direction_out, d_direction_out, flux, medium)
         return moved, is_rec, escaped | inside_top
+
+    # -- the light path around the print (operators/light_paths.py) ------------------------------
+    def arrivals(self, photons: int) -> Arrivals:
+        """``photons`` photons of this light, traced through the elements above the print, where
+        they enter the flat print's top (z = h, inside the substrate's square): position, the
+        direction they arrive along, flux. Photons that miss the top are left out."""
+        emitter = PointLightEmitter(self._aimed_scene(), photons, self.settings.seed, self.settings.footprint_px,
+                                    torch.float64)
+        batch = emitter.batch(0, emitter.total)
+        n = batch.direction.shape[1]
+        ray = _Rays(position=batch.origin.double().unsqueeze(-1).expand(3, n).clone(),
+                    d_position=torch.zeros(2, 3, n, dtype=torch.float64), direction=batch.direction.double(),
+                    d_direction=torch.zeros(2, 3, n, dtype=torch.float64), flux=batch.flux.double(),
+                    medium=torch.full((n,), AIR, dtype=torch.int64))
+        half = self.scene.substrate.half_width
+        with torch.no_grad():
+            before, landed = self._follow(ray, batch.channel, torch.zeros(2, 2, dtype=torch.float64), stop_on_entry=True)
+        top = landed & (before.position[2] - self.scene.substrate.thickness).abs().lt(1e-9) \
+            & (before.position[:2].abs() <= half).all(0)
+        return Arrivals(before.position[:2, top].T.numpy(), before.direction[:, top].T.numpy(),
+                        before.flux[top].numpy())
+
+    def land_from_bottom(self, points: np.ndarray, directions: np.ndarray) -> np.ndarray:
+        """Receiver points (N, 2) of rays leaving the bottom at ``points`` along ``directions``,
+        traced through the elements below the print (first wavelength); NaN where lost."""
+        n = len(points)
+        start = np.concatenate([points, np.full((n, 1), -1e-9)], axis=1)
+        ray = _Rays(position=torch.from_numpy(start.T.copy()), d_position=torch.zeros(2, 3, n, dtype=torch.float64),
+                    direction=torch.from_numpy(np.ascontiguousarray(directions.T, dtype=np.float64)),
+                    d_direction=torch.zeros(2, 3, n, dtype=torch.float64), flux=torch.ones(n, dtype=torch.float64),
+                    medium=torch.full((n,), AIR, dtype=torch.int64))
+        with torch.no_grad():
+            end, landed = self._follow(ray, torch.zeros(n, dtype=torch.int64), torch.zeros(2, 2, dtype=torch.float64))
+        out = end.position[:2].T.numpy().copy()
+        out[~landed.numpy()] = np.nan
+        return out
+
+    def _follow(self, ray: _Rays, channel: torch.Tensor, heights: torch.Tensor, stop_on_entry: bool = False
+                ) -> tuple[_Rays, torch.Tensor]:
+        """Step rays (float64) until they reach the receiver or are lost, or with
+        ``stop_on_entry`` until they enter the substrate: the rays as they were then (the state
+        before that event, i.e. on the surface with the incident direction) and which got there."""
+        scene = self.scene
+        surface = _Surface(HeightFieldGrid(scene.substrate.thickness, scene.substrate.half_width, heights.shape[0]),
+                           heights, scene.substrate.thickness + float(heights.max()) + 1e-9)
+        # The tracer's own dtype is the operator's; these paths are traced in float64.
+        (table, dtype), self.index_table, self.dtype = (self.index_table, self.dtype), self.index_table.double(), torch.float64
+        n = ray.flux.shape[0]
+        alive = torch.ones(n, dtype=torch.bool)
+        reached = torch.zeros(n, dtype=torch.bool)
+        kept = ray
+        try:
+            for _ in range(self.settings.max_depth):
+                index = alive.nonzero().squeeze(1)
+                if index.numel() == 0:
+                    break
+                part = ray.take(index)
+                moved, arrived, lost = self._step(part, channel[index], surface, {k: 0.0 for k in LOSSES})
+                if stop_on_entry:
+                    entered = (moved.medium == len(self.elements)) & (part.medium == AIR)
+                    at_top = entered.nonzero().squeeze(1)
+                    surface_hit = _Rays(moved.position, moved.d_position, part.direction, part.d_direction,
+                                        part.flux, part.medium)
+                    kept = kept.put(index[at_top], surface_hit.take(at_top))
+                    reached[index[at_top]] = True
+                    arrived = arrived | entered
+                else:
+                    reached[index] |= arrived
+                ray = ray.put(index, moved)
+                alive[index] = ~(arrived | lost)
+        finally:
+            self.index_table, self.dtype = table, dtype
+        return (kept if stop_on_entry else ray), reached
+
+    def _aimed_scene(self) -> Scene:
+        """The scene with the substrate's square widened to the emitter's aperture."""
+        aperture = self.settings.aperture_half_width or self.scene.substrate.half_width
+        return dataclasses.replace(self.scene, substrate=dataclasses.replace(self.scene.substrate, half_width=aperture))
 
     def _index(self, solid: torch.Tensor, channel: torch.Tensor) -> torch.Tensor:
         """Refractive index (N,) of the solid (element k, or the substrate for k = K) per photon."""

@@ -1,0 +1,10 @@
+"""Starts of the iteration (plugins of kind ``initial``): flat glass, the design, a file, the
+masked transport of the caustic, or the one of several that fits the data best (docs/method.md,
+"The start")."""
+
+from .auto import AutoStart
+from .base import StartRequest, StartResult
+from .simple import DesignStart, FileStart, ZeroStart
+from .transport import TransportStart
+
+__all__ = ["AutoStart", "DesignStart", "FileStart", "StartRequest", "StartResult", "TransportStart", "ZeroStart"]

@@ -1,0 +1,47 @@
+"""What a start plugin receives and returns.
+
+A plugin of kind ``initial`` is built from its config group (``conf/initial/<name>.yaml``) by its
+``from_config(**params)``, which checks every value before anything is rendered; the built object
+is called once the data are loaded: ``start(request) -> StartResult``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Callable
+
+from torch import Tensor
+
+if TYPE_CHECKING:
+    from framework.problem import Problem
+    from framework.solvers import SolverBuilder
+
+__all__ = ["StartRequest", "StartResult"]
+
+
+@dataclass(frozen=True)
+class StartRequest:
+    """What a start may use.
+
+    Attributes:
+        problem: The operator, data (target, mask, volume, noise level), grid and scene.
+        design: Builds the configured height field (m, m) (with synthetic data the ground truth).
+        base_dir: Directory relative paths are resolved against.
+        make_solver: The run's solver builder, (problem, d0) -> solver (a start may probe it).
+    """
+
+    problem: Problem
+    design: Callable[[], Tensor]
+    base_dir: Path
+    make_solver: SolverBuilder
+
+
+@dataclass
+class StartResult:
+    """A start d0 (m, m), scene units, in the operator's dtype, and what computing it measured
+    (logged with the run as ``start_*`` metrics)."""
+
+    d: Tensor
+    metrics: dict[str, float] = field(default_factory=dict)
+    name: str = ""
