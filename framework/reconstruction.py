@@ -143,6 +143,8 @@ class Reconstruction:
                     for name, params in as_mapping(cfg.get("stopping"), "stopping").items()]
         _positive_int(cfg.get("checkpoint_every"), "checkpoint_every")
         start = build_start(cfg)
+        if callable(getattr(start, "check", None)):
+            start.check(base_dir)
         return cls(cfg, operator, scene, grid, data_source, make_solver, stopping, start, max_iter, calibration)
 
     def data_request(self, base_dir: Path, output_dir: Path | None = None) -> DataRequest:

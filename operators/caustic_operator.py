@@ -267,7 +267,7 @@ class CausticOperator(PhotonOperator):
         light = np.asarray(self.scene.light.position, dtype=np.float64)
         direction = batch.direction.numpy().T
         points = light[:2] + direction[:, :2] * ((self.scene.substrate.thickness - light[2]) / direction[:, 2:3])
-        return Arrivals(points, direction, batch.flux.numpy())
+        return Arrivals(points, direction, batch.flux.numpy(), np.arange(emitter.total))
 
     def land_from_bottom(self, points: np.ndarray, directions: np.ndarray) -> np.ndarray:
         """Receiver points (N, 2) of rays leaving the bottom at ``points`` along ``directions``:

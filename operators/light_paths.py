@@ -34,11 +34,14 @@ class Arrivals:
         points: (N, 2) x, y on the plane, scene units.
         directions: (N, 3) unit directions of travel there (z < 0).
         flux: (N,) W per photon.
+        photon: (N,) the photons' indices in the operator's emission order (those that miss the
+            top are left out).
     """
 
     points: np.ndarray
     directions: np.ndarray
     flux: np.ndarray
+    photon: np.ndarray
 
 
 @runtime_checkable

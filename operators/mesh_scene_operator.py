@@ -321,7 +321,7 @@ class MeshSceneOperator(PhotonOperator):
         top = landed & (before.position[2] - self.scene.substrate.thickness).abs().lt(1e-9) \
             & (before.position[:2].abs() <= half).all(0)
         return Arrivals(before.position[:2, top].T.numpy(), before.direction[:, top].T.numpy(),
-                        before.flux[top].numpy())
+                        before.flux[top].numpy(), top.nonzero().squeeze(1).numpy())
 
     def land_from_bottom(self, points: np.ndarray, directions: np.ndarray) -> np.ndarray:
         """Receiver points (N, 2) of rays leaving the bottom at ``points`` along ``directions``,

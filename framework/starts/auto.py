@@ -5,6 +5,7 @@ discrepancy starts the run (docs/method.md, "The start")."""
 from __future__ import annotations
 
 import time
+from pathlib import Path
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -42,6 +43,12 @@ class AutoStart:
         self.candidates: Sequence[tuple[str, Any]] = [
             (name, build_plugin("initial", name, params, f"initial.candidates.{name}")) for name, params in specs.items()]
         self.probe_iterations = probe_iterations
+
+    def check(self, base_dir: Path) -> None:
+        """Each candidate's own check (e.g. a start file exists)."""
+        for _, start in self.candidates:
+            if callable(getattr(start, "check", None)):
+                start.check(base_dir)
 
     def __call__(self, request: StartRequest) -> StartResult:
         metrics: dict[str, float] = {}

@@ -2,7 +2,8 @@
 
 A plugin of kind ``initial`` is built from its config group (``conf/initial/<name>.yaml``) by its
 ``from_config(**params)``, which checks every value before anything is rendered; the built object
-is called once the data are loaded: ``start(request) -> StartResult``.
+is called once the data are loaded: ``start(request) -> StartResult``. A start that reads files
+may also have ``check(base_dir)``, called before the run opens.
 """
 
 from __future__ import annotations

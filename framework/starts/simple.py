@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from pathlib import Path
 from typing import Any
 
 import torch
@@ -64,9 +65,14 @@ class FileStart:
                              "initial=file initial.path=outputs/<run>/height_field.npy")
         self.path, self.scale = path, _scale(scale)
 
-    def __call__(self, request: StartRequest) -> StartResult:
-        file = resolve_path(self.path, request.base_dir)
+    def check(self, base_dir: Path) -> Path:
+        """The file, which must exist (checked before the run opens)."""
+        file = resolve_path(self.path, base_dir)
         if not file.is_file():
             raise FileNotFoundError(f"initial.path={self.path!r}: {file} does not exist; give a .npy or .png height field")
+        return file
+
+    def __call__(self, request: StartRequest) -> StartResult:
+        file = self.check(request.base_dir)
         d = torch.from_numpy(load_height_field(file, resolution=request.problem.grid.resolution, scale=self.scale))
         return StartResult(_checked_shape(d, request, f"initial.path={self.path!r}"), name=self.name)

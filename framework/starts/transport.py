@@ -133,7 +133,8 @@ def exit_directions(path: LightPath, points: np.ndarray, tops: np.ndarray, targe
 def fit_masked_surface(slopes: np.ndarray, mask: np.ndarray, spacing: float, smoothness: float,
                        height_sum: float | None) -> np.ndarray:
     """Heights (m, m), zero outside ``mask``, whose forward differences best fit ``slopes``
-    (m, m, 2: d/dx along columns, d/dy along rows) on every edge that touches the mask, plus
+    (m, m, 2: d/dx along columns, d/dy along rows; each edge takes the mean of its ends', exact
+    for a quadratic) on every edge that touches the mask, plus
     ``smoothness`` times the squared 5-point Laplacian (per cell); with ``height_sum`` the masked
     heights sum to it exactly (a Lagrange multiplier)."""
     m = mask.shape[0]
@@ -141,11 +142,11 @@ def fit_masked_surface(slopes: np.ndarray, mask: np.ndarray, spacing: float, smo
     eye = sp.identity(m, format="csr")
     diff = sp.diags([-np.ones(m - 1), np.ones(m - 1)], [0, 1], shape=(m - 1, m)) / spacing
     rows, goals = [], []
-    for operator, slope, edge_mean in ((sp.kron(eye, diff, format="csr"), slopes[..., 0], _mean_x),
-                                       (sp.kron(diff, eye, format="csr"), slopes[..., 1], _mean_y)):
+    edge_slopes = (0.5 * (slopes[:, 1:, 0] + slopes[:, :-1, 0]), 0.5 * (slopes[1:, :, 1] + slopes[:-1, :, 1]))
+    for operator, slope in zip((sp.kron(eye, diff, format="csr"), sp.kron(diff, eye, format="csr")), edge_slopes):
         touches = np.abs(operator).dot(mask.ravel().astype(float)) > 0
         rows.append(operator[touches][:, free])
-        goals.append(edge_mean(slope, mask).ravel()[touches])
+        goals.append(slope.ravel()[touches])
     second = (diff.T @ diff) * spacing
     laplacian = (sp.kron(eye, second) + sp.kron(second, eye)).tocsr()[free][:, free]
     system = sum(r.T @ r for r in rows) + smoothness * (laplacian.T @ laplacian)
@@ -157,18 +158,6 @@ def fit_masked_surface(slopes: np.ndarray, mask: np.ndarray, spacing: float, smo
     out = np.zeros(m * m)
     out[free] = heights
     return out.reshape(m, m)
-
-
-def _mean_x(slope: np.ndarray, mask: np.ndarray) -> np.ndarray:
-    """Slope on each x edge (m, m - 1): the mean of its masked ends' slopes."""
-    weight = mask.astype(float)
-    total = weight[:, 1:] + weight[:, :-1]
-    return (slope[:, 1:] * weight[:, 1:] + slope[:, :-1] * weight[:, :-1]) / np.maximum(total, 1.0)
-
-
-def _mean_y(slope: np.ndarray, mask: np.ndarray) -> np.ndarray:
-    """Slope on each y edge (m - 1, m)."""
-    return _mean_x(slope.T, mask.T).T
 
 
 class TransportStart:

@@ -12,8 +12,10 @@ import pytest
 import torch
 from mlflow.tracking import MlflowClient
 
-from framework.reconstruction import CHECKPOINT, initial_heights, run_reconstruction
+from framework.problem import Problem
+from framework.reconstruction import CHECKPOINT, Reconstruction, build_start, run_reconstruction
 from framework.scene_config import build_heights
+from framework.starts import StartRequest
 from operators.caustic_operator import CausticOperator
 from tests.experiments.conftest import SMALL, compose_reconstruct
 
@@ -61,26 +63,45 @@ def test_resume_continues_an_interrupted_run_to_the_same_result(tmp_path):
                           np.load(tmp_path / "resumed" / "height_field.npy"))
 
 
-def test_initial_heights_from_zero_design_or_file(tmp_path):
+def test_starts_from_zero_design_or_file(tmp_path):
     cfg = compose_reconstruct([*SMALL, *BUMP], tmp_path)
-    assert torch.equal(initial_heights(cfg, 32, torch.float32, tmp_path), torch.zeros(32, 32))
-    half = initial_heights({**cfg, "initial": "design", "initial_scale": 0.5}, 32, torch.float64, tmp_path)
-    assert torch.allclose(half, 0.5 * build_heights(cfg)) and float(half.max()) > 0.02
+    parts = Reconstruction.from_config(cfg, tmp_path)
+    problem = Problem(parts.operator, parts.data_source.load(parts.data_request(tmp_path)), parts.grid, parts.scene)
+
+    def start(spec: dict) -> torch.Tensor:
+        return build_start({"initial": spec})(StartRequest(problem, lambda: build_heights(cfg), tmp_path, None)).d
+
+    assert torch.equal(start({"name": "zero"}), torch.zeros(32, 32))
+    half = start({"name": "design", "scale": 0.5}).double()
+    assert torch.allclose(half, 0.5 * build_heights(cfg), atol=1e-7) and float(half.max()) > 0.02
     np.save(tmp_path / "start.npy", np.full((16, 16), 0.01))
-    from_file = initial_heights({**cfg, "initial": "start.npy", "initial_scale": 2.0}, 32, torch.float64, tmp_path)
+    from_file = start({"name": "file", "path": "start.npy", "scale": 2.0}).double()
     assert from_file.shape == (32, 32) and torch.allclose(from_file, torch.full((32, 32), 0.02, dtype=torch.float64))
     with pytest.raises(FileNotFoundError, match="missing.npy"):
-        initial_heights({**cfg, "initial": "missing.npy"}, 32, torch.float64, tmp_path)
-    with pytest.raises(ValueError, match="initial_scale=-1"):
-        initial_heights({**cfg, "initial": "design", "initial_scale": -1}, 32, torch.float64, tmp_path)
-    with pytest.raises(ValueError, match="height_field.resolution"):
-        initial_heights({**cfg, "initial": "design"}, 64, torch.float64, tmp_path)
+        start({"name": "file", "path": "missing.npy"})
+    with pytest.raises(ValueError, match="initial.scale=-1"):
+        build_start({"initial": {"name": "design", "scale": -1}})
+    with pytest.raises(ValueError, match="initial.path=None"):
+        build_start({"initial": {"name": "file"}})
+    with pytest.raises(ValueError, match="initial=file initial.path="):
+        build_start({"initial": "start.npy"})
+
+
+def test_auto_keeps_the_start_whose_probe_fits_the_data_best_and_logs_every_candidate(tmp_path):
+    cfg = compose_reconstruct([*SMALL, *BUMP, "initial=auto", "initial.probe_iterations=2", "solver.max_iter=2",
+                               "+initial.candidates.design={scale: 0.5}"], tmp_path)
+    metrics = run_reconstruction(cfg, tmp_path / "run", tmp_path)
+    scores = {name: metrics[f"start_auto_{name}_rel_discrepancy"] for name in ("zero", "transport", "design")}
+    assert metrics["start"] == min(scores, key=scores.get) and metrics[f"start_auto_chose_{metrics['start']}"] == 1.0
+    assert scores["transport"] < scores["zero"]  # the bump's masked transport fits better than flat glass
+    assert metrics["volume_ratio"] == pytest.approx(float(np.load(tmp_path / "run" / "height_field.npy").sum())
+                                                    / float(np.load(tmp_path / "run" / "ground_truth.npy").sum()))
 
 
 def test_a_start_from_half_the_design_beats_the_flat_start(tmp_path):
     base = [*SMALL, *BUMP, "solver.max_iter=6"]
     flat = run_reconstruction(compose_reconstruct(base, tmp_path), tmp_path / "flat", tmp_path)
-    half = run_reconstruction(compose_reconstruct([*base, "initial=design", "initial_scale=0.5"], tmp_path),
+    half = run_reconstruction(compose_reconstruct([*base, "initial=design", "initial.scale=0.5"], tmp_path),
                               tmp_path / "half", tmp_path)
     assert half["rel_error_d"] < 0.5 * flat["rel_error_d"], (half, flat)
 
@@ -191,7 +212,9 @@ def test_the_app_refuses_a_bad_value_in_one_line(tmp_path):
     (["experiment=m3v1", "~solver.wavelet_regularizer", "+solver.wavelet_regularizer={name: l1_pixel}"],
      "has no wavelet transform"),
     (["stopping.morozov.tau_dis=0.5"], "tau_dis"),
-    (["initial=missing.npy"], "missing.npy"),
+    (["initial=file", "initial.path=missing.npy"], "missing.npy"),
+    (["initial=transport", "initial.reach=2"], "initial.reach=2"),
+    (["initial=auto", "+initial.candidates.auto={}"], "may not contain auto"),
 ])
 def test_bad_solver_configuration_fails_before_the_data_is_rendered(tmp_path, monkeypatch, overrides, message):
     def no_render(*args, **kwargs):
