@@ -10,7 +10,7 @@ from __future__ import annotations
 import json
 import time
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
@@ -26,7 +26,7 @@ from framework.plugin_config import as_mapping, build_plugin, split_name
 from framework.problem import HeightGrid, OperatorPlugin, Problem
 from framework.report_figures import save_reconstruction_figures
 from framework.scene_config import build_heights, build_operator, build_scene, height_grid, to_plain
-from framework.solvers import Callback, IterationRecord, SolverBuilder
+from framework.solvers import Callback, IterationRecord, RunResult, SolverBuilder
 from framework.starts import StartRequest
 from framework.tracking import MlflowTracker, local_store_uri
 from framework.units import mm_per_unit
@@ -34,6 +34,7 @@ from operators.scene import Scene
 
 CHECKPOINT = "checkpoint.pt"
 CALIBRATION_STATE = "calibration.json"
+PHASES = "phases.pt"  # initial=auto: the finished starts of a run, and which one is under way
 MLFLOW_RUN = "mlflow_run.json"  # the run's MLflow run id, so that a job resumed in its directory logs into it
 
 
@@ -55,6 +56,12 @@ def volume_report(d: torch.Tensor, volume: float | None, cell_area: float, toler
         return {}
     ratio = float(d.double().sum()) * cell_area / volume
     return {"volume_ratio": ratio, "volume_held": abs(ratio - 1.0) <= tolerance}
+
+
+def build_stopping(cfg: Mapping[str, Any]) -> list[Callback]:
+    """The ``stopping`` plugins, in config order (fresh ones for every run from a start)."""
+    return [build_plugin("stopping", name, params, f"stopping.{name}")
+            for name, params in as_mapping(cfg.get("stopping"), "stopping").items()]
 
 
 def resume_checkpoint(spec: Any, output_dir: Path, base_dir: Path) -> Path | None:
@@ -88,6 +95,110 @@ def stage_changes(history: Sequence[IterationRecord]) -> list[int]:
     rule or a failed line search asked for it (from the records' ``preconditioner_length``)."""
     lengths = [(r.iteration, r.extras.get("preconditioner_length")) for r in history]
     return [i for (i, a), (_, b) in zip(lengths, lengths[1:]) if a is not None and b is not None and a != b]
+
+
+@dataclass
+class PhaseOutcome:
+    """How the run from one start ended (initial=auto runs several).
+
+    Attributes:
+        name: The start's name.
+        result: The solver's run result.
+        d: The returned heights (m, m): the accepted iterate, else the best one a stopping rule kept.
+        returned_iteration: The iteration of ``d``.
+        rel_discrepancy: The discrepancy of ``d``.
+        history: Metric name -> values per iteration, for the figures.
+        seconds: Start plus solve time, seconds.
+        start_seconds: Computing the start, seconds.
+        start_metrics: What computing the start measured.
+    """
+
+    name: str
+    result: RunResult
+    d: torch.Tensor
+    returned_iteration: int
+    rel_discrepancy: float
+    history: dict[str, list[float]]
+    seconds: float
+    start_seconds: float
+    start_metrics: dict[str, float]
+
+    def summary(self, prefixed: bool) -> dict[str, Any]:
+        """The start's metrics (``start_*``), with this run's outcome under ``start_<name>_*`` when
+        several starts ran."""
+        out = {f"start_{k}": v for k, v in self.start_metrics.items()}
+        if prefixed:
+            out.update({f"start_{self.name}_rel_discrepancy": self.rel_discrepancy,
+                        f"start_{self.name}_iterations": self.result.iterations,
+                        f"start_{self.name}_reached_noise_level": float(self.result.accepted)})
+        return out
+
+    def saved(self) -> dict[str, Any]:
+        """Plain data and tensors for :data:`PHASES` (torch.save with weights_only loading)."""
+        r = self.result
+        return {"name": self.name, "d": self.d, "returned_iteration": self.returned_iteration,
+                "rel_discrepancy": self.rel_discrepancy, "history": self.history, "seconds": self.seconds,
+                "start_seconds": self.start_seconds, "start_metrics": self.start_metrics,
+                "result": {"iterations": r.iterations, "stop_reason": r.stop_reason, "stopped_by": r.stopped_by,
+                           "records": [asdict(x) for x in r.history], "elapsed_s": r.elapsed_s, "accepted": r.accepted}}
+
+    @classmethod
+    def restored(cls, saved: dict[str, Any]) -> PhaseOutcome:
+        """The inverse of :meth:`saved`."""
+        r = saved["result"]
+        result = RunResult(saved["d"], r["iterations"], r["stop_reason"], r["stopped_by"],
+                           [IterationRecord(**x) for x in r["records"]], r["elapsed_s"], r["accepted"])
+        return cls(saved["name"], result, saved["d"], saved["returned_iteration"], saved["rel_discrepancy"],
+                   saved["history"], saved["seconds"], saved["start_seconds"], saved["start_metrics"])
+
+
+def resumed_phases(output_dir: Path, checkpoint: Path | None) -> tuple[list[PhaseOutcome], int]:
+    """The starts an interrupted run in ``output_dir`` had finished, and the index of the one its
+    own checkpoint belongs to; ([], 0) for a fresh run or another run's checkpoint."""
+    record = output_dir / PHASES
+    if checkpoint is None or checkpoint != output_dir / CHECKPOINT or not record.is_file():
+        return [], 0
+    saved = torch.load(record, weights_only=True)
+    return [PhaseOutcome.restored(x) for x in saved["done"]], int(saved["phase"])
+
+
+def _solve_from(parts: Reconstruction, problem: Problem, name: str, start: Any, request: StartRequest,
+                checkpoint: Path | None, output_dir: Path, tracker: MlflowTracker, steps_before: int,
+                truth_error: GroundTruthError | None) -> PhaseOutcome:
+    """Run the solver from one start (or continue it from ``checkpoint``) with fresh stopping rules."""
+    cfg, operator = parts.cfg, parts.operator
+    began = time.perf_counter()
+    start_metrics: dict[str, float] = {}
+    if checkpoint is None:  # a resumed run continues from its checkpoint's heights
+        computed = start(request)
+        d0, start_metrics = computed.d.to(operator.dtype), dict(computed.metrics)
+        tracker.log_metrics({f"start_{k}": v for k, v in start_metrics.items()}, step=steps_before)
+    else:
+        d0 = torch.zeros(parts.grid.shape, dtype=operator.dtype)
+    start_seconds = time.perf_counter() - began
+    solver = parts.make_solver(problem, d0)
+    stopping = build_stopping(cfg)
+    for rule in stopping:
+        if callable(getattr(rule, "setup", None)):
+            rule.setup(problem)
+    history = MetricsHistory()
+    callbacks: list[Callback] = [history, *stopping, ProgressBar(desc=f"{cfg.get('method', 'custom')} from {name}"),
+                                 Checkpointer(output_dir / CHECKPOINT, every=int(cfg["checkpoint_every"])),
+                                 tracker.metrics_callback(step_offset=steps_before)]
+    callbacks += [c for c in (parts.calibration, truth_error) if c is not None]
+    if checkpoint is not None:
+        print(f"resuming from {checkpoint}", flush=True)
+        result = resume_solver(solver, checkpoint, parts.max_iter, callbacks)
+    else:
+        result = solver.run(parts.max_iter, callbacks)
+    d, returned = result.d.detach(), result.iterations
+    if not result.accepted:  # no accepted iterate: report the best one a stopping rule kept
+        best = next((b for b in (rule.best_iterate() for rule in stopping) if b is not None), None)
+        if best is not None:
+            d, returned = best
+    discrepancy = problem.fidelity.relative_discrepancy(operator.render(d))
+    return PhaseOutcome(name, result, d, returned, discrepancy, history.columns(), time.perf_counter() - began,
+                        start_seconds, start_metrics)
 
 
 def _positive_int(value: Any, where: str) -> int:
@@ -139,8 +250,7 @@ class Reconstruction:
         solver_name, solver_params = split_name(cfg.get("solver"), "solver")
         max_iter = _positive_int(solver_params.pop("max_iter", None), "solver.max_iter")  # the loop's, not the solver's
         make_solver = build_plugin("solver", solver_name, solver_params, "solver")
-        stopping = [build_plugin("stopping", name, params, f"stopping.{name}")
-                    for name, params in as_mapping(cfg.get("stopping"), "stopping").items()]
+        stopping = build_stopping(cfg)
         _positive_int(cfg.get("checkpoint_every"), "checkpoint_every")
         start = build_start(cfg)
         if callable(getattr(start, "check", None)):
@@ -190,48 +300,49 @@ def _reconstruct(parts: Reconstruction, output_dir: Path, base_dir: Path, sweep_
         # The design the mm outputs compare with: the truth of synthetic data, else the configured
         # height field (the print's design); built now, so that a bad one fails before the solve.
         design = data.ground_truth if data.ground_truth is not None else build_heights(cfg, base_dir=base_dir)
-        start_metrics: dict[str, Any] = {}
-        if checkpoint is None:  # a resumed run continues from its checkpoint's heights
-            start = parts.start(StartRequest(problem, lambda: build_heights(cfg, base_dir=base_dir), base_dir,
-                                             parts.make_solver))
-            d0, start_metrics = start.d.to(operator.dtype), {f"start_{k}": v for k, v in start.metrics.items()}
-            tracker.log_metrics(start_metrics, step=0)
-            start_metrics["start"] = start.name
-        else:
-            d0 = torch.zeros(parts.grid.shape, dtype=operator.dtype)
-        solver = parts.make_solver(problem, d0)
-        for rule in parts.stopping:
-            if callable(getattr(rule, "setup", None)):
-                rule.setup(problem)
-        history = MetricsHistory()
-        callbacks: list[Callback] = [history, *parts.stopping, ProgressBar(desc=str(method)),
-                                     Checkpointer(output_dir / CHECKPOINT, every=int(cfg["checkpoint_every"])),
-                                     tracker.metrics_callback()]
         calibration = parts.calibration
         if calibration is not None:
             resume_from = None if checkpoint is None else checkpoint.parent / CALIBRATION_STATE
             calibration.setup(data.target, data.weights, data.delta, output_dir / CALIBRATION_STATE, resume_from)
-            callbacks.append(calibration)
         truth_error = None
         if data.ground_truth is not None:
             truth_error = GroundTruthError(data.ground_truth.to(operator.dtype), parts.grid.base)
-            callbacks.append(truth_error)
         if compiling is not None and compiling.running:
             print("waiting for the gradient kernel to compile (first run after an install; cached afterwards)",
                   flush=True)
             compiling.wait()
-        solve_start = time.perf_counter()
-        if checkpoint is not None:
-            print(f"resuming from {checkpoint}", flush=True)
-            result = resume_solver(solver, checkpoint, parts.max_iter, callbacks)
-        else:
-            result = solver.run(parts.max_iter, callbacks)
-        solve_seconds = time.perf_counter() - solve_start
-        d, returned_iteration = result.d.detach(), result.iterations
-        if not result.accepted:  # no accepted iterate: report the best one a stopping rule kept
-            best = next((b for b in (rule.best_iterate() for rule in parts.stopping) if b is not None), None)
-            if best is not None:
-                d, returned_iteration = best
+        request = StartRequest(problem, lambda: build_heights(cfg, base_dir=base_dir), base_dir, parts.make_solver)
+        phases = parts.start.phases() if callable(getattr(parts.start, "phases", None)) else [
+            (getattr(parts.start, "name", "start"), parts.start)]
+        finished, first = resumed_phases(output_dir, checkpoint)
+        steps_before = sum(outcome.result.iterations for outcome in finished)
+        for index in range(first, len(phases)):
+            name, start = phases[index]
+            if len(phases) > 1:  # so that a resumed run knows which start its checkpoint belongs to
+                torch.save({"done": [outcome.saved() for outcome in finished], "phase": index}, output_dir / PHASES)
+            resume_from = checkpoint if index == first else None
+            try:
+                outcome = _solve_from(parts, problem, name, start, request, resume_from, output_dir, tracker,
+                                      steps_before, truth_error)
+            except ValueError as error:
+                if len(phases) == 1:
+                    raise
+                print(f"initial=auto: start {name} left out: {error}", flush=True)
+                continue
+            finished.append(outcome)
+            steps_before += outcome.result.iterations
+            if outcome.result.accepted:
+                break
+            if index + 1 < len(phases):
+                print(f"start {name} ended short of the noise level ({outcome.result.stop_reason}); "
+                      f"trying start {phases[index + 1][0]}", flush=True)
+        if not finished:
+            raise ValueError("initial=auto: no candidate start could be computed from these data; see the lines above")
+        chosen = max(finished, key=lambda o: (o.result.accepted, -o.rel_discrepancy))
+        result, d, returned_iteration, history = chosen.result, chosen.d, chosen.returned_iteration, chosen.history
+        solve_seconds = sum(outcome.seconds for outcome in finished)
+        start_metrics = {"start": chosen.name, "start_time_s": sum(o.start_seconds for o in finished),
+                         **{k: v for o in finished for k, v in o.summary(len(phases) > 1).items()}}
         prediction = operator.render(d)
         metrics: dict[str, Any] = {
             "method": method, "iterations": result.iterations,
@@ -255,8 +366,9 @@ def _reconstruct(parts: Reconstruction, output_dir: Path, base_dir: Path, sweep_
                                   mm_per_unit(cfg), design=design.cpu().numpy())  # mm outputs (docs/export.md)
         metrics.update({f"deviation_{key}": value for key, value in exported["deviation"].items()})
         (output_dir / "metrics.json").write_text(json.dumps(metrics, indent=2))
-        save_reconstruction_figures(output_dir, d, problem, prediction, history.columns())
+        save_reconstruction_figures(output_dir, d, problem, prediction, history)
         tracker.log_metrics({k: v for k, v in metrics.items() if isinstance(v, (int, float)) and v is not None
-                             and not isinstance(v, bool)}, step=result.iterations)  # the summary: last step, not 0
+                             and not isinstance(v, bool)}, step=steps_before)  # the summary: last step, not 0
+        tracker.set_tags({"stop_reason": result.stop_reason, "stopped_by": result.stopped_by, "start": chosen.name})
         tracker.log_artifacts(output_dir)
     return metrics

@@ -398,9 +398,10 @@ class MlflowTracker:
             raise FileNotFoundError(f"artefact directory {directory} does not exist")
         self._client.log_artifacts(self.run_id, str(directory), artifact_path)
 
-    def metrics_callback(self, every: int = 1) -> "MlflowMetricsCallback":
-        """A solver callback logging every ``every``-th iteration's record to this run."""
-        return MlflowMetricsCallback(self, every=every)
+    def metrics_callback(self, every: int = 1, step_offset: int = 0) -> "MlflowMetricsCallback":
+        """A solver callback logging every ``every``-th iteration's record to this run, at step
+        ``step_offset`` + iteration (a run from a second start continues the first one's steps)."""
+        return MlflowMetricsCallback(self, every=every, step_offset=step_offset)
 
 
 class MlflowMetricsCallback(Callback):
@@ -412,24 +413,26 @@ class MlflowMetricsCallback(Callback):
     Args:
         tracker: An active :class:`MlflowTracker`.
         every: Log when ``iteration % every == 0`` (the last iteration is always logged).
+        step_offset: Added to the iteration to give the MLflow step.
     """
 
     order = 50
 
-    def __init__(self, tracker: MlflowTracker, every: int = 1) -> None:
+    def __init__(self, tracker: MlflowTracker, every: int = 1, step_offset: int = 0) -> None:
         if isinstance(every, bool) or not isinstance(every, int) or every < 1:
             raise ValueError(f"every must be an int >= 1, got {every!r}")
-        self.tracker, self.every = tracker, every
+        self.tracker, self.every, self.step_offset = tracker, every, int(step_offset)
         self._last_logged = -1
 
     def on_iteration(self, solver: "IterativeSolver", record: "IterationRecord") -> None:  # noqa: D102
         if record.iteration % self.every == 0:
-            self.tracker.log_metrics(record.metrics(), step=record.iteration)
+            self.tracker.log_metrics(record.metrics(), step=self.step_offset + record.iteration)
             self._last_logged = record.iteration
 
     def on_end(self, solver: "IterativeSolver", result: "RunResult") -> None:  # noqa: D102
         last = result.last
         if last is not None and last.iteration != self._last_logged:
-            self.tracker.log_metrics(last.metrics(), step=last.iteration)
-        self.tracker.log_metrics({"iterations": result.iterations, "total_elapsed_s": result.elapsed_s}, step=result.iterations)
+            self.tracker.log_metrics(last.metrics(), step=self.step_offset + last.iteration)
+        self.tracker.log_metrics({"iterations": result.iterations, "total_elapsed_s": result.elapsed_s},
+                                 step=self.step_offset + result.iterations)
         self.tracker.set_tags({"stop_reason": result.stop_reason, "stopped_by": result.stopped_by})

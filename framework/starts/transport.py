@@ -45,6 +45,8 @@ from .base import StartRequest, StartResult
 __all__ = ["TransportStart", "masked_sources", "exit_directions", "fit_masked_surface"]
 
 FD_STEP = 1e-6  # finite-difference step of the Newton solve's Jacobian (direction components)
+NOISE_SIGMAS = 3.0
+LANDING_TOLERANCE_PX = 0.5  # a ray landing farther than this from its goal counts as unreached  # goal pixels within this many noise standard deviations of zero are black
 
 
 def light_path_of(operator: Any) -> LightPath:
@@ -87,44 +89,55 @@ def masked_sources(flat: np.ndarray, arrivals_points: np.ndarray, landings: np.n
 
 
 def exit_directions(path: LightPath, points: np.ndarray, tops: np.ndarray, targets: np.ndarray, start: np.ndarray,
-                    index: float, steps: int) -> tuple[np.ndarray, np.ndarray]:
+                    index: float, steps: int, tolerance: float = 1e-10) -> tuple[np.ndarray, np.ndarray]:
     """Unit directions w (N, 3) inside the glass from the top points ``points`` (N, 2) at heights
     ``tops`` (N,) above the bottom whose rays, refracted out of the flat bottom and traced by the
     operator below it, land on ``targets`` (N, 2); Newton from ``start`` (N, 3) on w's x, y with a
-    finite-difference Jacobian, steps limited to 0.2. Returns w and the landing error (N,)."""
+    finite-difference Jacobian, steps limited to 0.2, each ray until it lands within
+    ``tolerance`` (scene units) or a step no longer helps. Returns w and the landing error (N,)
+    (NaN where a target is NaN or the ray is lost)."""
 
-    def landing(xy: np.ndarray) -> np.ndarray:
+    def landing(xy: np.ndarray, rows: np.ndarray) -> np.ndarray:
         z = -np.sqrt(np.clip(1.0 - (xy ** 2).sum(axis=1), 1e-12, None))
         w = np.concatenate([xy, z[:, None]], axis=1)
-        exits = points + xy * (tops / -z)[:, None]
+        exits = points[rows] + xy * (tops[rows] / -z)[:, None]
         return path.land_from_bottom(exits, refract_down(w, index))
 
     xy = start[:, :2].copy()
-    here = landing(xy)
+    every = np.arange(len(xy))
+    here = landing(xy, every)
     for _ in range(steps):
         residual = here - targets
-        if not np.any(np.isfinite(residual).all(axis=1) & (np.abs(residual).max(axis=1) > 1e-12)):
+        distance = np.linalg.norm(residual, axis=1)
+        rows = np.flatnonzero(np.isfinite(distance) & (distance > tolerance))
+        if rows.size == 0:
             break
         columns = []
         for k in range(2):
-            moved = xy.copy()
+            moved = xy[rows].copy()
             moved[:, k] += FD_STEP
-            columns.append((landing(moved) - here) / FD_STEP)
-        jacobian = np.stack(columns, axis=2)  # (N, 2, 2): d landing / d (w_x, w_y)
+            columns.append((landing(moved, rows) - here[rows]) / FD_STEP)
+        jacobian = np.stack(columns, axis=2)  # (R, 2, 2): d landing / d (w_x, w_y)
+        r = residual[rows]
         det = jacobian[:, 0, 0] * jacobian[:, 1, 1] - jacobian[:, 0, 1] * jacobian[:, 1, 0]
-        good = np.isfinite(det) & (np.abs(det) > 1e-12) & np.isfinite(residual).all(axis=1)
+        good = np.isfinite(det) & (np.abs(det) > 1e-12)
         safe = np.where(good, det, 1.0)
-        step = -np.stack([jacobian[:, 1, 1] * residual[:, 0] - jacobian[:, 0, 1] * residual[:, 1],
-                          -jacobian[:, 1, 0] * residual[:, 0] + jacobian[:, 0, 0] * residual[:, 1]], axis=1) / safe[:, None]
-        length = np.linalg.norm(step, axis=1)
-        step *= np.minimum(1.0, 0.2 / np.maximum(length, 1e-300))[:, None]
-        trial = np.where(good[:, None], xy + step, xy)
-        landed = landing(trial)
-        better = np.isfinite(landed).all(axis=1) & (np.linalg.norm(landed - targets, axis=1)
-                                                    < np.nan_to_num(np.linalg.norm(residual, axis=1), nan=np.inf))
-        xy = np.where(better[:, None], trial, xy)
-        here = np.where(better[:, None], landed, here)
-        if not better.any():
+        step = -np.stack([jacobian[:, 1, 1] * r[:, 0] - jacobian[:, 0, 1] * r[:, 1],
+                          -jacobian[:, 1, 0] * r[:, 0] + jacobian[:, 0, 0] * r[:, 1]], axis=1) / safe[:, None]
+        step *= np.minimum(1.0, 0.2 / np.maximum(np.linalg.norm(step, axis=1), 1e-300))[:, None]
+        improved = False
+        for scale in (1.0, 0.25, 0.0625):  # damped: a shorter step where the full one lands farther
+            trial = xy[rows] + scale * step
+            landed = landing(trial, rows)
+            better = good & np.isfinite(landed).all(axis=1) & (np.linalg.norm(landed - targets[rows], axis=1)
+                                                                < distance[rows])
+            xy[rows[better]] = trial[better]
+            here[rows[better]] = landed[better]
+            improved |= bool(better.any())
+            rows, step, good = rows[~better], step[~better], good[~better]
+            if rows.size == 0:
+                break
+        if not improved:
             break
     z = -np.sqrt(np.clip(1.0 - (xy ** 2).sum(axis=1), 1e-12, None))
     return np.concatenate([xy, z[:, None]], axis=1), np.linalg.norm(here - targets, axis=1)
@@ -232,7 +245,10 @@ class TransportStart:
                              f"{self.reach}); check that data.mask and the image are aligned, or raise initial.reach")
         centres = (np.arange(flat.shape[-1]) + 0.5) * pixel - half
         rx, ry = np.meshgrid(centres, centres)
-        lit = goal > self.black_level * goal.max()
+        # Black: below black_level of the brightest, or within three standard deviations of the
+        # noise (delta ||b|| spread evenly over the pixels).
+        noise = NOISE_SIGMAS * data.delta * float(np.linalg.norm(target)) / math.sqrt(target.size)
+        lit = goal > max(self.black_level * goal.max(), noise)
         # A faint floor (1e-3 of the masked light's mean) keeps every Laguerre cell's mass above
         # zero, which the transport's Newton iteration needs from its Voronoi start.
         floor = 1e-3 * float(source[support].mean())
@@ -262,7 +278,8 @@ class TransportStart:
         result = torch.from_numpy(d).to(operator.dtype)
         metrics = {"transport_sites": float(len(plan.sites)), "transport_newton_steps": float(plan.newton_steps),
                    "transport_max_relative_mass_error": plan.max_relative_mass_error,
-                   "transport_landing_error_px": float(np.sqrt(np.mean(np.nan_to_num(error, nan=0.0) ** 2)) / pixel),
+                   "transport_landing_error_px": float(np.median(error[np.isfinite(error)]) / pixel),
+                   "transport_unreached_samples": float(np.sum(~(error <= LANDING_TOLERANCE_PX * pixel))),
                    "transport_seconds": time.perf_counter() - started}
         if data.volume is not None:
             metrics["transport_volume_ratio"] = float(d.sum() * grid.cell_area / data.volume)
@@ -303,10 +320,13 @@ def _direction_field(arrivals: Any, light: tuple[float, float, float], operator:
 
 def _mapped(plan: Any, landing: np.ndarray) -> np.ndarray:
     """The transport map at ``landing`` (N, 2): each Laguerre cell's centroid goes to its site,
-    linear between centroids; outside their hull the nearest centroid's displacement."""
+    linear between centroids; outside their hull the nearest centroid's displacement; NaN where
+    the landing is (the light of that sample is lost through flat glass)."""
     shift = plan.sites - plan.centroids
-    moved = LinearNDInterpolator(plan.centroids, shift)(landing)
-    missing = ~np.isfinite(moved).all(axis=1)
+    known = np.isfinite(landing).all(axis=1)  # samples whose flat-glass light is lost get no goal (NaN)
+    moved = np.full_like(landing, np.nan)
+    moved[known] = LinearNDInterpolator(plan.centroids, shift)(landing[known])
+    missing = known & ~np.isfinite(moved).all(axis=1)
     if missing.any():
         moved[missing] = NearestNDInterpolator(plan.centroids, shift)(landing[missing])
     return landing + moved

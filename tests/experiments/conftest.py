@@ -11,7 +11,7 @@ CONF = str(Path(__file__).resolve().parents[2] / "conf")
 
 # A small problem: 32 x 32 heights, 64 x 64 receiver, few photons; still the real operator.
 SMALL = ["photons=60000", "receiver.resolution=64", "height_field.resolution=32", "data.reference_photons=200000",
-         "data.reference_resolution=128", "operator.footprint_px=3", "checkpoint_every=2"]
+         "data.reference_resolution=128", "operator.footprint_px=3", "checkpoint_every=2", "initial=zero"]
 
 
 def compose_reconstruct(overrides: list[str], tmp_path: Path) -> dict:
