@@ -6,6 +6,7 @@ from the store: error, discrepancy, error relative to d, iterations, stop reason
 
     python -m experiments.reproduce_starts                       # everything (about an hour on 2 cores)
     python -m experiments.reproduce_starts --starts zero,transport --part scenes
+    python -m experiments.reproduce_starts --starts auto --part fig7   # auto's first run is the flat-glass one
     python -m experiments.reproduce_starts --table-only          # table and figure from the latest runs
 
 Writes starts.md, starts.csv and starts.png into --out (default docs/results).
@@ -49,6 +50,14 @@ def collect(store: TrackingStore) -> dict[tuple[str, str, str], dict]:
         ("metrics", "json"), ("height_field", "npy"), ("ground_truth", "npy"))} for key, run in sorted(chosen.items())}
 
 
+def runs_of(metrics: dict) -> str:
+    """Each start an ``auto`` run tried: 'name: error / discrepancy (iterations, noise level reached?)'."""
+    names = [k[len("start_"):-len("_reached_noise_level")] for k in metrics if k.endswith("_reached_noise_level")]
+    return "; ".join(f"{n}: {metrics.get(f'start_{n}_rel_error', float('nan')):.4f} / "
+                     f"{metrics[f'start_{n}_rel_discrepancy']:.4f} ({metrics[f'start_{n}_iterations']} it., "
+                     f"{'noise level' if metrics[f'start_{n}_reached_noise_level'] else 'short of it'})" for n in names)
+
+
 def write_table(cases: dict[tuple[str, str, str], dict], out: Path) -> None:
     """starts.csv and starts.md: one row per (setup, scene, start)."""
     rows = []
@@ -58,17 +67,17 @@ def write_table(cases: dict[tuple[str, str, str], dict], out: Path) -> None:
                      "rel_err": m["rel_error"], "rel_dis": m["rel_discrepancy"], "rel_err_d": m["rel_error_d"],
                      "iterations": m["iterations"], "stopped_by": m["stopped_by"],
                      "volume_ratio": m.get("volume_ratio", float("nan")),
-                     "wall_s": m.get("start_time_s", 0.0) + m["run_time_s"]})
+                     "wall_s": m.get("start_time_s", 0.0) + m["run_time_s"], "runs": runs_of(m)})
     with open(out / "starts.csv", "w", newline="") as f:
         writer = csv.DictWriter(f, fieldnames=list(rows[0]))
         writer.writeheader()
         writer.writerows(rows)
     lines = ["| setup | scene | start (chosen) | rel. err. | rel. dis. | rel. err. (d) | #iter | stopped by "
-             "| volume ratio | wall time (s) |", "|---|---|---|---|---|---|---|---|---|---|"]
+             "| volume ratio | wall time (s) | runs (error / dis.) |", "|---|---|---|---|---|---|---|---|---|---|---|"]
     lines += [f"| {r['setup']} | {r['scene']} | {r['start']}"
               + (f" ({r['chosen']})" if r["chosen"] != r["start"] else "")
               + f" | {r['rel_err']:.4f} | {r['rel_dis']:.4f} | {r['rel_err_d']:.4f} | {r['iterations']} "
-              f"| {r['stopped_by']} | {r['volume_ratio']:.3f} | {r['wall_s']:.0f} |" for r in rows]
+              f"| {r['stopped_by']} | {r['volume_ratio']:.3f} | {r['wall_s']:.0f} | {r['runs']} |" for r in rows]
     (out / "starts.md").write_text("\n".join(lines) + "\n")
 
 

@@ -111,6 +111,7 @@ class PhaseOutcome:
         seconds: Start plus solve time, seconds.
         start_seconds: Computing the start, seconds.
         start_metrics: What computing the start measured.
+        errors: The errors of ``d`` against the ground truth (synthetic data), else empty.
     """
 
     name: str
@@ -122,6 +123,7 @@ class PhaseOutcome:
     seconds: float
     start_seconds: float
     start_metrics: dict[str, float]
+    errors: dict[str, float]
 
     def summary(self, prefixed: bool) -> dict[str, Any]:
         """The start's metrics (``start_*``), with this run's outcome under ``start_<name>_*`` when
@@ -130,7 +132,8 @@ class PhaseOutcome:
         if prefixed:
             out.update({f"start_{self.name}_rel_discrepancy": self.rel_discrepancy,
                         f"start_{self.name}_iterations": self.result.iterations,
-                        f"start_{self.name}_reached_noise_level": float(self.result.accepted)})
+                        f"start_{self.name}_reached_noise_level": float(self.result.accepted),
+                        **{f"start_{self.name}_{k}": v for k, v in self.errors.items()}})
         return out
 
     def saved(self) -> dict[str, Any]:
@@ -138,7 +141,7 @@ class PhaseOutcome:
         r = self.result
         return {"name": self.name, "d": self.d, "returned_iteration": self.returned_iteration,
                 "rel_discrepancy": self.rel_discrepancy, "history": self.history, "seconds": self.seconds,
-                "start_seconds": self.start_seconds, "start_metrics": self.start_metrics,
+                "start_seconds": self.start_seconds, "start_metrics": self.start_metrics, "errors": self.errors,
                 "result": {"iterations": r.iterations, "stop_reason": r.stop_reason, "stopped_by": r.stopped_by,
                            "records": [asdict(x) for x in r.history], "elapsed_s": r.elapsed_s, "accepted": r.accepted}}
 
@@ -149,7 +152,7 @@ class PhaseOutcome:
         result = RunResult(saved["d"], r["iterations"], r["stop_reason"], r["stopped_by"],
                            [IterationRecord(**x) for x in r["records"]], r["elapsed_s"], r["accepted"])
         return cls(saved["name"], result, saved["d"], saved["returned_iteration"], saved["rel_discrepancy"],
-                   saved["history"], saved["seconds"], saved["start_seconds"], saved["start_metrics"])
+                   saved["history"], saved["seconds"], saved["start_seconds"], saved["start_metrics"], saved["errors"])
 
 
 def resumed_phases(output_dir: Path, checkpoint: Path | None) -> tuple[list[PhaseOutcome], int]:
@@ -198,7 +201,7 @@ def _solve_from(parts: Reconstruction, problem: Problem, name: str, start: Any, 
             d, returned = best
     discrepancy = problem.fidelity.relative_discrepancy(operator.render(d))
     return PhaseOutcome(name, result, d, returned, discrepancy, history.columns(), time.perf_counter() - began,
-                        start_seconds, start_metrics)
+                        start_seconds, start_metrics, truth_error.errors(d) if truth_error else {})
 
 
 def _positive_int(value: Any, where: str) -> int:

@@ -298,7 +298,7 @@ class TransportStart:
 def _direction_field(arrivals: Any, light: tuple[float, float, float], operator: Any):
     """Unit directions (N, 3) of the light arriving at top points (N, 2) at heights (N,): straight
     from the light for the height-field operator's open scene, else interpolated between the traced
-    arrivals (at most 65536 of them; nearest outside their hull)."""
+    arrivals (at most 65536 of them; nearest outside their hull) at the points' x, y."""
     if not getattr(operator, "elements", None):
         source = np.asarray(light, dtype=np.float64)
 
@@ -310,11 +310,16 @@ def _direction_field(arrivals: Any, light: tuple[float, float, float], operator:
     linear = LinearNDInterpolator(arrivals.points[pick], arrivals.directions[pick])
     nearest = NearestNDInterpolator(arrivals.points[pick], arrivals.directions[pick])
 
+    known: dict[bytes, np.ndarray] = {}  # the samples' directions, interpolated once
+
     def traced(points: np.ndarray, tops: np.ndarray) -> np.ndarray:
-        out = linear(points)
-        missing = ~np.isfinite(out).all(axis=1)
-        out[missing] = nearest(points[missing])
-        return out / np.linalg.norm(out, axis=1, keepdims=True)
+        key = points.tobytes()
+        if key not in known:
+            out = linear(points)
+            missing = ~np.isfinite(out).all(axis=1)
+            out[missing] = nearest(points[missing])
+            known[key] = out / np.linalg.norm(out, axis=1, keepdims=True)
+        return known[key]
     return traced
 
 

@@ -12,6 +12,7 @@ import pytest
 import torch
 from mlflow.tracking import MlflowClient
 
+from framework.callbacks import MetricsHistory
 from framework.problem import Problem
 from framework.reconstruction import CHECKPOINT, Reconstruction, build_start, run_reconstruction
 from framework.scene_config import build_heights
@@ -104,6 +105,28 @@ def test_auto_tries_the_next_start_only_when_a_run_ends_short_of_the_noise_level
                                tmp_path / "flat", tmp_path)
     assert loose["start"] == "zero" and loose["start_zero_reached_noise_level"] == 1.0
     assert "start_transport_rel_discrepancy" not in loose and loose["iterations"] == 1
+
+
+def test_an_auto_run_interrupted_in_its_second_start_resumes_there(tmp_path, monkeypatch):
+    base = [*SMALL, *BUMP, "initial=auto", "solver.max_iter=4", "~stopping.morozov"]  # neither start is accepted
+    full = run_reconstruction(compose_reconstruct(base, tmp_path), tmp_path / "full", tmp_path)
+    assert full["start_zero_iterations"] == 4 and full["start_transport_iterations"] == 4
+    calls = {"n": 0}
+    original = MetricsHistory.on_iteration
+
+    def interrupt(self, solver, record):  # the 7th iteration overall: the transport run's third
+        calls["n"] += 1
+        if calls["n"] == 7:
+            raise KeyboardInterrupt
+        return original(self, solver, record)
+
+    monkeypatch.setattr(MetricsHistory, "on_iteration", interrupt)
+    with pytest.raises(KeyboardInterrupt):
+        run_reconstruction(compose_reconstruct(base, tmp_path), tmp_path / "cut", tmp_path)
+    monkeypatch.setattr(MetricsHistory, "on_iteration", original)
+    resumed = run_reconstruction(compose_reconstruct(base, tmp_path), tmp_path / "cut", tmp_path)  # resume: auto
+    assert resumed["start"] == full["start"] and resumed["start_zero_iterations"] == 4
+    assert np.array_equal(np.load(tmp_path / "full" / "height_field.npy"), np.load(tmp_path / "cut" / "height_field.npy"))
 
 
 def test_a_start_from_half_the_design_beats_the_flat_start(tmp_path):

@@ -13,8 +13,8 @@ from experiments.reproduce_starts import SCENES, main
 @pytest.mark.slow
 def test_every_scene_from_both_starts_is_logged_and_tabulated(tmp_path):
     main(["--store", str(tmp_path / "mlruns"), "--out", str(tmp_path / "out"), "--part", "scenes",
-          "--starts", "zero,transport", "--overrides", "photons=30000", "receiver.resolution=32",
-          "height_field.resolution=32", "data.reference_photons=100000", "data.reference_resolution=64",
+          "--starts", "zero,transport", "--overrides", "photons=20000", "receiver.resolution=32",
+          "height_field.resolution=16", "data.reference_photons=60000", "data.reference_resolution=64",
           "operator.footprint_px=2", "solver.max_iter=2", "checkpoint_every=10"])
     rows = {(r["scene"], r["start"]): r for r in csv.DictReader(open(tmp_path / "out" / "starts.csv"))}
     assert set(rows) == {(scene, start) for scene in SCENES for start in ("zero", "transport")}

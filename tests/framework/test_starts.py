@@ -135,13 +135,13 @@ def test_a_bump_through_the_two_lenses_starts_within_30_percent_of_its_heights()
     x, y = np.meshgrid(c, c)
     truth = 0.05 * np.exp(-((x - 0.1) ** 2 + (y + 0.1) ** 2) / (2 * 0.25 ** 2))
     truth[truth < 1e-3] = 0.0
-    operator = two_lenses(photons=262144, dtype="float32")
+    operator = two_lenses(photons=131072, dtype="float32")
     grid = HeightGrid(32, 1.0, operator.scene.substrate.thickness)
     d = torch.from_numpy(truth)
     data = ReconstructionData(target=operator.render(d).double(), mask=mask_from_height_field(d, 1e-3, 0.05),
                               volume=float(d.sum()) * grid.cell_area, delta=0.05, ground_truth=d)
     problem = Problem(operator, data, grid, operator.scene)
-    start = TransportStart(photons=65536)(request(problem)).d.double().numpy()
+    start = TransportStart(photons=32768)(request(problem)).d.double().numpy()
     assert np.linalg.norm(start - truth) / np.linalg.norm(truth) < 0.3
 
 
