@@ -8,6 +8,7 @@ per iteration.
     python -m experiments.reproduce_fig7                   # run both, then the figure
     python -m experiments.reproduce_fig7 --table-only      # the figure from the latest runs
     python -m experiments.reproduce_fig7 --overrides photons=4194304
+    python -m experiments.reproduce_fig7 --table-only --experiment starts   # from reproduce_starts --part fig7
 
 Writes fig7.png, fig7.md and fig7.csv into --out (default docs/results).
 """
@@ -43,9 +44,9 @@ def case_of(run) -> tuple[str, str]:
     return optics, run.data.tags.get("scene", "")
 
 
-def collect(store: TrackingStore) -> dict[tuple[str, str], dict]:
-    """Per (optics, scene): the latest finished run's metrics and arrays."""
-    chosen, client = latest_runs(store, EXPERIMENT, key=case_of)
+def collect(store: TrackingStore, experiment: str = EXPERIMENT) -> dict[tuple[str, str], dict]:
+    """Per (optics, scene): the latest finished run's metrics and arrays in MLflow ``experiment``."""
+    chosen, client = latest_runs(store, experiment, key=case_of)
     return {key: {name: artifact(client, chosen[key], f"{name}.{ext}") for name, ext in (
         ("metrics", "json"), ("height_field", "npy"), ("ground_truth", "npy"), ("caustic_target", "npy"),
         ("caustic_predicted", "npy"))}
@@ -99,12 +100,14 @@ def write_figure(cases: dict[tuple[str, str], dict], out: Path) -> None:
 
 def main(argv: list[str] | None = None) -> None:
     parser = reproduction_parser(__doc__.splitlines()[0])
+    parser.add_argument("--experiment", default=EXPERIMENT,
+                        help="the MLflow experiment of the runs (e.g. 'starts': the same cases run by reproduce_starts)")
     args = parser.parse_args(argv)
     store = tracking_store(args)
     if not args.table_only:
-        run_sweep(store, EXPERIMENT, ["experiment=m2v1", f"operator={','.join(CASES)}", f"scene={','.join(SCENES)}",
+        run_sweep(store, args.experiment, ["experiment=m2v1", f"operator={','.join(CASES)}", f"scene={','.join(SCENES)}",
                                       f"receiver.z={RECEIVER_Z}"], args.overrides, args.launcher)
-    cases = collect(store)
+    cases = collect(store, args.experiment)
     if not cases:
         raise SystemExit(f"no finished Fig. 7 runs in {store.uri or store.directory}")
     args.out.mkdir(parents=True, exist_ok=True)

@@ -34,8 +34,9 @@ SMALL = ["photons=60000", "receiver.resolution=64", "height_field.resolution=32"
 NEEDS = {("solver", "gradient_descent"): ["experiment=m1"], ("solver", "gradient_descent_paper"): ["experiment=m1"],
          ("solver", "landweber_wavelet"): ["experiment=m3v1"], ("solver", "schwartzburg"): ["experiment=schwartzburg"],
          ("data", "file"): ["data.image=caustic.npy"],
-         ("data", "photo"): ["data.photo=photo.npy", "data.corners=[[0,63],[63,63],[63,0],[0,0]]"]}
-GROUPS = ["scene", "operator", "reconstruct_operator", "data", "solver", "stopping", "tracking", "experiment"]
+         ("data", "photo"): ["data.photo=photo.npy", "data.corners=[[0,63],[63,63],[63,0],[0,0]]"],
+         ("initial", "file"): ["initial.path=start.npy"]}
+GROUPS = ["scene", "operator", "reconstruct_operator", "data", "solver", "stopping", "tracking", "experiment", "initial"]
 OPTIONS = [(group, path.stem) for group in GROUPS for path in sorted((CONF / group).glob("*.yaml"))]
 
 
@@ -45,9 +46,10 @@ def test_every_config_group_option_composes_and_builds(tmp_path, group, option):
     with initialize_config_dir(config_dir=str(CONF), version_base=None):
         cfg = OmegaConf.to_container(compose("reconstruct", overrides=[*SMALL, choice, *NEEDS.get((group, option), [])]),
                                      resolve=True)
+    np.save(tmp_path / "start.npy", np.zeros((32, 32)))
     parts = Reconstruction.from_config(cfg, tmp_path)  # every plugin built and checked, nothing rendered
     channels = len(cfg["wavelengths"])
-    assert parts.d0.shape == (32, 32) and parts.operator.output_shape == (channels, 64, 64)
+    assert callable(parts.start) and parts.operator.output_shape == (channels, 64, 64)
     assert parts.max_iter >= 1 and [type(rule).__name__ for rule in parts.stopping] == [
         {"morozov": "MorozovStopping", "stagnation": "StagnationStopping"}[name] for name in cfg.get("stopping") or {}]
 
@@ -80,6 +82,8 @@ MINIMAL = {
     ("stopping", "morozov"): ({"tau_dis": 1.05}, {}), ("stopping", "stagnation"): ({}, {}),
     ("data", "synthetic"): ({}, {}), ("data", "file"): ({"image": "caustic.npy"}, {}),
     ("data", "photo"): ({"photo": "photo.npy", "corners": [[0, 63], [63, 63], [63, 0], [0, 0]]}, {}),
+    ("initial", "zero"): ({}, {}), ("initial", "design"): ({}, {}), ("initial", "file"): ({"path": "start.npy"}, {}),
+    ("initial", "transport"): ({}, {}), ("initial", "auto"): ({"candidates": {"zero": {}, "transport": {}}}, {}),
 }
 
 

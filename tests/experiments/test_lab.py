@@ -8,7 +8,7 @@ from experiments.mlflow_store import TrackingStore
 from experiments.reproduce_lab import calibration_study, photo_study
 
 # A 2-core budget: 64 x 64 receiver and heights, 2^17 photons per iteration.
-SMALL = ["photons=131072", "receiver.resolution=64", "height_field.resolution=64", "solver.max_iter=60",
+SMALL = ["photons=131072", "receiver.resolution=64", "height_field.resolution=64", "solver.max_iter=60", "initial=zero",
          "checkpoint_every=100"]
 REFERENCE_PHOTONS = 1 << 20
 
