@@ -175,6 +175,8 @@ def _solve_from(parts: Reconstruction, problem: Problem, name: str, start: Any, 
     if checkpoint is None:  # a resumed run continues from its checkpoint's heights
         computed = start(request)
         d0, start_metrics = computed.d.to(operator.dtype), dict(computed.metrics)
+        if truth_error is not None:  # how far the start itself is from the truth
+            start_metrics.update({f"{name}_initial_{k}": v for k, v in truth_error.errors(d0).items()})
         tracker.log_metrics({f"start_{k}": v for k, v in start_metrics.items()}, step=steps_before)
     else:
         d0 = torch.zeros(parts.grid.shape, dtype=operator.dtype)

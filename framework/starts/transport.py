@@ -76,8 +76,8 @@ def in_mask(mask: np.ndarray, points: np.ndarray, half_width: float) -> np.ndarr
     return out
 
 
-def masked_sources(flat: np.ndarray, arrivals_points: np.ndarray, landings: np.ndarray, flux: np.ndarray,
-                   masked: np.ndarray, half: float, blur_px: float) -> np.ndarray:
+def masked_sources(flat: np.ndarray, landings: np.ndarray, flux: np.ndarray, masked: np.ndarray, half: float,
+                   blur_px: float) -> np.ndarray:
     """S = F(0) r (n, n): the flat-glass caustic ``flat`` times the share r of each pixel's
     photon flux that entered the top through the mask (``masked``, per photon), both histograms
     blurred by ``blur_px`` pixels."""
@@ -216,55 +216,75 @@ class TransportStart:
     def __call__(self, request: StartRequest) -> StartResult:
         started = time.perf_counter()
         problem = request.problem
-        operator, grid, scene, data = problem.operator, problem.grid, problem.scene, problem.data
-        path = light_path_of(operator)
-        mask = data.mask.cpu().numpy().astype(bool)
+        path = light_path_of(problem.operator)
+        mask = problem.data.mask.cpu().numpy().astype(bool)
         if not mask.any():
             raise ValueError("data.mask has no printed cell: the transport start moves the light of the masked region; "
                              "give a mask with the printed area (or use initial=zero)")
         bounds = self._bounds(problem, mask)
-        index = float(np.mean(scene.indices))
-        h, half = grid.base, scene.receiver.half_width
+        arrivals = path.arrivals(self.photons)
+        plan = self._plan(problem, path, arrivals, mask)
+        d, error = self._heights(problem, path, arrivals, mask, plan, bounds)
+        pixel = problem.scene.receiver.pixel_size
+        metrics = {"transport_sites": float(len(plan.sites)), "transport_newton_steps": float(plan.newton_steps),
+                   "transport_max_relative_mass_error": plan.max_relative_mass_error,
+                   "transport_landing_error_px": float(np.median(error[np.isfinite(error)]) / pixel),
+                   "transport_unreached_samples": float(np.sum(~(error <= LANDING_TOLERANCE_PX * pixel))),
+                   "transport_seconds": time.perf_counter() - started}
+        if problem.data.volume is not None:
+            metrics["transport_volume_ratio"] = float(d.sum() * problem.grid.cell_area / problem.data.volume)
+        return StartResult(torch.from_numpy(d).to(problem.operator.dtype), metrics, self.name)
+
+    def _plan(self, problem: Any, path: LightPath, arrivals: Any, mask: np.ndarray) -> Any:
+        """Steps 1-3: the masked region's flat-glass light, the goal, and the transport between them."""
+        operator, grid, scene, data = problem.operator, problem.grid, problem.scene, problem.data
+        half, index = scene.receiver.half_width, float(np.mean(scene.indices))
         flat = operator.render(torch.zeros(grid.shape, dtype=operator.dtype)).double().sum(dim=0).cpu().numpy()
         target = data.target.detach().double().sum(dim=0).cpu().numpy()
-
-        arrivals = path.arrivals(self.photons)
-        exits = flat_exit(arrivals.points, arrivals.directions, index, h)
-        landings = path.land_from_bottom(*exits)
-        pixel = 2.0 * half / flat.shape[-1]
-        source = masked_sources(flat, arrivals.points, landings, arrivals.flux,
-                                in_mask(mask, arrivals.points, grid.half_width), half, blur_px=1.0)
+        landings = path.land_from_bottom(*flat_exit(arrivals.points, arrivals.directions, index, grid.base))
+        source = masked_sources(flat, landings, arrivals.flux, in_mask(mask, arrivals.points, grid.half_width), half,
+                                blur_px=1.0)
         if source.sum() <= 1e-9 * max(flat.sum(), 1e-300):
             raise ValueError("the masked region's light reaches no receiver pixel through flat glass; check data.mask "
                              "and the receiver (receiver.z, receiver.half_width)")
+        pixel = scene.receiver.pixel_size
         support = source > 1e-3 * source.max()
         near = distance_transform_edt(~support) * pixel <= self.reach * 2.0 * half
         goal = np.where(near, np.clip(target - (flat - source), 0.0, None), 0.0)
         if not goal.max() > 0.0:
             raise ValueError("the caustic has no light within reach of the masked region (initial.reach="
                              f"{self.reach}); check that data.mask and the image are aligned, or raise initial.reach")
-        centres = (np.arange(flat.shape[-1]) + 0.5) * pixel - half
-        rx, ry = np.meshgrid(centres, centres)
         # Black: below black_level of the brightest, or within three standard deviations of the
         # noise (delta ||b|| spread evenly over the pixels).
         noise = NOISE_SIGMAS * data.delta * float(np.linalg.norm(target)) / math.sqrt(target.size)
         lit = goal > max(self.black_level * goal.max(), noise)
+        if not lit.any():
+            raise ValueError(f"the caustic within reach of the masked region is below its noise level (data.delta="
+                             f"{data.delta}); check data.mask, data.delta and the image")
+        centres = (np.arange(flat.shape[-1]) + 0.5) * pixel - half
+        rx, ry = np.meshgrid(centres, centres)
         # A faint floor (1e-3 of the masked light's mean) keeps every Laguerre cell's mass above
         # zero, which the transport's Newton iteration needs from its Voronoi start.
         floor = 1e-3 * float(source[support].mean())
-        plan = semi_discrete_transport(source + floor, -half, half, np.stack([rx[lit], ry[lit]], axis=1), goal[lit],
+        return semi_discrete_transport(source + floor, -half, half, np.stack([rx[lit], ry[lit]], axis=1), goal[lit],
                                        self.mass_tolerance)
 
+    def _heights(self, problem: Any, path: LightPath, arrivals: Any, mask: np.ndarray, plan: Any,
+                 bounds: Any) -> tuple[np.ndarray, np.ndarray]:
+        """Steps 4-5: the heights (m, m) that send each masked sample's light to its goal point,
+        and each sample's landing error (scene units; NaN where its light is lost)."""
+        grid, scene, data = problem.grid, problem.scene, problem.data
+        index, h = float(np.mean(scene.indices)), grid.base
         coords = np.linspace(-grid.half_width, grid.half_width, grid.resolution)
         gx, gy = np.meshgrid(coords, coords)
         points = np.stack([gx[mask], gy[mask]], axis=1)
-        incident_at = _direction_field(arrivals, scene.light.position, operator)
+        incident_at = _direction_field(arrivals, scene.light.position, problem.operator)
         incident = incident_at(points, np.full(len(points), h))
-        flat_landing = path.land_from_bottom(*flat_exit(points, incident, index, h))
-        goals = _mapped(plan, flat_landing)
+        goals = _mapped(plan, path.land_from_bottom(*flat_exit(points, incident, index, h)))
         d = np.zeros(grid.shape)
         inside = refract_down(incident, 1.0 / index)
         error = np.zeros(len(points))
+        height_sum = None if data.volume is None else data.volume / grid.cell_area
         for _ in range(self.outer_iterations):
             tops = h + d[mask]
             incident = incident_at(points, tops)
@@ -272,18 +292,9 @@ class TransportStart:
             normals = snell_normals(incident, inside, index)
             slopes = np.zeros((*grid.shape, 2))
             slopes[mask] = -normals[:, :2] / normals[:, 2:3]
-            target_sum = None if data.volume is None else data.volume / grid.cell_area
-            d = fit_masked_surface(slopes, mask, coords[1] - coords[0], self.smoothness, target_sum)
+            d = fit_masked_surface(slopes, mask, coords[1] - coords[0], self.smoothness, height_sum)
             d = bounds(torch.from_numpy(d)).numpy()
-        result = torch.from_numpy(d).to(operator.dtype)
-        metrics = {"transport_sites": float(len(plan.sites)), "transport_newton_steps": float(plan.newton_steps),
-                   "transport_max_relative_mass_error": plan.max_relative_mass_error,
-                   "transport_landing_error_px": float(np.median(error[np.isfinite(error)]) / pixel),
-                   "transport_unreached_samples": float(np.sum(~(error <= LANDING_TOLERANCE_PX * pixel))),
-                   "transport_seconds": time.perf_counter() - started}
-        if data.volume is not None:
-            metrics["transport_volume_ratio"] = float(d.sum() * grid.cell_area / data.volume)
-        return StartResult(result, metrics, self.name)
+        return d, error
 
     def _bounds(self, problem: Any, mask: np.ndarray):
         """The projection onto {p1 <= d <= p2 on the mask, 0 off it, and the volume band}."""
