@@ -51,10 +51,10 @@ def collect(store: TrackingStore) -> dict[tuple[str, str, str], dict]:
 
 
 def runs_of(metrics: dict) -> str:
-    """Each start an ``auto`` run tried: 'name: error / discrepancy (iterations, noise level reached?)'."""
+    """Each start an ``auto`` run tried: 'name: [error /] discrepancy (iterations, noise level reached?)'."""
     names = [k[len("start_"):-len("_reached_noise_level")] for k in metrics if k.endswith("_reached_noise_level")]
-    return "; ".join(f"{n}: {metrics.get(f'start_{n}_rel_error', float('nan')):.4f} / "
-                     f"{metrics[f'start_{n}_rel_discrepancy']:.4f} ({metrics[f'start_{n}_iterations']} it., "
+    error = {n: f"{metrics[f'start_{n}_rel_error']:.4f} / " if f"start_{n}_rel_error" in metrics else "" for n in names}
+    return "; ".join(f"{n}: {error[n]}{metrics[f'start_{n}_rel_discrepancy']:.4f} ({metrics[f'start_{n}_iterations']} it., "
                      f"{'noise level' if metrics[f'start_{n}_reached_noise_level'] else 'short of it'})" for n in names)
 
 
@@ -73,7 +73,7 @@ def write_table(cases: dict[tuple[str, str, str], dict], out: Path) -> None:
         writer.writeheader()
         writer.writerows(rows)
     lines = ["| setup | scene | start (chosen) | rel. err. | rel. dis. | rel. err. (d) | #iter | stopped by "
-             "| volume ratio | wall time (s) | runs (error / dis.) |", "|---|---|---|---|---|---|---|---|---|---|---|"]
+             "| volume ratio | wall time (s) | runs of auto: [error /] dis. |", "|---|---|---|---|---|---|---|---|---|---|---|"]
     lines += [f"| {r['setup']} | {r['scene']} | {r['start']}"
               + (f" ({r['chosen']})" if r["chosen"] != r["start"] else "")
               + f" | {r['rel_err']:.4f} | {r['rel_dis']:.4f} | {r['rel_err_d']:.4f} | {r['iterations']} "
