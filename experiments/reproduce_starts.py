@@ -5,7 +5,7 @@ them). Runs them as multiruns into one MLflow experiment, then rebuilds the tabl
 from the store: error, discrepancy, error relative to d, iterations, stop reason, wall time.
 
     python -m experiments.reproduce_starts                       # everything (about an hour on 2 cores)
-    python -m experiments.reproduce_starts --starts zero,transport --part scenes
+    python -m experiments.reproduce_starts --starts zero,transport --part scenes --scenes gaussian,bump
     python -m experiments.reproduce_starts --starts auto --part fig7   # auto's first run is the flat-glass one
     python -m experiments.reproduce_starts --table-only          # table and figure from the latest runs
 
@@ -28,11 +28,13 @@ EXPERIMENT = "starts"
 SCENES = ("print_lines", "oblique_lines", "bump", "gaussian", "letter_a")
 FIG7_SCENES = ("print_lines", "bump")
 FIG7_RECEIVER_Z = -1.0
-PARTS = {
-    "scenes": ["experiment=m2v1", "operator=height_field", f"scene={','.join(SCENES)}"],
-    "fig7": ["experiment=m2v1", "operator=two_lenses,height_field", f"scene={','.join(FIG7_SCENES)}",
-             f"receiver.z={FIG7_RECEIVER_Z}"],
-}
+
+
+def parts(scenes: str, fig7_scenes: str) -> dict[str, list[str]]:
+    """The sweeps: the height-field scenes at the default receiver, and Fig. 7's cases."""
+    return {"scenes": ["experiment=m2v1", "operator=height_field", f"scene={scenes}"],
+            "fig7": ["experiment=m2v1", "operator=two_lenses,height_field", f"scene={fig7_scenes}",
+                     f"receiver.z={FIG7_RECEIVER_Z}"]}
 
 
 def case_of(run) -> tuple[str, str, str]:
@@ -115,12 +117,15 @@ def write_figure(cases: dict[tuple[str, str, str], dict], out: Path) -> None:
 def main(argv: list[str] | None = None) -> None:
     parser = reproduction_parser(__doc__.splitlines()[0])
     parser.add_argument("--starts", default="zero,auto", help="the starts compared (conf/initial/ names)")
-    parser.add_argument("--part", choices=[*PARTS, "all"], default="all", help="scenes, fig7 or all")
+    parser.add_argument("--part", choices=["scenes", "fig7", "all"], default="all", help="scenes, fig7 or all")
+    parser.add_argument("--scenes", default=",".join(SCENES), help="the height-field scenes (a quick subset)")
+    parser.add_argument("--fig7-scenes", default=",".join(FIG7_SCENES), help="the scenes of Fig. 7's cases")
     args = parser.parse_args(argv)
     store = tracking_store(args)
     if not args.table_only:
-        for part in PARTS if args.part == "all" else [args.part]:
-            run_sweep(store, EXPERIMENT, [*PARTS[part], f"initial={args.starts}"], args.overrides, args.launcher)
+        sweeps = parts(args.scenes, args.fig7_scenes)
+        for part in sweeps if args.part == "all" else [args.part]:
+            run_sweep(store, EXPERIMENT, [*sweeps[part], f"initial={args.starts}"], args.overrides, args.launcher)
     cases = collect(store)
     if not cases:
         raise SystemExit(f"no finished runs of '{EXPERIMENT}' in {store.uri or store.directory}")
