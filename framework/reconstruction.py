@@ -316,7 +316,7 @@ def _reconstruct(parts: Reconstruction, output_dir: Path, base_dir: Path, sweep_
             print("waiting for the gradient kernel to compile (first run after an install; cached afterwards)",
                   flush=True)
             compiling.wait()
-        request = StartRequest(problem, lambda: build_heights(cfg, base_dir=base_dir), base_dir, parts.make_solver)
+        request = StartRequest(problem, lambda: build_heights(cfg, base_dir=base_dir), base_dir)
         phases = parts.start.phases() if callable(getattr(parts.start, "phases", None)) else [
             (getattr(parts.start, "name", "start"), parts.start)]
         finished, first = resumed_phases(output_dir, checkpoint)

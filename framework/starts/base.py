@@ -16,7 +16,6 @@ from torch import Tensor
 
 if TYPE_CHECKING:
     from framework.problem import Problem
-    from framework.solvers import SolverBuilder
 
 __all__ = ["StartRequest", "StartResult"]
 
@@ -29,13 +28,11 @@ class StartRequest:
         problem: The operator, data (target, mask, volume, noise level), grid and scene.
         design: Builds the configured height field (m, m) (with synthetic data the ground truth).
         base_dir: Directory relative paths are resolved against.
-        make_solver: The run's solver builder, (problem, d0) -> solver (a start may probe it).
     """
 
     problem: Problem
     design: Callable[[], Tensor]
     base_dir: Path
-    make_solver: SolverBuilder
 
 
 @dataclass

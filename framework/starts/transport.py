@@ -278,8 +278,8 @@ class TransportStart:
         coords = np.linspace(-grid.half_width, grid.half_width, grid.resolution)
         gx, gy = np.meshgrid(coords, coords)
         points = np.stack([gx[mask], gy[mask]], axis=1)
-        incident_at = _direction_field(arrivals, scene.light.position, problem.operator)
-        incident = incident_at(points, np.full(len(points), h))
+        incident_at = _direction_field(arrivals, scene.light.position, problem.operator, points)
+        incident = incident_at(np.full(len(points), h))
         goals = _mapped(plan, path.land_from_bottom(*flat_exit(points, incident, index, h)))
         d = np.zeros(grid.shape)
         inside = refract_down(incident, 1.0 / index)
@@ -287,7 +287,7 @@ class TransportStart:
         height_sum = None if data.volume is None else data.volume / grid.cell_area
         for _ in range(self.outer_iterations):
             tops = h + d[mask]
-            incident = incident_at(points, tops)
+            incident = incident_at(tops)
             inside, error = exit_directions(path, points, tops, goals, inside, index, self.newton_steps)
             normals = snell_normals(incident, inside, index)
             slopes = np.zeros((*grid.shape, 2))
@@ -306,32 +306,24 @@ class TransportStart:
         return lambda d: band.prox(d, 1.0)
 
 
-def _direction_field(arrivals: Any, light: tuple[float, float, float], operator: Any):
-    """Unit directions (N, 3) of the light arriving at top points (N, 2) at heights (N,): straight
-    from the light for the height-field operator's open scene, else interpolated between the traced
-    arrivals (at most 65536 of them; nearest outside their hull) at the points' x, y."""
+def _direction_field(arrivals: Any, light: tuple[float, float, float], operator: Any, points: np.ndarray):
+    """A function of the heights (N,) at the top points ``points`` (N, 2) giving the unit
+    directions (N, 3) of the light arriving there: straight from the light for the height-field
+    operator's open scene, else interpolated once at the points' x, y between the traced arrivals
+    (at most 65536 of them; nearest outside their hull)."""
     if not getattr(operator, "elements", None):
         source = np.asarray(light, dtype=np.float64)
 
-        def straight(points: np.ndarray, tops: np.ndarray) -> np.ndarray:
+        def straight(tops: np.ndarray) -> np.ndarray:
             ray = np.concatenate([points, tops[:, None]], axis=1) - source
             return ray / np.linalg.norm(ray, axis=1, keepdims=True)
         return straight
     pick = np.linspace(0, len(arrivals.points) - 1, min(len(arrivals.points), 65536)).astype(np.int64)
-    linear = LinearNDInterpolator(arrivals.points[pick], arrivals.directions[pick])
-    nearest = NearestNDInterpolator(arrivals.points[pick], arrivals.directions[pick])
-
-    known: dict[bytes, np.ndarray] = {}  # the samples' directions, interpolated once
-
-    def traced(points: np.ndarray, tops: np.ndarray) -> np.ndarray:
-        key = points.tobytes()
-        if key not in known:
-            out = linear(points)
-            missing = ~np.isfinite(out).all(axis=1)
-            out[missing] = nearest(points[missing])
-            known[key] = out / np.linalg.norm(out, axis=1, keepdims=True)
-        return known[key]
-    return traced
+    traced = LinearNDInterpolator(arrivals.points[pick], arrivals.directions[pick])(points)
+    missing = ~np.isfinite(traced).all(axis=1)
+    traced[missing] = NearestNDInterpolator(arrivals.points[pick], arrivals.directions[pick])(points[missing])
+    traced /= np.linalg.norm(traced, axis=1, keepdims=True)
+    return lambda tops: traced
 
 
 def _mapped(plan: Any, landing: np.ndarray) -> np.ndarray:

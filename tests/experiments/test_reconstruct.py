@@ -70,7 +70,7 @@ def test_starts_from_zero_design_or_file(tmp_path):
     problem = Problem(parts.operator, parts.data_source.load(parts.data_request(tmp_path)), parts.grid, parts.scene)
 
     def start(spec: dict) -> torch.Tensor:
-        return build_start({"initial": spec})(StartRequest(problem, lambda: build_heights(cfg), tmp_path, None)).d
+        return build_start({"initial": spec})(StartRequest(problem, lambda: build_heights(cfg), tmp_path)).d
 
     assert torch.equal(start({"name": "zero"}), torch.zeros(32, 32))
     half = start({"name": "design", "scale": 0.5}).double()

@@ -54,7 +54,7 @@ def height_field_problem(truth: np.ndarray, photons: int = 262144, receiver: int
 
 
 def request(problem: Problem) -> StartRequest:
-    return StartRequest(problem, lambda: problem.data.ground_truth, Path("."), lambda p, d0: None)
+    return StartRequest(problem, lambda: problem.data.ground_truth, Path("."))
 
 
 def test_the_inverse_refraction_gives_a_paraboloids_normals_in_closed_form():
