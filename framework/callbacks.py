@@ -249,22 +249,24 @@ class Checkpointer(Callback):
         path: Checkpoint file (overwritten atomically each time).
         every: Save when ``iteration % every == 0``.
         at_end: Also save when the run ends.
+        run: The fingerprint of the run (framework/run_identity.py), stored with the state.
     """
 
     order = 100
 
-    def __init__(self, path: str | os.PathLike[str], every: int = 10, at_end: bool = True) -> None:
+    def __init__(self, path: str | os.PathLike[str], every: int = 10, at_end: bool = True,
+                 run: dict[str, str] | None = None) -> None:
         if isinstance(every, bool) or not isinstance(every, int) or every < 1:
             raise ValueError(f"every must be an int >= 1, got {every!r}")
-        self.path, self.every, self.at_end = Path(path), every, at_end
+        self.path, self.every, self.at_end, self.run = Path(path), every, at_end, run
 
     def on_iteration(self, solver, record) -> None:  # noqa: D102
         if record.iteration % self.every == 0:
-            save_checkpoint(solver, self.path)
+            save_checkpoint(solver, self.path, self.run)
 
     def on_end(self, solver, result) -> None:  # noqa: D102
         if self.at_end:
-            save_checkpoint(solver, self.path)
+            save_checkpoint(solver, self.path, self.run)
 
 
 class GroundTruthError(Callback):

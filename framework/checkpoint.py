@@ -11,6 +11,9 @@ covered). Files are read with ``torch.load(weights_only=True)``: only tensors an
 from __future__ import annotations
 
 import os
+import pickle
+import zipfile
+from collections.abc import Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Sequence
 
@@ -49,14 +52,17 @@ def _set_rng_state(state: dict[str, Any]) -> None:
         torch.cuda.set_rng_state_all(state["cuda"])
 
 
-def save_checkpoint(solver: "IterativeSolver", path: str | os.PathLike[str]) -> Path:
-    """Write the solver's state to ``path`` atomically (temporary file + ``os.replace``).
+def save_checkpoint(solver: "IterativeSolver", path: str | os.PathLike[str],
+                    run: Mapping[str, str] | None = None) -> Path:
+    """Write the solver's state to ``path`` atomically (temporary file + ``os.replace``), with
+    ``run``, the fingerprint of the run it belongs to (framework/run_identity.py), if given.
 
     A crash while writing leaves the previous checkpoint intact. Returns the path.
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    payload = {"format": CHECKPOINT_FORMAT, "solver_state": solver.state_dict(), "rng": _rng_state()}
+    payload = {"format": CHECKPOINT_FORMAT, "solver_state": solver.state_dict(), "rng": _rng_state(),
+               "run": dict(run or {})}
     tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
     try:
         with open(tmp, "wb") as fh:
@@ -75,7 +81,12 @@ def load_checkpoint(path: str | os.PathLike[str]) -> dict[str, Any]:
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"no checkpoint at {path}; check the path or start without resume")
-    payload = torch.load(path, map_location="cpu", weights_only=True)
+    try:
+        payload = torch.load(path, map_location="cpu", weights_only=True)
+    except (RuntimeError, EOFError, OSError, pickle.UnpicklingError, zipfile.BadZipFile) as error:
+        reason = str(error).splitlines()[0] if str(error) else type(error).__name__
+        raise ValueError(f"{path} is not a readable checkpoint, truncated or not written by this software "
+                         f"({reason[:120]})") from None
     if not isinstance(payload, dict) or payload.get("format") != CHECKPOINT_FORMAT:
         found = payload.get("format") if isinstance(payload, dict) else type(payload).__name__
         raise ValueError(f"{path} is not a checkpoint of format {CHECKPOINT_FORMAT} (found {found!r})")

@@ -11,7 +11,7 @@ Noise is added after resampling, so delta is the noise level of the data the sol
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Callable
 
 import torch
@@ -27,7 +27,8 @@ class ReconstructionData:
     target: b^delta (c, n, n); mask: printed area (m, m) bool; volume: deposited volume in scene
     units^3 (None if unknown); delta: relative noise level for the discrepancy principle;
     weights (c, n, n) in [0, 1]: pixels the fit uses (None: all; a photo's saturated pixels get 0);
-    ground_truth (m, m), clean (c, n, n) and intrinsic_noise: synthetic data only.
+    ground_truth (m, m), clean (c, n, n) and intrinsic_noise: synthetic data only; left_out:
+    receiver pixels at weight 0 by reason (e.g. ``saturated``, ``unlit``), for the run's report.
     """
 
     target: torch.Tensor
@@ -38,6 +39,7 @@ class ReconstructionData:
     ground_truth: torch.Tensor | None = None
     clean: torch.Tensor | None = None
     intrinsic_noise: float | None = None
+    left_out: dict[str, int] = field(default_factory=dict)
 
 
 def resample_image(image: torch.Tensor, resolution: int) -> torch.Tensor:

@@ -7,8 +7,10 @@
   the deposited volume when known.
 - ``photo`` (framework/photo_data.py): a camera photo of the screen, rectified onto the receiver.
 
-Each is built from its config alone (every value checked, nothing read or rendered) and then
-``load(request)`` produces the :class:`framework.data.ReconstructionData`.
+Each is built from its config alone (every value checked, nothing read or rendered);
+``check(request)`` then reads and checks its files and what it knows of the print without
+rendering anything (the run's checks before a run opens), and ``load(request)`` produces the
+:class:`framework.data.ReconstructionData`.
 """
 
 from __future__ import annotations
@@ -27,7 +29,7 @@ from framework.objective import ForwardOperator
 from framework.problem import HeightGrid
 from framework.units import DEFAULT_MM_PER_UNIT, scene_volume
 
-__all__ = ["DataRequest", "DataSource", "KnownPrint", "SyntheticData", "MeasuredData", "resolve_path"]
+__all__ = ["DataRequest", "DataSource", "PrintFacts", "KnownPrint", "SyntheticData", "MeasuredData", "resolve_path"]
 
 
 def resolve_path(path: str | Path, base_dir: Path) -> Path:
@@ -72,8 +74,26 @@ class DataRequest:
     mm_per_unit: float = DEFAULT_MM_PER_UNIT
 
 
+@dataclass(frozen=True)
+class PrintFacts:
+    """What a data source's check knows of the print before anything is rendered.
+
+    Attributes:
+        mask: The printed area (m, m) bool.
+        volume: The deposited volume, scene units^3, or None when unknown.
+    """
+
+    mask: torch.Tensor
+    volume: float | None
+
+
 class DataSource(Protocol):
     """A ``data`` plugin: built from its config keys, it produces the data on request."""
+
+    def check(self, request: DataRequest) -> PrintFacts:
+        """Read and check every file and value the data need, rendering nothing; a bad one raises
+        a ValueError / FileNotFoundError naming the key and the fix."""
+        ...
 
     def load(self, request: DataRequest) -> ReconstructionData:
         """The target image, mask, volume and noise level (and, for synthetic data, the truth)."""
@@ -98,6 +118,10 @@ class SyntheticData:
         self.reference_resolution = _count("reference_resolution", reference_resolution, 2)
         self.mask_threshold = non_negative_setting("mask_threshold", mask_threshold)
         self.mask_dilation = non_negative_setting("mask_dilation", mask_dilation)
+
+    def check(self, request: DataRequest) -> PrintFacts:
+        """The ground truth's printed area (its volume is known exactly, so not checked)."""
+        return PrintFacts(mask_from_height_field(request.design(), self.mask_threshold, self.mask_dilation), None)
 
     def load(self, request: DataRequest) -> ReconstructionData:
         """Render the ground truth twice (seeds seed + 1000 and seed + 2000) and add the noise."""
@@ -157,6 +181,10 @@ class KnownPrint:
             raise ValueError(f"data.volume={self.volume} must be positive (scene units^3 or e.g. '1.7 mm3') or null")
         return volume
 
+    def check(self, request: DataRequest) -> PrintFacts:
+        """The mask and the volume read and checked."""
+        return PrintFacts(self.printed_area(request), self.deposited_volume(request))
+
     @staticmethod
     def bare_substrate_caustic(request: DataRequest) -> torch.Tensor:
         """The model's caustic (c, n, n) of the substrate without a print, float64."""
@@ -182,14 +210,26 @@ class MeasuredData(KnownPrint):
         super().__init__(mask, volume, delta, brightness, mask_threshold, mask_dilation)
         self.image = str(image)
 
-    def load(self, request: DataRequest) -> ReconstructionData:
-        """Read the image and the mask; scale the image (``brightness: energy``)."""
-        operator = request.operator
+    def _image(self, request: DataRequest) -> torch.Tensor:
+        """The caustic image (c, N, N), its channels checked against the scene's wavelengths."""
         image = load_caustic_image(resolve_path(self.image, request.base_dir))
-        channels = operator.output_shape[0]
+        channels = request.operator.output_shape[0]
         if image.shape[0] != channels:
             raise ValueError(f"data.image has {image.shape[0]} channel(s) but the scene has {channels} "
                              "wavelength(s); set wavelengths=[...] to match")
+        if float(image.sum()) <= 0.0:
+            raise ValueError(f"data.image={self.image} is all zero (or negative); check the file")
+        return image
+
+    def check(self, request: DataRequest) -> PrintFacts:
+        """The image, the mask and the volume read and checked."""
+        self._image(request)
+        return super().check(request)
+
+    def load(self, request: DataRequest) -> ReconstructionData:
+        """Read the image and the mask; scale the image (``brightness: energy``)."""
+        operator = request.operator
+        image = self._image(request)
         flat_total = float(self.bare_substrate_caustic(request).sum()) if self.brightness == "energy" else None
         return measured_data(image, operator.output_shape[-1], self.delta, self.printed_area(request),
                              self.deposited_volume(request), flat_total)

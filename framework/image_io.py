@@ -2,15 +2,18 @@
 
 from __future__ import annotations
 
+import zipfile
 from pathlib import Path
 
 import numpy as np
 import torch
-from PIL import Image
+from PIL import Image, UnidentifiedImageError
 
 
 def _existing(path: str | Path, what: str) -> Path:
     p = Path(path).expanduser()
+    if p.is_dir():
+        raise ValueError(f"{what} {str(p)!r} is a directory; give the file itself")
     if not p.is_file():
         raise FileNotFoundError(f"{what} file {str(p)!r} does not exist; check the path (relative paths are "
                                 "resolved against the directory sfc-reconstruct was started in)")
@@ -19,10 +22,18 @@ def _existing(path: str | Path, what: str) -> Path:
 
 def _read_array(p: Path) -> np.ndarray:
     if p.suffix.lower() == ".npy":
-        return np.load(p)
+        try:
+            return np.load(p, allow_pickle=False)
+        except (ValueError, OSError, EOFError, zipfile.BadZipFile) as error:
+            raise ValueError(f"{p} is not a readable .npy array, corrupt or truncated ({str(error)[:80]}); write it "
+                             "again with numpy.save") from None
     if p.suffix.lower() in (".png", ".tif", ".tiff"):
-        with Image.open(p) as img:
-            array = np.array(img)
+        try:
+            with Image.open(p) as img:
+                array = np.array(img)
+        except (UnidentifiedImageError, OSError) as error:
+            raise ValueError(f"{p} cannot be read as an image, corrupt or truncated ({str(error)[:80]}); save it "
+                             "again as an 8/16-bit PNG/TIFF") from None
         if array.dtype == np.uint8 or array.dtype == np.uint16:
             array = array.astype(np.float64) / np.iinfo(array.dtype).max
         return array

@@ -97,7 +97,11 @@ def _read_frame(path: str | Path, what: str) -> tuple[np.ndarray, int]:
     p = _existing(path, what)
     suffix = p.suffix.lower()
     if suffix == ".npy":
-        array = np.load(p, allow_pickle=False)
+        try:
+            array = np.load(p, allow_pickle=False)
+        except (ValueError, OSError, EOFError) as error:
+            raise ValueError(f"{what} {p} is not a readable .npy array, corrupt or truncated ({str(error)[:80]}); "
+                             f"{_SAVE_AS}") from None
         if array.dtype.kind != "f":
             raise ValueError(f"{what} {p.name} holds {array.dtype} values; a .npy photo must be a float array of "
                              "linear values as a fraction of full scale (divide the counts by the white level)")
@@ -338,7 +342,9 @@ class PhotoImport:
     float64 in {0, 1} (0: the pixel saw saturated or unusable photo pixels); steps: what was done,
     in order; photo: (H, W) float64 the processed linear photo (row 0 = top); corners: (4, 2)
     [col, row]; homography: (3, 3) receiver (x, y) -> photo (col, row); bad_photo_pixels: (H, W)
-    bool saturated or unusable photo pixels; half_width: receiver half width (scene units).
+    bool saturated or unusable photo pixels; half_width: receiver half width (scene units);
+    left_out: receiver pixels at weight 0 by reason: ``unlit`` (outside the flat field's lit
+    region), ``saturated`` (touching saturated photo pixels, inside the lit region).
     """
 
     image: np.ndarray
@@ -350,6 +356,7 @@ class PhotoImport:
     bad_photo_pixels: np.ndarray
     half_width: float
     path: Path = field(default_factory=Path)
+    left_out: dict[str, int] = field(default_factory=dict)
 
 
 def _select(values: np.ndarray, channel: Channel) -> np.ndarray:
@@ -475,12 +482,20 @@ def import_photo(path: str | Path, corners: object, half_width: float, resolutio
                          f"{int(saturated.sum())} saturated photo pixels (raw >= data.saturation={saturation})"
                          + (f" or {int(unusable.sum())} unusable flat-field pixels" if unusable.any() else "")
                          + "; shorten the exposure or fix the flat field")
+    left_out: dict[str, int] = {}
+    if unusable.any():  # where the flat field is dark, no light is known to arrive: outside the lit region
+        unlit = saturated_receiver_pixels(unusable & ~saturated, h, resolution, float(half_width), supersample)
+        left_out["unlit"] = int(unlit.sum())
+        steps.append(f"lit region (flat field above {FLAT_FLOOR:g} of its mean, not saturated): "
+                     f"{100 * (1 - unlit.mean()):.1f}% of the receiver; its {left_out['unlit']} receiver pixels "
+                     "outside it are left out (weight 0)")
+    else:
+        unlit = np.zeros((resolution, resolution), dtype=bool)
+    left_out["saturated"] = int((dropped & ~unlit).sum())
     if saturated.any():
-        steps.append(f"{int(saturated.sum())} saturated photo pixels (raw >= {saturation:g}) "
-                     + (f"and {int(unusable.sum())} unusable flat-field pixels " if unusable.any() else "")
-                     + f"-> {n_dropped} receiver pixels weighted 0")
-    elif unusable.any():
-        steps.append(f"{int(unusable.sum())} unusable flat-field pixels -> {n_dropped} receiver pixels weighted 0")
+        steps.append(f"{int(saturated.sum())} saturated photo pixels (raw >= {saturation:g}) -> "
+                     f"{left_out['saturated']} receiver pixels" + (" inside the lit region" if unusable.any() else "")
+                     + " left out (weight 0)")
     else:
         steps.append(f"no saturated photo pixels (raw >= {saturation:g})")
 
@@ -492,7 +507,7 @@ def import_photo(path: str | Path, corners: object, half_width: float, resolutio
     steps.append(f"rectified to {resolution} x {resolution} receiver pixels, {supersample} x {supersample} "
                  "bilinear samples averaged per pixel")
     return PhotoImport(image=image, weights=weights, steps=steps, photo=values, corners=corners, homography=h,
-                       bad_photo_pixels=bad, half_width=float(half_width), path=Path(path))
+                       bad_photo_pixels=bad, half_width=float(half_width), path=Path(path), left_out=left_out)
 
 
 # --- figure --------------------------------------------------------------------------------------

@@ -8,6 +8,7 @@ and tests can run a reconstruction without Hydra's command line.
 from __future__ import annotations
 
 import json
+import sys
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass
@@ -21,6 +22,8 @@ from framework.calibration import JointCalibration
 from framework.callbacks import Checkpointer, GroundTruthError, MetricsHistory, ProgressBar
 from framework.checkpoint import resume as resume_solver
 from framework.data_sources import DataRequest, DataSource, resolve_path
+from framework.run_checks import CHECKPOINT, check_volume, checked_resume, design_given, height_bounds
+from framework.run_identity import run_fingerprint
 from framework.export import export_outputs
 from framework.plugin_config import as_mapping, build_plugin, split_name
 from framework.problem import HeightGrid, OperatorPlugin, Problem
@@ -28,11 +31,11 @@ from framework.report_figures import save_reconstruction_figures
 from framework.scene_config import build_heights, build_operator, build_scene, height_grid, to_plain
 from framework.solvers import Callback, IterationRecord, RunResult, SolverBuilder
 from framework.starts import StartRequest
-from framework.tracking import MlflowTracker, local_store_uri
+from framework.tracking import MlflowTracker, check_tracking_target, local_store_uri
 from framework.units import mm_per_unit
+from framework.verdict import run_verdict, volume_report
 from operators.scene import Scene
 
-CHECKPOINT = "checkpoint.pt"
 CALIBRATION_STATE = "calibration.json"
 PHASES = "phases.pt"  # initial=auto: the finished starts of a run, and which one is under way
 MLFLOW_RUN = "mlflow_run.json"  # the run's MLflow run id, so that a job resumed in its directory logs into it
@@ -49,35 +52,10 @@ def build_start(cfg: Mapping[str, Any]) -> Any:
     return build_plugin("initial", name, params, "initial")
 
 
-def volume_report(d: torch.Tensor, volume: float | None, cell_area: float, tolerance: float = 0.02) -> dict[str, Any]:
-    """The result's volume against the known one: ``volume_ratio`` (sum d a / V) and whether it
-    holds within ``tolerance`` (``volume_held``); empty without a known volume."""
-    if volume is None:
-        return {}
-    ratio = float(d.double().sum()) * cell_area / volume
-    return {"volume_ratio": ratio, "volume_held": abs(ratio - 1.0) <= tolerance}
-
-
 def build_stopping(cfg: Mapping[str, Any]) -> list[Callback]:
     """The ``stopping`` plugins, in config order (fresh ones for every run from a start)."""
     return [build_plugin("stopping", name, params, f"stopping.{name}")
             for name, params in as_mapping(cfg.get("stopping"), "stopping").items()]
-
-
-def resume_checkpoint(spec: Any, output_dir: Path, base_dir: Path) -> Path | None:
-    """The checkpoint a run continues from: ``auto`` takes the run directory's own checkpoint.pt
-    when there is one (a sweep job run again in its directory, e.g. requeued after pre-emption),
-    a path takes that file (which must exist), None starts afresh."""
-    if spec in (None, "none"):
-        return None
-    if spec == "auto":
-        own = output_dir / CHECKPOINT
-        return own if own.is_file() else None
-    path = resolve_path(str(spec), base_dir)
-    if not path.is_file():
-        raise FileNotFoundError(f"resume={spec!r}: {path} does not exist; give a checkpoint.pt of an earlier run, "
-                                "auto or null")
-    return path
 
 
 def interrupted_run(output_dir: Path, checkpoint: Path | None, store_dir: Path, uri: str | None) -> str | None:
@@ -188,7 +166,8 @@ def _solve_from(parts: Reconstruction, problem: Problem, name: str, start: Any, 
             rule.setup(problem)
     history = MetricsHistory()
     callbacks: list[Callback] = [history, *stopping, ProgressBar(desc=f"{cfg.get('method', 'custom')} from {name}"),
-                                 Checkpointer(output_dir / CHECKPOINT, every=int(cfg["checkpoint_every"])),
+                                 Checkpointer(output_dir / CHECKPOINT, every=int(cfg["checkpoint_every"]),
+                                              run=parts.fingerprint),
                                  tracker.metrics_callback(step_offset=steps_before)]
     callbacks += [c for c in (parts.calibration, truth_error) if c is not None]
     if checkpoint is not None:
@@ -226,6 +205,7 @@ class Reconstruction:
         stopping: The ``stopping`` plugins, in config order.
         start: The ``initial`` plugin: computes the start d0 (m, m) once the data are loaded.
         max_iter: The solver's iteration cap.
+        fingerprint: What determines the result (framework/run_identity.py), stored in checkpoints.
         calibration: Joint calibration of the setup (framework/calibration.py), or None.
     """
 
@@ -238,6 +218,7 @@ class Reconstruction:
     stopping: list[Callback]
     start: Any
     max_iter: int
+    fingerprint: dict[str, str]
     calibration: JointCalibration | None = None
 
     @classmethod
@@ -260,7 +241,27 @@ class Reconstruction:
         start = build_start(cfg)
         if callable(getattr(start, "check", None)):
             start.check(base_dir)
-        return cls(cfg, operator, scene, grid, data_source, make_solver, stopping, start, max_iter, calibration)
+        return cls(cfg, operator, scene, grid, data_source, make_solver, stopping, start, max_iter,
+                   run_fingerprint(cfg, base_dir), calibration)
+
+    def check(self, base_dir: Path, output_dir: Path) -> Path | None:
+        """Everything a run needs that the plugins' configs alone do not show, checked without a
+        render, before the tracker opens: the tracking target, the data's files and what they say
+        of the print (the volume against the printed area and the height bounds), the design of a
+        measured print, and the checkpoint to resume from (readable, of this run). Returns that
+        checkpoint, or None for a fresh run."""
+        tracking = as_mapping(self.cfg.get("tracking"), "tracking")
+        store_dir = tracking.get("store_dir")
+        if not isinstance(store_dir, str) or not store_dir:
+            raise ValueError(f"tracking.store_dir={store_dir!r} must be a directory name for the local MLflow store")
+        check_tracking_target(tracking.get("uri"), resolve_path(store_dir, base_dir))
+        request = self.data_request(base_dir)
+        facts = self.data_source.check(request)
+        check_volume(facts.volume, facts.mask, self.grid.cell_area, height_bounds(self.cfg),
+                     2.0 * float(self.scene.substrate.half_width))
+        if design_given(self.cfg):
+            request.design()
+        return checked_resume(self.cfg.get("resume"), output_dir, base_dir, self.fingerprint)
 
     def data_request(self, base_dir: Path, output_dir: Path | None = None) -> DataRequest:
         """What the data source may use: the operator, the grid, the configured heights, the seed,
@@ -272,24 +273,24 @@ class Reconstruction:
 def run_reconstruction(cfg: Mapping[str, Any], output_dir: Path, base_dir: Path,
                        sweep_id: str | None = None) -> dict[str, Any]:
     """Reconstruct the configured scene into ``output_dir``; returns the metrics written to metrics.json."""
-    output_dir.mkdir(parents=True, exist_ok=True)
     parts = Reconstruction.from_config(cfg, base_dir)
+    checkpoint = parts.check(base_dir, output_dir)
+    output_dir.mkdir(parents=True, exist_ok=True)
     warm_up = getattr(parts.operator, "warm_up", None)
     if callable(warm_up) and bool(parts.cfg.get("compile_in_background", True)):
         with warm_up() as compiling:
-            return _reconstruct(parts, output_dir, base_dir, sweep_id, compiling)
-    return _reconstruct(parts, output_dir, base_dir, sweep_id, None)
+            return _reconstruct(parts, output_dir, base_dir, checkpoint, sweep_id, compiling)
+    return _reconstruct(parts, output_dir, base_dir, checkpoint, sweep_id, None)
 
 
-def _reconstruct(parts: Reconstruction, output_dir: Path, base_dir: Path, sweep_id: str | None,
-                 compiling: Any) -> dict[str, Any]:
+def _reconstruct(parts: Reconstruction, output_dir: Path, base_dir: Path, checkpoint: Path | None,
+                 sweep_id: str | None, compiling: Any) -> dict[str, Any]:
     cfg, operator = parts.cfg, parts.operator
     method = cfg.get("method", "custom")
     tracking = as_mapping(cfg.get("tracking"), "tracking")
     data_name = cfg["data"]["name"]
     tags = {"method": method, "scene": cfg["height_field"].get("shape", "file"), "data": data_name,
             "operator": cfg["operator"]["name"], "solver": cfg["solver"]["name"]}
-    checkpoint = resume_checkpoint(cfg.get("resume"), output_dir, base_dir)
     store_dir = resolve_path(tracking["store_dir"], base_dir)
     with MlflowTracker(experiment=tracking["experiment"], run_name=cfg.get("method"), store_dir=store_dir,
                        tracking_uri=tracking.get("uri"), params=cfg, tags=tags, sweep_id=sweep_id,
@@ -303,8 +304,9 @@ def _reconstruct(parts: Reconstruction, output_dir: Path, base_dir: Path, sweep_
         tracker.log_data(data, cfg, base_dir)
         problem = Problem(operator, data, parts.grid, parts.scene)
         # The design the mm outputs compare with: the truth of synthetic data, else the configured
-        # height field (the print's design); built now, so that a bad one fails before the solve.
-        design = data.ground_truth if data.ground_truth is not None else build_heights(cfg, base_dir=base_dir)
+        # height field when the user declared it the print's design (framework/run_checks.py).
+        design = data.ground_truth if data.ground_truth is not None else (
+            build_heights(cfg, base_dir=base_dir) if design_given(cfg) else None)
         calibration = parts.calibration
         if calibration is not None:
             resume_from = None if checkpoint is None else checkpoint.parent / CALIBRATION_STATE
@@ -368,12 +370,25 @@ def _reconstruct(parts: Reconstruction, output_dir: Path, base_dir: Path, sweep_
         if data.ground_truth is not None:
             np.save(output_dir / "ground_truth.npy", data.ground_truth.cpu().numpy().astype(np.float64))
         exported = export_outputs(output_dir / "export", d.cpu().numpy(), parts.grid.half_width, parts.grid.base,
-                                  mm_per_unit(cfg), design=design.cpu().numpy())  # mm outputs (docs/export.md)
+                                  mm_per_unit(cfg), design=None if design is None else design.cpu().numpy())
         metrics.update({f"deviation_{key}": value for key, value in exported["deviation"].items()})
+        if design is None:
+            print("no design given (height_field.path, data.mask=design or initial=design): no deviation report",
+                  flush=True)
+        morozov = (cfg.get("stopping") or {}).get("morozov") or {}
+        verdict = run_verdict(metrics["rel_discrepancy"], data.delta, float(morozov.get("tau_dis", 1.0)),
+                              returned_iteration, result.stop_reason, volume_report(d, data.volume, parts.grid.cell_area),
+                              data.weights, data.left_out)
+        metrics.update(verdict.metrics())
+        for line in verdict.lines:
+            print(f"verdict: {line}", flush=True)
+        for line in verdict.warnings:
+            print(f"warning: {line}", file=sys.stderr, flush=True)
         (output_dir / "metrics.json").write_text(json.dumps(metrics, indent=2))
         save_reconstruction_figures(output_dir, d, problem, prediction, history)
-        tracker.log_metrics({k: v for k, v in metrics.items() if isinstance(v, (int, float)) and v is not None
-                             and not isinstance(v, bool)}, step=steps_before)  # the summary: last step, not 0
-        tracker.set_tags({"stop_reason": result.stop_reason, "stopped_by": result.stopped_by, "start": chosen.name})
+        tracker.log_metrics({k: float(v) for k, v in metrics.items() if isinstance(v, (int, float)) and v is not None},
+                            step=steps_before)  # the summary (flags as 0/1): last step, not 0
+        tracker.set_tags({"stop_reason": result.stop_reason, "stopped_by": result.stopped_by, "start": chosen.name,
+                          "verdict": metrics["verdict"]})
         tracker.log_artifacts(output_dir)
     return metrics

@@ -36,7 +36,7 @@ from framework.problem import HeightGrid
 from framework.shapes import make_shape
 from framework.units import mm_per_unit, scene_length
 from operators.imaging import PSF_KINDS, ImagingOperator
-from operators.materials import make_material
+from operators.materials import material_from_config
 from operators.scene import PointLight, Receiver, Scene, Substrate
 
 __all__ = ["build_scene", "build_heights", "build_operator", "height_grid", "screen_sigma", "to_plain"]
@@ -47,12 +47,6 @@ SCENE_KEYS: dict[str, tuple[str, ...]] = {
     "receiver": ("z", "resolution", "half_width"),
 }
 SCREEN_KEYS = ("psf", "sigma")
-MATERIAL_KEYS: dict[str, tuple[str, ...]] = {
-    "fused_silica": (),
-    "sellmeier": ("b", "c"),
-    "cauchy": ("a", "b", "c"),
-    "constant": ("n",),
-}
 HEIGHT_FIELD_KEYS = ("shape", "resolution", "path", "scale", "params")
 DEFAULT_RESOLUTION = 128
 
@@ -87,21 +81,6 @@ def _number(name: str, value: Any, kind: type = float) -> Any:
     return float(value)
 
 
-def _build_material(cfg: Mapping[str, Any]) -> Any:
-    spec = to_plain(cfg.get("material")) or {"kind": "fused_silica"}
-    if not isinstance(spec, Mapping):
-        raise ValueError(f"material={spec!r} must be a mapping, e.g. {{kind: fused_silica}}")
-    kind = spec.get("kind", "fused_silica")
-    if kind not in MATERIAL_KEYS:
-        raise ValueError(f"unknown material.kind {kind!r}; use {', '.join(MATERIAL_KEYS)}")
-    allowed = ("kind", "name") + MATERIAL_KEYS[kind]
-    _group({"material": spec}, "material", allowed)
-    missing = [k for k in MATERIAL_KEYS[kind] if k not in spec and not (kind == "cauchy" and k != "a")]
-    if missing:
-        raise ValueError(f"material kind {kind!r} needs material.{missing[0]}; give e.g. material.{missing[0]}=...")
-    return make_material(dict(spec))
-
-
 def build_scene(cfg: Mapping[str, Any]) -> Scene:
     """Scene (light, substrate, receiver, material, wavelengths in um) from the config's top-level
     keys; lengths in scene units or with a unit (framework/units.py)."""
@@ -125,8 +104,9 @@ def build_scene(cfg: Mapping[str, Any]) -> Scene:
     if not isinstance(wavelengths, (list, tuple)):
         raise ValueError(f"wavelengths={wavelengths!r} must be a list in micrometres, e.g. [0.633]")
     return Scene(light=PointLight(**light), substrate=Substrate(**substrate), receiver=Receiver(**receiver),
-                 material=_build_material(cfg),
-                 wavelengths=tuple(_number(f"wavelengths[{i}]", v) for i, v in enumerate(wavelengths)))
+                 material=material_from_config(to_plain(cfg.get("material")) or None),
+                 wavelengths=tuple(_number(f"wavelengths[{i}]", v) for i, v in enumerate(wavelengths)),
+                 mm_per_unit=mm)
 
 
 def build_heights(cfg: Mapping[str, Any], base_dir: str | Path | None = None) -> torch.Tensor:

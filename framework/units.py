@@ -2,25 +2,22 @@
 
 The optics are scale free, so the scene is set up in scene units; ``units.mm_per_unit`` says how
 long one scene unit is (the paper's sample: 1 unit = 2.5 cm, so 25 mm per unit). Every length
-of the scene config (light position, substrate, receiver, screen blur) and the deposited volume
-may be given either as a number in scene units or as a string with a unit, e.g.
-``substrate.thickness="2.5 mm"`` or ``data.volume="1.7 mm3"``; outputs in millimetres
-(framework/export.py) are converted back with the same factor.
+of the scene config (light position, substrate, receiver, screen blur, the optical elements'
+placements and sizes) and the deposited volume may be given either as a number in scene units or
+as a string with a unit, e.g. ``substrate.thickness="2.5 mm"`` or ``data.volume="1.7 mm3"``
+(parsed by operators/units.py); outputs in millimetres (framework/export.py) are converted back
+with the same factor.
 """
 
 from __future__ import annotations
 
 import math
-import re
 from collections.abc import Mapping
 from typing import Any
 
+from operators.units import DEFAULT_MM_PER_UNIT, scene_length, scene_volume
+
 __all__ = ["DEFAULT_MM_PER_UNIT", "mm_per_unit", "scene_length", "scene_volume"]
-
-DEFAULT_MM_PER_UNIT = 25.0
-
-_LENGTH_MM = {"mm": 1.0, "cm": 10.0, "m": 1000.0, "um": 1e-3, "µm": 1e-3}
-_QUANTITY = re.compile(r"^\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*([a-zµ]+)(\^?3)?\s*$")
 
 
 def mm_per_unit(cfg: Mapping[str, Any]) -> float:
@@ -36,29 +33,3 @@ def mm_per_unit(cfg: Mapping[str, Any]) -> float:
         raise ValueError(f"units.mm_per_unit={value!r} must be a length > 0 in mm per scene unit, "
                          "e.g. 25 (the paper: 1 scene unit = 2.5 cm)")
     return float(value)
-
-
-def _quantity(value: Any, where: str, cubic: bool) -> tuple[float, float | None]:
-    """(number, mm per given unit, or None for a bare number in scene units)."""
-    if isinstance(value, bool):
-        raise ValueError(f"{where}={value!r} must be a number (scene units) or a string such as '2.5 mm'")
-    if isinstance(value, (int, float)):
-        return float(value), None
-    example = "'1.7 mm3'" if cubic else "'2.5 mm'"
-    match = _QUANTITY.match(value) if isinstance(value, str) else None
-    if match is None or match.group(2) not in _LENGTH_MM or bool(match.group(3)) != cubic:
-        raise ValueError(f"{where}={value!r} must be a number (scene units) or a string such as {example} "
-                         f"(units: {', '.join(u + ('3' if cubic else '') for u in _LENGTH_MM)})")
-    return float(match.group(1)), _LENGTH_MM[match.group(2)]
-
-
-def scene_length(value: Any, mm_per_scene_unit: float, where: str) -> float:
-    """A length in scene units from a number (scene units) or a string with a unit ('2.5 mm')."""
-    number, mm = _quantity(value, where, cubic=False)
-    return number if mm is None else number * mm / mm_per_scene_unit
-
-
-def scene_volume(value: Any, mm_per_scene_unit: float, where: str) -> float:
-    """A volume in scene units^3 from a number (scene units^3) or a string ('1.7 mm3')."""
-    number, mm = _quantity(value, where, cubic=True)
-    return number if mm is None else number * mm ** 3 / mm_per_scene_unit ** 3

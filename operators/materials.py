@@ -4,7 +4,16 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from collections.abc import Mapping
 from typing import Any, Protocol, Sequence
+
+# The coefficients each material kind takes (``kind`` and ``name`` aside).
+MATERIAL_KEYS: dict[str, tuple[str, ...]] = {
+    "fused_silica": (),
+    "sellmeier": ("b", "c"),
+    "cauchy": ("a", "b", "c"),
+    "constant": ("n",),
+}
 
 
 class DispersionCurve(Protocol):
@@ -77,6 +86,38 @@ def make_material(spec: dict[str, Any]) -> DispersionCurve:
     if kind == "constant":
         return ConstantIndex(n=float(params["n"]))
     raise ValueError(f"unknown material kind {kind!r}; use fused_silica, sellmeier, cauchy or constant")
+
+
+def _coefficient(value: Any, where: str, listed: bool) -> None:
+    """Refuse a coefficient that is not a number (``listed``: a non-empty list of numbers)."""
+    values = value if listed and isinstance(value, (list, tuple)) and value else [value]
+    if (listed and not isinstance(value, (list, tuple))) or any(
+            isinstance(v, bool) or not isinstance(v, (int, float)) for v in values):
+        raise ValueError(f"{where}={value!r} must be {'a list of numbers' if listed else 'a number'}, "
+                         f"e.g. {where}={'[0.696, 0.408, 0.897]' if listed else '1.5'}")
+
+
+def material_from_config(spec: Any, where: str = "material") -> DispersionCurve:
+    """The dispersion curve of config ``spec`` (:func:`make_material`; None: fused silica), its
+    kind, keys and coefficients checked first; errors name the keys under ``where``."""
+    if spec is None:
+        return FUSED_SILICA
+    if not isinstance(spec, Mapping):
+        raise ValueError(f"{where}={spec!r} must be a mapping, e.g. {{kind: fused_silica}}")
+    kind = spec.get("kind", "fused_silica")
+    if not isinstance(kind, str) or kind not in MATERIAL_KEYS:
+        raise ValueError(f"unknown {where}.kind {kind!r}; use {', '.join(MATERIAL_KEYS)}")
+    allowed = ("kind", "name") + MATERIAL_KEYS[kind]
+    for key in spec:
+        if key not in allowed:
+            raise ValueError(f"unknown key {where}.{key}; allowed keys of {where}: {', '.join(allowed)}")
+    missing = [k for k in MATERIAL_KEYS[kind] if k not in spec and not (kind == "cauchy" and k != "a")]
+    if missing:
+        raise ValueError(f"material kind {kind!r} needs {where}.{missing[0]}; give e.g. {where}.{missing[0]}=...")
+    for key in MATERIAL_KEYS[kind]:
+        if key in spec:
+            _coefficient(spec[key], f"{where}.{key}", listed=kind == "sellmeier")
+    return make_material(dict(spec))
 
 
 def refractive_indices(material: DispersionCurve, wavelengths_um: Sequence[float]) -> list[float]:

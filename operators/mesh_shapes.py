@@ -9,18 +9,25 @@ and :func:`crease_normals`, the shading normals of a mesh (a lens carries its fa
 normals instead, in ``mesh.metadata["corner_normals"]``): at each corner of a face the
 area-weighted mean of the normals of the faces around that vertex that meet this face at less
 than the crease angle (smooth across a lens face, split along a rim or a prism edge).
-All meshes are watertight with outward normals; (x, y, z) with z toward the light.
+All meshes are watertight with outward normals; (x, y, z) with z toward the light. The
+generators' parameters annotated :data:`Length` are lengths (scene units; a config may give them
+in mm, operators/optical_elements.py).
 """
 
 from __future__ import annotations
 
 import math
-from typing import Callable
+from typing import Annotated, Callable
 
 import numpy as np
 import trimesh
 
-__all__ = ["conic_sag", "conic_slope", "lens", "prism", "height_field_solid", "lens_array", "crease_normals"]
+__all__ = ["Length", "conic_sag", "conic_slope", "lens", "prism", "height_field_solid", "lens_array",
+           "crease_normals"]
+
+Length = Annotated[float, "length"]  # a generator parameter in scene units
+# (face, neighbour) pairs per block of crease_normals: bounds its memory (about 150 bytes a pair).
+CREASE_PAIRS_PER_BLOCK = 1 << 21
 
 
 def conic_sag(r: np.ndarray, radius: float, conic: float = 0.0) -> np.ndarray:
@@ -58,7 +65,7 @@ def _polar_cap(rings: int, segments: int) -> tuple[np.ndarray, np.ndarray, np.nd
     return radius, angle, np.concatenate(faces)
 
 
-def lens(radius: float, thickness: float, front_radius: float, back_radius: float, front_conic: float = 0.0,
+def lens(radius: Length, thickness: Length, front_radius: Length, back_radius: Length, front_conic: float = 0.0,
          back_conic: float = 0.0, rings: int = 48, segments: int = 128) -> trimesh.Trimesh:
     """A lens of aperture ``radius`` and centre ``thickness`` between z = -thickness / 2 and
     z = +thickness / 2 on the axis. The front (top, toward +z) face sags by conic_sag(r,
@@ -99,7 +106,7 @@ def lens(radius: float, thickness: float, front_radius: float, back_radius: floa
     return mesh
 
 
-def prism(side: float, length: float) -> trimesh.Trimesh:
+def prism(side: Length, length: Length) -> trimesh.Trimesh:
     """A prism whose cross-section in the x-z plane is the equilateral triangle of ``side`` with its
     centroid at the origin and a vertex at +z, extruded along y over [-length / 2, length / 2]."""
     if not (side > 0 and length > 0):
@@ -139,7 +146,7 @@ def height_field_solid(top: Callable[[np.ndarray, np.ndarray], np.ndarray],
     return _checked(trimesh.Trimesh(vertices, faces, process=False))
 
 
-def lens_array(half_width: float, thickness: float, lenslet_radius: float, pitch: float, count: int,
+def lens_array(half_width: Length, thickness: Length, lenslet_radius: Length, pitch: Length, count: int,
                resolution: int = 321) -> trimesh.Trimesh:
     """A plate over [-W, W]^2 from z = -thickness to 0 whose underside carries count x count
     hemispherical lenslets of ``lenslet_radius`` at ``pitch``, centred on the axis (apexes at
@@ -163,18 +170,38 @@ def lens_array(half_width: float, thickness: float, lenslet_radius: float, pitch
 def crease_normals(mesh: trimesh.Trimesh, crease_angle_deg: float = 30.0) -> np.ndarray:
     """Shading normals (F, 3, 3) at the corners of every face: the area-weighted mean of the
     normals of the faces around the corner's vertex that meet the face at less than
-    ``crease_angle_deg`` (so that a face is always smooth with itself)."""
+    ``crease_angle_deg`` (so that a face is always smooth with itself). Computed over blocks of
+    vertices (each corner against every face around its vertex), so that memory stays bounded
+    however many faces meet at a vertex."""
     if not 0.0 <= crease_angle_deg < 180.0:
         raise ValueError(f"crease_angle_deg={crease_angle_deg} must lie in [0, 180)")
     normals, areas = mesh.face_normals, mesh.area_faces
-    around = mesh.vertex_faces  # (V, k), padded with -1
-    corners = around[mesh.faces]  # (F, 3, k)
-    valid = corners >= 0
-    neighbour = normals[np.where(valid, corners, 0)]  # (F, 3, k, 3)
-    cosine = np.einsum("fckd,fd->fck", neighbour, normals)
-    weight = np.where(valid & (cosine >= math.cos(math.radians(crease_angle_deg)) - 1e-12),
-                      areas[np.where(valid, corners, 0)], 0.0)
-    summed = np.einsum("fck,fckd->fcd", weight, neighbour)
+    corner_vertex = np.asarray(mesh.faces, dtype=np.int64).ravel()  # corner 3 f + k of face f
+    by_vertex = np.argsort(corner_vertex, kind="stable")  # corners grouped by their vertex
+    degree = np.bincount(corner_vertex, minlength=len(mesh.vertices))
+    first = np.concatenate([[0], np.cumsum(degree)[:-1]])  # each vertex's first slot in by_vertex
+    pairs = np.cumsum(degree ** 2)
+    threshold = math.cos(math.radians(crease_angle_deg)) - 1e-12
+    summed = np.zeros((len(corner_vertex), 3))
+    low = 0
+    while low < len(degree):
+        done = pairs[low - 1] if low else 0
+        high = max(low + 1, int(np.searchsorted(pairs, done + CREASE_PAIRS_PER_BLOCK, side="right")))
+        block = np.arange(low, high)
+        count = degree[block] ** 2
+        owner = np.repeat(block, count)
+        rank = np.arange(int(count.sum())) - np.repeat(np.cumsum(count) - count, count)
+        slot = first[owner] + rank // degree[owner]  # this corner ...
+        face = by_vertex[first[owner] + rank % degree[owner]] // 3  # ... against this face around it
+        corner = by_vertex[slot]
+        near = np.einsum("pd,pd->p", normals[face], normals[corner // 3]) >= threshold
+        weighted = areas[face[near], None] * normals[face[near]]
+        start, stop = first[low], first[high - 1] + degree[high - 1]
+        local = slot[near] - start
+        summed[by_vertex[start:stop]] = np.stack(
+            [np.bincount(local, weights=weighted[:, d], minlength=stop - start) for d in range(3)], axis=1)
+        low = high
+    summed = summed.reshape(-1, 3, 3)
     return summed / np.linalg.norm(summed, axis=-1, keepdims=True)
 
 

@@ -11,6 +11,7 @@ import math
 from dataclasses import dataclass, field
 
 from operators.materials import FUSED_SILICA, DispersionCurve, refractive_indices
+from operators.units import DEFAULT_MM_PER_UNIT
 
 
 def _finite(name: str, value: float) -> float:
@@ -77,15 +78,20 @@ class Receiver:
 
 @dataclass(frozen=True)
 class Scene:
-    """Light, substrate, receiver, material and the wavelengths (um, one image channel each)."""
+    """Light, substrate, receiver, material, the wavelengths (um, one image channel each) and the
+    length of one scene unit in mm (``units.mm_per_unit``: lengths the operators read, e.g. the
+    optical elements' sizes, may be given in mm)."""
 
     light: PointLight = field(default_factory=PointLight)
     substrate: Substrate = field(default_factory=Substrate)
     receiver: Receiver = field(default_factory=Receiver)
     material: DispersionCurve = FUSED_SILICA
     wavelengths: tuple[float, ...] = (0.633,)
+    mm_per_unit: float = DEFAULT_MM_PER_UNIT
 
     def __post_init__(self) -> None:
+        if not _finite("units.mm_per_unit", self.mm_per_unit) > 0.0:
+            raise ValueError(f"units.mm_per_unit={self.mm_per_unit} must be positive (mm per scene unit)")
         if not self.wavelengths:
             raise ValueError("wavelengths is empty; give at least one, e.g. [0.633] (micrometres)")
         refractive_indices(self.material, self.wavelengths)

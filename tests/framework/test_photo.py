@@ -255,7 +255,8 @@ def test_saturated_pixels_zero_exactly_their_receiver_pixels(tmp_path: Path) -> 
     for row, col in clipped[:-1]:  # (0, 0) lies outside the receiver
         expected[BLOCK_N - 1 - (row - MARGIN) // 8, (col - MARGIN) // 8] = 0.0
     assert np.array_equal(result.weights[0], expected)
-    assert "5 saturated photo pixels (raw >= 0.98) -> 3 receiver pixels weighted 0" in result.steps
+    assert "5 saturated photo pixels (raw >= 0.98) -> 3 receiver pixels left out (weight 0)" in result.steps
+    assert result.left_out == {"saturated": 3}
     assert result.image[0, BLOCK_N - 1 - 3, 10] > result.image[0, BLOCK_N - 1 - 3, 9]  # kept, not clipped
     # a flat field with a dead pixel: its receiver pixel goes too
     flat = np.full(BLOCK_SHAPE, 40000, np.uint16)

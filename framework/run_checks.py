@@ -1,0 +1,95 @@
+"""Checks of a reconstruction's inputs that need more than one plugin's config: they run after
+every plugin is built and before the tracker opens or anything is rendered.
+
+- :func:`check_volume`: a known deposited volume the printed area and the height bounds can hold;
+- :func:`design_given`: whether the configured height field is the design of a measured print;
+- :func:`checked_resume`: the checkpoint a run continues from, readable and of the same run.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from framework.data_sources import resolve_path
+from framework.run_identity import check_resumable
+
+__all__ = ["height_bounds", "check_volume", "design_given", "checked_resume", "CHECKPOINT"]
+
+CHECKPOINT = "checkpoint.pt"
+
+
+def height_bounds(cfg: Mapping[str, Any]) -> tuple[float, float | None]:
+    """The tightest bounds (p1, p2) on the printed heights (scene units) that the solver's
+    regularisers and post-steps impose (keys ``p1``/``p2``); (0, None) without an upper bound."""
+    solver = cfg.get("solver") or {}
+    lower, upper = 0.0, None
+    for group in ("regularizers", "post_steps"):
+        for params in dict(solver.get(group) or {}).values():
+            params = params or {}
+            if isinstance(params.get("p1"), (int, float)):
+                lower = max(lower, float(params["p1"]))
+            if isinstance(params.get("p2"), (int, float)):
+                upper = float(params["p2"]) if upper is None else min(upper, float(params["p2"]))
+    return lower, upper
+
+
+def check_volume(volume: float | None, mask: torch.Tensor, cell_area: float, bounds: tuple[float, float | None],
+                 plate_width: float) -> None:
+    """Refuse a deposited volume (scene units^3) the printed area ``mask`` (m, m) cannot hold:
+    more than the upper bound everywhere on it, less than the lower bound, or (no upper bound)
+    a mean height over the printed area above the plate's width."""
+    if volume is None:
+        return
+    area = float(mask.sum()) * cell_area
+    if not area > 0:
+        raise ValueError(f"data.volume={volume:.4g} is given but the printed area (data.mask) is empty; give a mask "
+                         "that covers the print, or data.mask=null")
+    mean = volume / area
+    lower, upper = bounds
+    if upper is not None and mean > upper:
+        raise ValueError(f"data.volume={volume:.4g} scene units^3 needs a mean height of {mean:.4g} over the printed "
+                         f"area ({area:.4g} units^2), above the height bound p2={upper:g}: check the value and its unit "
+                         "(scene units^3, or a string such as '1.7 mm3'), the mask, or raise the bound")
+    if mean < lower:
+        raise ValueError(f"data.volume={volume:.4g} scene units^3 gives a mean height of {mean:.4g} over the printed "
+                         f"area, below the height bound p1={lower:g}: check the value, its unit and the mask")
+    if upper is None and mean > plate_width:
+        raise ValueError(f"data.volume={volume:.4g} scene units^3 gives a mean height of {mean:.4g} over the printed "
+                         f"area, taller than the plate is wide ({plate_width:g}): check the value and its unit "
+                         "(scene units^3, or a string such as '1.7 mm3')")
+
+
+def design_given(cfg: Mapping[str, Any]) -> bool:
+    """Whether the configured height field is the design of a measured print: the user gave a
+    height-field file (``height_field.path``), or declared it the design with ``data.mask=design``
+    or ``initial=design``. Synthetic data always have their ground truth."""
+    data = cfg.get("data") or {}
+    if data.get("name") == "synthetic":
+        return True
+    initial = cfg.get("initial") or {}
+    return bool((cfg.get("height_field") or {}).get("path")) or data.get("mask") == "design" or (
+        isinstance(initial, Mapping) and initial.get("name") == "design")
+
+
+def checked_resume(spec: Any, output_dir: Path, base_dir: Path, fingerprint: Mapping[str, str]) -> Path | None:
+    """The checkpoint a run continues from, checked: ``auto`` takes the run directory's own
+    checkpoint.pt when there is one (a sweep job run again in its directory, e.g. requeued after
+    pre-emption), a path takes that file, None starts afresh. The file must be readable and
+    written by a run with this ``fingerprint`` (framework/run_identity.py)."""
+    if spec in (None, "none", "null"):
+        return None
+    if spec == "auto":
+        own = output_dir / CHECKPOINT
+        path = own if own.is_file() else None
+    else:
+        path = resolve_path(str(spec), base_dir)
+        if not path.is_file():
+            raise FileNotFoundError(f"resume={spec!r}: {path} is not a file; give a checkpoint.pt of an earlier run, "
+                                    "auto or null")
+    if path is not None:
+        check_resumable(path, fingerprint, spec)
+    return path
