@@ -26,8 +26,12 @@ def one_line_input_errors(task: Callable[[Config], None]) -> Callable[[Config], 
         except INPUT_ERRORS as error:
             if os.environ.get(TRACEBACK_VARIABLE) == "1":
                 raise
-            # str() of a KeyError quotes its message; args[0] is the message itself.
-            message = error.args[0] if isinstance(error, KeyError) and error.args else error
-            raise SystemExit(f"error: {message} ({TRACEBACK_VARIABLE}=1 shows the traceback)") from None
+            raise SystemExit(f"error: {one_line(error)} ({TRACEBACK_VARIABLE}=1 shows the traceback)") from None
 
     return run
+
+
+def one_line(error: BaseException) -> str:
+    """The message of an input error on one line (str() of a KeyError quotes it; args[0] does not)."""
+    message = error.args[0] if isinstance(error, KeyError) and error.args else error
+    return " ".join(str(message).split())
