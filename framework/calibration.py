@@ -122,6 +122,9 @@ class JointCalibration(Callback):
         params = settings.get("params") or []
         if isinstance(params, str):
             params = [params]
+        if not isinstance(params, (list, tuple)) or not all(isinstance(p, str) for p in params):
+            raise ValueError(f"calibration.params={settings.get('params')!r} must be a list of names, e.g. "
+                             "[gain, screen_distance], or [] for none")
         if not params:
             return None
         return cls(operator, list(params), every=settings.get("every", 10), damping=settings.get("damping", 1e-3),

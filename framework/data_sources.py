@@ -29,7 +29,7 @@ from framework.objective import ForwardOperator
 from framework.problem import HeightGrid
 from framework.units import DEFAULT_MM_PER_UNIT, scene_volume
 
-__all__ = ["DataRequest", "DataSource", "PrintFacts", "KnownPrint", "SyntheticData", "MeasuredData", "resolve_path"]
+__all__ = ["DataRequest", "DataSource", "PrintFacts", "KnownPrint", "file_setting", "SyntheticData", "MeasuredData", "resolve_path"]
 
 
 def resolve_path(path: str | Path, base_dir: Path) -> Path:
@@ -42,6 +42,13 @@ def non_negative_setting(name: str, value: float) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not (math.isfinite(value) and value >= 0):
         raise ValueError(f"data.{name}={value!r} must be a finite number >= 0")
     return float(value)
+
+
+def file_setting(name: str, value: object) -> str | None:
+    """A file name given as ``data.<name>``: a non-empty string or None."""
+    if value is not None and (not isinstance(value, str) or not value):
+        raise ValueError(f"data.{name}={value!r} must be a file name (a string) or null")
+    return value
 
 
 def _count(name: str, value: int, minimum: int) -> int:
@@ -157,7 +164,7 @@ class KnownPrint:
                 isinstance(volume, bool) or not isinstance(volume, (int, float))):
             raise ValueError(f"data.volume={volume!r} must be a number (scene units^3), a string such as '1.7 mm3', "
                              "or null")
-        self.mask, self.volume, self.brightness = mask, volume, brightness
+        self.mask, self.volume, self.brightness = file_setting("mask", mask), volume, brightness
         self.delta = validate_delta(delta)
         self.mask_threshold = non_negative_setting("mask_threshold", mask_threshold)
         self.mask_dilation = non_negative_setting("mask_dilation", mask_dilation)
@@ -208,7 +215,7 @@ class MeasuredData(KnownPrint):
         if not image:
             raise ValueError("data=file needs data.image=<caustic .npy/.png/.tif>")
         super().__init__(mask, volume, delta, brightness, mask_threshold, mask_dilation)
-        self.image = str(image)
+        self.image = file_setting("image", image)
 
     def _image(self, request: DataRequest) -> torch.Tensor:
         """The caustic image (c, N, N), its channels checked against the scene's wavelengths."""

@@ -82,7 +82,8 @@ def read_photo(path: str | Path, bit_depth: int | None = None) -> tuple[np.ndarr
 
     ``bit_depth`` (8, 16 or None = either) is what the photo must have; a mismatch is refused.
     """
-    if bit_depth is not None and (isinstance(bit_depth, bool) or bit_depth not in FULL_SCALE):
+    if bit_depth is not None and (isinstance(bit_depth, bool) or not isinstance(bit_depth, int)
+                                  or bit_depth not in FULL_SCALE):
         raise ValueError(f"data.bit_depth={bit_depth!r} must be 8, 16 or null (accept either)")
     array, depth = _read_frame(path, "photo")
     if bit_depth is not None and depth != bit_depth:
@@ -255,10 +256,16 @@ def _bilinear(image: np.ndarray, col: np.ndarray, row: np.ndarray) -> np.ndarray
     return (1.0 - tr) * top + tr * bottom
 
 
+MAX_SUPERSAMPLE = 16
+
+
 def _check_grid(resolution: int, half_width: float, supersample: int) -> None:
-    for name, value in (("resolution", resolution), ("supersample", supersample)):
+    for name, value in (("receiver.resolution", resolution), ("data.supersample", supersample)):
         if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
             raise ValueError(f"{name}={value!r} must be a positive integer")
+    if supersample > MAX_SUPERSAMPLE:
+        raise ValueError(f"data.supersample={supersample} must be at most {MAX_SUPERSAMPLE} (samples per receiver "
+                         "pixel and axis; 4 is plenty)")
     _check_half_width(half_width)
 
 
@@ -419,7 +426,8 @@ def import_photo(path: str | Path, corners: object, half_width: float, resolutio
         raise ValueError(f"data.saturation={saturation!r} must be a fraction of full scale in (0, 1], e.g. 0.98")
     if not 0 <= max_dropped < 1:
         raise ValueError(f"max_dropped={max_dropped!r} must be a fraction in [0, 1)")
-    linearize(np.zeros(1), response, gamma)  # refuses an unknown response or a bad gamma
+    linearize(np.zeros(1), response, gamma)  # refuses an unknown response
+    linearize(np.zeros(1), "gamma", gamma)  # and a bad gamma, whatever the response
     if depth == 0 and response != "linear":
         raise ValueError(f"photo {name} is a .npy array of linear values but data.response={response!r}; "
                          "set data.response=linear")

@@ -30,7 +30,7 @@ import numpy as np
 import torch
 
 from framework.data import ReconstructionData
-from framework.data_sources import DataRequest, KnownPrint, PrintFacts, resolve_path
+from framework.data_sources import DataRequest, KnownPrint, PrintFacts, file_setting, resolve_path
 from framework.photo import PhotoImport, import_photo, save_photo_figure
 
 __all__ = ["PhotoData", "two_exposure_delta"]
@@ -89,6 +89,8 @@ class PhotoData(KnownPrint):
                              "settings>, from which the noise level is estimated; or give data.delta=<number>")
         super().__init__(mask, volume, 0.05 if self.estimate_delta else delta, brightness, mask_threshold,
                          mask_dilation)
+        for key, value in (("photo", photo), ("repeat", repeat), ("dark", dark), ("flat", flat)):
+            file_setting(key, value)
         self.photo, self.repeat, self.flat, self.flat_kind, self.dark = str(photo), repeat, flat, flat_kind, dark
         self.corners, self.pixel_centre = corners, float(pixel_centre)
         self.settings = {"channel": channel, "bit_depth": bit_depth, "response": response, "gamma": gamma,
@@ -106,7 +108,7 @@ class PhotoData(KnownPrint):
         key = (n, half_width, str(request.base_dir))
         if self._imported is None or self._imported[0] != key:
             path = lambda p: None if p is None else resolve_path(str(p), request.base_dir)  # noqa: E731
-            corners = np.asarray(self._corners(), dtype=np.float64) - self.pixel_centre
+            corners = (self._corners() - self.pixel_centre).tolist()
             photos = [self.photo] + ([self.repeat] if self.repeat else [])
             imported = [import_photo(path(p), corners, half_width, n, dark=path(self.dark), flat=path(self.flat),
                                      **self.settings) for p in photos]
