@@ -40,8 +40,8 @@ def height_bounds(cfg: Mapping[str, Any]) -> tuple[float, float | None]:
 def check_volume(volume: float | None, mask: torch.Tensor, cell_area: float, bounds: tuple[float, float | None],
                  plate_width: float) -> None:
     """Refuse a deposited volume (scene units^3) the printed area ``mask`` (m, m) cannot hold:
-    more than the upper bound everywhere on it, less than the lower bound, or (no upper bound)
-    a mean height over the printed area above the plate's width."""
+    more than the upper bound everywhere on it, less than the lower bound, or a mean height over
+    the printed area above the plate's width."""
     if volume is None:
         return
     area = float(mask.sum()) * cell_area
@@ -57,7 +57,7 @@ def check_volume(volume: float | None, mask: torch.Tensor, cell_area: float, bou
     if mean < lower:
         raise ValueError(f"data.volume={volume:.4g} scene units^3 gives a mean height of {mean:.4g} over the printed "
                          f"area, below the height bound p1={lower:g}: check the value, its unit and the mask")
-    if upper is None and mean > plate_width:
+    if mean > plate_width:
         raise ValueError(f"data.volume={volume:.4g} scene units^3 gives a mean height of {mean:.4g} over the printed "
                          f"area, taller than the plate is wide ({plate_width:g}): check the value and its unit "
                          "(scene units^3, or a string such as '1.7 mm3')")

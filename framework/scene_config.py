@@ -109,6 +109,18 @@ def build_scene(cfg: Mapping[str, Any]) -> Scene:
                  mm_per_unit=mm)
 
 
+MAX_RESOLUTION = 8192  # height samples per side: 8192^2 float64 is 0.5 GB per copy
+
+
+def _grid_resolution(spec: Mapping[str, Any]) -> int:
+    """``height_field.resolution`` m, checked: an integer in [2, MAX_RESOLUTION]."""
+    resolution = _number("height_field.resolution", spec.get("resolution", DEFAULT_RESOLUTION), int)
+    if not 2 <= resolution <= MAX_RESOLUTION:
+        raise ValueError(f"height_field.resolution={resolution} must lie in [2, {MAX_RESOLUTION}] (samples per side; "
+                         "128 is the default)")
+    return resolution
+
+
 def build_heights(cfg: Mapping[str, Any], base_dir: str | Path | None = None) -> torch.Tensor:
     """Heights d (m, m), float64, scene units, from ``height_field``.
 
@@ -117,9 +129,11 @@ def build_heights(cfg: Mapping[str, Any], base_dir: str | Path | None = None) ->
     the height of full white, in scene units or e.g. "0.4 mm"); ``params`` go to the shape function.
     """
     spec = _group(cfg, "height_field", HEIGHT_FIELD_KEYS)
-    resolution = _number("height_field.resolution", spec.get("resolution", DEFAULT_RESOLUTION), int)
+    resolution = _grid_resolution(spec)
     scale = scene_length(spec.get("scale", 1.0), mm_per_unit(cfg), "height_field.scale")
     path = spec.get("path")
+    if path is not None and (not isinstance(path, str) or isinstance(path, bool)):
+        raise ValueError(f"height_field.path={path!r} must be a file name (.npy/.png/.tif) or null")
     if path:
         path = Path(path)
         if not path.is_absolute() and base_dir is not None:
@@ -141,7 +155,7 @@ def build_heights(cfg: Mapping[str, Any], base_dir: str | Path | None = None) ->
 def height_grid(cfg: Mapping[str, Any], scene: Scene) -> HeightGrid:
     """The grid of the reconstructed heights: ``height_field.resolution`` samples over the substrate."""
     spec = _group(cfg, "height_field", HEIGHT_FIELD_KEYS)
-    resolution = _number("height_field.resolution", spec.get("resolution", DEFAULT_RESOLUTION), int)
+    resolution = _grid_resolution(spec)
     return HeightGrid(resolution, scene.substrate.half_width, scene.substrate.thickness)
 
 
@@ -165,6 +179,8 @@ def build_operator(cfg: Mapping[str, Any], scene: Scene, imaging: bool = False) 
     name, params = split_name(to_plain(cfg.get("operator")), "operator")
     photons = _number("photons", cfg.get("photons"), int)
     seed = _number("seed", cfg.get("seed", 0), int)
+    if not 0 <= seed < 2 ** 63:
+        raise ValueError(f"seed={seed} must be an integer in [0, 2^63)")
     sigma = screen_sigma(cfg)
 
     def build(for_scene: Scene) -> ForwardOperator:

@@ -20,6 +20,9 @@ def _finite(name: str, value: float) -> float:
     return float(value)
 
 
+MAX_RECEIVER_RESOLUTION = 16384  # pixels per side: one float64 image of 16384^2 is 2 GB
+
+
 @dataclass(frozen=True)
 class PointLight:
     """Isotropic point light: ``position`` (x, y, z) and ``power`` in W over the full sphere."""
@@ -61,8 +64,9 @@ class Receiver:
     def __post_init__(self) -> None:
         if not _finite("receiver.z", self.z) < 0.0:
             raise ValueError(f"receiver.z={self.z} must lie below the substrate bottom (z < 0), e.g. -0.05")
-        if int(self.resolution) != self.resolution or self.resolution < 2:
-            raise ValueError(f"receiver.resolution={self.resolution} must be an integer >= 2")
+        if int(self.resolution) != self.resolution or not 2 <= self.resolution <= MAX_RECEIVER_RESOLUTION:
+            raise ValueError(f"receiver.resolution={self.resolution} must be an integer in [2, "
+                             f"{MAX_RECEIVER_RESOLUTION}] (pixels per side)")
         if not _finite("receiver.half_width", self.half_width) > 0.0:
             raise ValueError(f"receiver.half_width={self.half_width} must be positive")
 
