@@ -27,9 +27,10 @@ import torch
 import torch.nn.functional as F
 from PIL import Image
 
-__all__ = ["load_height_field", "save_height_field", "resample", "IMAGE_SUFFIXES"]
+__all__ = ["load_height_field", "save_height_field", "resample", "read_npy", "validate_heights", "IMAGE_SUFFIXES"]
 
 IMAGE_SUFFIXES = (".png", ".tif", ".tiff")
+NPY_FIX = "save the heights again with numpy.save"
 # Full-scale value of each accepted Pillow greyscale mode.
 _MODE_MAX = {"L": 255.0, "I;16": 65535.0, "I;16B": 65535.0, "I;16L": 65535.0, "I;16N": 65535.0}
 
@@ -68,13 +69,35 @@ def resample(heights: np.ndarray, resolution: int) -> np.ndarray:
     return np.clip(out[0, 0].numpy(), 0.0, None)
 
 
-def _validate(path: Path, heights: np.ndarray) -> None:
-    if heights.ndim != 2 or heights.shape[0] != heights.shape[1]:
+def read_npy(path: str | Path, fix: str = NPY_FIX) -> np.ndarray:
+    """The array of numbers in the .npy file ``path`` as float64 (no pickles); a file that does not
+    hold a complete .npy array of numbers (corrupt, truncated, or holding objects or text) or that
+    cannot be read is refused in one line naming it and ``fix``."""
+    try:
+        array = np.load(path, allow_pickle=False)
+    except OSError as error:
+        raise ValueError(f"{path} cannot be read ({error.strerror or error}); {fix}") from None
+    except (ValueError, EOFError):  # numpy's words for a bad header, short data or an object array
+        raise ValueError(f"{path} is corrupt or truncated (not a complete .npy array of numbers); {fix}") from None
+    if not isinstance(array, np.ndarray) or array.dtype.kind not in "biuf":
+        what = f"{array.dtype} values" if isinstance(array, np.ndarray) else "several arrays"
+        raise ValueError(f"{path} holds {what}, not an array of numbers; {fix}")
+    return np.asarray(array, dtype=np.float64)
+
+
+def validate_heights(path: str | Path, heights: np.ndarray, fix: str | None = None, nonnegative: bool = True) -> None:
+    """Refuse heights read from ``path`` that are not a square 2-D array (m, m) with m >= 2 of finite
+    values (and, with ``nonnegative``, >= 0), in one line naming the file (and ``fix``, else how to
+    repair the array)."""
+    if heights.ndim != 2 or heights.shape[0] != heights.shape[1] or heights.shape[0] < 2:
         raise ValueError(f"{path}: height field must be a square 2-D array, got shape {heights.shape}; "
-                         "crop or pad it to (m, m)")
-    if not np.isfinite(heights).all():
-        raise ValueError(f"{path}: height field contains NaN or infinite values; replace them (e.g. by 0)")
-    if heights.size and heights.min() < 0.0:
+                         f"{fix or 'crop or pad it to (m, m), m >= 2'}")
+    bad = np.argwhere(~np.isfinite(heights))
+    if bad.size:
+        i, j = bad[0]
+        raise ValueError(f"{path}: height field contains {len(bad)} NaN or infinite values (the first at "
+                         f"[{i}, {j}]: {heights[i, j]}); {fix or 'replace them (e.g. by 0)'}")
+    if nonnegative and heights.min() < 0.0:
         raise ValueError(f"{path}: height field has negative values (min {heights.min():.4g}); heights "
                          "are printed glass and must be >= 0")
 
@@ -89,8 +112,8 @@ def load_height_field(path: str | Path, resolution: int | None = None, scale: fl
 
     Raises:
         FileNotFoundError: the file does not exist.
-        ValueError: unsupported suffix or image mode, not square 2-D, NaN/inf, negative values,
-            or a scale that is not a finite number >= 0.
+        ValueError: unsupported suffix or image mode, a corrupt or truncated .npy, not square 2-D,
+            NaN/inf, negative values, or a scale that is not a finite number >= 0.
     """
     path = Path(path)
     if not path.is_file():
@@ -99,12 +122,12 @@ def load_height_field(path: str | Path, resolution: int | None = None, scale: fl
         raise ValueError(f"scale={scale} must be a finite number >= 0 (scene units), e.g. 1.0")
     suffix = path.suffix.lower()
     if suffix == ".npy":
-        heights = np.asarray(np.load(path, allow_pickle=False), dtype=np.float64)
+        heights = read_npy(path)
     elif suffix in IMAGE_SUFFIXES:
         heights = _read_image(path)
     else:
         raise ValueError(f"{path}: unsupported suffix {suffix!r}; use .npy, .png, .tif or .tiff")
-    _validate(path, heights)
+    validate_heights(path, heights)
     heights = heights * float(scale)
     if resolution is not None:
         heights = resample(heights, resolution)
@@ -121,7 +144,7 @@ def save_height_field(path: str | Path, heights: np.ndarray | torch.Tensor, scal
     path = Path(path)
     d = heights.detach().cpu().numpy() if isinstance(heights, torch.Tensor) else np.asarray(heights)
     d = d.astype(np.float64)
-    _validate(path, d)
+    validate_heights(path, d)
     suffix = path.suffix.lower()
     if scale is None:
         scale = 1.0 if suffix == ".npy" or float(d.max(initial=0.0)) == 0.0 else float(d.max())

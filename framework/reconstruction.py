@@ -22,7 +22,8 @@ from framework.calibration import JointCalibration
 from framework.callbacks import Checkpointer, GroundTruthError, MetricsHistory, ProgressBar
 from framework.checkpoint import resume as resume_solver
 from framework.data_sources import DataRequest, DataSource, resolve_path
-from framework.run_checks import CHECKPOINT, check_volume, checked_resume, design_given, height_bounds
+from framework.run_checks import (CHECKPOINT, check_volume, check_volume_known, checked_resume, design_given,
+                                  height_bounds)
 from framework.run_identity import run_fingerprint
 from framework.export import export_outputs
 from framework.plugin_config import as_mapping, build_plugin, split_name
@@ -257,6 +258,7 @@ class Reconstruction:
         check_tracking_target(tracking.get("uri"), resolve_path(store_dir, base_dir))
         request = self.data_request(base_dir)
         facts = self.data_source.check(request)
+        check_volume_known(self.cfg, facts.volume)
         check_volume(facts.volume, facts.mask, self.grid.cell_area, height_bounds(self.cfg),
                      2.0 * float(self.scene.substrate.half_width))
         if design_given(self.cfg):

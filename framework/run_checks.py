@@ -15,9 +15,10 @@ from typing import Any
 import torch
 
 from framework.data_sources import resolve_path
+from framework.registry import lookup
 from framework.run_identity import check_resumable
 
-__all__ = ["height_bounds", "check_volume", "design_given", "checked_resume", "CHECKPOINT"]
+__all__ = ["height_bounds", "check_volume", "check_volume_known", "design_given", "checked_resume", "CHECKPOINT"]
 
 CHECKPOINT = "checkpoint.pt"
 
@@ -61,6 +62,19 @@ def check_volume(volume: float | None, mask: torch.Tensor, cell_area: float, bou
         raise ValueError(f"data.volume={volume:.4g} scene units^3 gives a mean height of {mean:.4g} over the printed "
                          f"area, taller than the plate is wide ({plate_width:g}): check the value and its unit "
                          "(scene units^3, or a string such as '1.7 mm3')")
+
+
+def check_volume_known(cfg: Mapping[str, Any], volume: float | None) -> None:
+    """Refuse a run whose regularisers or post-steps need the deposited volume (a plugin class
+    with ``needs_volume = True``) when the data do not know it."""
+    if volume is not None or (cfg.get("data") or {}).get("name") == "synthetic":
+        return
+    solver = cfg.get("solver") or {}
+    for group, kind in (("regularizers", "regularizer"), ("post_steps", "post_step")):
+        for name in dict(solver.get(group) or {}):
+            if getattr(lookup(kind, name), "needs_volume", False):
+                raise ValueError(f"solver.{group}.{name} needs the deposited volume: set data.volume=... (scene "
+                                 f"units^3 or e.g. '1.7 mm3'), or leave {name} out ('~solver.{group}.{name}')")
 
 
 def design_given(cfg: Mapping[str, Any]) -> bool:

@@ -53,6 +53,8 @@ class VolumeSlabL1Bounds(Regularizer):
         max_iter: Maximum number of bisection steps.
     """
 
+    needs_volume = True  # the run's checks refuse measured data without data.volume (framework/run_checks.py)
+
     has_prox = True
     smooth = False
 
