@@ -1,11 +1,13 @@
-"""A Hydra multirun checks every job before the first one starts (conf/reconstruct.yaml,
-``hydra.callbacks``): a sweep with one bad value refuses to start instead of running the jobs
-before it and dropping the ones after it.
+"""Checks Hydra itself needs before a run or a sweep starts (conf/reconstruct.yaml,
+``hydra.callbacks``), each ending in one ``error:`` line and exit status 1:
 
-:class:`CheckJobsFirst` composes each job's config from the sweep's overrides, builds its plugins
-and runs the checks a single run makes before it opens (framework/reconstruction.py,
-``Reconstruction.check``): no render, no MLflow run. It also refuses a launcher whose engine is
-not there (``hydra/launcher=slurm`` without SLURM, Ray or joblib not installed).
+- the run or sweep directory must be creatable (Hydra creates it before the task runs);
+- a multirun checks every job before the first one starts: a sweep with one bad value refuses to
+  start instead of running the jobs before it and dropping the ones after it. Each job's config is
+  composed from the sweep's overrides, its plugins built and the checks a single run makes before
+  it opens run (framework/reconstruction.py, ``Reconstruction.check``): no render, no MLflow run;
+- a launcher whose engine is not there is refused (``hydra/launcher=slurm`` without SLURM, Ray or
+  joblib not installed).
 """
 
 from __future__ import annotations
@@ -24,9 +26,10 @@ from omegaconf import DictConfig
 
 from experiments.input_errors import INPUT_ERRORS, TRACEBACK_VARIABLE, one_line
 from framework.reconstruction import Reconstruction
+from framework.run_checks import check_creatable_directory
 from framework.scene_config import to_plain
 
-__all__ = ["CheckJobsFirst", "check_launcher", "sweep_jobs"]
+__all__ = ["CheckBeforeStart", "check_launcher", "sweep_jobs"]
 
 # Launcher target (a substring of hydra.launcher._target_) -> (what it needs, how to test for it).
 ENGINES = {
@@ -51,12 +54,26 @@ def sweep_jobs(task_overrides: list[str]) -> list[list[str]]:
     return [job for batch in BasicSweeper.split_arguments(parsed, None) for job in batch]
 
 
-class CheckJobsFirst(Callback):
-    """Check the launcher and every job of a multirun before the first job starts; a bad one ends
-    the sweep in one ``error:`` line (exit status 1) naming the job's overrides."""
+def _refuse(error: Exception) -> None:
+    """End the program in the error's one line (or re-raise it with SFC_TRACEBACK=1)."""
+    if os.environ.get(TRACEBACK_VARIABLE) == "1":
+        raise error
+    raise SystemExit(f"error: {one_line(error)} ({TRACEBACK_VARIABLE}=1 shows the traceback)") from None
+
+
+class CheckBeforeStart(Callback):
+    """Check the run directory before a run, and the sweep directory, the launcher and every job
+    before a multirun's first job starts."""
+
+    def on_run_start(self, config: DictConfig, **kwargs: Any) -> None:  # noqa: D102
+        try:
+            check_creatable_directory(Path(str(config.hydra.run.dir)), "hydra.run.dir")
+        except INPUT_ERRORS as error:
+            _refuse(error)
 
     def on_multirun_start(self, config: DictConfig, **kwargs: Any) -> None:  # noqa: D102
         try:
+            check_creatable_directory(Path(str(config.hydra.sweep.dir)), "hydra.sweep.dir")
             check_launcher(str(config.hydra.launcher.get("_target_", "")))
             base_dir = Path(config.hydra.runtime.cwd)
             jobs = sweep_jobs(list(config.hydra.overrides.task))
@@ -69,6 +86,4 @@ class CheckJobsFirst(Callback):
                     raise type(error)(f"sweep job {number} ({' '.join(overrides) or 'no overrides'}): "
                                       f"{one_line(error)}; no job was started") from None
         except INPUT_ERRORS as error:
-            if os.environ.get(TRACEBACK_VARIABLE) == "1":
-                raise
-            raise SystemExit(f"error: {one_line(error)} ({TRACEBACK_VARIABLE}=1 shows the traceback)") from None
+            _refuse(error)

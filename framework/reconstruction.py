@@ -22,8 +22,8 @@ from framework.calibration import JointCalibration
 from framework.callbacks import Checkpointer, GroundTruthError, MetricsHistory, ProgressBar
 from framework.checkpoint import resume as resume_solver
 from framework.data_sources import DataRequest, DataSource, resolve_path
-from framework.run_checks import (CHECKPOINT, check_volume, check_volume_known, checked_resume, design_given,
-                                  height_bounds)
+from framework.run_checks import (CHECKPOINT, check_tracking_target, check_volume, check_volume_known, checked_resume,
+                                  design_given, height_bounds)
 from framework.run_identity import run_fingerprint
 from framework.export import export_outputs
 from framework.plugin_config import as_mapping, build_plugin, split_name
@@ -32,7 +32,7 @@ from framework.report_figures import save_reconstruction_figures
 from framework.scene_config import build_heights, build_operator, build_scene, height_grid, to_plain
 from framework.solvers import Callback, IterationRecord, RunResult, SolverBuilder
 from framework.starts import StartRequest
-from framework.tracking import MlflowTracker, check_tracking_target, local_store_uri
+from framework.tracking import MlflowTracker, local_store_uri
 from framework.units import mm_per_unit
 from framework.verdict import run_verdict, volume_report
 from operators.scene import Scene

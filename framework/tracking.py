@@ -47,7 +47,7 @@ if TYPE_CHECKING:
     from framework.solvers.base import IterationRecord, IterativeSolver, RunResult
 
 __all__ = ["MlflowTracker", "MlflowMetricsCallback", "flatten_params", "MAX_PARAM_VALUE_LENGTH", "code_version_tags",
-           "check_tracking_server", "check_tracking_target", "data_dataset", "local_store_uri", "EXPERIMENT_KIND_TAG", "EXPERIMENT_KIND",
+           "check_tracking_server", "KNOWN_SCHEMES", "data_dataset", "local_store_uri", "EXPERIMENT_KIND_TAG", "EXPERIMENT_KIND",
            "DATASET_CONTEXT"]
 
 # MLflow's limits (mlflow.utils.validation): param values 6000 chars, tag values 8000, keys 250.
@@ -158,31 +158,6 @@ def check_tracking_server(uri: str, timeout: float = 5.0) -> None:
         raise ValueError(f"the MLflow tracking server tracking.uri={uri} does not answer ({reason}); {fix}") from None
     if body != "OK":
         raise ValueError(f"tracking.uri={uri} answers but is not an MLflow server (/health: {body[:40]!r}); {fix}")
-
-
-def check_tracking_target(uri: str | None, store_dir: Path) -> None:
-    """Refuse, before a run opens, a tracking target that cannot take it: an unknown URI scheme, a
-    server that is not MLflow, or (``uri`` None) a local ``store_dir`` that is a file or lies
-    under one or in a directory that cannot be written."""
-    if uri is not None:
-        if not isinstance(uri, str) or not uri:
-            raise ValueError(f"tracking.uri={uri!r} must be an MLflow tracking URI (e.g. http://host:5000, "
-                             "sqlite:///path/mlflow.db) or null for the local store tracking.store_dir")
-        scheme = uri.split("://", 1)[0].lower() if "://" in uri else ""
-        if scheme and scheme not in KNOWN_SCHEMES:
-            raise ValueError(f"tracking.uri={uri}: unknown scheme {scheme!r}; use one of {', '.join(KNOWN_SCHEMES)} "
-                             "or tracking.uri=null for the local store tracking.store_dir")
-        check_tracking_server(uri)
-        return
-    existing = store_dir
-    while not existing.exists() and existing != existing.parent:
-        existing = existing.parent
-    if not existing.is_dir():
-        raise ValueError(f"tracking.store_dir={store_dir}: {existing} is a file, not a directory; give a directory "
-                         "for the local MLflow store (created if missing)")
-    if not os.access(existing, os.W_OK | os.X_OK):
-        raise ValueError(f"tracking.store_dir={store_dir}: {existing} cannot be written; give a directory you can "
-                         "write to")
 
 
 def dataset_digest(arrays: Mapping[str, np.ndarray], values: Mapping[str, Any]) -> str:

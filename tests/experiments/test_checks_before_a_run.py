@@ -18,10 +18,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from omegaconf import OmegaConf
 from PIL import Image
 
 from experiments.input_errors import INPUT_ERRORS, one_line_input_errors
-from experiments.sweep_checks import check_launcher, sweep_jobs
+from experiments.start_checks import CheckBeforeStart, check_launcher, sweep_jobs
 from framework.checkpoint import save_checkpoint
 from framework.photo import synthesize_photo
 from framework.reconstruction import Reconstruction, run_reconstruction
@@ -179,6 +180,13 @@ def test_a_launcher_whose_engine_is_absent_is_refused(monkeypatch) -> None:
     with pytest.raises(ValueError, match="needs SLURM \\(the sbatch command\\)"):
         check_launcher("hydra_plugins.hydra_submitit_launcher.submitit_launcher.SlurmLauncher")
     check_launcher("hydra_plugins.hydra_submitit_launcher.submitit_launcher.LocalLauncher")  # nothing to need
+
+
+def test_a_run_directory_under_a_file_is_refused(tmp_path) -> None:
+    (tmp_path / "notes.txt").write_text("")
+    config = OmegaConf.create({"hydra": {"run": {"dir": str(tmp_path / "notes.txt" / "run")}}})
+    with pytest.raises(SystemExit, match="error: hydra.run.dir=.*notes.txt is a file, not a directory"):
+        CheckBeforeStart().on_run_start(config)
 
 
 def test_sweep_jobs_follow_the_basic_sweepers_order() -> None:
