@@ -9,28 +9,34 @@ Examples::
     sfc-export RUN --design none
 
 Reads RUN/height_field.npy and RUN/.hydra/config.yaml (substrate.thickness, substrate.half_width,
-height_field, units.mm_per_unit) and writes into RUN/export unless --out is given. A missing run
-directory or file ends in one line on stderr and exit status 2.
+height_field, units.mm_per_unit) and writes into RUN/export unless --out is given. An input error
+(a missing run directory or file, a corrupt or truncated heights file or config, heights that are not
+a square array of finite numbers, an --out that cannot be a directory) ends in one line on stderr and
+exit status 2.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+import yaml
 from omegaconf import OmegaConf
 
 from experiments.input_errors import one_line_input_errors
 from framework.export import MESH_FORMATS, export_outputs
-from framework.height_field_io import load_height_field
+from framework.height_field_io import load_height_field, read_npy, validate_heights
+from framework.run_checks import design_given
 from framework.scene_config import build_heights, build_scene, to_plain
 from framework.units import mm_per_unit
 
 INPUT_ERROR_STATUS = 2
+RUN_FIX = "re-run the reconstruction or pass another run directory"
 
 
 def parser() -> argparse.ArgumentParser:
@@ -39,8 +45,9 @@ def parser() -> argparse.ArgumentParser:
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("run_dir", type=Path, metavar="RUN_DIR", help="directory of an sfc-reconstruct run")
     p.add_argument("--design", default="config", metavar="PATH|config|none",
-                   help="config (default): the run's ground_truth.npy, else the configured height field "
-                        "when it is a shape or a path; none; or a .npy/.png height field in scene units")
+                   help="config (default): the run's ground_truth.npy, else the configured height field when "
+                        "the run gave it as the print's design (height_field.path, data.mask=design or "
+                        "initial=design); none; or a .npy/.png height field in scene units")
     p.add_argument("--format", nargs="+", default=["stl"], choices=MESH_FORMATS, dest="formats",
                    help="mesh formats of the glass (default: stl)")
     p.add_argument("--out", type=Path, help="output directory (default: RUN_DIR/export)")
@@ -52,6 +59,43 @@ def _file(path: Path, what: str) -> Path:
     if not path.is_file():
         raise FileNotFoundError(f"{what} {str(path)!r} does not exist; pass the directory of an sfc-reconstruct run")
     return path
+
+
+def _heights(path: Path, fix: str = RUN_FIX) -> np.ndarray:
+    """The heights (m, m) in the .npy ``path``, refused in one line naming the file when it is
+    corrupt or truncated, or not a square array (m >= 2) of finite numbers."""
+    d = read_npy(path, fix)
+    validate_heights(path, d, fix, nonnegative=False)
+    return d
+
+
+def _run_config(path: Path) -> dict[str, Any]:
+    """The run's resolved config (a mapping), refused in one line when it is not readable YAML."""
+    try:
+        cfg = to_plain(OmegaConf.load(path))
+    except (yaml.YAMLError, UnicodeDecodeError) as error:
+        mark = getattr(error, "problem_mark", None)
+        where = f" at line {mark.line + 1}" if mark is not None else ""
+        raise ValueError(f"run config {str(path)!r} is not readable YAML{where}; {RUN_FIX}") from None
+    if not isinstance(cfg, Mapping):
+        raise ValueError(f"run config {str(path)!r} is not a mapping of config keys; {RUN_FIX}")
+    return cfg
+
+
+def _output_dir(out: Path, what: str) -> Path:
+    """``out``, made a directory, or refused in one line naming it as ``what`` (``--out``, or the
+    default output directory) when it cannot be one: it or a folder above it is a regular file, or
+    it is not writable."""
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        blocker = next((p for p in (out, *out.parents) if p.exists() and not p.is_dir()), None)
+        reason = f"{str(blocker)!r} is a file" if blocker is not None else error.strerror or str(error)
+        raise ValueError(f"{what} {str(out)!r} cannot be made a directory ({reason}); pass --out a directory "
+                         "path that is not a file or under one") from None
+    if not os.access(out, os.W_OK | os.X_OK):
+        raise ValueError(f"{what} {str(out)!r} is not writable; pass --out a directory you can write to")
+    return out
 
 
 def _launch_dir(run_dir: Path) -> Path:
@@ -73,11 +117,11 @@ def load_design(spec: str, run_dir: Path, cfg: Mapping[str, Any], m: int) -> tup
         return load_height_field(spec, resolution=m), spec
     truth = run_dir / "ground_truth.npy"
     if truth.is_file():
-        return np.load(truth), str(truth)
-    field = cfg.get("height_field") or {}
-    if field.get("shape") or field.get("path"):
+        return _heights(truth, f"{RUN_FIX}, or pass --design none or a design file"), str(truth)
+    if design_given(cfg):
         return build_heights(cfg, base_dir=_launch_dir(run_dir)).numpy(), "the run's height_field"
-    return None, "none (the run has no ground truth and its config no height_field shape or path)"
+    return None, ("none (the run has no ground truth, and its height field was not given as the print's design: "
+                  "height_field.path, data.mask=design or initial=design)")
 
 
 def export_run(args: argparse.Namespace) -> None:
@@ -86,13 +130,14 @@ def export_run(args: argparse.Namespace) -> None:
     if not run_dir.is_dir():
         raise FileNotFoundError(f"run directory {str(run_dir)!r} does not exist; pass the directory of an "
                                 "sfc-reconstruct run (it holds height_field.npy and .hydra/config.yaml)")
-    d = np.load(_file(run_dir / "height_field.npy", "heights"))
-    cfg = to_plain(OmegaConf.load(_file(run_dir / ".hydra" / "config.yaml", "run config")))
+    d = _heights(_file(run_dir / "height_field.npy", "heights"))
+    cfg = _run_config(_file(run_dir / ".hydra" / "config.yaml", "run config"))
     substrate = build_scene(cfg).substrate
     scale = mm_per_unit(cfg) if args.mm_per_unit is None else args.mm_per_unit
     design, source = load_design(args.design, run_dir, cfg, d.shape[0])
-    result = export_outputs(args.out or run_dir / "export", d, substrate.half_width, substrate.thickness, scale,
-                            design=design, formats=args.formats)
+    out = _output_dir(args.out, "--out") if args.out else _output_dir(run_dir / "export", "output directory")
+    result = export_outputs(out, d, substrate.half_width, substrate.thickness, scale, design=design,
+                            formats=args.formats)
     print(f"{scale:g} mm per scene unit; design: {source}")
     for path in result["files"]:
         print(f"wrote {path}")

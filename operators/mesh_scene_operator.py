@@ -27,7 +27,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass
-from typing import Any, Mapping, Sequence
+from typing import Any, Sequence
 
 import numpy as np
 import torch
@@ -40,11 +40,12 @@ from operators.light_paths import Arrivals
 from operators.materials import refractive_indices
 from operators.mesh_intersect import MIN_FACE_DISTANCE, MeshIntersector
 from operators.mesh_native import LOSSES, NativeMeshTracer
-from operators.optical_elements import OpticalElement, check_layout, make_element
+from operators.optical_elements import MeshProgress, OpticalElement, check_layout, make_elements
 from operators.optics import fresnel_transmittance, height_field_normal, height_field_normal_differential, refract, transfer
 from operators.photon_operator import PIXEL_SETTINGS, PhotonOperator, backward_through_splat, check_setting_keys
 from operators.scene import Scene
 from operators.splat import splat_photons
+from operators.units import scene_length
 
 __all__ = ["MeshSceneSettings", "MeshSceneOperator", "reflect"]
 
@@ -105,7 +106,9 @@ class MeshSceneOperator(PhotonOperator):
 
     def __init__(self, scene: Scene, elements: Sequence[OpticalElement], settings: MeshSceneSettings) -> None:
         self.scene, self.elements, self.settings = scene, list(elements), settings
-        check_layout(self.elements, scene.light.position[2], scene.receiver.z)
+        progress = MeshProgress("mesh scene", sum(len(e.mesh.faces) for e in self.elements), estimate=False)
+        with progress.step("checking the elements' layout"):
+            check_layout(self.elements, scene.light.position[2], scene.receiver.z)
         top = scene.substrate.thickness
         inside = self._element_within(top)
         if inside is not None:
@@ -114,7 +117,8 @@ class MeshSceneOperator(PhotonOperator):
                              f"(z 0 .. {top:g}); move it above or below")
         self.dtype = DTYPES[settings.dtype]
         self.emitter = PointLightEmitter(self._aimed_scene(), settings.photons, settings.seed, settings.footprint_px, self.dtype)
-        self.intersector = MeshIntersector(self.elements)
+        with progress.step("building the ray-intersection structures"):
+            self.intersector = MeshIntersector(self.elements)
         self._lowest_element = min((e.z_range[0] for e in self.elements), default=math.inf)
         self.substrate_index = torch.tensor(scene.indices, dtype=self.dtype)
         self.element_index = torch.tensor([refractive_indices(e.material, scene.wavelengths) for e in self.elements]
@@ -122,15 +126,22 @@ class MeshSceneOperator(PhotonOperator):
         # Refractive index (K + 1, c) of each element and, last, the substrate, per channel.
         self.index_table = torch.cat([self.element_index, self.substrate_index.unsqueeze(0)])
         self.losses: dict[str, float] = {}
-        self.native = NativeMeshTracer(self) if settings.native else None
+        self.native: NativeMeshTracer | None = None
+        if settings.native:
+            with progress.step("preparing the native tracer"):
+                self.native = NativeMeshTracer(self)
 
     @classmethod
-    def from_config(cls, scene: Scene, photons: int, seed: int, elements: Sequence[Mapping[str, Any]] = (),
-                    **settings: Any) -> MeshSceneOperator:
+    def from_config(cls, scene: Scene, photons: int, seed: int, elements: Any = (), **settings: Any
+                    ) -> MeshSceneOperator:
         """The plugin ``operator/mesh_scene``: ``elements`` is a list of element configs
-        (:func:`operators.optical_elements.make_element`), the rest are :class:`MeshSceneSettings`."""
+        (:func:`operators.optical_elements.make_elements`), the rest are :class:`MeshSceneSettings`;
+        lengths may be given with a unit (``scene.mm_per_unit``)."""
         check_setting_keys(settings, MeshSceneSettings, "mesh_scene", extra=("elements",))
-        built = [make_element(spec) for spec in (elements or ())]
+        if settings.get("aperture_half_width") is not None:
+            settings["aperture_half_width"] = scene_length(settings["aperture_half_width"], scene.mm_per_unit,
+                                                           "operator.aperture_half_width")
+        built = make_elements(elements, mm_per_unit=scene.mm_per_unit)
         return cls(scene, built, MeshSceneSettings(photons=photons, seed=seed, **settings))
 
     def variant(self, photons: int, seed: int, resolution: int) -> MeshSceneOperator:

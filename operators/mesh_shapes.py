@@ -26,8 +26,8 @@ __all__ = ["Length", "conic_sag", "conic_slope", "lens", "prism", "height_field_
            "crease_normals"]
 
 Length = Annotated[float, "length"]  # a generator parameter in scene units
-# (face, neighbour) pairs per block of crease_normals: bounds its memory (about 150 bytes a pair).
-CREASE_PAIRS_PER_BLOCK = 1 << 21
+# (corner, face) pairs per block of crease_normals: bounds its memory (about 150 bytes a pair).
+CREASE_PAIRS_PER_BLOCK = 1 << 20
 
 
 def conic_sag(r: np.ndarray, radius: float, conic: float = 0.0) -> np.ndarray:
@@ -170,36 +170,34 @@ def lens_array(half_width: Length, thickness: Length, lenslet_radius: Length, pi
 def crease_normals(mesh: trimesh.Trimesh, crease_angle_deg: float = 30.0) -> np.ndarray:
     """Shading normals (F, 3, 3) at the corners of every face: the area-weighted mean of the
     normals of the faces around the corner's vertex that meet the face at less than
-    ``crease_angle_deg`` (so that a face is always smooth with itself). Computed over blocks of
-    vertices (each corner against every face around its vertex), so that memory stays bounded
-    however many faces meet at a vertex."""
+    ``crease_angle_deg`` (so that a face is always smooth with itself). Each corner is compared
+    with every face around its vertex, in blocks of corners, so that memory stays bounded however
+    many faces meet at a vertex."""
     if not 0.0 <= crease_angle_deg < 180.0:
         raise ValueError(f"crease_angle_deg={crease_angle_deg} must lie in [0, 180)")
     normals, areas = mesh.face_normals, mesh.area_faces
     corner_vertex = np.asarray(mesh.faces, dtype=np.int64).ravel()  # corner 3 f + k of face f
-    by_vertex = np.argsort(corner_vertex, kind="stable")  # corners grouped by their vertex
+    by_vertex = np.argsort(corner_vertex, kind="stable")  # slots: the corners grouped by vertex
     degree = np.bincount(corner_vertex, minlength=len(mesh.vertices))
-    first = np.concatenate([[0], np.cumsum(degree)[:-1]])  # each vertex's first slot in by_vertex
-    pairs = np.cumsum(degree ** 2)
+    first = np.cumsum(degree) - degree  # each vertex's first slot
+    slot_vertex = corner_vertex[by_vertex]
+    row_pairs = degree[slot_vertex]  # a slot's corner against each face around its vertex
+    pairs = np.cumsum(row_pairs)
     threshold = math.cos(math.radians(crease_angle_deg)) - 1e-12
-    summed = np.zeros((len(corner_vertex), 3))
+    summed = np.empty((len(corner_vertex), 3))
     low = 0
-    while low < len(degree):
+    while low < len(by_vertex):
         done = pairs[low - 1] if low else 0
         high = max(low + 1, int(np.searchsorted(pairs, done + CREASE_PAIRS_PER_BLOCK, side="right")))
-        block = np.arange(low, high)
-        count = degree[block] ** 2
-        owner = np.repeat(block, count)
+        count = row_pairs[low:high]
+        row = np.repeat(np.arange(low, high), count)
         rank = np.arange(int(count.sum())) - np.repeat(np.cumsum(count) - count, count)
-        slot = first[owner] + rank // degree[owner]  # this corner ...
-        face = by_vertex[first[owner] + rank % degree[owner]] // 3  # ... against this face around it
-        corner = by_vertex[slot]
-        near = np.einsum("pd,pd->p", normals[face], normals[corner // 3]) >= threshold
+        face = by_vertex[first[slot_vertex[row]] + rank] // 3
+        near = np.einsum("pd,pd->p", normals[face], normals[by_vertex[row] // 3]) >= threshold
         weighted = areas[face[near], None] * normals[face[near]]
-        start, stop = first[low], first[high - 1] + degree[high - 1]
-        local = slot[near] - start
-        summed[by_vertex[start:stop]] = np.stack(
-            [np.bincount(local, weights=weighted[:, d], minlength=stop - start) for d in range(3)], axis=1)
+        local = row[near] - low
+        summed[by_vertex[low:high]] = np.stack(
+            [np.bincount(local, weights=weighted[:, d], minlength=high - low) for d in range(3)], axis=1)
         low = high
     summed = summed.reshape(-1, 3, 3)
     return summed / np.linalg.norm(summed, axis=-1, keepdims=True)

@@ -45,27 +45,29 @@ __all__ = ["OpticalElement", "GENERATORS", "ELEMENT_KEYS", "LARGE_MESH_FACES", "
 
 GENERATORS: dict[str, Callable[..., trimesh.Trimesh]] = {"lens": lens, "prism": prism, "lens_array": lens_array}
 ELEMENT_KEYS = ("name", "shape", "params", "path", "position", "rotation_deg", "material", "crease_angle_deg")
-ELEMENTS_EXAMPLE = "[{name: top_lens, shape: lens, params: {...}, position: [0, 0, 1.15]}] (conf/operator/two_lenses.yaml)"
+ELEMENTS_EXAMPLE = ("[{name: top_lens, shape: lens, params: {...}, position: [0, 0, 1.15]}] "
+                    "(conf/operator/two_lenses.yaml)")
 # Vertices per element tested for lying inside another (every vertex of small meshes).
 OVERLAP_SAMPLES = 4096
 # From this many faces on, building a mesh reports its memory estimate and its steps (MeshProgress).
 LARGE_MESH_FACES = 1_000_000
-# Peak memory of checking and building an element (and its share of the tracer), per face: measured
-# on 2 M-face meshes (a grid and a lens fan), with a margin.
-BYTES_PER_FACE = 2_000
+# Peak memory of checking and building an element and the tracer's structures for it, per face:
+# about 0.93 kB measured on 2 M-face meshes (a grid and a lens fan), rounded up.
+BYTES_PER_FACE = 1_000
 # Mesh files from this size on report that they are being read.
 LARGE_MESH_FILE_BYTES = 16 << 20
 
 
 class MeshProgress:
     """Lines on stderr for the slow steps of building a large mesh: quiet below
-    :data:`LARGE_MESH_FACES` faces, else a memory estimate first and each step with its time."""
+    :data:`LARGE_MESH_FACES` faces, else first the size (and with ``estimate`` the memory that
+    building an element of that size takes), then each step as it starts and ends."""
 
-    def __init__(self, what: str, faces: int) -> None:
+    def __init__(self, what: str, faces: int, estimate: bool = True) -> None:
         self.what, self.active = what, faces >= LARGE_MESH_FACES
         if self.active:
-            self.say(f"{faces:,} faces; checking and building it takes about "
-                     f"{faces * BYTES_PER_FACE / 1e9:.1f} GB of memory")
+            memory = f"; checking and building it takes about {faces * BYTES_PER_FACE / 1e9:.1f} GB of memory"
+            self.say(f"{faces:,} faces{memory if estimate else ''}")
 
     def say(self, line: str) -> None:
         """One line about the mesh, at once."""
@@ -73,7 +75,7 @@ class MeshProgress:
 
     @contextmanager
     def step(self, doing: str) -> Iterator[None]:
-        """Say what is being done (a large mesh only), and then how long it took."""
+        """Say what is being done (a large mesh only), and when it is done, how long it took."""
         if not self.active:
             yield
             return
@@ -131,24 +133,26 @@ def load_mesh(path: str | Path, what: str | None = None) -> trimesh.Trimesh:
     bad = ~np.isfinite(mesh.vertices).all(axis=1)
     used = bad[mesh.faces].any(axis=1)
     if used.any():
-        vertex = int(np.flatnonzero(bad)[0])
-        raise ValueError(f"{path} has NaN or infinite vertex coordinates ({int(bad.sum())} vertices, the first "
-                         f"vertex {vertex}, in {int(used.sum())} faces); fix or export the mesh again")
+        raise ValueError(f"{path} has NaN or infinite vertex coordinates ({int(bad.sum())} of its {len(bad)} vertices, "
+                         f"the first vertex {int(np.flatnonzero(bad)[0])}); fix the mesh or export it again")
     return mesh.process()
 
 
 def _number(value: Any, where: str, fix: str, integer: bool = False) -> float | int:
     """``value`` as a float (``integer``: an int), else a ValueError naming ``where`` and ``fix``."""
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or (integer and int(value) != value):
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or (
+            integer and not (math.isfinite(value) and int(value) == value)):
         raise ValueError(f"{where}={value!r} must be {fix}")
     return int(value) if integer else float(value)
 
 
 def _triple(value: Any, where: str, read: Callable[[Any, str], float], fix: str) -> tuple[float, float, float]:
     """Three values read by ``read`` from a list, else a ValueError naming ``where`` and ``fix``."""
-    if not isinstance(value, (list, tuple)) or len(value) != 3:
+    if not isinstance(value, Sequence) or isinstance(value, (str, bytes)) or len(value) != 3:
         raise ValueError(f"{where}={value!r} must be {fix}")
     x, y, z = (read(v, f"{where}[{i}]") for i, v in enumerate(value))
+    if not all(math.isfinite(v) for v in (x, y, z)):
+        raise ValueError(f"{where}={value!r} must be finite: {fix}")
     return x, y, z
 
 
@@ -188,11 +192,10 @@ def make_element(spec: Mapping[str, Any], base_dir: str | Path | None = None,
     unit are converted at ``mm_per_unit`` mm per scene unit, and config errors name the keys under
     ``where`` (default ``operator.elements.<name>``)."""
     if not isinstance(spec, Mapping):
-        raise ValueError(f"{where or 'operator.elements'}: an element {spec!r} must be a mapping with keys "
-                         f"{', '.join(ELEMENT_KEYS)}")
+        raise ValueError(f"{where or 'an element'}={spec!r} must be a mapping with keys {', '.join(ELEMENT_KEYS)}")
     spec = dict(spec)
     name = spec.get("name", "element")
-    if not isinstance(name, (str, int)) or isinstance(name, bool):
+    if not isinstance(name, (str, int)) or isinstance(name, bool) or str(name) == "":
         raise ValueError(f"{where or 'operator.elements'}.name={name!r} must be a string, e.g. top_lens")
     name = str(name)
     key = where or f"operator.elements.{name}"
@@ -202,7 +205,7 @@ def make_element(spec: Mapping[str, Any], base_dir: str | Path | None = None,
         raise ValueError(f"unknown key {key}.{unknown[0]}; an element takes: {', '.join(ELEMENT_KEYS)}")
     shape, path = spec.get("shape"), spec.get("path")
     if not isinstance(shape, str) or shape not in [*GENERATORS, "file"]:
-        raise ValueError(f"{key}.shape={shape!r}; use {', '.join([*GENERATORS, 'file'])}")
+        raise ValueError(f"unknown {key}.shape {shape!r}; use {', '.join([*GENERATORS, 'file'])}")
     position = _triple(spec.get("position", (0.0, 0.0, 0.0)), f"{key}.position",
                        lambda v, at: scene_length(v, mm_per_unit, at),
                        "[x, y, z] (scene units or strings such as '27 mm'), e.g. [0, 0, 1.15]")
@@ -215,7 +218,7 @@ def make_element(spec: Mapping[str, Any], base_dir: str | Path | None = None,
         raise ValueError(f"{key}.crease_angle_deg={crease:g} must lie in [0, 180), e.g. 30")
     if shape == "file":
         if not isinstance(path, str) or not path:
-            raise ValueError(f"{key}.path={path!r}: shape: file needs the path of an OBJ, STL or PLY mesh")
+            raise ValueError(f"{key}.path={path!r} must be the path of an OBJ, STL or PLY mesh file (shape: file)")
         full = Path(path) if base_dir is None or Path(path).is_absolute() else Path(base_dir) / path
         mesh = load_mesh(full, what)
         what = f"{what} ({full})"
@@ -245,19 +248,19 @@ def make_elements(specs: Any, base_dir: str | Path | None = None, mm_per_unit: f
     errors as ``<where>.<name>`` (``<where>.<index>`` when it has no name); names must differ."""
     if specs is None:
         return []
-    if not isinstance(specs, (list, tuple)):
+    if not isinstance(specs, Sequence) or isinstance(specs, (str, bytes)):
         raise ValueError(f"{where}={specs!r} must be a list of elements, e.g. {where}={ELEMENTS_EXAMPLE}")
     names: set[str] = set()
     elements = []
     for index, spec in enumerate(specs):
-        if not isinstance(spec, Mapping):
-            raise ValueError(f"{where}.{index}={spec!r} must be a mapping with keys {', '.join(ELEMENTS_KEYS_TEXT)}")
-        named = "name" in spec and isinstance(spec["name"], (str, int)) and not isinstance(spec["name"], bool)
-        spec = dict(spec) if named else {"name": f"element{index}", **spec} if "name" not in spec else dict(spec)
-        key = f"{where}.{spec['name']}" if named else f"{where}.{index}"
-        if named and str(spec["name"]) in names:
-            raise ValueError(f"{key}: two elements are named {spec['name']}; give each element its own name")
-        names.add(str(spec["name"]))
+        name = spec.get("name") if isinstance(spec, Mapping) else None
+        named = isinstance(name, (str, int)) and not isinstance(name, bool) and str(name) != ""
+        key = f"{where}.{name}" if named else f"{where}.{index}"
+        if named and str(name) in names:
+            raise ValueError(f"{key}: two elements are named {name}; give each element its own name")
+        names.add(str(name))
+        if isinstance(spec, Mapping) and name is None:
+            spec = {**spec, "name": f"element{index}"}
         elements.append(make_element(spec, base_dir, mm_per_unit, key))
     return elements
 

@@ -103,3 +103,14 @@ def test_saving_above_the_image_scale_is_refused(tmp_path: Path, heights: np.nda
         save_height_field(tmp_path / "d.png", heights, scale=0.01)
     with pytest.raises(ValueError, match="negative"):
         save_height_field(tmp_path / "d.npy", -heights - 1.0)
+
+
+def test_a_corrupt_npy_is_one_line_naming_the_file(tmp_path: Path) -> None:
+    np.save(tmp_path / "d.npy", np.zeros((8, 8)))
+    data = (tmp_path / "d.npy").read_bytes()
+    (tmp_path / "d.npy").write_bytes(data[:100])
+    with pytest.raises(ValueError) as refused:
+        load_height_field(tmp_path / "d.npy")
+    message = str(refused.value)
+    assert "\n" not in message and message == (f"{tmp_path / 'd.npy'} is corrupt or truncated (not a complete .npy "
+                                               "array of numbers); save the heights again with numpy.save")

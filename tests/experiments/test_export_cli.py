@@ -22,13 +22,14 @@ from tests.python_subprocess import ROOT
 M, H, W, MM = 16, 0.1, 1.0, 20.0
 
 
-def fake_run(run_dir: Path, d: np.ndarray, truth: np.ndarray | None, units: bool = True) -> Path:
+def fake_run(run_dir: Path, d: np.ndarray, truth: np.ndarray | None, units: bool = True,
+             data: dict | None = None) -> Path:
     """A run directory as sfc-reconstruct leaves it: heights, ground truth, the resolved config."""
     (run_dir / ".hydra").mkdir(parents=True)
     np.save(run_dir / "height_field.npy", d)
     if truth is not None:
         np.save(run_dir / "ground_truth.npy", truth)
-    cfg = {"substrate": {"thickness": H, "half_width": W}, "data": {"name": "synthetic"},
+    cfg = {"substrate": {"thickness": H, "half_width": W}, "data": data or {"name": "synthetic"},
            "height_field": {"shape": "bump", "resolution": M, "path": None, "scale": 1.0, "params": {}},
            **({"units": {"mm_per_unit": MM}} if units else {})}
     OmegaConf.save(OmegaConf.create(cfg), run_dir / ".hydra" / "config.yaml")
@@ -87,6 +88,15 @@ def test_design_from_the_config_a_file_or_none(tmp_path, capsys):
                                                                      "height_field_mm.png"]
 
 
+def test_a_measured_run_has_a_design_only_when_it_gave_one(tmp_path, capsys):
+    photo = {"name": "photo", "mask": None}
+    main([str(fake_run(tmp_path / "plain", box(0.04), None, data=photo))])  # the default scene's shape only
+    assert "design: none (the run has no ground truth" in capsys.readouterr().out
+    assert not (tmp_path / "plain" / "export" / "deviation.json").exists()
+    main([str(fake_run(tmp_path / "declared", box(0.04), None, data={**photo, "mask": "design"}))])
+    assert "design: the run's height_field" in capsys.readouterr().out
+
+
 @pytest.mark.parametrize(("remove", "words"), [
     (None, "run directory"), ("height_field.npy", "heights"), (".hydra/config.yaml", "run config")])
 def test_missing_run_dir_or_file_is_one_line_and_exit_status_2(tmp_path, capsys, monkeypatch, remove, words):
@@ -109,3 +119,67 @@ def test_a_missing_design_file_is_one_line_and_exit_status_2(tmp_path, capsys):
         main([str(run), "--design", str(tmp_path / "nope.png")])
     assert stop.value.code == 2
     assert "--design" in capsys.readouterr().err and not (run / "export").exists()
+
+
+def _truncated(path: Path) -> None:
+    data = path.read_bytes()
+    path.write_bytes(data[:len(data) // 2])
+
+
+def _object_array(path: Path) -> None:
+    np.save(path, np.array([{"heights": 1}], dtype=object), allow_pickle=True)
+
+
+@pytest.mark.parametrize(("spoil", "words"), [
+    (_truncated, " is corrupt or truncated (not a complete .npy array of numbers)"),
+    (lambda path: path.write_bytes(b"not an npy file"), " is corrupt or truncated"),
+    (lambda path: path.write_bytes(b""), " is corrupt or truncated"),
+    (_object_array, " is corrupt or truncated"),
+    (lambda path: np.save(path, np.full((M, M), "a")), " holds <U1 values, not an array of numbers"),
+    (lambda path: np.save(path, np.where(box(1.0) > 0, np.nan, 0.0)),
+     ": height field contains 48 NaN or infinite values (the first at [5, 4]: nan)"),
+    (lambda path: np.save(path, np.zeros((2, M, M))),
+     ": height field must be a square 2-D array, got shape (2, 16, 16)"),
+    (lambda path: np.save(path, np.zeros((M, M - 1))), ": height field must be a square 2-D array, got shape (16, 15)"),
+])
+@pytest.mark.parametrize("name", ["height_field.npy", "ground_truth.npy"])
+def test_bad_heights_files_are_one_line_naming_the_file_and_exit_status_2(tmp_path, capsys, monkeypatch, spoil,
+                                                                         words, name):
+    monkeypatch.delenv("SFC_TRACEBACK", raising=False)
+    run = fake_run(tmp_path / "run", box(0.04), box(0.05))
+    spoil(run / name)
+    with pytest.raises(SystemExit) as stop:
+        main([str(run)])
+    assert stop.value.code == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith(f"error: {run / name}{words}")
+    assert "re-run the reconstruction or pass another run directory" in err and "allow_pickle" not in err
+    assert not (run / "export").exists()
+
+
+@pytest.mark.parametrize(("out", "words"), [
+    ("notes.txt/sub", "error: --out '{dir}/notes.txt/sub' cannot be made a directory ('{dir}/notes.txt' is a file)"),
+    ("notes.txt", "error: --out '{dir}/notes.txt' cannot be made a directory ('{dir}/notes.txt' is a file)"),
+])
+def test_an_out_under_a_regular_file_is_one_line_and_exit_status_2(tmp_path, capsys, monkeypatch, out, words):
+    monkeypatch.delenv("SFC_TRACEBACK", raising=False)
+    run = fake_run(tmp_path / "run", box(0.04), None)
+    (tmp_path / "notes.txt").write_text("a file, not a directory\n")
+    with pytest.raises(SystemExit) as stop:
+        main([str(run), "--out", str(tmp_path / out)])
+    assert stop.value.code == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith(words.format(dir=tmp_path))
+    assert "pass --out a directory path that is not a file or under one" in err
+
+
+def test_a_run_config_that_is_not_yaml_is_one_line_and_exit_status_2(tmp_path, capsys, monkeypatch):
+    monkeypatch.delenv("SFC_TRACEBACK", raising=False)
+    run = fake_run(tmp_path / "run", box(0.04), None)
+    (run / ".hydra" / "config.yaml").write_text("substrate: [\n")
+    with pytest.raises(SystemExit) as stop:
+        main([str(run)])
+    assert stop.value.code == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1
+    assert err.startswith(f"error: run config {str(run / '.hydra' / 'config.yaml')!r} is not readable YAML at line 2")

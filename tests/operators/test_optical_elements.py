@@ -75,7 +75,7 @@ def _write(mesh: trimesh.Trimesh, path) -> str:
 
 @pytest.mark.parametrize("case, message", [
     ("missing", "does not exist"), ("text", "not a readable mesh|holds no triangles"), ("open", "is not closed"),
-    ("inverted", "inward normals"), ("shape", "shape 'torus'"), ("key", "unknown key 'colour'"),
+    ("inverted", "inward normals"), ("shape", "shape 'torus'"), ("key", "unknown key operator.elements.bad.colour"),
     ("thin lens", "lens faces cross inside the aperture"),
 ])
 def test_bad_meshes_are_refused_in_one_line(tmp_path, case, message):
