@@ -118,6 +118,8 @@ class SyntheticData:
         mask_dilation: ... dilated by this fraction of the grid width.
     """
 
+    length_keys = ("mask_threshold",)  # may be given with a unit, e.g. '0.02 mm' (framework/plugin_config.py)
+
     def __init__(self, delta: float = 0.05, reference_photons: int = 1 << 22, reference_resolution: int = 256,
                  mask_threshold: float = 1e-3, mask_dilation: float = 0.05) -> None:
         self.delta = validate_delta(delta)
@@ -153,6 +155,8 @@ class KnownPrint:
             bare substrate; ``as_is``: use the values.
         mask_threshold, mask_dilation: The rule of ``mask: design``.
     """
+
+    length_keys = ("mask_threshold",)  # may be given with a unit, e.g. '0.02 mm' (framework/plugin_config.py)
 
     BRIGHTNESS = ("energy", "as_is")
 

@@ -14,8 +14,15 @@ from collections.abc import Mapping
 from typing import Any, Callable
 
 from framework.registry import lookup
+from framework.units import scene_length
 
-__all__ = ["as_mapping", "plugin_factory", "build_plugin", "build_plugin_map", "split_name"]
+__all__ = ["as_mapping", "plugin_factory", "build_plugin", "build_plugin_map", "split_name", "with_scene_lengths"]
+
+# Where plugins sit in a reconstruction's config: (kind, path of one plugin's params, or of a
+# {name: params} map when the path ends in "*"). Used to convert their lengths.
+PLUGIN_PLACES = (("regularizer", ("solver", "regularizers", "*")), ("post_step", ("solver", "post_steps", "*")),
+                 ("regularizer", ("solver", "wavelet_regularizer")), ("preconditioner", ("solver", "preconditioner")),
+                 ("initial", ("initial",)), ("initial", ("initial", "candidates", "*")), ("data", ("data",)))
 
 
 def as_mapping(value: Any, where: str) -> dict[str, Any]:
@@ -73,3 +80,43 @@ def build_plugin(kind: str, name: str, params: Mapping[str, Any] | None, where: 
 def build_plugin_map(kind: str, specs: Any, where: str) -> list[Any]:
     """Plugins from ``{name: {params}}`` (e.g. ``solver.regularizers``), in config order."""
     return [build_plugin(kind, name, params, f"{where}.{name}") for name, params in as_mapping(specs, where).items()]
+
+
+def _length(value: Any, mm: float, where: str) -> Any:
+    """A string with a unit ('0.4 mm') in scene units, a list element-wise; other values as given."""
+    if isinstance(value, str):
+        return scene_length(value, mm, where)
+    if isinstance(value, list):
+        return [_length(v, mm, f"{where}[{i}]") for i, v in enumerate(value)]
+    return value
+
+
+def _converted(kind: str, name: str, params: dict[str, Any], mm: float, where: str) -> dict[str, Any]:
+    """``params`` with the plugin's ``length_keys`` (a class attribute) in scene units."""
+    try:
+        keys = getattr(lookup(kind, name), "length_keys", ())
+    except KeyError:
+        return params  # an unknown name is refused, with the known names, when the plugin is built
+    return {k: _length(v, mm, f"{where}.{k}") if k in keys else v for k, v in params.items()}
+
+
+def with_scene_lengths(cfg: Mapping[str, Any], mm_per_unit: float) -> dict[str, Any]:
+    """The plain config ``cfg`` with every plugin length (a key its plugin lists in ``length_keys``)
+    given as a string with a unit, e.g. ``solver.regularizers.l1_bounds.p2='0.4 mm'``, converted to
+    scene units with ``mm_per_unit`` (framework/units.py), so that lengths read alike everywhere."""
+    out = dict(cfg)
+    for kind, path in PLUGIN_PLACES:
+        *parents, last = path
+        node: Any = out
+        for key in parents:
+            if not isinstance(node.get(key), Mapping):
+                break
+            node[key] = node = dict(node[key])
+        else:
+            if last == "*":
+                if isinstance(node, Mapping):
+                    node.update({name: _converted(kind, name, dict(params), mm_per_unit, f"{'.'.join(parents)}.{name}")
+                                 for name, params in node.items() if isinstance(params, Mapping)})
+            elif isinstance(node.get(last), Mapping) and isinstance(node[last].get("name"), str):
+                node[last] = _converted(kind, node[last]["name"], dict(node[last]), mm_per_unit, ".".join(path))
+    return out

@@ -26,7 +26,7 @@ from framework.run_checks import (CHECKPOINT, check_tracking_target, check_volum
                                   design_given, height_bounds)
 from framework.run_identity import run_fingerprint
 from framework.export import export_outputs
-from framework.plugin_config import as_mapping, build_plugin, split_name
+from framework.plugin_config import as_mapping, build_plugin, split_name, with_scene_lengths
 from framework.problem import HeightGrid, OperatorPlugin, Problem
 from framework.report_figures import save_reconstruction_figures
 from framework.scene_config import build_heights, build_operator, build_scene, height_grid, to_plain
@@ -226,7 +226,8 @@ class Reconstruction:
     def from_config(cls, cfg: Mapping[str, Any], base_dir: Path) -> Reconstruction:
         """Build every part by its registry key (scene, operator, data, solver, stopping rules) and
         the start; a bad value fails here, before anything is rendered."""
-        cfg = dict(to_plain(cfg))
+        plain = dict(to_plain(cfg))
+        cfg = with_scene_lengths(plain, mm_per_unit(plain))
         scene = build_scene(cfg)
         calibration_cfg = as_mapping(cfg.get("calibration") or {}, "calibration")
         operator = build_operator(cfg, scene, imaging=bool(calibration_cfg.get("params")))

@@ -3,7 +3,8 @@
 The optics are scale free, so the scene is set up in scene units; ``units.mm_per_unit`` says how
 long one scene unit is (the paper's sample: 1 unit = 2.5 cm, so 25 mm per unit). Every length
 of the scene config (light position, substrate, receiver, screen blur, the optical elements'
-placements and sizes) and the deposited volume may be given either as a number in scene units or
+placements and sizes), the plugins' length parameters (their ``length_keys``: height bounds,
+preconditioner lengths, the mask threshold) and the deposited volume may be given either as a number in scene units or
 as a string with a unit, e.g. ``substrate.thickness="2.5 mm"`` or ``data.volume="1.7 mm3"``
 (parsed by operators/units.py); outputs in millimetres (framework/export.py) are converted back
 with the same factor.

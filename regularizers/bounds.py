@@ -25,6 +25,8 @@ class HeightBounds(Regularizer):
         atol: Tolerance of the feasibility test in :meth:`value` (scene units).
     """
 
+    length_keys = ("p1", "p2")  # may be given with a unit, e.g. '0.4 mm' (framework/plugin_config.py)
+
     has_prox = True
     smooth = False
 

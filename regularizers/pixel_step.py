@@ -33,6 +33,8 @@ class PixelL1Bounds(Regularizer):
         atol: Tolerance of the feasibility test in :meth:`value`.
     """
 
+    length_keys = ("p1", "p2")  # may be given with a unit, e.g. '0.4 mm' (framework/plugin_config.py)
+
     has_prox = True
     smooth = False
 

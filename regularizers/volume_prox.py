@@ -53,6 +53,8 @@ class VolumeSlabL1Bounds(Regularizer):
         max_iter: Maximum number of bisection steps.
     """
 
+    length_keys = ("p1", "p2")  # may be given with a unit, e.g. '0.4 mm' (framework/plugin_config.py)
+
     needs_volume = True  # the run's checks refuse measured data without data.volume (framework/run_checks.py)
 
     has_prox = True

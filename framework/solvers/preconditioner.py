@@ -60,6 +60,8 @@ class SobolevPreconditioner:
         order: Exponent p > 0 (2 matches the |k|^4 growth of the data term's Hessian).
     """
 
+    length_keys = ("length",)  # may be given with a unit, e.g. '3 mm' (framework/plugin_config.py)
+
     def __init__(self, length: float | Sequence[float] = 0.125, order: float = 2.0) -> None:
         lengths = [length] if isinstance(length, (int, float)) else list(length)
         if not lengths or not all(isinstance(v, (int, float)) and math.isfinite(v) and v > 0.0 for v in lengths):

@@ -191,6 +191,8 @@ class TransportStart:
         mass_tolerance: The transport's accuracy (framework/solvers/semi_discrete_transport.py).
     """
 
+    length_keys = ("p1", "p2")  # may be given with a unit, e.g. '0.4 mm' (framework/plugin_config.py)
+
     name = "transport"
 
     def __init__(self, photons: int = 262144, reach: float = 0.05, black_level: float = 1e-3, smoothness: float = 0.1,
