@@ -137,6 +137,16 @@ class CausticOperator(PhotonOperator):
     """
 
     @classmethod
+    def example_settings(cls) -> dict[str, Any]:
+        """Settings for the plugin contract checks (framework/contract_checks.py): double precision."""
+        return {"dtype": "float64"}
+
+    @property
+    def conserves_energy(self) -> bool:
+        """Without Fresnel losses the print moves light and absorbs none (framework/contract_checks.py)."""
+        return not self.settings.fresnel
+
+    @classmethod
     def from_config(cls, scene: Scene, photons: int, seed: int, **settings: Any) -> CausticOperator:
         """The operator for ``scene`` from the config's ``operator`` group (the fields of
         :class:`OperatorSettings` but photons and seed, which the run gives); checks every value."""

@@ -132,6 +132,18 @@ class MeshSceneOperator(PhotonOperator):
                 self.native = NativeMeshTracer(self)
 
     @classmethod
+    def example_settings(cls) -> dict[str, Any]:
+        """Settings for the plugin contract checks (framework/contract_checks.py): one lens above the
+        print, double precision."""
+        return {"dtype": "float64", "elements": [{"name": "lens", "shape": "lens", "position": [0, 0, 1.15], "params": {
+            "radius": 1.0, "thickness": 0.3, "front_radius": 4.0, "back_radius": 4.0}}]}
+
+    @property
+    def conserves_energy(self) -> bool:
+        """Without Fresnel losses the print moves light and absorbs none (framework/contract_checks.py)."""
+        return not self.settings.fresnel
+
+    @classmethod
     def from_config(cls, scene: Scene, photons: int, seed: int, elements: Any = (), **settings: Any
                     ) -> MeshSceneOperator:
         """The plugin ``operator/mesh_scene``: ``elements`` is a list of element configs

@@ -117,10 +117,19 @@ class VolumeSlabL1Bounds(Regularizer):
         mask = self._mask_for(d)
         return clamp_on_mask(soft_shrink(d - self.shift(d, step), k), mask, self.p1, self.p2)
 
+    def project(self, d: torch.Tensor) -> torch.Tensor:
+        """The nearest point of the set where :meth:`value` is finite (bounds, mask and band): the
+        prox without the l1 term, shape (m, m)."""
+        check_height_field(d)
+        return clamp_on_mask(d - self._multiplier(d, 0.0), self._mask_for(d), self.p1, self.p2)
+
     def shift(self, d: torch.Tensor, step: float) -> float:
         """The multiplier lambda of the slab constraint for prox_{step R}(d) (0 inside the band)."""
         check_height_field(d)
-        k = self._check_step(step) * self.alpha
+        return self._multiplier(d, self._check_step(step) * self.alpha)
+
+    def _multiplier(self, d: torch.Tensor, k: float) -> float:
+        """lambda with clamp(S(d - lambda, k)) summing into the band over the mask (0 inside it)."""
         mask = self._mask_for(d)
         q1, q2 = self.band
         w = d.detach().to(torch.float64)[mask]  # only the printed samples enter the sum

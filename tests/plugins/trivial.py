@@ -48,6 +48,11 @@ class ShadowOperator:
         return ShadowOperator(self.channels, resolution, self.half_width, photons, self.gain)
 
     def __call__(self, heights: torch.Tensor) -> torch.Tensor:
+        if heights.ndim != 2 or heights.shape[0] != heights.shape[1] or self.resolution % heights.shape[0]:
+            raise ValueError(f"heights of shape {tuple(heights.shape)}: the shadow operator takes (m, m) with m "
+                             f"dividing the receiver's {self.resolution} pixels")
+        if not bool(torch.isfinite(heights).all()):
+            raise ValueError("heights contain NaN or infinite values")
         factor = self.resolution // heights.shape[-1]
         lit = F.interpolate(heights.to(self.dtype)[None, None], scale_factor=factor, mode="nearest")[0]
         return (1.0 + self.gain * lit).expand(self.output_shape)
