@@ -28,7 +28,8 @@ class ReconstructionData:
     units^3 (None if unknown); delta: relative noise level for the discrepancy principle;
     weights (c, n, n) in [0, 1]: pixels the fit uses (None: all; a photo's saturated pixels get 0);
     ground_truth (m, m), clean (c, n, n) and intrinsic_noise: synthetic data only; left_out:
-    receiver pixels at weight 0 by reason (e.g. ``saturated``, ``unlit``), for the run's report.
+    receiver pixels at weight 0 by reason (e.g. ``saturated``, ``unlit``), for the run's report;
+    source: the file the measured data were read from (the run logs it as the dataset's source).
     """
 
     target: torch.Tensor
@@ -40,6 +41,7 @@ class ReconstructionData:
     clean: torch.Tensor | None = None
     intrinsic_noise: float | None = None
     left_out: dict[str, int] = field(default_factory=dict)
+    source: str | None = None
 
 
 def resample_image(image: torch.Tensor, resolution: int) -> torch.Tensor:
@@ -89,7 +91,8 @@ def synthetic_data(ground_truth: torch.Tensor, render_a: Callable[[torch.Tensor]
 
 
 def measured_data(image: torch.Tensor, resolution: int, delta: float, mask: torch.Tensor,
-                  volume: float | None, flat_render_total: float | None) -> ReconstructionData:
+                  volume: float | None, flat_render_total: float | None, source: str | None = None
+                  ) -> ReconstructionData:
     """Reconstruction data from a measured caustic (c, N, N).
 
     With ``flat_render_total`` the image is scaled so that its total equals that of the simulated
@@ -102,4 +105,4 @@ def measured_data(image: torch.Tensor, resolution: int, delta: float, mask: torc
         raise ValueError("the caustic image is all zero (or negative); check the file")
     if flat_render_total is not None:
         target = target * (flat_render_total / float(target.sum()))
-    return ReconstructionData(target=target, mask=mask, volume=volume, delta=delta)
+    return ReconstructionData(target=target, mask=mask, volume=volume, delta=delta, source=source)

@@ -243,4 +243,5 @@ class MeasuredData(KnownPrint):
         image = self._image(request)
         flat_total = float(self.bare_substrate_caustic(request).sum()) if self.brightness == "energy" else None
         return measured_data(image, operator.output_shape[-1], self.delta, self.printed_area(request),
-                             self.deposited_volume(request), flat_total)
+                             self.deposited_volume(request), flat_total,
+                             source=str(resolve_path(self.image, request.base_dir).resolve()))

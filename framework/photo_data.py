@@ -170,4 +170,4 @@ class PhotoData(KnownPrint):
         for step in steps:
             print(f"photo: {step}", flush=True)
         return ReconstructionData(target=target, mask=self.printed_area(request), volume=self.deposited_volume(request),
-                                  delta=delta, weights=weights, left_out=left_out)
+                                  delta=delta, weights=weights, left_out=left_out, source=str(first.path.resolve()))

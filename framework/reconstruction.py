@@ -304,7 +304,7 @@ def _reconstruct(parts: Reconstruction, output_dir: Path, base_dir: Path, checkp
         start = time.perf_counter()
         data = parts.data_source.load(parts.data_request(base_dir, output_dir))
         data_seconds = time.perf_counter() - start
-        tracker.log_data(data, cfg, base_dir)
+        tracker.log_data(data, cfg)
         problem = Problem(operator, data, parts.grid, parts.scene)
         # The design the mm outputs compare with: the truth of synthetic data, else the configured
         # height field when the user declared it the print's design (framework/run_checks.py).

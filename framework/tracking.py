@@ -69,7 +69,6 @@ SOURCE_NAME_TAG = "mlflow.source.name"
 SOURCE_TYPE_TAG = "mlflow.source.type"
 UNKNOWN = "unknown"
 REPO_ROOT = Path(__file__).resolve().parents[1]
-MEASURED_FILE_KEYS = ("image", "photo")  # the data.* key naming the measured file (data=file, data=photo)
 
 
 def _truncate(text: str, limit: int) -> str:
@@ -178,15 +177,6 @@ def _data_arrays(data: "ReconstructionData") -> dict[str, np.ndarray]:
     return arrays
 
 
-def _measured_file(data_cfg: Mapping[str, Any], base_dir: Path | None) -> Path | None:
-    """The measured caustic's file (data.image / data.photo), resolved against ``base_dir``."""
-    name = next((data_cfg[key] for key in MEASURED_FILE_KEYS if data_cfg.get(key)), None)
-    if name is None:
-        return None
-    path = Path(str(name)).expanduser()
-    return path if path.is_absolute() or base_dir is None else base_dir / path
-
-
 def _synthetic_description(cfg: Mapping[str, Any]) -> dict[str, Any]:
     """What synthetic data are made from: the data settings (noise level delta, reference renders),
     the height field (shape or path) and the seed."""
@@ -194,12 +184,13 @@ def _synthetic_description(cfg: Mapping[str, Any]) -> dict[str, Any]:
             "seed": cfg.get("seed", 0)}
 
 
-def data_dataset(data: "ReconstructionData", cfg: Mapping[str, Any], base_dir: Path | None = None) -> "NumpyDataset":
+def data_dataset(data: "ReconstructionData", cfg: Mapping[str, Any]) -> "NumpyDataset":
     """The run's input data as an MLflow numpy dataset (features caustic, mask and volume).
 
     Synthetic data (with a ground truth): named ``synthetic:<shape or file>``, a code source
     describing the scene, seed and noise level, the digest of that description and the target.
-    Measured data: named after the file, a local source with its path, the digest of the arrays.
+    Measured data: named after the file they were read from (``data.source``), a local source
+    with its path, the digest of the arrays.
     """
     import mlflow.data
     from mlflow.data.code_dataset_source import CodeDatasetSource
@@ -212,8 +203,8 @@ def data_dataset(data: "ReconstructionData", cfg: Mapping[str, Any], base_dir: P
         scene = Path(str(field["path"])).name if field.get("path") else field.get("shape", UNKNOWN)
         return mlflow.data.from_numpy(arrays, source=CodeDatasetSource(tags=description), name=f"synthetic:{scene}",
                                       digest=dataset_digest({"caustic": arrays["caustic"]}, description))
-    path = _measured_file(cfg.get("data") or {}, base_dir)
-    uri = str(path.resolve()) if path is not None else UNKNOWN
+    path = Path(data.source) if data.source else None
+    uri = str(path) if path is not None else UNKNOWN
     source = get_dataset_source_from_json(json.dumps({"uri": uri}), source_type="local")
     name = path.name if path is not None else str((cfg.get("data") or {}).get("name", UNKNOWN))
     return mlflow.data.from_numpy(arrays, source=source, name=name, digest=dataset_digest(arrays, {"file": uri}))
@@ -383,14 +374,14 @@ class MlflowTracker:
         for i in range(0, len(items), 1000):
             self._client.log_batch(self.run_id, metrics=items[i : i + 1000])
 
-    def log_data(self, data: "ReconstructionData", cfg: Mapping[str, Any], base_dir: Path | None = None) -> None:
+    def log_data(self, data: "ReconstructionData", cfg: Mapping[str, Any]) -> None:
         """Log the run's input data as an MLflow dataset in context "reconstruction" (see
-        :func:`data_dataset`; relative data paths are resolved against ``base_dir``)."""
+        :func:`data_dataset`)."""
         from mlflow.entities import Dataset, DatasetInput, InputTag
         from mlflow.utils.mlflow_tags import MLFLOW_DATASET_CONTEXT
 
         self._require_run()
-        dataset = Dataset(**data_dataset(data, cfg, base_dir).to_dict())
+        dataset = Dataset(**data_dataset(data, cfg).to_dict())
         self._client.log_inputs(self.run_id, datasets=[
             DatasetInput(dataset, tags=[InputTag(MLFLOW_DATASET_CONTEXT, DATASET_CONTEXT)])])
 

@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from mlflow.tracking import MlflowClient
 from PIL import Image
 
 from experiments.reproduce_lab import relative_error_after_scale
@@ -100,3 +101,7 @@ def test_a_short_run_on_a_lab_photo_says_how_well_it_did(lab, tmp_path, capsys) 
     assert "warning: Ended short of the noise level" in err
     saved = json.loads((tmp_path / "run" / "metrics.json").read_text())
     assert saved["verdict"] == metrics["verdict"]
+    client = MlflowClient(tracking_uri=f"sqlite:///{tmp_path / 'mlruns' / 'mlflow.db'}")
+    (run,) = client.search_runs([client.get_experiment_by_name("shape-from-caustics").experiment_id])
+    assert run.data.tags["verdict"] == metrics["verdict"] and run.data.metrics["reached_noise_level"] == 0.0
+    assert run.inputs.dataset_inputs[0].dataset.name == "first.png"  # the data source names its file

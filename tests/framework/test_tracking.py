@@ -134,11 +134,11 @@ def test_code_version_is_unknown_outside_a_repository_or_without_git(tmp_path, m
     assert code_version_tags()["mlflow.source.git.commit"] == "unknown"
 
 
-def _data(seed: int = 0, truth: bool = True) -> ReconstructionData:
+def _data(seed: int = 0, truth: bool = True, source: str | None = None) -> ReconstructionData:
     target = torch.rand(1, 8, 8, generator=torch.Generator().manual_seed(seed), dtype=torch.float64)
     mask = torch.ones(4, 4, dtype=torch.bool)
     return ReconstructionData(target, mask, volume=0.01, delta=0.05,
-                              ground_truth=torch.zeros(4, 4, dtype=torch.float64) if truth else None)
+                              ground_truth=torch.zeros(4, 4, dtype=torch.float64) if truth else None, source=source)
 
 
 SYNTHETIC = {"data": {"name": "synthetic", "delta": 0.05}, "height_field": {"shape": "bump", "path": None}, "seed": 3}
@@ -154,12 +154,13 @@ def test_synthetic_data_are_named_by_scene_described_by_seed_and_noise_and_diges
 
 def test_measured_data_name_their_file_and_log_as_the_runs_input(store, tmp_path):
     cfg = {"data": {"name": "file", "image": "caustic.npy", "mask": "mask.npy", "volume": 0.01}}
+    measured = _data(truth=False, source=str(tmp_path.resolve() / "caustic.npy"))  # as data sources say
     with MlflowTracker("toy", store_dir=store) as tracker:
-        tracker.log_data(_data(truth=False), cfg, base_dir=tmp_path)
+        tracker.log_data(measured, cfg)
     (logged,) = _client(store).get_run(tracker.run_id).inputs.dataset_inputs
     assert logged.dataset.name == "caustic.npy" and logged.dataset.source_type == "local"
     assert json.loads(logged.dataset.source)["uri"] == str(tmp_path.resolve() / "caustic.npy")
-    assert logged.dataset.digest == data_dataset(_data(truth=False), cfg, tmp_path).digest
+    assert logged.dataset.digest == data_dataset(measured, cfg).digest
     assert set(json.loads(logged.dataset.profile)["features_shape"]) == {"caustic", "mask", "volume"}
     assert [(t.key, t.value) for t in logged.tags] == [("mlflow.data.context", "reconstruction")]
 
