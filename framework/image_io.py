@@ -10,7 +10,8 @@ import torch
 from PIL import Image, UnidentifiedImageError
 
 
-def _existing(path: str | Path, what: str) -> Path:
+def existing_file(path: str | Path, what: str) -> Path:
+    """``path`` as a Path once it is known to be a file; ``what`` names it in the one-line error."""
     p = Path(path).expanduser()
     if p.is_dir():
         raise ValueError(f"{what} {str(p)!r} is a directory; give the file itself")
@@ -47,7 +48,7 @@ def load_caustic_image(path: str | Path) -> torch.Tensor:
     (8 or 16 bit, grey or RGB): values scaled to [0, 1]; the first image row is the top (+y), as
     in a photo, so rows are flipped to the [row = y increasing] convention.
     """
-    p = _existing(path, "caustic image")
+    p = existing_file(path, "caustic image")
     array = _read_array(p).astype(np.float64)
     if p.suffix.lower() != ".npy":
         array = array[::-1] if array.ndim == 2 else array[::-1, :, :3].transpose(2, 0, 1)
@@ -63,7 +64,7 @@ def load_caustic_image(path: str | Path) -> torch.Tensor:
 
 def load_mask(path: str | Path, resolution: int) -> torch.Tensor:
     """Printed-area mask (m, m) bool: non-zero pixels may hold material. Same row convention as images."""
-    p = _existing(path, "mask")
+    p = existing_file(path, "mask")
     array = _read_array(p)
     if array.ndim == 3:
         array = array[..., 0]

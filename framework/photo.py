@@ -22,7 +22,7 @@ import numpy as np
 from matplotlib.figure import Figure
 from PIL import Image, UnidentifiedImageError
 
-from framework.image_io import _existing
+from framework.image_io import existing_file
 from framework.plotting import label_xy_axes, normalise, save_figure
 
 __all__ = ["PhotoImport", "read_photo", "linearize", "check_corners", "homography", "rectify",
@@ -95,7 +95,7 @@ def read_photo(path: str | Path, bit_depth: int | None = None) -> tuple[np.ndarr
 
 def _read_frame(path: str | Path, what: str) -> tuple[np.ndarray, int]:
     """:func:`read_photo` without the bit-depth requirement; ``what`` names the file in messages."""
-    p = _existing(path, what)
+    p = existing_file(path, what)
     suffix = p.suffix.lower()
     if suffix == ".npy":
         try:

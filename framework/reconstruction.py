@@ -11,7 +11,7 @@ import json
 import sys
 import time
 from collections.abc import Mapping, Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -221,6 +221,15 @@ class Reconstruction:
     max_iter: int
     fingerprint: dict[str, str]
     calibration: JointCalibration | None = None
+    _designs: dict[str, torch.Tensor] = field(default_factory=dict, repr=False)
+
+    def design(self, base_dir: Path) -> torch.Tensor:
+        """The configured height field (m, m), float64, scene units: read or generated once per
+        ``base_dir``, a copy handed out each time."""
+        key = str(base_dir)
+        if key not in self._designs:
+            self._designs[key] = build_heights(self.cfg, base_dir=base_dir)
+        return self._designs[key].clone()
 
     @classmethod
     def from_config(cls, cfg: Mapping[str, Any], base_dir: Path) -> Reconstruction:
@@ -269,7 +278,7 @@ class Reconstruction:
     def data_request(self, base_dir: Path, output_dir: Path | None = None) -> DataRequest:
         """What the data source may use: the operator, the grid, the configured heights, the seed,
         the run directory and the units."""
-        return DataRequest(self.operator, self.grid, lambda: build_heights(self.cfg, base_dir=base_dir),
+        return DataRequest(self.operator, self.grid, lambda: self.design(base_dir),
                            int(self.cfg.get("seed", 0)), base_dir, output_dir, mm_per_unit(self.cfg))
 
 
@@ -309,7 +318,7 @@ def _reconstruct(parts: Reconstruction, output_dir: Path, base_dir: Path, checkp
         # The design the mm outputs compare with: the truth of synthetic data, else the configured
         # height field when the user declared it the print's design (framework/run_checks.py).
         design = data.ground_truth if data.ground_truth is not None else (
-            build_heights(cfg, base_dir=base_dir) if design_given(cfg) else None)
+            parts.design(base_dir) if design_given(cfg) else None)
         calibration = parts.calibration
         if calibration is not None:
             resume_from = None if checkpoint is None else checkpoint.parent / CALIBRATION_STATE
@@ -321,7 +330,7 @@ def _reconstruct(parts: Reconstruction, output_dir: Path, base_dir: Path, checkp
             print("waiting for the gradient kernel to compile (first run after an install; cached afterwards)",
                   flush=True)
             compiling.wait()
-        request = StartRequest(problem, lambda: build_heights(cfg, base_dir=base_dir), base_dir)
+        request = StartRequest(problem, lambda: parts.design(base_dir), base_dir)
         phases = parts.start.phases() if callable(getattr(parts.start, "phases", None)) else [
             (getattr(parts.start, "name", "start"), parts.start)]
         finished, first = resumed_phases(output_dir, checkpoint)
