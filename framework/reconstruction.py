@@ -11,7 +11,7 @@ import json
 import sys
 import time
 from collections.abc import Mapping, Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -22,15 +22,16 @@ from framework.calibration import JointCalibration
 from framework.callbacks import Checkpointer, GroundTruthError, MetricsHistory, ProgressBar
 from framework.checkpoint import resume as resume_solver
 from framework.data_sources import DataRequest, DataSource, resolve_path
-from framework.run_checks import (CHECKPOINT, check_tracking_target, check_volume, check_volume_known, checked_resume,
-                                  design_given, height_bounds)
-from framework.run_identity import run_fingerprint
 from framework.export import export_outputs
 from framework.plugin_config import as_mapping, build_plugin, split_name, with_scene_lengths
 from framework.problem import HeightGrid, OperatorPlugin, Problem
 from framework.report_figures import save_reconstruction_figures
+from framework.run_checks import (CHECKPOINT, check_tracking_target, check_volume, check_volume_known, checked_resume,
+                                  design_given, height_bounds)
+from framework.run_identity import run_fingerprint
+from framework.run_phases import PHASES, PhaseOutcome, resumed_phases
 from framework.scene_config import build_heights, build_operator, build_scene, height_grid, to_plain
-from framework.solvers import Callback, IterationRecord, RunResult, SolverBuilder
+from framework.solvers import Callback, IterationRecord, SolverBuilder
 from framework.starts import StartRequest
 from framework.tracking import MlflowTracker, local_store_uri
 from framework.units import mm_per_unit
@@ -38,7 +39,6 @@ from framework.verdict import run_verdict, volume_report
 from operators.scene import Scene
 
 CALIBRATION_STATE = "calibration.json"
-PHASES = "phases.pt"  # initial=auto: the finished starts of a run, and which one is under way
 MLFLOW_RUN = "mlflow_run.json"  # the run's MLflow run id, so that a job resumed in its directory logs into it
 
 
@@ -74,74 +74,6 @@ def stage_changes(history: Sequence[IterationRecord]) -> list[int]:
     rule or a failed line search asked for it (from the records' ``preconditioner_length``)."""
     lengths = [(r.iteration, r.extras.get("preconditioner_length")) for r in history]
     return [i for (i, a), (_, b) in zip(lengths, lengths[1:]) if a is not None and b is not None and a != b]
-
-
-@dataclass
-class PhaseOutcome:
-    """How the run from one start ended (initial=auto runs several).
-
-    Attributes:
-        name: The start's name.
-        result: The solver's run result.
-        d: The returned heights (m, m): the accepted iterate, else the best one a stopping rule kept.
-        returned_iteration: The iteration of ``d``.
-        rel_discrepancy: The discrepancy of ``d``.
-        history: Metric name -> values per iteration, for the figures.
-        seconds: Start plus solve time, seconds.
-        start_seconds: Computing the start, seconds.
-        start_metrics: What computing the start measured.
-        errors: The errors of ``d`` against the ground truth (synthetic data), else empty.
-    """
-
-    name: str
-    result: RunResult
-    d: torch.Tensor
-    returned_iteration: int
-    rel_discrepancy: float
-    history: dict[str, list[float]]
-    seconds: float
-    start_seconds: float
-    start_metrics: dict[str, float]
-    errors: dict[str, float]
-
-    def summary(self, prefixed: bool) -> dict[str, Any]:
-        """The start's metrics (``start_*``), with this run's outcome under ``start_<name>_*`` when
-        several starts ran."""
-        out = {f"start_{k}": v for k, v in self.start_metrics.items()}
-        if prefixed:
-            out.update({f"start_{self.name}_rel_discrepancy": self.rel_discrepancy,
-                        f"start_{self.name}_iterations": self.result.iterations,
-                        f"start_{self.name}_reached_noise_level": float(self.result.accepted),
-                        **{f"start_{self.name}_{k}": v for k, v in self.errors.items()}})
-        return out
-
-    def saved(self) -> dict[str, Any]:
-        """Plain data and tensors for :data:`PHASES` (torch.save with weights_only loading)."""
-        r = self.result
-        return {"name": self.name, "d": self.d, "returned_iteration": self.returned_iteration,
-                "rel_discrepancy": self.rel_discrepancy, "history": self.history, "seconds": self.seconds,
-                "start_seconds": self.start_seconds, "start_metrics": self.start_metrics, "errors": self.errors,
-                "result": {"iterations": r.iterations, "stop_reason": r.stop_reason, "stopped_by": r.stopped_by,
-                           "records": [asdict(x) for x in r.history], "elapsed_s": r.elapsed_s, "accepted": r.accepted}}
-
-    @classmethod
-    def restored(cls, saved: dict[str, Any]) -> PhaseOutcome:
-        """The inverse of :meth:`saved`."""
-        r = saved["result"]
-        result = RunResult(saved["d"], r["iterations"], r["stop_reason"], r["stopped_by"],
-                           [IterationRecord(**x) for x in r["records"]], r["elapsed_s"], r["accepted"])
-        return cls(saved["name"], result, saved["d"], saved["returned_iteration"], saved["rel_discrepancy"],
-                   saved["history"], saved["seconds"], saved["start_seconds"], saved["start_metrics"], saved["errors"])
-
-
-def resumed_phases(output_dir: Path, checkpoint: Path | None) -> tuple[list[PhaseOutcome], int]:
-    """The starts an interrupted run in ``output_dir`` had finished, and the index of the one its
-    own checkpoint belongs to; ([], 0) for a fresh run or another run's checkpoint."""
-    record = output_dir / PHASES
-    if checkpoint is None or checkpoint != output_dir / CHECKPOINT or not record.is_file():
-        return [], 0
-    saved = torch.load(record, weights_only=True)
-    return [PhaseOutcome.restored(x) for x in saved["done"]], int(saved["phase"])
 
 
 def _solve_from(parts: Reconstruction, problem: Problem, name: str, start: Any, request: StartRequest,
