@@ -38,7 +38,7 @@ from experiments.mlflow_store import TrackingStore
 from framework.calibration import with_setup
 from framework.callbacks import GroundTruthError
 from framework.data import resample_image
-from framework.photo import synthesize_photo
+from framework.photo_synthesis import synthesize_photo
 from framework.reconstruction import Reconstruction, run_reconstruction
 from framework.scene_config import build_heights, build_operator, build_scene, height_grid, to_plain
 

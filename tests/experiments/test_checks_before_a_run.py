@@ -24,7 +24,7 @@ from PIL import Image
 from experiments.input_errors import INPUT_ERRORS, one_line_input_errors
 from experiments.start_checks import CheckBeforeStart, check_launcher, sweep_jobs
 from framework.checkpoint import save_checkpoint
-from framework.photo import synthesize_photo
+from framework.photo_synthesis import synthesize_photo
 from framework.reconstruction import Reconstruction, run_reconstruction
 from framework.run_identity import run_fingerprint
 from operators.caustic_operator import CausticOperator

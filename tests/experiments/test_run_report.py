@@ -14,7 +14,7 @@ from mlflow.tracking import MlflowClient
 from PIL import Image
 
 from experiments.reproduce_lab import relative_error_after_scale
-from framework.photo import synthesize_photo
+from framework.photo_synthesis import synthesize_photo
 from framework.reconstruction import Reconstruction, run_reconstruction
 from framework.scene_config import build_heights, build_operator, build_scene
 from framework.verdict import run_verdict
