@@ -11,7 +11,7 @@ is imported only inside this module's functions.
 
 Experiments are tagged as custom-model (not GenAI) experiments, every run carries the code
 version (git commit, dirty work tree, entry point) as tags, and :meth:`MlflowTracker.log_data`
-records the run's input data as an MLflow dataset (docs/dashboard.md).
+records the run's input data as an MLflow dataset (framework/tracking_dataset.py, docs/dashboard.md).
 
 Example::
 
@@ -24,8 +24,6 @@ from __future__ import annotations
 
 import contextlib
 import fcntl
-import hashlib
-import json
 import os
 import subprocess
 import sys
@@ -36,18 +34,15 @@ from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-import numpy as np
-
 from framework.solvers.base import Callback
+from framework.tracking_dataset import data_dataset
 
 if TYPE_CHECKING:
-    from mlflow.data.numpy_dataset import NumpyDataset
-
     from framework.data import ReconstructionData
     from framework.solvers.base import IterationRecord, IterativeSolver, RunResult
 
 __all__ = ["MlflowTracker", "MlflowMetricsCallback", "flatten_params", "MAX_PARAM_VALUE_LENGTH", "code_version_tags",
-           "check_tracking_server", "KNOWN_SCHEMES", "data_dataset", "local_store_uri", "EXPERIMENT_KIND_TAG", "EXPERIMENT_KIND",
+           "check_tracking_server", "KNOWN_SCHEMES", "local_store_uri", "EXPERIMENT_KIND_TAG", "EXPERIMENT_KIND",
            "DATASET_CONTEXT"]
 
 # MLflow's limits (mlflow.utils.validation): param values 6000 chars, tag values 8000, keys 250.
@@ -157,58 +152,6 @@ def check_tracking_server(uri: str, timeout: float = 5.0) -> None:
         raise ValueError(f"the MLflow tracking server tracking.uri={uri} does not answer ({reason}); {fix}") from None
     if body != "OK":
         raise ValueError(f"tracking.uri={uri} answers but is not an MLflow server (/health: {body[:40]!r}); {fix}")
-
-
-def dataset_digest(arrays: Mapping[str, np.ndarray], values: Mapping[str, Any]) -> str:
-    """A 16-hex-digit SHA-256 of ``values`` (as sorted JSON) and each array's dtype, shape and bytes."""
-    sha = hashlib.sha256(json.dumps(values, sort_keys=True, default=str).encode())
-    for name in sorted(arrays):
-        array = np.ascontiguousarray(arrays[name])
-        sha.update(f"{name}:{array.dtype.str}:{array.shape}".encode())
-        sha.update(array.tobytes())
-    return sha.hexdigest()[:16]
-
-
-def _data_arrays(data: "ReconstructionData") -> dict[str, np.ndarray]:
-    """The caustic target (c, n, n), the mask (m, m) and, if known, the volume (1,) as numpy arrays."""
-    arrays = {"caustic": data.target.detach().cpu().numpy(), "mask": data.mask.detach().cpu().numpy()}
-    if data.volume is not None:
-        arrays["volume"] = np.array([data.volume], dtype=np.float64)
-    return arrays
-
-
-def _synthetic_description(cfg: Mapping[str, Any]) -> dict[str, Any]:
-    """What synthetic data are made from: the data settings (noise level delta, reference renders),
-    the height field (shape or path) and the seed."""
-    return {"data": dict(cfg.get("data") or {}), "height_field": dict(cfg.get("height_field") or {}),
-            "seed": cfg.get("seed", 0)}
-
-
-def data_dataset(data: "ReconstructionData", cfg: Mapping[str, Any]) -> "NumpyDataset":
-    """The run's input data as an MLflow numpy dataset (features caustic, mask and volume).
-
-    Synthetic data (with a ground truth): named ``synthetic:<shape or file>``, a code source
-    describing the scene, seed and noise level, the digest of that description and the target.
-    Measured data: named after the file they were read from (``data.source``), a local source
-    with its path, the digest of the arrays.
-    """
-    import mlflow.data
-    from mlflow.data.code_dataset_source import CodeDatasetSource
-    from mlflow.data.dataset_source_registry import get_dataset_source_from_json
-
-    arrays = _data_arrays(data)
-    if data.ground_truth is not None:
-        description = _synthetic_description(cfg)
-        field = description["height_field"]
-        scene = Path(str(field["path"])).name if field.get("path") else field.get("shape", UNKNOWN)
-        return mlflow.data.from_numpy(arrays, source=CodeDatasetSource(tags=description), name=f"synthetic:{scene}",
-                                      digest=dataset_digest({"caustic": arrays["caustic"]}, description))
-    path = Path(data.source) if data.source else None
-    uri = str(path) if path is not None else UNKNOWN
-    source = get_dataset_source_from_json(json.dumps({"uri": uri}), source_type="local")
-    name = path.name if path is not None else str((cfg.get("data") or {}).get("name", UNKNOWN))
-    return mlflow.data.from_numpy(arrays, source=source, name=name, digest=dataset_digest(arrays, {"file": uri}))
-
 
 
 def local_store_uri(store_dir: str | os.PathLike[str]) -> str:

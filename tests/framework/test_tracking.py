@@ -9,7 +9,8 @@ from framework.callbacks import GroundTruthError, MorozovStopping
 from framework.data import ReconstructionData
 from framework.solvers import GradientDescent
 from framework.tracking import (EXPERIMENT_KIND, EXPERIMENT_KIND_TAG, MlflowTracker, check_tracking_server,
-                                code_version_tags, data_dataset, flatten_params)
+                                code_version_tags, flatten_params)
+from framework.tracking_dataset import data_dataset
 from tests.framework.toy import DTYPE, make_problem
 
 mlflow = pytest.importorskip("mlflow")
