@@ -20,6 +20,7 @@ Example:
 from __future__ import annotations
 
 import math
+import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -27,7 +28,7 @@ import torch
 import torch.nn.functional as F
 from PIL import Image
 
-__all__ = ["load_height_field", "save_height_field", "resample", "read_npy", "validate_heights", "IMAGE_SUFFIXES"]
+__all__ = ["load_height_field", "save_height_field", "resample", "load_npy", "read_npy", "validate_heights", "IMAGE_SUFFIXES"]
 
 IMAGE_SUFFIXES = (".png", ".tif", ".tiff")
 NPY_FIX = "save the heights again with numpy.save"
@@ -69,19 +70,27 @@ def resample(heights: np.ndarray, resolution: int) -> np.ndarray:
     return np.clip(out[0, 0].numpy(), 0.0, None)
 
 
-def read_npy(path: str | Path, fix: str = NPY_FIX) -> np.ndarray:
-    """The array of numbers in the .npy file ``path`` as float64 (no pickles); a file that does not
-    hold a complete .npy array of numbers (corrupt, truncated, or holding objects or text) or that
-    cannot be read is refused in one line naming it and ``fix``."""
+def load_npy(path: str | Path, fix: str = NPY_FIX) -> np.ndarray:
+    """The array in the .npy file ``path`` as stored (no pickles); a file that does not hold one
+    complete .npy array (corrupt, truncated, or holding objects) or that cannot be read is refused in
+    one line naming it and ``fix``."""
     try:
         array = np.load(path, allow_pickle=False)
     except OSError as error:
         raise ValueError(f"{path} cannot be read ({error.strerror or error}); {fix}") from None
-    except (ValueError, EOFError):  # numpy's words for a bad header, short data or an object array
+    except (ValueError, EOFError, zipfile.BadZipFile):  # numpy's words for a bad header, short data or objects
         raise ValueError(f"{path} is corrupt or truncated (not a complete .npy array of numbers); {fix}") from None
-    if not isinstance(array, np.ndarray) or array.dtype.kind not in "biuf":
-        what = f"{array.dtype} values" if isinstance(array, np.ndarray) else "several arrays"
-        raise ValueError(f"{path} holds {what}, not an array of numbers; {fix}")
+    if not isinstance(array, np.ndarray):
+        raise ValueError(f"{path} holds several arrays, not an array of numbers; {fix}")
+    return array
+
+
+def read_npy(path: str | Path, fix: str = NPY_FIX) -> np.ndarray:
+    """The array of numbers in the .npy file ``path`` as float64 (:func:`load_npy`); text or other
+    values that are not numbers are refused in one line naming the file and ``fix``."""
+    array = load_npy(path, fix)
+    if array.dtype.kind not in "biuf":
+        raise ValueError(f"{path} holds {array.dtype} values, not an array of numbers; {fix}")
     return np.asarray(array, dtype=np.float64)
 
 

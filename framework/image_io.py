@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
-import zipfile
 from pathlib import Path
 
 import numpy as np
 import torch
 from PIL import Image, UnidentifiedImageError
+
+from framework.height_field_io import load_npy
 
 
 def existing_file(path: str | Path, what: str) -> Path:
@@ -23,11 +24,7 @@ def existing_file(path: str | Path, what: str) -> Path:
 
 def _read_array(p: Path) -> np.ndarray:
     if p.suffix.lower() == ".npy":
-        try:
-            return np.load(p, allow_pickle=False)
-        except (ValueError, OSError, EOFError, zipfile.BadZipFile) as error:
-            raise ValueError(f"{p} is not a readable .npy array, corrupt or truncated ({str(error)[:80]}); write it "
-                             "again with numpy.save") from None
+        return load_npy(p, "write it again with numpy.save")
     if p.suffix.lower() in (".png", ".tif", ".tiff"):
         try:
             with Image.open(p) as img:

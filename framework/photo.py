@@ -21,6 +21,7 @@ import numpy as np
 from matplotlib.figure import Figure
 from PIL import Image, UnidentifiedImageError
 
+from framework.height_field_io import load_npy
 from framework.image_io import existing_file
 from framework.photo_geometry import (check_corners, check_receiver_grid, homography, inside_receiver, rectify,
                                       saturated_receiver_pixels)
@@ -94,11 +95,7 @@ def _read_frame(path: str | Path, what: str) -> tuple[np.ndarray, int]:
     p = existing_file(path, what)
     suffix = p.suffix.lower()
     if suffix == ".npy":
-        try:
-            array = np.load(p, allow_pickle=False)
-        except (ValueError, OSError, EOFError) as error:
-            raise ValueError(f"{what} {p} is not a readable .npy array, corrupt or truncated ({str(error)[:80]}); "
-                             f"{_SAVE_AS}") from None
+        array = load_npy(p, _SAVE_AS)
         if array.dtype.kind != "f":
             raise ValueError(f"{what} {p.name} holds {array.dtype} values; a .npy photo must be a float array of "
                              "linear values as a fraction of full scale (divide the counts by the white level)")

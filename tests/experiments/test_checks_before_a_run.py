@@ -113,7 +113,7 @@ def refused(tmp_path, inputs, monkeypatch):
     (["data.photo=black.png"], "all zero"),
     (["data.flat=black.png"], "flat field black.png"),
     (["data.dark=small_dark.png"], "dark frame small_dark.png is 100 x 80"),
-    (["data.photo=truncated.npy"], "truncated"),
+    (["data.photo=truncated.npy"], "truncated.npy is corrupt or truncated"),
     # data=photo: corners
     (["data.corners=[[20,140],[180,140],[180,20],[20,500]]"], "outside the 200 x 160 photo"),
     (["data.corners=[[20,140],[180,20],[180,140],[20,20]]"], "self-intersecting"),
@@ -148,7 +148,7 @@ def test_bad_photo_input_is_refused_before_the_run_opens(refused, overrides, nam
 @pytest.mark.parametrize("overrides, named", [
     (["data=file", "data.image=a_directory"], "is a directory"),
     (["data=file", "data.image=caustic.npy"], "solver.post_steps.volume_v1 needs the deposited volume"),
-    (["data=file", "data.image=truncated.npy"], "truncated.npy is not a readable .npy array"),
+    (["data=file", "data.image=truncated.npy"], "truncated.npy is corrupt or truncated"),
     (["data=file", "data.image=caustic.npy", "wavelengths=[0.5,0.6]"], "set wavelengths"),
     (["tracking.uri=foo://bar"], "unknown scheme 'foo'"),
     (["tracking.store_dir=caustic.npy/mlruns"], "is a file, not a directory"),
