@@ -295,6 +295,7 @@ def _reconstruct(parts: Reconstruction, output_dir: Path, base_dir: Path, checkp
         start_metrics = {"start": chosen.name, "start_time_s": sum(o.start_seconds for o in finished),
                          **{k: v for o in finished for k, v in o.summary(len(phases) > 1).items()}}
         prediction = operator.render(d)
+        volume = volume_report(d, data.volume, parts.grid.cell_area)
         metrics: dict[str, Any] = {
             "method": method, "iterations": result.iterations,
             "returned_iteration": returned_iteration,
@@ -304,7 +305,7 @@ def _reconstruct(parts: Reconstruction, output_dir: Path, base_dir: Path, checkp
             "rel_discrepancy": problem.fidelity.relative_discrepancy(prediction),
             "delta": data.delta, "intrinsic_noise": data.intrinsic_noise,
             "photons_per_iteration": operator.photons, **(truth_error.errors(d) if truth_error else {}),
-            **volume_report(d, data.volume, parts.grid.cell_area),
+            **volume,
             **start_metrics, **(calibration.report() if calibration else {})}
         np.save(output_dir / "height_field.npy", d.cpu().numpy().astype(np.float64))
         np.save(output_dir / "caustic_target.npy", data.target.cpu().numpy().astype(np.float32))
@@ -321,7 +322,7 @@ def _reconstruct(parts: Reconstruction, output_dir: Path, base_dir: Path, checkp
                   flush=True)
         morozov = (cfg.get("stopping") or {}).get("morozov") or {}
         verdict = run_verdict(metrics["rel_discrepancy"], data.delta, float(morozov.get("tau_dis", 1.0)),
-                              returned_iteration, result.stop_reason, volume_report(d, data.volume, parts.grid.cell_area),
+                              returned_iteration, result.stop_reason, volume,
                               data.weights, data.left_out)
         metrics.update(verdict.metrics())
         for line in verdict.lines:
