@@ -27,11 +27,11 @@ import numpy as np
 import torch
 
 from experiments.bench_stages import stage_profile
-from framework.shapes import make_shape
-from operators.caustic_operator import CausticOperator, OperatorSettings
+from framework.core.shapes import make_shape
+from operators.heightfield.operator import CausticOperator, OperatorSettings
 from operators.scene import Scene
-from operators.splat import splat_photons
-from operators.splat_reference import splat_photons_reference
+from operators.splat.splat import splat_photons
+from operators.splat.reference import splat_photons_reference
 
 # Throughput the CPU path is held to on a 2-core machine (docs/performance.md): photons/s.
 TARGET_FORWARD = 5e6
@@ -118,7 +118,7 @@ def mesh_scene_operators(photons: int, footprint_px: float) -> dict[str, object]
     from hydra import compose, initialize_config_dir
     from omegaconf import OmegaConf
 
-    from framework.scene_config import build_operator, build_scene
+    from framework.core.scene_config import build_operator, build_scene
 
     def configured(name: str, *extra: str) -> object:
         with initialize_config_dir(config_dir=str(Path(__file__).resolve().parent.parent / "conf"), version_base=None):

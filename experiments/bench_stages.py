@@ -1,12 +1,12 @@
 """Per-stage cost of the fused CPU photon kernels, for ``sfc-bench``'s ``stage_profile``.
 
-One thread runs the kernels' own functions (:mod:`operators.fused_kernels`) cut after each
+One thread runs the kernels' own functions (:mod:`operators.heightfield.kernels_native`) cut after each
 stage: emission; emission + hit search (in lockstep over packets); + the surface jet at the hit
-(as in the kernels); then the kernels' own loop (:func:`operators.fused_kernels.render_range`)
+(as in the kernels); then the kernels' own loop (:func:`operators.heightfield.kernels_native.render_range`)
 without the splat (adds the optics with differentials and the footprint, vectorised across each
 packet of photons) and with it. Each stage's cost is the difference of consecutive cuts, in
 nanoseconds per photon (differences of best-of-three timings: a few tens of ns of noise). For the
-gradient: :func:`operators.fused_kernels.vjp_range` (trace again, splat-adjoint gather,
+gradient: :func:`operators.heightfield.kernels_native.vjp_range` (trace again, splat-adjoint gather,
 reverse-mode optics, 4 x 4 height patch and its scatter), once searching the hits again and once
 replaying the hits that the forward pass recorded (what ``loss_and_grad`` does). Beside them:
 the cost of one evaluation of the surface and its gradient (the hit search's inner step) in a loop
@@ -20,10 +20,10 @@ import time
 import numba as nb
 import numpy as np
 
-from operators.fused_kernels import PACKET, emit, packet_jets, render_range, vjp_range
-from operators.fused_trace import NO_HITS
-from operators.heightfield_kernels import packet_gaps, solve_hits
-from operators.native import FAST_MATH
+from operators.heightfield.kernels_native import PACKET, emit, packet_jets, render_range, vjp_range
+from operators.heightfield.trace_native import NO_HITS
+from operators.heightfield.intersect_native import packet_gaps, solve_hits
+from operators.kernels.numba_settings import FAST_MATH
 
 # Cuts of the forward photon path, in order; each includes the ones before.
 FORWARD_CUTS = ("emission", "hit_search", "surface_jet", "optics_and_footprint", "splat")
@@ -89,7 +89,7 @@ def stage_profile(fused, d: np.ndarray, grad_image: np.ndarray, count: int, repe
                   ) -> dict[str, float]:
     """Nanoseconds per photon of each stage on one thread (see the module docstring).
 
-    ``fused`` is the operator's :class:`operators.fused_trace.FusedTracer`, ``d`` (m, m) float64
+    ``fused`` is the operator's :class:`operators.heightfield.trace_native.FusedTracer`, ``d`` (m, m) float64
     heights, ``grad_image`` (c, n, n) an adjoint image for the gradient stages.
     """
     sc = fused.constants(d)

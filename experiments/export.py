@@ -1,5 +1,5 @@
 """sfc-export: the heights, the glass mesh and the deviation from the design of a reconstruction run,
-in millimetres (framework/export.py, docs/export.md).
+in millimetres (framework/pipeline/mm_outputs.py, docs/export.md).
 
 Examples::
 
@@ -29,11 +29,11 @@ import yaml
 from omegaconf import OmegaConf
 
 from experiments.input_errors import one_line_input_errors
-from framework.export import MESH_FORMATS, export_outputs
-from framework.height_field_io import load_height_field, read_npy, validate_heights
-from framework.run_checks import design_given
-from framework.scene_config import build_heights, build_scene, to_plain
-from framework.units import mm_per_unit
+from framework.pipeline.mm_outputs import MESH_FORMATS, export_outputs
+from framework.core.height_field_io import load_height_field, read_npy, validate_heights
+from framework.pipeline.run_checks import design_given
+from framework.core.scene_config import build_heights, build_scene, to_plain
+from framework.core.units import mm_per_unit
 
 INPUT_ERROR_STATUS = 2
 RUN_FIX = "re-run the reconstruction or pass another run directory"

@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from framework.tracking import local_store_uri
+from framework.pipeline.tracking import local_store_uri
 
 
 @dataclass(frozen=True)

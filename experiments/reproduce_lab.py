@@ -35,12 +35,12 @@ from hydra import compose, initialize_config_dir
 from PIL import Image
 
 from experiments.mlflow_store import TrackingStore
-from framework.calibration import with_setup
-from framework.callbacks import GroundTruthError
-from framework.data import resample_image
-from framework.photo_synthesis import synthesize_photo
-from framework.reconstruction import Reconstruction, run_reconstruction
-from framework.scene_config import build_heights, build_operator, build_scene, height_grid, to_plain
+from framework.pipeline.calibration import with_setup
+from framework.pipeline.callbacks import GroundTruthError
+from framework.core.data import resample_image
+from framework.plugins.data.photo_synthesis import synthesize_photo
+from framework.pipeline.reconstruction import Reconstruction, run_reconstruction
+from framework.core.scene_config import build_heights, build_operator, build_scene, height_grid, to_plain
 
 CONF = str(Path(__file__).resolve().parent.parent / "conf")
 SCENES = ("print_lines", "bump")
@@ -63,7 +63,7 @@ def true_caustic(cfg: dict[str, Any], photons: int, resolution: int, seed: int,
                  setup: dict[str, float] | None = None, heights: torch.Tensor | None = None) -> np.ndarray:
     """The caustic (1, N, N) of the configured (or given) heights with ``photons`` at an N =
     ``resolution`` receiver, the screen's blur included, in the configured setup with ``setup``
-    (calibration parameter values, framework/calibration.py) replaced."""
+    (calibration parameter values, framework/pipeline/calibration.py) replaced."""
     scene = build_scene(cfg)
     if setup:
         scene = with_setup(scene, setup)
@@ -159,7 +159,7 @@ def with_noise(image: np.ndarray, delta: float, seed: int) -> np.ndarray:
 
 
 def error_against(truth: torch.Tensor, run_dir: Path, cfg: dict[str, Any]) -> float:
-    """The run's relative error of h + d against h + d_true (framework/callbacks.py, GroundTruthError)."""
+    """The run's relative error of h + d against h + d_true (framework/pipeline/callbacks.py, GroundTruthError)."""
     d = torch.from_numpy(np.load(run_dir / "height_field.npy"))
     return GroundTruthError(truth, float(cfg["substrate"]["thickness"])).errors(d)["rel_error"]
 

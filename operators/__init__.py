@@ -1,8 +1,9 @@
-"""Forward operators: photons from a point light through printed glass onto a receiver."""
+"""Forward operators: photons from a point light through printed glass onto a receiver.
 
-from operators.caustic_operator import CausticOperator, OperatorSettings
-from operators.materials import FUSED_SILICA, Cauchy, ConstantIndex, Sellmeier
-from operators.scene import PointLight, Receiver, Scene, Substrate
-
-__all__ = ["CausticOperator", "OperatorSettings", "Scene", "PointLight", "Substrate", "Receiver",
-           "Sellmeier", "Cauchy", "ConstantIndex", "FUSED_SILICA"]
+Subpackages by what they model: ``heightfield`` (the printed substrate alone), ``mesh`` (optical
+elements as triangle meshes around it), ``optics`` and ``splat`` (ray optics with photon
+differentials and their splatting, shared by both), ``kernels`` (backend support of the native
+kernels). Within a subpackage, ``*_reference`` modules are the plain PyTorch paths the tests
+compare against, ``*_native`` the numba kernels and ``*_cuda`` the GPU ones. Importing this package
+loads none of them.
+"""

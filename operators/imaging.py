@@ -9,7 +9,7 @@ flash energy). :class:`ImagingOperator` wraps any operator plugin F into
 
 K a convolution over the receiver with the point-spread function (zero outside the receiver),
 and gives its adjoint G'(d)^* g = F'(d)^* (gain * K^T g) for the gradient. The scene it was
-built for can be changed (joint calibration of the setup, framework/calibration.py): the
+built for can be changed (joint calibration of the setup, framework/pipeline/calibration.py): the
 wrapped operator is then rebuilt for the new scene; ``revision`` counts the changes so that
 cached renders of an earlier setup are not reused.
 """

@@ -16,7 +16,7 @@ from typing import Any
 import torch
 
 from operators.scene import Scene
-from operators.splat import footprint_metric, splat_photons_vjp
+from operators.splat.splat import footprint_metric, splat_photons_vjp
 
 __all__ = ["PIXEL_SETTINGS", "PIXEL_BOX_R2", "ImageOperator", "PhotonOperator", "RenderFunction", "backward_through_splat",
            "check_setting_keys", "filter_radius_px"]

@@ -1,6 +1,6 @@
 """Lengths and volumes given as a number in scene units or as a string with a unit ('2.5 mm').
 
-The parser behind framework/units.py (which reads ``units.mm_per_unit`` from the config), here so
+The parser behind framework/core/units.py (which reads ``units.mm_per_unit`` from the config), here so
 that the operators (e.g. the optical elements' lengths) read their lengths the same way.
 """
 

@@ -13,7 +13,7 @@ The plugins (declared as entry points in pyproject.toml; kind ``regularizer`` un
 from .base import PostStepUpdate, Regularizer, RegularizerContext
 from .bounds import HeightBounds
 from .pixel_l1 import PixelL1
-from .pixel_step import PixelL1Bounds
+from .l1_bounds import PixelL1Bounds
 from .shrinkage import clamp_on_mask, soft_shrink
 from .volume_heuristic import VolumeHeuristic, volume_band, window_mean
 from .volume_prox import VolumeSlabL1Bounds

@@ -1,6 +1,6 @@
 """Area-based physical bounds: the indicator of {p1 <= d_j <= p2 on N^, d_j = 0 on N°}.
 
-The mask N^ comes with the data (framework/masks.py builds it from a height field)."""
+The mask N^ comes with the data (framework/core/masks.py builds it from a height field)."""
 
 from __future__ import annotations
 
@@ -25,7 +25,7 @@ class HeightBounds(Regularizer):
         atol: Tolerance of the feasibility test in :meth:`value` (scene units).
     """
 
-    length_keys = ("p1", "p2")  # may be given with a unit, e.g. '0.4 mm' (framework/plugin_config.py)
+    length_keys = ("p1", "p2")  # may be given with a unit, e.g. '0.4 mm' (framework/core/plugin_config.py)
 
     has_prox = True
     smooth = False

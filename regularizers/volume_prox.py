@@ -53,9 +53,9 @@ class VolumeSlabL1Bounds(Regularizer):
         max_iter: Maximum number of bisection steps.
     """
 
-    length_keys = ("p1", "p2")  # may be given with a unit, e.g. '0.4 mm' (framework/plugin_config.py)
+    length_keys = ("p1", "p2")  # may be given with a unit, e.g. '0.4 mm' (framework/core/plugin_config.py)
 
-    needs_volume = True  # the run's checks refuse measured data without data.volume (framework/run_checks.py)
+    needs_volume = True  # the run's checks refuse measured data without data.volume (framework/pipeline/run_checks.py)
 
     has_prox = True
     smooth = False

@@ -11,11 +11,11 @@ import numpy as np
 import pytest
 import trimesh
 
-import operators.mesh_shapes as mesh_shapes
-import operators.optical_elements as optical_elements
-from framework.scene_config import build_operator, build_scene
-from operators.mesh_shapes import crease_normals, lens, prism
-from operators.optical_elements import load_mesh, make_element, make_elements
+import operators.mesh.shapes as mesh_shapes
+import operators.mesh.elements as optical_elements
+from framework.core.scene_config import build_operator, build_scene
+from operators.mesh.shapes import crease_normals, lens, prism
+from operators.mesh.elements import load_mesh, make_element, make_elements
 
 LENS = {"name": "top_lens", "shape": "lens", "position": [0.0, 0.0, 1.15],
         "params": {"radius": 1.08, "thickness": 0.3, "front_radius": 4.0, "back_radius": 4.0, "rings": 4,

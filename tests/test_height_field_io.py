@@ -9,8 +9,8 @@ import pytest
 import torch
 from PIL import Image
 
-from framework.height_field_io import load_height_field, resample, save_height_field
-from framework.shapes import make_shape
+from framework.core.height_field_io import load_height_field, resample, save_height_field
+from framework.core.shapes import make_shape
 
 
 @pytest.fixture()

@@ -1,6 +1,6 @@
 """The shared contract suite: every installed plugin of the kinds operator, regularizer and
 post_step (built-ins and those other packages register through entry points) passes its kind's
-checks (framework/contract_checks.py); so does the test suite's own operator; a deliberately
+checks (framework/core/contract_checks.py); so does the test suite's own operator; a deliberately
 broken operator and regulariser fail them."""
 
 from __future__ import annotations
@@ -8,10 +8,10 @@ from __future__ import annotations
 import pytest
 import torch
 
-from framework.contract_checks import (ContractViolation, check_operator, check_post_step, check_regularizer,
+from framework.core.contract_checks import (ContractViolation, check_operator, check_post_step, check_regularizer,
                                        example_settings)
-from framework.plugin_config import build_plugin
-from framework.registry import available, lookup
+from framework.core.plugin_config import build_plugin
+from framework.core.registry import available, lookup
 from operators.scene import Receiver, Scene
 from regularizers import PixelL1
 from tests.plugins.trivial import ShadowOperator

@@ -18,12 +18,12 @@ from hydra import compose, initialize_config_dir
 from mlflow.tracking import MlflowClient
 from omegaconf import OmegaConf
 
-from framework.data import ReconstructionData
-from framework.plugin_config import build_plugin
-from framework.problem import HeightGrid, Problem
-from framework.reconstruction import Reconstruction
-from framework import registry
-from framework.registry import KINDS, available, register
+from framework.core.data import ReconstructionData
+from framework.core.plugin_config import build_plugin
+from framework.core.problem import HeightGrid, Problem
+from framework.pipeline.reconstruction import Reconstruction
+from framework.core import registry
+from framework.core.registry import KINDS, available, register
 from operators.scene import Receiver, Scene
 from tests.plugins.trivial import ExactStepSolver, ShadowOperator
 

@@ -101,7 +101,7 @@ def upward_arrows(graph: dict[str, set[str]]) -> list[tuple[str, str]]:
     """Imports from operators/ or regularizers/ into framework/, and from the registry into the project."""
     arrows = [(a, b) for a, targets in graph.items() for b in targets
               if a.split(".")[0] in LOWER and b.split(".")[0] == "framework"]
-    arrows += [("framework.registry", b) for b in graph.get("framework.registry", ())]
+    arrows += [("framework.core.registry", b) for b in graph.get("framework.core.registry", ())]
     return sorted(arrows)
 
 

@@ -7,8 +7,8 @@ import re
 
 from mlflow.tracking import MlflowClient
 
-from framework.reconstruction import run_reconstruction
-from framework.tracking import DATASET_CONTEXT, EXPERIMENT_KIND, EXPERIMENT_KIND_TAG
+from framework.pipeline.reconstruction import run_reconstruction
+from framework.pipeline.tracking import DATASET_CONTEXT, EXPERIMENT_KIND, EXPERIMENT_KIND_TAG
 from tests.experiments.conftest import SMALL, compose_reconstruct
 from tests.mlflow_server import mlflow_server
 

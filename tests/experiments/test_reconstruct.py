@@ -12,12 +12,12 @@ import pytest
 import torch
 from mlflow.tracking import MlflowClient
 
-from framework.callbacks import MetricsHistory
-from framework.problem import Problem
-from framework.reconstruction import CHECKPOINT, Reconstruction, build_start, run_reconstruction
-from framework.scene_config import build_heights
-from framework.starts import StartRequest
-from operators.caustic_operator import CausticOperator
+from framework.pipeline.callbacks import MetricsHistory
+from framework.core.problem import Problem
+from framework.pipeline.reconstruction import CHECKPOINT, Reconstruction, build_start, run_reconstruction
+from framework.core.scene_config import build_heights
+from framework.plugins.starts import StartRequest
+from operators.heightfield.operator import CausticOperator
 from tests.experiments.conftest import SMALL, compose_reconstruct
 
 # A bump that focuses light visibly at 64 x 64 (a weak one is hidden by the noise: Morozov stops at
@@ -211,8 +211,8 @@ def test_bad_configuration_is_refused_clearly(tmp_path, overrides, error, messag
 
 
 def test_stage_changes_come_from_the_records_whoever_asked_for_them():
-    from framework.reconstruction import stage_changes
-    from framework.solvers import IterationRecord
+    from framework.pipeline.reconstruction import stage_changes
+    from framework.plugins.solvers import IterationRecord
 
     def record(i, length):
         extras = {} if length is None else {"preconditioner_length": length}

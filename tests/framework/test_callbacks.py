@@ -3,9 +3,10 @@ import math
 import pytest
 import torch
 
-from framework.callbacks import (Callback, Checkpointer, GroundTruthError, MetricsHistory, MorozovStopping, ProgressBar,
-                                 StagnationStopping)
-from framework.solvers import GradientDescent, IterationRecord, IterativeSolver
+from framework.core.solver_loop import Callback
+from framework.pipeline.callbacks import Checkpointer, GroundTruthError, MetricsHistory, ProgressBar
+from framework.plugins.stopping import MorozovStopping, StagnationStopping
+from framework.plugins.solvers import GradientDescent, IterationRecord, IterativeSolver
 from tests.framework.toy import DTYPE, make_problem
 
 

@@ -1,4 +1,4 @@
-"""The caustic-design baseline (framework/solvers/caustic_design.py): the transport pushes the
+"""The caustic-design baseline (framework/plugins/solvers/schwartzburg.py): the transport pushes the
 light onto the target cells, the Snell normals send the light to the target points through our
 own optics, and a designed surface renders back to its target."""
 
@@ -8,13 +8,13 @@ import numpy as np
 import pytest
 import torch
 
-from framework.data import ReconstructionData
-from framework.problem import HeightGrid, Problem
-from framework.solvers.caustic_design import CausticDesign, flat_magnification
-from framework.solvers.semi_discrete_transport import semi_discrete_transport
-from operators.caustic_operator import CausticOperator, OperatorSettings
-from operators.inverse_refraction import glass_directions, snell_normals
-from operators.optics import refract
+from framework.core.data import ReconstructionData
+from framework.core.problem import HeightGrid, Problem
+from framework.plugins.solvers.schwartzburg import SchwartzburgDesign, flat_magnification
+from framework.plugins.solvers.semi_discrete_transport import semi_discrete_transport
+from operators.heightfield.operator import CausticOperator, OperatorSettings
+from operators.optics.inverse_refraction import glass_directions, snell_normals
+from operators.optics.reference import refract
 from operators.scene import Receiver, Scene
 
 N = 64
@@ -53,7 +53,7 @@ def test_snell_normals_send_the_light_to_the_targets_through_our_optics():
     normals = snell_normals(incident, glass_directions(points, targets, index, receiver_z), index)
     assert (normals[:, 2] > 0).all()
 
-    def forward(p, w, n, eta):  # refract with operators/optics.py (differentials unused)
+    def forward(p, w, n, eta):  # refract with operators/optics/reference.py (differentials unused)
         t = lambda a: torch.from_numpy(np.ascontiguousarray(a.T))  # noqa: E731
         return refract(t(w), torch.zeros(2, 3, len(w), dtype=torch.float64), t(n), None, eta)[0].numpy().T
 
@@ -74,17 +74,17 @@ def small_problem(heights: torch.Tensor) -> Problem:
 
 def test_flat_glass_is_the_design_of_its_own_caustic():
     problem = small_problem(torch.zeros(32, 32, dtype=torch.float64))
-    result = CausticDesign(problem, torch.zeros(32, 32, dtype=torch.float64)).run(20)
+    result = SchwartzburgDesign(problem, torch.zeros(32, 32, dtype=torch.float64)).run(20)
     assert result.accepted and float(result.d.max()) < 1e-3  # scene units; a print line is 0.08 high
     assert result.history[-1].rel_discrepancy < 1e-3
 
 
 def test_a_designed_surface_renders_back_to_its_smooth_target():
-    from framework.shapes import make_shape
+    from framework.core.shapes import make_shape
 
     problem = small_problem(torch.from_numpy(make_shape("bump", 32, sigma=0.3, height=0.05)))
     flat = problem.fidelity.evaluate(torch.zeros(32, 32, dtype=torch.float64), with_grad=False).rel_discrepancy
-    result = CausticDesign(problem, torch.zeros(32, 32, dtype=torch.float64)).run(20)
+    result = SchwartzburgDesign(problem, torch.zeros(32, 32, dtype=torch.float64)).run(20)
     assert result.stopped_by == "solver" and result.accepted  # the outer iterations settled
     last = result.history[-1]
     # Measured: 0.0020 against 0.0145 for flat glass; residual normal error 0.09 degrees.
@@ -102,7 +102,7 @@ def test_flat_magnification_is_the_paraxial_scale_of_flat_glass():
 def test_a_black_or_dim_target_is_refused_in_one_line(scale, message):
     problem = small_problem(torch.zeros(32, 32, dtype=torch.float64))
     data = ReconstructionData(target=scale * problem.data.target, mask=problem.data.mask, volume=None, delta=0.05)
-    design = CausticDesign(Problem(problem.operator, data, problem.grid, problem.scene),
+    design = SchwartzburgDesign(Problem(problem.operator, data, problem.grid, problem.scene),
                            torch.zeros(32, 32, dtype=torch.float64))
     with pytest.raises(ValueError, match=message):
         design.run(1)
@@ -112,4 +112,4 @@ def test_a_black_or_dim_target_is_refused_in_one_line(scale, message):
                                         ("outer_tolerance", 2.0), ("power_tolerance", 0), ("source", "sun")])
 def test_bad_settings_name_the_key(key, value):
     with pytest.raises(ValueError, match=f"solver.{key}"):
-        CausticDesign.from_config(**{key: value})
+        SchwartzburgDesign.from_config(**{key: value})

@@ -7,7 +7,7 @@ import doctest
 import pytest
 import torch
 
-from framework.masks import mask_from_height_field
+from framework.core.masks import mask_from_height_field
 
 
 def test_single_spike_dilates_by_six_pixels_at_m128() -> None:
@@ -49,7 +49,7 @@ def test_footprint_must_be_square_or_disk() -> None:
 
 
 def test_docstring_example() -> None:
-    import framework.masks
+    import framework.core.masks
 
-    result = doctest.testmod(framework.masks, extraglobs={"torch": torch})
+    result = doctest.testmod(framework.core.masks, extraglobs={"torch": torch})
     assert result.failed == 0 and result.attempted > 0

@@ -3,7 +3,7 @@ import math
 import pytest
 import torch
 
-from framework.objective import DataFidelity, loss_and_grad_by_autograd
+from framework.core.objective import DataFidelity, loss_and_grad_by_autograd
 from tests.framework.toy import DTYPE, LinearOperator, make_problem
 
 

@@ -8,8 +8,8 @@ from types import SimpleNamespace
 import pytest
 import torch
 
-from framework.objective import DataFidelity
-from framework.solvers import BacktrackingStep, GradientDescent, SobolevPreconditioner
+from framework.core.objective import DataFidelity
+from framework.plugins.solvers import BacktrackingStep, GradientDescent, SobolevPreconditioner
 from tests.framework.toy import DTYPE, LinearOperator
 
 

@@ -4,8 +4,8 @@ from types import SimpleNamespace
 import pytest
 import torch
 
-from framework.registry import available, lookup
-from framework.solvers import (
+from framework.core.registry import available, lookup
+from framework.plugins.solvers import (
     BacktrackingStep,
     LineSearchFailed,
     ConstantStep,
@@ -282,7 +282,7 @@ def _denoising_problem(m: int = 16, offset: float = 1.0):
     """f(d) = 1/2 ||d - b||^2 / ||b||^2 with a smooth b = c + offset, c in [-1, 1]: the minimiser
     over d >= lower is clamp(b, lower), known exactly."""
     from tests.framework.toy import LinearOperator
-    from framework.objective import DataFidelity
+    from framework.core.objective import DataFidelity
     x = torch.linspace(-1.0, 1.0, m, dtype=DTYPE)
     b = torch.cos(3 * x)[:, None] * torch.sin(2 * x + 0.3)[None, :] + offset
     data = DataFidelity(LinearOperator(torch.eye(m * m, dtype=DTYPE), m, (1, m, m)), b[None])

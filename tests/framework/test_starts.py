@@ -1,4 +1,4 @@
-"""Starts of the iteration (framework/starts/): the inverse refraction through the operator's own
+"""Starts of the iteration (framework/plugins/starts/): the inverse refraction through the operator's own
 light path against a paraboloid lens's closed-form normals, the masked transport start against
 known prints (height-field operator and the two lenses), the exit path of the mesh operator
 against its own tracer, and bad inputs."""
@@ -13,15 +13,15 @@ import torch
 from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
-from framework.data import ReconstructionData
-from framework.masks import mask_from_height_field
-from framework.problem import HeightGrid, Problem
-from framework.starts import StartRequest, TransportStart
-from framework.starts.transport import exit_directions, fit_masked_surface
-from operators.caustic_operator import CausticOperator, OperatorSettings
-from operators.inverse_refraction import snell_normals
+from framework.core.data import ReconstructionData
+from framework.core.masks import mask_from_height_field
+from framework.core.problem import HeightGrid, Problem
+from framework.plugins.starts import StartRequest, TransportStart
+from framework.plugins.starts.transport import exit_directions, fit_masked_surface
+from operators.heightfield.operator import CausticOperator, OperatorSettings
+from operators.optics.inverse_refraction import snell_normals
 from operators.light_paths import flat_exit, refract_down
-from operators.mesh_scene_operator import MeshSceneOperator
+from operators.mesh.operator import MeshSceneOperator
 from operators.scene import Receiver, Scene
 
 CONF = str(Path(__file__).resolve().parents[2] / "conf")

@@ -5,12 +5,13 @@ import time
 import pytest
 import torch
 
-from framework.callbacks import GroundTruthError, MorozovStopping
-from framework.data import ReconstructionData
-from framework.solvers import GradientDescent
-from framework.tracking import (EXPERIMENT_KIND, EXPERIMENT_KIND_TAG, MlflowTracker, check_tracking_server,
+from framework.pipeline.callbacks import GroundTruthError
+from framework.plugins.stopping import MorozovStopping
+from framework.core.data import ReconstructionData
+from framework.plugins.solvers import GradientDescent
+from framework.pipeline.tracking import (EXPERIMENT_KIND, EXPERIMENT_KIND_TAG, MlflowTracker, check_tracking_server,
                                 code_version_tags, flatten_params)
-from framework.tracking_dataset import data_dataset
+from framework.pipeline.tracking_dataset import data_dataset
 from tests.framework.toy import DTYPE, make_problem
 
 mlflow = pytest.importorskip("mlflow")

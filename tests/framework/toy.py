@@ -5,7 +5,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from framework.objective import DataFidelity
+from framework.core.objective import DataFidelity
 
 DTYPE = torch.float64
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from operators.caustic_operator import CausticOperator, OperatorSettings
+from operators.heightfield.operator import CausticOperator, OperatorSettings
 from operators.scene import PointLight, Receiver, Scene, Substrate
 
 

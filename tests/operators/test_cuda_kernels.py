@@ -21,7 +21,7 @@ from tests.python_subprocess import run_json_script
 SIMULATED = """
 import json
 import numpy as np
-from operators.cuda_trace import CudaTracer
+from operators.heightfield.trace_cuda import CudaTracer
 from tests.operators.conftest import make_operator
 from tests.operators.test_fused import smooth_random_heights
 
@@ -79,7 +79,7 @@ def test_cuda_target_check_names_the_fix():
     """Without NVIDIA's numba-cuda, or without a GPU, building the CUDA tracer fails with the fix."""
     from numba import cuda
 
-    from operators.cuda_trace import require_cuda_target
+    from operators.heightfield.trace_cuda import require_cuda_target
     if getattr(cuda, "implementation", "Built-in") != "NVIDIA":
         with pytest.raises(RuntimeError, match=r"pip install -e '\.\[cuda\]'"):
             require_cuda_target()

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from operators.catmull_rom import surface_gradient
-from operators.heightfield_kernels import solve_hit, solve_hits
-from operators.heightfield_surface import OVERSHOOT, HeightFieldGrid
+from operators.heightfield.catmull_rom import surface_gradient
+from operators.heightfield.intersect_native import solve_hit, solve_hits
+from operators.heightfield.surface import OVERSHOOT, HeightFieldGrid
 
 
 def sampled_surface(d: np.ndarray, grid: HeightFieldGrid, samples: int) -> np.ndarray:

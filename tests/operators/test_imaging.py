@@ -8,7 +8,7 @@ import math
 import pytest
 import torch
 
-from operators.caustic_operator import CausticOperator
+from operators.heightfield.operator import CausticOperator
 from operators.imaging import ImagingOperator, ScreenBlur
 from tests.operators.conftest import bump, make_operator
 

@@ -16,12 +16,12 @@ import torch
 from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
-from framework.scene_config import build_heights, build_operator, build_scene
-from framework.shapes import make_shape
-from operators.caustic_operator import CausticOperator, OperatorSettings
+from framework.core.scene_config import build_heights, build_operator, build_scene
+from framework.core.shapes import make_shape
+from operators.heightfield.operator import CausticOperator, OperatorSettings
 from operators.materials import FUSED_SILICA, refractive_indices
-from operators.mesh_scene_operator import MeshSceneOperator, MeshSceneSettings
-from operators.optical_elements import make_element
+from operators.mesh.operator import MeshSceneOperator, MeshSceneSettings
+from operators.mesh.elements import make_element
 from operators.scene import PointLight, Receiver, Scene
 
 

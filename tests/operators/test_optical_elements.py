@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 import trimesh
 
-from operators.mesh_crossings import self_crossings
-from operators.mesh_shapes import conic_sag, crease_normals, height_field_solid, lens, lens_array, prism
-from operators.optical_elements import check_layout, load_mesh, make_element
+from operators.mesh.crossings import self_crossings
+from operators.mesh.shapes import conic_sag, crease_normals, height_field_solid, lens, lens_array, prism
+from operators.mesh.elements import check_layout, load_mesh, make_element
 
 
 def cap_volume(radius: float, height: float) -> float:
@@ -112,7 +112,7 @@ def test_layouts_that_overlap_or_leave_the_light_path_are_refused():
 
 
 def test_each_face_knows_its_neighbour_across_the_edge_opposite_each_corner():
-    from operators.mesh_intersect import _edge_neighbours
+    from operators.mesh.intersect_reference import _edge_neighbours
 
     faces = trimesh.creation.icosphere(subdivisions=1).faces
     neighbour = _edge_neighbours(faces)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import torch
 
-from operators.substrate_trace import trace_substrate
+from operators.heightfield.trace_reference import trace_substrate
 from tests.operators.conftest import bump, make_operator
 
 

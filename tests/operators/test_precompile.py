@@ -7,15 +7,15 @@ import subprocess
 import sys
 import textwrap
 
-import operators.precompile as precompile
-from operators.precompile import BackgroundCompile
+import operators.heightfield.precompile as precompile
+from operators.heightfield.precompile import BackgroundCompile
 
 # A fresh process that takes a gradient of an operator as sfc-reconstruct builds it (other sizes
 # and settings than the precompile's) and reports whether numba loaded the kernel from its cache.
 _FRESH_GRADIENT = textwrap.dedent("""
     import torch
-    from operators.caustic_operator import CausticOperator, OperatorSettings
-    from operators.fused_kernels import vjp_photons
+    from operators.heightfield.operator import CausticOperator, OperatorSettings
+    from operators.heightfield.kernels_native import vjp_photons
     from operators.scene import Receiver, Scene
     op = CausticOperator(Scene(receiver=Receiver(resolution=32)),
                          OperatorSettings(photons=5000, footprint_px=2.0, fresnel=True, dtype="float64"))
@@ -27,7 +27,7 @@ _FRESH_GRADIENT = textwrap.dedent("""
 def test_precompiled_gradient_kernel_is_loaded_by_a_later_process(tmp_path):
     # An empty cache of its own, so the precompile really compiles (about 1.5 min on one core).
     env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path)}
-    subprocess.run([sys.executable, "-m", "operators.compile_kernels"], check=True, timeout=900, env=env)
+    subprocess.run([sys.executable, "-m", "operators.heightfield.compile_kernels"], check=True, timeout=900, env=env)
     out = subprocess.run([sys.executable, "-c", _FRESH_GRADIENT], check=True, capture_output=True, text=True,
                          timeout=900, env=env)
     hits, misses = map(int, out.stdout.split())

@@ -1,4 +1,4 @@
-"""The AVX2 splat and gather (operators/simd_kernels.c) against the numba kernels they stand in for."""
+"""The AVX2 splat and gather (operators/kernels/simd_kernels.c) against the numba kernels they stand in for."""
 
 from __future__ import annotations
 
@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 import torch
 
-from operators import simd
-from operators.caustic_operator import CausticOperator, OperatorSettings
+from operators.kernels import simd
+from operators.heightfield.operator import CausticOperator, OperatorSettings
 from operators.scene import Receiver, Scene
-from operators.splat_kernels import gather_padding, pad_for_gather, splat_backward, splat_forward
-from framework.shapes import make_shape
+from operators.splat.native import gather_padding, pad_for_gather, splat_backward, splat_forward
+from framework.core.shapes import make_shape
 from tests.python_subprocess import run_json_script
 
 needs_simd = pytest.mark.skipif(not simd.AVAILABLE, reason="AVX2 extension not built or CPU without AVX2")
@@ -95,16 +95,16 @@ import importlib.abc, importlib.machinery, json, sys
 
 class HideExtension(importlib.abc.MetaPathFinder):
     def find_spec(self, name, path=None, target=None):
-        if name == "operators._simd":  # a spec without a file: as on an install without a C compiler
+        if name == "operators.kernels._simd":  # a spec without a file: as on an install without a C compiler
             return importlib.machinery.ModuleSpec(name, None)
         return None
 
 sys.meta_path.insert(0, HideExtension())
 import torch
-from operators import simd
-from operators.caustic_operator import CausticOperator, OperatorSettings
+from operators.kernels import simd
+from operators.heightfield.operator import CausticOperator, OperatorSettings
 from operators.scene import Receiver, Scene
-from framework.shapes import make_shape
+from framework.core.shapes import make_shape
 
 op = CausticOperator(Scene(receiver=Receiver(resolution=64)), OperatorSettings(photons=20000, dtype="float64"))
 heights = torch.from_numpy(make_shape("gaussian", 32))

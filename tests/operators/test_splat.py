@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import torch
 
-from operators.splat import footprint_metric, splat_photons
-from operators.splat_reference import splat_photons_reference
+from operators.splat.splat import footprint_metric, splat_photons
+from operators.splat.reference import splat_photons_reference
 
 
 def random_photons(count: int = 300, resolution: int = 24, seed: int = 0):
@@ -122,7 +122,7 @@ def test_nearly_degenerate_huge_footprint_gives_a_finite_well_shaped_ellipse():
 def test_fixed_box_and_general_paths_agree_with_the_reference():
     """Footprints whose bounding box fits the fixed LANES x LANES box (the vectorised path) and
     those that do not (wider, or at the image border) splat and gather as the reference does."""
-    from operators.splat_kernels import _box, _fits_fixed_box
+    from operators.splat.native import footprint_box, _fits_fixed_box
 
     g = torch.Generator().manual_seed(11)
     count, n = 200, 32
@@ -131,7 +131,7 @@ def test_fixed_box_and_general_paths_agree_with_the_reference():
     metric = torch.stack([radius ** -2, torch.zeros(count, dtype=torch.float64), radius ** -2])
     flux = torch.rand(count, generator=g, dtype=torch.float64) + 0.1
     channel = torch.zeros(count, dtype=torch.int64)
-    fits = [_fits_fixed_box(*_box(*pos[:, k].tolist(), *metric[:, k].tolist()), 0, n - 1) for k in range(count)]
+    fits = [_fits_fixed_box(*footprint_box(*pos[:, k].tolist(), *metric[:, k].tolist()), 0, n - 1) for k in range(count)]
     assert 40 <= sum(fits) <= count - 40, sum(fits)  # both paths taken
     native = splat_photons(pos, metric, flux, channel, 1, n)
     reference = splat_photons_reference(pos, metric, flux, channel, 1, n)

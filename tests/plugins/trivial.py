@@ -20,8 +20,8 @@ from typing import Any
 import torch
 import torch.nn.functional as F
 
-from framework.objective import loss_and_grad_by_autograd
-from framework.solvers import IterationRecord, IterativeSolver
+from framework.core.objective import loss_and_grad_by_autograd
+from framework.plugins.solvers import IterationRecord, IterativeSolver
 
 
 class ShadowOperator:

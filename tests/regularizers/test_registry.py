@@ -6,8 +6,8 @@ import pytest
 import torch
 
 import regularizers
-from framework.plugin_config import build_plugin
-from framework.registry import available
+from framework.core.plugin_config import build_plugin
+from framework.core.registry import available
 from regularizers import PostStepUpdate, Regularizer, RegularizerContext
 
 PLUGINS = [("regularizer", "bounds"), ("regularizer", "l1_bounds"), ("regularizer", "l1_pixel"),

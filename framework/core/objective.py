@@ -1,0 +1,260 @@
+"""The data term of every reconstruction: f(d) = 1/2 ||F(d) - b||_F^2 / (||b||_F^2 a).
+
+(With per-pixel weights, both norms are weighted: :class:`DataFidelity`.)
+
+The paper writes the data term as f(d) = 1/2 ||F(d) - b^delta||_F^2 (docs/method.md,
+"The data term"). We divide it by ||b^delta||_F^2 so that f is dimensionless and does not
+depend on the brightness or units of the caustic image (photon count, exposure, flux
+normalisation). **This is our step-size unit**: a step tau multiplies grad f of the
+*normalised* data term, so tau is in scene units^2 per unit of relative squared residual, and
+the same tau works for a dim and a bright image. Step sizes taken from the official code
+(tau_p = 0.1, ...) are in that code's own image scaling and must be re-tuned in this unit.
+
+The optional cell area a (default 1) makes the unit resolution independent as well (see
+:class:`DataFidelity`). The relative discrepancy ||F(d) - b||_F / ||b||_F equals sqrt(2 a f(d))
+(docs/method.md, "The data term").
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Callable, Protocol, runtime_checkable
+
+import torch
+from torch import Tensor
+
+__all__ = [
+    "ForwardOperator",
+    "DataEvaluation",
+    "DataFidelity",
+    "loss_and_grad_by_autograd",
+]
+
+
+@runtime_checkable
+class ForwardOperator(Protocol):
+    """A differentiable forward operator F: R^{m x m} -> R_+^{c x n x n} (height field to image).
+
+    Implementations compute the gradient memory-efficiently (the image without a graph first,
+    then per photon chunk a recomputation with graph and a backward of <image_chunk, residual>),
+    so peak memory is set by the chunk size, not the photon count.
+    An operator may expose ``output_shape: tuple[int, int, int]``; the data term then checks the
+    target against it before the first evaluation. An operator *plugin* (kind ``operator``) has
+    more: see :class:`framework.core.problem.OperatorPlugin`.
+    """
+
+    def __call__(self, d: Tensor) -> Tensor:
+        """The image F(d), shape (c, n, n), for a height field d of shape (m, m); no graph."""
+        ...
+
+    def loss_and_grad(self, d: Tensor, target: Tensor, image: Tensor | None = None) -> tuple[float, Tensor, Tensor]:
+        """(1/2 ||F(d) - target||_F^2, its gradient w.r.t. d (m, m), the image F(d) (c, n, n)).
+
+        ``image``, when given, is F(d) as this operator rendered it before (same d, same random
+        numbers): an operator may use it instead of rendering again.
+        """
+        ...
+
+
+def loss_and_grad_by_autograd(
+    forward: Callable[[Tensor], Tensor], d: Tensor, target: Tensor
+) -> tuple[float, Tensor, Tensor]:
+    """``loss_and_grad`` for a small operator by plain autograd (keeps the whole graph in memory).
+
+    Meant for toy and test operators (which then ignore a rendered ``image``: autograd needs the
+    forward pass anyway); the photon operators implement the chunked two-pass version.
+
+    Returns:
+        (1/2 ||forward(d) - target||_F^2, gradient (shape of d), image (shape of target)).
+    """
+    x = d.detach().clone().requires_grad_(True)
+    with torch.enable_grad():
+        image = forward(x)
+        loss = 0.5 * torch.sum((image - target) ** 2)
+        (grad,) = torch.autograd.grad(loss, x)
+    return float(loss.detach()), grad.detach(), image.detach()
+
+
+@dataclass(frozen=True)
+class DataEvaluation:
+    """The data term at one height field.
+
+    Attributes:
+        value: f(d) = 1/2 ||F(d) - b||^2 / ||b||^2 (dimensionless).
+        grad: grad f(d), shape (m, m) (1 / scene unit), or None for a value-only evaluation.
+        image: F(d), shape (c, n, n).
+        rel_discrepancy: ||F(d) - b||_F / ||b||_F.
+    """
+
+    value: float
+    grad: Tensor | None
+    image: Tensor
+    rel_discrepancy: float
+
+
+class DataFidelity:
+    """f(d) = 1/2 ||F(d) - b||_W^2 / ||b||_W^2, its gradient and the relative discrepancy.
+
+    ||x||_W^2 = sum w x^2 with per-pixel weights w in [0, 1] (1 everywhere unless given: pixels
+    a photo cannot tell, such as saturated ones, get 0 and drop out of the fit).
+
+    Args:
+        operator: The forward operator F (see :class:`ForwardOperator`).
+        target: The measured caustic image b^delta, shape (c, n, n), finite; it may hold small
+            negative values (additive noise) but its total energy must be positive.
+        max_negative_fraction: Refuse a target whose negative mass exceeds this fraction of its
+            positive mass (a sign or offset error, not noise).
+        cell_area: Area a of one height sample (scene units^2). f is divided by a, which makes
+            grad f the gradient in the L2 metric of the substrate (sum_j a u_j v_j) rather than of
+            the sample vector: step sizes and L1 weights then mean the same at every height-field
+            resolution m (the per-sample gradient of f shrinks like a as m grows).
+        weights: Per-pixel weights w (c, n, n) in [0, 1], or None for 1 everywhere. With weights
+            the operator needs ``render(d)`` and ``vjp(d, g)`` (framework/core/problem.py,
+            OperatorPlugin), which give the weighted gradient F'(d)^* (w (F(d) - b)).
+
+    Example:
+        >>> A = torch.eye(4, dtype=torch.float64)
+        >>> class Op:
+        ...     def __call__(self, d): return (A @ d.reshape(-1)).reshape(1, 2, 2)
+        ...     def loss_and_grad(self, d, b, image=None): return loss_and_grad_by_autograd(self, d, b)
+        >>> data = DataFidelity(Op(), torch.ones(1, 2, 2, dtype=torch.float64))
+        >>> data.evaluate(torch.zeros(2, 2, dtype=torch.float64)).rel_discrepancy
+        1.0
+    """
+
+    def __init__(self, operator: ForwardOperator, target: Tensor, max_negative_fraction: float = 0.25,
+                 cell_area: float = 1.0, weights: Tensor | None = None) -> None:
+        if not (math.isfinite(cell_area) and cell_area > 0.0):
+            raise ValueError(f"cell_area={cell_area} must be a positive area (scene units^2)")
+        self.cell_area = float(cell_area)
+        if not callable(operator) or not callable(getattr(operator, "loss_and_grad", None)):
+            raise ValueError(
+                f"operator {type(operator).__name__} must be callable and have loss_and_grad(d, target); "
+                "see framework.core.objective.ForwardOperator"
+            )
+        self.operator = operator
+        self.target = self._validated_target(target, operator, max_negative_fraction)
+        self.weights = None if weights is None else self._validated_weights(weights, self.target, operator)
+        self.target_norm_sq = float(torch.sum(self._weighted(self.target.double() ** 2)))
+        if not self.target_norm_sq > 0.0:
+            raise ValueError("the target is zero wherever the weights are non-zero; check the image and its weights")
+        self.target_norm = math.sqrt(self.target_norm_sq)
+        # The last value-only evaluation (d, operator revision, F(d)): a gradient evaluation at the
+        # same d of the same operator (the accepted trial of a line search) hands F(d) to the
+        # operator instead of rendering again.
+        self._last_forward: tuple[Tensor, int, Tensor] | None = None
+
+    @staticmethod
+    def _validated_weights(weights: Tensor, target: Tensor, operator: object) -> Tensor:
+        if not isinstance(weights, Tensor) or tuple(weights.shape) != tuple(target.shape):
+            shape = tuple(weights.shape) if isinstance(weights, Tensor) else type(weights).__name__
+            raise ValueError(f"weights have shape {shape}; they must match the target {tuple(target.shape)}")
+        if not bool(torch.isfinite(weights).all()) or float(weights.min()) < 0.0 or float(weights.max()) > 1.0:
+            raise ValueError("weights must be finite and lie in [0, 1] (0: a pixel left out of the fit)")
+        if not (callable(getattr(operator, "render", None)) and callable(getattr(operator, "vjp", None))):
+            raise ValueError(f"operator {type(operator).__name__} has no render/vjp, which weighted data need")
+        return weights.detach().to(target)
+
+    def _weighted(self, squares: Tensor) -> Tensor:
+        return squares if self.weights is None else squares * self.weights.to(squares)
+
+    def _revision(self) -> int:
+        return int(getattr(self.operator, "revision", 0))
+
+    def _loss_and_grad(self, d: Tensor, rendered: Tensor | None) -> tuple[Tensor, Tensor]:
+        """(gradient of 1/2 ||F(d) - b||_W^2, F(d))."""
+        if self.weights is None:
+            if rendered is None:
+                _, grad, image = self.operator.loss_and_grad(d, self.target)
+            else:
+                _, grad, image = self.operator.loss_and_grad(d, self.target, image=rendered)
+            return grad, image
+        image = self.operator.render(d) if rendered is None else rendered
+        self._check_image(image)
+        return self.operator.vjp(d, self.weights.to(image) * (image - self.target.to(image))), image
+
+    @staticmethod
+    def _validated_target(target: Tensor, operator: object, max_negative_fraction: float) -> Tensor:
+        if not isinstance(target, Tensor):
+            raise ValueError(f"target must be a torch.Tensor (c, n, n), got {type(target).__name__}")
+        if target.ndim != 3 or target.shape[1] != target.shape[2] or target.shape[0] < 1:
+            raise ValueError(
+                f"target must have shape (c, n, n) with square images, got {tuple(target.shape)}; "
+                "add a channel axis with target[None] for a single-wavelength image"
+            )
+        if not target.is_floating_point():
+            raise ValueError(f"target has dtype {target.dtype}; convert it with target.double() or target.float()")
+        if not bool(torch.isfinite(target).all()):
+            bad = int((~torch.isfinite(target)).sum())
+            raise ValueError(f"target has {bad} non-finite pixels (nan/inf); clean the image before reconstructing")
+        positive = float(target.clamp(min=0).sum())
+        negative = float((-target).clamp(min=0).sum())
+        if positive <= 0.0:
+            raise ValueError("target has no positive energy (sum of positive pixels is 0); is it the right image?")
+        if negative > max_negative_fraction * positive:
+            raise ValueError(
+                f"target's negative mass is {negative / positive:.3g} of its positive mass "
+                f"(allowed {max_negative_fraction}); noise gives small negatives only, check sign and offset"
+            )
+        expected = getattr(operator, "output_shape", None)
+        if expected is not None and tuple(expected) != tuple(target.shape):
+            raise ValueError(
+                f"target shape {tuple(target.shape)} does not match the operator's output_shape "
+                f"{tuple(expected)}; resample the image or configure the operator's resolution"
+            )
+        return target.detach()
+
+    def _check_d(self, d: Tensor) -> None:
+        if not isinstance(d, Tensor) or d.ndim != 2 or d.shape[0] != d.shape[1]:
+            shape = tuple(d.shape) if isinstance(d, Tensor) else type(d).__name__
+            raise ValueError(f"height field d must be a square (m, m) tensor, got {shape}")
+
+    def _check_image(self, image: Tensor) -> None:
+        if tuple(image.shape) != tuple(self.target.shape):
+            raise ValueError(
+                f"operator {type(self.operator).__name__} returned an image of shape {tuple(image.shape)}, "
+                f"but the target has shape {tuple(self.target.shape)}"
+            )
+
+    def evaluate(self, d: Tensor, with_grad: bool = True) -> DataEvaluation:
+        """f(d), grad f(d) (if ``with_grad``; else one forward pass only), F(d) and the discrepancy.
+
+        Args:
+            d: Height field, shape (m, m), scene units.
+            with_grad: False for a value-only evaluation (one forward pass, no backward).
+        """
+        self._check_d(d)
+        known = self._last_forward
+        fresh = known is not None and known[1] == self._revision() and torch.equal(known[0], d)
+        rendered = known[2] if fresh else None
+        if with_grad:
+            grad, image = self._loss_and_grad(d, rendered)
+            if tuple(grad.shape) != tuple(d.shape):
+                raise ValueError(
+                    f"operator {type(self.operator).__name__} returned a gradient of shape "
+                    f"{tuple(grad.shape)} for d of shape {tuple(d.shape)}"
+                )
+            grad = grad.detach() / (self.target_norm_sq * self.cell_area)
+        else:
+            if rendered is None:
+                with torch.no_grad():
+                    rendered = self.operator(d).detach()
+                self._last_forward = (d.detach().clone(), self._revision(), rendered)
+            image = rendered
+            grad = None
+        image = image.detach()
+        self._check_image(image)
+        rel = self.relative_discrepancy(image)
+        return DataEvaluation(value=0.5 * rel * rel / self.cell_area, grad=grad, image=image, rel_discrepancy=rel)
+
+    def relative_discrepancy(self, image: Tensor) -> float:
+        """||image - b||_W / ||b||_W."""
+        return math.sqrt(float(torch.sum(self._weighted((image.double() - self.target.double()) ** 2)))
+                         / self.target_norm_sq)
+
+    def value(self, d: Tensor) -> float:
+        """f(d) by one forward pass."""
+        return self.evaluate(d, with_grad=False).value
+
+    __call__ = value

@@ -1,0 +1,125 @@
+"""The reconstruction problem every solver receives: the operator, the data, the height grid and
+the scene.
+
+A solver plugin's builder gets a :class:`Problem` and the start d0; it takes what its method
+needs from it: the data term (:attr:`Problem.fidelity`), the regularisers' context (mask, volume,
+cell area), the target image, the grid, the scene's geometry and material (a caustic-design
+method traces its own rays), the operator itself.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cached_property
+from typing import Protocol, runtime_checkable
+
+import torch
+
+from framework.core.data import ReconstructionData
+from framework.core.objective import DataFidelity, ForwardOperator
+from operators.scene import Scene
+from regularizers import RegularizerContext
+
+__all__ = ["HeightGrid", "OperatorPlugin", "Problem"]
+
+
+@runtime_checkable
+class OperatorPlugin(ForwardOperator, Protocol):
+    """What the framework uses of a forward-operator plugin (kind ``operator``).
+
+    The registered object has ``from_config(scene, photons, seed, **settings)``: ``scene`` is the
+    :class:`operators.scene.Scene` of the config (light, substrate, receiver, material,
+    wavelengths), ``photons`` and ``seed`` the run's, ``settings`` the rest of the ``operator``
+    group, which the plugin checks. Besides ``__call__`` and ``loss_and_grad``
+    (:class:`framework.core.objective.ForwardOperator`) the operator has the attributes and methods
+    below; it may also have ``warm_up()``, a context manager for a run that takes gradients,
+    yielding an object with ``running`` and ``wait()`` (e.g. a kernel compiled meanwhile).
+    """
+
+    dtype: torch.dtype
+    photons: int
+    pixel_area: float
+
+    @property
+    def output_shape(self) -> tuple[int, int, int]:
+        """(c, n, n) of the images it renders."""
+        ...
+
+    def render(self, heights: torch.Tensor, progress: bool = False) -> torch.Tensor:
+        """The image F(d) (c, n, n), W per scene unit^2, of heights d (m, m), without a graph."""
+        ...
+
+    def variant(self, photons: int, seed: int, resolution: int) -> "OperatorPlugin":
+        """The same physics with another sampling (photons, seed, an n = resolution receiver):
+        the independent reference renders of synthetic data."""
+        ...
+
+
+@dataclass(frozen=True)
+class HeightGrid:
+    """The grid of the printed heights d (m, m): samples at linspace(-W, W, m) in x and y.
+
+    Attributes:
+        resolution: m, samples per side.
+        half_width: W, scene units (the substrate's half width).
+        base: Height of the glass under the print (the substrate thickness h, scene units): the
+            relative error is taken of h + d (framework/pipeline/callbacks.py, GroundTruthError).
+    """
+
+    resolution: int
+    half_width: float
+    base: float
+
+    def __post_init__(self) -> None:
+        if isinstance(self.resolution, bool) or int(self.resolution) != self.resolution or self.resolution < 4:
+            raise ValueError(f"height_field.resolution={self.resolution!r} must be an integer >= 4, e.g. 128")
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """(m, m)."""
+        return (self.resolution, self.resolution)
+
+    @property
+    def cell_area(self) -> float:
+        """Area a of one height sample, scene units^2: samples are spaced 2 W / (m - 1)."""
+        return (2.0 * self.half_width / (self.resolution - 1)) ** 2
+
+    @property
+    def extent(self) -> tuple[float, float, float, float]:
+        """(left, right, bottom, top) in scene units, for plots with origin='lower'."""
+        w = self.half_width
+        return (-w, w, -w, w)
+
+
+@dataclass(frozen=True)
+class Problem:
+    """One reconstruction problem: recover d on ``grid`` from ``data`` through ``operator``.
+
+    Attributes:
+        operator: The forward model F: heights (m, m) -> image (c, n, n).
+        data: Target b^delta (c, n, n), mask, volume, noise level, and for synthetic data the
+            ground truth.
+        grid: Geometry of the heights.
+        scene: Light, substrate, receiver, material and wavelengths (operators/scene.py).
+    """
+
+    operator: OperatorPlugin
+    data: ReconstructionData
+    grid: HeightGrid
+    scene: Scene
+
+    def __post_init__(self) -> None:
+        if tuple(self.data.mask.shape) != self.grid.shape:
+            raise ValueError(f"the mask has shape {tuple(self.data.mask.shape)} but the height field is "
+                             f"{self.grid.shape}; the mask must match the height field")
+
+    @cached_property
+    def fidelity(self) -> DataFidelity:
+        """f(d) = 1/2 ||F(d) - b||_W^2 / (||b||_W^2 a), in the operator's dtype (framework/core/objective.py)."""
+        return DataFidelity(self.operator, self.data.target.to(self.operator.dtype), cell_area=self.grid.cell_area,
+                            weights=self.data.weights)
+
+    @cached_property
+    def context(self) -> RegularizerContext:
+        """What the regularisers know: the mask, the volume and the cell area."""
+        return RegularizerContext(mask=self.data.mask, volume=self.data.volume, pixel_area=self.grid.cell_area)

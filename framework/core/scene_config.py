@@ -1,0 +1,191 @@
+"""Build the scene, the heights, their grid and the forward operator from a (Hydra) config.
+
+Config layout (top-level keys; see conf/scene/*.yaml and conf/operator/*.yaml)::
+
+    light:        {position: [x, y, z], power: W}
+    substrate:    {thickness: h, half_width: W}
+    receiver:     {z: s, resolution: n, half_width: W}
+    material:     {kind: fused_silica | sellmeier | cauchy | constant, ...coefficients}
+    wavelengths:  [um, ...]                       # one image channel each
+    height_field: {shape, resolution, path, scale, params}
+    photons: N
+    seed: int
+    operator:     {name: <operator plugin>, ...its own settings}
+    screen:       {psf: none | gaussian, sigma: s}  # the screen's blur (operators/imaging.py)
+    units:        {mm_per_unit: 25.0}               # framework/core/units.py
+
+Lengths are in scene units, or strings with a unit such as "2.5 mm" (framework/core/units.py). Groups
+may omit keys (dataclass defaults apply); unknown keys in a group are refused with an error
+naming the key. The operator plugin checks its own settings.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from omegaconf import DictConfig, ListConfig, OmegaConf
+
+from framework.core.height_field_io import load_height_field
+from framework.core.objective import ForwardOperator
+from framework.core.plugin_config import build_plugin, split_name
+from framework.core.problem import HeightGrid
+from framework.core.shapes import make_shape
+from framework.core.units import mm_per_unit, scene_length
+from operators.imaging import PSF_KINDS, ImagingOperator
+from operators.materials import material_from_config
+from operators.scene import PointLight, Receiver, Scene, Substrate
+
+__all__ = ["build_scene", "build_heights", "build_operator", "height_grid", "screen_sigma", "to_plain"]
+
+SCENE_KEYS: dict[str, tuple[str, ...]] = {
+    "light": ("position", "power"),
+    "substrate": ("thickness", "half_width"),
+    "receiver": ("z", "resolution", "half_width"),
+}
+SCREEN_KEYS = ("psf", "sigma")
+HEIGHT_FIELD_KEYS = ("shape", "resolution", "path", "scale", "params")
+DEFAULT_RESOLUTION = 128
+
+
+def to_plain(cfg: Any) -> Any:
+    """A resolved plain-Python copy of an OmegaConf node (dicts and lists); other values unchanged."""
+    if isinstance(cfg, (DictConfig, ListConfig)):
+        return OmegaConf.to_container(cfg, resolve=True)
+    return cfg
+
+
+def _group(cfg: Mapping[str, Any], name: str, allowed: tuple[str, ...]) -> dict[str, Any]:
+    """The mapping ``cfg[name]`` (empty if absent) with its keys checked against ``allowed``."""
+    value = to_plain(cfg.get(name))
+    if value is None:
+        return {}
+    if not isinstance(value, Mapping):
+        raise ValueError(f"{name}={value!r} must be a mapping with keys {', '.join(allowed)}")
+    for key in value:
+        if key not in allowed:
+            raise ValueError(f"unknown key {name}.{key}; allowed keys of {name}: {', '.join(allowed) or 'none'}")
+    return dict(value)
+
+
+def _number(name: str, value: Any, kind: type = float) -> Any:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ValueError(f"{name}={value!r} must be a number")
+    if kind is int:
+        if int(value) != value:
+            raise ValueError(f"{name}={value} must be an integer")
+        return int(value)
+    return float(value)
+
+
+def build_scene(cfg: Mapping[str, Any]) -> Scene:
+    """Scene (light, substrate, receiver, material, wavelengths in um) from the config's top-level
+    keys; lengths in scene units or with a unit (framework/core/units.py)."""
+    mm = mm_per_unit(cfg)
+    light = _group(cfg, "light", SCENE_KEYS["light"])
+    if "position" in light:
+        position = light["position"]
+        if not isinstance(position, (list, tuple)) or len(position) != 3:
+            raise ValueError(f"light.position={position!r} must be [x, y, z], e.g. light.position=[0,0,10]")
+        light["position"] = tuple(scene_length(v, mm, f"light.position[{i}]") for i, v in enumerate(position))
+    if "power" in light:
+        light["power"] = _number("light.power", light["power"])
+    substrate = {k: scene_length(v, mm, f"substrate.{k}")
+                 for k, v in _group(cfg, "substrate", SCENE_KEYS["substrate"]).items()}
+    receiver = _group(cfg, "receiver", SCENE_KEYS["receiver"])
+    receiver = {k: _number(f"receiver.{k}", v, int) if k == "resolution" else scene_length(v, mm, f"receiver.{k}")
+                for k, v in receiver.items()}
+    wavelengths = to_plain(cfg.get("wavelengths", [0.633]))
+    if isinstance(wavelengths, (int, float)) and not isinstance(wavelengths, bool):
+        wavelengths = [wavelengths]
+    if not isinstance(wavelengths, (list, tuple)):
+        raise ValueError(f"wavelengths={wavelengths!r} must be a list in micrometres, e.g. [0.633]")
+    return Scene(light=PointLight(**light), substrate=Substrate(**substrate), receiver=Receiver(**receiver),
+                 material=material_from_config(to_plain(cfg.get("material")) or None),
+                 wavelengths=tuple(_number(f"wavelengths[{i}]", v) for i, v in enumerate(wavelengths)),
+                 mm_per_unit=mm)
+
+
+MAX_RESOLUTION = 8192  # height samples per side: 8192^2 float64 is 0.5 GB per copy
+
+
+def _grid_resolution(spec: Mapping[str, Any]) -> int:
+    """``height_field.resolution`` m, checked: an integer in [2, MAX_RESOLUTION]."""
+    resolution = _number("height_field.resolution", spec.get("resolution", DEFAULT_RESOLUTION), int)
+    if not 2 <= resolution <= MAX_RESOLUTION:
+        raise ValueError(f"height_field.resolution={resolution} must lie in [2, {MAX_RESOLUTION}] (samples per side; "
+                         "128 is the default)")
+    return resolution
+
+
+def build_heights(cfg: Mapping[str, Any], base_dir: str | Path | None = None) -> torch.Tensor:
+    """Heights d (m, m), float64, scene units, from ``height_field``.
+
+    ``path`` (a .npy or 8/16-bit .png/.tif, resolved against ``base_dir`` when relative) overrides
+    ``shape``; ``resolution`` m defaults to 128; ``scale`` multiplies the heights (for images:
+    the height of full white, in scene units or e.g. "0.4 mm"); ``params`` go to the shape function.
+    """
+    spec = _group(cfg, "height_field", HEIGHT_FIELD_KEYS)
+    resolution = _grid_resolution(spec)
+    scale = scene_length(spec.get("scale", 1.0), mm_per_unit(cfg), "height_field.scale")
+    path = spec.get("path")
+    if path is not None and (not isinstance(path, str) or isinstance(path, bool)):
+        raise ValueError(f"height_field.path={path!r} must be a file name (.npy/.png/.tif) or null")
+    if path:
+        path = Path(path)
+        if not path.is_absolute() and base_dir is not None:
+            path = Path(base_dir) / path
+        heights = load_height_field(path, resolution=resolution, scale=scale)
+    else:
+        shape = spec.get("shape")
+        if not shape:
+            raise ValueError("height_field needs a shape (e.g. height_field.shape=print_lines) or a path")
+        params = spec.get("params") or {}
+        if not isinstance(params, Mapping):
+            raise ValueError(f"height_field.params={params!r} must be a mapping of shape parameters")
+        if not scale >= 0.0:
+            raise ValueError(f"height_field.scale={scale} must be >= 0, e.g. 1.0")
+        heights = scale * make_shape(str(shape), resolution, **dict(params))
+    return torch.from_numpy(np.ascontiguousarray(heights, dtype=np.float64))
+
+
+def height_grid(cfg: Mapping[str, Any], scene: Scene) -> HeightGrid:
+    """The grid of the reconstructed heights: ``height_field.resolution`` samples over the substrate."""
+    spec = _group(cfg, "height_field", HEIGHT_FIELD_KEYS)
+    resolution = _grid_resolution(spec)
+    return HeightGrid(resolution, scene.substrate.half_width, scene.substrate.thickness)
+
+
+def screen_sigma(cfg: Mapping[str, Any]) -> float:
+    """The screen's Gaussian spot (standard deviation, scene units) from ``screen``; 0 for none."""
+    screen = _group(cfg, "screen", SCREEN_KEYS)
+    psf = screen.get("psf", "none")
+    if psf not in PSF_KINDS:
+        raise ValueError(f"screen.psf={psf!r}; use {' or '.join(PSF_KINDS)}")
+    sigma = scene_length(screen.get("sigma", 0.0), mm_per_unit(cfg), "screen.sigma")
+    if psf == "gaussian" and not sigma > 0.0:
+        raise ValueError(f"screen.psf=gaussian needs screen.sigma > 0 (scene units or e.g. '0.1 mm'), got {sigma}")
+    return sigma if psf == "gaussian" else 0.0
+
+
+def build_operator(cfg: Mapping[str, Any], scene: Scene, imaging: bool = False) -> ForwardOperator:
+    """The operator plugin named by ``operator.name``, for ``scene``, ``photons`` and ``seed``,
+    from the rest of the ``operator`` group (which the plugin checks); seen through the screen
+    (operators/imaging.py) when ``screen.psf`` is set, or always with ``imaging`` (a setup that
+    joint calibration may change)."""
+    name, params = split_name(to_plain(cfg.get("operator")), "operator")
+    photons = _number("photons", cfg.get("photons"), int)
+    seed = _number("seed", cfg.get("seed", 0), int)
+    if not 0 <= seed < 2 ** 63:
+        raise ValueError(f"seed={seed} must be an integer in [0, 2^63)")
+    sigma = screen_sigma(cfg)
+
+    def build(for_scene: Scene) -> ForwardOperator:
+        return build_plugin("operator", name, dict(params), "operator", scene=for_scene, photons=photons, seed=seed)
+
+    if sigma > 0.0 or imaging:
+        return ImagingOperator(build, scene, psf_sigma=sigma)
+    return build(scene)

@@ -1,0 +1,271 @@
+"""Joint calibration: estimate parts of the setup together with the heights.
+
+A lab setup is never known exactly: the screen's distance below the substrate, the light's
+position and the camera's exposure gain are measured with a ruler or not at all. With
+``calibration.params`` set, :class:`JointCalibration` alternates with the height solver: every
+``every`` iterations it takes a damped Gauss-Newton (Levenberg-Marquardt) step on the chosen
+parameters p at the current heights d, on the posterior of p given the data and the measured
+(configured) values p0 with relative standard deviation ``prior`` (the ruler's uncertainty; the
+gain has no prior),
+
+    Phi(p) = ||W^(1/2) (G(d; p) - b)||^2 / s^2 + sum_i ((p_i - p0_i) / (prior * |p0_i|))^2,
+
+s^2 = ||W^(1/2) r||^2 / (N - k) the residual's variance per pixel at the current heights (so a
+poor fit early in the run lets the prior keep the geometry where it was measured). J = dG/dp by
+central differences of renders with the same photons (common random numbers: the renders differ
+only by the change of p), exactly for the gain (dG/dgain = G / gain). The step solves the damped
+normal equations (J^T W J / s^2 + P + lambda diag) dp = -(J^T W r / s^2 + P (p - p0)); it is kept
+only if it lowers Phi, otherwise lambda grows tenfold (up to three tries). Heights and geometry
+trade off (a farther screen spreads the caustic as a stronger print does), and at heights that
+still miss the data the geometry runs off to make up for them; so the geometry is updated only
+once the fit has come within twice the noise level (relative discrepancy <= 2 delta; the gain
+from the start), and it stays within ``BOUND`` prior standard deviations of its measured value
+(``calibration_<p>_at_bound`` in the metrics says when a parameter ended there). The reported standard
+error is sqrt(diag((J^T W J / s^2 + P)^-1)) at the final heights: it holds the heights fixed, so
+where heights and a parameter trade off (docs/method.md, "Joint calibration") it is too small, and
+the prior term is what keeps such a parameter near its measured value.
+
+The state (parameters, updates, uncertainties) is written to ``calibration.json`` beside the
+checkpoint after every update, and a resumed run starts from it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import torch
+from torch import Tensor
+
+from framework.core.solver_loop import Callback
+from operators.imaging import ImagingOperator
+from operators.scene import Scene
+
+__all__ = ["CALIBRATION_PARAMS", "JointCalibration", "setup_values", "with_setup"]
+
+CALIBRATION_PARAMS = ("gain", "screen_distance", "light_height", "light_x", "light_y")
+# Central-difference step, relative to the value (of the light height for the light's x and y,
+# which may be 0).
+_FD_STEP = 1e-3
+# The geometry stays within BOUND prior standard deviations of its measured value.
+BOUND = 2.0
+_MAX_TRIES = 3
+
+
+def setup_values(scene: Scene, gain: float) -> dict[str, float]:
+    """Every calibration parameter's value for a scene and gain (scene units)."""
+    x, y, z = scene.light.position
+    return {"gain": gain, "screen_distance": -scene.receiver.z, "light_height": z, "light_x": x, "light_y": y}
+
+
+def with_setup(scene: Scene, values: Mapping[str, float]) -> Scene:
+    """``scene`` with the geometric calibration parameters in ``values`` replaced."""
+    x, y, z = scene.light.position
+    light = dataclasses.replace(scene.light, position=(values.get("light_x", x), values.get("light_y", y),
+                                                       values.get("light_height", z)))
+    receiver = dataclasses.replace(scene.receiver, z=-values.get("screen_distance", -scene.receiver.z))
+    return dataclasses.replace(scene, light=light, receiver=receiver)
+
+
+class JointCalibration(Callback):
+    """Levenberg-Marquardt updates of setup parameters between height iterations.
+
+    Args:
+        operator: The operator seen through the camera, whose setup the updates change.
+        params: Names from :data:`CALIBRATION_PARAMS`.
+        every: Iterations between updates. Before iteration 1 only the gain is fitted (the flat
+            start says little about the geometry).
+        damping: Initial lambda of the Levenberg-Marquardt step.
+        prior: Relative standard deviation of the configured (measured) geometry, e.g. 0.1 for a
+            distance known to 10%; the light's x and y relative to its height.
+    """
+
+    order = 40  # after the stopping rules, before the loggers (50): an update acts on the next iteration
+
+    def __init__(self, operator: ImagingOperator, params: Sequence[str], every: int = 10,
+                 damping: float = 1e-3, prior: float = 0.1) -> None:
+        if not isinstance(operator, ImagingOperator):
+            raise ValueError("joint calibration needs the operator built with imaging=True (framework/core/scene_config.py)")
+        unknown = [p for p in params if p not in CALIBRATION_PARAMS]
+        if unknown or not params or len(set(params)) != len(params):
+            raise ValueError(f"calibration.params={list(params)!r}: give distinct names from "
+                             f"{', '.join(CALIBRATION_PARAMS)}")
+        if isinstance(every, bool) or not isinstance(every, int) or every < 1:
+            raise ValueError(f"calibration.every={every!r} must be an integer >= 1, e.g. 10")
+        if isinstance(damping, bool) or not isinstance(damping, (int, float)) or not damping > 0:
+            raise ValueError(f"calibration.damping={damping!r} must be a number > 0, e.g. 1e-3")
+        if isinstance(prior, bool) or not isinstance(prior, (int, float)) or not prior > 0:
+            raise ValueError(f"calibration.prior={prior!r} must be a relative standard deviation > 0, e.g. 0.1")
+        self.operator, self.params, self.every = operator, list(params), every
+        self.damping, self.prior = float(damping), float(prior)
+        self.state_path: Path | None = None
+        self.initial = self.values()
+        self.std: dict[str, float] = {}
+        self.updates = 0
+        self.target: Tensor | None = None
+        self.weights: Tensor | None = None
+        self.delta = 0.0
+        self.geometry_started = False
+
+    @classmethod
+    def from_config(cls, operator: Any, settings: Mapping[str, Any]) -> JointCalibration | None:
+        """The calibration of the config group ``calibration`` (keys params, every, damping, prior),
+        or None when ``params`` is empty."""
+        keys = ("params", "every", "damping", "prior")
+        unknown = [k for k in settings if k not in keys]
+        if unknown:
+            raise ValueError(f"unknown key calibration.{unknown[0]}; calibration takes {', '.join(keys)}")
+        params = settings.get("params") or []
+        if isinstance(params, str):
+            params = [params]
+        if not isinstance(params, (list, tuple)) or not all(isinstance(p, str) for p in params):
+            raise ValueError(f"calibration.params={settings.get('params')!r} must be a list of names, e.g. "
+                             "[gain, screen_distance], or [] for none")
+        if not params:
+            return None
+        return cls(operator, list(params), every=settings.get("every", 10), damping=settings.get("damping", 1e-3),
+                   prior=settings.get("prior", 0.1))
+
+    def values(self) -> dict[str, float]:
+        """The current value of every calibrated parameter."""
+        every_value = setup_values(self.operator.scene, self.operator.gain)
+        return {p: every_value[p] for p in self.params}
+
+    def setup(self, target: Tensor, weights: Tensor | None, delta: float, state_path: Path,
+              resume_from: Path | None = None) -> None:
+        """The data b (c, n, n), their weights (None: 1) and relative noise level delta; the state
+        is written to ``state_path`` after every update; ``resume_from``, the state file of an
+        interrupted run, restores it."""
+        self.target = target.double()
+        self.weights = None if weights is None else weights.double()
+        self.delta = float(delta)
+        self.state_path = state_path
+        if resume_from is not None:
+            if not resume_from.is_file():
+                raise FileNotFoundError(f"resuming a calibrated run needs {resume_from} beside the checkpoint")
+            state = json.loads(resume_from.read_text())
+            self._apply(state["values"])
+            self.initial, self.std, self.updates = state["initial"], state["std"], state["updates"]
+            self.geometry_started = state["geometry_started"]
+
+    # -- the callback ----------------------------------------------------------------------------
+    def on_start(self, solver) -> None:  # noqa: D102
+        if solver.iteration == 0 and self.updates == 0 and "gain" in self.params:
+            self.update(solver.d, ["gain"])
+            solver.setup_changed()
+
+    def on_iteration(self, solver, record) -> None:  # noqa: D102
+        self.geometry_started |= record.rel_discrepancy <= 2.0 * self.delta
+        params = self.params if self.geometry_started else [p for p in self.params if p == "gain"]
+        if record.iteration % self.every == 0 and params:
+            self.update(solver.d, params)
+            solver.setup_changed()
+        record.extras.update({f"calibration_{p}": v for p, v in self.values().items()})
+
+    # -- one Levenberg-Marquardt update -----------------------------------------------------------
+    def _apply(self, values: Mapping[str, float]) -> None:
+        gain = values.get("gain", self.operator.gain)
+        self.operator.set_setup(with_setup(self.operator.scene, values), gain)
+
+    def _render(self, d: Tensor, values: Mapping[str, float]) -> Tensor:
+        """G(d) (c, n, n) with ``values`` in place of the current parameters (the setup unchanged)."""
+        scene = with_setup(self.operator.scene, values)
+        return self.operator.render_with(scene, values.get("gain", self.operator.gain), d).double()
+
+    def _weighted_sq(self, x: Tensor) -> float:
+        return float((x ** 2 if self.weights is None else self.weights * x ** 2).sum())
+
+    def _scale(self, p: str) -> float:
+        """The size of parameter p at its measured value (of the light height for the light's x, y)."""
+        own = p in ("gain", "screen_distance", "light_height")
+        return abs(self.initial.get(p, 1.0)) if own else abs(setup_values(self.operator.scene, 1.0)["light_height"])
+
+    def jacobian(self, d: Tensor, params: Sequence[str]) -> tuple[Tensor, Tensor]:
+        """(G(d) (c, n, n), dG/dp (k, c, n, n)) at the current values, for ``params``."""
+        values = self.values()
+        image = self.operator.render(d).double()
+        columns = []
+        for p in params:
+            if p == "gain":
+                columns.append(image / values["gain"])
+                continue
+            h = _FD_STEP * self._scale(p)
+            plus = self._render(d, {**values, p: values[p] + h})
+            minus = self._render(d, {**values, p: values[p] - h})
+            columns.append((plus - minus) / (2.0 * h))
+        return image, torch.stack(columns)
+
+    def update(self, d: Tensor, params: Sequence[str] | None = None) -> dict[str, float]:
+        """One Levenberg-Marquardt step at heights d (m, m) on ``params`` (default: all of them);
+        returns the new values."""
+        if self.target is None:
+            raise RuntimeError("JointCalibration.setup(target, weights) must be called before the first update")
+        params = list(self.params if params is None else params)
+        image, jac = self.jacobian(d, params)
+        w = torch.ones_like(self.target) if self.weights is None else self.weights
+        k = len(params)
+        s2 = self._weighted_sq(image - self.target) / max(int((w > 0).sum()) - k, 1)
+        flat_j = jac.reshape(k, -1)
+        data_normal = (flat_j * w.reshape(1, -1)) @ flat_j.T / s2
+        precision = torch.diag(torch.tensor([0.0 if p == "gain" else (self.prior * self._scale(p)) ** -2
+                                             for p in params], dtype=torch.float64))
+        values, lam = self.values(), self.damping
+        offset = torch.tensor([values[p] - self.initial[p] for p in params], dtype=torch.float64)
+        rhs = -(flat_j * w.reshape(1, -1)) @ (image - self.target).reshape(-1) / s2 - precision @ offset
+        normal = data_normal + precision
+
+        def posterior(trial: Mapping[str, float], rendered: Tensor) -> float:
+            shift = torch.tensor([trial[p] - self.initial[p] for p in params], dtype=torch.float64)
+            return self._weighted_sq(rendered - self.target) / s2 + float(shift @ precision @ shift)
+
+        before = posterior(values, image)
+        for _ in range(_MAX_TRIES):
+            step = torch.linalg.solve(normal + lam * torch.diag(torch.diag(normal)), rhs)
+            trial = {**values, **{p: self._bounded(p, values[p] + float(s)) for p, s in zip(params, step)}}
+            if self._valid(trial) and posterior(trial, self._render(d, trial)) < before:
+                self._apply(trial)
+                break
+            lam *= 10.0
+        covariance = torch.linalg.pinv(normal)
+        self.std.update({p: math.sqrt(max(float(covariance[i, i]), 0.0)) for i, p in enumerate(params)})
+        self.updates += 1
+        self._save()
+        return self.values()
+
+    def _bounded(self, p: str, value: float) -> float:
+        """``value`` of parameter p clipped to BOUND prior standard deviations around its measured value."""
+        if p == "gain":
+            return value
+        reach = BOUND * self.prior * self._scale(p)
+        return min(max(value, self.initial[p] - reach), self.initial[p] + reach)
+
+    def _valid(self, values: Mapping[str, float]) -> bool:
+        """Whether a trial keeps the setup physical (positive gain and distance, light above the glass)."""
+        try:
+            with_setup(self.operator.scene, values)
+        except ValueError:
+            return False
+        return values.get("gain", 1.0) > 0.0 and values.get("screen_distance", 1.0) > 0.0
+
+    def report(self) -> dict[str, float]:
+        """Initial and final value and standard error of every parameter, for metrics."""
+        out: dict[str, float] = {}
+        for p, v in self.values().items():
+            out[f"calibration_{p}"] = v
+            out[f"calibration_{p}_initial"] = self.initial[p]
+            if p in self.std:
+                out[f"calibration_{p}_std"] = self.std[p]
+            if p != "gain":
+                reach = BOUND * self.prior * self._scale(p)
+                out[f"calibration_{p}_at_bound"] = float(abs(v - self.initial[p]) >= reach * (1 - 1e-9))
+        return out
+
+    def _save(self) -> None:
+        if self.state_path is not None:
+            state: dict[str, Any] = {"values": self.values(), "std": self.std, "updates": self.updates,
+                                     "initial": self.initial, "geometry_started": self.geometry_started}
+            self.state_path.write_text(json.dumps(state, indent=2))

@@ -1,0 +1,339 @@
+"""One reconstruction, end to end: build every plugin by key, then data -> problem -> solver ->
+outputs, tracked in MLflow.
+
+Used by ``sfc-reconstruct`` (experiments/reconstruct.py); kept here so that the app stays thin
+and tests can run a reconstruction without Hydra's command line.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from framework.pipeline.calibration import JointCalibration
+from framework.pipeline.callbacks import Checkpointer, GroundTruthError, MetricsHistory, ProgressBar
+from framework.pipeline.checkpoint import resume as resume_solver
+from framework.plugins.data.sources import DataRequest, DataSource, resolve_path
+from framework.pipeline.mm_outputs import export_outputs
+from framework.core.plugin_config import as_mapping, build_plugin, split_name, with_scene_lengths
+from framework.core.problem import HeightGrid, OperatorPlugin, Problem
+from framework.pipeline.report_figures import save_reconstruction_figures
+from framework.pipeline.run_checks import (CHECKPOINT, check_tracking_target, check_volume, check_volume_known, checked_resume,
+                                  design_given, height_bounds)
+from framework.pipeline.run_identity import run_fingerprint
+from framework.pipeline.run_phases import PHASES, PhaseOutcome, resumed_phases
+from framework.core.scene_config import build_heights, build_operator, build_scene, height_grid, to_plain
+from framework.plugins.solvers import Callback, IterationRecord, SolverBuilder
+from framework.plugins.starts import StartRequest
+from framework.pipeline.tracking import MlflowTracker, local_store_uri
+from framework.core.units import mm_per_unit
+from framework.pipeline.verdict import run_verdict, volume_report
+from operators.scene import Scene
+
+CALIBRATION_STATE = "calibration.json"
+MLFLOW_RUN = "mlflow_run.json"  # the run's MLflow run id, so that a job resumed in its directory logs into it
+
+
+def build_start(cfg: Mapping[str, Any]) -> Any:
+    """The ``initial`` plugin (framework/plugins/starts/), its config checked: ``{name: zero | design |
+    file | transport | auto, ...}``."""
+    spec = cfg.get("initial") or {"name": "zero"}
+    if isinstance(spec, str):
+        raise ValueError(f"initial={spec!r}: choose a start by name (initial=zero|design|file|transport|auto); "
+                         "a height-field file is initial=file initial.path=<file>")
+    name, params = split_name(spec, "initial")
+    return build_plugin("initial", name, params, "initial")
+
+
+def build_stopping(cfg: Mapping[str, Any]) -> list[Callback]:
+    """The ``stopping`` plugins, in config order (fresh ones for every run from a start)."""
+    return [build_plugin("stopping", name, params, f"stopping.{name}")
+            for name, params in as_mapping(cfg.get("stopping"), "stopping").items()]
+
+
+def interrupted_run(output_dir: Path, checkpoint: Path | None, store_dir: Path, uri: str | None) -> str | None:
+    """The MLflow run id of the interrupted job whose own checkpoint this run resumes (same run
+    directory, same tracking store), or None: then a new run starts."""
+    record = output_dir / MLFLOW_RUN
+    if checkpoint is None or checkpoint != output_dir / CHECKPOINT or not record.is_file():
+        return None
+    saved = json.loads(record.read_text())
+    return saved["run_id"] if saved["tracking_uri"] == (uri or local_store_uri(store_dir)) else None
+
+
+def stage_changes(history: Sequence[IterationRecord]) -> list[int]:
+    """Iterations after which the preconditioner moved to its next length, whether the stagnation
+    rule or a failed line search asked for it (from the records' ``preconditioner_length``)."""
+    lengths = [(r.iteration, r.extras.get("preconditioner_length")) for r in history]
+    return [i for (i, a), (_, b) in zip(lengths, lengths[1:]) if a is not None and b is not None and a != b]
+
+
+def _solve_from(parts: Reconstruction, problem: Problem, name: str, start: Any, request: StartRequest,
+                checkpoint: Path | None, output_dir: Path, tracker: MlflowTracker, steps_before: int,
+                truth_error: GroundTruthError | None) -> PhaseOutcome:
+    """Run the solver from one start (or continue it from ``checkpoint``) with fresh stopping rules."""
+    cfg, operator = parts.cfg, parts.operator
+    began = time.perf_counter()
+    start_metrics: dict[str, float] = {}
+    if checkpoint is None:  # a resumed run continues from its checkpoint's heights
+        computed = start(request)
+        d0, start_metrics = computed.d.to(operator.dtype), dict(computed.metrics)
+        if truth_error is not None:  # how far the start itself is from the truth
+            start_metrics.update({f"{name}_initial_{k}": v for k, v in truth_error.errors(d0).items()})
+        tracker.log_metrics({f"start_{k}": v for k, v in start_metrics.items()}, step=steps_before)
+    else:
+        d0 = torch.zeros(parts.grid.shape, dtype=operator.dtype)
+    start_seconds = time.perf_counter() - began
+    solver = parts.make_solver(problem, d0)
+    stopping = build_stopping(cfg)
+    for rule in stopping:
+        if callable(getattr(rule, "setup", None)):
+            rule.setup(problem)
+    history = MetricsHistory()
+    callbacks: list[Callback] = [history, *stopping, ProgressBar(desc=f"{cfg.get('method', 'custom')} from {name}"),
+                                 Checkpointer(output_dir / CHECKPOINT, every=int(cfg["checkpoint_every"]),
+                                              run=parts.fingerprint),
+                                 tracker.metrics_callback(step_offset=steps_before)]
+    callbacks += [c for c in (parts.calibration, truth_error) if c is not None]
+    if checkpoint is not None:
+        print(f"resuming from {checkpoint}", flush=True)
+        result = resume_solver(solver, checkpoint, parts.max_iter, callbacks)
+    else:
+        result = solver.run(parts.max_iter, callbacks)
+    d, returned = result.d.detach(), result.iterations
+    if not result.accepted:  # no accepted iterate: report the best one a stopping rule kept
+        best = next((b for b in (rule.best_iterate() for rule in stopping) if b is not None), None)
+        if best is not None:
+            d, returned = best
+    discrepancy = problem.fidelity.relative_discrepancy(operator.render(d))
+    return PhaseOutcome(name, result, d, returned, discrepancy, history.columns(), time.perf_counter() - began,
+                        start_seconds, start_metrics, truth_error.errors(d) if truth_error else {})
+
+
+def _positive_int(value: Any, where: str) -> int:
+    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+        raise ValueError(f"{where}={value!r} must be an integer >= 1")
+    return value
+
+
+@dataclass
+class Reconstruction:
+    """Everything a reconstruction is built from, checked against the config before any render.
+
+    Attributes:
+        cfg: The plain config (logged as the run's params).
+        operator: The forward-operator plugin.
+        scene: The scene (light, substrate, receiver, material, wavelengths).
+        grid: The height grid.
+        data_source: The ``data`` plugin.
+        make_solver: The solver plugin's builder: (problem, d0) -> solver.
+        stopping: The ``stopping`` plugins, in config order.
+        start: The ``initial`` plugin: computes the start d0 (m, m) once the data are loaded.
+        max_iter: The solver's iteration cap.
+        fingerprint: What determines the result (framework/pipeline/run_identity.py), stored in checkpoints.
+        calibration: Joint calibration of the setup (framework/pipeline/calibration.py), or None.
+    """
+
+    cfg: dict[str, Any]
+    operator: OperatorPlugin
+    scene: Scene
+    grid: HeightGrid
+    data_source: DataSource
+    make_solver: SolverBuilder
+    stopping: list[Callback]
+    start: Any
+    max_iter: int
+    fingerprint: dict[str, str]
+    calibration: JointCalibration | None = None
+    _designs: dict[str, torch.Tensor] = field(default_factory=dict, repr=False)
+
+    def design(self, base_dir: Path) -> torch.Tensor:
+        """The configured height field (m, m), float64, scene units: read or generated once per
+        ``base_dir``, a copy handed out each time."""
+        key = str(base_dir)
+        if key not in self._designs:
+            self._designs[key] = build_heights(self.cfg, base_dir=base_dir)
+        return self._designs[key].clone()
+
+    @classmethod
+    def from_config(cls, cfg: Mapping[str, Any], base_dir: Path) -> Reconstruction:
+        """Build every part by its registry key (scene, operator, data, solver, stopping rules) and
+        the start; a bad value fails here, before anything is rendered."""
+        plain = dict(to_plain(cfg))
+        cfg = with_scene_lengths(plain, mm_per_unit(plain))
+        scene = build_scene(cfg)
+        calibration_cfg = as_mapping(cfg.get("calibration") or {}, "calibration")
+        operator = build_operator(cfg, scene, imaging=bool(calibration_cfg.get("params")))
+        calibration = JointCalibration.from_config(operator, calibration_cfg)
+        grid = height_grid(cfg, scene)
+        data_name, data_params = split_name(cfg.get("data"), "data")
+        data_source = build_plugin("data", data_name, data_params, "data")
+        solver_name, solver_params = split_name(cfg.get("solver"), "solver")
+        max_iter = _positive_int(solver_params.pop("max_iter", None), "solver.max_iter")  # the loop's, not the solver's
+        make_solver = build_plugin("solver", solver_name, solver_params, "solver")
+        stopping = build_stopping(cfg)
+        _positive_int(cfg.get("checkpoint_every"), "checkpoint_every")
+        start = build_start(cfg)
+        if callable(getattr(start, "check", None)):
+            start.check(base_dir)
+        return cls(cfg, operator, scene, grid, data_source, make_solver, stopping, start, max_iter,
+                   run_fingerprint(cfg, base_dir), calibration)
+
+    def check(self, base_dir: Path, output_dir: Path) -> Path | None:
+        """Everything a run needs that the plugins' configs alone do not show, checked without a
+        render, before the tracker opens: the tracking target, the data's files and what they say
+        of the print (the volume against the printed area and the height bounds), the design of a
+        measured print, and the checkpoint to resume from (readable, of this run). Returns that
+        checkpoint, or None for a fresh run."""
+        tracking = as_mapping(self.cfg.get("tracking"), "tracking")
+        store_dir = tracking.get("store_dir")
+        if not isinstance(store_dir, str) or not store_dir:
+            raise ValueError(f"tracking.store_dir={store_dir!r} must be a directory name for the local MLflow store")
+        check_tracking_target(tracking.get("uri"), resolve_path(store_dir, base_dir))
+        request = self.data_request(base_dir)
+        facts = self.data_source.check(request)
+        check_volume_known(self.cfg, facts.volume)
+        check_volume(facts.volume, facts.mask, self.grid.cell_area, height_bounds(self.cfg),
+                     2.0 * float(self.scene.substrate.half_width))
+        if design_given(self.cfg):
+            request.design()
+        return checked_resume(self.cfg.get("resume"), output_dir, base_dir, self.fingerprint)
+
+    def data_request(self, base_dir: Path, output_dir: Path | None = None) -> DataRequest:
+        """What the data source may use: the operator, the grid, the configured heights, the seed,
+        the run directory and the units."""
+        return DataRequest(self.operator, self.grid, lambda: self.design(base_dir),
+                           int(self.cfg.get("seed", 0)), base_dir, output_dir, mm_per_unit(self.cfg))
+
+
+def run_reconstruction(cfg: Mapping[str, Any], output_dir: Path, base_dir: Path,
+                       sweep_id: str | None = None) -> dict[str, Any]:
+    """Reconstruct the configured scene into ``output_dir``; returns the metrics written to metrics.json."""
+    parts = Reconstruction.from_config(cfg, base_dir)
+    checkpoint = parts.check(base_dir, output_dir)
+    output_dir.mkdir(parents=True, exist_ok=True)
+    warm_up = getattr(parts.operator, "warm_up", None)
+    if callable(warm_up) and bool(parts.cfg.get("compile_in_background", True)):
+        with warm_up() as compiling:
+            return _reconstruct(parts, output_dir, base_dir, checkpoint, sweep_id, compiling)
+    return _reconstruct(parts, output_dir, base_dir, checkpoint, sweep_id, None)
+
+
+def _reconstruct(parts: Reconstruction, output_dir: Path, base_dir: Path, checkpoint: Path | None,
+                 sweep_id: str | None, compiling: Any) -> dict[str, Any]:
+    cfg, operator = parts.cfg, parts.operator
+    method = cfg.get("method", "custom")
+    tracking = as_mapping(cfg.get("tracking"), "tracking")
+    data_name = cfg["data"]["name"]
+    tags = {"method": method, "scene": cfg["height_field"].get("shape", "file"), "data": data_name,
+            "operator": cfg["operator"]["name"], "solver": cfg["solver"]["name"]}
+    store_dir = resolve_path(tracking["store_dir"], base_dir)
+    with MlflowTracker(experiment=tracking["experiment"], run_name=cfg.get("method"), store_dir=store_dir,
+                       tracking_uri=tracking.get("uri"), params=cfg, tags=tags, sweep_id=sweep_id,
+                       continue_run_id=interrupted_run(output_dir, checkpoint, store_dir, tracking.get("uri"))
+                       ) as tracker:
+        (output_dir / MLFLOW_RUN).write_text(json.dumps({"run_id": tracker.run_id,
+                                                         "tracking_uri": tracker.tracking_uri}))
+        start = time.perf_counter()
+        data = parts.data_source.load(parts.data_request(base_dir, output_dir))
+        data_seconds = time.perf_counter() - start
+        tracker.log_data(data, cfg)
+        problem = Problem(operator, data, parts.grid, parts.scene)
+        # The design the mm outputs compare with: the truth of synthetic data, else the configured
+        # height field when the user declared it the print's design (framework/pipeline/run_checks.py).
+        design = data.ground_truth if data.ground_truth is not None else (
+            parts.design(base_dir) if design_given(cfg) else None)
+        calibration = parts.calibration
+        if calibration is not None:
+            resume_from = None if checkpoint is None else checkpoint.parent / CALIBRATION_STATE
+            calibration.setup(data.target, data.weights, data.delta, output_dir / CALIBRATION_STATE, resume_from)
+        truth_error = None
+        if data.ground_truth is not None:
+            truth_error = GroundTruthError(data.ground_truth.to(operator.dtype), parts.grid.base)
+        if compiling is not None and compiling.running:
+            print("waiting for the gradient kernel to compile (first run after an install; cached afterwards)",
+                  flush=True)
+            compiling.wait()
+        request = StartRequest(problem, lambda: parts.design(base_dir), base_dir)
+        phases = parts.start.phases() if callable(getattr(parts.start, "phases", None)) else [
+            (getattr(parts.start, "name", "start"), parts.start)]
+        finished, first = resumed_phases(output_dir, checkpoint)
+        steps_before = sum(outcome.result.iterations for outcome in finished)
+        for index in range(first, len(phases)):
+            name, start = phases[index]
+            if len(phases) > 1:  # so that a resumed run knows which start its checkpoint belongs to
+                torch.save({"done": [outcome.saved() for outcome in finished], "phase": index}, output_dir / PHASES)
+            resume_from = checkpoint if index == first else None
+            try:
+                outcome = _solve_from(parts, problem, name, start, request, resume_from, output_dir, tracker,
+                                      steps_before, truth_error)
+            except ValueError as error:
+                if len(phases) == 1:
+                    raise
+                print(f"initial=auto: start {name} left out: {error}", flush=True)
+                continue
+            finished.append(outcome)
+            steps_before += outcome.result.iterations
+            if outcome.result.accepted:
+                break
+            if index + 1 < len(phases):
+                print(f"start {name} ended short of the noise level ({outcome.result.stop_reason}); "
+                      f"trying start {phases[index + 1][0]}", flush=True)
+        if not finished:
+            raise ValueError("initial=auto: no candidate start could be computed from these data; see the lines above")
+        chosen = max(finished, key=lambda o: (o.result.accepted, -o.rel_discrepancy))
+        result, d, returned_iteration, history = chosen.result, chosen.d, chosen.returned_iteration, chosen.history
+        solve_seconds = sum(outcome.seconds for outcome in finished)
+        start_metrics = {"start": chosen.name, "start_time_s": sum(o.start_seconds for o in finished),
+                         **{k: v for o in finished for k, v in o.summary(len(phases) > 1).items()}}
+        prediction = operator.render(d)
+        volume = volume_report(d, data.volume, parts.grid.cell_area)
+        metrics: dict[str, Any] = {
+            "method": method, "iterations": result.iterations,
+            "returned_iteration": returned_iteration,
+            "refined_at": stage_changes(result.history),
+            "stop_reason": result.stop_reason, "stopped_by": result.stopped_by,
+            "run_time_s": solve_seconds, "data_time_s": data_seconds,
+            "rel_discrepancy": problem.fidelity.relative_discrepancy(prediction),
+            "delta": data.delta, "intrinsic_noise": data.intrinsic_noise,
+            "photons_per_iteration": operator.photons, **(truth_error.errors(d) if truth_error else {}),
+            **volume,
+            **start_metrics, **(calibration.report() if calibration else {})}
+        np.save(output_dir / "height_field.npy", d.cpu().numpy().astype(np.float64))
+        np.save(output_dir / "caustic_target.npy", data.target.cpu().numpy().astype(np.float32))
+        np.save(output_dir / "caustic_predicted.npy", prediction.detach().cpu().numpy().astype(np.float32))
+        if data.weights is not None:
+            np.save(output_dir / "caustic_weights.npy", data.weights.cpu().numpy().astype(np.float32))
+        if data.ground_truth is not None:
+            np.save(output_dir / "ground_truth.npy", data.ground_truth.cpu().numpy().astype(np.float64))
+        exported = export_outputs(output_dir / "export", d.cpu().numpy(), parts.grid.half_width, parts.grid.base,
+                                  mm_per_unit(cfg), design=None if design is None else design.cpu().numpy())
+        metrics.update({f"deviation_{key}": value for key, value in exported["deviation"].items()})
+        if design is None:
+            print("no design given (height_field.path, data.mask=design or initial=design): no deviation report",
+                  flush=True)
+        morozov = (cfg.get("stopping") or {}).get("morozov") or {}
+        verdict = run_verdict(metrics["rel_discrepancy"], data.delta, float(morozov.get("tau_dis", 1.0)),
+                              returned_iteration, result.stop_reason, volume,
+                              data.weights, data.left_out)
+        metrics.update(verdict.metrics())
+        for line in verdict.lines:
+            print(f"verdict: {line}", flush=True)
+        for line in verdict.warnings:
+            print(f"warning: {line}", file=sys.stderr, flush=True)
+        (output_dir / "metrics.json").write_text(json.dumps(metrics, indent=2))
+        save_reconstruction_figures(output_dir, d, problem, prediction, history)
+        tracker.log_metrics({k: float(v) for k, v in metrics.items() if isinstance(v, (int, float)) and v is not None},
+                            step=steps_before)  # the summary (flags as 0/1): last step, not 0
+        tracker.set_tags({"stop_reason": result.stop_reason, "stopped_by": result.stopped_by, "start": chosen.name,
+                          "verdict": metrics["verdict"]})
+        tracker.log_artifacts(output_dir)
+    return metrics

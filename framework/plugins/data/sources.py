@@ -1,0 +1,247 @@
+"""Where the data of a reconstruction come from: plugins of kind ``data`` (config group ``data``).
+
+- ``synthetic`` (:class:`SyntheticData`): the configured height field is the ground truth; two
+  independent reference renders give the clean caustic and its intrinsic noise, then noise is
+  added up to the level delta (framework/core/data.py).
+- ``file`` (:class:`FileData`): a caustic image from a file, with the printed-area mask and
+  the deposited volume when known.
+- ``photo`` (framework/plugins/data/photo_data.py): a camera photo of the screen, rectified onto the receiver.
+
+Each is built from its config alone (every value checked, nothing read or rendered);
+``check(request)`` then reads and checks its files and what it knows of the print without
+rendering anything (the run's checks before a run opens), and ``load(request)`` produces the
+:class:`framework.core.data.ReconstructionData`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable, Protocol
+
+import torch
+
+from framework.core.data import ReconstructionData, measured_data, synthetic_data, validate_delta
+from framework.core.image_io import load_caustic_image, load_mask
+from framework.core.masks import mask_from_height_field
+from framework.core.objective import ForwardOperator
+from framework.core.problem import HeightGrid
+from framework.core.units import DEFAULT_MM_PER_UNIT, scene_volume
+
+__all__ = ["DataRequest", "DataSource", "PrintFacts", "KnownPrint", "file_setting", "SyntheticData", "FileData", "resolve_path"]
+
+
+def resolve_path(path: str | Path, base_dir: Path) -> Path:
+    """``path`` with ~ expanded, relative to ``base_dir`` unless absolute."""
+    p = Path(path).expanduser()
+    return p if p.is_absolute() else base_dir / p
+
+
+def non_negative_setting(name: str, value: float) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not (math.isfinite(value) and value >= 0):
+        raise ValueError(f"data.{name}={value!r} must be a finite number >= 0")
+    return float(value)
+
+
+def file_setting(name: str, value: object) -> str | None:
+    """A file name given as ``data.<name>``: a non-empty string or None."""
+    if value is not None and (not isinstance(value, str) or not value):
+        raise ValueError(f"data.{name}={value!r} must be a file name (a string) or null")
+    return value
+
+
+def _count(name: str, value: int, minimum: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or int(value) != value or value < minimum:
+        raise ValueError(f"data.{name}={value!r} must be an integer >= {minimum}")
+    return int(value)
+
+
+@dataclass(frozen=True)
+class DataRequest:
+    """What a data source may use.
+
+    Attributes:
+        operator: The reconstruction's forward operator (its ``variant`` renders references).
+        grid: The height grid of the reconstruction.
+        design: Returns the configured height field (m, m), float64, scene units: the ground
+            truth of synthetic data, the print's design for measured data.
+        seed: The run's seed (reference renders and noise derive their seeds from it).
+        base_dir: Directory against which relative file names are resolved.
+        output_dir: The run directory, for what a source shows of its work (figures, logs).
+        mm_per_unit: Millimetres per scene unit (framework/core/units.py), for volumes given in mm3.
+    """
+
+    operator: ForwardOperator
+    grid: HeightGrid
+    design: Callable[[], torch.Tensor]
+    seed: int
+    base_dir: Path
+    output_dir: Path | None = None
+    mm_per_unit: float = DEFAULT_MM_PER_UNIT
+
+
+@dataclass(frozen=True)
+class PrintFacts:
+    """What a data source's check knows of the print before anything is rendered.
+
+    Attributes:
+        mask: The printed area (m, m) bool.
+        volume: The deposited volume, scene units^3, or None when unknown.
+    """
+
+    mask: torch.Tensor
+    volume: float | None
+
+
+class DataSource(Protocol):
+    """A ``data`` plugin: built from its config keys, it produces the data on request."""
+
+    def check(self, request: DataRequest) -> PrintFacts:
+        """Read and check every file and value the data need, rendering nothing; a bad one raises
+        a ValueError / FileNotFoundError naming the key and the fix."""
+        ...
+
+    def load(self, request: DataRequest) -> ReconstructionData:
+        """The target image, mask, volume and noise level (and, for synthetic data, the truth)."""
+        ...
+
+
+class SyntheticData:
+    """Noisy caustic of the configured height field (framework/core/data.py, :func:`synthetic_data`).
+
+    Args:
+        delta: Relative noise level ||b^delta - b|| / ||b|| in (0, 1).
+        reference_photons: Photons of each of the two independent reference renders.
+        reference_resolution: Receiver pixels of the references (resampled to the reconstruction's).
+        mask_threshold: Printed area N^: |d_true| >= threshold ...
+        mask_dilation: ... dilated by this fraction of the grid width.
+    """
+
+    length_keys = ("mask_threshold",)  # may be given with a unit, e.g. '0.02 mm' (framework/core/plugin_config.py)
+
+    def __init__(self, delta: float = 0.05, reference_photons: int = 1 << 22, reference_resolution: int = 256,
+                 mask_threshold: float = 1e-3, mask_dilation: float = 0.05) -> None:
+        self.delta = validate_delta(delta)
+        self.reference_photons = _count("reference_photons", reference_photons, 1)
+        self.reference_resolution = _count("reference_resolution", reference_resolution, 2)
+        self.mask_threshold = non_negative_setting("mask_threshold", mask_threshold)
+        self.mask_dilation = non_negative_setting("mask_dilation", mask_dilation)
+
+    def check(self, request: DataRequest) -> PrintFacts:
+        """The ground truth's printed area (its volume is known exactly, so not checked)."""
+        return PrintFacts(mask_from_height_field(request.design(), self.mask_threshold, self.mask_dilation), None)
+
+    def load(self, request: DataRequest) -> ReconstructionData:
+        """Render the ground truth twice (seeds seed + 1000 and seed + 2000) and add the noise."""
+        operator = request.operator
+        truth = request.design().to(operator.dtype)
+        first, second = (operator.variant(self.reference_photons, request.seed + offset, self.reference_resolution)
+                         for offset in (1000, 2000))
+        return synthetic_data(truth, first.render, second.render, operator.output_shape[-1], self.delta,
+                              request.seed, request.grid.cell_area, self.mask_threshold, self.mask_dilation)
+
+
+class KnownPrint:
+    """What a measured data source knows about the print besides its image (the shared settings of
+    ``data=file`` and ``data=photo``).
+
+    Args:
+        mask: Printed-area mask file, ``design`` (the configured height field, thresholded and
+            dilated) or None (everywhere).
+        volume: Deposited volume, scene units^3 or a string such as '1.7 mm3', or None when unknown.
+        delta: Estimated relative noise level of the image.
+        brightness: ``energy``: scale the image to the power the model puts on the receiver with the
+            bare substrate; ``as_is``: use the values.
+        mask_threshold, mask_dilation: The rule of ``mask: design``.
+    """
+
+    length_keys = ("mask_threshold",)  # may be given with a unit, e.g. '0.02 mm' (framework/core/plugin_config.py)
+
+    BRIGHTNESS = ("energy", "as_is")
+
+    def __init__(self, mask: str | None, volume: float | str | None, delta: float, brightness: str,
+                 mask_threshold: float, mask_dilation: float) -> None:
+        if brightness not in self.BRIGHTNESS:
+            raise ValueError(f"data.brightness={brightness!r}; use {' or '.join(self.BRIGHTNESS)}")
+        if volume is not None and not isinstance(volume, str) and (
+                isinstance(volume, bool) or not isinstance(volume, (int, float))):
+            raise ValueError(f"data.volume={volume!r} must be a number (scene units^3), a string such as '1.7 mm3', "
+                             "or null")
+        self.mask, self.volume, self.brightness = file_setting("mask", mask), volume, brightness
+        self.delta = validate_delta(delta)
+        self.mask_threshold = non_negative_setting("mask_threshold", mask_threshold)
+        self.mask_dilation = non_negative_setting("mask_dilation", mask_dilation)
+
+    def printed_area(self, request: DataRequest) -> torch.Tensor:
+        """The printed-area mask (m, m) bool: everywhere (no mask), the design's printed area
+        dilated, or the mask file."""
+        m = request.grid.resolution
+        if self.mask in (None, "none"):
+            return torch.ones(m, m, dtype=torch.bool)
+        if self.mask == "design":
+            return mask_from_height_field(request.design(), self.mask_threshold, self.mask_dilation)
+        return load_mask(resolve_path(self.mask, request.base_dir), m)
+
+    def deposited_volume(self, request: DataRequest) -> float | None:
+        """The deposited volume in scene units^3 (framework/core/units.py), or None when unknown."""
+        if self.volume is None:
+            return None
+        volume = scene_volume(self.volume, request.mm_per_unit, "data.volume")
+        if not volume > 0.0:
+            raise ValueError(f"data.volume={self.volume} must be positive (scene units^3 or e.g. '1.7 mm3') or null")
+        return volume
+
+    def check(self, request: DataRequest) -> PrintFacts:
+        """The mask and the volume read and checked."""
+        return PrintFacts(self.printed_area(request), self.deposited_volume(request))
+
+    @staticmethod
+    def bare_substrate_caustic(request: DataRequest) -> torch.Tensor:
+        """The model's caustic (c, n, n) of the substrate without a print, float64."""
+        m = request.grid.resolution
+        operator = request.operator
+        return operator.render(torch.zeros(m, m, dtype=operator.dtype)).double()
+
+
+class FileData(KnownPrint):
+    """A caustic image from a file (``data=file``).
+
+    Args:
+        image: Caustic .npy (as written by sfc-simulate) or 8/16-bit .png/.tif.
+        mask, volume, delta, brightness, mask_threshold, mask_dilation: What is known about the
+            print (:class:`KnownPrint`).
+    """
+
+    def __init__(self, image: str | None = None, mask: str | None = None, volume: float | str | None = None,
+                 delta: float = 0.05, brightness: str = "energy", mask_threshold: float = 1e-3,
+                 mask_dilation: float = 0.05) -> None:
+        if not image:
+            raise ValueError("data=file needs data.image=<caustic .npy/.png/.tif>")
+        super().__init__(mask, volume, delta, brightness, mask_threshold, mask_dilation)
+        self.image = file_setting("image", image)
+
+    def _image(self, request: DataRequest) -> torch.Tensor:
+        """The caustic image (c, N, N), its channels checked against the scene's wavelengths."""
+        image = load_caustic_image(resolve_path(self.image, request.base_dir))
+        channels = request.operator.output_shape[0]
+        if image.shape[0] != channels:
+            raise ValueError(f"data.image has {image.shape[0]} channel(s) but the scene has {channels} "
+                             "wavelength(s); set wavelengths=[...] to match")
+        if float(image.sum()) <= 0.0:
+            raise ValueError(f"data.image={self.image} is all zero (or negative); check the file")
+        return image
+
+    def check(self, request: DataRequest) -> PrintFacts:
+        """The image, the mask and the volume read and checked."""
+        self._image(request)
+        return super().check(request)
+
+    def load(self, request: DataRequest) -> ReconstructionData:
+        """Read the image and the mask; scale the image (``brightness: energy``)."""
+        operator = request.operator
+        image = self._image(request)
+        flat_total = float(self.bare_substrate_caustic(request).sum()) if self.brightness == "energy" else None
+        return measured_data(image, operator.output_shape[-1], self.delta, self.printed_area(request),
+                             self.deposited_volume(request), flat_total,
+                             source=str(resolve_path(self.image, request.base_dir).resolve()))

@@ -1,0 +1,431 @@
+"""The one proximal-gradient iteration, and M1 / M2 as configurations of it (docs/method.md,
+"One proximal-gradient iteration").
+
+One iteration from d (with g = sum of the regularisers, P = their proxes applied in list order):
+
+    d+ = P(d - tau K grad f(d), tau)          (the step-size policy picks tau; K = I or a preconditioner)
+    d+ = u_K(... u_1(d+))                     (post-step updates, e.g. the volume heuristic V1)
+    evaluate f, grad f at d+                  (one gradient evaluation per iteration)
+
+M1 ``gradient_descent``: no regulariser (P = identity). M2 ``landweber_pixel``, eq. (4)-(7):
+regularisers e.g. [L1 with alpha_p, bounds [p1, p2] with mask]. Applying the proxes one after
+the other equals the prox of the sum for the paper's separable choices (shrink, then clamp to
+[p1, p2], then zero off the mask); for other combinations it is a splitting heuristic.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Mapping
+from typing import TYPE_CHECKING, Any, Callable, Sequence
+
+import torch
+from torch import Tensor
+
+from framework.core.objective import DataEvaluation, DataFidelity
+from framework.core.plugin_config import build_plugin, build_plugin_map, split_name
+
+from framework.core.solver_loop import IterationFailed, IterationRecord, IterativeSolver
+from framework.plugins.solvers.preconditioner import GradientPreconditioner
+from framework.plugins.solvers.step_size import LineSearchFailed, StepSizePolicy, as_step_policy
+
+if TYPE_CHECKING:
+    from framework.core.problem import Problem
+
+__all__ = ["ProximalGradientSolver", "GradientDescent", "PixelLandweber", "SolverBuilder", "build_parts",
+           "check_two_metric_from"]
+
+Candidate = dict[str, Tensor]
+# What a solver plugin's ``from_config`` returns: makes the solver once the problem and the start
+# d0 (m, m) are known.
+SolverBuilder = Callable[["Problem", Tensor], IterativeSolver]
+
+
+def build_parts(step_size: Mapping[str, Any], preconditioner: Mapping[str, Any] | None = None,
+                regularizers: Mapping[str, Any] | None = None,
+                post_steps: Mapping[str, Any] | None = None,
+                two_metric_from: int | None = None) -> dict[str, Any]:
+    """The configured parts of a proximal-gradient solver, by registry key: the step size
+    ``{name: backtracking, tau: ...}``, the preconditioner ``{name: sobolev, ...}`` (or None), the
+    regularisers and post steps ``{name: {params}}`` in config order; ``two_metric_from`` as
+    :class:`ProximalGradientSolver` takes it (checked here)."""
+    step_name, step_params = split_name(step_size, "solver.step_size")
+    parts: dict[str, Any] = {
+        "step_size": build_plugin("step_size", step_name, step_params, "solver.step_size"),
+        "preconditioner": None,
+        "regularizers": build_plugin_map("regularizer", regularizers, "solver.regularizers"),
+        "post_steps": build_plugin_map("post_step", post_steps, "solver.post_steps"),
+        "two_metric_from": check_two_metric_from(two_metric_from),
+    }
+    if preconditioner:
+        name, params = split_name(preconditioner, "solver.preconditioner")
+        parts["preconditioner"] = build_plugin("preconditioner", name, params, "solver.preconditioner")
+    return parts
+
+
+def check_two_metric_from(stage: Any) -> int | None:
+    """``solver.two_metric_from`` as a preconditioner stage index >= 0, or None."""
+    if stage is None:
+        return None
+    if isinstance(stage, bool) or not isinstance(stage, int) or stage < 0:
+        raise ValueError(f"solver.two_metric_from={stage!r} must be a preconditioner stage index >= 0 "
+                         "(0: from the first length) or null (never)")
+    return stage
+
+
+def _check_regularizers(regularizers: Sequence[Any], solver: str, role: str = "regularizers") -> list[Any]:
+    out = list(regularizers)
+    for r in out:
+        if not callable(getattr(r, "value", None)) or not callable(getattr(r, "prox", None)):
+            raise ValueError(f"{solver}: {role} entry {type(r).__name__} needs value(d) and prox(d, step)")
+        if getattr(r, "has_prox", True) is False:
+            raise ValueError(
+                f"{solver}: {type(r).__name__} has no proximal map (has_prox=False); "
+                "a proximal-gradient solver can only use regularisers with a prox"
+            )
+    return out
+
+
+def _check_post_steps(post_steps: Sequence[Any], solver: str) -> list[Callable[[Tensor], Tensor]]:
+    out = list(post_steps)
+    for u in out:
+        if not callable(u):
+            raise ValueError(f"{solver}: post step {type(u).__name__} is not callable as u(d) -> d")
+    return out
+
+
+class ProximalGradientSolver(IterativeSolver):
+    """Generic proximal gradient with post-step updates; M1, M2 and M3 specialise it.
+
+    Args:
+        data: The data term f (:class:`framework.core.objective.DataFidelity`).
+        d0: Initial height field (m, m) (the paper starts from zeros).
+        step_size: A :class:`StepSizePolicy`, or a number for a constant step.
+        regularizers: Regularisers with ``value(d)`` and ``prox(d, step)``, applied in order.
+        post_steps: Heuristic updates ``u(d) -> d`` applied after the prox, in order.
+        preconditioner: If given, the step goes along P grad f instead of grad f (a variable
+            metric, e.g. :class:`framework.plugins.solvers.preconditioner.SobolevPreconditioner`).
+        two_metric_from: Preconditioner stage from which P acts on the free samples only
+            (:meth:`_pinned`); None: P acts on the whole gradient at every stage.
+        context: If given, ``setup(context)`` is called on every regulariser and post step that
+            has ``setup`` (e.g. a :class:`regularizers.base.RegularizerContext`); if None the
+            caller must have set them up.
+    """
+
+    def __init__(
+        self,
+        data: DataFidelity,
+        d0: Tensor,
+        step_size: StepSizePolicy | float,
+        regularizers: Sequence[Any] = (),
+        post_steps: Sequence[Any] = (),
+        preconditioner: GradientPreconditioner | None = None,
+        context: Any = None,
+        two_metric_from: int | None = None,
+    ) -> None:
+        super().__init__(d0)
+        if not callable(getattr(data, "evaluate", None)):
+            raise ValueError(f"{self.name}: data must be a DataFidelity, got {type(data).__name__}")
+        self.data = data
+        self.step_size = as_step_policy(step_size)
+        self.regularizers = _check_regularizers(regularizers, self.name)
+        self.post_steps = _check_post_steps(post_steps, self.name)
+        if preconditioner is not None and not callable(preconditioner):
+            raise ValueError(f"{self.name}: preconditioner {type(preconditioner).__name__} is not callable as P(grad)")
+        self.preconditioner = preconditioner
+        self.two_metric_from = check_two_metric_from(two_metric_from)
+        self._evaluation: DataEvaluation | None = None
+        self._direction: Tensor | None = None
+        if context is not None:
+            for item in self._context_users():
+                if callable(getattr(item, "setup", None)):
+                    item.setup(context)
+
+    def _context_users(self) -> list[Any]:
+        return [*self.regularizers, *self.post_steps, *([self.preconditioner] if self.preconditioner else [])]
+
+    # -- the pieces a subclass may change ------------------------------------------------------
+    def regularization_value(self, d: Tensor) -> float:
+        """g(d) = sum of the regularisers' values (inf outside an indicator's set)."""
+        return float(sum(float(r.value(d)) for r in self.regularizers))
+
+    def _prox_pixels(self, x: Tensor, tau: float) -> Tensor:
+        for r in self.regularizers:
+            x = r.prox(x, tau)
+        return x
+
+    def _step_direction(self) -> Tensor:
+        """The step direction at the current iterate (computed once per iterate): grad f, or with a
+        preconditioner P the two-metric direction of :meth:`_pinned`: P acts on the free samples
+        only, and the pinned ones take their plain gradient (which the prox then stops at the
+        constraint)."""
+        if self._direction is None:
+            grad = self._current_evaluation().grad
+            if self.preconditioner is None:
+                self._direction = grad
+            elif not self._two_metric():
+                self._direction = self.preconditioner(grad)
+            else:
+                pinned = self._pinned(grad)
+                free_grad = torch.where(pinned, torch.zeros_like(grad), grad)
+                self._direction = torch.where(pinned, grad, self.preconditioner(free_grad))
+        return self._direction
+
+    def _two_metric(self) -> bool:
+        """Whether the current preconditioner stage takes the two-metric direction."""
+        return self.two_metric_from is not None and int(getattr(self.preconditioner, "stage", 0)) >= self.two_metric_from
+
+    def _pinned(self, grad: Tensor) -> Tensor:
+        """Samples (m, m, bool) that the regularisers hold where they are: a plain gradient step of
+        the current step size, followed by the proxes, leaves them unchanged (a bound pressed
+        against, zero under an L1 term whose weight outweighs the gradient, the outside of the
+        mask).
+
+        Why: a smoothing metric P followed by a pixel-wise prox is not a descent method. Where a
+        bound is active, P spreads its gradient into the free samples beside it, the prox then
+        cuts the step back, and the iteration stalls at points that are not constrained minima
+        (Bertsekas 1982, "Projected Newton methods for optimization problems with simple
+        constraints"). Restricting P to the free samples, with the pinned ones stepping along
+        their own gradient, makes every fixed point a stationary point of f + g again
+        (docs/method.md, "Two-metric steps"; measured there: print_lines stalled at discrepancy
+        0.083 without it).
+        """
+        d = self.state.d
+        step = self.step_size.current_step
+        return self._prox_pixels(d - step * grad, step) == d
+
+    def _propose(self, tau: float) -> Candidate:
+        """The proximal point for step tau (no operator call)."""
+        return {"d": self._prox_pixels(self.state.d - tau * self._step_direction(), tau)}
+
+    def _finalize(self, candidate: Candidate) -> Candidate:
+        """Apply the post-step updates to the accepted candidate, then bring the result back into
+        the regularisers' constraint sets (a heuristic such as V1 may push a sample past a bound;
+        an infeasible iterate would make F infinite and the next step-size test meaningless)."""
+        d = candidate["d"]
+        if self.post_steps:
+            for u in self.post_steps:
+                d = u(d)
+            for r in self.regularizers:
+                project = getattr(r, "project", None)  # duck-typed regularisers may have none
+                d = project(d) if callable(project) else d
+        return {**candidate, "d": d}
+
+    def _accept(self, candidate: Candidate) -> None:
+        """Make the finalised candidate the current iterate."""
+        self.state.d = candidate["d"]
+
+    def volume_band(self) -> tuple[float, float] | None:
+        """The band of the first regulariser or post step that enforces the deposited volume
+        (V1, V2: a ``band`` (q1, q2)), or None."""
+        for part in [*self.regularizers, *self.post_steps]:
+            band = getattr(part, "band", None)
+            if band is not None:
+                return band
+        return None
+
+    def refine(self, d: Tensor) -> bool:
+        """Switch the preconditioner to its next, finer stage and continue from ``d`` (m, m) (the
+        best iterate so far); the step-size search starts afresh. False, and nothing changes, when
+        the preconditioner has no finer stage (or there is none)."""
+        refine = getattr(self.preconditioner, "refine", None)
+        if not callable(refine) or not refine():
+            return False
+        self.state.d = d.detach().clone()
+        self._evaluation = None
+        self._direction = None
+        self.step_size.reset()
+        return True
+
+    def setup_changed(self) -> None:
+        """Drop the cached evaluation and direction: they belong to the old setup."""
+        self._evaluation = None
+        self._direction = None
+
+    # -- the iteration -------------------------------------------------------------------------
+    def _current_evaluation(self) -> DataEvaluation:
+        if self._evaluation is None:
+            self._evaluation = self.data.evaluate(self.state.d, with_grad=True)
+        return self._evaluation
+
+    def _objective(self, candidate: Candidate) -> float:
+        d = candidate["d"]
+        return self.data.evaluate(d, with_grad=False).value + self.regularization_value(d)
+
+    def step(self) -> IterationRecord:
+        """One proximal-gradient iteration; raises :class:`IterationFailed` (run() stops on it)."""
+        t0 = time.perf_counter()
+        current = self._current_evaluation()
+        d = self.state.d
+        objective_now = current.value + self.regularization_value(d)
+
+        def sq_distance(c: Candidate) -> float:
+            return float(torch.sum((c["d"] - d) ** 2))
+
+        try:
+            choice = self.step_size.select(self._propose, self._objective, sq_distance, objective_now)
+        except LineSearchFailed as err:
+            # No step of this metric decreases F any more (typically the last digits of the
+            # render): go on from here with the next, finer preconditioner stage if there is one.
+            if self.refine(d):
+                self.state.elapsed_s += time.perf_counter() - t0
+                return self.step()
+            raise IterationFailed(str(err)) from err
+        new = self._finalize(choice.candidate)
+        if not bool(torch.isfinite(new["d"]).all()):
+            raise IterationFailed(f"the new iterate has non-finite entries (tau={choice.step:.3g}); reduce the step")
+        try:
+            evaluation = self.data.evaluate(new["d"], with_grad=True)
+        except ValueError as err:  # e.g. an M1 iterate that dips below the substrate bottom
+            raise IterationFailed(f"the new iterate cannot be evaluated (tau={choice.step:.3g}): {err}") from err
+        if not math.isfinite(evaluation.value):
+            raise IterationFailed(f"data term is {evaluation.value} at the new iterate; reduce the step size")
+        regularization = self.regularization_value(new["d"])
+        self._accept(new)
+        self.state.iteration += 1
+        self.state.elapsed_s += time.perf_counter() - t0
+        self._evaluation = evaluation
+        self._direction = None
+        record = IterationRecord(
+            iteration=self.state.iteration,
+            objective=evaluation.value + regularization,
+            data_fidelity=evaluation.value,
+            rel_discrepancy=evaluation.rel_discrepancy,
+            step_size=choice.step,
+            elapsed_s=self.state.elapsed_s,
+            extras={
+                "regularization": regularization,
+                "trials": float(choice.trials),
+                "forward_evaluations": float(choice.forward_evaluations),
+                **({"preconditioner_length": float(self.preconditioner.length)}
+                   if isinstance(getattr(self.preconditioner, "length", None), float) else {}),
+            },
+        )
+        self.history.append(record)
+        return record
+
+    # -- checkpoints ---------------------------------------------------------------------------
+    def state_dict(self) -> dict[str, Any]:
+        """Adds the step-size state and the cached evaluation at d (so a resume re-evaluates nothing)."""
+        state = super().state_dict()
+        state["step_size"] = self.step_size.state_dict()
+        if callable(getattr(self.preconditioner, "state_dict", None)):
+            state["preconditioner"] = self.preconditioner.state_dict()
+        ev = self._evaluation
+        state["evaluation"] = None if ev is None else {
+            "value": ev.value, "grad": ev.grad, "image": ev.image, "rel_discrepancy": ev.rel_discrepancy,
+        }
+        return state
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:  # noqa: D102
+        super().load_state_dict(state)
+        self.step_size.load_state_dict(state.get("step_size", {}))
+        if callable(getattr(self.preconditioner, "load_state_dict", None)):
+            self.preconditioner.load_state_dict(state.get("preconditioner", {}))
+        self._direction = None
+        ev = state.get("evaluation")
+        like = self.state.d
+        self._evaluation = None if ev is None else DataEvaluation(
+            value=float(ev["value"]),
+            grad=ev["grad"].to(device=like.device, dtype=like.dtype),
+            image=ev["image"].to(device=like.device),
+            rel_discrepancy=float(ev["rel_discrepancy"]),
+        )
+
+
+class GradientDescent(ProximalGradientSolver):
+    """M1: d <- d - t grad f(d), t <= tau. No regulariser, no post step (docs/method.md, "M1").
+
+    The only limit is physical: the glass top may not reach the substrate bottom (d = -h, where
+    the operator has no glass left to trace). A sample that a step would take below ``floor`` =
+    -(1 - min_thickness) h stops at the floor; nothing else is constrained (no mask, no upper
+    bound, no sparsity), so M1 stays the unregularised fit of the data term. Shortening the whole
+    step instead was measured to freeze the run: once one sample sits at the floor with its
+    gradient pointing down, every later step has length zero (docs/method.md, "M1").
+
+    Args:
+        data: The data term f.
+        d0: Initial height field (m, m).
+        step_size: Policy or constant tau (the paper: tau_p).
+        floor: Lowest height a sample may take (scene units, < 0); None: no limit.
+    """
+
+    name = "gradient_descent"
+
+    def __init__(self, data: DataFidelity, d0: Tensor, step_size: StepSizePolicy | float,
+                 preconditioner: GradientPreconditioner | None = None, context: Any = None,
+                 floor: float | None = None, two_metric_from: int | None = None) -> None:
+        super().__init__(data, d0, step_size, preconditioner=preconditioner, context=context,
+                         two_metric_from=two_metric_from)
+        if floor is not None and not (math.isfinite(float(floor)) and float(floor) < 0.0):
+            raise ValueError(f"gradient_descent floor={floor!r} must be a negative height (scene units) or None")
+        self.floor = None if floor is None else float(floor)
+
+    def _propose(self, tau: float) -> Candidate:
+        """d - tau P grad f, each sample kept at or above the floor."""
+        d = self.state.d - tau * self._step_direction()
+        return {"d": d if self.floor is None else d.clamp(min=self.floor)}
+
+    @classmethod
+    def from_config(cls, step_size: Mapping[str, Any], preconditioner: Mapping[str, Any] | None = None,
+                    min_thickness: float | None = 0.1, two_metric_from: int | None = None) -> SolverBuilder:
+        """The plugin ``solver/gradient_descent`` from its config keys (see :func:`build_parts`;
+        without regularisers no sample is pinned, so ``two_metric_from`` changes nothing);
+        ``min_thickness`` in [0, 1): the fraction of the substrate thickness h that every sample
+        keeps (floor = -(1 - min_thickness) h; null: no floor)."""
+        if min_thickness is not None and (isinstance(min_thickness, bool) or not isinstance(min_thickness, (int, float))
+                                          or not 0.0 <= float(min_thickness) < 1.0):
+            raise ValueError(f"solver.min_thickness={min_thickness!r} must lie in [0, 1) (fraction of the substrate "
+                             "thickness every sample keeps, e.g. 0.1) or be null")
+        parts = build_parts(step_size, preconditioner, two_metric_from=two_metric_from)
+
+        def build(problem, d0: Tensor) -> GradientDescent:
+            floor = None if min_thickness is None else -(1.0 - float(min_thickness)) * problem.scene.substrate.thickness
+            return cls(problem.fidelity, d0, parts["step_size"], parts["preconditioner"], context=problem.context,
+                       floor=floor, two_metric_from=parts["two_metric_from"])
+
+        return build
+
+
+class PixelLandweber(ProximalGradientSolver):
+    """M2: thresholded nonlinear Landweber, d <- P(d - tau grad f(d), tau), then post steps (eq. 4-7).
+
+    Typical ``regularizers``: an L1 term (alpha_p) and the masked bounds [p1, p2]; typical
+    ``post_steps``: the volume heuristic V1 (eq. 8). Arguments as :class:`ProximalGradientSolver`;
+    at least one regulariser is required (without one, use ``gradient_descent``).
+    """
+
+    name = "landweber_pixel"
+
+    def __init__(
+        self,
+        data: DataFidelity,
+        d0: Tensor,
+        step_size: StepSizePolicy | float,
+        regularizers: Sequence[Any],
+        post_steps: Sequence[Any] = (),
+        preconditioner: GradientPreconditioner | None = None,
+        context: Any = None,
+        two_metric_from: int | None = None,
+    ) -> None:
+        self._require_regularizers(regularizers)
+        super().__init__(data, d0, step_size, regularizers, post_steps, preconditioner, context, two_metric_from)
+
+    @staticmethod
+    def _require_regularizers(regularizers: Sequence[Any]) -> None:
+        if not list(regularizers):
+            raise ValueError(
+                "landweber_pixel needs at least one regulariser with a prox (e.g. solver.regularizers: "
+                "{l1_bounds: {alpha: 2e-3}}); for plain gradient descent use solver 'gradient_descent'"
+            )
+
+    @classmethod
+    def from_config(cls, step_size: Mapping[str, Any], regularizers: Mapping[str, Any] | None = None,
+                    post_steps: Mapping[str, Any] | None = None, preconditioner: Mapping[str, Any] | None = None,
+                    two_metric_from: int | None = None) -> SolverBuilder:
+        """The plugin ``solver/landweber_pixel`` from its config keys (see :func:`build_parts`)."""
+        parts = build_parts(step_size, preconditioner, regularizers, post_steps, two_metric_from)
+        cls._require_regularizers(parts["regularizers"])
+        _check_regularizers(parts["regularizers"], cls.name)
+        return lambda problem, d0: cls(problem.fidelity, d0, context=problem.context, **parts)

@@ -1,0 +1,190 @@
+"""Step-size policies for the proximal-gradient iteration x+ = P(x - tau grad f(x), tau).
+
+A policy gets three callables from the solver and returns the accepted step and candidate:
+``propose(tau)`` builds the proximal point (cheap: no operator call), ``objective(candidate)``
+evaluates F = f + g at it (one *forward-only* operator evaluation), and ``sq_distance(candidate)``
+is ||d+ - d||_2^2. The gradient at the accepted point is computed afterwards by the solver
+(one gradient evaluation per iteration, whatever the policy).
+"""
+
+from __future__ import annotations
+
+import math
+from abc import ABC, abstractmethod
+from dataclasses import dataclass
+from typing import Any, Callable
+
+__all__ = ["StepChoice", "StepSizePolicy", "ConstantStep", "BacktrackingStep", "LineSearchFailed", "as_step_policy"]
+
+
+class LineSearchFailed(RuntimeError):
+    """No trial step gave sufficient decrease; the solver stops and keeps the current iterate."""
+
+
+@dataclass(frozen=True)
+class StepChoice:
+    """The outcome of one step-size selection.
+
+    Attributes:
+        step: The accepted step tau.
+        candidate: The proximal point built with ``step`` (solver-specific object).
+        trials: Number of proximal points built.
+        forward_evaluations: Forward-only operator evaluations spent.
+    """
+
+    step: float
+    candidate: Any
+    trials: int
+    forward_evaluations: int
+
+
+def _positive(value: float, name: str) -> float:
+    v = float(value)
+    if not math.isfinite(v) or v <= 0.0:
+        raise ValueError(f"{name} must be a positive finite number, got {value!r}")
+    return v
+
+
+class StepSizePolicy(ABC):
+    """Chooses tau for each proximal-gradient iteration; its state is saved in checkpoints."""
+
+    @property
+    @abstractmethod
+    def current_step(self) -> float:
+        """The step the next iteration will try first."""
+
+    @abstractmethod
+    def select(
+        self,
+        propose: Callable[[float], Any],
+        objective: Callable[[Any], float],
+        sq_distance: Callable[[Any], float],
+        objective_now: float,
+    ) -> StepChoice:
+        """Pick tau and the candidate x+(tau); may raise :class:`LineSearchFailed`."""
+
+    def reset(self) -> None:
+        """Forget what earlier iterations learnt about the step (the metric changed)."""
+
+    def state_dict(self) -> dict[str, float]:
+        """Mutable state (for checkpoints)."""
+        return {}
+
+    def load_state_dict(self, state: dict[str, float]) -> None:
+        """Restore :meth:`state_dict`."""
+
+
+class ConstantStep(StepSizePolicy):
+    """tau fixed (the paper's choice: tau_p = tau_w = 0.1 in the official code's units).
+
+    Cost: no operator evaluation beyond the solver's one gradient evaluation per iteration.
+
+    Args:
+        tau: Step size > 0, in the unit of :mod:`framework.core.objective` (normalised data term).
+    """
+
+    def __init__(self, tau: float) -> None:
+        self.tau = _positive(tau, "tau")
+
+    @property
+    def current_step(self) -> float:
+        return self.tau
+
+    def select(self, propose, objective, sq_distance, objective_now) -> StepChoice:  # noqa: D102
+        return StepChoice(step=self.tau, candidate=propose(self.tau), trials=1, forward_evaluations=0)
+
+    def __repr__(self) -> str:
+        return f"ConstantStep(tau={self.tau})"
+
+
+class BacktrackingStep(StepSizePolicy):
+    """Backtracking with a sufficient-decrease (Armijo) test on F = f + g at the proximal point.
+
+    Accept tau when  F(x+) <= F(x) - c / (2 tau) ||x+ - x||_2^2  (x = d, the height field),
+    else tau <- shrink * tau. After acceptance the next iteration starts from
+    min(grow * tau, tau_max). For L-smooth f, convex g and exact proxes every tau <= 1/L passes
+    (the Beck-Teboulle bound gives the test with c = 1), so the search terminates.
+
+    Cost: each trial is one forward-only operator evaluation (no backward), on top of the
+    solver's one gradient evaluation per iteration; typically 1 trial, 2 when ``grow`` > 1
+    overshoots. Post-step heuristics are applied after acceptance and are not part of the test.
+
+    Args:
+        tau: First trial step tau0 > 0 (the config's ``step_size.tau``).
+        shrink: Factor in (0, 1) applied after a rejected trial.
+        grow: Factor >= 1 applied after an accepted step (1 = never grow).
+        sufficient_decrease: c in (0, 1].
+        max_trials: Trials per iteration before :class:`LineSearchFailed`.
+        tau_max: Upper bound for grown steps.
+    """
+
+    def __init__(
+        self,
+        tau: float,
+        shrink: float = 0.5,
+        grow: float = 1.25,
+        sufficient_decrease: float = 1e-4,
+        max_trials: int = 30,
+        tau_max: float = math.inf,
+    ) -> None:
+        self.tau0 = _positive(tau, "tau")
+        if not 0.0 < float(shrink) < 1.0:
+            raise ValueError(f"shrink must lie in (0, 1), got {shrink!r}")
+        if not (math.isfinite(float(grow)) and float(grow) >= 1.0):
+            raise ValueError(f"grow must be a finite number >= 1 (1 = never grow), got {grow!r}")
+        if not 0.0 < float(sufficient_decrease) <= 1.0:
+            raise ValueError(f"sufficient_decrease must lie in (0, 1], got {sufficient_decrease!r}")
+        if int(max_trials) < 1:
+            raise ValueError(f"max_trials must be >= 1, got {max_trials!r}")
+        if not float(tau_max) >= self.tau0:
+            raise ValueError(f"tau_max ({tau_max!r}) must be >= tau ({tau!r})")
+        self.shrink, self.grow = float(shrink), float(grow)
+        self.sufficient_decrease, self.max_trials, self.tau_max = float(sufficient_decrease), int(max_trials), float(tau_max)
+        self.tau = self.tau0
+
+    @property
+    def current_step(self) -> float:
+        return self.tau
+
+    def select(self, propose, objective, sq_distance, objective_now) -> StepChoice:  # noqa: D102
+        tau = self.tau
+        last = math.nan
+        for trial in range(1, self.max_trials + 1):
+            candidate = propose(tau)
+            value = objective(candidate)
+            bound = objective_now - self.sufficient_decrease / (2.0 * tau) * sq_distance(candidate)
+            if math.isfinite(value) and value <= bound:
+                self.tau = min(tau * self.grow, self.tau_max)
+                return StepChoice(step=tau, candidate=candidate, trials=trial, forward_evaluations=trial)
+            last = value
+            tau *= self.shrink
+        raise LineSearchFailed(
+            f"no sufficient decrease after {self.max_trials} trials (last tau={tau / self.shrink:.3g}, "
+            f"F={last:.6g} vs F(x)={objective_now:.6g}); the objective may be non-smooth here"
+        )
+
+    def reset(self) -> None:
+        """Start the next search from tau0 again (e.g. after a change of preconditioner, when the
+        steps that suited the old metric say nothing about the new one)."""
+        self.tau = self.tau0
+
+    def state_dict(self) -> dict[str, float]:
+        return {"tau": self.tau}
+
+    def load_state_dict(self, state: dict[str, float]) -> None:
+        self.tau = _positive(state["tau"], "tau")
+
+    def __repr__(self) -> str:
+        return f"BacktrackingStep(tau0={self.tau0}, shrink={self.shrink}, grow={self.grow}, tau={self.tau})"
+
+
+def as_step_policy(step_size: StepSizePolicy | float) -> StepSizePolicy:
+    """A policy from a policy or a number (a number means :class:`ConstantStep`)."""
+    if isinstance(step_size, StepSizePolicy):
+        return step_size
+    if isinstance(step_size, (int, float)) and not isinstance(step_size, bool):
+        return ConstantStep(step_size)
+    raise ValueError(
+        f"step_size must be a StepSizePolicy or a positive number, got {type(step_size).__name__}; "
+        "use ConstantStep(tau) or BacktrackingStep(tau)"
+    )

@@ -1,0 +1,292 @@
+"""The forward operator F_{h,s}: printed heights d (m, m) -> caustic irradiance (c, n, n).
+
+F(d) = E(P(d)): photons from the point light are traced through the substrate and splatted with
+photon differentials. Two implementations of the same photons:
+
+- the fused native path (:mod:`operators.heightfield.trace_native`), used by :meth:`CausticOperator.render`
+  and :meth:`CausticOperator.vjp`: one numba pass per chunk, per photon from emission to splat
+  (or, for the gradient, from emission to the splat adjoint and back into the heights), with no
+  per-photon arrays; with ``device: cuda`` the same per-photon code runs as CUDA kernels, one GPU
+  thread per photon (:mod:`operators.heightfield.trace_cuda`);
+- the torch path (:mod:`operators.heightfield.trace_reference`, :mod:`operators.splat.splat`), kept as the
+  independent reference (:meth:`CausticOperator.render_reference`,
+  :meth:`CausticOperator.vjp_reference`), differentiated by torch autograd.
+
+Photons flow in chunks of ``chunk_size``; the backward pass re-traces each chunk with the same
+photons (deterministic emission), so memory does not grow with the photon count. Only the ray
+parameters of the surface hits (8 bytes per photon, up to ``hit_cache_mb``) are kept from a render
+for a gradient of the same heights, which then skips the hit search.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numba as nb
+import numpy as np
+import torch
+from tqdm.auto import tqdm
+
+from operators.emission import PointLightEmitter
+from operators.heightfield.trace_native import FusedTracer, HitCache
+from operators.light_paths import Arrivals, straight_landing
+from operators.kernels.numba_settings import to_numpy
+from operators.photon_operator import (PIXEL_SETTINGS, PhotonOperator, backward_through_splat, check_setting_keys,
+                                      filter_radius_px)
+from operators.heightfield.precompile import BackgroundCompile
+from operators.scene import Scene
+from operators.splat.splat import splat_photons
+from operators.heightfield.trace_reference import trace_substrate
+
+DTYPES = {"float32": torch.float32, "float64": torch.float64}
+
+
+@dataclass(frozen=True)
+class OperatorSettings:
+    """Numerical settings of the caustic operator.
+
+    photons: total photons per evaluation (split evenly over the wavelengths).
+    seed: seeds the emission pattern; the same seed gives the same photons (common random numbers).
+    footprint_px: nominal footprint radius on the receiver in pixels (the paper's smoothing).
+    min_footprint_px: pixel-filter radius added in quadrature to every footprint (pixels).
+    pixel_integration: every pixel averages the irradiance over its area (a camera pixel, or an
+        image area-averaged from a finer render), modelled by widening every footprint by the
+        pixel box's second moment (operators/photon_operator.py, PIXEL_BOX_R2); False evaluates
+        the irradiance at the pixel centres.
+    max_pixel_radius: cut-off for the footprint's major semi-axis, in pixels (paper: 20).
+    chunk_size: photons traced at once; sets the peak memory.
+    hit_cache_mb: memory (MiB, 8 bytes per photon) for the surface hits that a render records
+        and a gradient of the same heights replays instead of searching again; 0 turns it off.
+    fresnel: weight by Fresnel transmittance (the paper ignores Fresnel losses).
+    simd: take the splat and its gather (footprints that fit an 8 x 8 pixel box), the surface
+        jets and the hit adjoint from the AVX2 kernels of the compiled extension
+        (operators/kernels/simd_kernels.c) where it was built and the CPU has AVX2; elsewhere, or with
+        False, the numba kernels do them (same results to rounding).
+    """
+
+    photons: int = 1 << 22
+    seed: int = 0
+    footprint_px: float = 3.0
+    min_footprint_px: float = 1.0
+    pixel_integration: bool = True
+    max_pixel_radius: float = 20.0
+    chunk_size: int = 1 << 18
+    hit_cache_mb: float = 256.0
+    fresnel: bool = False
+    simd: bool = True
+    dtype: str = "float32"
+    device: str = "cpu"
+
+    def __post_init__(self) -> None:
+        for key in ("photons", "seed", "chunk_size"):
+            value = getattr(self, key)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or int(value) != value:
+                raise ValueError(f"{key}={value!r} must be an integer")
+            object.__setattr__(self, key, int(value))
+        for key in (*PIXEL_SETTINGS, "hit_cache_mb"):
+            value = getattr(self, key)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+                raise ValueError(f"operator.{key}={value!r} must be a finite number")
+            object.__setattr__(self, key, float(value))
+        for key in ("fresnel", "simd", "pixel_integration"):
+            if not isinstance(getattr(self, key), bool):
+                raise ValueError(f"operator.{key}={getattr(self, key)!r} must be true or false")
+        try:
+            device = torch.device(self.device)
+        except (RuntimeError, TypeError):
+            raise ValueError(f"operator.device={self.device!r} is not a torch device; use cpu or cuda") from None
+        if device.type == "cuda" and not torch.cuda.is_available():
+            raise ValueError(f"operator.device={self.device} but CUDA is not available here; use operator.device=cpu")
+        if self.photons < 1:
+            raise ValueError(f"photons={self.photons} must be positive, e.g. 1048576")
+        if not isinstance(self.dtype, str) or self.dtype not in DTYPES:
+            raise ValueError(f"dtype={self.dtype!r} is not supported; use float32 or float64")
+        if int(self.chunk_size) != self.chunk_size or self.chunk_size < 1:
+            raise ValueError(f"chunk_size={self.chunk_size} must be a positive integer, e.g. 262144")
+        if not self.hit_cache_mb >= 0.0:
+            raise ValueError(f"hit_cache_mb={self.hit_cache_mb} must be >= 0 (MiB; 0 turns the hit cache off)")
+        if not 0.0 < self.min_footprint_px < self.max_pixel_radius:
+            raise ValueError(f"need 0 < min_footprint_px ({self.min_footprint_px}) < max_pixel_radius "
+                             f"({self.max_pixel_radius})")
+
+
+def validate_heights(heights: torch.Tensor, thickness: float) -> None:
+    """Refuse arrays that are not a finite, square (m, m) height field (m >= 4) whose glass top
+    stays above the substrate bottom (d > -thickness; iterates of M1 may dip below d = 0)."""
+    if not isinstance(heights, torch.Tensor):
+        raise TypeError(f"heights must be a torch.Tensor, got {type(heights).__name__}")
+    if heights.dim() != 2 or heights.shape[0] != heights.shape[1]:
+        raise ValueError(f"heights must be a square (m, m) array, got shape {tuple(heights.shape)}")
+    if heights.shape[0] < 4:
+        raise ValueError(f"heights resolution {heights.shape[0]} is too small; use m >= 4")
+    if not bool(torch.isfinite(heights).all()):
+        raise ValueError("heights contain NaN or infinite values; clean the height field first")
+    if float(heights.min()) <= -thickness:
+        raise ValueError(f"heights reach {float(heights.min()):.4g}, below the substrate bottom "
+                         f"(d must exceed -thickness = {-thickness}); printed heights are >= 0")
+
+
+class CausticOperator(PhotonOperator):
+    """Differentiable caustic of a printed height field on a flat substrate.
+
+    Call it on heights (m, m) in scene units: returns irradiance (c, n, n) in W per scene unit^2,
+    differentiable w.r.t. the heights with memory bounded by the chunk size. The plugin
+    ``operator/height_field`` (built by :meth:`from_config`).
+    """
+
+    @classmethod
+    def example_settings(cls) -> dict[str, Any]:
+        """Settings for the plugin contract checks (framework/core/contract_checks.py): double precision."""
+        return {"dtype": "float64"}
+
+    @property
+    def conserves_energy(self) -> bool:
+        """Without Fresnel losses the print moves light and absorbs none (framework/core/contract_checks.py)."""
+        return not self.settings.fresnel
+
+    @classmethod
+    def from_config(cls, scene: Scene, photons: int, seed: int, **settings: Any) -> CausticOperator:
+        """The operator for ``scene`` from the config's ``operator`` group (the fields of
+        :class:`OperatorSettings` but photons and seed, which the run gives); checks every value."""
+        check_setting_keys(settings, OperatorSettings, "height_field")
+        if photons < scene.channels:
+            raise ValueError(f"photons={photons} is too few; need at least one per wavelength ({scene.channels})")
+        return cls(scene, OperatorSettings(photons=photons, seed=seed, **settings))
+
+    def variant(self, photons: int, seed: int, resolution: int) -> CausticOperator:
+        """The same physics with another sampling (:meth:`PhotonOperator.resampled`)."""
+        return CausticOperator(*self.resampled(photons, seed, resolution))
+
+    def warm_up(self) -> BackgroundCompile:
+        """Context for a run that will take gradients: on the CPU, compiles the gradient kernel in a
+        second process while this one goes on (first run after an install, operators/heightfield/precompile.py);
+        ``wait()`` on what it yields before the first gradient."""
+        return BackgroundCompile(enabled=self.device.type != "cuda")
+
+    def __init__(self, scene: Scene, settings: OperatorSettings | None = None) -> None:
+        self.scene = scene
+        self.settings = settings or OperatorSettings()
+        self.dtype = DTYPES[self.settings.dtype]
+        self.device = torch.device(self.settings.device)
+        self.emitter = PointLightEmitter(scene, self.settings.photons, self.settings.seed,
+                                         self.settings.footprint_px, self.dtype, self.device)
+        self.glass_index = torch.tensor(scene.indices, dtype=self.dtype, device=self.device)
+        self.fused = FusedTracer(scene, self.emitter,
+                                 filter_radius_px(self.settings.min_footprint_px, self.settings.pixel_integration),
+                                 self.settings.max_pixel_radius, self.settings.fresnel, self.settings.simd)
+        self.hit_cache = HitCache(self.settings.hit_cache_mb)
+        self.gpu = None
+        if self.device.type == "cuda":
+            from operators.heightfield.trace_cuda import CudaTracer  # imports numba.cuda only where it is used
+            self.gpu = CudaTracer(self.fused)
+
+    def splat_inputs(self, heights: torch.Tensor, start: int, stop: int
+                     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Photons start .. stop-1 traced onto the receiver: pixel positions (2, N), footprint
+        metrics (3, N), flux (N,) and channel (N,); differentiable w.r.t. heights."""
+        batch = self.emitter.batch(start, stop)
+        hits = trace_substrate(heights.to(self.dtype), self.scene, batch, self.glass_index, self.settings.fresnel)
+        pos, metric = self.receiver_pixels(hits.position, hits.footprint)
+        return pos, metric, hits.flux, hits.channel
+
+    def trace_chunk(self, heights: torch.Tensor, start: int, stop: int) -> torch.Tensor:
+        """Irradiance (c, n, n) from photons start .. stop-1; differentiable w.r.t. heights."""
+        image = splat_photons(*self.splat_inputs(heights, start, stop), self.scene.channels,
+                              self.scene.receiver.resolution)
+        return image / self.pixel_area
+
+    def _check(self, heights: torch.Tensor) -> None:
+        validate_heights(heights, self.scene.substrate.thickness)
+        self.scene.check_heights_below_light(float(heights.max()))
+
+    def render(self, heights: torch.Tensor, progress: bool = False) -> torch.Tensor:
+        """Irradiance (c, n, n) by the fused native path (on the GPU with ``device: cuda``), no
+        autograd graph, on the device of ``heights``; ``progress`` shows a bar over the chunks."""
+        self._check(heights)
+        d = to_numpy(heights).astype(np.float64)
+        if self.gpu is not None:
+            return self._render_gpu(d, progress).to(heights.device)
+        out = self.fused.image_buffers(np.dtype(self.settings.dtype))
+        self.hit_cache.start_render()
+        for start, stop in tqdm(self.chunks(), desc="photons", unit="chunk", disable=not progress):
+            self.fused.render(d, start, stop, out, hit_t=self.hit_cache.slot(start, stop))
+        self.hit_cache.finish_render(d)
+        return torch.from_numpy(out.sum(axis=0) / self.pixel_area).to(heights.device)
+
+    def vjp(self, heights: torch.Tensor, grad_image: torch.Tensor) -> torch.Tensor:
+        """F'(d)^* grad_image: the gradient (m, m) of <F(d), grad_image>, by the fused native path."""
+        self._check(heights)
+        if grad_image.shape != self.output_shape:
+            raise ValueError(f"grad_image has shape {tuple(grad_image.shape)}, expected {self.output_shape}")
+        d = to_numpy(heights).astype(np.float64)
+        if self.gpu is not None:
+            return self._vjp_gpu(d, grad_image).to(self.dtype).to(dtype=heights.dtype, device=heights.device)
+        padded = self.fused.pad_gradient(to_numpy(grad_image).astype(np.float64) / self.pixel_area)
+        out = np.zeros((nb.get_num_threads(), *d.shape))
+        for start, stop in self.chunks():
+            self.fused.vjp(d, start, stop, padded, out, hit_t=self.hit_cache.hits(d, start, stop))
+        return torch.from_numpy(out.sum(axis=0)).to(self.dtype).to(dtype=heights.dtype, device=heights.device)
+
+    def _render_gpu(self, d: np.ndarray, progress: bool) -> torch.Tensor:
+        """:meth:`render` on the GPU: one image (c, n, n) that all photons add into (the chunk
+        size, which bounds per-photon memory on the CPU, does not apply: the GPU stores none)."""
+        image = torch.zeros(self.output_shape, dtype=self.dtype, device=self.device)
+        d_gpu = torch.from_numpy(d).to(self.device)
+        sc = self.fused.constants(d)
+        for start, stop in tqdm(self.gpu.launches(0, self.photons), desc="photons", unit="launch",
+                                disable=not progress):
+            self.gpu.render(sc, d_gpu, start, stop, image)
+        return image / self.pixel_area
+
+    def _vjp_gpu(self, d: np.ndarray, grad_image: torch.Tensor) -> torch.Tensor:
+        """:meth:`vjp` on the GPU, all photons in one pass (no per-photon memory to bound)."""
+        pad = self.gpu.gather_pad
+        g = grad_image.detach().to(dtype=torch.float64, device=self.device) / self.pixel_area
+        padded = torch.nn.functional.pad(g, (pad, pad, pad, pad)).contiguous()
+        grad = torch.zeros(d.shape, dtype=torch.float64, device=self.device)
+        self.gpu.vjp(self.fused.constants(d), torch.from_numpy(d).to(self.device), 0, self.photons, padded, grad)
+        return grad
+
+    def render_reference(self, heights: torch.Tensor) -> torch.Tensor:
+        """Irradiance (c, n, n) by the torch path, no autograd graph (the reference for render)."""
+        self._check(heights)
+        image = torch.zeros(self.output_shape, dtype=self.dtype, device=self.device)
+        with torch.no_grad():
+            for start, stop in self.chunks():
+                image += self.trace_chunk(heights.detach(), start, stop)
+        return image
+
+    def vjp_reference(self, heights: torch.Tensor, grad_image: torch.Tensor) -> torch.Tensor:
+        """F'(d)^* grad_image by torch autograd through the torch path (the reference for vjp)."""
+        self._check(heights)
+        leaf = heights.detach().to(self.dtype).requires_grad_(True)
+        g = grad_image.detach().to(dtype=self.dtype, device=self.device) / self.pixel_area
+        for start, stop in self.chunks():
+            with torch.enable_grad():
+                backward_through_splat(*self.splat_inputs(leaf, start, stop), g)
+        return leaf.grad.to(heights.dtype)
+
+    # -- the light path around the print (operators/light_paths.py) ------------------------------
+    def arrivals(self, photons: int) -> Arrivals:
+        """``photons`` photons of this light where they meet the flat print's top plane z = h
+        (straight from the light: the emitter aims at that plane)."""
+        emitter = PointLightEmitter(self.scene, photons, self.settings.seed, self.settings.footprint_px, torch.float64)
+        batch = emitter.batch(0, emitter.total)
+        light = np.asarray(self.scene.light.position, dtype=np.float64)
+        direction = batch.direction.numpy().T
+        points = light[:2] + direction[:, :2] * ((self.scene.substrate.thickness - light[2]) / direction[:, 2:3])
+        return Arrivals(points, direction, batch.flux.numpy(), np.arange(emitter.total))
+
+    def land_from_bottom(self, points: np.ndarray, directions: np.ndarray) -> np.ndarray:
+        """Receiver points (N, 2) of rays leaving the bottom at ``points`` along ``directions``:
+        straight lines in air."""
+        return straight_landing(points, directions, self.scene.receiver.z)
+
+    def describe(self) -> dict[str, float]:
+        """Derived sampling figures, for logs."""
+        return {"photons": self.photons, "photons_per_channel": self.emitter.per_channel,
+                "smoothing": self.emitter.smoothing,
+                "footprint_radius_units": self.emitter.footprint_radius,
+                "tiling_radius_units": math.sqrt(self.emitter.cell_area / math.pi)}

@@ -1,0 +1,281 @@
+"""The mesh-scene operator's native path: photons traced event by event by the kernels of
+:mod:`operators.mesh.kernels_native`, which ask Embree for faces on their own threads.
+
+Everything a photon does before it first meets the printed top does not depend on the heights,
+so it is traced once per operator (:meth:`NativeMeshTracer.prefix`): photons that never reach the
+print add a fixed image and fixed losses, the others wait above the print with their state. Each
+render or gradient then starts from those states. The gradient replays a chunk's events, keeping
+each event's input state, and runs them backwards (:func:`operators.mesh.kernels_native.retreat`) from
+the splat's adjoint gather to the heights.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numba as nb
+import numpy as np
+import torch
+
+from operators.mesh import kernels_native as mk
+from operators.mesh.embree_native import EmbreeTriangles
+from operators.heightfield.surface import HeightFieldGrid
+from operators.photon_operator import filter_radius_px
+from operators.splat.splat import splat_photons, splat_photons_vjp
+
+__all__ = ["LOSSES", "NativeMeshTracer", "Prefix"]
+
+# The kinds of lost flux a render reports (W each).
+LOSSES = ("escaped", "max_depth", "inside_top", "fresnel_reflected", "missed_receiver")
+
+
+@dataclass
+class Prefix:
+    """Photons before their first hit on the printed top: state (N, STATE), channel and events
+    used so far (N,); the fixed image (c, n, n, flux per pixel) and losses (W) of all others."""
+
+    state: np.ndarray
+    channel: np.ndarray
+    events: np.ndarray
+    image: torch.Tensor
+    losses: dict[str, float]
+
+
+# Event kinds, faces or planes and distances as the kernels take them.
+_EVENT_DTYPES = (np.int64, np.int64, np.float64)
+# Work continues on a compact copy of the photons under way once fewer than this share are.
+COMPACT = 0.5
+
+
+@dataclass
+class _Chunk:
+    """Photons under way: state (N, STATE), medium, channel, status and event count (N,)."""
+
+    state: np.ndarray
+    medium: np.ndarray
+    channel: np.ndarray
+    status: np.ndarray
+    events: np.ndarray
+
+    def take(self, index: np.ndarray) -> _Chunk:
+        """A copy of the photons at ``index``."""
+        return _Chunk(self.state[index], self.medium[index], self.channel[index], self.status[index],
+                      self.events[index])
+
+
+def _write_back(chunk: _Chunk, index: np.ndarray | None, work: _Chunk) -> None:
+    """Copy ``work`` (the chunk's photons at ``index``; None: the chunk itself) into the chunk."""
+    if index is None:
+        return
+    chunk.state[index], chunk.medium[index], chunk.status[index], chunk.events[index] = (
+        work.state, work.medium, work.status, work.events)
+
+
+class NativeMeshTracer:
+    """Traces a :class:`operators.mesh.operator.MeshSceneOperator`'s photons natively."""
+
+    def __init__(self, operator) -> None:
+        self.operator = operator
+        self.substrate = len(operator.elements)
+        intersector = operator.intersector
+        (self.face_element, self.v0, self.plane, self.dual, self.shading,
+         self.neighbour) = intersector.face_arrays()
+        self.indices = np.ascontiguousarray(operator.index_table.double().numpy())
+        self._prefix: Prefix | None = None
+        self._events_seen: tuple[np.ndarray, list[list]] | None = None
+        # The same faces, in the same order, in an Embree scene that the kernels query.
+        self._triangles = EmbreeTriangles(intersector.vertices, intersector.faces) if intersector.count else None
+        self.embree = 0 if self._triangles is None else self._triangles.handle
+
+    # -- scene constants ----------------------------------------------------------------------
+    def constants(self, d: np.ndarray | None) -> mk.MeshConstants:
+        """Kernel constants for heights ``d`` (m, m) (None: before the print, no hit search)."""
+        op = self.operator
+        scene, settings = op.scene, op.settings
+        half, thickness = scene.substrate.half_width, scene.substrate.thickness
+        zlo = zstart = zhi = thickness
+        slope_x = slope_y = 0.0
+        spacing = 1.0
+        top_max = thickness
+        if d is not None:
+            grid = HeightFieldGrid(thickness, half, d.shape[0])
+            zlo, zstart, zhi = grid.z_planes(d)
+            slope_x, slope_y = grid.slope_bounds(d)
+            spacing = grid.spacing
+            top_max = thickness + float(d.max()) + 1e-9
+        return mk.MeshConstants(half, thickness, spacing, zlo, zstart, zhi, slope_x, slope_y, top_max,
+                                float(op._lowest_element), scene.receiver.z, settings.fresnel, op._to_pixels,
+                                scene.receiver.half_width,
+                                filter_radius_px(settings.min_footprint_px, settings.pixel_integration),
+                                settings.max_pixel_radius)
+
+    # -- events -------------------------------------------------------------------------------
+    def _run(self, d: np.ndarray, chunk: _Chunk, sc: mk.MeshConstants, wait_at_top: bool, losses: dict[str, float],
+             tape: list | None = None, events_log: list | None = None, events_replay: list | None = None) -> None:
+        """Advance the chunk's photons until none is under way (or each has had max_depth
+        events), adding lost flux to ``losses``. Once fewer than half of the photons worked on are
+        under way, the work continues on a copy of those only (written back at the end). With
+        ``tape``, each event's photons (indices into the chunk, None for all), input states,
+        kinds, faces or planes and distances are appended for :meth:`_reverse`. Each event's kinds,
+        faces or planes and distances are appended to ``events_log`` (compactly), or taken from
+        ``events_replay`` (logged at the same heights) instead of searched for."""
+        max_depth = self.operator.settings.max_depth
+        work, index = chunk, None
+        for event in range(max_depth):
+            under_way = work.status == mk.UNDER_WAY
+            count = int(under_way.sum())
+            if count == 0:
+                break
+            if count < COMPACT * len(work.state):
+                keep = np.flatnonzero(under_way)
+                _write_back(chunk, index, work)
+                index = keep if index is None else index[keep]
+                work = chunk.take(index)
+            n = len(work.state)
+            if events_replay is not None:
+                kind, which, t = (a.astype(dtype) for a, dtype in zip(events_replay[event], _EVENT_DTYPES))
+            else:
+                kind, which, t = np.empty(n, np.int64), np.empty(n, np.int64), np.empty(n)
+            fresnel = np.zeros(n)
+            before = work.state.copy() if tape is not None else None
+            mk.advance(d, work.state, work.medium, work.channel, work.status, self.embree, kind, which, t,
+                       events_replay is not None, fresnel,
+                       wait_at_top, self.substrate, self.face_element, self.indices, self.v0, self.plane, self.dual,
+                       self.shading, self.neighbour, sc)
+            work.events += (kind >= 0) & (kind != mk.AT_TOP)
+            flux = work.state[:, mk.FLUX]
+            losses["escaped"] += float(flux[kind == mk.ESCAPED].sum())
+            losses["inside_top"] += float(flux[kind == mk.INSIDE_TOP].sum())
+            losses["fresnel_reflected"] += float(fresnel.sum())
+            if tape is not None:
+                tape.append((index, before, kind, which, t))
+            if events_log is not None:
+                events_log.append((kind.astype(np.int8), which.astype(np.int32), t))
+            done = (work.status == mk.UNDER_WAY) & (work.events >= max_depth)
+            losses["max_depth"] += float(flux[done].sum())
+            work.status[done] = mk.LOST
+        _write_back(chunk, index, work)
+
+    def _reverse(self, d: np.ndarray, chunk: _Chunk, sc: mk.MeshConstants, tape: list, g_state: np.ndarray,
+                 g_heights: np.ndarray) -> None:
+        """Run a chunk's recorded events backwards: ``g_state`` (N, STATE), the gradient w.r.t.
+        the photons' final states, into ``g_heights`` (threads, m, m)."""
+        for index, before, kind, which, t in reversed(tape):
+            g = g_state if index is None else g_state[index]
+            channel = chunk.channel if index is None else chunk.channel[index]
+            mk.retreat(d, before, kind, which, t, channel, self.substrate, self.face_element, self.indices, self.v0,
+                       self.plane, self.dual, self.shading, sc, g, g_heights)
+            if index is not None:
+                g_state[index] = g
+
+    def _splat_inputs(self, chunk: _Chunk, sc: mk.MeshConstants, losses: dict[str, float]
+                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Pixel positions (2, N), metrics (3, N) and flux (N,) of the chunk's landed photons
+        (flux 0 for the others); the flux landing beside the receiver is counted as missing it."""
+        n = len(chunk.state)
+        pos, metric, flux = np.empty((2, n)), np.empty((3, n)), np.empty(n)
+        mk.splat_arguments(chunk.state, chunk.status, sc, pos, metric, flux)
+        landed = chunk.status == mk.LANDED
+        outside = landed & (np.abs(chunk.state[:, mk.P:mk.P + 2]) > sc.receiver_half).any(1)
+        losses["missed_receiver"] += float(flux[outside].sum())
+        return pos, metric, flux
+
+    def _splat(self, chunk: _Chunk, sc: mk.MeshConstants, losses: dict[str, float]) -> torch.Tensor:
+        scene, dtype = self.operator.scene, self.operator.dtype
+        pos, metric, flux = self._splat_inputs(chunk, sc, losses)
+        return splat_photons(torch.from_numpy(pos).to(dtype), torch.from_numpy(metric).to(dtype),
+                             torch.from_numpy(flux).to(dtype), torch.from_numpy(chunk.channel),
+                             scene.channels, scene.receiver.resolution)
+
+    # -- the height-independent prefix --------------------------------------------------------
+    def prefix(self) -> Prefix:
+        """Trace every photon up to its first hit on the printed top (once per operator)."""
+        if self._prefix is not None:
+            return self._prefix
+        op = self.operator
+        sc = self.constants(None)
+        dummy = np.zeros((4, 4))
+        image = torch.zeros(op.output_shape, dtype=op.dtype)
+        losses = dict.fromkeys(LOSSES, 0.0)
+        waiting = []
+        for start, stop in op.chunks():
+            chunk = self._emitted(start, stop)
+            self._run(dummy, chunk, sc, True, losses)
+            image += self._splat(chunk, sc, losses)
+            keep = chunk.status == mk.WAITING
+            waiting.append((chunk.state[keep], chunk.channel[keep], chunk.events[keep]))
+        state, channel, events = (np.concatenate(parts) for parts in zip(*waiting))
+        self._prefix = Prefix(np.ascontiguousarray(state), channel, events, image, losses)
+        return self._prefix
+
+    def _emitted(self, start: int, stop: int) -> _Chunk:
+        """Photons start .. stop-1 at the light, as a chunk."""
+        batch = self.operator.emitter.batch(start, stop)
+        n = batch.direction.shape[1]
+        state = np.zeros((n, mk.STATE))
+        state[:, mk.P:mk.P + 3] = batch.origin.double().numpy()
+        state[:, mk.W:mk.W + 3] = batch.direction.double().numpy().T
+        state[:, mk.DWU:mk.DWU + 3] = batch.direction_diff[0].double().numpy().T
+        state[:, mk.DWV:mk.DWV + 3] = batch.direction_diff[1].double().numpy().T
+        state[:, mk.FLUX] = batch.flux.double().numpy()
+        return _Chunk(state, np.full(n, mk.AIR, dtype=np.int64), batch.channel.numpy().astype(np.int64),
+                      np.full(n, mk.UNDER_WAY, dtype=np.int64), np.zeros(n, dtype=np.int64))
+
+    def _waiting(self, start: int, stop: int) -> _Chunk:
+        """Prefix photons start .. stop-1, about to meet the print."""
+        pre = self.prefix()
+        n = stop - start
+        return _Chunk(pre.state[start:stop].copy(), np.full(n, mk.AIR, dtype=np.int64), pre.channel[start:stop],
+                      np.full(n, mk.UNDER_WAY, dtype=np.int64), pre.events[start:stop].copy())
+
+    def _waiting_chunks(self) -> list[tuple[int, int]]:
+        size, total = self.operator.settings.chunk_size, len(self.prefix().state)
+        return [(a, min(a + size, total)) for a in range(0, total, size)]
+
+    # -- render and gradient ------------------------------------------------------------------
+    def render(self, d: np.ndarray) -> tuple[torch.Tensor, dict[str, float]]:
+        """Flux per pixel (c, n, n) of heights ``d`` (m, m) float64 and the losses (W); the photons'
+        events are kept for a :meth:`vjp` at the same heights."""
+        pre = self.prefix()
+        sc = self.constants(d)
+        self._check_above(sc)
+        image = pre.image.clone()
+        losses = dict(pre.losses)
+        seen: list[list] = []
+        for start, stop in self._waiting_chunks():
+            chunk = self._waiting(start, stop)
+            seen.append([])
+            self._run(d, chunk, sc, False, losses, events_log=seen[-1])
+            image += self._splat(chunk, sc, losses)
+        self._events_seen = (d.copy(), seen)
+        return image, losses
+
+    def vjp(self, d: np.ndarray, grad_flux: torch.Tensor) -> np.ndarray:
+        """Gradient (m, m) w.r.t. d of <flux per pixel, grad_flux (c, n, n)>; the photons' events
+        are replayed from the last :meth:`render` when it had the same heights."""
+        sc = self.constants(d)
+        self._check_above(sc)
+        g_heights = np.zeros((nb.get_num_threads(), *d.shape))
+        not_counted: dict[str, float] = dict.fromkeys(self.prefix().losses, 0.0)  # render counts them
+        dtype = self.operator.dtype
+        seen = self._events_seen[1] if self._events_seen is not None and np.array_equal(self._events_seen[0], d) else None
+        for k, (start, stop) in enumerate(self._waiting_chunks()):
+            chunk = self._waiting(start, stop)
+            tape: list = []
+            self._run(d, chunk, sc, False, not_counted, tape, events_replay=None if seen is None else seen[k])
+            pos, metric, flux = self._splat_inputs(chunk, sc, not_counted)
+            g_pos, g_metric, g_flux = (t.double().numpy() for t in splat_photons_vjp(
+                torch.from_numpy(pos).to(dtype), torch.from_numpy(metric).to(dtype), torch.from_numpy(flux).to(dtype),
+                torch.from_numpy(chunk.channel), grad_flux))
+            g_state = np.empty_like(chunk.state)
+            mk.splat_arguments_adjoint(chunk.state, chunk.status, sc, np.ascontiguousarray(g_pos),
+                                       np.ascontiguousarray(g_metric), np.ascontiguousarray(g_flux), g_state)
+            self._reverse(d, chunk, sc, tape, g_state, g_heights)
+        return g_heights.sum(axis=0)
+
+    def _check_above(self, sc: mk.MeshConstants) -> None:
+        """Refuse a print that reaches photons waiting above it."""
+        state = self.prefix().state
+        if len(state) and float(state[:, mk.P + 2].min()) <= sc.top_max:
+            raise ValueError(f"the print reaches z={sc.top_max:.4g}, above where light meets it "
+                             f"(z={float(state[:, mk.P + 2].min()):.4g}); lower the print or move the elements up")
