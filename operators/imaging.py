@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from contextlib import AbstractContextManager
 from typing import Any
 
 import torch
@@ -137,6 +138,15 @@ class ImagingOperator(ImageOperator):
         """F'(d)^* (gain * K^T grad_image) (m, m)."""
         return self.inner.vjp(heights, self.gain * self.blur.adjoint(grad_image))
 
+    @property
+    def has_light_path(self) -> bool:
+        """The wrapped operator's (whose ``arrivals`` and ``land_from_bottom`` it passes on)."""
+        return bool(self.inner.has_light_path)
+
+    def warm_up(self) -> AbstractContextManager[Any]:
+        """The wrapped operator's warm-up."""
+        return self.inner.warm_up()
+
     def variant(self, photons: int, seed: int, resolution: int) -> ImagingOperator:
         """The same camera on another sampling of the wrapped operator (the references of
         synthetic data); its setup stays fixed."""
@@ -144,7 +154,7 @@ class ImagingOperator(ImageOperator):
         return ImagingOperator(lambda scene: inner, self.scene, self.psf_sigma, self.gain)
 
     def __getattr__(self, name: str) -> Any:
-        # Anything else an operator plugin offers (warm_up, describe, device, ...) comes from the
+        # Anything else an operator plugin offers (device, settings, ...) comes from the
         # wrapped one.
         if name.startswith("_") or name == "inner":
             raise AttributeError(name)

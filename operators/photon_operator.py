@@ -1,7 +1,10 @@
-"""What the photon operators share: the operator protocol around ``render`` and ``vjp``.
+"""What the photon operators share: the base of the operator contract around ``render`` and ``vjp``.
 
-:class:`ImageOperator` turns ``render(heights)`` and ``vjp(heights, grad_image)`` into the squared
-loss and its gradient and autograd through ``operator(heights)`` (:class:`RenderFunction`).
+:class:`ImageOperator` keeps the operator contract (framework/core/contracts/operator.py) for a
+subclass that gives ``render(heights)``, ``vjp(heights, grad_image)``, ``output_shape``,
+``variant`` and its dtype, photons and pixel area: it turns render and vjp into the squared loss
+and its gradient and autograd through ``operator(heights)`` (:class:`RenderFunction`), and
+declares the defaults (no energy conservation claimed, a fixed setup, nothing to warm up).
 :class:`PhotonOperator` adds, for a subclass with ``scene``, ``settings`` (photons, seed,
 chunk_size and the footprints in pixels) and ``emitter``: photon count, image shape, chunks and
 resampled variants. :func:`backward_through_splat` sends an image gradient back through the
@@ -11,6 +14,7 @@ splat's adjoint (a gather per photon, no image needed) into whatever a chunk of 
 from __future__ import annotations
 
 import dataclasses
+from contextlib import AbstractContextManager, nullcontext
 from typing import Any
 
 import torch
@@ -18,7 +22,7 @@ import torch
 from operators.scene import Scene
 from operators.splat.splat import footprint_metric, splat_photons_vjp
 
-__all__ = ["PIXEL_SETTINGS", "PIXEL_BOX_R2", "ImageOperator", "PhotonOperator", "RenderFunction", "backward_through_splat",
+__all__ = ["PIXEL_SETTINGS", "PIXEL_BOX_R2", "ImageOperator", "NothingRunning", "PhotonOperator", "RenderFunction", "backward_through_splat",
            "check_setting_keys", "filter_radius_px"]
 
 # Settings given in receiver pixels: a render at another receiver resolution scales them.
@@ -47,9 +51,31 @@ def check_setting_keys(settings: dict[str, Any], settings_class: type, plugin: s
                              f"{', '.join([*extra, *sorted(fields)])}")
 
 
+class NothingRunning:
+    """What ``warm_up()`` yields when no work goes on in the background."""
+
+    running = False
+
+    def wait(self) -> None:
+        """Nothing to wait for."""
+
+
 class ImageOperator:
     """An operator given by ``render(heights)`` and ``vjp(heights, grad_image)``: the squared loss
-    and its gradient in two passes, and autograd through ``operator(heights)``."""
+    and its gradient in two passes, and autograd through ``operator(heights)``.
+
+    Attributes:
+        dtype: The dtype of its images and gradients (set by the subclass).
+        conserves_energy: False unless a subclass knows that a print only moves light.
+        revision: 0: the setup never changes (an operator whose setup does counts it up).
+        has_light_path: False unless a subclass offers ``arrivals`` and ``land_from_bottom``
+            (operators/light_paths.py).
+    """
+
+    dtype: torch.dtype
+    conserves_energy: bool = False
+    revision: int = 0
+    has_light_path: bool = False
 
     def render(self, heights: torch.Tensor, progress: bool = False) -> torch.Tensor:
         """The image F(d) (c, n, n) of heights d (m, m), without a graph."""
@@ -63,6 +89,14 @@ class ImageOperator:
     def output_shape(self) -> tuple[int, int, int]:
         """(c, n, n) of the images it renders."""
         raise NotImplementedError
+
+    def variant(self, photons: int, seed: int, resolution: int) -> "ImageOperator":
+        """The same physics with another sampling (photons, seed, an n = resolution receiver)."""
+        raise NotImplementedError
+
+    def warm_up(self) -> AbstractContextManager[Any]:
+        """Nothing to start in the background: yields :class:`NothingRunning`."""
+        return nullcontext(NothingRunning())
 
     def loss_and_grad(self, heights: torch.Tensor, target: torch.Tensor, image: torch.Tensor | None = None
                       ) -> tuple[float, torch.Tensor, torch.Tensor]:

@@ -1,22 +1,47 @@
-"""The shared contract suite: every installed plugin of the kinds operator, regularizer and
-post_step (built-ins and those other packages register through entry points) passes its kind's
-checks (framework/core/contract_checks.py); so does the test suite's own operator; a deliberately
-broken operator and regulariser fail them."""
+"""The shared contract suite: every installed plugin of every kind (built-ins and those other
+packages register through entry points) passes its kind's checks
+(framework/core/contracts/checks.py); so do the test suite's own operator and solver; a
+deliberately broken operator, regulariser, solver and stopping rule fail them."""
 
 from __future__ import annotations
 
 import pytest
 import torch
 
-from framework.core.contract_checks import (ContractViolation, check_operator, check_post_step, check_regularizer,
-                                       example_settings)
+from pathlib import Path
+
+import numpy as np
+
+from framework.core.contracts.checks import (ContractViolation, check_data_source, check_operator, check_post_step,
+                                             check_regularizer, check_solver, check_start, check_stopping,
+                                             example_settings, smooth_bump)
+from framework.core.contracts.data_source import DataRequest
+from framework.core.contracts.start import StartRequest
+from framework.core.data import ReconstructionData
+from framework.core.masks import mask_from_height_field
+from framework.core.problem import HeightGrid, Problem
+from framework.plugins.stopping import StagnationStopping
 from framework.core.plugin_config import build_plugin
 from framework.core.registry import available, lookup
 from operators.scene import Receiver, Scene
 from regularizers import PixelL1
-from tests.plugins.trivial import ShadowOperator
+from tests.plugins.trivial import ExactStepSolver, ShadowOperator
 
 SCENE = Scene(receiver=Receiver(resolution=32))
+M = 32  # height samples per side of the known problem
+
+
+@pytest.fixture(scope="module")
+def known_problem() -> Problem:
+    """A Gaussian bump 0.05 high seen by the height-field operator (64 x 64 receiver 0.5 below), exact data."""
+    scene = Scene(receiver=Receiver(resolution=64, z=-0.5))
+    operator = build_plugin("operator", "height_field", {}, "operator", scene=scene, photons=1 << 16, seed=0)
+    truth = smooth_bump(M, 0.05).to(operator.dtype)
+    grid = HeightGrid(M, scene.substrate.half_width, scene.substrate.thickness)
+    mask = mask_from_height_field(truth.double(), 1e-3, 0.05)
+    data = ReconstructionData(target=operator.render(truth), mask=mask, volume=float(truth.double().sum()) * grid.cell_area,
+                              delta=0.01, ground_truth=truth.double())
+    return Problem(operator, data, grid, scene)
 
 
 def _operator_maker(name: str, photons: int = 20_000):
@@ -46,6 +71,66 @@ def test_the_test_suites_operator_keeps_the_contract() -> None:
     check_operator(lambda seed: ShadowOperator.from_config(SCENE, 1, seed), who="operator/shadow")
 
 
+@pytest.mark.parametrize("name", available("solver"))
+def test_every_solver_solves_a_known_problem(name, known_problem) -> None:
+    settings = example_settings(lookup("solver", name))
+    check_solver(lambda: build_plugin("solver", name, settings, "solver"), known_problem, who=f"solver/{name}")
+
+
+def test_the_test_suites_solver_keeps_the_contract(known_problem) -> None:
+    shadow = ShadowOperator(1, 32, 1.0, 1, 1.0)
+    truth = 0.1 * smooth_bump(16, 1.0)
+    data = ReconstructionData(target=shadow.render(truth), mask=torch.ones(16, 16, dtype=torch.bool), volume=None,
+                              delta=0.01)
+    problem = Problem(shadow, data, HeightGrid(16, 1.0, 0.1), SCENE)
+    check_solver(ExactStepSolver.from_config, problem, iterations=1, reduction=1e-6, who="solver/exact_step")
+
+
+@pytest.mark.parametrize("name", available("stopping"))
+def test_every_stopping_rule_keeps_the_contract(name) -> None:
+    settings = example_settings(lookup("stopping", name))
+    check_stopping(lambda: build_plugin("stopping", name, settings, f"stopping.{name}"), who=f"stopping/{name}")
+
+
+def _start_settings(name: str, directory: Path) -> dict:
+    """Settings of a start: a height-field file for ``file`` (written here), else its own example."""
+    if name == "file":
+        np.save(directory / "start.npy", 0.5 * smooth_bump(M).numpy())
+        return {"path": "start.npy"}
+    return example_settings(lookup("initial", name))
+
+
+@pytest.mark.parametrize("name", available("initial"))
+def test_every_start_keeps_the_contract(name, known_problem, tmp_path) -> None:
+    start = build_plugin("initial", name, _start_settings(name, tmp_path), "initial")
+    request = StartRequest(known_problem, lambda: known_problem.data.ground_truth.clone(), tmp_path)
+    check_start(start, request, who=f"initial/{name}")
+
+
+def _data_settings(name: str, problem: Problem, directory: Path) -> dict:
+    """Settings of a data source: the known problem's caustic as a file for ``file``, as a photo
+    of the receiver (corners at the image's corners) for ``photo``, else its own example."""
+    image = problem.data.target.double().numpy()
+    if name == "file":
+        np.save(directory / "caustic.npy", image)
+        np.save(directory / "mask.npy", problem.data.mask.numpy())
+        return {"image": "caustic.npy", "mask": "mask.npy", "volume": problem.data.volume}
+    if name == "photo":
+        n = image.shape[-1]
+        np.save(directory / "photo.npy", (image[0] / image.max() * 0.8)[::-1].astype(np.float32))
+        np.save(directory / "mask.npy", problem.data.mask.numpy())
+        return {"photo": "photo.npy", "corners": [[0, n - 1], [n - 1, n - 1], [n - 1, 0], [0, 0]], "mask": "mask.npy"}
+    return example_settings(lookup("data", name))
+
+
+@pytest.mark.parametrize("name", available("data"))
+def test_every_data_source_keeps_the_contract(name, known_problem, tmp_path) -> None:
+    source = build_plugin("data", name, _data_settings(name, known_problem, tmp_path), "data")
+    operator = known_problem.operator
+    request = DataRequest(operator, known_problem.grid, lambda: known_problem.data.ground_truth.clone(), 0, tmp_path)
+    check_data_source(source, request, who=f"data/{name}")
+
+
 class _OffByATerm(ShadowOperator):
     """The shadow operator with a gradient that adds a term its image does not have."""
 
@@ -61,8 +146,30 @@ class _NoShrink(PixelL1):
         return d.clone()
 
 
-def test_a_broken_operator_and_a_broken_regulariser_fail_the_contract() -> None:
+class _AdjointOffByATerm(ShadowOperator):
+    """The shadow operator whose vjp adds a term its image does not have."""
+
+    def vjp(self, heights, grad_image):
+        return super().vjp(heights, grad_image) + 0.01 * heights
+
+
+class _NeverStops(StagnationStopping):
+    """A stagnation rule that forgets to ask the loop to stop."""
+
+    def on_iteration(self, solver, record):
+        super().on_iteration(solver, record)
+        return None
+
+
+def test_a_broken_plugin_of_each_kind_fails_the_contract(known_problem) -> None:
     with pytest.raises(ContractViolation, match="differs from finite differences"):
         check_operator(lambda seed: _OffByATerm.from_config(SCENE, 1, seed), who="operator/off_by_a_term")
+    with pytest.raises(ContractViolation, match="adjoint identity fails"):
+        check_operator(lambda seed: _AdjointOffByATerm.from_config(SCENE, 1, seed), who="operator/adjoint_off")
     with pytest.raises(ContractViolation, match="is not the minimiser"):
         check_regularizer(_NoShrink(alpha=0.1), who="regularizer/no_shrink")
+    with pytest.raises(ContractViolation, match="does not solve a known problem"):  # a step far too small
+        check_solver(lambda: build_plugin("solver", "gradient_descent", {"step_size": {"name": "constant", "tau": 1e-9}},
+                                          "solver"), known_problem, iterations=5, who="solver/timid")
+    with pytest.raises(ContractViolation, match="does not stop a run that converges"):
+        check_stopping(lambda: _NeverStops(patience=2), who="stopping/never")

@@ -19,61 +19,16 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Callable, Protocol, runtime_checkable
 
 import torch
 from torch import Tensor
 
+from framework.core.contracts.operator import Operator, missing_members
+
 __all__ = [
-    "ForwardOperator",
     "DataEvaluation",
     "DataFidelity",
-    "loss_and_grad_by_autograd",
 ]
-
-
-@runtime_checkable
-class ForwardOperator(Protocol):
-    """A differentiable forward operator F: R^{m x m} -> R_+^{c x n x n} (height field to image).
-
-    Implementations compute the gradient memory-efficiently (the image without a graph first,
-    then per photon chunk a recomputation with graph and a backward of <image_chunk, residual>),
-    so peak memory is set by the chunk size, not the photon count.
-    An operator may expose ``output_shape: tuple[int, int, int]``; the data term then checks the
-    target against it before the first evaluation. An operator *plugin* (kind ``operator``) has
-    more: see :class:`framework.core.problem.OperatorPlugin`.
-    """
-
-    def __call__(self, d: Tensor) -> Tensor:
-        """The image F(d), shape (c, n, n), for a height field d of shape (m, m); no graph."""
-        ...
-
-    def loss_and_grad(self, d: Tensor, target: Tensor, image: Tensor | None = None) -> tuple[float, Tensor, Tensor]:
-        """(1/2 ||F(d) - target||_F^2, its gradient w.r.t. d (m, m), the image F(d) (c, n, n)).
-
-        ``image``, when given, is F(d) as this operator rendered it before (same d, same random
-        numbers): an operator may use it instead of rendering again.
-        """
-        ...
-
-
-def loss_and_grad_by_autograd(
-    forward: Callable[[Tensor], Tensor], d: Tensor, target: Tensor
-) -> tuple[float, Tensor, Tensor]:
-    """``loss_and_grad`` for a small operator by plain autograd (keeps the whole graph in memory).
-
-    Meant for toy and test operators (which then ignore a rendered ``image``: autograd needs the
-    forward pass anyway); the photon operators implement the chunked two-pass version.
-
-    Returns:
-        (1/2 ||forward(d) - target||_F^2, gradient (shape of d), image (shape of target)).
-    """
-    x = d.detach().clone().requires_grad_(True)
-    with torch.enable_grad():
-        image = forward(x)
-        loss = 0.5 * torch.sum((image - target) ** 2)
-        (grad,) = torch.autograd.grad(loss, x)
-    return float(loss.detach()), grad.detach(), image.detach()
 
 
 @dataclass(frozen=True)
@@ -100,7 +55,7 @@ class DataFidelity:
     a photo cannot tell, such as saturated ones, get 0 and drop out of the fit).
 
     Args:
-        operator: The forward operator F (see :class:`ForwardOperator`).
+        operator: The forward operator F (framework/core/contracts/operator.py).
         target: The measured caustic image b^delta, shape (c, n, n), finite; it may hold small
             negative values (additive noise) but its total energy must be positive.
         max_negative_fraction: Refuse a target whose negative mass exceeds this fraction of its
@@ -109,33 +64,32 @@ class DataFidelity:
             grad f the gradient in the L2 metric of the substrate (sum_j a u_j v_j) rather than of
             the sample vector: step sizes and L1 weights then mean the same at every height-field
             resolution m (the per-sample gradient of f shrinks like a as m grows).
-        weights: Per-pixel weights w (c, n, n) in [0, 1], or None for 1 everywhere. With weights
-            the operator needs ``render(d)`` and ``vjp(d, g)`` (framework/core/problem.py,
-            OperatorPlugin), which give the weighted gradient F'(d)^* (w (F(d) - b)).
+        weights: Per-pixel weights w (c, n, n) in [0, 1], or None for 1 everywhere; the weighted
+            gradient is the operator's ``vjp(d, w (F(d) - b))``.
 
     Example:
-        >>> A = torch.eye(4, dtype=torch.float64)
-        >>> class Op:
-        ...     def __call__(self, d): return (A @ d.reshape(-1)).reshape(1, 2, 2)
-        ...     def loss_and_grad(self, d, b, image=None): return loss_and_grad_by_autograd(self, d, b)
-        >>> data = DataFidelity(Op(), torch.ones(1, 2, 2, dtype=torch.float64))
+        >>> from operators.photon_operator import ImageOperator
+        >>> class Identity(ImageOperator):  # F(d) = d on a 2 x 2 receiver
+        ...     dtype, photons, pixel_area, output_shape = torch.float64, 0, 1.0, (1, 2, 2)
+        ...     def render(self, d, progress=False): return d.reshape(1, 2, 2).clone()
+        ...     def vjp(self, d, g): return g.reshape(2, 2).clone()
+        >>> data = DataFidelity(Identity(), torch.ones(1, 2, 2, dtype=torch.float64))
         >>> data.evaluate(torch.zeros(2, 2, dtype=torch.float64)).rel_discrepancy
         1.0
     """
 
-    def __init__(self, operator: ForwardOperator, target: Tensor, max_negative_fraction: float = 0.25,
+    def __init__(self, operator: Operator, target: Tensor, max_negative_fraction: float = 0.25,
                  cell_area: float = 1.0, weights: Tensor | None = None) -> None:
         if not (math.isfinite(cell_area) and cell_area > 0.0):
             raise ValueError(f"cell_area={cell_area} must be a positive area (scene units^2)")
         self.cell_area = float(cell_area)
-        if not callable(operator) or not callable(getattr(operator, "loss_and_grad", None)):
-            raise ValueError(
-                f"operator {type(operator).__name__} must be callable and have loss_and_grad(d, target); "
-                "see framework.core.objective.ForwardOperator"
-            )
+        missing = missing_members(operator)
+        if missing:
+            raise ValueError(f"operator {type(operator).__name__} lacks {', '.join(missing)} of the operator contract "
+                             "(framework/core/contracts/operator.py)")
         self.operator = operator
         self.target = self._validated_target(target, operator, max_negative_fraction)
-        self.weights = None if weights is None else self._validated_weights(weights, self.target, operator)
+        self.weights = None if weights is None else self._validated_weights(weights, self.target)
         self.target_norm_sq = float(torch.sum(self._weighted(self.target.double() ** 2)))
         if not self.target_norm_sq > 0.0:
             raise ValueError("the target is zero wherever the weights are non-zero; check the image and its weights")
@@ -146,21 +100,19 @@ class DataFidelity:
         self._last_forward: tuple[Tensor, int, Tensor] | None = None
 
     @staticmethod
-    def _validated_weights(weights: Tensor, target: Tensor, operator: object) -> Tensor:
+    def _validated_weights(weights: Tensor, target: Tensor) -> Tensor:
         if not isinstance(weights, Tensor) or tuple(weights.shape) != tuple(target.shape):
             shape = tuple(weights.shape) if isinstance(weights, Tensor) else type(weights).__name__
             raise ValueError(f"weights have shape {shape}; they must match the target {tuple(target.shape)}")
         if not bool(torch.isfinite(weights).all()) or float(weights.min()) < 0.0 or float(weights.max()) > 1.0:
             raise ValueError("weights must be finite and lie in [0, 1] (0: a pixel left out of the fit)")
-        if not (callable(getattr(operator, "render", None)) and callable(getattr(operator, "vjp", None))):
-            raise ValueError(f"operator {type(operator).__name__} has no render/vjp, which weighted data need")
         return weights.detach().to(target)
 
     def _weighted(self, squares: Tensor) -> Tensor:
         return squares if self.weights is None else squares * self.weights.to(squares)
 
     def _revision(self) -> int:
-        return int(getattr(self.operator, "revision", 0))
+        return int(self.operator.revision)
 
     def _loss_and_grad(self, d: Tensor, rendered: Tensor | None) -> tuple[Tensor, Tensor]:
         """(gradient of 1/2 ||F(d) - b||_W^2, F(d))."""
@@ -175,7 +127,7 @@ class DataFidelity:
         return self.operator.vjp(d, self.weights.to(image) * (image - self.target.to(image))), image
 
     @staticmethod
-    def _validated_target(target: Tensor, operator: object, max_negative_fraction: float) -> Tensor:
+    def _validated_target(target: Tensor, operator: Operator, max_negative_fraction: float) -> Tensor:
         if not isinstance(target, Tensor):
             raise ValueError(f"target must be a torch.Tensor (c, n, n), got {type(target).__name__}")
         if target.ndim != 3 or target.shape[1] != target.shape[2] or target.shape[0] < 1:
@@ -197,8 +149,8 @@ class DataFidelity:
                 f"target's negative mass is {negative / positive:.3g} of its positive mass "
                 f"(allowed {max_negative_fraction}); noise gives small negatives only, check sign and offset"
             )
-        expected = getattr(operator, "output_shape", None)
-        if expected is not None and tuple(expected) != tuple(target.shape):
+        expected = operator.output_shape
+        if tuple(expected) != tuple(target.shape):
             raise ValueError(
                 f"target shape {tuple(target.shape)} does not match the operator's output_shape "
                 f"{tuple(expected)}; resample the image or configure the operator's resolution"

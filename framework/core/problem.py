@@ -11,48 +11,16 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import cached_property
-from typing import Protocol, runtime_checkable
 
 import torch
 
 from framework.core.data import ReconstructionData
-from framework.core.objective import DataFidelity, ForwardOperator
+from framework.core.contracts.operator import Operator
+from framework.core.objective import DataFidelity
 from operators.scene import Scene
 from regularizers import RegularizerContext
 
-__all__ = ["HeightGrid", "OperatorPlugin", "Problem"]
-
-
-@runtime_checkable
-class OperatorPlugin(ForwardOperator, Protocol):
-    """What the framework uses of a forward-operator plugin (kind ``operator``).
-
-    The registered object has ``from_config(scene, photons, seed, **settings)``: ``scene`` is the
-    :class:`operators.scene.Scene` of the config (light, substrate, receiver, material,
-    wavelengths), ``photons`` and ``seed`` the run's, ``settings`` the rest of the ``operator``
-    group, which the plugin checks. Besides ``__call__`` and ``loss_and_grad``
-    (:class:`framework.core.objective.ForwardOperator`) the operator has the attributes and methods
-    below; it may also have ``warm_up()``, a context manager for a run that takes gradients,
-    yielding an object with ``running`` and ``wait()`` (e.g. a kernel compiled meanwhile).
-    """
-
-    dtype: torch.dtype
-    photons: int
-    pixel_area: float
-
-    @property
-    def output_shape(self) -> tuple[int, int, int]:
-        """(c, n, n) of the images it renders."""
-        ...
-
-    def render(self, heights: torch.Tensor, progress: bool = False) -> torch.Tensor:
-        """The image F(d) (c, n, n), W per scene unit^2, of heights d (m, m), without a graph."""
-        ...
-
-    def variant(self, photons: int, seed: int, resolution: int) -> "OperatorPlugin":
-        """The same physics with another sampling (photons, seed, an n = resolution receiver):
-        the independent reference renders of synthetic data."""
-        ...
+__all__ = ["HeightGrid", "Problem"]
 
 
 @dataclass(frozen=True)
@@ -103,7 +71,7 @@ class Problem:
         scene: Light, substrate, receiver, material and wavelengths (operators/scene.py).
     """
 
-    operator: OperatorPlugin
+    operator: Operator
     data: ReconstructionData
     grid: HeightGrid
     scene: Scene

@@ -30,7 +30,7 @@ import torch
 from omegaconf import DictConfig, ListConfig, OmegaConf
 
 from framework.core.height_field_io import load_height_field
-from framework.core.objective import ForwardOperator
+from framework.core.contracts.operator import Operator
 from framework.core.plugin_config import build_plugin, split_name
 from framework.core.problem import HeightGrid
 from framework.core.shapes import make_shape
@@ -171,7 +171,7 @@ def screen_sigma(cfg: Mapping[str, Any]) -> float:
     return sigma if psf == "gaussian" else 0.0
 
 
-def build_operator(cfg: Mapping[str, Any], scene: Scene, imaging: bool = False) -> ForwardOperator:
+def build_operator(cfg: Mapping[str, Any], scene: Scene, imaging: bool = False) -> Operator:
     """The operator plugin named by ``operator.name``, for ``scene``, ``photons`` and ``seed``,
     from the rest of the ``operator`` group (which the plugin checks); seen through the screen
     (operators/imaging.py) when ``screen.psf`` is set, or always with ``imaging`` (a setup that
@@ -183,7 +183,7 @@ def build_operator(cfg: Mapping[str, Any], scene: Scene, imaging: bool = False) 
         raise ValueError(f"seed={seed} must be an integer in [0, 2^63)")
     sigma = screen_sigma(cfg)
 
-    def build(for_scene: Scene) -> ForwardOperator:
+    def build(for_scene: Scene) -> Operator:
         return build_plugin("operator", name, dict(params), "operator", scene=for_scene, photons=photons, seed=seed)
 
     if sigma > 0.0 or imaging:

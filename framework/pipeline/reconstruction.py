@@ -21,18 +21,22 @@ import torch
 from framework.pipeline.calibration import JointCalibration
 from framework.pipeline.callbacks import Checkpointer, GroundTruthError, MetricsHistory, ProgressBar
 from framework.pipeline.checkpoint import resume as resume_solver
-from framework.plugins.data.sources import DataRequest, DataSource, resolve_path
+from framework.core.contracts.data_source import DataRequest, DataSource
+from framework.plugins.data.sources import resolve_path
 from framework.pipeline.mm_outputs import export_outputs
 from framework.core.plugin_config import as_mapping, build_plugin, split_name, with_scene_lengths
-from framework.core.problem import HeightGrid, OperatorPlugin, Problem
+from framework.core.contracts.operator import Operator
+from framework.core.contracts.solver import SolverBuilder
+from framework.core.contracts.start import Start, StartRequest
+from framework.core.contracts.stopping import StoppingRule
+from framework.core.problem import HeightGrid, Problem
 from framework.pipeline.report_figures import save_reconstruction_figures
 from framework.pipeline.run_checks import (CHECKPOINT, check_tracking_target, check_volume, check_volume_known, checked_resume,
                                   design_given, height_bounds)
 from framework.pipeline.run_identity import run_fingerprint
 from framework.pipeline.run_phases import PHASES, PhaseOutcome, resumed_phases
 from framework.core.scene_config import build_heights, build_operator, build_scene, height_grid, to_plain
-from framework.plugins.solvers import Callback, IterationRecord, SolverBuilder
-from framework.plugins.starts import StartRequest
+from framework.core.solver_loop import Callback, IterationRecord
 from framework.pipeline.tracking import MlflowTracker, local_store_uri
 from framework.core.units import mm_per_unit
 from framework.pipeline.verdict import run_verdict, volume_report
@@ -42,7 +46,7 @@ CALIBRATION_STATE = "calibration.json"
 MLFLOW_RUN = "mlflow_run.json"  # the run's MLflow run id, so that a job resumed in its directory logs into it
 
 
-def build_start(cfg: Mapping[str, Any]) -> Any:
+def build_start(cfg: Mapping[str, Any]) -> Start:
     """The ``initial`` plugin (framework/plugins/starts/), its config checked: ``{name: zero | design |
     file | transport | auto, ...}``."""
     spec = cfg.get("initial") or {"name": "zero"}
@@ -53,7 +57,7 @@ def build_start(cfg: Mapping[str, Any]) -> Any:
     return build_plugin("initial", name, params, "initial")
 
 
-def build_stopping(cfg: Mapping[str, Any]) -> list[Callback]:
+def build_stopping(cfg: Mapping[str, Any]) -> list[StoppingRule]:
     """The ``stopping`` plugins, in config order (fresh ones for every run from a start)."""
     return [build_plugin("stopping", name, params, f"stopping.{name}")
             for name, params in as_mapping(cfg.get("stopping"), "stopping").items()]
@@ -76,7 +80,7 @@ def stage_changes(history: Sequence[IterationRecord]) -> list[int]:
     return [i for (i, a), (_, b) in zip(lengths, lengths[1:]) if a is not None and b is not None and a != b]
 
 
-def _solve_from(parts: Reconstruction, problem: Problem, name: str, start: Any, request: StartRequest,
+def _solve_from(parts: Reconstruction, problem: Problem, name: str, start: Start, request: StartRequest,
                 checkpoint: Path | None, output_dir: Path, tracker: MlflowTracker, steps_before: int,
                 truth_error: GroundTruthError | None) -> PhaseOutcome:
     """Run the solver from one start (or continue it from ``checkpoint``) with fresh stopping rules."""
@@ -95,8 +99,7 @@ def _solve_from(parts: Reconstruction, problem: Problem, name: str, start: Any, 
     solver = parts.make_solver(problem, d0)
     stopping = build_stopping(cfg)
     for rule in stopping:
-        if callable(getattr(rule, "setup", None)):
-            rule.setup(problem)
+        rule.setup(problem)
     history = MetricsHistory()
     callbacks: list[Callback] = [history, *stopping, ProgressBar(desc=f"{cfg.get('method', 'custom')} from {name}"),
                                  Checkpointer(output_dir / CHECKPOINT, every=int(cfg["checkpoint_every"]),
@@ -143,13 +146,13 @@ class Reconstruction:
     """
 
     cfg: dict[str, Any]
-    operator: OperatorPlugin
+    operator: Operator
     scene: Scene
     grid: HeightGrid
     data_source: DataSource
     make_solver: SolverBuilder
-    stopping: list[Callback]
-    start: Any
+    stopping: list[StoppingRule]
+    start: Start
     max_iter: int
     fingerprint: dict[str, str]
     calibration: JointCalibration | None = None
@@ -182,8 +185,7 @@ class Reconstruction:
         stopping = build_stopping(cfg)
         _positive_int(cfg.get("checkpoint_every"), "checkpoint_every")
         start = build_start(cfg)
-        if callable(getattr(start, "check", None)):
-            start.check(base_dir)
+        start.check(base_dir)
         return cls(cfg, operator, scene, grid, data_source, make_solver, stopping, start, max_iter,
                    run_fingerprint(cfg, base_dir), calibration)
 
@@ -220,9 +222,8 @@ def run_reconstruction(cfg: Mapping[str, Any], output_dir: Path, base_dir: Path,
     parts = Reconstruction.from_config(cfg, base_dir)
     checkpoint = parts.check(base_dir, output_dir)
     output_dir.mkdir(parents=True, exist_ok=True)
-    warm_up = getattr(parts.operator, "warm_up", None)
-    if callable(warm_up) and bool(parts.cfg.get("compile_in_background", True)):
-        with warm_up() as compiling:
+    if bool(parts.cfg.get("compile_in_background", True)):
+        with parts.operator.warm_up() as compiling:
             return _reconstruct(parts, output_dir, base_dir, checkpoint, sweep_id, compiling)
     return _reconstruct(parts, output_dir, base_dir, checkpoint, sweep_id, None)
 
@@ -263,8 +264,7 @@ def _reconstruct(parts: Reconstruction, output_dir: Path, base_dir: Path, checkp
                   flush=True)
             compiling.wait()
         request = StartRequest(problem, lambda: parts.design(base_dir), base_dir)
-        phases = parts.start.phases() if callable(getattr(parts.start, "phases", None)) else [
-            (getattr(parts.start, "name", "start"), parts.start)]
+        phases = parts.start.phases()
         finished, first = resumed_phases(output_dir, checkpoint)
         steps_before = sum(outcome.result.iterations for outcome in finished)
         for index in range(first, len(phases)):

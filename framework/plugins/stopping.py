@@ -1,6 +1,6 @@
 """The stopping rules of the solver loop: plugins of kind ``stopping`` (``morozov``, ``stagnation``),
-built from the config's ``stopping`` group. A rule is a :class:`framework.core.solver_loop.Callback`;
-one that needs the problem (the noise level delta) gets it from ``setup(problem)`` before the run.
+built from the config's ``stopping`` group; the contract they keep is
+framework/core/contracts/stopping.py.
 """
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING
 
 from torch import Tensor
 
-from framework.core.solver_loop import Callback
+from framework.core.contracts.stopping import StoppingRule
 
 if TYPE_CHECKING:
     from framework.core.problem import Problem
@@ -25,7 +25,7 @@ def _checked_delta(delta: float) -> float:
     return delta
 
 
-class MorozovStopping(Callback):
+class MorozovStopping(StoppingRule):
     """Morozov's discrepancy principle: stop once ||F(d) - b|| / ||b|| <= tau_dis * delta.
 
     The principle is a regularisation method only for tau_dis > 1 (the residual of the exact
@@ -96,7 +96,7 @@ class MorozovStopping(Callback):
         return True
 
 
-class StagnationStopping(Callback):
+class StagnationStopping(StoppingRule):
     """Stop once the discrepancy has not improved for ``patience`` iterations; keep the best iterate.
 
     The complement of Morozov's rule for data the model cannot fit down to tau_dis * delta (a

@@ -138,12 +138,12 @@ class CausticOperator(PhotonOperator):
 
     @classmethod
     def example_settings(cls) -> dict[str, Any]:
-        """Settings for the plugin contract checks (framework/core/contract_checks.py): double precision."""
+        """Settings for the plugin contract checks (framework/core/contracts/checks.py): double precision."""
         return {"dtype": "float64"}
 
     @property
     def conserves_energy(self) -> bool:
-        """Without Fresnel losses the print moves light and absorbs none (framework/core/contract_checks.py)."""
+        """Without Fresnel losses the print moves light and absorbs none (framework/core/contracts/checks.py)."""
         return not self.settings.fresnel
 
     @classmethod
@@ -269,6 +269,8 @@ class CausticOperator(PhotonOperator):
         return leaf.grad.to(heights.dtype)
 
     # -- the light path around the print (operators/light_paths.py) ------------------------------
+    has_light_path = True
+
     def arrivals(self, photons: int) -> Arrivals:
         """``photons`` photons of this light where they meet the flat print's top plane z = h
         (straight from the light: the emitter aims at that plane)."""

@@ -133,14 +133,14 @@ class MeshSceneOperator(PhotonOperator):
 
     @classmethod
     def example_settings(cls) -> dict[str, Any]:
-        """Settings for the plugin contract checks (framework/core/contract_checks.py): one lens above the
+        """Settings for the plugin contract checks (framework/core/contracts/checks.py): one lens above the
         print, double precision."""
         return {"dtype": "float64", "elements": [{"name": "lens", "shape": "lens", "position": [0, 0, 1.15], "params": {
             "radius": 1.0, "thickness": 0.3, "front_radius": 4.0, "back_radius": 4.0}}]}
 
     @property
     def conserves_energy(self) -> bool:
-        """Without Fresnel losses the print moves light and absorbs none (framework/core/contract_checks.py)."""
+        """Without Fresnel losses the print moves light and absorbs none (framework/core/contracts/checks.py)."""
         return not self.settings.fresnel
 
     @classmethod
@@ -326,6 +326,8 @@ class MeshSceneOperator(PhotonOperator):
         return moved, is_rec, escaped | inside_top
 
     # -- the light path around the print (operators/light_paths.py) ------------------------------
+    has_light_path = True
+
     def arrivals(self, photons: int) -> Arrivals:
         """``photons`` photons of this light, traced through the elements above the print, where
         they enter the flat print's top (z = h, inside the substrate's square): position, the

@@ -16,7 +16,7 @@ from framework.pipeline.callbacks import MetricsHistory
 from framework.core.problem import Problem
 from framework.pipeline.reconstruction import CHECKPOINT, Reconstruction, build_start, run_reconstruction
 from framework.core.scene_config import build_heights
-from framework.plugins.starts import StartRequest
+from framework.core.contracts.start import StartRequest
 from operators.heightfield.operator import CausticOperator
 from tests.experiments.conftest import SMALL, compose_reconstruct
 

@@ -16,7 +16,8 @@ from omegaconf import OmegaConf
 from framework.core.data import ReconstructionData
 from framework.core.masks import mask_from_height_field
 from framework.core.problem import HeightGrid, Problem
-from framework.plugins.starts import StartRequest, TransportStart
+from framework.core.contracts.start import StartRequest
+from framework.plugins.starts import TransportStart
 from framework.plugins.starts.transport import exit_directions, fit_masked_surface
 from operators.heightfield.operator import CausticOperator, OperatorSettings
 from operators.optics.inverse_refraction import snell_normals

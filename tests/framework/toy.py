@@ -6,16 +6,31 @@ import torch
 from torch import Tensor
 
 from framework.core.objective import DataFidelity
+from operators.photon_operator import ImageOperator
 
 DTYPE = torch.float64
 
 
-class LinearOperator:
+class LinearOperator(ImageOperator):
     """F(d) = A vec(d) reshaped to (c, n, n); gradient of 1/2||F(d) - b||^2 is A^T (A d - b)."""
 
+    dtype = DTYPE
+    photons = 0
+    pixel_area = 1.0
+
     def __init__(self, A: Tensor, m: int, output_shape: tuple[int, int, int], noise: float = 0.0) -> None:
-        self.A, self.m, self.output_shape, self.noise = A, m, output_shape, noise
+        self.A, self.m, self._shape, self.noise = A, m, output_shape, noise
         self.calls = 0
+
+    @property
+    def output_shape(self) -> tuple[int, int, int]:
+        return self._shape
+
+    def render(self, d: Tensor, progress: bool = False) -> Tensor:
+        return self(d)
+
+    def vjp(self, d: Tensor, grad_image: Tensor) -> Tensor:
+        return (self.A.T @ grad_image.reshape(-1)).reshape(d.shape)
 
     def __call__(self, d: Tensor) -> Tensor:
         self.calls += 1

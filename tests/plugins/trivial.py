@@ -20,12 +20,13 @@ from typing import Any
 import torch
 import torch.nn.functional as F
 
-from framework.core.objective import loss_and_grad_by_autograd
-from framework.plugins.solvers import IterationRecord, IterativeSolver
+from framework.core.solver_loop import IterationRecord, IterativeSolver
+from operators.photon_operator import ImageOperator
 
 
-class ShadowOperator:
-    """F(d) = 1 + gain * U d on the scene's receiver; float64, differentiable by autograd."""
+class ShadowOperator(ImageOperator):
+    """F(d) = 1 + gain * U d on the scene's receiver; float64. The base
+    (operators/photon_operator.py) gives the loss, its gradient and autograd from render and vjp."""
 
     dtype = torch.float64
 
@@ -47,22 +48,25 @@ class ShadowOperator:
     def variant(self, photons: int, seed: int, resolution: int) -> ShadowOperator:
         return ShadowOperator(self.channels, resolution, self.half_width, photons, self.gain)
 
-    def __call__(self, heights: torch.Tensor) -> torch.Tensor:
+    def _factor(self, heights: torch.Tensor) -> int:
+        """Receiver pixels per height sample along each axis."""
         if heights.ndim != 2 or heights.shape[0] != heights.shape[1] or self.resolution % heights.shape[0]:
             raise ValueError(f"heights of shape {tuple(heights.shape)}: the shadow operator takes (m, m) with m "
                              f"dividing the receiver's {self.resolution} pixels")
         if not bool(torch.isfinite(heights).all()):
             raise ValueError("heights contain NaN or infinite values")
-        factor = self.resolution // heights.shape[-1]
-        lit = F.interpolate(heights.to(self.dtype)[None, None], scale_factor=factor, mode="nearest")[0]
-        return (1.0 + self.gain * lit).expand(self.output_shape)
+        return self.resolution // heights.shape[-1]
 
     def render(self, heights: torch.Tensor, progress: bool = False) -> torch.Tensor:
-        with torch.no_grad():
-            return self(heights).clone()
+        factor = self._factor(heights)
+        lit = F.interpolate(heights.detach().to(self.dtype)[None, None], scale_factor=factor, mode="nearest")[0]
+        return (1.0 + self.gain * lit).expand(self.output_shape).clone()
 
-    def loss_and_grad(self, heights: torch.Tensor, target: torch.Tensor, image: torch.Tensor | None = None):
-        return loss_and_grad_by_autograd(self, heights, target)
+    def vjp(self, heights: torch.Tensor, grad_image: torch.Tensor) -> torch.Tensor:
+        """gain U^T summed over channels: each sample collects its block of pixels."""
+        factor = self._factor(heights)
+        blocks = F.avg_pool2d(grad_image.to(self.dtype).sum(0)[None, None], factor)[0, 0]
+        return self.gain * factor ** 2 * blocks
 
 
 class ExactStepSolver(IterativeSolver):

@@ -30,7 +30,8 @@ import numpy as np
 import torch
 
 from framework.core.data import ReconstructionData
-from framework.plugins.data.sources import DataRequest, KnownPrint, PrintFacts, file_setting, resolve_path
+from framework.core.contracts.data_source import DataRequest, PrintFacts
+from framework.plugins.data.sources import KnownPrint, file_setting, resolve_path
 from framework.plugins.data.photo_import import PhotoImport, import_photo, save_photo_figure
 
 __all__ = ["PhotoData", "two_exposure_delta"]

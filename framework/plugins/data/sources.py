@@ -7,29 +7,24 @@
   the deposited volume when known.
 - ``photo`` (framework/plugins/data/photo_data.py): a camera photo of the screen, rectified onto the receiver.
 
-Each is built from its config alone (every value checked, nothing read or rendered);
-``check(request)`` then reads and checks its files and what it knows of the print without
-rendering anything (the run's checks before a run opens), and ``load(request)`` produces the
-:class:`framework.core.data.ReconstructionData`.
+Each keeps the data contract (framework/core/contracts/data_source.py): built from its config
+alone, ``check(request)`` before a run opens, ``load(request)`` once it runs.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Protocol
 
 import torch
 
+from framework.core.contracts.data_source import DataRequest, PrintFacts
 from framework.core.data import ReconstructionData, measured_data, synthetic_data, validate_delta
 from framework.core.image_io import load_caustic_image, load_mask
 from framework.core.masks import mask_from_height_field
-from framework.core.objective import ForwardOperator
-from framework.core.problem import HeightGrid
-from framework.core.units import DEFAULT_MM_PER_UNIT, scene_volume
+from framework.core.units import scene_volume
 
-__all__ = ["DataRequest", "DataSource", "PrintFacts", "KnownPrint", "file_setting", "SyntheticData", "FileData", "resolve_path"]
+__all__ = ["KnownPrint", "file_setting", "SyntheticData", "FileData", "resolve_path"]
 
 
 def resolve_path(path: str | Path, base_dir: Path) -> Path:
@@ -55,56 +50,6 @@ def _count(name: str, value: int, minimum: int) -> int:
     if isinstance(value, bool) or not isinstance(value, (int, float)) or int(value) != value or value < minimum:
         raise ValueError(f"data.{name}={value!r} must be an integer >= {minimum}")
     return int(value)
-
-
-@dataclass(frozen=True)
-class DataRequest:
-    """What a data source may use.
-
-    Attributes:
-        operator: The reconstruction's forward operator (its ``variant`` renders references).
-        grid: The height grid of the reconstruction.
-        design: Returns the configured height field (m, m), float64, scene units: the ground
-            truth of synthetic data, the print's design for measured data.
-        seed: The run's seed (reference renders and noise derive their seeds from it).
-        base_dir: Directory against which relative file names are resolved.
-        output_dir: The run directory, for what a source shows of its work (figures, logs).
-        mm_per_unit: Millimetres per scene unit (framework/core/units.py), for volumes given in mm3.
-    """
-
-    operator: ForwardOperator
-    grid: HeightGrid
-    design: Callable[[], torch.Tensor]
-    seed: int
-    base_dir: Path
-    output_dir: Path | None = None
-    mm_per_unit: float = DEFAULT_MM_PER_UNIT
-
-
-@dataclass(frozen=True)
-class PrintFacts:
-    """What a data source's check knows of the print before anything is rendered.
-
-    Attributes:
-        mask: The printed area (m, m) bool.
-        volume: The deposited volume, scene units^3, or None when unknown.
-    """
-
-    mask: torch.Tensor
-    volume: float | None
-
-
-class DataSource(Protocol):
-    """A ``data`` plugin: built from its config keys, it produces the data on request."""
-
-    def check(self, request: DataRequest) -> PrintFacts:
-        """Read and check every file and value the data need, rendering nothing; a bad one raises
-        a ValueError / FileNotFoundError naming the key and the fix."""
-        ...
-
-    def load(self, request: DataRequest) -> ReconstructionData:
-        """The target image, mask, volume and noise level (and, for synthetic data, the truth)."""
-        ...
 
 
 class SyntheticData:

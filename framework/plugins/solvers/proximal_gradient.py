@@ -18,28 +18,22 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Mapping
-from typing import TYPE_CHECKING, Any, Callable, Sequence
+from typing import Any, Callable, Sequence
 
 import torch
 from torch import Tensor
 
 from framework.core.objective import DataEvaluation, DataFidelity
+from framework.core.contracts.solver import SolverBuilder
 from framework.core.plugin_config import build_plugin, build_plugin_map, split_name
-
 from framework.core.solver_loop import IterationFailed, IterationRecord, IterativeSolver
 from framework.plugins.solvers.preconditioner import GradientPreconditioner
 from framework.plugins.solvers.step_size import LineSearchFailed, StepSizePolicy, as_step_policy
 
-if TYPE_CHECKING:
-    from framework.core.problem import Problem
-
-__all__ = ["ProximalGradientSolver", "GradientDescent", "PixelLandweber", "SolverBuilder", "build_parts",
+__all__ = ["ProximalGradientSolver", "GradientDescent", "PixelLandweber", "build_parts",
            "check_two_metric_from"]
 
 Candidate = dict[str, Tensor]
-# What a solver plugin's ``from_config`` returns: makes the solver once the problem and the start
-# d0 (m, m) are known.
-SolverBuilder = Callable[["Problem", Tensor], IterativeSolver]
 
 
 def build_parts(step_size: Mapping[str, Any], preconditioner: Mapping[str, Any] | None = None,
@@ -367,6 +361,11 @@ class GradientDescent(ProximalGradientSolver):
         d = self.state.d - tau * self._step_direction()
         return {"d": d if self.floor is None else d.clamp(min=self.floor)}
 
+    @staticmethod
+    def example_settings() -> dict[str, Any]:
+        """Settings of the contract checks (framework/core/contracts/checks.py)."""
+        return {"step_size": {"name": "backtracking", "tau": 5e-3}, "preconditioner": {"name": "sobolev", "length": [0.25]}}
+
     @classmethod
     def from_config(cls, step_size: Mapping[str, Any], preconditioner: Mapping[str, Any] | None = None,
                     min_thickness: float | None = 0.1, two_metric_from: int | None = None) -> SolverBuilder:
@@ -419,6 +418,12 @@ class PixelLandweber(ProximalGradientSolver):
                 "landweber_pixel needs at least one regulariser with a prox (e.g. solver.regularizers: "
                 "{l1_bounds: {alpha: 2e-3}}); for plain gradient descent use solver 'gradient_descent'"
             )
+
+    @staticmethod
+    def example_settings() -> dict[str, Any]:
+        """Settings of the contract checks (framework/core/contracts/checks.py)."""
+        return {"step_size": {"name": "backtracking", "tau": 5e-3}, "regularizers": {"l1_bounds": {}},
+                "preconditioner": {"name": "sobolev", "length": [0.25]}}
 
     @classmethod
     def from_config(cls, step_size: Mapping[str, Any], regularizers: Mapping[str, Any] | None = None,

@@ -35,7 +35,8 @@ from framework.core.objective import DataFidelity
 from framework.core.plugin_config import build_plugin, split_name
 
 from framework.plugins.solvers.preconditioner import GradientPreconditioner
-from framework.plugins.solvers.proximal_gradient import Candidate, ProximalGradientSolver, SolverBuilder, build_parts
+from framework.core.contracts.solver import SolverBuilder
+from framework.plugins.solvers.proximal_gradient import Candidate, ProximalGradientSolver, build_parts
 from framework.plugins.solvers.step_size import StepSizePolicy
 
 __all__ = ["WaveletLandweber"]
@@ -102,6 +103,12 @@ class WaveletLandweber(ProximalGradientSolver):
     def _check_pixel_step_ratio(ratio: float) -> None:
         if isinstance(ratio, bool) or not isinstance(ratio, (int, float)) or not float(ratio) > 0.0:
             raise ValueError(f"pixel_step_ratio (tau_p / tau_w) must be > 0, got {ratio!r}")
+
+    @staticmethod
+    def example_settings() -> dict[str, Any]:
+        """Settings of the contract checks (framework/core/contracts/checks.py)."""
+        return {"step_size": {"name": "backtracking", "tau": 5e-3}, "wavelet_regularizer": {"name": "l1_wavelet", "levels": 2},
+                "preconditioner": {"name": "sobolev", "length": [0.25]}}
 
     @classmethod
     def from_config(cls, step_size: Mapping[str, Any], wavelet_regularizer: Mapping[str, Any],

@@ -15,12 +15,12 @@ from typing import Any
 
 from framework.core.plugin_config import as_mapping, build_plugin
 
-from .base import StartRequest, StartResult
+from framework.core.contracts.start import Start, StartRequest, StartResult
 
 __all__ = ["AutoStart"]
 
 
-class AutoStart:
+class AutoStart(Start):
     """Starts tried in order until one reaches the noise level. Plugin ``initial/auto``.
 
     Args:
@@ -43,6 +43,11 @@ class AutoStart:
         self.candidates: list[tuple[str, Any]] = [
             (name, build_plugin("initial", name, params, f"initial.candidates.{name}")) for name, params in specs.items()]
 
+    @staticmethod
+    def example_settings() -> dict[str, Any]:
+        """Settings of the contract checks (framework/core/contracts/checks.py): conf/initial/auto.yaml's."""
+        return {"candidates": {"zero": {}, "transport": {}}}
+
     def phases(self) -> list[tuple[str, Any]]:
         """(name, start) of every candidate, in the order they are tried."""
         return list(self.candidates)
@@ -50,8 +55,7 @@ class AutoStart:
     def check(self, base_dir: Path) -> None:
         """Each candidate's own check (e.g. a start file exists)."""
         for _, start in self.candidates:
-            if callable(getattr(start, "check", None)):
-                start.check(base_dir)
+            start.check(base_dir)
 
     def __call__(self, request: StartRequest) -> StartResult:
         """The first candidate's start (a caller that does not run the phases gets that one)."""

@@ -11,7 +11,7 @@ import torch
 from framework.plugins.data.sources import resolve_path
 from framework.core.height_field_io import load_height_field
 
-from .base import StartRequest, StartResult
+from framework.core.contracts.start import Start, StartRequest, StartResult
 
 __all__ = ["ZeroStart", "DesignStart", "FileStart"]
 
@@ -30,7 +30,7 @@ def _checked_shape(d: torch.Tensor, request: StartRequest, what: str) -> torch.T
     return d.to(request.problem.operator.dtype)
 
 
-class ZeroStart:
+class ZeroStart(Start):
     """Flat glass, d0 = 0 (the paper's start). Plugin ``initial/zero``."""
 
     name = "zero"
@@ -39,7 +39,7 @@ class ZeroStart:
         return StartResult(torch.zeros(request.problem.grid.shape, dtype=request.problem.operator.dtype), name=self.name)
 
 
-class DesignStart:
+class DesignStart(Start):
     """The configured height field times ``scale`` (with ``data=file`` the print's design, with
     synthetic data the ground truth). Plugin ``initial/design``."""
 
@@ -53,7 +53,7 @@ class DesignStart:
         return StartResult(_checked_shape(d, request, "initial=design"), name=self.name)
 
 
-class FileStart:
+class FileStart(Start):
     """A height field from ``path`` (.npy in scene units, or a 16-bit PNG, framework/core/height_field_io.py),
     resampled to the grid, times ``scale``. Plugin ``initial/file``."""
 

@@ -40,7 +40,7 @@ from operators.light_paths import LightPath, flat_exit, refract_down
 from regularizers import RegularizerContext
 from regularizers.volume_prox import VolumeSlabL1Bounds
 
-from .base import StartRequest, StartResult
+from framework.core.contracts.start import Start, StartRequest, StartResult
 
 __all__ = ["TransportStart", "masked_sources", "exit_directions", "fit_masked_surface"]
 
@@ -51,7 +51,7 @@ LANDING_TOLERANCE_PX = 0.5  # a ray landing farther than this from its goal coun
 
 def light_path_of(operator: Any) -> LightPath:
     """The operator's :class:`LightPath` (an imaging wrapper passes its inner operator's through)."""
-    if callable(getattr(operator, "arrivals", None)) and callable(getattr(operator, "land_from_bottom", None)):
+    if operator.has_light_path:
         return operator
     raise ValueError(f"operator {type(operator).__name__} exposes no light path (arrivals, land_from_bottom); "
                      "use initial=zero or initial=file")
@@ -173,7 +173,7 @@ def fit_masked_surface(slopes: np.ndarray, mask: np.ndarray, spacing: float, smo
     return out.reshape(m, m)
 
 
-class TransportStart:
+class TransportStart(Start):
     """The masked transport start (module docstring). Plugin ``initial/transport``.
 
     Args:

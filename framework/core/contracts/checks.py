@@ -1,0 +1,306 @@
+"""The contract every plugin of a kind keeps, as checks a test runs on each registered plugin.
+
+tests/test_plugin_contracts.py runs them on every installed plugin of every kind (third-party ones
+included, found through their entry points); a plugin package may call them from its own tests. A
+plugin with required settings declares an example of them in a classmethod
+``example_settings() -> dict`` (e.g. the mesh scene's elements).
+
+- operator (:func:`check_operator`): every member of the contract
+  (framework/core/contracts/operator.py), the declared output shape and dtype, finite non-negative
+  images, determinism under a seed, the adjoint identity of the linearisation
+  <vjp(d, w), v> = <w, F'(d) v> and the gradient of ``loss_and_grad`` against central finite
+  differences, the power on the receiver unchanged by a small print when ``conserves_energy``,
+  and bad heights refused (wrong shape, NaN) with a ValueError;
+- regularizer (:func:`check_regularizer`): ``prox`` is the minimiser of step R(x) + 1/2 ||x - d||^2
+  (no nearby point does better), its result lies where R is finite, and ``value`` is finite there;
+- post_step (:func:`check_post_step`): same shape and dtype, finite, the input untouched,
+  deterministic;
+- solver (:func:`check_solver`): a known problem solved (the discrepancy of exact data falls to a
+  fraction of the start's), finite iterates, the same result twice;
+- stopping (:func:`check_stopping`): a stopping rule that, after ``setup``, ends a run whose
+  discrepancy falls to zero before its cap, says why, and does so at the same iteration twice;
+- initial (:func:`check_start`): a start of the grid's shape and the operator's dtype, finite,
+  the same twice, its phases named;
+- data (:func:`check_data_source`): ``check`` and ``load`` agree on the printed area and on the
+  volume where ``check`` knows it, the target has the operator's shape, the noise level lies in (0, 1), the same data twice.
+
+A failed check raises :class:`ContractViolation` naming the plugin and the check.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, Callable
+
+import torch
+
+from framework.core.contracts.data_source import DataRequest, DataSource
+from framework.core.contracts.operator import missing_members
+from framework.core.contracts.solver import SolverBuilder
+from framework.core.contracts.start import Start, StartRequest
+from framework.core.contracts.stopping import StoppingRule
+from framework.core.data import ReconstructionData
+from framework.core.problem import HeightGrid, Problem
+from framework.core.solver_loop import IterationRecord, IterativeSolver
+from operators.photon_operator import ImageOperator
+from operators.scene import Receiver, Scene
+from regularizers import PostStepUpdate, Regularizer, RegularizerContext
+
+__all__ = ["ContractViolation", "example_settings", "check_operator", "check_regularizer", "check_post_step",
+           "check_solver", "check_stopping", "check_start", "check_data_source", "smooth_bump"]
+
+
+class ContractViolation(AssertionError):
+    """A plugin breaks its kind's contract."""
+
+
+def _require(condition: bool, who: str, what: str) -> None:
+    if not condition:
+        raise ContractViolation(f"{who}: {what}")
+
+
+def example_settings(plugin: Any) -> dict[str, Any]:
+    """The settings a plugin declares for the contract checks (its ``example_settings()``), else {}."""
+    example = getattr(plugin, "example_settings", None)
+    return dict(example()) if callable(example) else {}
+
+
+def smooth_bump(m: int, height: float = 0.02, width: float = 0.3) -> torch.Tensor:
+    """A Gaussian bump (m, m), float64, scene units, on the grid linspace(-1, 1, m)."""
+    axis = torch.linspace(-1.0, 1.0, m, dtype=torch.float64)
+    y, x = torch.meshgrid(axis, axis, indexing="ij")
+    return height * torch.exp(-(x ** 2 + y ** 2) / (2.0 * width ** 2))
+
+
+def check_operator(make: Callable[[int], Any], m: int = 16, who: str = "operator") -> None:
+    """Check an operator plugin built by ``make(seed)`` on heights of an m x m grid."""
+    operator = make(0)
+    missing = missing_members(operator)
+    _require(not missing, who, f"lacks {', '.join(missing)} of the operator contract")
+    dtype = operator.dtype
+    flat = torch.zeros(m, m, dtype=dtype)
+    bump = smooth_bump(m).to(dtype) + 1e-3
+    image = operator.render(bump)
+    _require(tuple(image.shape) == tuple(operator.output_shape), who,
+             f"render gives shape {tuple(image.shape)}, output_shape says {tuple(operator.output_shape)}")
+    _require(image.dtype == dtype, who, f"render gives dtype {image.dtype}, the operator's dtype is {dtype}")
+    _require(bool(torch.isfinite(image).all()) and float(image.min()) >= 0.0, who,
+             "render gives a negative or non-finite irradiance")
+    _require(torch.equal(make(0).render(bump), image), who, "two operators of one seed render differently")
+    _check_adjoint(operator, bump, who)
+    _check_gradient(operator, bump, who)
+    if operator.conserves_energy:
+        power = [float(operator.render(d).double().sum()) * operator.pixel_area for d in (flat, bump)]
+        _require(power[0] > 0 and abs(power[1] - power[0]) <= 0.02 * power[0], who,
+                 f"the power on the receiver changes from {power[0]:.6g} to {power[1]:.6g} under a small print "
+                 "(declared conserves_energy)")
+    for bad, what in ((torch.zeros(m, m + 1, dtype=dtype), "non-square heights"),
+                      (torch.full((m, m), math.nan, dtype=dtype), "NaN heights")):
+        try:
+            operator.render(bad)
+        except ValueError:
+            continue
+        raise ContractViolation(f"{who}: render accepts {what} instead of raising a ValueError")
+
+
+def _tolerances(dtype: torch.dtype) -> tuple[float, float]:
+    """(finite-difference step, relative tolerance) for an operator of this dtype."""
+    return (1e-6, 1e-4) if dtype == torch.float64 else (1e-3, 5e-2)
+
+
+def _direction(heights: torch.Tensor) -> torch.Tensor:
+    """A smooth random perturbation of heights (m, m), fixed seed."""
+    generator = torch.Generator().manual_seed(1)
+    return (torch.randn(heights.shape, generator=generator, dtype=torch.float64) * smooth_bump(
+        heights.shape[0], 1.0, 0.5)).to(heights.dtype)
+
+
+def _check_adjoint(operator: Any, heights: torch.Tensor, who: str) -> None:
+    """<vjp(d, w), v> against <w, (F(d + e v) - F(d - e v)) / 2e> for a random image w."""
+    eps, tolerance = _tolerances(heights.dtype)
+    direction = _direction(heights)
+    w = torch.rand(operator.output_shape, generator=torch.Generator().manual_seed(2), dtype=torch.float64)
+    pulled = operator.vjp(heights, w.to(operator.dtype))
+    _require(tuple(pulled.shape) == tuple(heights.shape), who,
+             f"vjp gives shape {tuple(pulled.shape)} for heights {tuple(heights.shape)}")
+    pushed = (operator.render(heights + eps * direction).double()
+              - operator.render(heights - eps * direction).double()) / (2.0 * eps)
+    left, right = float((pulled.double() * direction.double()).sum()), float((w * pushed).sum())
+    _require(abs(left - right) <= tolerance * max(abs(left), abs(right), 1e-30), who,
+             f"the adjoint identity fails: <vjp(d, w), v> = {left:.8g} but <w, F'(d) v> = {right:.8g} "
+             f"(relative tolerance {tolerance:g})")
+
+
+def _check_gradient(operator: Any, heights: torch.Tensor, who: str) -> None:
+    """<grad L(d), v> against (L(d + e v) - L(d - e v)) / 2e for L = 1/2 ||F(d) - target||^2."""
+    target = operator.render(torch.zeros_like(heights)) * 0.9
+    direction = _direction(heights)
+    eps, tolerance = _tolerances(heights.dtype)
+    _, grad, _ = operator.loss_and_grad(heights, target)
+    _require(tuple(grad.shape) == tuple(heights.shape), who,
+             f"loss_and_grad gives a gradient of shape {tuple(grad.shape)} for heights {tuple(heights.shape)}")
+    loss = lambda d: 0.5 * float(((operator.render(d).double() - target.double()) ** 2).sum())  # noqa: E731
+    numeric = (loss(heights + eps * direction) - loss(heights - eps * direction)) / (2.0 * eps)
+    analytic = float((grad.double() * direction.double()).sum())
+    _require(abs(numeric - analytic) <= tolerance * max(abs(numeric), abs(analytic), 1e-30), who,
+             f"the gradient's directional derivative {analytic:.8g} differs from finite differences {numeric:.8g} "
+             f"(relative tolerance {tolerance:g})")
+
+
+def _context(m: int) -> RegularizerContext:
+    mask = torch.zeros(m, m, dtype=torch.bool)
+    mask[m // 4: 3 * m // 4, m // 4: 3 * m // 4] = True
+    area = (2.0 / m) ** 2
+    return RegularizerContext(mask=mask, volume=0.05 * float(mask.sum()) * area, pixel_area=area)
+
+
+def check_regularizer(regularizer: Regularizer, m: int = 16, who: str = "regularizer", trials: int = 30) -> None:
+    """Check a regularizer: with ``has_prox``, prox(d, step) minimises step R(x) + 1/2 ||x - d||^2
+    (no random nearby point, nor its projection, does better) and R is finite at it."""
+    _require(isinstance(regularizer, Regularizer), who, f"is a {type(regularizer).__name__}, not a Regularizer")
+    regularizer.setup(_context(m))
+    generator = torch.Generator().manual_seed(0)
+    d = 0.2 * torch.rand(m, m, generator=generator, dtype=torch.float64) - 0.05
+    _require(math.isfinite(regularizer.value(regularizer.project(d))), who, "value is not finite at project(d)")
+    if not regularizer.has_prox:
+        return
+    for step in (1e-3, 1e-1, 10.0):
+        x = regularizer.prox(d, step)
+        best = step * regularizer.value(x) + 0.5 * float(((x - d) ** 2).sum())
+        _require(math.isfinite(best), who, f"value is not finite at prox(d, {step:g})")
+        for trial in range(trials):
+            scale = 10.0 ** (-1 - trial % 4)
+            y = x + scale * torch.randn(m, m, generator=generator, dtype=torch.float64)
+            for candidate in (y, regularizer.project(y)):
+                other = step * regularizer.value(candidate) + 0.5 * float(((candidate - d) ** 2).sum())
+                _require(other >= best - 1e-9 * (1.0 + abs(best)), who,
+                         f"prox(d, {step:g}) is not the minimiser: a point {scale:g} away does better "
+                         f"({other:.10g} < {best:.10g})")
+
+
+def check_post_step(post_step: PostStepUpdate, m: int = 16, who: str = "post_step") -> None:
+    """Check a post-step update: same shape and dtype, finite, the input untouched, deterministic."""
+    _require(isinstance(post_step, PostStepUpdate), who, f"is a {type(post_step).__name__}, not a PostStepUpdate")
+    post_step.setup(_context(m))
+    d = smooth_bump(m, 0.05)
+    before = d.clone()
+    out = post_step(d)
+    _require(out.shape == d.shape and out.dtype == d.dtype, who,
+             f"gives {tuple(out.shape)} {out.dtype} for {tuple(d.shape)} {d.dtype}")
+    _require(bool(torch.isfinite(out).all()), who, "gives non-finite heights")
+    _require(torch.equal(d, before), who, "modifies its input")
+    _require(torch.equal(post_step(d), out), who, "is not deterministic")
+
+
+def check_solver(make: Callable[[], SolverBuilder], problem: Problem, iterations: int = 40, who: str = "solver",
+                 reduction: float = 0.5) -> None:
+    """Check a solver plugin (``make()`` builds its builder) on a known problem with exact data
+    (``problem.data.target`` = F(d_true)): from flat glass, within ``iterations`` the relative
+    discrepancy falls to ``reduction`` times the start's, every iterate finite, the same twice."""
+    start = torch.zeros(problem.grid.shape, dtype=problem.operator.dtype)
+    first = problem.fidelity.evaluate(start, with_grad=False).rel_discrepancy
+    results = []
+    for _ in range(2):
+        solver = make()(problem, start.clone())
+        _require(isinstance(solver, IterativeSolver), who, f"builds a {type(solver).__name__}, not an IterativeSolver")
+        result = solver.run(iterations)
+        _require(bool(torch.isfinite(result.d).all()) and tuple(result.d.shape) == problem.grid.shape, who,
+                 f"ends with non-finite heights or shape {tuple(result.d.shape)}")
+        results.append(result.d)
+    last = problem.fidelity.evaluate(results[0], with_grad=False).rel_discrepancy
+    _require(last <= reduction * first, who, f"does not solve a known problem: the relative discrepancy goes from "
+             f"{first:.4g} to {last:.4g} in {iterations} iterations (at most {reduction:g} x the start's asked)")
+    _require(torch.equal(results[0], results[1]), who, "two runs on the same problem end differently")
+
+
+class _Identity(ImageOperator):
+    """F(d) = 1 + d on an m x m receiver: the operator of the stopping-rule checks."""
+
+    dtype, photons, pixel_area = torch.float64, 0, 1.0
+
+    def __init__(self, m: int) -> None:
+        self.m = m
+
+    @property
+    def output_shape(self) -> tuple[int, int, int]:
+        return (1, self.m, self.m)
+
+    def render(self, heights: torch.Tensor, progress: bool = False) -> torch.Tensor:
+        return 1.0 + heights.reshape(1, self.m, self.m).to(self.dtype)
+
+    def vjp(self, heights: torch.Tensor, grad_image: torch.Tensor) -> torch.Tensor:
+        return grad_image.reshape(self.m, self.m).to(self.dtype)
+
+
+class _Converging(IterativeSolver):
+    """Halves the residual of d = d_true each iteration: the discrepancy falls geometrically to 0."""
+
+    def __init__(self, problem: Problem, truth: torch.Tensor) -> None:
+        super().__init__(torch.zeros_like(truth))
+        self.problem, self.truth = problem, truth
+
+    def step(self) -> IterationRecord:
+        self.state.d = self.truth + 0.5 * (self.state.d - self.truth)
+        self.state.iteration += 1
+        evaluation = self.problem.fidelity.evaluate(self.state.d, with_grad=False)
+        record = IterationRecord(self.state.iteration, evaluation.value, evaluation.value, evaluation.rel_discrepancy,
+                                 0.5, 0.0)
+        self.history.append(record)
+        return record
+
+
+def check_stopping(make: Callable[[], StoppingRule], m: int = 8, cap: int = 200, who: str = "stopping") -> None:
+    """Check a stopping rule built by ``make()``: after ``setup(problem)`` it ends a run whose
+    discrepancy falls geometrically to zero before the cap, with a reason, at the same iteration twice."""
+    truth = smooth_bump(m, 0.5)
+    operator = _Identity(m)
+    mask = torch.ones(m, m, dtype=torch.bool)
+    data = ReconstructionData(target=operator.render(truth), mask=mask, volume=float(truth.sum()) * (2.0 / m) ** 2,
+                              delta=0.01)
+    problem = Problem(operator, data, HeightGrid(m, 1.0, 0.1), Scene(receiver=Receiver(resolution=m)))
+    stops = []
+    for _ in range(2):
+        rule = make()
+        _require(isinstance(rule, StoppingRule), who, f"is a {type(rule).__name__}, not a StoppingRule")
+        rule.setup(problem)
+        result = _Converging(problem, truth).run(cap, [rule])
+        _require(result.stopped_by == type(rule).__name__, who,
+                 f"does not stop a run that converges ({result.stop_reason})")
+        _require(bool(result.stop_reason), who, "stops without a reason")
+        stops.append(result.iterations)
+    _require(stops[0] == stops[1], who, f"stops at iteration {stops[0]}, then at {stops[1]}")
+
+
+def check_start(start: Start, request: StartRequest, who: str = "initial") -> None:
+    """Check a start plugin on a request: d0 of the grid's shape and the operator's dtype, finite,
+    the same twice; its phases named."""
+    _require(isinstance(start, Start), who, f"is a {type(start).__name__}, not a Start")
+    phases = start.phases()
+    _require(bool(phases) and all(isinstance(name, str) and name and isinstance(s, Start) for name, s in phases), who,
+             f"phases() gives {phases!r}; a non-empty list of (name, start)")
+    start.check(request.base_dir)
+    results = [start(request) for _ in range(2)]
+    d = results[0].d
+    problem = request.problem
+    _require(tuple(d.shape) == problem.grid.shape and d.dtype == problem.operator.dtype, who,
+             f"gives {tuple(d.shape)} {d.dtype}; the grid is {problem.grid.shape}, the operator's dtype {problem.operator.dtype}")
+    _require(bool(torch.isfinite(d).all()), who, "gives non-finite heights")
+    _require(torch.equal(d, results[1].d), who, "gives another start the second time")
+
+
+def check_data_source(source: DataSource, request: DataRequest, who: str = "data") -> None:
+    """Check a data plugin on a request: ``check`` and ``load`` agree on the printed area and on
+    the volume where ``check`` knows it, the target has the operator's shape and is finite, delta lies in (0, 1), the same twice."""
+    _require(isinstance(source, DataSource), who, f"is a {type(source).__name__} without check and load")
+    facts = source.check(request)
+    _require(tuple(facts.mask.shape) == request.grid.shape and facts.mask.dtype == torch.bool, who,
+             f"check gives a mask {tuple(facts.mask.shape)} {facts.mask.dtype}; the grid is {request.grid.shape} bool")
+    data = source.load(request)
+    _require(tuple(data.target.shape) == tuple(request.operator.output_shape), who,
+             f"loads a target {tuple(data.target.shape)}; the operator renders {tuple(request.operator.output_shape)}")
+    _require(bool(torch.isfinite(data.target).all()), who, "loads a non-finite target")
+    _require(torch.equal(data.mask, facts.mask), who, "load and check give different printed areas")
+    _require(facts.volume is None or data.volume == facts.volume, who,
+             f"load gives the volume {data.volume}, check {facts.volume}")
+    _require(0.0 < data.delta < 1.0, who, f"loads the noise level {data.delta}, not in (0, 1)")
+    _require(torch.equal(source.load(request).target, data.target), who, "loads another target the second time")

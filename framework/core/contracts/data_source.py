@@ -1,0 +1,74 @@
+"""The contract of a data plugin (kind ``data``, config group ``data``): where the caustic image,
+the printed area, the volume and the noise level of a reconstruction come from.
+
+A data plugin is built from its config keys alone (every value checked, nothing read or rendered);
+``check(request)`` then reads and checks its files and what it knows of the print without
+rendering (before a run opens), and ``load(request)`` produces the
+:class:`framework.core.data.ReconstructionData`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable, Protocol, runtime_checkable
+
+import torch
+
+from framework.core.contracts.operator import Operator
+from framework.core.data import ReconstructionData
+from framework.core.problem import HeightGrid
+from framework.core.units import DEFAULT_MM_PER_UNIT
+
+__all__ = ["DataRequest", "DataSource", "PrintFacts"]
+
+
+@dataclass(frozen=True)
+class DataRequest:
+    """What a data source may use.
+
+    Attributes:
+        operator: The reconstruction's forward operator (its ``variant`` renders references).
+        grid: The height grid of the reconstruction.
+        design: Returns the configured height field (m, m), float64, scene units: the ground
+            truth of synthetic data, the print's design for measured data.
+        seed: The run's seed (reference renders and noise derive their seeds from it).
+        base_dir: Directory against which relative file names are resolved.
+        output_dir: The run directory, for what a source shows of its work (figures, logs).
+        mm_per_unit: Millimetres per scene unit (framework/core/units.py), for volumes given in mm3.
+    """
+
+    operator: Operator
+    grid: HeightGrid
+    design: Callable[[], torch.Tensor]
+    seed: int
+    base_dir: Path
+    output_dir: Path | None = None
+    mm_per_unit: float = DEFAULT_MM_PER_UNIT
+
+
+@dataclass(frozen=True)
+class PrintFacts:
+    """What a data source's check knows of the print before anything is rendered.
+
+    Attributes:
+        mask: The printed area (m, m) bool.
+        volume: The deposited volume, scene units^3, or None when unknown.
+    """
+
+    mask: torch.Tensor
+    volume: float | None
+
+
+@runtime_checkable
+class DataSource(Protocol):
+    """A ``data`` plugin: built from its config keys, it produces the data on request."""
+
+    def check(self, request: DataRequest) -> PrintFacts:
+        """Read and check every file and value the data need, rendering nothing; a bad one raises
+        a ValueError / FileNotFoundError naming the key and the fix."""
+        ...
+
+    def load(self, request: DataRequest) -> ReconstructionData:
+        """The target image, mask, volume and noise level (and, for synthetic data, the truth)."""
+        ...

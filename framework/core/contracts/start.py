@@ -1,0 +1,67 @@
+"""The contract of a start plugin (kind ``initial``, config group ``initial``): the heights d0 the
+solver starts from.
+
+A start is built from its config group by ``from_config(**params)`` (or its constructor), which
+checks every value before anything is rendered; ``check(base_dir)`` checks what it reads (before
+the run opens); once the data are loaded, ``start(request) -> StartResult``. A start that tries
+several candidates (``initial=auto``) lists them in ``phases()``: the reconstruction runs the
+solver from each in turn. :class:`Start` gives the defaults (nothing to check, one phase).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+from torch import Tensor
+
+from framework.core.problem import Problem
+
+__all__ = ["Start", "StartRequest", "StartResult"]
+
+
+@dataclass(frozen=True)
+class StartRequest:
+    """What a start may use.
+
+    Attributes:
+        problem: The operator, data (target, mask, volume, noise level), grid and scene.
+        design: Builds the configured height field (m, m) (with synthetic data the ground truth).
+        base_dir: Directory relative paths are resolved against.
+    """
+
+    problem: Problem
+    design: Callable[[], Tensor]
+    base_dir: Path
+
+
+@dataclass
+class StartResult:
+    """A start d0 (m, m), scene units, in the operator's dtype, and what computing it measured
+    (logged with the run as ``start_*`` metrics)."""
+
+    d: Tensor
+    metrics: dict[str, float] = field(default_factory=dict)
+    name: str = ""
+
+
+class Start:
+    """Base of the start plugins.
+
+    Attributes:
+        name: The start's name in metrics and logs (``start_<name>_*``).
+    """
+
+    name: str = "start"
+
+    def check(self, base_dir: Path) -> None:
+        """Check what the start reads (files), before the run opens; a bad one raises naming the key."""
+
+    def phases(self) -> list[tuple[str, "Start"]]:
+        """(name, start) of every candidate the solver runs from, in order: this start alone."""
+        return [(self.name, self)]
+
+    def __call__(self, request: StartRequest) -> StartResult:
+        """The start d0 for the loaded data."""
+        raise NotImplementedError
