@@ -6,7 +6,7 @@ stage: emission; emission + hit search (in lockstep over packets); + the surface
 without the splat (adds the optics with differentials and the footprint, vectorised across each
 packet of photons) and with it. Each stage's cost is the difference of consecutive cuts, in
 nanoseconds per photon (differences of best-of-three timings: a few tens of ns of noise). For the
-gradient: :func:`operators.heightfield.kernels_native.vjp_range` (trace again, splat-adjoint gather,
+gradient: :func:`operators.heightfield.adjoint_native.vjp_range` (trace again, splat-adjoint gather,
 reverse-mode optics, 4 x 4 height patch and its scatter), once searching the hits again and once
 replaying the hits that the forward pass recorded (what ``loss_and_grad`` does). Beside them:
 the cost of one evaluation of the surface and its gradient (the hit search's inner step) in a loop
@@ -20,7 +20,8 @@ import time
 import numba as nb
 import numpy as np
 
-from operators.heightfield.kernels_native import PACKET, emit, packet_jets, render_range, vjp_range
+from operators.heightfield.adjoint_native import vjp_range
+from operators.heightfield.kernels_native import PACKET, emit, packet_jets, render_range
 from operators.heightfield.trace_native import NO_HITS
 from operators.heightfield.intersect_native import packet_gaps, solve_hits
 from operators.kernels.numba_settings import FAST_MATH

@@ -25,7 +25,7 @@ from framework.core.plugin_config import build_plugin
 from framework.core.registry import available, lookup
 from operators.scene import Receiver, Scene
 from regularizers import PixelL1
-from tests.plugins.trivial import ExactStepSolver, ShadowOperator
+from tests.plugins.trivial import ExactStepSolver, MaskMeanStart, ShadowOperator, SmallChangeStopping
 
 SCENE = Scene(receiver=Receiver(resolution=32))
 M = 32  # height samples per side of the known problem
@@ -84,6 +84,12 @@ def test_the_test_suites_solver_keeps_the_contract(known_problem) -> None:
                               delta=0.01)
     problem = Problem(shadow, data, HeightGrid(16, 1.0, 0.1), SCENE)
     check_solver(ExactStepSolver.from_config, problem, iterations=1, reduction=1e-6, who="solver/exact_step")
+
+
+def test_the_test_suites_start_and_stopping_rule_keep_the_contract(known_problem, tmp_path) -> None:
+    request = StartRequest(known_problem, lambda: known_problem.data.ground_truth.clone(), tmp_path)
+    check_start(MaskMeanStart(), request, who="initial/mask_mean")
+    check_stopping(lambda: SmallChangeStopping(1e-9), who="stopping/small_change")
 
 
 @pytest.mark.parametrize("name", available("stopping"))

@@ -129,7 +129,9 @@ def _plugin_env(tmp_path: Path) -> dict[str, str]:
     (dist / "METADATA").write_text("Metadata-Version: 2.1\nName: sfc-test-plugins\nVersion: 0.1\n")
     (dist / "entry_points.txt").write_text(
         "[shape_from_caustics.operator]\nshadow = tests.plugins.trivial:ShadowOperator\n\n"
-        "[shape_from_caustics.solver]\nexact_step = tests.plugins.trivial:ExactStepSolver\n")
+        "[shape_from_caustics.solver]\nexact_step = tests.plugins.trivial:ExactStepSolver\n\n"
+        "[shape_from_caustics.initial]\nmask_mean = tests.plugins.trivial:MaskMeanStart\n\n"
+        "[shape_from_caustics.stopping]\nsmall_change = tests.plugins.trivial:SmallChangeStopping\n")
     return {**os.environ, "PYTHONPATH": os.pathsep.join([str(tmp_path / "site"), str(ROOT)])}
 
 
@@ -175,3 +177,29 @@ def test_a_test_suite_operator_and_solver_run_through_both_apps(tmp_path):
     assert run.data.params["operator.gain"] == "2.0"
     assert len(client.get_metric_history(run.info.run_id, "rel_discrepancy")) >= 1
     assert {"heights.png", "metrics.json"} <= {a.path for a in client.list_artifacts(run.info.run_id)}
+
+
+@pytest.mark.slow
+def test_a_test_suite_start_and_stopping_rule_run_through_the_app(tmp_path):
+    run_dir = tmp_path / "rec"
+    _run_app("reconstruct", ["scene=bump", "height_field.resolution=16", "receiver.resolution=32", "operator=shadow",
+                             "solver=exact_step", "~experiment", "+method=exact_step", "initial=mask_mean",
+                             "stopping=small_change", "data.reference_resolution=64", f"hydra.run.dir={run_dir}",
+                             f"tracking.store_dir={tmp_path / 'mlruns'}"], _plugin_env(tmp_path), tmp_path)
+    metrics = json.loads((run_dir / "metrics.json").read_text())
+    assert metrics["start"] == "mask_mean" and metrics["start_height"] > 0
+    assert metrics["iterations"] == 1 and metrics["stopped_by"] == "solver"
+
+
+@pytest.mark.slow
+def test_the_example_figure_script_sweeps_collects_and_plots(tmp_path):
+    out = tmp_path / "figures"
+    done = subprocess.run([sys.executable, "-m", "tests.plugins.figure_gain", "--store", str(tmp_path / "mlruns"),
+                           "--out", str(out), "--overrides", f"hydra.sweep.dir={tmp_path / 'sweep'}"],
+                          cwd=tmp_path, env=_plugin_env(tmp_path), capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr[-3000:]
+    rows = [line.split("|") for line in (out / "shadow_gain.md").read_text().splitlines()[2:]]
+    assert [float(row[1]) for row in rows] == [1.0, 2.0, 4.0]
+    errors = [float(row[3]) for row in rows]
+    assert errors[0] > errors[1] > errors[2] > 0  # a brighter shadow of the same noise level: a closer fit
+    assert (out / "shadow_gain.png").stat().st_size > 1000

@@ -12,7 +12,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 from functools import cached_property
 
-import torch
 
 from framework.core.data import ReconstructionData
 from framework.core.contracts.operator import Operator

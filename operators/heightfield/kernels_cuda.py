@@ -13,7 +13,8 @@ from __future__ import annotations
 from numba import cuda, float64
 
 from operators.heightfield.catmull_rom import clamped_node
-from operators.heightfield.kernels_native import photon_vjp, trace_photon
+from operators.heightfield.adjoint_native import photon_vjp
+from operators.heightfield.kernels_native import trace_photon
 from operators.splat.native import footprint_box, footprint_usable, falloff, row_terms
 
 THREADS_PER_BLOCK = 128
@@ -74,7 +75,7 @@ def render_kernel(d, sc, shifts, indices, start, stop, img, reached, splat):
 @cuda.jit(cache=True)
 def vjp_kernel(d, sc, shifts, indices, start, stop, padded, pad, grad):
     """Add to ``grad`` (m, m) the gradient w.r.t. d of <splat of photons start .. stop-1, G>
-    (one photon per thread), arguments as :func:`operators.heightfield.kernels_native.vjp_photons`."""
+    (one photon per thread), arguments as :func:`operators.heightfield.adjoint_native.vjp_photons`."""
     index = start + cuda.grid(1)
     if index >= stop:
         return

@@ -22,7 +22,7 @@ def gradient_kernel_cached() -> bool:
     """Whether numba's cache holds a compiled gradient kernel for this source (any CPU, any
     signature: a cheap check of the index file, through numba's internal cache object; False
     when that cannot be read)."""
-    from operators.heightfield.kernels_native import vjp_photons
+    from operators.heightfield.adjoint_native import vjp_photons
 
     try:
         return bool(vjp_photons._cache._cache_file._load_index())

@@ -8,7 +8,8 @@ import numba as nb
 import numpy as np
 
 from operators.emission import PointLightEmitter
-from operators.heightfield.kernels_native import FusedScene, render_photons, vjp_photons
+from operators.heightfield.adjoint_native import vjp_photons
+from operators.heightfield.kernels_native import FusedScene, render_photons
 from operators.heightfield.surface import HeightFieldGrid
 from operators.scene import Scene
 from operators.kernels.simd import AVAILABLE as SIMD_AVAILABLE

@@ -14,10 +14,7 @@ derivative on the top) or, under total internal reflection, reflects; with Fresn
 transmitted share is kept. The maths is :mod:`operators.mesh.operator`'s torch tracer, one
 photon at a time with the scalar optics of :mod:`operators.optics.native`.
 
-The reverse kernel takes the event's inputs (the state before it, the event's kind, face and
-distance) and the gradient w.r.t. the state after it, and returns the gradient w.r.t. the state
-before it; at the printed top it adds the gradient w.r.t. the heights into a per-thread array
-instead (the state before a photon's first top hit does not depend on the heights).
+The reverse kernel, ``retreat``, is in :mod:`operators.mesh.adjoint_native`.
 """
 
 from __future__ import annotations
@@ -26,17 +23,14 @@ import math
 from typing import NamedTuple
 
 import numba as nb
-import numpy as np
 
-from operators.heightfield.catmull_rom import axis_weights, load_patch, scatter_patch, surface_jet_at
-from operators.heightfield.intersect_native import hit_adjoint_patch, solve_hit
+from operators.heightfield.catmull_rom import surface_jet_at
+from operators.heightfield.intersect_native import solve_hit
 from operators.mesh.embree_native import first_face, ray_buffer
 from operators.mesh.intersect_reference import MIN_FACE_DISTANCE, START_OFFSET
 from operators.kernels.numba_settings import FAST_MATH
-from operators.optics.native import (UP, ZERO, add, axpy, dot, footprint_metric,
-                                     footprint_metric_adjoint, fresnel, fresnel_adjoint, height_field_normal,
-                                     height_field_normal_adjoint, normal_differential, normal_differential_adjoint,
-                                     refract, refract_adjoint, scale, transfer, transfer_adjoint)
+from operators.optics.native import (UP, ZERO, axpy, dot, footprint_metric, fresnel, height_field_normal,
+                                     normal_differential, refract, scale, transfer)
 
 # Row layout of a photon's state.
 P, DPU, DPV, W, DWU, DWV, FLUX = 0, 3, 6, 9, 12, 15, 18
@@ -85,7 +79,7 @@ _kernel = nb.njit(parallel=True, cache=True, fastmath=FAST_MATH, error_model="nu
 
 
 @_jit
-def _vec(a, k):
+def vec(a, k):
     return (a[k], a[k + 1], a[k + 2])
 
 
@@ -95,7 +89,7 @@ def _row3(a, f):
 
 
 @_jit
-def _put(a, k, v) -> None:
+def put(a, k, v) -> None:
     a[k], a[k + 1], a[k + 2] = v[0], v[1], v[2]
 
 
@@ -131,7 +125,7 @@ def _face_hit(p, w, f, v0, plane, dual, neighbour):
 
 
 @_jit
-def _face_shading(q, f, v0, dual, shading):
+def face_shading(q, f, v0, dual, shading):
     """:func:`_shading` of face f at the point q on its plane."""
     rel = _sub(q, _row3(v0, f))
     return _shading(f, dot(rel, (dual[f, 0, 0], dual[f, 0, 1], dual[f, 0, 2])),
@@ -153,47 +147,20 @@ def _shading(f, b1, b2, shading, dual):
 
 
 @_jit
-def _shading_differential(normal, length, e1, e2, g1, g2, dp):
+def shading_differential(normal, length, e1, e2, g1, g2, dp):
     """D N = (I - N N^T) (e1 g1^T + e2 g2^T) D p / |raw|."""
     m = axpy(dot(g1, dp), e1, scale(dot(g2, dp), e2))
     return scale(1.0 / length, axpy(-dot(normal, m), normal, m))
 
 
 @_jit
-def _shading_differential_adjoint(normal, length, e1, e2, g1, g2, dp, dn, g_dn):
-    """Adjoint of :func:`_shading_differential`: (g_normal, g_length, g_dp)."""
-    m = axpy(dot(g1, dp), e1, scale(dot(g2, dp), e2))
-    s = dot(normal, m)
-    ng = dot(normal, g_dn)
-    g_m = scale(1.0 / length, axpy(-ng, normal, g_dn))
-    g_normal = scale(-1.0 / length, axpy(s, g_dn, scale(ng, m)))
-    g_length = -dot(dn, g_dn) / length
-    return g_normal, g_length, axpy(dot(e1, g_m), g1, scale(dot(e2, g_m), g2))
-
-
-@_jit
-def _reflect(w, dwu, dwv, n, dnu, dnv):
+def reflect(w, dwu, dwv, n, dnu, dnv):
     """Mirror reflection r = w - 2 (w . n) n with its differentials."""
     c = dot(w, n)
     cu = dot(dwu, n) + dot(w, dnu)
     cv = dot(dwv, n) + dot(w, dnv)
     return (axpy(-2.0 * c, n, w), axpy(-2.0 * cu, n, axpy(-2.0 * c, dnu, dwu)),
             axpy(-2.0 * cv, n, axpy(-2.0 * c, dnv, dwv)))
-
-
-@_jit
-def _reflect_adjoint(w, dwu, dwv, n, dnu, dnv, g_r, g_ru, g_rv):
-    """Adjoint of :func:`_reflect`: (g_w, g_dwu, g_dwv, g_n, g_dnu, g_dnv)."""
-    c = dot(w, n)
-    cu = dot(dwu, n) + dot(w, dnu)
-    cv = dot(dwv, n) + dot(w, dnv)
-    g_cu = -2.0 * dot(g_ru, n)
-    g_cv = -2.0 * dot(g_rv, n)
-    g_c = -2.0 * (dot(g_r, n) + dot(g_ru, dnu) + dot(g_rv, dnv))
-    g_w = axpy(g_c, n, axpy(g_cu, dnu, axpy(g_cv, dnv, g_r)))
-    g_n = axpy(-2.0 * c, g_r, axpy(-2.0 * cu, g_ru, axpy(-2.0 * cv, g_rv, axpy(g_c, w, axpy(g_cu, dwu, scale(g_cv, dwv))))))
-    return (g_w, axpy(g_cu, n, g_ru), axpy(g_cv, n, g_rv), g_n, axpy(g_cu, w, scale(-2.0 * c, g_ru)),
-            axpy(g_cv, w, scale(-2.0 * c, g_rv)))
 
 
 @_jit
@@ -242,7 +209,7 @@ def _next_event(d, row, medium, handle, ray, wait_at_top, substrate, v0, plane, 
     RECEIVER, ESCAPED, INSIDE_TOP or, with ``wait_at_top``, AT_TOP (its next event is the top).
     Embree (scene ``handle``, ``ray`` buffer) is asked for the face of photons in air or in an
     element, except in air going down below every element (where no face can be)."""
-    p, w = _vec(row, P), _vec(row, W)
+    p, w = vec(row, P), vec(row, W)
     in_air, in_sub = medium == AIR, medium == substrate
     best, kind, which = math.inf, ESCAPED, -1
     face = -1
@@ -279,11 +246,11 @@ def _next_event(d, row, medium, handle, ray, wait_at_top, substrate, v0, plane, 
 
 
 @_jit
-def _surface(d, row, kind, which, t, shading, dual, plane, v0, sc):
+def event_surface(d, row, kind, which, t, shading, dual, plane, v0, sc):
     """The surface of an event at distance t: (plane normal, outward normal, D_u N, D_v N, jet,
     moved state p', D p'); the jet only on the top, the normal's derivative only on faces and the top."""
-    p, dpu, dpv = _vec(row, P), _vec(row, DPU), _vec(row, DPV)
-    w, dwu, dwv = _vec(row, W), _vec(row, DWU), _vec(row, DWV)
+    p, dpu, dpv = vec(row, P), vec(row, DPU), vec(row, DPV)
+    w, dwu, dwv = vec(row, W), vec(row, DWU), vec(row, DWV)
     jet = (0.0, 0.0, 0.0, 0.0, 0.0)
     if kind == MESH:
         n_plane = _row3(plane, which)
@@ -297,9 +264,9 @@ def _surface(d, row, kind, which, t, shading, dual, plane, v0, sc):
     q, dqu, dqv = transfer(p, dpu, dpv, w, dwu, dwv, t, n_plane)
     outward, dnu, dnv = n_plane, ZERO, ZERO
     if kind == MESH:
-        outward, length, e1, e2, g1, g2 = _face_shading(q, which, v0, dual, shading)
-        dnu = _shading_differential(outward, length, e1, e2, g1, g2, dqu)
-        dnv = _shading_differential(outward, length, e1, e2, g1, g2, dqv)
+        outward, length, e1, e2, g1, g2 = face_shading(q, which, v0, dual, shading)
+        dnu = shading_differential(outward, length, e1, e2, g1, g2, dqu)
+        dnv = shading_differential(outward, length, e1, e2, g1, g2, dqv)
     elif kind == TOP:
         dnu = normal_differential(jet[2], jet[3], jet[4], n_plane, dqu)
         dnv = normal_differential(jet[2], jet[3], jet[4], n_plane, dqv)
@@ -307,7 +274,7 @@ def _surface(d, row, kind, which, t, shading, dual, plane, v0, sc):
 
 
 @_jit
-def _interface(w, dwu, dwv, n_plane, outward, dnu, dnv, n_solid):
+def interface(w, dwu, dwv, n_plane, outward, dnu, dnv, n_solid):
     """Which side the photon comes from and how it leaves: (entering, facing sign, eta, refracted
     w', D w', cos_i, cos_t, through) with through False under total internal reflection (then w'
     is the reflection)."""
@@ -317,7 +284,7 @@ def _interface(w, dwu, dwv, n_plane, outward, dnu, dnv, n_solid):
     facing, dfu, dfv = scale(sign, outward), scale(sign, dnu), scale(sign, dnv)
     r, ru, rv, ci, ct, k = refract(w, dwu, dwv, facing, dfu, dfv, eta)
     if k <= 0.0:
-        r, ru, rv = _reflect(w, dwu, dwv, facing, dfu, dfv)
+        r, ru, rv = reflect(w, dwu, dwv, facing, dfu, dfv)
     return entering, sign, eta, r, ru, rv, ci, ct, k > 0.0
 
 
@@ -339,19 +306,19 @@ def _advance_one(d, i, state, medium, channel, status, handle, ray, kind_out, wh
     if kind == ESCAPED or kind == INSIDE_TOP:
         status[i] = LOST
         return
-    n_plane, outward, dnu, dnv, _, q, dqu, dqv = _surface(d, row, kind, which, t, shading, dual, plane, v0, sc)
-    _put(row, P, q)
-    _put(row, DPU, dqu)
-    _put(row, DPV, dqv)
+    n_plane, outward, dnu, dnv, _, q, dqu, dqv = event_surface(d, row, kind, which, t, shading, dual, plane, v0, sc)
+    put(row, P, q)
+    put(row, DPU, dqu)
+    put(row, DPV, dqv)
     if kind == RECEIVER:
         status[i] = LANDED
         return
     solid = face_element[which] if kind == MESH else substrate
-    entering, _, eta, r, ru, rv, ci, ct, through = _interface(
-        _vec(row, W), _vec(row, DWU), _vec(row, DWV), n_plane, outward, dnu, dnv, indices[solid, channel[i]])
-    _put(row, W, r)
-    _put(row, DWU, ru)
-    _put(row, DWV, rv)
+    entering, _, eta, r, ru, rv, ci, ct, through = interface(
+        vec(row, W), vec(row, DWU), vec(row, DWV), n_plane, outward, dnu, dnv, indices[solid, channel[i]])
+    put(row, W, r)
+    put(row, DWU, ru)
+    put(row, DWV, rv)
     if through:
         if sc.fresnel:
             kept = fresnel(ci, ct, eta)
@@ -392,111 +359,6 @@ def _advance_block(lo, hi, d, state, medium, channel, status, handle, kind_out, 
                      sc)
 
 
-@_jit
-def _retreat_one(d, i, before, kind, which, t, channel, substrate, face_element, indices, v0, plane, dual, shading, sc,
-                 g_after, g_heights, wx, wy, patch) -> None:
-    """Reverse of photon i's event (see :func:`retreat`); wx, wy, patch: (4, 4) scratch."""
-    k = kind[i]
-    row, g = before[i], g_after[i]
-    p, dpu, dpv = _vec(row, P), _vec(row, DPU), _vec(row, DPV)
-    w, dwu, dwv = _vec(row, W), _vec(row, DWU), _vec(row, DWV)
-    n_plane, outward, dnu, dnv, jet, q, dqu, dqv = _surface(d, row, k, which[i], t[i], shading, dual, plane, v0,
-                                                            sc)
-    g_q, g_dqu, g_dqv = _vec(g, P), _vec(g, DPU), _vec(g, DPV)
-    g_w, g_dwu, g_dwv, g_flux = ZERO, ZERO, ZERO, g[FLUX]
-    if k != RECEIVER:
-        solid = face_element[which[i]] if k == MESH else substrate
-        entering, sign, eta, r, ru, rv, ci, ct, through = _interface(
-            w, dwu, dwv, n_plane, outward, dnu, dnv, indices[solid, channel[i]])
-        facing, dfu, dfv = scale(sign, outward), scale(sign, dnu), scale(sign, dnv)
-        g_r, g_ru, g_rv = _vec(g, W), _vec(g, DWU), _vec(g, DWV)
-        if through:
-            g_ci = g_ct = 0.0
-            if sc.fresnel:
-                kept = fresnel(ci, ct, eta)
-                g_ci, g_ct = fresnel_adjoint(ci, ct, eta, g[FLUX] * row[FLUX])
-                g_flux = g[FLUX] * kept
-            g_w, g_dwu, g_dwv, g_f, g_fu, g_fv = refract_adjoint(w, dwu, dwv, facing, dfu, dfv, eta, g_r, g_ru,
-                                                                 g_rv, g_ci, g_ct)
-        else:
-            g_w, g_dwu, g_dwv, g_f, g_fu, g_fv = _reflect_adjoint(w, dwu, dwv, facing, dfu, dfv, g_r, g_ru, g_rv)
-        g_out, g_dnu, g_dnv = scale(sign, g_f), scale(sign, g_fu), scale(sign, g_fv)
-        if k == MESH:
-            normal, length, e1, e2, g1, g2 = _face_shading(q, which[i], v0, dual, shading)
-            gn_u, gl_u, gp_u = _shading_differential_adjoint(normal, length, e1, e2, g1, g2, dqu, dnu, g_dnu)
-            gn_v, gl_v, gp_v = _shading_differential_adjoint(normal, length, e1, e2, g1, g2, dqv, dnv, g_dnv)
-            g_dqu, g_dqv = add(g_dqu, gp_u), add(g_dqv, gp_v)
-            g_normal = add(g_out, add(gn_u, gn_v))
-            # N = raw / |raw|, raw = n0 + b1 e1 + b2 e2, b_k = g_k . (q - v0).
-            g_raw = axpy(gl_u + gl_v - dot(normal, g_normal) / length, normal, scale(1.0 / length, g_normal))
-            g_q = axpy(dot(e1, g_raw), g1, axpy(dot(e2, g_raw), g2, g_q))
-        elif k == TOP:
-            g_sxx, g_sxy, g_syy, g_nu, g_dpu = normal_differential_adjoint(jet[2], jet[3], jet[4], n_plane, dqu,
-                                                                           g_dnu)
-            g_sxx2, g_sxy2, g_syy2, g_nv, g_dpv = normal_differential_adjoint(jet[2], jet[3], jet[4], n_plane,
-                                                                              dqv, g_dnv)
-            g_dqu, g_dqv = add(g_dqu, g_dpu), add(g_dqv, g_dpv)
-            g_n_plane = add(g_out, add(g_nu, g_nv))
-            _, _, _, _, _, g_t, g_nt = transfer_adjoint(dpu, dpv, w, dwu, dwv, t[i], n_plane, g_q, g_dqu, g_dqv)
-            g_sx, g_sy = height_field_normal_adjoint(jet[0], jet[1], add(g_n_plane, g_nt))
-            _top_adjoint(d, p, w, t[i], g_t, g_sx, g_sy, g_sxx + g_sxx2, g_sxy + g_sxy2, g_syy + g_syy2, sc,
-                         g_heights, wx, wy, patch)
-            for j in range(STATE):
-                g[j] = 0.0
-            return
-    g_dpu, g_dpv, g_wt, g_dwut, g_dwvt, g_t, _ = transfer_adjoint(dpu, dpv, w, dwu, dwv, t[i], n_plane, g_q,
-                                                                 g_dqu, g_dqv)
-    # The distance to a fixed plane: t = (c - p . n) / (w . n).
-    wn = dot(w, n_plane)
-    g_p = axpy(-g_t / wn, n_plane, g_q)
-    g_w = add(add(g_w, g_wt), scale(-g_t * t[i] / wn, n_plane))
-    _put(g, P, g_p)
-    _put(g, DPU, g_dpu)
-    _put(g, DPV, g_dpv)
-    _put(g, W, g_w)
-    _put(g, DWU, add(g_dwu, g_dwut))
-    _put(g, DWV, add(g_dwv, g_dwvt))
-    g[FLUX] = g_flux
-
-
-@_kernel
-def retreat(d, before, kind, which, t, channel, substrate, face_element, indices, v0, plane, dual, shading, sc,
-            g_after, g_heights) -> None:
-    """Reverse of one :func:`advance` event (in place): ``g_after`` (N, STATE), the gradient
-    w.r.t. the state after it, becomes the gradient w.r.t. the state before it (``before``). On
-    the printed top it goes into the heights instead: ``g_heights`` (threads, m, m), summed after.
-    Photons with kind < 0 (not under way in that event) keep their gradient."""
-    blocks = (before.shape[0] + BLOCK - 1) // BLOCK
-    for b in nb.prange(blocks):
-        _retreat_block(b * BLOCK, min(before.shape[0], (b + 1) * BLOCK), d, before, kind, which, t, channel, substrate,
-                       face_element, indices, v0, plane, dual, shading, sc, g_after, g_heights[nb.get_thread_id()])
-
-
-@_call
-def _retreat_block(lo, hi, d, before, kind, which, t, channel, substrate, face_element, indices, v0, plane, dual,
-                   shading, sc, g_after, g_heights) -> None:
-    """:func:`retreat` for photons lo .. hi-1 (one thread, its own height gradient)."""
-    wx, wy, patch = np.empty((4, 4)), np.empty((4, 4)), np.empty((4, 4))
-    for i in range(lo, hi):
-        k = kind[i]
-        if k < 0 or k == ESCAPED or k == INSIDE_TOP or k == AT_TOP:
-            continue
-        _retreat_one(d, i, before, kind, which, t, channel, substrate, face_element, indices, v0, plane, dual, shading,
-                     sc, g_after, g_heights, wx, wy, patch)
-
-
-@_jit
-def _top_adjoint(d, p, w, t, g_t, g_sx, g_sy, g_sxx, g_sxy, g_syy, sc, grad, wx, wy, patch) -> None:
-    """Add to grad (m, m) the gradient w.r.t. the heights of g_t t + <g_jet, jet> at a hit on the
-    top; wx, wy, patch: (4, 4) scratch."""
-    m = d.shape[0]
-    ix = axis_weights(p[0] + t * w[0], -sc.half, sc.spacing, m, 3, wx)
-    iy = axis_weights(p[1] + t * w[1], -sc.half, sc.spacing, m, 3, wy)
-    load_patch(d, ix, iy, patch)
-    hit_adjoint_patch(wx, wy, patch, w[0], w[1], w[2], g_t, g_sx, g_sy, g_sxx, g_sxy, g_syy)
-    scatter_patch(grad, ix, iy, patch)
-
-
 @_kernel
 def splat_arguments(state, status, sc, pos, metric, flux) -> None:
     """Pixel positions (2, N), footprint metrics (3, N) and flux (N,) of the photons on the
@@ -514,23 +376,3 @@ def splat_arguments(state, status, sc, pos, metric, flux) -> None:
         q = footprint_metric(row[DPU] * k, row[DPU + 1] * k, row[DPV] * k, row[DPV + 1] * k, sc.min_px, sc.max_px)
         metric[0, i], metric[1, i], metric[2, i] = q
         flux[i] = row[FLUX]
-
-
-@_kernel
-def splat_arguments_adjoint(state, status, sc, g_pos, g_metric, g_flux, g_state) -> None:
-    """Gradient w.r.t. the photons' states (N, STATE) from those w.r.t. their splat arguments."""
-    k = sc.to_px
-    for i in nb.prange(state.shape[0]):
-        for j in range(STATE):
-            g_state[i, j] = 0.0
-        if status[i] != LANDED:
-            continue
-        row = state[i]
-        g_ux, g_uy, g_vx, g_vy = footprint_metric_adjoint(row[DPU] * k, row[DPU + 1] * k, row[DPV] * k,
-                                                          row[DPV + 1] * k, sc.min_px, sc.max_px, g_metric[0, i],
-                                                          g_metric[1, i], g_metric[2, i])
-        g_state[i, P], g_state[i, P + 1] = g_pos[0, i] * k, g_pos[1, i] * k
-        g_state[i, DPU], g_state[i, DPU + 1] = g_ux * k, g_uy * k
-        g_state[i, DPV], g_state[i, DPV + 1] = g_vx * k, g_vy * k
-        g_state[i, FLUX] = g_flux[i]
-

@@ -41,15 +41,14 @@ from operators.materials import refractive_indices
 from operators.mesh.intersect_reference import MIN_FACE_DISTANCE, MeshIntersector
 from operators.mesh.trace_native import LOSSES, NativeMeshTracer
 from operators.mesh.elements import MeshProgress, OpticalElement, check_layout, make_elements
+from operators.mesh.rays import AIR, Rays, Surface, box_planes, reflect
 from operators.optics.reference import fresnel_transmittance, height_field_normal, height_field_normal_differential, refract, transfer
 from operators.photon_operator import PIXEL_SETTINGS, PhotonOperator, backward_through_splat, check_setting_keys
 from operators.scene import Scene
 from operators.splat.splat import splat_photons
 from operators.units import scene_length
 
-__all__ = ["MeshSceneSettings", "MeshSceneOperator", "reflect"]
-
-AIR = -1
+__all__ = ["MeshSceneSettings", "MeshSceneOperator"]
 
 
 @dataclass(frozen=True)
@@ -87,16 +86,6 @@ class MeshSceneSettings:
             raise ValueError(f"operator.dtype={self.dtype!r}; use float32 or float64")
         if self.aperture_half_width is not None and not self.aperture_half_width > 0:
             raise ValueError(f"operator.aperture_half_width={self.aperture_half_width!r} must be positive or null")
-
-
-def reflect(direction: torch.Tensor, d_direction: torch.Tensor, normal: torch.Tensor,
-            d_normal: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """Mirror reflection r = w - 2 (w . n) n with its differentials (Igehy 1999)."""
-    cos = (direction * normal).sum(0)
-    d_cos = (d_direction * normal).sum(1) + (direction * d_normal).sum(1)  # (2, N)
-    reflected = direction - 2 * cos * normal
-    d_reflected = d_direction - 2 * (d_cos.unsqueeze(1) * normal + cos * d_normal)
-    return reflected, d_reflected
 
 
 class MeshSceneOperator(PhotonOperator):
@@ -220,14 +209,14 @@ class MeshSceneOperator(PhotonOperator):
         scene, dtype = self.scene, self.dtype
         batch = self.emitter.batch(start, stop)
         n = batch.direction.shape[1]
-        ray = _Rays(position=batch.origin.to(dtype).unsqueeze(-1).expand(3, n).clone(),
+        ray = Rays(position=batch.origin.to(dtype).unsqueeze(-1).expand(3, n).clone(),
                     d_position=torch.zeros(2, 3, n, dtype=dtype), direction=batch.direction,
                     d_direction=batch.direction_diff, flux=batch.flux, medium=torch.full((n,), AIR, dtype=torch.int64))
         channel = batch.channel
         alive = torch.ones(n, dtype=torch.bool)
         landed = torch.zeros(n, dtype=torch.bool)
         losses = dict.fromkeys(LOSSES, 0.0)
-        surface = _Surface(HeightFieldGrid(scene.substrate.thickness, scene.substrate.half_width, heights.shape[0]),
+        surface = Surface(HeightFieldGrid(scene.substrate.thickness, scene.substrate.half_width, heights.shape[0]),
                            heights, scene.substrate.thickness + float(heights.detach().max()) + 1e-9)
         for _ in range(self.settings.max_depth):
             index = alive.nonzero().squeeze(1)
@@ -248,8 +237,8 @@ class MeshSceneOperator(PhotonOperator):
         pos, metric = self.receiver_pixels(position[:2], footprint)
         return pos, metric, flux, channel, losses
 
-    def _step(self, ray: _Rays, channel: torch.Tensor, surface: _Surface, losses: dict[str, float]
-              ) -> tuple[_Rays, torch.Tensor, torch.Tensor]:
+    def _step(self, ray: Rays, channel: torch.Tensor, surface: Surface, losses: dict[str, float]
+              ) -> tuple[Rays, torch.Tensor, torch.Tensor]:
         """One event for photons under way: the moved rays, which reached the receiver, which were lost."""
         scene, dtype = self.scene, self.dtype
         position, d_position, direction, d_direction = ray.position, ray.d_position, ray.direction, ray.d_direction
@@ -276,7 +265,7 @@ class MeshSceneOperator(PhotonOperator):
             t_top = t_top.index_copy(0, index, t_sub.to(dtype))
             jet = jet.index_copy(1, index, jet_sub.to(dtype))
         # The substrate's walls and bottom (planes; outward normals), from either side.
-        t_box, box_normal = _box_planes(position, direction, half, h, in_air, in_sub)
+        t_box, box_normal = box_planes(position, direction, half, h, in_air, in_sub)
         # The receiver plane, reached in air going down.
         t_rec = torch.where(in_air & (direction[2] < 0), (scene.receiver.z - position[2]) / down,
                             torch.full_like(direction[2], math.inf))
@@ -322,7 +311,7 @@ class MeshSceneOperator(PhotonOperator):
             losses["fresnel_reflected"] += float((flux * (1 - kept)).detach().sum())
             flux = flux * kept
         medium = torch.where(through, torch.where(entering, solid, torch.full_like(medium, AIR)), medium)
-        moved = _Rays(position, d_position, direction_out, d_direction_out, flux, medium)
+        moved = Rays(position, d_position, direction_out, d_direction_out, flux, medium)
         return moved, is_rec, escaped | inside_top
 
     # -- the light path around the print (operators/light_paths.py) ------------------------------
@@ -336,7 +325,7 @@ class MeshSceneOperator(PhotonOperator):
                                     torch.float64)
         batch = emitter.batch(0, emitter.total)
         n = batch.direction.shape[1]
-        ray = _Rays(position=batch.origin.double().unsqueeze(-1).expand(3, n).clone(),
+        ray = Rays(position=batch.origin.double().unsqueeze(-1).expand(3, n).clone(),
                     d_position=torch.zeros(2, 3, n, dtype=torch.float64), direction=batch.direction.double(),
                     d_direction=torch.zeros(2, 3, n, dtype=torch.float64), flux=batch.flux.double(),
                     medium=torch.full((n,), AIR, dtype=torch.int64))
@@ -353,7 +342,7 @@ class MeshSceneOperator(PhotonOperator):
         traced through the elements below the print (first wavelength); NaN where lost."""
         n = len(points)
         start = np.concatenate([points, np.full((n, 1), -1e-9)], axis=1)
-        ray = _Rays(position=torch.from_numpy(start.T.copy()), d_position=torch.zeros(2, 3, n, dtype=torch.float64),
+        ray = Rays(position=torch.from_numpy(start.T.copy()), d_position=torch.zeros(2, 3, n, dtype=torch.float64),
                     direction=torch.from_numpy(np.ascontiguousarray(directions.T, dtype=np.float64)),
                     d_direction=torch.zeros(2, 3, n, dtype=torch.float64), flux=torch.ones(n, dtype=torch.float64),
                     medium=torch.full((n,), AIR, dtype=torch.int64))
@@ -363,13 +352,13 @@ class MeshSceneOperator(PhotonOperator):
         out[~landed.numpy()] = np.nan
         return out
 
-    def _follow(self, ray: _Rays, channel: torch.Tensor, heights: torch.Tensor, stop_on_entry: bool = False
-                ) -> tuple[_Rays, torch.Tensor]:
+    def _follow(self, ray: Rays, channel: torch.Tensor, heights: torch.Tensor, stop_on_entry: bool = False
+                ) -> tuple[Rays, torch.Tensor]:
         """Step rays (float64) until they reach the receiver or are lost, or with
         ``stop_on_entry`` until they enter the substrate: the rays as they were then (the state
         before that event, i.e. on the surface with the incident direction) and which got there."""
         scene = self.scene
-        surface = _Surface(HeightFieldGrid(scene.substrate.thickness, scene.substrate.half_width, heights.shape[0]),
+        surface = Surface(HeightFieldGrid(scene.substrate.thickness, scene.substrate.half_width, heights.shape[0]),
                            heights, scene.substrate.thickness + float(heights.max()) + 1e-9)
         # The tracer's own dtype is the operator's; these paths are traced in float64.
         (table, dtype), self.index_table, self.dtype = (self.index_table, self.dtype), self.index_table.double(), torch.float64
@@ -387,7 +376,7 @@ class MeshSceneOperator(PhotonOperator):
                 if stop_on_entry:
                     entered = (moved.medium == len(self.elements)) & (part.medium == AIR)
                     at_top = entered.nonzero().squeeze(1)
-                    surface_hit = _Rays(moved.position, moved.d_position, part.direction, part.d_direction,
+                    surface_hit = Rays(moved.position, moved.d_position, part.direction, part.d_direction,
                                         part.flux, part.medium)
                     kept = kept.put(index[at_top], surface_hit.take(at_top))
                     reached[index[at_top]] = True
@@ -408,65 +397,3 @@ class MeshSceneOperator(PhotonOperator):
     def _index(self, solid: torch.Tensor, channel: torch.Tensor) -> torch.Tensor:
         """Refractive index (N,) of the solid (element k, or the substrate for k = K) per photon."""
         return self.index_table[solid.clamp(min=0), channel]
-
-
-@dataclass
-class _Rays:
-    """Photons under way: position, direction (3, N), their differentials (2, 3, N), flux (N,),
-    medium (N,): AIR, an element's index, or the substrate's (the element count)."""
-
-    position: torch.Tensor
-    d_position: torch.Tensor
-    direction: torch.Tensor
-    d_direction: torch.Tensor
-    flux: torch.Tensor
-    medium: torch.Tensor
-
-    def take(self, index: torch.Tensor) -> _Rays:
-        """The photons at ``index``."""
-        return _Rays(self.position[:, index], self.d_position[:, :, index], self.direction[:, index],
-                     self.d_direction[:, :, index], self.flux[index], self.medium[index])
-
-    def put(self, index: torch.Tensor, part: _Rays) -> _Rays:
-        """These photons with those at ``index`` replaced by ``part`` (differentiable)."""
-        return _Rays(self.position.index_copy(1, index, part.position),
-                     self.d_position.index_copy(2, index, part.d_position),
-                     self.direction.index_copy(1, index, part.direction),
-                     self.d_direction.index_copy(2, index, part.d_direction),
-                     self.flux.index_copy(0, index, part.flux), self.medium.index_copy(0, index, part.medium))
-
-
-@dataclass(frozen=True)
-class _Surface:
-    """The printed top: its grid, heights (m, m) and a plane above its highest point."""
-
-    grid: HeightFieldGrid
-    heights: torch.Tensor
-    top_max: float
-
-
-def _box_planes(position: torch.Tensor, direction: torch.Tensor, half: float, height: float,
-                in_air: torch.Tensor, in_sub: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """Distance (N,) to the first of the substrate's walls (x, y = +-half, 0 <= z <= height) and
-    bottom (z = 0, |x|, |y| <= half) that a ray meets: leaving for rays inside, entering for rays in
-    air; and that plane's outward normal (3, N)."""
-    n = direction.shape[1]
-    best = torch.full((n,), math.inf, dtype=direction.dtype)
-    normal = torch.zeros(3, n, dtype=direction.dtype)
-    for axis, value, outward in ((0, half, 1.0), (0, -half, -1.0), (1, half, 1.0), (1, -half, -1.0), (2, 0.0, -1.0)):
-        w = direction[axis]
-        safe = torch.where(w.abs() > 1e-12, w, torch.ones_like(w))
-        t = (value - position[axis]) / safe
-        point = position + t * direction
-        others = [k for k in range(3) if k != axis]
-        inside_face = torch.ones(n, dtype=torch.bool)
-        for k in others:
-            inside_face &= (point[k] >= 0.0) & (point[k] <= height) if k == 2 else point[k].abs() <= half
-        leaving = in_sub & (w * outward > 0)
-        entering = in_air & (w * outward < 0)
-        ok = (leaving | entering) & (w.abs() > 1e-12) & (t > 1e-9) & inside_face & (t < best)
-        best = torch.where(ok, t, best)
-        unit = torch.zeros(3, 1, dtype=direction.dtype)
-        unit[axis] = outward
-        normal = torch.where(ok, unit.expand(3, n), normal)
-    return best, normal

@@ -5,7 +5,7 @@ Everything a photon does before it first meets the printed top does not depend o
 so it is traced once per operator (:meth:`NativeMeshTracer.prefix`): photons that never reach the
 print add a fixed image and fixed losses, the others wait above the print with their state. Each
 render or gradient then starts from those states. The gradient replays a chunk's events, keeping
-each event's input state, and runs them backwards (:func:`operators.mesh.kernels_native.retreat`) from
+each event's input state, and runs them backwards (:func:`operators.mesh.adjoint_native.retreat`) from
 the splat's adjoint gather to the heights.
 """
 
@@ -17,6 +17,7 @@ import numba as nb
 import numpy as np
 import torch
 
+from operators.mesh import adjoint_native as ma
 from operators.mesh import kernels_native as mk
 from operators.mesh.embree_native import EmbreeTriangles
 from operators.heightfield.surface import HeightFieldGrid
@@ -163,7 +164,7 @@ class NativeMeshTracer:
         for index, before, kind, which, t in reversed(tape):
             g = g_state if index is None else g_state[index]
             channel = chunk.channel if index is None else chunk.channel[index]
-            mk.retreat(d, before, kind, which, t, channel, self.substrate, self.face_element, self.indices, self.v0,
+            ma.retreat(d, before, kind, which, t, channel, self.substrate, self.face_element, self.indices, self.v0,
                        self.plane, self.dual, self.shading, sc, g, g_heights)
             if index is not None:
                 g_state[index] = g
@@ -268,7 +269,7 @@ class NativeMeshTracer:
                 torch.from_numpy(pos).to(dtype), torch.from_numpy(metric).to(dtype), torch.from_numpy(flux).to(dtype),
                 torch.from_numpy(chunk.channel), grad_flux))
             g_state = np.empty_like(chunk.state)
-            mk.splat_arguments_adjoint(chunk.state, chunk.status, sc, np.ascontiguousarray(g_pos),
+            ma.splat_arguments_adjoint(chunk.state, chunk.status, sc, np.ascontiguousarray(g_pos),
                                        np.ascontiguousarray(g_metric), np.ascontiguousarray(g_flux), g_state)
             self._reverse(d, chunk, sc, tape, g_state, g_heights)
         return g_heights.sum(axis=0)

@@ -97,10 +97,21 @@ def cycles(graph: dict[str, set[str]]) -> list[list[str]]:
     return found
 
 
+# The layers of framework/, lowest first: a module imports only from its own layer or lower ones.
+LAYERS = ("framework.core", "framework.plugins", "framework.pipeline")
+
+
+def _layer(module: str) -> int | None:
+    return next((i for i, layer in enumerate(LAYERS) if module == layer or module.startswith(layer + ".")), None)
+
+
 def upward_arrows(graph: dict[str, set[str]]) -> list[tuple[str, str]]:
-    """Imports from operators/ or regularizers/ into framework/, and from the registry into the project."""
+    """Imports from operators/ or regularizers/ into framework/, from a layer of framework/ into a
+    higher one (core -> plugins -> pipeline), and from the registry into the project."""
     arrows = [(a, b) for a, targets in graph.items() for b in targets
               if a.split(".")[0] in LOWER and b.split(".")[0] == "framework"]
+    arrows += [(a, b) for a, targets in graph.items() for b in targets
+               if _layer(a) is not None and _layer(b) is not None and _layer(b) > _layer(a)]
     arrows += [("framework.core.registry", b) for b in graph.get("framework.core.registry", ())]
     return sorted(arrows)
 

@@ -1,5 +1,7 @@
 """The arrows between the project's modules run one way: no circle, nothing from operators/ or
-regularizers/ into framework/, and the plugin registry imports nothing of the project."""
+regularizers/ into framework/, nothing from framework/core into framework/plugins or
+framework/pipeline nor from framework/plugins into framework/pipeline, and the plugin registry
+imports nothing of the project."""
 
 from __future__ import annotations
 
@@ -19,9 +21,12 @@ def test_the_graph_sees_the_known_arrows():
 
 def test_a_circle_and_an_upward_arrow_are_found():
     graph = {"framework.a": {"framework.b"}, "framework.b": {"framework.a"}, "operators.x": {"framework.a"},
-             "framework.core.registry": {"operators.x"}}
-    assert cycles(graph) == [["framework.a", "framework.b"]]
-    assert upward_arrows(graph) == [("framework.core.registry", "operators.x"), ("operators.x", "framework.a")]
+             "framework.core.registry": {"operators.x"}, "framework.core.y": {"framework.plugins.z"},
+             "framework.plugins.z": {"framework.pipeline.w", "framework.core.y"}}
+    assert cycles(graph) == [["framework.a", "framework.b"], ["framework.core.y", "framework.plugins.z"]]
+    assert upward_arrows(graph) == [("framework.core.registry", "operators.x"),
+                                    ("framework.core.y", "framework.plugins.z"),
+                                    ("framework.plugins.z", "framework.pipeline.w"), ("operators.x", "framework.a")]
 
 
 def test_no_circle_and_no_upward_arrow():

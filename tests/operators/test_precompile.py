@@ -15,7 +15,7 @@ from operators.heightfield.precompile import BackgroundCompile
 _FRESH_GRADIENT = textwrap.dedent("""
     import torch
     from operators.heightfield.operator import CausticOperator, OperatorSettings
-    from operators.heightfield.kernels_native import vjp_photons
+    from operators.heightfield.adjoint_native import vjp_photons
     from operators.scene import Receiver, Scene
     op = CausticOperator(Scene(receiver=Receiver(resolution=32)),
                          OperatorSettings(photons=5000, footprint_px=2.0, fresnel=True, dtype="float64"))

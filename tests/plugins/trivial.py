@@ -6,10 +6,14 @@
 - ``solver/exact_step`` (:class:`ExactStepSolver`): a non-iterative solver, one steepest-descent
   step with the exact step length of a quadratic data term. For ``shadow`` (U^T U = (n/m)^2 I) that
   one step is the least-squares solution.
+- ``initial/mask_mean`` (:class:`MaskMeanStart`): a plate of the known volume over the printed
+  area, at its mean height.
+- ``stopping/small_change`` (:class:`SmallChangeStopping`): stop once an iteration moves no height
+  sample by more than a tolerance.
 
 They reach the framework only through the public plugin mechanism (entry points of the groups
-``shape_from_caustics.operator`` and ``shape_from_caustics.solver``) and their config files
-(tests/plugins/conf, on Hydra's search path).
+``shape_from_caustics.<kind>``) and their config files (tests/plugins/conf, on Hydra's search
+path); docs/plugins.md walks through them.
 """
 
 from __future__ import annotations
@@ -20,6 +24,8 @@ from typing import Any
 import torch
 import torch.nn.functional as F
 
+from framework.core.contracts.start import Start, StartRequest, StartResult
+from framework.core.contracts.stopping import StoppingRule
 from framework.core.solver_loop import IterationRecord, IterativeSolver
 from operators.photon_operator import ImageOperator
 
@@ -100,3 +106,45 @@ class ExactStepSolver(IterativeSolver):
 
     def finished(self) -> str | None:
         return "one exact step minimises the quadratic data term" if self.iteration >= 1 else None
+
+
+class MaskMeanStart(Start):
+    """d0 = V / (|N| a) on the printed area N (cell area a), 0 elsewhere: the known volume V spread
+    evenly. Measured data without a volume are refused."""
+
+    name = "mask_mean"
+
+    def __init__(self, scale: float = 1.0) -> None:
+        if isinstance(scale, bool) or not isinstance(scale, (int, float)) or not scale >= 0:
+            raise ValueError(f"initial.scale={scale!r} must be a number >= 0, e.g. 1.0")
+        self.scale = float(scale)
+
+    def __call__(self, request: StartRequest) -> StartResult:
+        problem = request.problem
+        if problem.data.volume is None:
+            raise ValueError("initial=mask_mean needs the deposited volume; set data.volume")
+        mask = problem.data.mask
+        height = self.scale * problem.data.volume / (float(mask.sum()) * problem.grid.cell_area)
+        d = torch.where(mask, height, 0.0).to(problem.operator.dtype)
+        return StartResult(d, {"height": height}, self.name)
+
+
+class SmallChangeStopping(StoppingRule):
+    """Stop once an iteration moves no height sample by more than ``tolerance`` (scene units)."""
+
+    def __init__(self, tolerance: float = 1e-6) -> None:
+        if isinstance(tolerance, bool) or not isinstance(tolerance, (int, float)) or not tolerance > 0:
+            raise ValueError(f"stopping.small_change.tolerance={tolerance!r} must be a positive length, e.g. 1e-6")
+        self.tolerance = float(tolerance)
+        self.previous: torch.Tensor | None = None
+
+    def on_start(self, solver: IterativeSolver) -> None:
+        self.previous = solver.state.d.clone()
+
+    def on_iteration(self, solver: IterativeSolver, record: IterationRecord) -> bool:
+        change = float((solver.state.d - self.previous).abs().max())
+        self.previous = solver.state.d.clone()
+        if change <= self.tolerance:
+            self.stop_reason = f"no height moved by more than {self.tolerance:g} in iteration {record.iteration}"
+            return True
+        return False

@@ -9,7 +9,8 @@ builder ``(problem, d0) -> solver`` (framework/core/problem.py).
 
 from framework.core.solver_loop import Callback, IterationFailed, IterationRecord, IterativeSolver, RunResult, SolverState
 from framework.plugins.solvers.preconditioner import GradientPreconditioner, SobolevPreconditioner
-from framework.plugins.solvers.proximal_gradient import GradientDescent, PixelLandweber, ProximalGradientSolver
+from framework.plugins.solvers.pixel_methods import GradientDescent, PixelLandweber
+from framework.plugins.solvers.proximal_gradient import ProximalGradientSolver
 from framework.plugins.solvers.step_size import BacktrackingStep, ConstantStep, LineSearchFailed, StepChoice, StepSizePolicy, as_step_policy
 from framework.plugins.solvers.wavelet_landweber import WaveletLandweber
 
