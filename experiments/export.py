@@ -31,7 +31,7 @@ from omegaconf import OmegaConf
 from experiments.input_errors import one_line_input_errors
 from framework.pipeline.mm_outputs import MESH_FORMATS, export_outputs
 from framework.core.height_field_io import load_height_field, read_npy, validate_heights
-from framework.pipeline.run_checks import design_given
+from framework.core.run_settings import design_given
 from framework.core.scene_config import build_heights, build_scene, to_plain
 from framework.core.units import mm_per_unit
 

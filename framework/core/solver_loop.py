@@ -66,6 +66,7 @@ class RunResult:
         accepted: Whether ``d`` is an accepted solution: the solver finished, or a callback with
             ``stop_accepts_iterate`` (Morozov's rule) stopped the run; otherwise a stopping rule
             may hold a better iterate (:meth:`Callback.best_iterate`).
+        solver_metrics: What the solver says of its own run (:meth:`IterativeSolver.run_metrics`).
     """
 
     d: Tensor
@@ -75,6 +76,7 @@ class RunResult:
     history: list[IterationRecord]
     elapsed_s: float
     accepted: bool = False
+    solver_metrics: dict[str, Any] = field(default_factory=dict)
 
     @property
     def last(self) -> IterationRecord | None:
@@ -178,6 +180,11 @@ class IterativeSolver(ABC):
         deposited volume), or None; Morozov's rule accepts only iterates inside it."""
         return None
 
+    def run_metrics(self) -> dict[str, Any]:
+        """What sums up this solver's run for the run's metrics.json (e.g. the iterations after
+        which a coarse-to-fine schedule refined); nothing by default."""
+        return {}
+
     def run(self, max_iter: int, callbacks: Sequence[Callback] = ()) -> RunResult:
         """Iterate until a callback asks to stop, an iteration fails, or ``iteration == max_iter``.
 
@@ -224,6 +231,7 @@ class IterativeSolver(ABC):
             history=list(self.history),
             elapsed_s=self.state.elapsed_s,
             accepted=accepted,
+            solver_metrics=self.run_metrics(),
         )
         for cb in ordered:
             cb.on_end(self, result)

@@ -21,6 +21,7 @@ from PIL import Image, PngImagePlugin
 
 from framework.core.plotting import label_xy_axes, save_figure
 from framework.core.units import mm_per_unit as checked_mm_per_unit
+from framework.core.values import positive_number
 
 __all__ = ["MESH_FORMATS", "PNG_KEYS", "PRINTED", "glass_mesh", "write_height_png", "read_height_png",
            "deviation_report", "save_deviation_figure", "export_outputs"]
@@ -34,12 +35,6 @@ _FULL_COUNT = 65535  # 16-bit grey
 def _scale(mm_per_unit: float) -> float:
     """``mm_per_unit`` checked as the config's ``units.mm_per_unit`` (a finite number > 0)."""
     return checked_mm_per_unit({"units": {"mm_per_unit": mm_per_unit}})
-
-
-def _positive(name: str, value: float) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not (math.isfinite(value) and value > 0):
-        raise ValueError(f"{name}={value!r} must be a finite length > 0")
-    return float(value)
 
 
 def _heights(d: np.ndarray, name: str) -> np.ndarray:
@@ -67,7 +62,7 @@ def glass_mesh(d: np.ndarray, half_width: float, thickness: float, mm_per_unit: 
         half_width: W, scene units. thickness: h, scene units. mm_per_unit: mm per scene unit.
     """
     d = _heights(d, "d")
-    w = _positive("half_width", half_width)
+    w = positive_number(half_width, "half_width", "length")
     scale = _scale(mm_per_unit)
     if isinstance(thickness, bool) or not isinstance(thickness, (int, float)) or not math.isfinite(thickness):
         raise ValueError(f"thickness={thickness!r} must be a finite number (scene units)")
@@ -109,7 +104,7 @@ def write_height_png(path: str | Path, d_mm: np.ndarray, pitch_mm: float) -> Pat
     white = max d_mm; the PNG text keys ``PNG_KEYS`` hold both and the sample pitch in mm.
     """
     d_mm = _heights(d_mm, "d_mm")
-    pitch = _positive("pitch_mm", pitch_mm)
+    pitch = positive_number(pitch_mm, "pitch_mm", "length")
     offset = min(float(d_mm.min()), 0.0)
     span = float(d_mm.max()) - offset
     step = span / _FULL_COUNT if span > 0.0 else 1.0
@@ -157,7 +152,8 @@ def deviation_report(d: np.ndarray, design: np.ndarray, grid_half_width: float,
         raise ValueError(f"design has shape {design.shape}, the reconstruction {d.shape}; resample the design "
                          "to the reconstruction's grid")
     scale = _scale(mm_per_unit)
-    cell_mm3 = (2.0 * _positive("grid_half_width", grid_half_width) / (d.shape[0] - 1)) ** 2 * scale ** 3
+    spacing = 2.0 * positive_number(grid_half_width, "grid_half_width", "length") / (d.shape[0] - 1)
+    cell_mm3 = spacing ** 2 * scale ** 3
     error = (d - design) * scale
     printed = (np.abs(d) >= PRINTED) | (np.abs(design) >= PRINTED)
     printed_volume, planned_volume = float(d.sum()) * cell_mm3, float(design.sum()) * cell_mm3
@@ -180,7 +176,7 @@ def save_deviation_figure(path: str | Path, d: np.ndarray, design: np.ndarray, h
     scale = _scale(mm_per_unit)
     design_mm, d_mm = _heights(design, "design") * scale, _heights(d, "d") * scale
     error_um = (d_mm - design_mm) * 1e3
-    w_mm = _positive("half_width", half_width) * scale
+    w_mm = positive_number(half_width, "half_width", "length") * scale
     extent = (-w_mm, w_mm, -w_mm, w_mm)
     low = min(float(design_mm.min()), float(d_mm.min()), 0.0)
     high = max(float(design_mm.max()), float(d_mm.max()), low + 1e-9)

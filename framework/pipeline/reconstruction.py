@@ -8,38 +8,37 @@ and tests can run a reconstruction without Hydra's command line.
 from __future__ import annotations
 
 import json
-import sys
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import torch
 
-from framework.pipeline.calibration import JointCalibration
-from framework.pipeline.callbacks import Checkpointer, GroundTruthError, MetricsHistory, ProgressBar
-from framework.pipeline.checkpoint import resume as resume_solver
 from framework.core.contracts.data_source import DataRequest, DataSource
-from framework.plugins.data.sources import resolve_path
-from framework.pipeline.mm_outputs import export_outputs
-from framework.core.plugin_config import as_mapping, build_plugin, split_name, with_scene_lengths
 from framework.core.contracts.operator import Operator
 from framework.core.contracts.solver import SolverBuilder
 from framework.core.contracts.start import Start, StartRequest
 from framework.core.contracts.stopping import StoppingRule
+from framework.core.plugin_config import as_mapping, build_plugin, split_name
 from framework.core.problem import HeightGrid, Problem
+from framework.core.run_settings import RunSettings
+from framework.core.values import positive_int
+from framework.core.scene_config import build_heights, build_operator, build_scene, height_grid
+from framework.core.solver_loop import Callback
+from framework.pipeline.calibration import JointCalibration
+from framework.pipeline.callbacks import Checkpointer, GroundTruthError, MetricsHistory, ProgressBar
+from framework.pipeline.checkpoint import resume as resume_solver
 from framework.pipeline.report_figures import save_reconstruction_figures
-from framework.pipeline.run_checks import (CHECKPOINT, check_tracking_target, check_volume, check_volume_known, checked_resume,
-                                  design_given, height_bounds)
+from framework.pipeline.run_checks import (CHECKPOINT, check_tracking_target, check_volume, check_volume_known,
+                                           checked_resume, height_bounds)
 from framework.pipeline.run_identity import run_fingerprint
+from framework.pipeline.run_outputs import report_verdict, save_outputs
 from framework.pipeline.run_phases import PHASES, PhaseOutcome, resumed_phases
-from framework.core.scene_config import build_heights, build_operator, build_scene, height_grid, to_plain
-from framework.core.solver_loop import Callback, IterationRecord
 from framework.pipeline.tracking import MlflowTracker, local_store_uri
-from framework.core.units import mm_per_unit
-from framework.pipeline.verdict import run_verdict, volume_report
+from framework.pipeline.verdict import volume_report
+from framework.plugins.data.sources import resolve_path
 from operators.scene import Scene
 
 CALIBRATION_STATE = "calibration.json"
@@ -73,18 +72,11 @@ def interrupted_run(output_dir: Path, checkpoint: Path | None, store_dir: Path, 
     return saved["run_id"] if saved["tracking_uri"] == (uri or local_store_uri(store_dir)) else None
 
 
-def stage_changes(history: Sequence[IterationRecord]) -> list[int]:
-    """Iterations after which the preconditioner moved to its next length, whether the stagnation
-    rule or a failed line search asked for it (from the records' ``preconditioner_length``)."""
-    lengths = [(r.iteration, r.extras.get("preconditioner_length")) for r in history]
-    return [i for (i, a), (_, b) in zip(lengths, lengths[1:]) if a is not None and b is not None and a != b]
-
-
 def _solve_from(parts: Reconstruction, problem: Problem, name: str, start: Start, request: StartRequest,
                 checkpoint: Path | None, output_dir: Path, tracker: MlflowTracker, steps_before: int,
                 truth_error: GroundTruthError | None) -> PhaseOutcome:
     """Run the solver from one start (or continue it from ``checkpoint``) with fresh stopping rules."""
-    cfg, operator = parts.cfg, parts.operator
+    operator = parts.operator
     began = time.perf_counter()
     start_metrics: dict[str, float] = {}
     if checkpoint is None:  # a resumed run continues from its checkpoint's heights
@@ -97,12 +89,12 @@ def _solve_from(parts: Reconstruction, problem: Problem, name: str, start: Start
         d0 = torch.zeros(parts.grid.shape, dtype=operator.dtype)
     start_seconds = time.perf_counter() - began
     solver = parts.make_solver(problem, d0)
-    stopping = build_stopping(cfg)
+    stopping = build_stopping(parts.settings.cfg)
     for rule in stopping:
         rule.setup(problem)
     history = MetricsHistory()
-    callbacks: list[Callback] = [history, *stopping, ProgressBar(desc=f"{cfg.get('method', 'custom')} from {name}"),
-                                 Checkpointer(output_dir / CHECKPOINT, every=int(cfg["checkpoint_every"]),
+    callbacks: list[Callback] = [history, *stopping, ProgressBar(desc=f"{parts.settings.method} from {name}"),
+                                 Checkpointer(output_dir / CHECKPOINT, every=parts.settings.checkpoint_every,
                                               run=parts.fingerprint),
                                  tracker.metrics_callback(step_offset=steps_before)]
     callbacks += [c for c in (parts.calibration, truth_error) if c is not None]
@@ -121,18 +113,12 @@ def _solve_from(parts: Reconstruction, problem: Problem, name: str, start: Start
                         start_seconds, start_metrics, truth_error.errors(d) if truth_error else {})
 
 
-def _positive_int(value: Any, where: str) -> int:
-    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-        raise ValueError(f"{where}={value!r} must be an integer >= 1")
-    return value
-
-
 @dataclass
 class Reconstruction:
     """Everything a reconstruction is built from, checked against the config before any render.
 
     Attributes:
-        cfg: The plain config (logged as the run's params).
+        settings: The config, parsed once (framework/core/run_settings.py).
         operator: The forward-operator plugin.
         scene: The scene (light, substrate, receiver, material, wavelengths).
         grid: The height grid.
@@ -145,7 +131,7 @@ class Reconstruction:
         calibration: Joint calibration of the setup (framework/pipeline/calibration.py), or None.
     """
 
-    cfg: dict[str, Any]
+    settings: RunSettings
     operator: Operator
     scene: Scene
     grid: HeightGrid
@@ -163,15 +149,15 @@ class Reconstruction:
         ``base_dir``, a copy handed out each time."""
         key = str(base_dir)
         if key not in self._designs:
-            self._designs[key] = build_heights(self.cfg, base_dir=base_dir)
+            self._designs[key] = build_heights(self.settings.cfg, base_dir=base_dir)
         return self._designs[key].clone()
 
     @classmethod
     def from_config(cls, cfg: Mapping[str, Any], base_dir: Path) -> Reconstruction:
         """Build every part by its registry key (scene, operator, data, solver, stopping rules) and
         the start; a bad value fails here, before anything is rendered."""
-        plain = dict(to_plain(cfg))
-        cfg = with_scene_lengths(plain, mm_per_unit(plain))
+        settings = RunSettings.parse(cfg)
+        cfg = settings.cfg
         scene = build_scene(cfg)
         calibration_cfg = as_mapping(cfg.get("calibration") or {}, "calibration")
         operator = build_operator(cfg, scene, imaging=bool(calibration_cfg.get("params")))
@@ -180,13 +166,12 @@ class Reconstruction:
         data_name, data_params = split_name(cfg.get("data"), "data")
         data_source = build_plugin("data", data_name, data_params, "data")
         solver_name, solver_params = split_name(cfg.get("solver"), "solver")
-        max_iter = _positive_int(solver_params.pop("max_iter", None), "solver.max_iter")  # the loop's, not the solver's
+        max_iter = positive_int(solver_params.pop("max_iter", None), "solver.max_iter")  # the loop's, not the solver's
         make_solver = build_plugin("solver", solver_name, solver_params, "solver")
         stopping = build_stopping(cfg)
-        _positive_int(cfg.get("checkpoint_every"), "checkpoint_every")
         start = build_start(cfg)
         start.check(base_dir)
-        return cls(cfg, operator, scene, grid, data_source, make_solver, stopping, start, max_iter,
+        return cls(settings, operator, scene, grid, data_source, make_solver, stopping, start, max_iter,
                    run_fingerprint(cfg, base_dir), calibration)
 
     def check(self, base_dir: Path, output_dir: Path) -> Path | None:
@@ -195,25 +180,22 @@ class Reconstruction:
         of the print (the volume against the printed area and the height bounds), the design of a
         measured print, and the checkpoint to resume from (readable, of this run). Returns that
         checkpoint, or None for a fresh run."""
-        tracking = as_mapping(self.cfg.get("tracking"), "tracking")
-        store_dir = tracking.get("store_dir")
-        if not isinstance(store_dir, str) or not store_dir:
-            raise ValueError(f"tracking.store_dir={store_dir!r} must be a directory name for the local MLflow store")
-        check_tracking_target(tracking.get("uri"), resolve_path(store_dir, base_dir))
+        tracking = self.settings.tracking
+        check_tracking_target(tracking.uri, resolve_path(tracking.store_dir, base_dir))
         request = self.data_request(base_dir)
         facts = self.data_source.check(request)
-        check_volume_known(self.cfg, facts.volume)
-        check_volume(facts.volume, facts.mask, self.grid.cell_area, height_bounds(self.cfg),
+        check_volume_known(self.settings.cfg, facts.volume)
+        check_volume(facts.volume, facts.mask, self.grid.cell_area, height_bounds(self.settings.cfg),
                      2.0 * float(self.scene.substrate.half_width))
-        if design_given(self.cfg):
+        if self.settings.design_given:
             request.design()
-        return checked_resume(self.cfg.get("resume"), output_dir, base_dir, self.fingerprint)
+        return checked_resume(self.settings.resume, output_dir, base_dir, self.fingerprint)
 
     def data_request(self, base_dir: Path, output_dir: Path | None = None) -> DataRequest:
         """What the data source may use: the operator, the grid, the configured heights, the seed,
         the run directory and the units."""
         return DataRequest(self.operator, self.grid, lambda: self.design(base_dir),
-                           int(self.cfg.get("seed", 0)), base_dir, output_dir, mm_per_unit(self.cfg))
+                           self.settings.seed, base_dir, output_dir, self.settings.mm_per_unit)
 
 
 def run_reconstruction(cfg: Mapping[str, Any], output_dir: Path, base_dir: Path,
@@ -222,24 +204,54 @@ def run_reconstruction(cfg: Mapping[str, Any], output_dir: Path, base_dir: Path,
     parts = Reconstruction.from_config(cfg, base_dir)
     checkpoint = parts.check(base_dir, output_dir)
     output_dir.mkdir(parents=True, exist_ok=True)
-    if bool(parts.cfg.get("compile_in_background", True)):
+    if parts.settings.compile_in_background:
         with parts.operator.warm_up() as compiling:
             return _reconstruct(parts, output_dir, base_dir, checkpoint, sweep_id, compiling)
     return _reconstruct(parts, output_dir, base_dir, checkpoint, sweep_id, None)
 
 
+def _run_starts(parts: Reconstruction, problem: Problem, request: StartRequest, output_dir: Path,
+                checkpoint: Path | None, tracker: MlflowTracker, truth_error: GroundTruthError | None
+                ) -> tuple[list[PhaseOutcome], bool, int]:
+    """Run the solver from each of the start's phases in turn (continuing an interrupted run's own
+    phase from ``checkpoint``) until one reaches the noise level. Returns the finished runs, whether
+    there were several starts, and the MLflow steps used."""
+    phases = parts.start.phases()
+    finished, first = resumed_phases(output_dir, checkpoint)
+    steps = sum(outcome.result.iterations for outcome in finished)
+    for index in range(first, len(phases)):
+        name, start = phases[index]
+        if len(phases) > 1:  # so that a resumed run knows which start its checkpoint belongs to
+            torch.save({"done": [outcome.saved() for outcome in finished], "phase": index}, output_dir / PHASES)
+        resume_from = checkpoint if index == first else None
+        try:
+            outcome = _solve_from(parts, problem, name, start, request, resume_from, output_dir, tracker, steps,
+                                  truth_error)
+        except ValueError as error:
+            if len(phases) == 1:
+                raise
+            print(f"initial=auto: start {name} left out: {error}", flush=True)
+            continue
+        finished.append(outcome)
+        steps += outcome.result.iterations
+        if outcome.result.accepted:
+            break
+        if index + 1 < len(phases):
+            print(f"start {name} ended short of the noise level ({outcome.result.stop_reason}); "
+                  f"trying start {phases[index + 1][0]}", flush=True)
+    if not finished:
+        raise ValueError("initial=auto: no candidate start could be computed from these data; see the lines above")
+    return finished, len(phases) > 1, steps
+
+
 def _reconstruct(parts: Reconstruction, output_dir: Path, base_dir: Path, checkpoint: Path | None,
                  sweep_id: str | None, compiling: Any) -> dict[str, Any]:
-    cfg, operator = parts.cfg, parts.operator
-    method = cfg.get("method", "custom")
-    tracking = as_mapping(cfg.get("tracking"), "tracking")
-    data_name = cfg["data"]["name"]
-    tags = {"method": method, "scene": cfg["height_field"].get("shape", "file"), "data": data_name,
-            "operator": cfg["operator"]["name"], "solver": cfg["solver"]["name"]}
-    store_dir = resolve_path(tracking["store_dir"], base_dir)
-    with MlflowTracker(experiment=tracking["experiment"], run_name=cfg.get("method"), store_dir=store_dir,
-                       tracking_uri=tracking.get("uri"), params=cfg, tags=tags, sweep_id=sweep_id,
-                       continue_run_id=interrupted_run(output_dir, checkpoint, store_dir, tracking.get("uri"))
+    settings, operator = parts.settings, parts.operator
+    method, cfg, tracking = settings.method, settings.cfg, settings.tracking
+    store_dir = resolve_path(tracking.store_dir, base_dir)
+    with MlflowTracker(experiment=tracking.experiment, run_name=cfg.get("method"), store_dir=store_dir,
+                       tracking_uri=tracking.uri, params=cfg, tags=settings.tags, sweep_id=sweep_id,
+                       continue_run_id=interrupted_run(output_dir, checkpoint, store_dir, tracking.uri)
                        ) as tracker:
         (output_dir / MLFLOW_RUN).write_text(json.dumps({"run_id": tracker.run_id,
                                                          "tracking_uri": tracker.tracking_uri}))
@@ -251,7 +263,7 @@ def _reconstruct(parts: Reconstruction, output_dir: Path, base_dir: Path, checkp
         # The design the mm outputs compare with: the truth of synthetic data, else the configured
         # height field when the user declared it the print's design (framework/pipeline/run_checks.py).
         design = data.ground_truth if data.ground_truth is not None else (
-            parts.design(base_dir) if design_given(cfg) else None)
+            parts.design(base_dir) if settings.design_given else None)
         calibration = parts.calibration
         if calibration is not None:
             resume_from = None if checkpoint is None else checkpoint.parent / CALIBRATION_STATE
@@ -264,75 +276,31 @@ def _reconstruct(parts: Reconstruction, output_dir: Path, base_dir: Path, checkp
                   flush=True)
             compiling.wait()
         request = StartRequest(problem, lambda: parts.design(base_dir), base_dir)
-        phases = parts.start.phases()
-        finished, first = resumed_phases(output_dir, checkpoint)
-        steps_before = sum(outcome.result.iterations for outcome in finished)
-        for index in range(first, len(phases)):
-            name, start = phases[index]
-            if len(phases) > 1:  # so that a resumed run knows which start its checkpoint belongs to
-                torch.save({"done": [outcome.saved() for outcome in finished], "phase": index}, output_dir / PHASES)
-            resume_from = checkpoint if index == first else None
-            try:
-                outcome = _solve_from(parts, problem, name, start, request, resume_from, output_dir, tracker,
-                                      steps_before, truth_error)
-            except ValueError as error:
-                if len(phases) == 1:
-                    raise
-                print(f"initial=auto: start {name} left out: {error}", flush=True)
-                continue
-            finished.append(outcome)
-            steps_before += outcome.result.iterations
-            if outcome.result.accepted:
-                break
-            if index + 1 < len(phases):
-                print(f"start {name} ended short of the noise level ({outcome.result.stop_reason}); "
-                      f"trying start {phases[index + 1][0]}", flush=True)
-        if not finished:
-            raise ValueError("initial=auto: no candidate start could be computed from these data; see the lines above")
+        finished, several, steps = _run_starts(parts, problem, request, output_dir, checkpoint, tracker, truth_error)
         chosen = max(finished, key=lambda o: (o.result.accepted, -o.rel_discrepancy))
-        result, d, returned_iteration, history = chosen.result, chosen.d, chosen.returned_iteration, chosen.history
-        solve_seconds = sum(outcome.seconds for outcome in finished)
-        start_metrics = {"start": chosen.name, "start_time_s": sum(o.start_seconds for o in finished),
-                         **{k: v for o in finished for k, v in o.summary(len(phases) > 1).items()}}
+        result, d = chosen.result, chosen.d
         prediction = operator.render(d)
         volume = volume_report(d, data.volume, parts.grid.cell_area)
+        start_metrics = {"start": chosen.name, "start_time_s": sum(o.start_seconds for o in finished),
+                         **{k: v for o in finished for k, v in o.summary(several).items()}}
         metrics: dict[str, Any] = {
             "method": method, "iterations": result.iterations,
-            "returned_iteration": returned_iteration,
-            "refined_at": stage_changes(result.history),
+            "returned_iteration": chosen.returned_iteration,
+            **result.solver_metrics,
             "stop_reason": result.stop_reason, "stopped_by": result.stopped_by,
-            "run_time_s": solve_seconds, "data_time_s": data_seconds,
+            "run_time_s": sum(outcome.seconds for outcome in finished), "data_time_s": data_seconds,
             "rel_discrepancy": problem.fidelity.relative_discrepancy(prediction),
             "delta": data.delta, "intrinsic_noise": data.intrinsic_noise,
             "photons_per_iteration": operator.photons, **(truth_error.errors(d) if truth_error else {}),
             **volume,
             **start_metrics, **(calibration.report() if calibration else {})}
-        np.save(output_dir / "height_field.npy", d.cpu().numpy().astype(np.float64))
-        np.save(output_dir / "caustic_target.npy", data.target.cpu().numpy().astype(np.float32))
-        np.save(output_dir / "caustic_predicted.npy", prediction.detach().cpu().numpy().astype(np.float32))
-        if data.weights is not None:
-            np.save(output_dir / "caustic_weights.npy", data.weights.cpu().numpy().astype(np.float32))
-        if data.ground_truth is not None:
-            np.save(output_dir / "ground_truth.npy", data.ground_truth.cpu().numpy().astype(np.float64))
-        exported = export_outputs(output_dir / "export", d.cpu().numpy(), parts.grid.half_width, parts.grid.base,
-                                  mm_per_unit(cfg), design=None if design is None else design.cpu().numpy())
-        metrics.update({f"deviation_{key}": value for key, value in exported["deviation"].items()})
-        if design is None:
-            print("no design given (height_field.path, data.mask=design or initial=design): no deviation report",
-                  flush=True)
-        morozov = (cfg.get("stopping") or {}).get("morozov") or {}
-        verdict = run_verdict(metrics["rel_discrepancy"], data.delta, float(morozov.get("tau_dis", 1.0)),
-                              returned_iteration, result.stop_reason, volume,
-                              data.weights, data.left_out)
-        metrics.update(verdict.metrics())
-        for line in verdict.lines:
-            print(f"verdict: {line}", flush=True)
-        for line in verdict.warnings:
-            print(f"warning: {line}", file=sys.stderr, flush=True)
+        metrics.update(save_outputs(output_dir, d, prediction, data, parts.grid, settings.mm_per_unit, design))
+        metrics.update(report_verdict(metrics["rel_discrepancy"], data, settings.tau_dis, chosen.returned_iteration,
+                                      result.stop_reason, volume))
         (output_dir / "metrics.json").write_text(json.dumps(metrics, indent=2))
-        save_reconstruction_figures(output_dir, d, problem, prediction, history)
+        save_reconstruction_figures(output_dir, d, problem, prediction, chosen.history)
         tracker.log_metrics({k: float(v) for k, v in metrics.items() if isinstance(v, (int, float)) and v is not None},
-                            step=steps_before)  # the summary (flags as 0/1): last step, not 0
+                            step=steps)  # the summary (flags as 0/1): last step, not 0
         tracker.set_tags({"stop_reason": result.stop_reason, "stopped_by": result.stopped_by, "start": chosen.name,
                           "verdict": metrics["verdict"]})
         tracker.log_artifacts(output_dir)

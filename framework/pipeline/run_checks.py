@@ -2,7 +2,6 @@
 every plugin is built and before the tracker opens or anything is rendered.
 
 - :func:`check_volume`: a known deposited volume the printed area and the height bounds can hold;
-- :func:`design_given`: whether the configured height field is the design of a measured print;
 - :func:`checked_resume`: the checkpoint a run continues from, readable and of the same run;
 - :func:`check_tracking_target`, :func:`check_creatable_directory`: where the run's records go.
 """
@@ -21,7 +20,7 @@ from framework.core.registry import lookup
 from framework.pipeline.run_identity import check_resumable
 from framework.pipeline.tracking import KNOWN_SCHEMES, check_tracking_server
 
-__all__ = ["check_creatable_directory", "check_tracking_target", "height_bounds", "check_volume", "check_volume_known", "design_given", "checked_resume", "CHECKPOINT"]
+__all__ = ["check_creatable_directory", "check_tracking_target", "height_bounds", "check_volume", "check_volume_known", "checked_resume", "CHECKPOINT"]
 
 CHECKPOINT = "checkpoint.pt"
 
@@ -78,18 +77,6 @@ def check_volume_known(cfg: Mapping[str, Any], volume: float | None) -> None:
             if getattr(lookup(kind, name), "needs_volume", False):
                 raise ValueError(f"solver.{group}.{name} needs the deposited volume: set data.volume=... (scene "
                                  f"units^3 or e.g. '1.7 mm3'), or leave {name} out ('~solver.{group}.{name}')")
-
-
-def design_given(cfg: Mapping[str, Any]) -> bool:
-    """Whether the configured height field is the design of a measured print: the user gave a
-    height-field file (``height_field.path``), or declared it the design with ``data.mask=design``
-    or ``initial=design``. Synthetic data always have their ground truth."""
-    data = cfg.get("data") or {}
-    if data.get("name") == "synthetic":
-        return True
-    initial = cfg.get("initial") or {}
-    return bool((cfg.get("height_field") or {}).get("path")) or data.get("mask") == "design" or (
-        isinstance(initial, Mapping) and initial.get("name") == "design")
 
 
 def checked_resume(spec: Any, output_dir: Path, base_dir: Path, fingerprint: Mapping[str, str]) -> Path | None:

@@ -65,14 +65,16 @@ class PhaseOutcome:
                 "rel_discrepancy": self.rel_discrepancy, "history": self.history, "seconds": self.seconds,
                 "start_seconds": self.start_seconds, "start_metrics": self.start_metrics, "errors": self.errors,
                 "result": {"iterations": r.iterations, "stop_reason": r.stop_reason, "stopped_by": r.stopped_by,
-                           "records": [asdict(x) for x in r.history], "elapsed_s": r.elapsed_s, "accepted": r.accepted}}
+                           "records": [asdict(x) for x in r.history], "elapsed_s": r.elapsed_s, "accepted": r.accepted,
+                           "solver_metrics": r.solver_metrics}}
 
     @classmethod
     def restored(cls, saved: dict[str, Any]) -> PhaseOutcome:
         """The inverse of :meth:`saved`."""
         r = saved["result"]
         result = RunResult(saved["d"], r["iterations"], r["stop_reason"], r["stopped_by"],
-                           [IterationRecord(**x) for x in r["records"]], r["elapsed_s"], r["accepted"])
+                           [IterationRecord(**x) for x in r["records"]], r["elapsed_s"], r["accepted"],
+                           r.get("solver_metrics", {}))
         return cls(saved["name"], result, saved["d"], saved["returned_iteration"], saved["rel_discrepancy"],
                    saved["history"], saved["seconds"], saved["start_seconds"], saved["start_metrics"], saved["errors"])
 

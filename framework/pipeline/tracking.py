@@ -63,7 +63,7 @@ GIT_DIRTY_TAG = "git_dirty"
 SOURCE_NAME_TAG = "mlflow.source.name"
 SOURCE_TYPE_TAG = "mlflow.source.type"
 UNKNOWN = "unknown"
-REPO_ROOT = Path(__file__).resolve().parents[1]
+REPO_ROOT = Path(__file__).resolve().parents[2]
 
 
 def _truncate(text: str, limit: int) -> str:

@@ -118,7 +118,7 @@ class StagnationStopping(StoppingRule):
         refined_at: Iterations after which this rule switched the solver to a finer stage (a
             solver may also switch by itself when its line search fails; the records'
             ``preconditioner_length`` show every switch, see
-            :func:`framework.pipeline.reconstruction.stage_changes`).
+            :func:`framework.plugins.solvers.proximal_gradient.stage_changes`).
     """
 
     def __init__(self, patience: int = 8, min_improvement: float = 1e-3) -> None:

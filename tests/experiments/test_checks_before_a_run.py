@@ -168,10 +168,10 @@ def test_plugin_lengths_are_taken_in_millimetres_too(inputs, tmp_path) -> None:
     cfg = compose_reconstruct([*SMALL, "solver.regularizers.l1_bounds.p2=7.5mm", "solver.preconditioner.length=[3mm,0.06]",
                                "data.mask_threshold=0.025mm", "initial=transport", "initial.p2=5mm"], tmp_path)
     parts = Reconstruction.from_config(cfg, inputs)  # 25 mm per scene unit
-    assert parts.cfg["solver"]["regularizers"]["l1_bounds"]["p2"] == pytest.approx(0.3)
-    assert parts.cfg["solver"]["preconditioner"]["length"] == pytest.approx([0.12, 0.06])
-    assert parts.cfg["data"]["mask_threshold"] == pytest.approx(0.001)
-    assert parts.cfg["initial"]["p2"] == pytest.approx(0.2) and parts.start.p2 == pytest.approx(0.2)
+    assert parts.settings.cfg["solver"]["regularizers"]["l1_bounds"]["p2"] == pytest.approx(0.3)
+    assert parts.settings.cfg["solver"]["preconditioner"]["length"] == pytest.approx([0.12, 0.06])
+    assert parts.settings.cfg["data"]["mask_threshold"] == pytest.approx(0.001)
+    assert parts.settings.cfg["initial"]["p2"] == pytest.approx(0.2) and parts.start.p2 == pytest.approx(0.2)
 
 
 def test_a_tracking_server_that_is_not_mlflow_is_refused(refused, tmp_path_factory) -> None:

@@ -211,7 +211,7 @@ def test_bad_configuration_is_refused_clearly(tmp_path, overrides, error, messag
 
 
 def test_stage_changes_come_from_the_records_whoever_asked_for_them():
-    from framework.pipeline.reconstruction import stage_changes
+    from framework.plugins.solvers.proximal_gradient import stage_changes
     from framework.plugins.solvers import IterationRecord
 
     def record(i, length):

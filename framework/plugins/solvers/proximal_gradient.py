@@ -30,7 +30,7 @@ from framework.core.solver_loop import IterationFailed, IterationRecord, Iterati
 from framework.plugins.solvers.preconditioner import GradientPreconditioner
 from framework.plugins.solvers.step_size import LineSearchFailed, StepSizePolicy, as_step_policy
 
-__all__ = ["ProximalGradientSolver", "build_parts", "check_regularizers",
+__all__ = ["ProximalGradientSolver", "build_parts", "check_regularizers", "stage_changes",
            "check_two_metric_from"]
 
 Candidate = dict[str, Tensor]
@@ -87,6 +87,13 @@ def _check_post_steps(post_steps: Sequence[Any], solver: str) -> list[Callable[[
         if not callable(u):
             raise ValueError(f"{solver}: post step {type(u).__name__} is not callable as u(d) -> d")
     return out
+
+
+def stage_changes(history: Sequence[IterationRecord]) -> list[int]:
+    """Iterations after which the preconditioner moved to its next length, whether the stagnation
+    rule or a failed line search asked for it (from the records' ``preconditioner_length``)."""
+    lengths = [(r.iteration, r.extras.get("preconditioner_length")) for r in history]
+    return [i for (i, a), (_, b) in zip(lengths, lengths[1:]) if a is not None and b is not None and a != b]
 
 
 class ProximalGradientSolver(IterativeSolver):
@@ -300,6 +307,10 @@ class ProximalGradientSolver(IterativeSolver):
         return record
 
     # -- checkpoints ---------------------------------------------------------------------------
+    def run_metrics(self) -> dict[str, Any]:
+        """``refined_at``: the iterations after which the preconditioner moved to a finer length."""
+        return {"refined_at": stage_changes(self.history)}
+
     def state_dict(self) -> dict[str, Any]:
         """Adds the step-size state and the cached evaluation at d (so a resume re-evaluates nothing)."""
         state = super().state_dict()

@@ -14,6 +14,8 @@ from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from typing import Any, Callable
 
+from framework.core.values import positive_number
+
 __all__ = ["StepChoice", "StepSizePolicy", "ConstantStep", "BacktrackingStep", "LineSearchFailed", "as_step_policy"]
 
 
@@ -36,13 +38,6 @@ class StepChoice:
     candidate: Any
     trials: int
     forward_evaluations: int
-
-
-def _positive(value: float, name: str) -> float:
-    v = float(value)
-    if not math.isfinite(v) or v <= 0.0:
-        raise ValueError(f"{name} must be a positive finite number, got {value!r}")
-    return v
 
 
 class StepSizePolicy(ABC):
@@ -84,7 +79,7 @@ class ConstantStep(StepSizePolicy):
     """
 
     def __init__(self, tau: float) -> None:
-        self.tau = _positive(tau, "tau")
+        self.tau = positive_number(tau, "tau")
 
     @property
     def current_step(self) -> float:
@@ -127,7 +122,7 @@ class BacktrackingStep(StepSizePolicy):
         max_trials: int = 30,
         tau_max: float = math.inf,
     ) -> None:
-        self.tau0 = _positive(tau, "tau")
+        self.tau0 = positive_number(tau, "tau")
         if not 0.0 < float(shrink) < 1.0:
             raise ValueError(f"shrink must lie in (0, 1), got {shrink!r}")
         if not (math.isfinite(float(grow)) and float(grow) >= 1.0):
@@ -172,7 +167,7 @@ class BacktrackingStep(StepSizePolicy):
         return {"tau": self.tau}
 
     def load_state_dict(self, state: dict[str, float]) -> None:
-        self.tau = _positive(state["tau"], "tau")
+        self.tau = positive_number(state["tau"], "tau")
 
     def __repr__(self) -> str:
         return f"BacktrackingStep(tau0={self.tau0}, shrink={self.shrink}, grow={self.grow}, tau={self.tau})"
