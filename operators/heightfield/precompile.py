@@ -1,8 +1,8 @@
 """Compile the gradient kernel in a second process while this one compiles the render kernel.
 
-The first run after an install compiles the fused kernels into numba's on-disk cache: about
-30 s for the render kernel and 80 s for the gradient (vjp) kernel, one after the other, since one
-process compiles one function at a time. :class:`BackgroundCompile` starts
+The first run after an install compiles the fused kernels into numba's on-disk cache, the render
+kernel and then the gradient (vjp) kernel, since one process compiles one function at a time (the
+time it adds: docs/results.md, "The default run"). :class:`BackgroundCompile` starts
 ``python -m operators.heightfield.compile_kernels`` when the gradient kernel is not cached yet; that process
 compiles it on the second core and writes it to the cache, and :meth:`BackgroundCompile.wait`
 holds the caller until it is there, so the caller's first gradient loads it instead of

@@ -29,8 +29,8 @@ class GradientDescent(ProximalGradientSolver):
     the operator has no glass left to trace). A sample that a step would take below ``floor`` =
     -(1 - min_thickness) h stops at the floor; nothing else is constrained (no mask, no upper
     bound, no sparsity), so M1 stays the unregularised fit of the data term. Shortening the whole
-    step instead was measured to freeze the run: once one sample sits at the floor with its
-    gradient pointing down, every later step has length zero (docs/method.md, "M1").
+    step instead freezes the run: once one sample sits at the floor with its gradient pointing
+    down, every later step has length zero (docs/method.md, "M1").
 
     Args:
         data: The data term f.

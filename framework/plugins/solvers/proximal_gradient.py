@@ -189,8 +189,7 @@ class ProximalGradientSolver(IterativeSolver):
         (Bertsekas 1982, "Projected Newton methods for optimization problems with simple
         constraints"). Restricting P to the free samples, with the pinned ones stepping along
         their own gradient, makes every fixed point a stationary point of f + g again
-        (docs/method.md, "Two-metric steps"; measured there: print_lines stalled at discrepancy
-        0.083 without it).
+        (docs/method.md, "Two-metric steps", with what was measured without it).
         """
         d = self.state.d
         step = self.step_size.current_step

@@ -13,8 +13,8 @@ with w = W d (W^-1 W = I).
 
 With a preconditioner P the gradient step is w - tau W P grad_d f, a step in the metric
 (W P W^*)^-1, and the shrinkage must be taken in the same metric: otherwise it moves the fine
-scales, which P has damped, by tau alpha_w, and the step is no longer a descent direction (measured:
-M3V1 stopped at iteration 15 with every trial step increasing f). The shrinkage therefore uses the
+scales, which P has damped, by tau alpha_w, and the step is no longer a descent direction (every
+trial step then increases f and the run stops early). The shrinkage therefore uses the
 diagonal of W P W^* (one value per subband, probed at the subband's middle coefficient; exact for a
 translation-invariant P away from the border): S(w_i, tau alpha_w [W P W^*]_ii). The fixed points
 are those of the unpreconditioned iteration up to that diagonal approximation.
