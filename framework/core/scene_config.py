@@ -22,6 +22,7 @@ naming the key. The operator plugin checks its own settings.
 from __future__ import annotations
 
 from collections.abc import Mapping
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -39,7 +40,8 @@ from operators.imaging import PSF_KINDS, ImagingOperator
 from operators.materials import material_from_config
 from operators.scene import PointLight, Receiver, Scene, Substrate
 
-__all__ = ["build_scene", "build_heights", "build_operator", "height_grid", "screen_sigma", "to_plain"]
+__all__ = ["SceneSetup", "build_scene", "build_heights", "build_operator", "heights_from_spec", "height_grid",
+           "screen_sigma", "to_plain"]
 
 SCENE_KEYS: dict[str, tuple[str, ...]] = {
     "light": ("position", "power"),
@@ -81,10 +83,11 @@ def _number(name: str, value: Any, kind: type = float) -> Any:
     return float(value)
 
 
-def build_scene(cfg: Mapping[str, Any]) -> Scene:
+def build_scene(cfg: Mapping[str, Any], mm: float | None = None) -> Scene:
     """Scene (light, substrate, receiver, material, wavelengths in um) from the config's top-level
-    keys; lengths in scene units or with a unit (framework/core/units.py)."""
-    mm = mm_per_unit(cfg)
+    keys; lengths in scene units or with a unit (framework/core/units.py), ``mm`` millimetres per
+    scene unit (None: the config's ``units.mm_per_unit``)."""
+    mm = mm_per_unit(cfg) if mm is None else mm
     light = _group(cfg, "light", SCENE_KEYS["light"])
     if "position" in light:
         position = light["position"]
@@ -128,9 +131,14 @@ def build_heights(cfg: Mapping[str, Any], base_dir: str | Path | None = None) ->
     ``shape``; ``resolution`` m defaults to 128; ``scale`` multiplies the heights (for images:
     the height of full white, in scene units or e.g. "0.4 mm"); ``params`` go to the shape function.
     """
-    spec = _group(cfg, "height_field", HEIGHT_FIELD_KEYS)
+    return heights_from_spec(_group(cfg, "height_field", HEIGHT_FIELD_KEYS), mm_per_unit(cfg), base_dir)
+
+
+def heights_from_spec(spec: Mapping[str, Any], mm: float, base_dir: str | Path | None = None) -> torch.Tensor:
+    """:func:`build_heights` of the ``height_field`` group ``spec`` (keys checked) with ``mm``
+    millimetres per scene unit."""
     resolution = _grid_resolution(spec)
-    scale = scene_length(spec.get("scale", 1.0), mm_per_unit(cfg), "height_field.scale")
+    scale = scene_length(spec.get("scale", 1.0), mm, "height_field.scale")
     path = spec.get("path")
     if path is not None and (not isinstance(path, str) or isinstance(path, bool)):
         raise ValueError(f"height_field.path={path!r} must be a file name (.npy/.png/.tif) or null")
@@ -159,19 +167,19 @@ def height_grid(cfg: Mapping[str, Any], scene: Scene) -> HeightGrid:
     return HeightGrid(resolution, scene.substrate.half_width, scene.substrate.thickness)
 
 
-def screen_sigma(cfg: Mapping[str, Any]) -> float:
+def screen_sigma(cfg: Mapping[str, Any], mm: float | None = None) -> float:
     """The screen's Gaussian spot (standard deviation, scene units) from ``screen``; 0 for none."""
     screen = _group(cfg, "screen", SCREEN_KEYS)
     psf = screen.get("psf", "none")
     if psf not in PSF_KINDS:
         raise ValueError(f"screen.psf={psf!r}; use {' or '.join(PSF_KINDS)}")
-    sigma = scene_length(screen.get("sigma", 0.0), mm_per_unit(cfg), "screen.sigma")
+    sigma = scene_length(screen.get("sigma", 0.0), mm_per_unit(cfg) if mm is None else mm, "screen.sigma")
     if psf == "gaussian" and not sigma > 0.0:
         raise ValueError(f"screen.psf=gaussian needs screen.sigma > 0 (scene units or e.g. '0.1 mm'), got {sigma}")
     return sigma if psf == "gaussian" else 0.0
 
 
-def build_operator(cfg: Mapping[str, Any], scene: Scene, imaging: bool = False) -> Operator:
+def build_operator(cfg: Mapping[str, Any], scene: Scene, imaging: bool = False, mm: float | None = None) -> Operator:
     """The operator plugin named by ``operator.name``, for ``scene``, ``photons`` and ``seed``,
     from the rest of the ``operator`` group (which the plugin checks); seen through the screen
     (operators/imaging.py) when ``screen.psf`` is set, or always with ``imaging`` (a setup that
@@ -181,7 +189,7 @@ def build_operator(cfg: Mapping[str, Any], scene: Scene, imaging: bool = False) 
     seed = _number("seed", cfg.get("seed", 0), int)
     if not 0 <= seed < 2 ** 63:
         raise ValueError(f"seed={seed} must be an integer in [0, 2^63)")
-    sigma = screen_sigma(cfg)
+    sigma = screen_sigma(cfg, mm)
 
     def build(for_scene: Scene) -> Operator:
         return build_plugin("operator", name, dict(params), "operator", scene=for_scene, photons=photons, seed=seed)
@@ -189,3 +197,36 @@ def build_operator(cfg: Mapping[str, Any], scene: Scene, imaging: bool = False) 
     if sigma > 0.0 or imaging:
         return ImagingOperator(build, scene, psf_sigma=sigma)
     return build(scene)
+
+
+@dataclass(frozen=True)
+class SceneSetup:
+    """The scene groups of a reconstruction's config, read once: the scene, the height grid, the
+    forward operator, and the ``height_field`` group the configured heights are made from.
+
+    Attributes:
+        scene: Light, substrate, receiver, material, wavelengths.
+        grid: The grid of the reconstructed heights.
+        operator: The operator plugin (seen through the screen when ``screen.psf`` is set, or with
+            ``imaging``).
+        height_field: The ``height_field`` group, keys checked.
+        mm_per_unit: Millimetres per scene unit.
+    """
+
+    scene: Scene
+    grid: HeightGrid
+    operator: Operator
+    height_field: dict[str, Any]
+    mm_per_unit: float
+
+    @classmethod
+    def parse(cls, cfg: Mapping[str, Any], mm: float, imaging: bool = False) -> SceneSetup:
+        """Build the scene, grid and operator of ``cfg`` with ``mm`` millimetres per scene unit."""
+        scene = build_scene(cfg, mm)
+        operator = build_operator(cfg, scene, imaging, mm)
+        return cls(scene, height_grid(cfg, scene), operator, _group(cfg, "height_field", HEIGHT_FIELD_KEYS), mm)
+
+    def heights(self, base_dir: str | Path | None = None) -> torch.Tensor:
+        """The configured heights (m, m), float64, scene units (:func:`build_heights`)."""
+        return heights_from_spec(self.height_field, self.mm_per_unit, base_dir)
+

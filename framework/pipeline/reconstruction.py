@@ -25,7 +25,7 @@ from framework.core.plugin_config import as_mapping, build_plugin, split_name
 from framework.core.problem import HeightGrid, Problem
 from framework.core.run_settings import RunSettings
 from framework.core.values import positive_int
-from framework.core.scene_config import build_heights, build_operator, build_scene, height_grid
+from framework.core.scene_config import SceneSetup
 from framework.core.solver_loop import Callback
 from framework.pipeline.calibration import JointCalibration
 from framework.pipeline.callbacks import Checkpointer, GroundTruthError, MetricsHistory, ProgressBar
@@ -45,10 +45,10 @@ CALIBRATION_STATE = "calibration.json"
 MLFLOW_RUN = "mlflow_run.json"  # the run's MLflow run id, so that a job resumed in its directory logs into it
 
 
-def build_start(cfg: Mapping[str, Any]) -> Start:
-    """The ``initial`` plugin (framework/plugins/starts/), its config checked: ``{name: zero | design |
-    file | transport | auto, ...}``."""
-    spec = cfg.get("initial") or {"name": "zero"}
+def build_start(spec: Any) -> Start:
+    """The ``initial`` plugin (framework/plugins/starts/) of the config group ``spec``, checked:
+    ``{name: zero | design | file | transport | auto, ...}`` (None: zero)."""
+    spec = spec or {"name": "zero"}
     if isinstance(spec, str):
         raise ValueError(f"initial={spec!r}: choose a start by name (initial=zero|design|file|transport|auto); "
                          "a height-field file is initial=file initial.path=<file>")
@@ -56,10 +56,11 @@ def build_start(cfg: Mapping[str, Any]) -> Start:
     return build_plugin("initial", name, params, "initial")
 
 
-def build_stopping(cfg: Mapping[str, Any]) -> list[StoppingRule]:
-    """The ``stopping`` plugins, in config order (fresh ones for every run from a start)."""
+def build_stopping(spec: Any) -> list[StoppingRule]:
+    """The plugins of the ``stopping`` group ``spec``, in config order (fresh ones for every run
+    from a start)."""
     return [build_plugin("stopping", name, params, f"stopping.{name}")
-            for name, params in as_mapping(cfg.get("stopping"), "stopping").items()]
+            for name, params in as_mapping(spec, "stopping").items()]
 
 
 def interrupted_run(output_dir: Path, checkpoint: Path | None, store_dir: Path, uri: str | None) -> str | None:
@@ -89,7 +90,7 @@ def _solve_from(parts: Reconstruction, problem: Problem, name: str, start: Start
         d0 = torch.zeros(parts.grid.shape, dtype=operator.dtype)
     start_seconds = time.perf_counter() - began
     solver = parts.make_solver(problem, d0)
-    stopping = build_stopping(parts.settings.cfg)
+    stopping = build_stopping(parts.settings.cfg.get("stopping"))
     for rule in stopping:
         rule.setup(problem)
     history = MetricsHistory()
@@ -119,9 +120,7 @@ class Reconstruction:
 
     Attributes:
         settings: The config, parsed once (framework/core/run_settings.py).
-        operator: The forward-operator plugin.
-        scene: The scene (light, substrate, receiver, material, wavelengths).
-        grid: The height grid.
+        setup: The scene, height grid, operator and height-field group (framework/core/scene_config.py).
         data_source: The ``data`` plugin.
         make_solver: The solver plugin's builder: (problem, d0) -> solver.
         stopping: The ``stopping`` plugins, in config order.
@@ -132,9 +131,7 @@ class Reconstruction:
     """
 
     settings: RunSettings
-    operator: Operator
-    scene: Scene
-    grid: HeightGrid
+    setup: SceneSetup
     data_source: DataSource
     make_solver: SolverBuilder
     stopping: list[StoppingRule]
@@ -144,12 +141,27 @@ class Reconstruction:
     calibration: JointCalibration | None = None
     _designs: dict[str, torch.Tensor] = field(default_factory=dict, repr=False)
 
+    @property
+    def operator(self) -> Operator:
+        """The forward-operator plugin."""
+        return self.setup.operator
+
+    @property
+    def scene(self) -> Scene:
+        """The scene (light, substrate, receiver, material, wavelengths)."""
+        return self.setup.scene
+
+    @property
+    def grid(self) -> HeightGrid:
+        """The height grid."""
+        return self.setup.grid
+
     def design(self, base_dir: Path) -> torch.Tensor:
         """The configured height field (m, m), float64, scene units: read or generated once per
         ``base_dir``, a copy handed out each time."""
         key = str(base_dir)
         if key not in self._designs:
-            self._designs[key] = build_heights(self.settings.cfg, base_dir=base_dir)
+            self._designs[key] = self.setup.heights(base_dir)
         return self._designs[key].clone()
 
     @classmethod
@@ -158,20 +170,18 @@ class Reconstruction:
         the start; a bad value fails here, before anything is rendered."""
         settings = RunSettings.parse(cfg)
         cfg = settings.cfg
-        scene = build_scene(cfg)
         calibration_cfg = as_mapping(cfg.get("calibration") or {}, "calibration")
-        operator = build_operator(cfg, scene, imaging=bool(calibration_cfg.get("params")))
-        calibration = JointCalibration.from_config(operator, calibration_cfg)
-        grid = height_grid(cfg, scene)
+        setup = SceneSetup.parse(cfg, settings.mm_per_unit, imaging=bool(calibration_cfg.get("params")))
+        calibration = JointCalibration.from_config(setup.operator, calibration_cfg)
         data_name, data_params = split_name(cfg.get("data"), "data")
         data_source = build_plugin("data", data_name, data_params, "data")
         solver_name, solver_params = split_name(cfg.get("solver"), "solver")
         max_iter = positive_int(solver_params.pop("max_iter", None), "solver.max_iter")  # the loop's, not the solver's
         make_solver = build_plugin("solver", solver_name, solver_params, "solver")
-        stopping = build_stopping(cfg)
-        start = build_start(cfg)
+        stopping = build_stopping(cfg.get("stopping"))
+        start = build_start(cfg.get("initial"))
         start.check(base_dir)
-        return cls(settings, operator, scene, grid, data_source, make_solver, stopping, start, max_iter,
+        return cls(settings, setup, data_source, make_solver, stopping, start, max_iter,
                    run_fingerprint(cfg, base_dir), calibration)
 
     def check(self, base_dir: Path, output_dir: Path) -> Path | None:

@@ -70,7 +70,7 @@ def test_starts_from_zero_design_or_file(tmp_path):
     problem = Problem(parts.operator, parts.data_source.load(parts.data_request(tmp_path)), parts.grid, parts.scene)
 
     def start(spec: dict) -> torch.Tensor:
-        return build_start({"initial": spec})(StartRequest(problem, lambda: build_heights(cfg), tmp_path)).d
+        return build_start(spec)(StartRequest(problem, lambda: build_heights(cfg), tmp_path)).d
 
     assert torch.equal(start({"name": "zero"}), torch.zeros(32, 32))
     half = start({"name": "design", "scale": 0.5}).double()
@@ -81,11 +81,11 @@ def test_starts_from_zero_design_or_file(tmp_path):
     with pytest.raises(FileNotFoundError, match="missing.npy"):
         start({"name": "file", "path": "missing.npy"})
     with pytest.raises(ValueError, match="initial.scale=-1"):
-        build_start({"initial": {"name": "design", "scale": -1}})
+        build_start({"name": "design", "scale": -1})
     with pytest.raises(ValueError, match="initial.path=None"):
-        build_start({"initial": {"name": "file"}})
+        build_start({"name": "file"})
     with pytest.raises(ValueError, match="initial=file initial.path="):
-        build_start({"initial": "start.npy"})
+        build_start("start.npy")
 
 
 def test_auto_tries_the_next_start_only_when_a_run_ends_short_of_the_noise_level(tmp_path):
