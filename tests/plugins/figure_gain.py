@@ -1,5 +1,5 @@
 """A figure script written as a plugin package would write one: how well one exact step recovers
-the bump through the ``shadow`` operator at three gains (tests/plugins/trivial.py).
+the bump through the ``shadow`` operator at two gains (tests/plugins/trivial.py).
 
     python -m tests.plugins.figure_gain --store mlruns --out figures      # sweep, then tabulate
     python -m tests.plugins.figure_gain --table-only                      # tabulate the latest runs
@@ -18,7 +18,7 @@ from matplotlib.figure import Figure
 from experiments.mlflow_store import artifact, latest_runs, reproduction_parser, run_sweep, tracking_store
 
 EXPERIMENT = "shadow-gain"
-GAINS = (1.0, 2.0, 4.0)
+GAINS = (1.0, 4.0)
 SEARCH_PATH = f"hydra.searchpath=[file://{Path(__file__).resolve().parent / 'conf'}]"
 CASE = ["operator=shadow", "solver=exact_step", "~experiment", "+method=exact_step", "scene=bump",
         "height_field.resolution=16", "receiver.resolution=32", "data.delta=0.002", "data.reference_resolution=64"]

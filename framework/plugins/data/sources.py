@@ -65,6 +65,11 @@ class SyntheticData:
 
     length_keys = ("mask_threshold",)  # may be given with a unit, e.g. '0.02 mm' (framework/core/plugin_config.py)
 
+    @staticmethod
+    def example_settings() -> dict[str, int]:
+        """Settings of the contract checks (framework/core/contracts/checks.py): small reference renders."""
+        return {"reference_photons": 1 << 18, "reference_resolution": 64}
+
     def __init__(self, delta: float = 0.05, reference_photons: int = 1 << 22, reference_resolution: int = 256,
                  mask_threshold: float = 1e-3, mask_dilation: float = 0.05) -> None:
         self.delta = validate_delta(delta)
