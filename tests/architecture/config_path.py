@@ -10,6 +10,7 @@ from __future__ import annotations
 import sys
 from collections import Counter
 from collections.abc import Callable, Mapping
+from pathlib import Path
 from typing import Any
 
 PACKAGES = ("framework", "operators", "regularizers", "experiments")
@@ -58,21 +59,27 @@ def stays(calls: list[tuple[str, str]]) -> Counter[str]:
     return count
 
 
-def main() -> None:
-    import tempfile
-    from pathlib import Path
+SMALL_RUN = ["photons=20000", "receiver.resolution=64", "height_field.resolution=32", "solver.max_iter=2",
+             "data.reference_photons=20000", "data.reference_resolution=64", "initial=zero"]
 
+
+def small_run_calls(directory: Path) -> list[tuple[str, str]]:
+    """:func:`config_calls` of a small synthetic reconstruction (two iterations) run in ``directory``."""
     from hydra import compose, initialize_config_dir
 
     from framework.pipeline.reconstruction import run_reconstruction
 
-    root = Path(__file__).resolve().parents[2]
-    with tempfile.TemporaryDirectory() as tmp, initialize_config_dir(config_dir=str(root / "conf"), version_base=None):
-        cfg = compose("reconstruct", overrides=["photons=20000", "receiver.resolution=64", "height_field.resolution=32",
-                                                "solver.max_iter=2", "data.reference_photons=20000",
-                                                "data.reference_resolution=64", f"tracking.store_dir={tmp}/mlruns",
-                                                "initial=zero"])
-        calls = config_calls(lambda: run_reconstruction(cfg, Path(tmp) / "run", Path(tmp)))
+    conf = Path(__file__).resolve().parents[2] / "conf"
+    with initialize_config_dir(config_dir=str(conf), version_base=None):
+        cfg = compose("reconstruct", overrides=[*SMALL_RUN, f"tracking.store_dir={directory}/mlruns"])
+    return config_calls(lambda: run_reconstruction(cfg, directory / "run", directory))
+
+
+def main() -> None:
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as tmp:
+        calls = small_run_calls(Path(tmp))
     for module, count in stays(calls).most_common():
         print(f"{module}: {count} stays ({', '.join(sorted({f for m, f in calls if m == module}))})")
 

@@ -87,8 +87,9 @@ def check_operator(make: Callable[[int], Any], m: int = 16, who: str = "operator
     _require(bool(torch.isfinite(image).all()) and float(image.min()) >= 0.0, who,
              "render gives a negative or non-finite irradiance")
     _require(torch.equal(make(0).render(bump), image), who, "two operators of one seed render differently")
-    _check_adjoint(operator, bump, who)
-    _check_gradient(operator, bump, who)
+    probe = _Probe(operator, bump)
+    _check_adjoint(operator, bump, probe, who)
+    _check_gradient(operator, bump, probe, who)
     if operator.conserves_energy:
         power = [float(operator.render(d).double().sum()) * operator.pixel_area for d in (flat, bump)]
         _require(power[0] > 0 and abs(power[1] - power[0]) <= 0.02 * power[0], who,
@@ -115,36 +116,49 @@ def _direction(heights: torch.Tensor) -> torch.Tensor:
         heights.shape[0], 1.0, 0.5)).to(heights.dtype)
 
 
-def _check_adjoint(operator: Any, heights: torch.Tensor, who: str) -> None:
+class _Probe:
+    """The images F(d + e v) and F(d - e v), float64, along a smooth direction v: the central
+    differences both the adjoint and the gradient check compare with."""
+
+    def __init__(self, operator: Any, heights: torch.Tensor) -> None:
+        self.eps, self.tolerance = _tolerances(heights.dtype)
+        self.direction = _direction(heights)
+        self.plus = operator.render(heights + self.eps * self.direction).double()
+        self.minus = operator.render(heights - self.eps * self.direction).double()
+
+    def along(self, grad: torch.Tensor) -> float:
+        """<grad, v>."""
+        return float((grad.double() * self.direction.double()).sum())
+
+    def close(self, a: float, b: float) -> bool:
+        """Whether a and b agree within the relative tolerance."""
+        return abs(a - b) <= self.tolerance * max(abs(a), abs(b), 1e-30)
+
+
+def _check_adjoint(operator: Any, heights: torch.Tensor, probe: _Probe, who: str) -> None:
     """<vjp(d, w), v> against <w, (F(d + e v) - F(d - e v)) / 2e> for a random image w."""
-    eps, tolerance = _tolerances(heights.dtype)
-    direction = _direction(heights)
     w = torch.rand(operator.output_shape, generator=torch.Generator().manual_seed(2), dtype=torch.float64)
     pulled = operator.vjp(heights, w.to(operator.dtype))
     _require(tuple(pulled.shape) == tuple(heights.shape), who,
              f"vjp gives shape {tuple(pulled.shape)} for heights {tuple(heights.shape)}")
-    pushed = (operator.render(heights + eps * direction).double()
-              - operator.render(heights - eps * direction).double()) / (2.0 * eps)
-    left, right = float((pulled.double() * direction.double()).sum()), float((w * pushed).sum())
-    _require(abs(left - right) <= tolerance * max(abs(left), abs(right), 1e-30), who,
+    left, right = probe.along(pulled), float((w * (probe.plus - probe.minus)).sum()) / (2.0 * probe.eps)
+    _require(probe.close(left, right), who,
              f"the adjoint identity fails: <vjp(d, w), v> = {left:.8g} but <w, F'(d) v> = {right:.8g} "
-             f"(relative tolerance {tolerance:g})")
+             f"(relative tolerance {probe.tolerance:g})")
 
 
-def _check_gradient(operator: Any, heights: torch.Tensor, who: str) -> None:
+def _check_gradient(operator: Any, heights: torch.Tensor, probe: _Probe, who: str) -> None:
     """<grad L(d), v> against (L(d + e v) - L(d - e v)) / 2e for L = 1/2 ||F(d) - target||^2."""
     target = operator.render(torch.zeros_like(heights)) * 0.9
-    direction = _direction(heights)
-    eps, tolerance = _tolerances(heights.dtype)
     _, grad, _ = operator.loss_and_grad(heights, target)
     _require(tuple(grad.shape) == tuple(heights.shape), who,
              f"loss_and_grad gives a gradient of shape {tuple(grad.shape)} for heights {tuple(heights.shape)}")
-    loss = lambda d: 0.5 * float(((operator.render(d).double() - target.double()) ** 2).sum())  # noqa: E731
-    numeric = (loss(heights + eps * direction) - loss(heights - eps * direction)) / (2.0 * eps)
-    analytic = float((grad.double() * direction.double()).sum())
-    _require(abs(numeric - analytic) <= tolerance * max(abs(numeric), abs(analytic), 1e-30), who,
+    loss = lambda image: 0.5 * float(((image - target.double()) ** 2).sum())  # noqa: E731
+    numeric = (loss(probe.plus) - loss(probe.minus)) / (2.0 * probe.eps)
+    analytic = probe.along(grad)
+    _require(probe.close(numeric, analytic), who,
              f"the gradient's directional derivative {analytic:.8g} differs from finite differences {numeric:.8g} "
-             f"(relative tolerance {tolerance:g})")
+             f"(relative tolerance {probe.tolerance:g})")
 
 
 def _context(m: int) -> RegularizerContext:
