@@ -98,6 +98,9 @@ class DataFidelity:
         # same d of the same operator (the accepted trial of a line search) hands F(d) to the
         # operator instead of rendering again.
         self._last_forward: tuple[Tensor, int, Tensor] | None = None
+        self.renders = 0  # forward passes of the operator so far
+        self.gradient_passes = 0  # backward passes
+        self.photon_traces = 0  # photons traced by both (a backward pass traces every photon again)
 
     @staticmethod
     def _validated_weights(weights: Tensor, target: Tensor) -> Tensor:
@@ -181,6 +184,7 @@ class DataFidelity:
         fresh = known is not None and known[1] == self._revision() and torch.equal(known[0], d)
         rendered = known[2] if fresh else None
         if with_grad:
+            self.count_passes(renders=int(rendered is None), gradients=1)
             grad, image = self._loss_and_grad(d, rendered)
             if tuple(grad.shape) != tuple(d.shape):
                 raise ValueError(
@@ -190,6 +194,7 @@ class DataFidelity:
             grad = grad.detach() / (self.target_norm_sq * self.cell_area)
         else:
             if rendered is None:
+                self.count_passes(renders=1, gradients=0)
                 with torch.no_grad():
                     rendered = self.operator(d).detach()
                 self._last_forward = (d.detach().clone(), self._revision(), rendered)
@@ -200,10 +205,30 @@ class DataFidelity:
         rel = self.relative_discrepancy(image)
         return DataEvaluation(value=0.5 * rel * rel / self.cell_area, grad=grad, image=image, rel_discrepancy=rel)
 
+    def count_passes(self, renders: int, gradients: int, photons: int | None = None) -> None:
+        """Count operator passes spent on this data term (``photons`` each; default: the operator's)."""
+        self.renders += renders
+        self.gradient_passes += gradients
+        photons = int(getattr(self.operator, "photons", 0)) if photons is None else photons
+        self.photon_traces += (renders + gradients) * photons
+
     def relative_discrepancy(self, image: Tensor) -> float:
         """||image - b||_W / ||b||_W."""
-        return math.sqrt(float(torch.sum(self._weighted((image.double() - self.target.double()) ** 2)))
+        return self.relative_difference(image, self.target)
+
+    def relative_difference(self, image: Tensor, other: Tensor) -> float:
+        """||image - other||_W / ||b||_W for two images (c, n, n)."""
+        return math.sqrt(float(torch.sum(self._weighted((image.double() - other.double()) ** 2)))
                          / self.target_norm_sq)
+
+    def use_operator(self, operator: Operator) -> None:
+        """Go on with another operator of the same output shape (e.g. the same physics with other
+        photons, framework/pipeline/photon_budget.py); forgets the last render."""
+        if tuple(operator.output_shape) != tuple(self.target.shape):
+            raise ValueError(f"operator {type(operator).__name__} renders {tuple(operator.output_shape)}, "
+                             f"the target has shape {tuple(self.target.shape)}")
+        self.operator = operator
+        self._last_forward = None
 
     def value(self, d: Tensor) -> float:
         """f(d) by one forward pass."""

@@ -18,7 +18,7 @@ from framework.core.scene_config import to_plain
 from framework.core.units import mm_per_unit
 from framework.core.values import positive_int
 
-__all__ = ["RunSettings", "TrackingSettings", "design_given"]
+__all__ = ["PhotonBudgetSettings", "RunSettings", "TrackingSettings", "design_given"]
 
 
 def design_given(cfg: Mapping[str, Any]) -> bool:
@@ -58,6 +58,28 @@ class TrackingSettings:
 
 
 @dataclass(frozen=True)
+class PhotonBudgetSettings:
+    """``photon_budget`` (framework/pipeline/photon_budget.py): ``start`` photons of the first
+    iterations (None: the configured ``photons`` throughout) and the ``noise_share`` of Morozov's
+    allowance (tau_dis^2 - 1) delta^2 that the render noise may take."""
+
+    start: int | None
+    noise_share: float
+
+    @classmethod
+    def parse(cls, spec: Any) -> PhotonBudgetSettings:
+        budget = as_mapping(spec or {}, "photon_budget")
+        unknown = sorted(set(budget) - {"start", "noise_share"})
+        if unknown:
+            raise ValueError(f"photon_budget has unknown key(s) {unknown}; its keys are start and noise_share")
+        start = budget.get("start")
+        share = budget.get("noise_share", 0.1)
+        if isinstance(share, bool) or not isinstance(share, (int, float)) or not 0.0 < float(share) <= 1.0:
+            raise ValueError(f"photon_budget.noise_share={share!r} must lie in (0, 1], e.g. 0.1")
+        return cls(None if start is None else positive_int(start, "photon_budget.start"), float(share))
+
+
+@dataclass(frozen=True)
 class RunSettings:
     """A reconstruction's config, parsed once.
 
@@ -76,6 +98,7 @@ class RunSettings:
             report is then made against it): synthetic data, ``height_field.path``,
             ``data.mask=design`` or ``initial=design``.
         tau_dis: Morozov's factor tau_dis (1 without a Morozov rule), for the verdict.
+        photon_budget: The photons of each iteration (framework/pipeline/photon_budget.py).
     """
 
     cfg: dict[str, Any]
@@ -89,6 +112,7 @@ class RunSettings:
     tags: dict[str, str]
     design_given: bool
     tau_dis: float
+    photon_budget: PhotonBudgetSettings
 
     @classmethod
     def parse(cls, cfg: Mapping[str, Any]) -> RunSettings:
@@ -106,4 +130,4 @@ class RunSettings:
                    positive_int(plain.get("checkpoint_every"), "checkpoint_every"),
                    bool(plain.get("compile_in_background", True)), plain.get("resume"),
                    TrackingSettings.parse(plain.get("tracking")), tags, design_given(plain),
-                   float(morozov.get("tau_dis", 1.0)))
+                   float(morozov.get("tau_dis", 1.0)), PhotonBudgetSettings.parse(plain.get("photon_budget")))

@@ -171,9 +171,13 @@ class IterativeSolver(ABC):
         """Why no further iteration is needed (a direct method after its step), or None."""
         return None
 
+    def stage(self) -> int:
+        """The stage of a coarse-to-fine schedule the solver is in (0 without one)."""
+        return 0
+
     def setup_changed(self) -> None:
-        """The forward operator's setup changed (joint calibration, framework/pipeline/calibration.py):
-        forget whatever was computed with the old one. Solvers that cache evaluations override it."""
+        """The forward operator's setup changed (joint calibration, framework/pipeline/calibration.py,
+        or its photons, framework/pipeline/photon_budget.py): forget whatever was computed with the old one. Solvers that cache evaluations override it."""
 
     def volume_band(self) -> tuple[float, float] | None:
         """The band [q1, q2] of the height sum sum_j d_j that the solver enforces (a known

@@ -22,14 +22,16 @@ from framework.core.contracts.solver import SolverBuilder
 from framework.core.contracts.start import Start, StartRequest
 from framework.core.contracts.stopping import StoppingRule
 from framework.core.plugin_config import as_mapping, build_plugin, split_name
+from framework.core.objective import DataFidelity
 from framework.core.problem import HeightGrid, Problem
 from framework.core.run_settings import RunSettings
 from framework.core.values import positive_int
 from framework.core.scene_config import SceneSetup
-from framework.core.solver_loop import Callback
+from framework.core.solver_loop import Callback, RunResult
 from framework.pipeline.calibration import JointCalibration
 from framework.pipeline.callbacks import Checkpointer, GroundTruthError, MetricsHistory, ProgressBar
 from framework.pipeline.checkpoint import resume as resume_solver
+from framework.pipeline.photon_budget import PhotonBudget, with_photons
 from framework.pipeline.report_figures import save_reconstruction_figures
 from framework.pipeline.run_checks import (CHECKPOINT, check_tracking_target, check_volume, check_volume_known,
                                            checked_resume, height_bounds)
@@ -61,6 +63,30 @@ def build_stopping(spec: Any) -> list[StoppingRule]:
     from a start)."""
     return [build_plugin("stopping", name, params, f"stopping.{name}")
             for name, params in as_mapping(spec, "stopping").items()]
+
+
+def passes(fidelity: DataFidelity) -> dict[str, int]:
+    """The operator passes the solvers spent on the data term: forward renders, gradient passes
+    and photon-traces (the photons of every pass; a gradient pass traces every photon again)."""
+    return {"renders": fidelity.renders, "gradient_passes": fidelity.gradient_passes,
+            "photon_traces": fidelity.photon_traces}
+
+
+def photon_budget(parts: Reconstruction, problem: Problem) -> PhotonBudget | None:
+    """The run's photon budget, or None: every iteration traces the configured photons (no
+    ``photon_budget.start``, no noise level, or a joint calibration, which updates the configured
+    operator's setup)."""
+    budget, delta = parts.settings.photon_budget, problem.data.delta
+    if budget.start is None or parts.calibration is not None or not delta or delta <= 0.0:
+        return None
+    return PhotonBudget(problem.fidelity, parts.operator, budget.start, budget.noise_share, float(delta),
+                        parts.settings.tau_dis, parts.settings.seed)
+
+
+def final_operator(parts: Reconstruction, result: RunResult) -> Operator:
+    """The operator with the photons of the run's last iteration (framework/pipeline/photon_budget.py)."""
+    photons = result.history[-1].extras.get("photons") if result.history else None
+    return parts.operator if photons is None else with_photons(parts.operator, int(photons), parts.settings.seed)
 
 
 def interrupted_run(output_dir: Path, checkpoint: Path | None, store_dir: Path, uri: str | None) -> str | None:
@@ -98,7 +124,8 @@ def _solve_from(parts: Reconstruction, problem: Problem, name: str, start: Start
                                  Checkpointer(output_dir / CHECKPOINT, every=parts.settings.checkpoint_every,
                                               run=parts.fingerprint),
                                  tracker.metrics_callback(step_offset=steps_before)]
-    callbacks += [c for c in (parts.calibration, truth_error) if c is not None]
+    budget = photon_budget(parts, problem)
+    callbacks += [c for c in (parts.calibration, truth_error, budget) if c is not None]
     if checkpoint is not None:
         print(f"resuming from {checkpoint}", flush=True)
         result = resume_solver(solver, checkpoint, parts.max_iter, callbacks)
@@ -109,7 +136,7 @@ def _solve_from(parts: Reconstruction, problem: Problem, name: str, start: Start
         best = next((b for b in (rule.best_iterate() for rule in stopping) if b is not None), None)
         if best is not None:
             d, returned = best
-    discrepancy = problem.fidelity.relative_discrepancy(operator.render(d))
+    discrepancy = problem.fidelity.relative_discrepancy(final_operator(parts, result).render(d))
     return PhaseOutcome(name, result, d, returned, discrepancy, history.columns(), time.perf_counter() - began,
                         start_seconds, start_metrics, truth_error.errors(d) if truth_error else {})
 
@@ -289,7 +316,8 @@ def _reconstruct(parts: Reconstruction, output_dir: Path, base_dir: Path, checkp
         finished, several, steps = _run_starts(parts, problem, request, output_dir, checkpoint, tracker, truth_error)
         chosen = max(finished, key=lambda o: (o.result.accepted, -o.rel_discrepancy))
         result, d = chosen.result, chosen.d
-        prediction = operator.render(d)
+        final = final_operator(parts, result)
+        prediction = final.render(d)
         volume = volume_report(d, data.volume, parts.grid.cell_area)
         start_metrics = {"start": chosen.name, "start_time_s": sum(o.start_seconds for o in finished),
                          **{k: v for o in finished for k, v in o.summary(several).items()}}
@@ -301,7 +329,8 @@ def _reconstruct(parts: Reconstruction, output_dir: Path, base_dir: Path, checkp
             "run_time_s": sum(outcome.seconds for outcome in finished), "data_time_s": data_seconds,
             "rel_discrepancy": problem.fidelity.relative_discrepancy(prediction),
             "delta": data.delta, "intrinsic_noise": data.intrinsic_noise,
-            "photons_per_iteration": operator.photons, **(truth_error.errors(d) if truth_error else {}),
+            "photons_per_iteration": final.photons, **passes(problem.fidelity),
+            **(truth_error.errors(d) if truth_error else {}),
             **volume,
             **start_metrics, **(calibration.report() if calibration else {})}
         metrics.update(save_outputs(output_dir, d, prediction, data, parts.grid, settings.mm_per_unit, design))

@@ -63,7 +63,7 @@ def run_fingerprint(cfg: Mapping[str, Any], base_dir: Path) -> dict[str, str]:
         "data": _with_files(dict(cfg.get("data") or {}), base_dir),
         "scene": {k: cfg.get(k) for k in SCENE_KEYS},
         "height_field": _with_files(dict(cfg.get("height_field") or {}), base_dir),
-        "operator": {**operator, "photons": cfg.get("photons")},
+        "operator": {**operator, "photons": cfg.get("photons"), "photon_budget": cfg.get("photon_budget")},
         "solver": solver,
         "initial": cfg.get("initial"),
         "seed": cfg.get("seed"),

@@ -43,17 +43,21 @@ class GradientDescent(ProximalGradientSolver):
 
     def __init__(self, data: DataFidelity, d0: Tensor, step_size: StepSizePolicy | float,
                  preconditioner: GradientPreconditioner | None = None, context: Any = None,
-                 floor: float | None = None, two_metric_from: int | None = None) -> None:
+                 floor: float | None = None, two_metric_from: int | None = None,
+                 momentum_from: int | None = None) -> None:
         super().__init__(data, d0, step_size, preconditioner=preconditioner, context=context,
-                         two_metric_from=two_metric_from)
+                         two_metric_from=two_metric_from, momentum_from=momentum_from)
         if floor is not None and not (math.isfinite(float(floor)) and float(floor) < 0.0):
             raise ValueError(f"gradient_descent floor={floor!r} must be a negative height (scene units) or None")
         self.floor = None if floor is None else float(floor)
 
     def _propose(self, tau: float) -> Candidate:
         """d - tau P grad f, each sample kept at or above the floor."""
-        d = self.state.d - tau * self._step_direction()
-        return {"d": d if self.floor is None else d.clamp(min=self.floor)}
+        return {"d": self._project(self.state.d - tau * self._step_direction())}
+
+    def _project(self, d: Tensor) -> Tensor:
+        """d with every sample at or above the floor."""
+        return d if self.floor is None else d.clamp(min=self.floor)
 
     @staticmethod
     def example_settings() -> dict[str, Any]:
@@ -62,7 +66,8 @@ class GradientDescent(ProximalGradientSolver):
 
     @classmethod
     def from_config(cls, step_size: Mapping[str, Any], preconditioner: Mapping[str, Any] | None = None,
-                    min_thickness: float | None = 0.1, two_metric_from: int | None = None) -> SolverBuilder:
+                    min_thickness: float | None = 0.1, two_metric_from: int | None = None,
+                    momentum_from: int | None = None) -> SolverBuilder:
         """The plugin ``solver/gradient_descent`` from its config keys (see :func:`build_parts`;
         without regularisers no sample is pinned, so ``two_metric_from`` changes nothing);
         ``min_thickness`` in [0, 1): the fraction of the substrate thickness h that every sample
@@ -71,12 +76,12 @@ class GradientDescent(ProximalGradientSolver):
                                           or not 0.0 <= float(min_thickness) < 1.0):
             raise ValueError(f"solver.min_thickness={min_thickness!r} must lie in [0, 1) (fraction of the substrate "
                              "thickness every sample keeps, e.g. 0.1) or be null")
-        parts = build_parts(step_size, preconditioner, two_metric_from=two_metric_from)
+        parts = build_parts(step_size, preconditioner, two_metric_from=two_metric_from, momentum_from=momentum_from)
 
         def build(problem, d0: Tensor) -> GradientDescent:
             floor = None if min_thickness is None else -(1.0 - float(min_thickness)) * problem.scene.substrate.thickness
             return cls(problem.fidelity, d0, parts["step_size"], parts["preconditioner"], context=problem.context,
-                       floor=floor, two_metric_from=parts["two_metric_from"])
+                       floor=floor, two_metric_from=parts["two_metric_from"], momentum_from=parts["momentum_from"])
 
         return build
 
@@ -101,9 +106,11 @@ class PixelLandweber(ProximalGradientSolver):
         preconditioner: GradientPreconditioner | None = None,
         context: Any = None,
         two_metric_from: int | None = None,
+        momentum_from: int | None = None,
     ) -> None:
         self._require_regularizers(regularizers)
-        super().__init__(data, d0, step_size, regularizers, post_steps, preconditioner, context, two_metric_from)
+        super().__init__(data, d0, step_size, regularizers, post_steps, preconditioner, context, two_metric_from,
+                         momentum_from)
 
     @staticmethod
     def _require_regularizers(regularizers: Sequence[Any]) -> None:
@@ -122,9 +129,9 @@ class PixelLandweber(ProximalGradientSolver):
     @classmethod
     def from_config(cls, step_size: Mapping[str, Any], regularizers: Mapping[str, Any] | None = None,
                     post_steps: Mapping[str, Any] | None = None, preconditioner: Mapping[str, Any] | None = None,
-                    two_metric_from: int | None = None) -> SolverBuilder:
+                    two_metric_from: int | None = None, momentum_from: int | None = None) -> SolverBuilder:
         """The plugin ``solver/landweber_pixel`` from its config keys (see :func:`build_parts`)."""
-        parts = build_parts(step_size, preconditioner, regularizers, post_steps, two_metric_from)
+        parts = build_parts(step_size, preconditioner, regularizers, post_steps, two_metric_from, momentum_from)
         cls._require_regularizers(parts["regularizers"])
         check_regularizers(parts["regularizers"], cls.name)
         return lambda problem, d0: cls(problem.fidelity, d0, context=problem.context, **parts)

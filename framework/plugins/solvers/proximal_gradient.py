@@ -16,6 +16,7 @@ the other equals the prox of the sum for the paper's separable choices (shrink, 
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from collections.abc import Mapping
@@ -27,8 +28,9 @@ from torch import Tensor
 from framework.core.objective import DataEvaluation, DataFidelity
 from framework.core.plugin_config import build_plugin, build_plugin_map, split_name
 from framework.core.solver_loop import IterationFailed, IterationRecord, IterativeSolver
+from framework.plugins.solvers.momentum import NesterovMomentum, check_momentum_from
 from framework.plugins.solvers.preconditioner import GradientPreconditioner
-from framework.plugins.solvers.step_size import LineSearchFailed, StepSizePolicy, as_step_policy
+from framework.plugins.solvers.step_size import LineSearchFailed, StepChoice, StepSizePolicy, as_step_policy
 
 __all__ = ["ProximalGradientSolver", "build_parts", "check_regularizers", "stage_changes",
            "check_two_metric_from"]
@@ -39,11 +41,11 @@ Candidate = dict[str, Tensor]
 def build_parts(step_size: Mapping[str, Any], preconditioner: Mapping[str, Any] | None = None,
                 regularizers: Mapping[str, Any] | None = None,
                 post_steps: Mapping[str, Any] | None = None,
-                two_metric_from: int | None = None) -> dict[str, Any]:
+                two_metric_from: int | None = None, momentum_from: int | None = None) -> dict[str, Any]:
     """The configured parts of a proximal-gradient solver, by registry key: the step size
     ``{name: backtracking, tau: ...}``, the preconditioner ``{name: sobolev, ...}`` (or None), the
-    regularisers and post steps ``{name: {params}}`` in config order; ``two_metric_from`` as
-    :class:`ProximalGradientSolver` takes it (checked here)."""
+    regularisers and post steps ``{name: {params}}`` in config order; ``two_metric_from`` and
+    ``momentum_from`` as :class:`ProximalGradientSolver` takes them (checked here)."""
     step_name, step_params = split_name(step_size, "solver.step_size")
     parts: dict[str, Any] = {
         "step_size": build_plugin("step_size", step_name, step_params, "solver.step_size"),
@@ -51,6 +53,7 @@ def build_parts(step_size: Mapping[str, Any], preconditioner: Mapping[str, Any] 
         "regularizers": build_plugin_map("regularizer", regularizers, "solver.regularizers"),
         "post_steps": build_plugin_map("post_step", post_steps, "solver.post_steps"),
         "two_metric_from": check_two_metric_from(two_metric_from),
+        "momentum_from": check_momentum_from(momentum_from),
     }
     if preconditioner:
         name, params = split_name(preconditioner, "solver.preconditioner")
@@ -109,6 +112,9 @@ class ProximalGradientSolver(IterativeSolver):
             metric, e.g. :class:`framework.plugins.solvers.preconditioner.SobolevPreconditioner`).
         two_metric_from: Preconditioner stage from which P acts on the free samples only
             (:meth:`_pinned`); None: P acts on the whole gradient at every stage.
+        momentum_from: Preconditioner stage from which the data term is evaluated at Nesterov's
+            extrapolated point (:mod:`framework.plugins.solvers.momentum`); None: never. Without
+            a preconditioner the stage is 0.
         context: If given, ``setup(context)`` is called on every regulariser and post step that
             has ``setup`` (e.g. a :class:`regularizers.base.RegularizerContext`); if None the
             caller must have set them up.
@@ -124,6 +130,7 @@ class ProximalGradientSolver(IterativeSolver):
         preconditioner: GradientPreconditioner | None = None,
         context: Any = None,
         two_metric_from: int | None = None,
+        momentum_from: int | None = None,
     ) -> None:
         super().__init__(d0)
         if not callable(getattr(data, "evaluate", None)):
@@ -136,6 +143,8 @@ class ProximalGradientSolver(IterativeSolver):
             raise ValueError(f"{self.name}: preconditioner {type(preconditioner).__name__} is not callable as P(grad)")
         self.preconditioner = preconditioner
         self.two_metric_from = check_two_metric_from(two_metric_from)
+        self.momentum_from = check_momentum_from(momentum_from)
+        self.momentum = NesterovMomentum()
         self._evaluation: DataEvaluation | None = None
         self._direction: Tensor | None = None
         if context is not None:
@@ -173,9 +182,17 @@ class ProximalGradientSolver(IterativeSolver):
                 self._direction = torch.where(pinned, grad, self.preconditioner(free_grad))
         return self._direction
 
+    def stage(self) -> int:
+        """The preconditioner's stage (0 without one or for a single length)."""
+        return int(getattr(self.preconditioner, "stage", 0))
+
     def _two_metric(self) -> bool:
         """Whether the current preconditioner stage takes the two-metric direction."""
-        return self.two_metric_from is not None and int(getattr(self.preconditioner, "stage", 0)) >= self.two_metric_from
+        return self.two_metric_from is not None and self.stage() >= self.two_metric_from
+
+    def _with_momentum(self) -> bool:
+        """Whether the current preconditioner stage evaluates at the extrapolated point."""
+        return self.momentum_from is not None and self.stage() >= self.momentum_from
 
     def _pinned(self, grad: Tensor) -> Tensor:
         """Samples (m, m, bool) that the regularisers hold where they are: a plain gradient step of
@@ -216,6 +233,31 @@ class ProximalGradientSolver(IterativeSolver):
         """Make the finalised candidate the current iterate."""
         self.state.d = candidate["d"]
 
+    def _project(self, d: Tensor) -> Tensor:
+        """d brought into every regulariser's constraint set (an extrapolated point may leave it)."""
+        for r in self.regularizers:
+            project = getattr(r, "project", None)  # duck-typed regularisers may have none
+            d = project(d) if callable(project) else d
+        return d
+
+    def _extrapolated_step(self, objective_now: float, sq_distance: Callable[[Candidate], float]
+                           ) -> tuple[StepChoice | None, int]:
+        """The momentum trial: the proximal point at the policy's current step (not grown), the data
+        term evaluated at its extrapolation (kept when F decreases there as the line search
+        demands). Returns (the accepted choice or None, forward evaluations spent); a rejected
+        trial restarts the momentum."""
+        tau = self.step_size.current_step
+        candidate = self._propose(tau)
+        z = self.momentum.extrapolate(candidate["d"], self.state.d)
+        if z is None:
+            return None, 0
+        trial = {**candidate, "d": self._project(z), "prox_point": candidate["d"]}
+        decrease = float(getattr(self.step_size, "sufficient_decrease", 0.0))
+        if self._objective(trial) <= objective_now - decrease / (2.0 * tau) * sq_distance(trial):
+            return StepChoice(step=tau, candidate=trial, trials=1, forward_evaluations=1), 1
+        self.momentum.reset()
+        return None, 1
+
     def volume_band(self) -> tuple[float, float] | None:
         """The band of the first regulariser or post step that enforces the deposited volume
         (V1, V2: a ``band`` (q1, q2)), or None."""
@@ -235,13 +277,15 @@ class ProximalGradientSolver(IterativeSolver):
         self.state.d = d.detach().clone()
         self._evaluation = None
         self._direction = None
+        self.momentum.reset()
         self.step_size.reset()
         return True
 
     def setup_changed(self) -> None:
-        """Drop the cached evaluation and direction: they belong to the old setup."""
+        """Drop the cached evaluation, direction and momentum: they belong to the old setup."""
         self._evaluation = None
         self._direction = None
+        self.momentum.reset()
 
     # -- the iteration -------------------------------------------------------------------------
     def _current_evaluation(self) -> DataEvaluation:
@@ -261,10 +305,15 @@ class ProximalGradientSolver(IterativeSolver):
         objective_now = current.value + self.regularization_value(d)
 
         def sq_distance(c: Candidate) -> float:
-            return float(torch.sum((c["d"] - d) ** 2))
+            return float(torch.sum((c.get("prox_point", c["d"]) - d) ** 2))
 
+        momentum = self._with_momentum()
+        choice, spent = self._extrapolated_step(objective_now, sq_distance) if momentum else (None, 0)
         try:
-            choice = self.step_size.select(self._propose, self._objective, sq_distance, objective_now)
+            if choice is None:
+                choice = self.step_size.select(self._propose, self._objective, sq_distance, objective_now)
+                choice = dataclasses.replace(choice, trials=choice.trials + spent,
+                                             forward_evaluations=choice.forward_evaluations + spent)
         except LineSearchFailed as err:
             # No step of this metric decreases F any more (typically the last digits of the
             # render): go on from here with the next, finer preconditioner stage if there is one.
@@ -273,6 +322,10 @@ class ProximalGradientSolver(IterativeSolver):
                 return self.step()
             raise IterationFailed(str(err)) from err
         new = self._finalize(choice.candidate)
+        if momentum:  # a post step that moved the iterate restarts the momentum from where it put it
+            moved = bool(self.post_steps) and not torch.equal(new["d"], choice.candidate["d"])
+            self.momentum.accepted(new["d"] if moved else choice.candidate.get("prox_point", new["d"]),
+                                   keep=not moved)
         if not bool(torch.isfinite(new["d"]).all()):
             raise IterationFailed(f"the new iterate has non-finite entries (tau={choice.step:.3g}); reduce the step")
         try:
@@ -298,6 +351,7 @@ class ProximalGradientSolver(IterativeSolver):
                 "regularization": regularization,
                 "trials": float(choice.trials),
                 "forward_evaluations": float(choice.forward_evaluations),
+                "extrapolated": float("prox_point" in choice.candidate),
                 **({"preconditioner_length": float(self.preconditioner.length)}
                    if isinstance(getattr(self.preconditioner, "length", None), float) else {}),
             },
@@ -314,6 +368,7 @@ class ProximalGradientSolver(IterativeSolver):
         """Adds the step-size state and the cached evaluation at d (so a resume re-evaluates nothing)."""
         state = super().state_dict()
         state["step_size"] = self.step_size.state_dict()
+        state["momentum"] = self.momentum.state_dict()
         if callable(getattr(self.preconditioner, "state_dict", None)):
             state["preconditioner"] = self.preconditioner.state_dict()
         ev = self._evaluation
@@ -325,6 +380,7 @@ class ProximalGradientSolver(IterativeSolver):
     def load_state_dict(self, state: dict[str, Any]) -> None:  # noqa: D102
         super().load_state_dict(state)
         self.step_size.load_state_dict(state.get("step_size", {}))
+        self.momentum.load_state_dict(state.get("momentum", {}))
         if callable(getattr(self.preconditioner, "load_state_dict", None)):
             self.preconditioner.load_state_dict(state.get("preconditioner", {}))
         self._direction = None

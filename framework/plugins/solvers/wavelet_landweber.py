@@ -76,6 +76,7 @@ class WaveletLandweber(ProximalGradientSolver):
         preconditioner: GradientPreconditioner | None = None,
         context: Any = None,
         two_metric_from: int | None = None,
+        momentum_from: int | None = None,
     ) -> None:
         self._check_pixel_step_ratio(pixel_step_ratio)
         missing = [m for m in ("forward", "inverse", "inverse_adjoint") if not callable(getattr(wavelet, m, None))]
@@ -95,7 +96,7 @@ class WaveletLandweber(ProximalGradientSolver):
         self.wavelet_regularizer = wavelet_regularizer
         self.pixel_step_ratio = float(pixel_step_ratio)
         super().__init__(data, d0, step_size, pixel_regularizers, post_steps, preconditioner, context,
-                         two_metric_from)
+                         two_metric_from, momentum_from)
         self.coefficients: Tensor = self.wavelet.forward(self.state.d)  # w = W d, flat
         self._metric: Tensor | None = None  # diag of W P W^* for the current preconditioner stage
 
@@ -114,11 +115,11 @@ class WaveletLandweber(ProximalGradientSolver):
     def from_config(cls, step_size: Mapping[str, Any], wavelet_regularizer: Mapping[str, Any],
                     regularizers: Mapping[str, Any] | None = None, post_steps: Mapping[str, Any] | None = None,
                     pixel_step_ratio: float = 1.0, preconditioner: Mapping[str, Any] | None = None,
-                    two_metric_from: int | None = None) -> SolverBuilder:
+                    two_metric_from: int | None = None, momentum_from: int | None = None) -> SolverBuilder:
         """The plugin ``solver/landweber_wavelet``: ``wavelet_regularizer`` is a regulariser by key
         with ``prox_coefficients`` and ``transform_for`` (``{name: l1_wavelet, alpha_w: 1e-2,
         wavelet: db3, levels: 3}``); the other keys as :func:`build_parts`."""
-        parts = build_parts(step_size, preconditioner, regularizers, post_steps, two_metric_from)
+        parts = build_parts(step_size, preconditioner, regularizers, post_steps, two_metric_from, momentum_from)
         name, params = split_name(wavelet_regularizer, "solver.wavelet_regularizer")
         shrink = build_plugin("regularizer", name, params, "solver.wavelet_regularizer")
         if not callable(getattr(shrink, "transform_for", None)):

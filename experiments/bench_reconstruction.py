@@ -1,0 +1,60 @@
+"""The reconstruction section of sfc-bench: the default ``sfc-reconstruct`` run with today's solver
+and with the earlier one (no momentum, every iteration at the configured photons), side by side in
+one process, alternating, so that both see the same machine load.
+
+For each: iterations, renders and gradient passes of the data term, photon-traces, renders per
+iteration, the seconds of solving (``run_time_s``: the starts and the solver, without loading the
+data), the discrepancy and the error against the ground truth. Extra overrides (e.g.
+``experiment=m3v1``) apply to both.
+"""
+
+from __future__ import annotations
+
+import tempfile
+from pathlib import Path
+from typing import Any, Sequence
+
+from hydra import compose, initialize_config_dir
+
+from framework.core.scene_config import to_plain
+from framework.pipeline.reconstruction import run_reconstruction
+
+CONFIG_DIR = str(Path(__file__).resolve().parent.parent / "conf")
+
+# The solver before momentum and the photon budget (docs/performance.md, "Fewer photon-traces").
+EARLIER_SOLVER = ("solver.momentum_from=null", "photon_budget.start=null")
+
+KEPT = ("iterations", "renders", "gradient_passes", "photon_traces", "photons_per_iteration", "run_time_s",
+        "rel_discrepancy", "rel_error", "reached_noise_level", "stopped_by", "start")
+
+
+def run_once(overrides: Sequence[str], workdir: Path, name: str) -> dict[str, Any]:
+    """One reconstruction with ``overrides`` in ``workdir / name`` (its own MLflow store); the
+    figures it reports (:data:`KEPT`) and renders per iteration."""
+    with initialize_config_dir(config_dir=CONFIG_DIR, version_base=None):
+        cfg = to_plain(compose("reconstruct", overrides=[*overrides, f"tracking.store_dir={workdir / 'mlruns'}",
+                                                          "compile_in_background=false"]))
+    metrics = run_reconstruction(cfg, workdir / name, workdir)
+    out = {key: metrics.get(key) for key in KEPT}
+    out["renders_per_iteration"] = (metrics["renders"] + metrics["gradient_passes"]) / max(metrics["iterations"], 1)
+    return out
+
+
+def reconstruction_report(overrides: Sequence[str] = (), rounds: int = 1) -> dict[str, Any]:
+    """Today's default run and the earlier solver's, ``rounds`` times each, alternating which goes
+    first; the shorter solving time of each and the ratios."""
+    runs: dict[str, list[dict[str, Any]]] = {"now": [], "earlier": []}
+    with tempfile.TemporaryDirectory() as tmp:
+        for k in range(rounds):
+            order = ("earlier", "now") if k % 2 == 0 else ("now", "earlier")
+            for which in order:
+                extra = EARLIER_SOLVER if which == "earlier" else ()
+                runs[which].append(run_once([*overrides, *extra], Path(tmp), f"{which}{k}"))
+    best = {which: min(r, key=lambda m: m["run_time_s"]) for which, r in runs.items()}
+    now, earlier = best["now"], best["earlier"]
+    return {
+        "overrides": list(overrides), "rounds": rounds, "now": now, "earlier": earlier,
+        "speedup": {"solving_time": earlier["run_time_s"] / now["run_time_s"],
+                    "photon_traces": earlier["photon_traces"] / now["photon_traces"],
+                    "iterations": earlier["iterations"] / now["iterations"]},
+    }
