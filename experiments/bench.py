@@ -134,7 +134,8 @@ def mesh_scene_operators(photons: int, footprint_px: float) -> dict[str, object]
 
 def time_mesh_scenes(heights: torch.Tensor, photons: int, footprint_px: float) -> dict[str, dict[str, float]]:
     """Forward and forward + backward photons/s of :func:`mesh_scene_operators`, side by side
-    (the best of two rounds that run them in turn)."""
+    (the best of two rounds that run them in turn), and the time of an iteration (one render,
+    then one loss and gradient) over the height-field operator's at the same photons."""
     ops = mesh_scene_operators(photons, footprint_px)
     names = list(ops)
     targets = {name: op.render(torch.zeros_like(heights)) for name, op in ops.items()}
@@ -148,7 +149,8 @@ def time_mesh_scenes(heights: torch.Tensor, photons: int, footprint_px: float) -
     plain, height_field = best["mesh_scene_plain"], best["height_field"]
     return {name: {"forward_photons_per_s": photons / forward, "forward_backward_photons_per_s": photons / gradient,
                    "gradient_time_over_plain_mesh_scene": gradient / plain[1],
-                   "gradient_time_over_height_field": gradient / height_field[1]}
+                   "gradient_time_over_height_field": gradient / height_field[1],
+                   "iteration_time_over_height_field": (forward + gradient) / sum(height_field)}
             for name, (forward, gradient) in best.items()}
 
 

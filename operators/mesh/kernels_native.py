@@ -26,6 +26,7 @@ import numba as nb
 
 from operators.heightfield.catmull_rom import surface_jet_at
 from operators.heightfield.intersect_native import solve_hit
+from operators.mesh.culling import CLEAR_COS
 from operators.mesh.embree_native import first_face, ray_buffer
 from operators.mesh.intersect_reference import MIN_FACE_DISTANCE, START_OFFSET
 from operators.kernels.numba_settings import FAST_MATH
@@ -204,33 +205,38 @@ def _over_print(p, w, sc) -> bool:
 
 
 @_jit
-def _next_event(d, row, medium, handle, ray, wait_at_top, substrate, v0, plane, dual, neighbour, sc):
+def _next_event(d, row, medium, clear, released, handle, ray, wait_at_top, substrate, v0, plane, dual, neighbour, sc):
     """The photon's next event: (kind, face or box plane, distance), kind one of MESH, TOP, BOX,
     RECEIVER, ESCAPED, INSIDE_TOP or, with ``wait_at_top``, AT_TOP (its next event is the top).
     Embree (scene ``handle``, ``ray`` buffer) is asked for the face of photons in air or in an
-    element, except in air going down below every element (where no face can be)."""
+    element, except where no face can come first: in air going down below every element, after
+    leaving a clear face (``clear``, :mod:`operators.mesh.culling`), or, ``released`` (the
+    photon waited at the top, where no face came before the plane z = thickness), when the top
+    comes before that plane."""
     p, w = vec(row, P), vec(row, W)
     in_air, in_sub = medium == AIR, medium == substrate
     best, kind, which = math.inf, ESCAPED, -1
+    over = in_air and _over_print(p, w, sc)
+    t_top = math.inf
+    if over and not wait_at_top:
+        t_top = solve_hit(d, sc.thickness, p[0], p[1], p[2], w[0], w[1], w[2], -sc.half, sc.spacing, sc.zlo,
+                          sc.zstart, sc.zhi, sc.slope_x, sc.slope_y)
+    skip = clear or (in_air and w[2] < 0.0 and p[2] < sc.lowest) or (released and t_top < (sc.thickness - p[2]) / w[2])
     face = -1
-    if handle != 0 and not in_sub and not (in_air and w[2] < 0.0 and p[2] < sc.lowest):
+    if handle != 0 and not in_sub and not skip:
         face = first_face(handle, ray, p[0] + START_OFFSET * w[0], p[1] + START_OFFSET * w[1],
                           p[2] + START_OFFSET * w[2], w[0], w[1], w[2])
     if face >= 0:
         f, t, _, _ = _face_hit(p, w, face, v0, plane, dual, neighbour)
         if t > MIN_FACE_DISTANCE and t < best:
             best, kind, which = t, MESH, f
-    if in_air and _over_print(p, w, sc):
-        if wait_at_top:
-            # Nothing lies between the print and a ray above it (elements keep out of the
-            # substrate's box), so the top comes next unless a face comes before z = thickness.
-            if not best < (sc.thickness - p[2]) / w[2]:
-                return AT_TOP, -1, 0.0
-        else:
-            t = solve_hit(d, sc.thickness, p[0], p[1], p[2], w[0], w[1], w[2], -sc.half, sc.spacing, sc.zlo,
-                          sc.zstart, sc.zhi, sc.slope_x, sc.slope_y)
-            if t < best:
-                best, kind, which = t, TOP, -1
+    if over:
+        # Nothing lies between the print and a ray above it (elements keep out of the substrate's
+        # box), so while waiting the top comes next unless a face comes before z = thickness.
+        if wait_at_top and not best < (sc.thickness - p[2]) / w[2]:
+            return AT_TOP, -1, 0.0
+        if t_top < best:
+            best, kind, which = t_top, TOP, -1
     t, k = _box(p, w, medium, substrate, sc)
     if t < best:
         best, kind, which = t, BOX, k
@@ -289,17 +295,18 @@ def interface(w, dwu, dwv, n_plane, outward, dnu, dnv, n_solid):
 
 
 @_jit
-def _advance_one(d, i, state, medium, channel, status, handle, ray, kind_out, which_out, t_out, replay,
-                 lost_fresnel, wait_at_top, substrate, face_element, indices, v0, plane, dual, shading, neighbour,
-                 sc) -> None:
+def _advance_one(d, i, state, medium, channel, status, clear, released, handle, ray, kind_out, which_out, t_out,
+                 replay, lost_fresnel, wait_at_top, substrate, face_element, face_clear, indices, v0, plane, dual,
+                 shading, neighbour, sc) -> None:
     """One event of photon i (see :func:`advance`)."""
     row = state[i]
     if replay:
         kind, which, t = kind_out[i], which_out[i], t_out[i]
     else:
-        kind, which, t = _next_event(d, row, medium[i], handle, ray, wait_at_top, substrate, v0, plane, dual,
-                                     neighbour, sc)
+        kind, which, t = _next_event(d, row, medium[i], clear[i], released, handle, ray, wait_at_top, substrate, v0,
+                                     plane, dual, neighbour, sc)
         kind_out[i], which_out[i], t_out[i] = kind, which, t
+    clear[i] = False
     if kind == AT_TOP:
         status[i] = WAITING
         return
@@ -325,54 +332,63 @@ def _advance_one(d, i, state, medium, channel, status, handle, ray, kind_out, wh
             lost_fresnel[i] += row[FLUX] * (1.0 - kept)
             row[FLUX] *= kept
         medium[i] = solid if entering else AIR
+        clear[i] = kind == MESH and not entering and face_clear[which] and dot(r, n_plane) >= CLEAR_COS
 
 
 @_kernel
-def advance(d, state, medium, channel, status, handle, kind_out, which_out, t_out, replay, lost_fresnel, wait_at_top,
-            substrate, face_element, indices, v0, plane, dual, shading, neighbour, sc) -> None:
+def advance(d, state, medium, channel, status, clear, released, handle, kind_out, which_out, t_out, replay,
+            lost_fresnel, before, wait_at_top, substrate, face_element, face_clear, indices, v0, plane, dual, shading,
+            neighbour, sc) -> None:
     """One event of every photon with status UNDER_WAY (in place): ``state`` (N, STATE),
-    ``medium`` (N,) (AIR, an element, or ``substrate``), ``handle`` the elements' Embree scene
+    ``medium`` (N,) (AIR, an element, or ``substrate``), ``clear`` (N,) whether it left a face
+    with no element in front (``face_clear`` (F,), :mod:`operators.mesh.culling`), ``released``
+    whether the photons start where they waited at the top; ``handle`` the elements' Embree scene
     (:class:`operators.mesh.embree_native.EmbreeTriangles`; 0 for none);
     records kind_out, which_out (face or box plane) and t_out (N,) for :func:`retreat`, or with
     ``replay`` takes the events from them (recorded at the same heights: no search); adds the
-    flux that Fresnel reflection takes into ``lost_fresnel``. Ends photons: LANDED on the
+    flux that Fresnel reflection takes into ``lost_fresnel``; copies the state of each photon under
+    way into ``before`` (N, STATE) first, unless it has no rows. Ends photons: LANDED on the
     receiver, LOST (escaped or inside the glass under the top), WAITING before the top with
     ``wait_at_top``. ``indices`` (K + 1, c): refractive index of each element and the substrate."""
     blocks = (state.shape[0] + BLOCK - 1) // BLOCK
     for b in nb.prange(blocks):
-        _advance_block(b * BLOCK, min(state.shape[0], (b + 1) * BLOCK), d, state, medium, channel, status, handle,
-                       kind_out, which_out, t_out, replay, lost_fresnel, wait_at_top, substrate, face_element,
-                       indices, v0, plane, dual, shading, neighbour, sc)
+        _advance_block(b * BLOCK, min(state.shape[0], (b + 1) * BLOCK), d, state, medium, channel, status, clear,
+                       released, handle, kind_out, which_out, t_out, replay, lost_fresnel, before, wait_at_top,
+                       substrate, face_element, face_clear, indices, v0, plane, dual, shading, neighbour, sc)
 
 
 @_call
-def _advance_block(lo, hi, d, state, medium, channel, status, handle, kind_out, which_out, t_out, replay, lost_fresnel,
-                   wait_at_top, substrate, face_element, indices, v0, plane, dual, shading, neighbour, sc) -> None:
+def _advance_block(lo, hi, d, state, medium, channel, status, clear, released, handle, kind_out, which_out, t_out,
+                   replay, lost_fresnel, before, wait_at_top, substrate, face_element, face_clear, indices, v0, plane,
+                   dual, shading, neighbour, sc) -> None:
     """:func:`advance` for photons lo .. hi-1 (one thread)."""
     ray = ray_buffer()
     for i in range(lo, hi):
         if status[i] != UNDER_WAY:
             kind_out[i] = -1
             continue
-        _advance_one(d, i, state, medium, channel, status, handle, ray, kind_out, which_out, t_out, replay,
-                     lost_fresnel, wait_at_top, substrate, face_element, indices, v0, plane, dual, shading, neighbour,
-                     sc)
+        if before.shape[0]:
+            before[i] = state[i]
+        _advance_one(d, i, state, medium, channel, status, clear, released, handle, ray, kind_out, which_out, t_out,
+                     replay, lost_fresnel, wait_at_top, substrate, face_element, face_clear, indices, v0, plane, dual,
+                     shading, neighbour, sc)
 
 
 @_kernel
-def splat_arguments(state, status, sc, pos, metric, flux) -> None:
+def splat_arguments(state, status, where, sc, pos, metric, flux) -> None:
     """Pixel positions (2, N), footprint metrics (3, N) and flux (N,) of the photons on the
-    receiver (flux 0 and a unit metric for the others)."""
+    receiver (flux 0 and a unit metric for the others), photon i's at column ``where[i]``."""
     k = sc.to_px
     for i in nb.prange(state.shape[0]):
+        j = where[i]
         if status[i] != LANDED:
-            pos[0, i] = pos[1, i] = 0.0
-            metric[0, i], metric[1, i], metric[2, i] = 1.0, 0.0, 1.0
-            flux[i] = 0.0
+            pos[0, j] = pos[1, j] = 0.0
+            metric[0, j], metric[1, j], metric[2, j] = 1.0, 0.0, 1.0
+            flux[j] = 0.0
             continue
         row = state[i]
-        pos[0, i] = (row[P] + sc.receiver_half) * k - 0.5
-        pos[1, i] = (row[P + 1] + sc.receiver_half) * k - 0.5
+        pos[0, j] = (row[P] + sc.receiver_half) * k - 0.5
+        pos[1, j] = (row[P + 1] + sc.receiver_half) * k - 0.5
         q = footprint_metric(row[DPU] * k, row[DPU + 1] * k, row[DPV] * k, row[DPV + 1] * k, sc.min_px, sc.max_px)
-        metric[0, i], metric[1, i], metric[2, i] = q
-        flux[i] = row[FLUX]
+        metric[0, j], metric[1, j], metric[2, j] = q
+        flux[j] = row[FLUX]

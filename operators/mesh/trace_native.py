@@ -19,7 +19,9 @@ import torch
 
 from operators.mesh import adjoint_native as ma
 from operators.mesh import kernels_native as mk
+from operators.mesh.culling import clear_faces
 from operators.mesh.embree_native import EmbreeTriangles
+from operators.mesh.locality import crossing_order
 from operators.heightfield.surface import HeightFieldGrid
 from operators.photon_operator import filter_radius_px
 from operators.splat.splat import splat_photons, splat_photons_vjp
@@ -33,13 +35,17 @@ LOSSES = ("escaped", "max_depth", "inside_top", "fresnel_reflected", "missed_rec
 @dataclass
 class Prefix:
     """Photons before their first hit on the printed top: state (N, STATE), channel and events
-    used so far (N,); the fixed image (c, n, n, flux per pixel) and losses (W) of all others."""
+    used so far (N,); the fixed image (c, n, n, flux per pixel) and losses (W) of all others.
+    Within each chunk the photons are in the order they are traced in, by where they cross the
+    plane z = thickness (:func:`operators.mesh.locality.crossing_order`); ``place`` (N,) is
+    each one's place in its chunk in emission order, the order they are splatted in."""
 
     state: np.ndarray
     channel: np.ndarray
     events: np.ndarray
     image: torch.Tensor
     losses: dict[str, float]
+    place: np.ndarray
 
 
 # Event kinds, faces or planes and distances as the kernels take them.
@@ -50,26 +56,35 @@ COMPACT = 0.5
 
 @dataclass
 class _Chunk:
-    """Photons under way: state (N, STATE), medium, channel, status and event count (N,)."""
+    """Photons under way: state (N, STATE), medium, channel, status, event count and whether
+    they left a face with no element in front (N,)."""
 
     state: np.ndarray
     medium: np.ndarray
     channel: np.ndarray
     status: np.ndarray
     events: np.ndarray
+    clear: np.ndarray
+
+    @classmethod
+    def starting(cls, state: np.ndarray, channel: np.ndarray, events: np.ndarray) -> _Chunk:
+        """Photons in air, under way."""
+        n = len(state)
+        return cls(state, np.full(n, mk.AIR, dtype=np.int64), channel, np.full(n, mk.UNDER_WAY, dtype=np.int64),
+                   events, np.zeros(n, dtype=np.bool_))
 
     def take(self, index: np.ndarray) -> _Chunk:
         """A copy of the photons at ``index``."""
         return _Chunk(self.state[index], self.medium[index], self.channel[index], self.status[index],
-                      self.events[index])
+                      self.events[index], self.clear[index])
 
 
 def _write_back(chunk: _Chunk, index: np.ndarray | None, work: _Chunk) -> None:
     """Copy ``work`` (the chunk's photons at ``index``; None: the chunk itself) into the chunk."""
     if index is None:
         return
-    chunk.state[index], chunk.medium[index], chunk.status[index], chunk.events[index] = (
-        work.state, work.medium, work.status, work.events)
+    chunk.state[index], chunk.medium[index], chunk.status[index], chunk.events[index], chunk.clear[index] = (
+        work.state, work.medium, work.status, work.events, work.clear)
 
 
 class NativeMeshTracer:
@@ -87,6 +102,8 @@ class NativeMeshTracer:
         # The same faces, in the same order, in an Embree scene that the kernels query.
         self._triangles = EmbreeTriangles(intersector.vertices, intersector.faces) if intersector.count else None
         self.embree = 0 if self._triangles is None else self._triangles.handle
+        self.face_clear = (clear_faces(intersector.vertices, self.v0, self.plane) if intersector.count
+                           else np.zeros(1, dtype=np.bool_))
 
     # -- scene constants ----------------------------------------------------------------------
     def constants(self, d: np.ndarray | None) -> mk.MeshConstants:
@@ -138,11 +155,11 @@ class NativeMeshTracer:
             else:
                 kind, which, t = np.empty(n, np.int64), np.empty(n, np.int64), np.empty(n)
             fresnel = np.zeros(n)
-            before = work.state.copy() if tape is not None else None
-            mk.advance(d, work.state, work.medium, work.channel, work.status, self.embree, kind, which, t,
-                       events_replay is not None, fresnel,
-                       wait_at_top, self.substrate, self.face_element, self.indices, self.v0, self.plane, self.dual,
-                       self.shading, self.neighbour, sc)
+            before = np.empty((n if tape is not None else 0, mk.STATE))
+            mk.advance(d, work.state, work.medium, work.channel, work.status, work.clear,
+                       event == 0 and not wait_at_top, self.embree, kind, which, t, events_replay is not None, fresnel,
+                       before, wait_at_top, self.substrate, self.face_element, self.face_clear, self.indices, self.v0,
+                       self.plane, self.dual, self.shading, self.neighbour, sc)
             work.events += (kind >= 0) & (kind != mk.AT_TOP)
             flux = work.state[:, mk.FLUX]
             losses["escaped"] += float(flux[kind == mk.ESCAPED].sum())
@@ -169,23 +186,31 @@ class NativeMeshTracer:
             if index is not None:
                 g_state[index] = g
 
-    def _splat_inputs(self, chunk: _Chunk, sc: mk.MeshConstants, losses: dict[str, float]
-                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def _splat_inputs(self, chunk: _Chunk, sc: mk.MeshConstants, losses: dict[str, float],
+                      where: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Pixel positions (2, N), metrics (3, N) and flux (N,) of the chunk's landed photons
-        (flux 0 for the others); the flux landing beside the receiver is counted as missing it."""
+        (flux 0 for the others), photon i at place ``where[i]`` (None: i); the flux landing beside
+        the receiver is counted as missing it."""
         n = len(chunk.state)
         pos, metric, flux = np.empty((2, n)), np.empty((3, n)), np.empty(n)
-        mk.splat_arguments(chunk.state, chunk.status, sc, pos, metric, flux)
+        mk.splat_arguments(chunk.state, chunk.status, np.arange(n) if where is None else where, sc, pos, metric, flux)
         landed = chunk.status == mk.LANDED
         outside = landed & (np.abs(chunk.state[:, mk.P:mk.P + 2]) > sc.receiver_half).any(1)
-        losses["missed_receiver"] += float(flux[outside].sum())
+        losses["missed_receiver"] += float(chunk.state[outside, mk.FLUX].sum())
         return pos, metric, flux
 
-    def _splat(self, chunk: _Chunk, sc: mk.MeshConstants, losses: dict[str, float]) -> torch.Tensor:
+    def _splat(self, chunk: _Chunk, sc: mk.MeshConstants, losses: dict[str, float], where: np.ndarray | None = None
+               ) -> torch.Tensor:
+        """The chunk's image (c, n, n); ``where`` (N,): each photon's place in the order it is
+        splatted in (the emission order, which fixes the rounding of the sums; None: as traced)."""
         scene, dtype = self.operator.scene, self.operator.dtype
-        pos, metric, flux = self._splat_inputs(chunk, sc, losses)
+        pos, metric, flux = self._splat_inputs(chunk, sc, losses, where)
+        channel = chunk.channel
+        if where is not None:
+            channel = np.empty_like(channel)
+            channel[where] = chunk.channel
         return splat_photons(torch.from_numpy(pos).to(dtype), torch.from_numpy(metric).to(dtype),
-                             torch.from_numpy(flux).to(dtype), torch.from_numpy(chunk.channel),
+                             torch.from_numpy(flux).to(dtype), torch.from_numpy(channel),
                              scene.channels, scene.receiver.resolution)
 
     # -- the height-independent prefix --------------------------------------------------------
@@ -206,7 +231,10 @@ class NativeMeshTracer:
             keep = chunk.status == mk.WAITING
             waiting.append((chunk.state[keep], chunk.channel[keep], chunk.events[keep]))
         state, channel, events = (np.concatenate(parts) for parts in zip(*waiting))
-        self._prefix = Prefix(np.ascontiguousarray(state), channel, events, image, losses)
+        size = op.settings.chunk_size
+        order = crossing_order(state[:, mk.P:mk.P + 3], state[:, mk.W:mk.W + 3], op.scene.substrate.thickness, size)
+        place = order - np.arange(len(order)) // size * size
+        self._prefix = Prefix(np.ascontiguousarray(state[order]), channel[order], events[order], image, losses, place)
         return self._prefix
 
     def _emitted(self, start: int, stop: int) -> _Chunk:
@@ -219,15 +247,14 @@ class NativeMeshTracer:
         state[:, mk.DWU:mk.DWU + 3] = batch.direction_diff[0].double().numpy().T
         state[:, mk.DWV:mk.DWV + 3] = batch.direction_diff[1].double().numpy().T
         state[:, mk.FLUX] = batch.flux.double().numpy()
-        return _Chunk(state, np.full(n, mk.AIR, dtype=np.int64), batch.channel.numpy().astype(np.int64),
-                      np.full(n, mk.UNDER_WAY, dtype=np.int64), np.zeros(n, dtype=np.int64))
+        return _Chunk.starting(state, batch.channel.numpy().astype(np.int64), np.zeros(n, dtype=np.int64))
 
-    def _waiting(self, start: int, stop: int) -> _Chunk:
-        """Prefix photons start .. stop-1, about to meet the print."""
+    def _waiting(self, start: int, stop: int) -> tuple[_Chunk, np.ndarray]:
+        """Prefix photons start .. stop-1, about to meet the print, in the order they are traced
+        in, and each one's place (N,) among them in emission order."""
         pre = self.prefix()
-        n = stop - start
-        return _Chunk(pre.state[start:stop].copy(), np.full(n, mk.AIR, dtype=np.int64), pre.channel[start:stop],
-                      np.full(n, mk.UNDER_WAY, dtype=np.int64), pre.events[start:stop].copy())
+        return (_Chunk.starting(pre.state[start:stop].copy(), pre.channel[start:stop], pre.events[start:stop].copy()),
+                pre.place[start:stop])
 
     def _waiting_chunks(self) -> list[tuple[int, int]]:
         size, total = self.operator.settings.chunk_size, len(self.prefix().state)
@@ -244,10 +271,10 @@ class NativeMeshTracer:
         losses = dict(pre.losses)
         seen: list[list] = []
         for start, stop in self._waiting_chunks():
-            chunk = self._waiting(start, stop)
+            chunk, where = self._waiting(start, stop)
             seen.append([])
             self._run(d, chunk, sc, False, losses, events_log=seen[-1])
-            image += self._splat(chunk, sc, losses)
+            image += self._splat(chunk, sc, losses, where)
         self._events_seen = (d.copy(), seen)
         return image, losses
 
@@ -261,7 +288,7 @@ class NativeMeshTracer:
         dtype = self.operator.dtype
         seen = self._events_seen[1] if self._events_seen is not None and np.array_equal(self._events_seen[0], d) else None
         for k, (start, stop) in enumerate(self._waiting_chunks()):
-            chunk = self._waiting(start, stop)
+            chunk, _ = self._waiting(start, stop)
             tape: list = []
             self._run(d, chunk, sc, False, not_counted, tape, events_replay=None if seen is None else seen[k])
             pos, metric, flux = self._splat_inputs(chunk, sc, not_counted)
