@@ -8,7 +8,9 @@ alternating with them, the time split between tracing and splatting in the fused
 with the splat switched off against the full pass), the peak memory of a gradient evaluation
 with the paper's 8.4 million photons, and the native splat against the straightforward PyTorch
 splat on the same photons, side by side, each in a fresh process so that their peak memories are
-comparable; and the mesh-scene operator (plain scene, two lenses) beside the height-field operator.
+comparable; the mesh-scene operator (plain scene, two lenses) beside the height-field operator;
+and the default reconstruction with today's solver beside the earlier one
+(experiments/bench_reconstruction.py).
 """
 
 from __future__ import annotations
@@ -26,6 +28,7 @@ import numba
 import numpy as np
 import torch
 
+from experiments.bench_reconstruction import reconstruction_report
 from experiments.bench_stages import stage_profile
 from framework.core.shapes import make_shape
 from operators.heightfield.operator import CausticOperator, OperatorSettings
@@ -269,6 +272,10 @@ def main(argv: list[str] | None = None) -> None:
                         help="photons of the one-thread per-stage profile (0: leave it out)")
     parser.add_argument("--mesh-photons", type=int, default=1 << 18,
                         help="photons of the mesh-scene comparison (0: leave it out)")
+    parser.add_argument("--reconstruction-rounds", type=int, default=1,
+                        help="default reconstructions with today's and the earlier solver, each (0: leave them out)")
+    parser.add_argument("--reconstruction-overrides", nargs="*", default=[],
+                        help="Hydra overrides for both reconstructions, e.g. experiment=m3v1")
     parser.add_argument("--footprint-px", type=float, default=3.0)
     parser.add_argument("--chunk-size", type=int, default=1 << 18)
     parser.add_argument("--device", choices=("cpu", "cuda"), default="cpu",
@@ -317,6 +324,8 @@ def main(argv: list[str] | None = None) -> None:
         report["stage_profile"] = profile_stages(op, heights, target, args.stage_photons)
     if args.mesh_photons > 0:
         report["mesh_scene"] = time_mesh_scenes(heights, args.mesh_photons, args.footprint_px)
+    if args.reconstruction_rounds > 0:
+        report["reconstruction"] = reconstruction_report(args.reconstruction_overrides, args.reconstruction_rounds)
     print(json.dumps(report, indent=2))
 
 

@@ -73,9 +73,9 @@ class PhotonBudgetSettings:
         if unknown:
             raise ValueError(f"photon_budget has unknown key(s) {unknown}; its keys are start and noise_share")
         start = budget.get("start")
-        share = budget.get("noise_share", 0.1)
+        share = budget.get("noise_share", 0.5)
         if isinstance(share, bool) or not isinstance(share, (int, float)) or not 0.0 < float(share) <= 1.0:
-            raise ValueError(f"photon_budget.noise_share={share!r} must lie in (0, 1], e.g. 0.1")
+            raise ValueError(f"photon_budget.noise_share={share!r} must lie in (0, 1], e.g. 0.5")
         return cls(None if start is None else positive_int(start, "photon_budget.start"), float(share))
 
 

@@ -177,7 +177,8 @@ class IterativeSolver(ABC):
 
     def setup_changed(self) -> None:
         """The forward operator's setup changed (joint calibration, framework/pipeline/calibration.py,
-        or its photons, framework/pipeline/photon_budget.py): forget whatever was computed with the old one. Solvers that cache evaluations override it."""
+        or its photons, framework/pipeline/photon_budget.py): forget whatever was computed with the
+        old one. Solvers that cache evaluations override it."""
 
     def volume_band(self) -> tuple[float, float] | None:
         """The band [q1, q2] of the height sum sum_j d_j that the solver enforces (a known

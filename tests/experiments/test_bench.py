@@ -11,9 +11,16 @@ from experiments.bench import main
 from tests.python_subprocess import run_json_script
 
 
+# A small reconstruction for the bench's reconstruction section: 3 iterations from flat glass.
+SMALL_RUN = ["solver.max_iter=3", "initial=zero", "photons=16384", "photon_budget.start=4096",
+             "data.reference_photons=65536", "data.reference_resolution=64", "receiver.resolution=64",
+             "height_field.resolution=32", "checkpoint_every=100"]
+
+
 def test_bench_prints_the_promised_figures(capsys):
     main(["--photons", "200000", "--grad-photons", "30000", "--splat-photons", "3000", "--chunk-size", "8192",
-          "--reference-photons", "20000", "--stage-photons", "0", "--mesh-photons", "20000"])
+          "--reference-photons", "20000", "--stage-photons", "0", "--mesh-photons", "20000",
+          "--reconstruction-overrides", *SMALL_RUN])
     report = json.loads(capsys.readouterr().out)
     assert report["forward_photons_per_s"] > 0 and report["forward_backward_photons_per_s"] > 0
     plain = report["numba_kernels_only"]
@@ -34,6 +41,15 @@ def test_bench_prints_the_promised_figures(capsys):
     assert mesh["mesh_scene_plain"]["gradient_time_over_plain_mesh_scene"] == 1.0
     assert mesh["height_field"]["gradient_time_over_height_field"] == 1.0
     assert all(m["forward_photons_per_s"] > 0 and m["forward_backward_photons_per_s"] > 0 for m in mesh.values())
+    runs = report["reconstruction"]
+    for which in ("now", "earlier"):
+        run = runs[which]
+        assert run["iterations"] == 3 and run["renders"] >= 3 and run["gradient_passes"] >= 3
+        assert run["renders_per_iteration"] == pytest.approx((run["renders"] + run["gradient_passes"]) / 3)
+    # the earlier solver traces the configured photons at every pass; today's starts with fewer
+    assert runs["earlier"]["photon_traces"] == 16384 * (runs["earlier"]["renders"] + runs["earlier"]["gradient_passes"])
+    assert runs["now"]["photon_traces"] < runs["earlier"]["photon_traces"]
+    assert runs["speedup"]["photon_traces"] > 1.0
 
 
 # The stage kernels cost 1.5 min of compiling on a cold cache; as plain Python (JIT off) the

@@ -100,7 +100,7 @@ def test_the_budget_stops_at_the_configured_photons_and_a_resumed_run_goes_on_wi
 
 
 def test_bad_budget_settings_are_refused_with_the_key():
-    assert PhotonBudgetSettings.parse(None) == PhotonBudgetSettings(None, 0.1)
+    assert PhotonBudgetSettings.parse(None) == PhotonBudgetSettings(None, 0.5)
     with pytest.raises(ValueError, match="photon_budget.start=0"):
         PhotonBudgetSettings.parse({"start": 0})
     with pytest.raises(ValueError, match="photon_budget.noise_share=2"):

@@ -76,9 +76,13 @@ class GradientDescent(ProximalGradientSolver):
                                           or not 0.0 <= float(min_thickness) < 1.0):
             raise ValueError(f"solver.min_thickness={min_thickness!r} must lie in [0, 1) (fraction of the substrate "
                              "thickness every sample keeps, e.g. 0.1) or be null")
-        parts = build_parts(step_size, preconditioner, two_metric_from=two_metric_from, momentum_from=momentum_from)
+        def fresh_parts() -> dict[str, Any]:
+            return build_parts(step_size, preconditioner, two_metric_from=two_metric_from, momentum_from=momentum_from)
+
+        fresh_parts()  # a bad value fails now, before any render
 
         def build(problem, d0: Tensor) -> GradientDescent:
+            parts = fresh_parts()  # every run from a start with its own step size and preconditioner stage
             floor = None if min_thickness is None else -(1.0 - float(min_thickness)) * problem.scene.substrate.thickness
             return cls(problem.fidelity, d0, parts["step_size"], parts["preconditioner"], context=problem.context,
                        floor=floor, two_metric_from=parts["two_metric_from"], momentum_from=parts["momentum_from"])
@@ -131,7 +135,12 @@ class PixelLandweber(ProximalGradientSolver):
                     post_steps: Mapping[str, Any] | None = None, preconditioner: Mapping[str, Any] | None = None,
                     two_metric_from: int | None = None, momentum_from: int | None = None) -> SolverBuilder:
         """The plugin ``solver/landweber_pixel`` from its config keys (see :func:`build_parts`)."""
-        parts = build_parts(step_size, preconditioner, regularizers, post_steps, two_metric_from, momentum_from)
-        cls._require_regularizers(parts["regularizers"])
-        check_regularizers(parts["regularizers"], cls.name)
-        return lambda problem, d0: cls(problem.fidelity, d0, context=problem.context, **parts)
+        def fresh_parts() -> dict[str, Any]:
+            parts = build_parts(step_size, preconditioner, regularizers, post_steps, two_metric_from, momentum_from)
+            cls._require_regularizers(parts["regularizers"])
+            check_regularizers(parts["regularizers"], cls.name)
+            return parts
+
+        fresh_parts()  # a bad value fails now, before any render
+        # every run from a start with its own step size, preconditioner stage and regularisers
+        return lambda problem, d0: cls(problem.fidelity, d0, context=problem.context, **fresh_parts())

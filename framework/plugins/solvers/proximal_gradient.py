@@ -242,21 +242,24 @@ class ProximalGradientSolver(IterativeSolver):
 
     def _extrapolated_step(self, objective_now: float, sq_distance: Callable[[Candidate], float]
                            ) -> tuple[StepChoice | None, int]:
-        """The momentum trial: the proximal point at the policy's current step (not grown), the data
-        term evaluated at its extrapolation (kept when F decreases there as the line search
-        demands). Returns (the accepted choice or None, forward evaluations spent); a rejected
-        trial restarts the momentum."""
-        tau = self.step_size.current_step
-        candidate = self._propose(tau)
-        z = self.momentum.extrapolate(candidate["d"], self.state.d)
-        if z is None:
-            return None, 0
-        trial = {**candidate, "d": self._project(z), "prox_point": candidate["d"]}
-        decrease = float(getattr(self.step_size, "sufficient_decrease", 0.0))
-        if self._objective(trial) <= objective_now - decrease / (2.0 * tau) * sq_distance(trial):
-            return StepChoice(step=tau, candidate=trial, trials=1, forward_evaluations=1), 1
+        """The momentum trials: at each of the policy's momentum steps, the proximal point and the
+        data term at its extrapolation, kept when F decreases there as the line search demands.
+        Returns (the accepted choice or None, forward evaluations spent); when every trial is
+        rejected the momentum restarts."""
+        spent = 0
+        for tau in self.step_size.momentum_trials():
+            candidate = self._propose(tau)
+            z = self.momentum.extrapolate(candidate["d"], self.state.d)
+            if z is None:
+                return None, spent
+            trial = {**candidate, "d": self._project(z), "prox_point": candidate["d"]}
+            spent += 1
+            decrease = float(getattr(self.step_size, "sufficient_decrease", 0.0))
+            if self._objective(trial) <= objective_now - decrease / (2.0 * tau) * sq_distance(trial):
+                self.step_size.accepted_elsewhere(tau)
+                return StepChoice(step=tau, candidate=trial, trials=spent, forward_evaluations=spent), spent
         self.momentum.reset()
-        return None, 1
+        return None, spent
 
     def volume_band(self) -> tuple[float, float] | None:
         """The band of the first regulariser or post step that enforces the deposited volume

@@ -61,6 +61,13 @@ class StepSizePolicy(ABC):
     def reset(self) -> None:
         """Forget what earlier iterations learnt about the step (the metric changed)."""
 
+    def momentum_trials(self) -> list[float]:
+        """The steps a momentum trial tries, in order (framework/plugins/solvers/proximal_gradient.py)."""
+        return [self.current_step]
+
+    def accepted_elsewhere(self, step: float) -> None:
+        """A step accepted outside :meth:`select` (a momentum trial): go on as after ``select``."""
+
     def state_dict(self) -> dict[str, float]:
         """Mutable state (for checkpoints)."""
         return {}
@@ -157,6 +164,14 @@ class BacktrackingStep(StepSizePolicy):
             f"no sufficient decrease after {self.max_trials} trials (last tau={tau / self.shrink:.3g}, "
             f"F={last:.6g} vs F(x)={objective_now:.6g}); the objective may be non-smooth here"
         )
+
+    def momentum_trials(self) -> list[float]:
+        """The current step, then one shrunk: momentum survives a step that was a little too long."""
+        return [self.tau, self.tau * self.shrink]
+
+    def accepted_elsewhere(self, step: float) -> None:
+        """The next search starts from ``grow`` x the accepted step, as after :meth:`select`."""
+        self.tau = min(step * self.grow, self.tau_max)
 
     def reset(self) -> None:
         """Start the next search from tau0 again (e.g. after a change of preconditioner, when the

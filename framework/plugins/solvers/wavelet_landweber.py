@@ -119,16 +119,20 @@ class WaveletLandweber(ProximalGradientSolver):
         """The plugin ``solver/landweber_wavelet``: ``wavelet_regularizer`` is a regulariser by key
         with ``prox_coefficients`` and ``transform_for`` (``{name: l1_wavelet, alpha_w: 1e-2,
         wavelet: db3, levels: 3}``); the other keys as :func:`build_parts`."""
-        parts = build_parts(step_size, preconditioner, regularizers, post_steps, two_metric_from, momentum_from)
+        def fresh_parts() -> dict[str, Any]:
+            return build_parts(step_size, preconditioner, regularizers, post_steps, two_metric_from, momentum_from)
+
+        fresh_parts()  # a bad value fails now, before any render
         name, params = split_name(wavelet_regularizer, "solver.wavelet_regularizer")
         shrink = build_plugin("regularizer", name, params, "solver.wavelet_regularizer")
         if not callable(getattr(shrink, "transform_for", None)):
             raise ValueError(f"solver.wavelet_regularizer={name} has no wavelet transform (transform_for); "
                              "use l1_wavelet")
         cls._check_pixel_step_ratio(pixel_step_ratio)
-        pixel = parts.pop("regularizers")
 
         def build(problem, d0: Tensor) -> WaveletLandweber:
+            parts = fresh_parts()  # every run from a start with its own step size and preconditioner stage
+            pixel = parts.pop("regularizers")
             return cls(problem.fidelity, d0, wavelet=shrink.transform_for(problem.grid.shape), wavelet_regularizer=shrink,
                        pixel_regularizers=pixel, pixel_step_ratio=pixel_step_ratio, context=problem.context, **parts)
 
