@@ -175,6 +175,10 @@ class IterativeSolver(ABC):
         """The stage of a coarse-to-fine schedule the solver is in (0 without one)."""
         return 0
 
+    def start_finest(self) -> None:
+        """Begin at the finest stage of a coarse-to-fine schedule (the start already holds the broad
+        shape the coarse stages build); nothing without one."""
+
     def setup_changed(self) -> None:
         """The forward operator's setup changed (joint calibration, framework/pipeline/calibration.py,
         or its photons, framework/pipeline/photon_budget.py): forget whatever was computed with the

@@ -116,6 +116,8 @@ def _solve_from(parts: Reconstruction, problem: Problem, name: str, start: Start
         d0 = torch.zeros(parts.grid.shape, dtype=operator.dtype)
     start_seconds = time.perf_counter() - began
     solver = parts.make_solver(problem, d0)
+    if checkpoint is None and computed.shaped:
+        solver.start_finest()
     stopping = build_stopping(parts.settings.cfg.get("stopping"))
     for rule in stopping:
         rule.setup(problem)

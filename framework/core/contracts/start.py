@@ -39,11 +39,14 @@ class StartRequest:
 @dataclass
 class StartResult:
     """A start d0 (m, m), scene units, in the operator's dtype, and what computing it measured
-    (logged with the run as ``start_*`` metrics)."""
+    (logged with the run as ``start_*`` metrics). ``shaped``: d0 already holds the print's broad
+    shape (a transport, a design, a file), so the solver begins at its finest stage
+    (:meth:`framework.core.solver_loop.IterativeSolver.start_finest`)."""
 
     d: Tensor
     metrics: dict[str, float] = field(default_factory=dict)
     name: str = ""
+    shaped: bool = False
 
 
 class Start:

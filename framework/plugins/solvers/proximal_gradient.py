@@ -284,6 +284,11 @@ class ProximalGradientSolver(IterativeSolver):
         self.step_size.reset()
         return True
 
+    def start_finest(self) -> None:
+        """Move the preconditioner to its finest length before the first iteration."""
+        while self.refine(self.state.d):
+            pass
+
     def setup_changed(self) -> None:
         """Drop the cached evaluation, direction and momentum: they belong to the old setup."""
         self._evaluation = None

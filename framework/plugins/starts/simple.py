@@ -50,7 +50,7 @@ class DesignStart(Start):
 
     def __call__(self, request: StartRequest) -> StartResult:
         d = request.design().double() * self.scale
-        return StartResult(_checked_shape(d, request, "initial=design"), name=self.name)
+        return StartResult(_checked_shape(d, request, "initial=design"), name=self.name, shaped=True)
 
 
 class FileStart(Start):
@@ -75,4 +75,4 @@ class FileStart(Start):
     def __call__(self, request: StartRequest) -> StartResult:
         file = self.check(request.base_dir)
         d = torch.from_numpy(load_height_field(file, resolution=request.problem.grid.resolution, scale=self.scale))
-        return StartResult(_checked_shape(d, request, f"initial.path={self.path!r}"), name=self.name)
+        return StartResult(_checked_shape(d, request, f"initial.path={self.path!r}"), name=self.name, shaped=True)

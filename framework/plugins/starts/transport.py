@@ -235,7 +235,7 @@ class TransportStart(Start):
                    "transport_seconds": time.perf_counter() - started}
         if problem.data.volume is not None:
             metrics["transport_volume_ratio"] = float(d.sum() * problem.grid.cell_area / problem.data.volume)
-        return StartResult(torch.from_numpy(d).to(problem.operator.dtype), metrics, self.name)
+        return StartResult(torch.from_numpy(d).to(problem.operator.dtype), metrics, self.name, shaped=True)
 
     def _plan(self, problem: Any, path: LightPath, arrivals: Any, mask: np.ndarray) -> Any:
         """Steps 1-3: the masked region's flat-glass light, the goal, and the transport between them."""
