@@ -120,6 +120,22 @@ def test_refine_restarts_from_the_given_iterate_with_the_finer_preconditioner_an
     assert restored.preconditioner.length == 0.25
 
 
+def test_start_finest_begins_at_the_last_length_and_every_built_solver_has_its_own_parts():
+    data, *_, L = make_problem()
+    solver = PixelLandweber(data, torch.zeros(8, 8, dtype=DTYPE), BacktrackingStep(20.0 / L),
+                            regularizers=[L1(2e-3), Bounds()], preconditioner=_schedule())
+    solver.start_finest()
+    assert solver.stage() == 1 and solver.step().extras["preconditioner_length"] == 0.25
+    build = PixelLandweber.from_config(step_size={"name": "backtracking", "tau": 1e-3},
+                                       regularizers={"l1_bounds": {}},
+                                       preconditioner={"name": "sobolev", "length": [0.5, 0.25]})
+    problem = SimpleNamespace(fidelity=data, context=None)
+    first, second = build(problem, torch.zeros(8, 8, dtype=DTYPE)), build(problem, torch.zeros(8, 8, dtype=DTYPE))
+    # a later run (initial=auto's next candidate) starts with tau0 and the first length, not where the last ended
+    assert first.step_size is not second.step_size and first.preconditioner is not second.preconditioner
+    assert first.regularizers[0] is not second.regularizers[0]
+
+
 def test_refine_starts_the_step_search_afresh_from_tau0():
     data, *_, L = make_problem()
     policy = BacktrackingStep(20.0 / L, shrink=0.5, grow=1.25)

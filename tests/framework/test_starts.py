@@ -103,6 +103,7 @@ def test_the_transport_start_finds_a_paraboloid_lens_before_any_iteration():
     assert np.all(d[~problem.data.mask.numpy()] == 0.0) and d.min() >= 0.0 and d.max() <= 0.3
     assert start.metrics["transport_volume_ratio"] == pytest.approx(1.0, abs=0.02)
     assert np.linalg.norm(d - truth) / np.linalg.norm(truth) < 0.15  # flat glass: 1.0
+    assert start.shaped  # the solver begins at its finest preconditioner length
 
 
 def two_lenses(photons: int, receiver: int = 64, dtype: str = "float64") -> MeshSceneOperator:
@@ -167,3 +168,10 @@ def test_bad_inputs_get_one_line_each():
     for key, value in (("reach", 2.0), ("photons", 0), ("p2", -1.0)):
         with pytest.raises(ValueError, match=f"initial.{key}"):
             TransportStart(**{key: value})
+
+
+def test_flat_glass_is_no_shape_and_a_design_is():
+    from framework.plugins.starts.simple import DesignStart, ZeroStart
+    problem = height_field_problem(paraboloid(16, 0.6, 0.08))
+    assert not ZeroStart()(request(problem)).shaped
+    assert DesignStart()(request(problem)).shaped
