@@ -2,14 +2,16 @@
 and with the earlier one (no momentum, every iteration at the configured photons), side by side in
 one process, alternating, so that both see the same machine load.
 
-For each: iterations, renders and gradient passes of the data term, photon-traces, renders per
-iteration, the seconds of solving (``run_time_s``: the starts and the solver, without loading the
+For each: iterations, renders and gradient passes of the data term, photon-traces, renders and
+passes (renders + gradient passes) per iteration, the seconds of solving (``run_time_s``: the starts and the solver, without loading the
 data), the discrepancy and the error against the ground truth. Extra overrides (e.g.
 ``experiment=m3v1``) apply to both.
 """
 
 from __future__ import annotations
 
+import contextlib
+import sys
 import tempfile
 from pathlib import Path
 from typing import Any, Sequence
@@ -30,13 +32,16 @@ KEPT = ("iterations", "renders", "gradient_passes", "photon_traces", "photons_pe
 
 def run_once(overrides: Sequence[str], workdir: Path, name: str) -> dict[str, Any]:
     """One reconstruction with ``overrides`` in ``workdir / name`` (its own MLflow store); the
-    figures it reports (:data:`KEPT`) and renders per iteration."""
+    figures it reports (:data:`KEPT`), renders and passes per iteration."""
     with initialize_config_dir(config_dir=CONFIG_DIR, version_base=None):
         cfg = to_plain(compose("reconstruct", overrides=[*overrides, f"tracking.store_dir={workdir / 'mlruns'}",
                                                           "compile_in_background=false"]))
-    metrics = run_reconstruction(cfg, workdir / name, workdir)
+    with contextlib.redirect_stdout(sys.stderr):  # the run's verdict lines; stdout carries the JSON report
+        metrics = run_reconstruction(cfg, workdir / name, workdir)
     out = {key: metrics.get(key) for key in KEPT}
-    out["renders_per_iteration"] = (metrics["renders"] + metrics["gradient_passes"]) / max(metrics["iterations"], 1)
+    iterations = max(metrics["iterations"], 1)
+    out["renders_per_iteration"] = metrics["renders"] / iterations
+    out["passes_per_iteration"] = (metrics["renders"] + metrics["gradient_passes"]) / iterations
     return out
 
 
