@@ -16,7 +16,7 @@ from typing import Any
 from framework.core.plugin_config import as_mapping, with_scene_lengths
 from framework.core.scene_config import to_plain
 from framework.core.units import mm_per_unit
-from framework.core.values import positive_int
+from framework.core.values import positive_int, positive_number
 
 __all__ = ["PhotonBudgetSettings", "RunSettings", "TrackingSettings", "design_given"]
 
@@ -121,7 +121,9 @@ class RunSettings:
         mm = mm_per_unit(plain)
         plain = with_scene_lengths(plain, mm)
         data = plain.get("data") or {}
-        morozov = (plain.get("stopping") or {}).get("morozov") or {}
+        stopping = plain.get("stopping") or {}
+        morozov = stopping.get("morozov") if isinstance(stopping, Mapping) else None
+        morozov = morozov if isinstance(morozov, Mapping) else {}  # a bad group fails where it is built
         method = plain.get("method", "custom")
         tags = {"method": method, "scene": (plain.get("height_field") or {}).get("shape", "file"),
                 "data": data.get("name"), "operator": (plain.get("operator") or {}).get("name"),
@@ -130,4 +132,5 @@ class RunSettings:
                    positive_int(plain.get("checkpoint_every"), "checkpoint_every"),
                    bool(plain.get("compile_in_background", True)), plain.get("resume"),
                    TrackingSettings.parse(plain.get("tracking")), tags, design_given(plain),
-                   float(morozov.get("tau_dis", 1.0)), PhotonBudgetSettings.parse(plain.get("photon_budget")))
+                   positive_number(morozov.get("tau_dis", 1.0), "stopping.morozov.tau_dis"),
+                   PhotonBudgetSettings.parse(plain.get("photon_budget")))
