@@ -3,9 +3,10 @@ and with the earlier one (no momentum, every iteration at the configured photons
 one process, alternating, so that both see the same machine load.
 
 For each: iterations, renders and gradient passes of the data term, photon-traces, renders and
-passes (renders + gradient passes) per iteration, the seconds of solving (``run_time_s``: the starts and the solver, without loading the
-data), the discrepancy and the error against the ground truth. Extra overrides (e.g.
-``experiment=m3v1``) apply to both.
+passes (renders + gradient passes) per iteration, the seconds of solving (``run_time_s``: the
+starts and the solver, without loading the data) and of the whole run (``wall_s``: with the data,
+the outputs and the MLflow logging), the discrepancy and the error against the ground truth. Extra
+overrides (e.g. ``experiment=m3v1``) apply to both.
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ from __future__ import annotations
 import contextlib
 import sys
 import tempfile
+import time
 from pathlib import Path
 from typing import Any, Sequence
 
@@ -36,9 +38,11 @@ def run_once(overrides: Sequence[str], workdir: Path, name: str) -> dict[str, An
     with initialize_config_dir(config_dir=CONFIG_DIR, version_base=None):
         cfg = to_plain(compose("reconstruct", overrides=[*overrides, f"tracking.store_dir={workdir / 'mlruns'}",
                                                           "compile_in_background=false"]))
+    began = time.perf_counter()
     with contextlib.redirect_stdout(sys.stderr):  # the run's verdict lines; stdout carries the JSON report
         metrics = run_reconstruction(cfg, workdir / name, workdir)
     out = {key: metrics.get(key) for key in KEPT}
+    out["wall_s"] = time.perf_counter() - began
     iterations = max(metrics["iterations"], 1)
     out["renders_per_iteration"] = metrics["renders"] / iterations
     out["passes_per_iteration"] = (metrics["renders"] + metrics["gradient_passes"]) / iterations

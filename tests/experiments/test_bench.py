@@ -47,6 +47,7 @@ def test_bench_prints_the_promised_figures(capsys):
         assert run["iterations"] == 3 and run["renders"] >= 3 and run["gradient_passes"] >= 3
         assert run["renders_per_iteration"] == pytest.approx(run["renders"] / 3)
         assert run["passes_per_iteration"] == pytest.approx((run["renders"] + run["gradient_passes"]) / 3)
+        assert run["wall_s"] > run["run_time_s"] > 0
     # the earlier solver traces the configured photons at every pass; today's starts with fewer
     assert runs["earlier"]["photon_traces"] == 16384 * (runs["earlier"]["renders"] + runs["earlier"]["gradient_passes"])
     assert runs["now"]["photon_traces"] < runs["earlier"]["photon_traces"]
