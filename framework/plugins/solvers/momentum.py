@@ -22,17 +22,14 @@ from typing import Any
 import torch
 from torch import Tensor
 
+from framework.plugins.solvers.preconditioner import check_stage_index
+
 __all__ = ["NesterovMomentum", "check_momentum_from"]
 
 
 def check_momentum_from(stage: Any) -> int | None:
     """``solver.momentum_from`` as a preconditioner stage index >= 0, or None."""
-    if stage is None:
-        return None
-    if isinstance(stage, bool) or not isinstance(stage, int) or stage < 0:
-        raise ValueError(f"solver.momentum_from={stage!r} must be a preconditioner stage index >= 0 "
-                         "(0: from the first length) or null (no momentum)")
-    return stage
+    return check_stage_index(stage, "solver.momentum_from", "no momentum")
 
 
 class NesterovMomentum:

@@ -30,7 +30,7 @@ import torch
 from torch import Tensor
 
 
-__all__ = ["GradientPreconditioner", "SobolevPreconditioner", "neumann_laplacian_eigenvalues"]
+__all__ = ["GradientPreconditioner", "SobolevPreconditioner", "check_stage_index", "neumann_laplacian_eigenvalues"]
 
 
 class GradientPreconditioner(Protocol):
@@ -42,6 +42,17 @@ class GradientPreconditioner(Protocol):
 
     def __call__(self, grad: Tensor) -> Tensor:
         ...
+
+
+def check_stage_index(stage: Any, key: str, null_means: str) -> int | None:
+    """A setting ``key`` that names a preconditioner stage (``solver.two_metric_from``,
+    ``solver.momentum_from``) as an index >= 0, or None (``null_means`` says what null does)."""
+    if stage is None:
+        return None
+    if isinstance(stage, bool) or not isinstance(stage, int) or stage < 0:
+        raise ValueError(f"{key}={stage!r} must be a preconditioner stage index >= 0 "
+                         f"(0: from the first length) or null ({null_means})")
+    return stage
 
 
 def neumann_laplacian_eigenvalues(m: int) -> np.ndarray:

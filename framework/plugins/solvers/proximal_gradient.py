@@ -29,7 +29,7 @@ from framework.core.objective import DataEvaluation, DataFidelity
 from framework.core.plugin_config import build_plugin, build_plugin_map, split_name
 from framework.core.solver_loop import IterationFailed, IterationRecord, IterativeSolver
 from framework.plugins.solvers.momentum import NesterovMomentum, check_momentum_from
-from framework.plugins.solvers.preconditioner import GradientPreconditioner
+from framework.plugins.solvers.preconditioner import GradientPreconditioner, check_stage_index
 from framework.plugins.solvers.step_size import LineSearchFailed, StepChoice, StepSizePolicy, as_step_policy
 
 __all__ = ["ProximalGradientSolver", "build_parts", "check_regularizers", "stage_changes",
@@ -63,12 +63,7 @@ def build_parts(step_size: Mapping[str, Any], preconditioner: Mapping[str, Any] 
 
 def check_two_metric_from(stage: Any) -> int | None:
     """``solver.two_metric_from`` as a preconditioner stage index >= 0, or None."""
-    if stage is None:
-        return None
-    if isinstance(stage, bool) or not isinstance(stage, int) or stage < 0:
-        raise ValueError(f"solver.two_metric_from={stage!r} must be a preconditioner stage index >= 0 "
-                         "(0: from the first length) or null (never)")
-    return stage
+    return check_stage_index(stage, "solver.two_metric_from", "never")
 
 
 def check_regularizers(regularizers: Sequence[Any], solver: str, role: str = "regularizers") -> list[Any]:
@@ -224,9 +219,7 @@ class ProximalGradientSolver(IterativeSolver):
         if self.post_steps:
             for u in self.post_steps:
                 d = u(d)
-            for r in self.regularizers:
-                project = getattr(r, "project", None)  # duck-typed regularisers may have none
-                d = project(d) if callable(project) else d
+            d = self._project(d)
         return {**candidate, "d": d}
 
     def _accept(self, candidate: Candidate) -> None:
@@ -247,6 +240,7 @@ class ProximalGradientSolver(IterativeSolver):
         Returns (the accepted choice or None, forward evaluations spent); when every trial is
         rejected the momentum restarts."""
         spent = 0
+        decrease = float(getattr(self.step_size, "sufficient_decrease", 0.0))
         for tau in self.step_size.momentum_trials():
             candidate = self._propose(tau)
             z = self.momentum.extrapolate(candidate["d"], self.state.d)
@@ -254,7 +248,6 @@ class ProximalGradientSolver(IterativeSolver):
                 return None, spent
             trial = {**candidate, "d": self._project(z), "prox_point": candidate["d"]}
             spent += 1
-            decrease = float(getattr(self.step_size, "sufficient_decrease", 0.0))
             if self._objective(trial) <= objective_now - decrease / (2.0 * tau) * sq_distance(trial):
                 self.step_size.accepted_elsewhere(tau)
                 return StepChoice(step=tau, candidate=trial, trials=spent, forward_evaluations=spent), spent
