@@ -29,7 +29,9 @@ class ReconstructionData:
     weights (c, n, n) in [0, 1]: pixels the fit uses (None: all; a photo's saturated pixels get 0);
     ground_truth (m, m), clean (c, n, n) and intrinsic_noise: synthetic data only; left_out:
     receiver pixels at weight 0 by reason (e.g. ``saturated``, ``unlit``), for the run's report;
-    source: the file the measured data were read from (the run logs it as the dataset's source).
+    source: the file the measured data were read from (the run logs it as the dataset's source);
+    shots: a stack's data shot by shot (framework/plugins/data/stack.py; empty for one image), whose
+    target above stacks theirs along the channel axis; start_shot: the shot a start reads.
     """
 
     target: torch.Tensor
@@ -42,6 +44,8 @@ class ReconstructionData:
     intrinsic_noise: float | None = None
     left_out: dict[str, int] = field(default_factory=dict)
     source: str | None = None
+    shots: tuple[ReconstructionData, ...] = ()
+    start_shot: int = 0
 
 
 def resample_image(image: torch.Tensor, resolution: int) -> torch.Tensor:

@@ -206,11 +206,12 @@ class DataFidelity:
         return DataEvaluation(value=0.5 * rel * rel / self.cell_area, grad=grad, image=image, rel_discrepancy=rel)
 
     def count_passes(self, renders: int, gradients: int, photons: int | None = None) -> None:
-        """Count operator passes spent on this data term (``photons`` each; default: the operator's)."""
+        """Count operator passes spent on this data term (``photons`` per shot each; default: the
+        operator's; a stack of shots, operators/stack.py, traces them once per shot)."""
         self.renders += renders
         self.gradient_passes += gradients
         photons = int(getattr(self.operator, "photons", 0)) if photons is None else photons
-        self.photon_traces += (renders + gradients) * photons
+        self.photon_traces += (renders + gradients) * photons * int(getattr(self.operator, "shot_count", 1))
 
     def relative_discrepancy(self, image: Tensor) -> float:
         """||image - b||_W / ||b||_W."""

@@ -80,6 +80,15 @@ class Problem:
             raise ValueError(f"the mask has shape {tuple(self.data.mask.shape)} but the height field is "
                              f"{self.grid.shape}; the mask must match the height field")
 
+    def for_start(self) -> Problem:
+        """The problem a start reads: this one, or for a stack of shots (framework/plugins/data/stack.py)
+        the one shot ``data.start_shot`` through its own operator and scene."""
+        if not self.data.shots:
+            return self
+        index = self.data.start_shot
+        shot = self.operator.shots[index]
+        return Problem(shot, self.data.shots[index], self.grid, shot.scene)
+
     @cached_property
     def fidelity(self) -> DataFidelity:
         """f(d) = 1/2 ||F(d) - b||_W^2 / (||b||_W^2 a), in the operator's dtype (framework/core/objective.py)."""

@@ -21,7 +21,7 @@ naming the key. The operator plugin checks its own settings.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -35,12 +35,14 @@ from framework.core.contracts.operator import Operator
 from framework.core.plugin_config import build_plugin, split_name
 from framework.core.problem import HeightGrid
 from framework.core.shapes import make_shape
+from framework.core.shots import ShotSetup
 from framework.core.units import mm_per_unit, scene_length
 from operators.imaging import PSF_KINDS, ImagingOperator
 from operators.materials import material_from_config
 from operators.scene import PointLight, Receiver, Scene, Substrate
+from operators.stack import StackOperator
 
-__all__ = ["SceneSetup", "build_scene", "build_heights", "build_operator", "heights_from_spec", "height_grid",
+__all__ = ["SceneSetup", "build_scene", "build_heights", "build_operator", "build_stack", "operator_builder", "heights_from_spec", "height_grid",
            "screen_sigma", "to_plain"]
 
 SCENE_KEYS: dict[str, tuple[str, ...]] = {
@@ -179,24 +181,38 @@ def screen_sigma(cfg: Mapping[str, Any], mm: float | None = None) -> float:
     return sigma if psf == "gaussian" else 0.0
 
 
-def build_operator(cfg: Mapping[str, Any], scene: Scene, imaging: bool = False, mm: float | None = None) -> Operator:
-    """The operator plugin named by ``operator.name``, for ``scene``, ``photons`` and ``seed``,
-    from the rest of the ``operator`` group (which the plugin checks); seen through the screen
-    (operators/imaging.py) when ``screen.psf`` is set, or always with ``imaging`` (a setup that
-    joint calibration may change)."""
+def operator_builder(cfg: Mapping[str, Any]) -> Callable[[Scene], Operator]:
+    """Builds the operator plugin named by ``operator.name`` for a scene, with ``photons``, ``seed``
+    and the rest of the ``operator`` group (which the plugin checks)."""
     name, params = split_name(to_plain(cfg.get("operator")), "operator")
     photons = _number("photons", cfg.get("photons"), int)
     seed = _number("seed", cfg.get("seed", 0), int)
     if not 0 <= seed < 2 ** 63:
         raise ValueError(f"seed={seed} must be an integer in [0, 2^63)")
-    sigma = screen_sigma(cfg, mm)
 
     def build(for_scene: Scene) -> Operator:
         return build_plugin("operator", name, dict(params), "operator", scene=for_scene, photons=photons, seed=seed)
 
-    if sigma > 0.0 or imaging:
-        return ImagingOperator(build, scene, psf_sigma=sigma)
+    return build
+
+
+def build_operator(cfg: Mapping[str, Any], scene: Scene, imaging: bool = False, mm: float | None = None,
+                   gain: float = 1.0) -> Operator:
+    """The operator plugin of ``cfg`` (:func:`operator_builder`) for ``scene``, seen through the
+    screen (operators/imaging.py) when ``screen.psf`` is set, or always with ``imaging`` (a setup
+    that joint calibration may change) or a ``gain`` other than 1."""
+    build, sigma = operator_builder(cfg), screen_sigma(cfg, mm)
+    if sigma > 0.0 or imaging or gain != 1.0:
+        return ImagingOperator(build, scene, psf_sigma=sigma, gain=gain)
     return build(scene)
+
+
+def build_stack(cfg: Mapping[str, Any], scene: Scene, shots: Sequence[ShotSetup], imaging: bool = False,
+                mm: float | None = None) -> StackOperator:
+    """The stacked operator (operators/stack.py) of the shots' setups (framework/plugins/data/stack.py)
+    around the configured ``scene``, each shot's operator as :func:`build_operator` builds it."""
+    return StackOperator([build_operator(cfg, shot.scene(scene, f"data.shots[{i}]"), imaging, mm, shot.gain)
+                          for i, shot in enumerate(shots)], [shot.weight for shot in shots])
 
 
 @dataclass(frozen=True)
@@ -220,10 +236,15 @@ class SceneSetup:
     mm_per_unit: float
 
     @classmethod
-    def parse(cls, cfg: Mapping[str, Any], mm: float, imaging: bool = False) -> SceneSetup:
-        """Build the scene, grid and operator of ``cfg`` with ``mm`` millimetres per scene unit."""
+    def parse(cls, cfg: Mapping[str, Any], mm: float, imaging: bool = False,
+              shots: Callable[[Scene, float], Sequence[ShotSetup]] | None = None) -> SceneSetup:
+        """Build the scene, grid and operator of ``cfg`` with ``mm`` millimetres per scene unit;
+        with ``shots`` (a stack's setups for the configured scene and ``mm``), the stacked operator."""
         scene = build_scene(cfg, mm)
-        operator = build_operator(cfg, scene, imaging, mm)
+        if shots is None:
+            operator = build_operator(cfg, scene, imaging, mm)
+        else:
+            operator = build_stack(cfg, scene, shots(scene, mm), imaging, mm)
         return cls(scene, height_grid(cfg, scene), operator, _group(cfg, "height_field", HEIGHT_FIELD_KEYS), mm)
 
     def heights(self, base_dir: str | Path | None = None) -> torch.Tensor:

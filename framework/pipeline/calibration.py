@@ -31,7 +31,6 @@ checkpoint after every update, and a resumed run starts from it.
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import math
 from collections.abc import Mapping, Sequence
@@ -42,8 +41,8 @@ import torch
 from torch import Tensor
 
 from framework.core.solver_loop import Callback
-from operators.imaging import ImagingOperator
-from operators.scene import Scene
+from framework.pipeline.calibrated_setup import CameraSetup, StackSetup, is_gain, setup_values, with_setup
+from operators.stack import StackOperator
 
 __all__ = ["CALIBRATION_PARAMS", "JointCalibration", "setup_values", "with_setup"]
 
@@ -56,27 +55,13 @@ BOUND = 2.0
 _MAX_TRIES = 3
 
 
-def setup_values(scene: Scene, gain: float) -> dict[str, float]:
-    """Every calibration parameter's value for a scene and gain (scene units)."""
-    x, y, z = scene.light.position
-    return {"gain": gain, "screen_distance": -scene.receiver.z, "light_height": z, "light_x": x, "light_y": y}
-
-
-def with_setup(scene: Scene, values: Mapping[str, float]) -> Scene:
-    """``scene`` with the geometric calibration parameters in ``values`` replaced."""
-    x, y, z = scene.light.position
-    light = dataclasses.replace(scene.light, position=(values.get("light_x", x), values.get("light_y", y),
-                                                       values.get("light_height", z)))
-    receiver = dataclasses.replace(scene.receiver, z=-values.get("screen_distance", -scene.receiver.z))
-    return dataclasses.replace(scene, light=light, receiver=receiver)
-
-
 class JointCalibration(Callback):
     """Levenberg-Marquardt updates of setup parameters between height iterations.
 
     Args:
-        operator: The operator seen through the camera, whose setup the updates change.
-        params: Names from :data:`CALIBRATION_PARAMS`.
+        operator: The operator seen through the camera, or a stack of shots each seen through its
+            camera (framework/pipeline/calibrated_setup.py), whose setup the updates change.
+        params: Names from :data:`CALIBRATION_PARAMS` (for a stack, ``gain`` is every shot's gain).
         every: Iterations between updates. Before iteration 1 only the gain is fitted (the flat
             start says little about the geometry).
         damping: Initial lambda of the Levenberg-Marquardt step.
@@ -86,10 +71,8 @@ class JointCalibration(Callback):
 
     order = 40  # after the stopping rules, before the loggers (50): an update acts on the next iteration
 
-    def __init__(self, operator: ImagingOperator, params: Sequence[str], every: int = 10,
-                 damping: float = 1e-3, prior: float = 0.1) -> None:
-        if not isinstance(operator, ImagingOperator):
-            raise ValueError("joint calibration needs the operator built with imaging=True (framework/core/scene_config.py)")
+    def __init__(self, operator: Any, params: Sequence[str], every: int = 10,
+                 damping: float = 1e-3, prior: float = 0.1, scene: Any = None) -> None:
         unknown = [p for p in params if p not in CALIBRATION_PARAMS]
         if unknown or not params or len(set(params)) != len(params):
             raise ValueError(f"calibration.params={list(params)!r}: give distinct names from "
@@ -100,7 +83,8 @@ class JointCalibration(Callback):
             raise ValueError(f"calibration.damping={damping!r} must be a number > 0, e.g. 1e-3")
         if isinstance(prior, bool) or not isinstance(prior, (int, float)) or not prior > 0:
             raise ValueError(f"calibration.prior={prior!r} must be a relative standard deviation > 0, e.g. 0.1")
-        self.operator, self.params, self.every = operator, list(params), every
+        self.setup_of = StackSetup(operator, scene) if isinstance(operator, StackOperator) else CameraSetup(operator)
+        self.params, self.every = self.setup_of.names(params), every
         self.damping, self.prior = float(damping), float(prior)
         self.state_path: Path | None = None
         self.initial = self.values()
@@ -112,9 +96,10 @@ class JointCalibration(Callback):
         self.geometry_started = False
 
     @classmethod
-    def from_config(cls, operator: Any, settings: Mapping[str, Any]) -> JointCalibration | None:
+    def from_config(cls, operator: Any, settings: Mapping[str, Any], scene: Any = None) -> JointCalibration | None:
         """The calibration of the config group ``calibration`` (keys params, every, damping, prior),
-        or None when ``params`` is empty."""
+        or None when ``params`` is empty; ``scene``: the configured scene (a stack's shots keep
+        their offsets from it)."""
         keys = ("params", "every", "damping", "prior")
         unknown = [k for k in settings if k not in keys]
         if unknown:
@@ -128,11 +113,11 @@ class JointCalibration(Callback):
         if not params:
             return None
         return cls(operator, list(params), every=settings.get("every", 10), damping=settings.get("damping", 1e-3),
-                   prior=settings.get("prior", 0.1))
+                   prior=settings.get("prior", 0.1), scene=scene)
 
     def values(self) -> dict[str, float]:
         """The current value of every calibrated parameter."""
-        every_value = setup_values(self.operator.scene, self.operator.gain)
+        every_value = self.setup_of.values()
         return {p: every_value[p] for p in self.params}
 
     def setup(self, target: Tensor, weights: Tensor | None, delta: float, state_path: Path,
@@ -154,13 +139,14 @@ class JointCalibration(Callback):
 
     # -- the callback ----------------------------------------------------------------------------
     def on_start(self, solver) -> None:  # noqa: D102
-        if solver.iteration == 0 and self.updates == 0 and "gain" in self.params:
-            self.update(solver.d, ["gain"])
+        gains = [p for p in self.params if is_gain(p)]
+        if solver.iteration == 0 and self.updates == 0 and gains:
+            self.update(solver.d, gains)
             solver.setup_changed()
 
     def on_iteration(self, solver, record) -> None:  # noqa: D102
         self.geometry_started |= record.rel_discrepancy <= 2.0 * self.delta
-        params = self.params if self.geometry_started else [p for p in self.params if p == "gain"]
+        params = self.params if self.geometry_started else [p for p in self.params if is_gain(p)]
         if record.iteration % self.every == 0 and params:
             self.update(solver.d, params)
             solver.setup_changed()
@@ -168,30 +154,28 @@ class JointCalibration(Callback):
 
     # -- one Levenberg-Marquardt update -----------------------------------------------------------
     def _apply(self, values: Mapping[str, float]) -> None:
-        gain = values.get("gain", self.operator.gain)
-        self.operator.set_setup(with_setup(self.operator.scene, values), gain)
+        self.setup_of.apply(values)
 
     def _render(self, d: Tensor, values: Mapping[str, float]) -> Tensor:
-        """G(d) (c, n, n) with ``values`` in place of the current parameters (the setup unchanged)."""
-        scene = with_setup(self.operator.scene, values)
-        return self.operator.render_with(scene, values.get("gain", self.operator.gain), d).double()
+        """G(d) with ``values`` in place of the current parameters (the setup unchanged)."""
+        return self.setup_of.render(d, values)
 
     def _weighted_sq(self, x: Tensor) -> float:
         return float((x ** 2 if self.weights is None else self.weights * x ** 2).sum())
 
     def _scale(self, p: str) -> float:
         """The size of parameter p at its measured value (of the light height for the light's x, y)."""
-        own = p in ("gain", "screen_distance", "light_height")
-        return abs(self.initial.get(p, 1.0)) if own else abs(setup_values(self.operator.scene, 1.0)["light_height"])
+        own = is_gain(p) or p in ("screen_distance", "light_height")
+        return abs(self.initial.get(p, 1.0)) if own else abs(setup_values(self.setup_of.scene, 1.0)["light_height"])
 
     def jacobian(self, d: Tensor, params: Sequence[str]) -> tuple[Tensor, Tensor]:
         """(G(d) (c, n, n), dG/dp (k, c, n, n)) at the current values, for ``params``."""
         values = self.values()
-        image = self.operator.render(d).double()
+        image = self.setup_of.render(d)
         columns = []
         for p in params:
-            if p == "gain":
-                columns.append(image / values["gain"])
+            if is_gain(p):
+                columns.append(self.setup_of.gain_column(image, p, values))
                 continue
             h = _FD_STEP * self._scale(p)
             plus = self._render(d, {**values, p: values[p] + h})
@@ -211,7 +195,7 @@ class JointCalibration(Callback):
         s2 = self._weighted_sq(image - self.target) / max(int((w > 0).sum()) - k, 1)
         flat_j = jac.reshape(k, -1)
         data_normal = (flat_j * w.reshape(1, -1)) @ flat_j.T / s2
-        precision = torch.diag(torch.tensor([0.0 if p == "gain" else (self.prior * self._scale(p)) ** -2
+        precision = torch.diag(torch.tensor([0.0 if is_gain(p) else (self.prior * self._scale(p)) ** -2
                                              for p in params], dtype=torch.float64))
         values, lam = self.values(), self.damping
         offset = torch.tensor([values[p] - self.initial[p] for p in params], dtype=torch.float64)
@@ -238,7 +222,7 @@ class JointCalibration(Callback):
 
     def _bounded(self, p: str, value: float) -> float:
         """``value`` of parameter p clipped to BOUND prior standard deviations around its measured value."""
-        if p == "gain":
+        if is_gain(p):
             return value
         reach = BOUND * self.prior * self._scale(p)
         return min(max(value, self.initial[p] - reach), self.initial[p] + reach)
@@ -246,10 +230,10 @@ class JointCalibration(Callback):
     def _valid(self, values: Mapping[str, float]) -> bool:
         """Whether a trial keeps the setup physical (positive gain and distance, light above the glass)."""
         try:
-            with_setup(self.operator.scene, values)
+            with_setup(self.setup_of.scene, values)
         except ValueError:
             return False
-        return values.get("gain", 1.0) > 0.0 and values.get("screen_distance", 1.0) > 0.0
+        return all(v > 0.0 for p, v in values.items() if is_gain(p)) and values.get("screen_distance", 1.0) > 0.0
 
     def report(self) -> dict[str, float]:
         """Initial and final value and standard error of every parameter, for metrics."""
@@ -259,7 +243,7 @@ class JointCalibration(Callback):
             out[f"calibration_{p}_initial"] = self.initial[p]
             if p in self.std:
                 out[f"calibration_{p}_std"] = self.std[p]
-            if p != "gain":
+            if not is_gain(p):
                 reach = BOUND * self.prior * self._scale(p)
                 out[f"calibration_{p}_at_bound"] = float(abs(v - self.initial[p]) >= reach * (1 - 1e-9))
         return out

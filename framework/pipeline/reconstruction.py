@@ -16,7 +16,7 @@ from typing import Any
 
 import torch
 
-from framework.core.contracts.data_source import DataRequest, DataSource
+from framework.core.contracts.data_source import DataRequest, DataSource, ShotStack
 from framework.core.contracts.operator import Operator
 from framework.core.contracts.solver import SolverBuilder
 from framework.core.contracts.start import Start, StartRequest
@@ -37,6 +37,7 @@ from framework.pipeline.run_checks import (CHECKPOINT, check_tracking_target, ch
                                            checked_resume, height_bounds)
 from framework.pipeline.run_identity import run_fingerprint
 from framework.pipeline.run_outputs import report_verdict, save_outputs
+from framework.pipeline.shot_report import save_shot_record, shot_metrics
 from framework.pipeline.run_phases import PHASES, PhaseOutcome, resumed_phases
 from framework.pipeline.tracking import MlflowTracker, local_store_uri
 from framework.pipeline.verdict import volume_report
@@ -200,10 +201,11 @@ class Reconstruction:
         settings = RunSettings.parse(cfg)
         cfg = settings.cfg
         calibration_cfg = as_mapping(cfg.get("calibration") or {}, "calibration")
-        setup = SceneSetup.parse(cfg, settings.mm_per_unit, imaging=bool(calibration_cfg.get("params")))
-        calibration = JointCalibration.from_config(setup.operator, calibration_cfg)
         data_name, data_params = split_name(cfg.get("data"), "data")
         data_source = build_plugin("data", data_name, data_params, "data")
+        setup = SceneSetup.parse(cfg, settings.mm_per_unit, imaging=bool(calibration_cfg.get("params")),
+                                 shots=data_source.setups if isinstance(data_source, ShotStack) else None)
+        calibration = JointCalibration.from_config(setup.operator, calibration_cfg, setup.scene)
         solver_name, solver_params = split_name(cfg.get("solver"), "solver")
         max_iter = positive_int(solver_params.pop("max_iter", None), "solver.max_iter")  # the loop's, not the solver's
         make_solver = build_plugin("solver", solver_name, solver_params, "solver")
@@ -223,7 +225,7 @@ class Reconstruction:
         check_tracking_target(tracking.uri, resolve_path(tracking.store_dir, base_dir))
         request = self.data_request(base_dir)
         facts = self.data_source.check(request)
-        check_volume_known(self.settings.cfg, facts.volume)
+        check_volume_known(self.settings.cfg, facts)
         check_volume(facts.volume, facts.mask, self.grid.cell_area, height_bounds(self.settings.cfg),
                      2.0 * float(self.scene.substrate.half_width))
         if self.settings.design_given:
@@ -314,7 +316,7 @@ def _reconstruct(parts: Reconstruction, output_dir: Path, base_dir: Path, checkp
             print("waiting for the gradient kernel to compile (first run after an install; cached afterwards)",
                   flush=True)
             compiling.wait()
-        request = StartRequest(problem, lambda: parts.design(base_dir), base_dir)
+        request = StartRequest(problem.for_start(), lambda: parts.design(base_dir), base_dir)
         finished, several, steps = _run_starts(parts, problem, request, output_dir, checkpoint, tracker, truth_error)
         chosen = max(finished, key=lambda o: (o.result.accepted, -o.rel_discrepancy))
         result, d = chosen.result, chosen.d
@@ -334,8 +336,9 @@ def _reconstruct(parts: Reconstruction, output_dir: Path, base_dir: Path, checkp
             "photons_per_iteration": final.photons, **passes(problem.fidelity),
             **(truth_error.errors(d) if truth_error else {}),
             **volume,
-            **start_metrics, **(calibration.report() if calibration else {})}
+            **start_metrics, **(calibration.report() if calibration else {}), **shot_metrics(problem, prediction)}
         metrics.update(save_outputs(output_dir, d, prediction, data, parts.grid, settings.mm_per_unit, design))
+        save_shot_record(output_dir, problem, prediction)
         metrics.update(report_verdict(metrics["rel_discrepancy"], data, settings.tau_dis, chosen.returned_iteration,
                                       result.stop_reason, volume))
         (output_dir / "metrics.json").write_text(json.dumps(metrics, indent=2))

@@ -10,6 +10,7 @@ import torch
 from matplotlib.figure import Figure
 
 from framework.core.plotting import normalise
+from framework.pipeline.shot_report import shots_of
 
 if TYPE_CHECKING:
     from framework.core.problem import Problem
@@ -18,7 +19,8 @@ if TYPE_CHECKING:
 def save_reconstruction_figures(output_dir: Path, heights: torch.Tensor, problem: "Problem",
                                 prediction: torch.Tensor, history: dict[str, list[float]]) -> None:
     """Write heights.png, centre_slice.png, caustics.png and convergence.png into ``output_dir``:
-    ``heights`` (m, m) and ``prediction`` (c, n, n) against the problem's data."""
+    ``heights`` (m, m) and ``prediction`` (c, n, n) against the problem's data (caustics.png: one
+    row per shot of a stack, framework/pipeline/shot_report.py)."""
     d = heights.detach().cpu().double().numpy()
     data = problem.data
     truth = None if data.ground_truth is None else data.ground_truth.cpu().numpy()
@@ -47,14 +49,16 @@ def save_reconstruction_figures(output_dir: Path, heights: torch.Tensor, problem
     ax.legend()
     fig.savefig(output_dir / "centre_slice.png", dpi=120, bbox_inches="tight")
 
-    rh = problem.scene.receiver.half_width
-    target = data.target.cpu().double().numpy().sum(axis=0)
-    predicted = prediction.detach().cpu().double().numpy().sum(axis=0)
-    fig = Figure(figsize=(10, 4.2))
-    for k, (title, image) in enumerate((("target caustic", target), ("predicted caustic", predicted))):
-        ax = fig.add_subplot(1, 2, k + 1)
-        ax.imshow(normalise(image), origin="lower", extent=(-rh, rh, -rh, rh), cmap="inferno")
-        ax.set_title(title)
+    shots = shots_of(problem, prediction)
+    fig = Figure(figsize=(10, 4.2 * len(shots)))
+    for row, shot in enumerate(shots):
+        rh = shot.half_width
+        images = (shot.target.cpu().double().numpy().sum(axis=0), shot.predicted.detach().cpu().double().numpy().sum(axis=0))
+        where = "" if len(shots) == 1 else f"{shot.label}, screen {shot.setup['screen_distance']:.4g}: "
+        for k, (title, image) in enumerate(zip(("target caustic", "predicted caustic"), images)):
+            ax = fig.add_subplot(len(shots), 2, 2 * row + k + 1)
+            ax.imshow(normalise(image), origin="lower", extent=(-rh, rh, -rh, rh), cmap="inferno")
+            ax.set_title(where + title)
     fig.savefig(output_dir / "caustics.png", dpi=120, bbox_inches="tight")
 
     fig = Figure(figsize=(10, 3.5))

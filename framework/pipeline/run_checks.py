@@ -16,6 +16,7 @@ from typing import Any
 import torch
 
 from framework.plugins.data.sources import resolve_path
+from framework.core.contracts.data_source import PrintFacts
 from framework.core.registry import lookup
 from framework.pipeline.run_identity import check_resumable
 from framework.pipeline.tracking import KNOWN_SCHEMES, check_tracking_server
@@ -66,10 +67,10 @@ def check_volume(volume: float | None, mask: torch.Tensor, cell_area: float, bou
                          "(scene units^3, or a string such as '1.7 mm3')")
 
 
-def check_volume_known(cfg: Mapping[str, Any], volume: float | None) -> None:
+def check_volume_known(cfg: Mapping[str, Any], facts: PrintFacts) -> None:
     """Refuse a run whose regularisers or post-steps need the deposited volume (a plugin class
-    with ``needs_volume = True``) when the data do not know it."""
-    if volume is not None or (cfg.get("data") or {}).get("name") == "synthetic":
+    with ``needs_volume = True``) when the data do not know it (nor will once they load)."""
+    if facts.volume is not None or facts.volume_at_load:
         return
     solver = cfg.get("solver") or {}
     for group, kind in (("regularizers", "regularizer"), ("post_steps", "post_step")):

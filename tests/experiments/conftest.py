@@ -16,7 +16,7 @@ SMALL = ["photons=60000", "receiver.resolution=64", "height_field.resolution=32"
 
 def compose_reconstruct(overrides: list[str], tmp_path: Path) -> dict:
     """Plain dict of conf/reconstruct.yaml with ``overrides`` and an MLflow store under tmp_path."""
-    if "data=file" in overrides or "data=photo" in overrides:  # measured data have no reference renders
+    if {"data=file", "data=photo", "data=stack"} & set(overrides):  # no reference renders of their own
         overrides = [o for o in overrides if not o.startswith("data.reference_")]
     with initialize_config_dir(config_dir=CONF, version_base=None):
         cfg = compose("reconstruct", overrides=[*overrides, f"tracking.store_dir={tmp_path / 'mlruns'}"])

@@ -4,23 +4,27 @@ the printed area, the volume and the noise level of a reconstruction come from.
 A data plugin is built from its config keys alone (every value checked, nothing read or rendered);
 ``check(request)`` then reads and checks its files and what it knows of the print without
 rendering (before a run opens), and ``load(request)`` produces the
-:class:`framework.core.data.ReconstructionData`.
+:class:`framework.core.data.ReconstructionData`. A source of several shots of the print, each in
+its own setup (:class:`ShotStack`), also gives their setups: the run then renders through the
+stacked operator of those setups (operators/stack.py), and the request's operator is that one.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Protocol, runtime_checkable
+from typing import Callable, Protocol, Sequence, runtime_checkable
 
 import torch
 
 from framework.core.contracts.operator import Operator
 from framework.core.data import ReconstructionData
 from framework.core.problem import HeightGrid
+from framework.core.shots import ShotSetup
 from framework.core.units import DEFAULT_MM_PER_UNIT
+from operators.scene import Scene
 
-__all__ = ["DataRequest", "DataSource", "PrintFacts"]
+__all__ = ["DataRequest", "DataSource", "PrintFacts", "ShotStack"]
 
 
 @dataclass(frozen=True)
@@ -53,11 +57,14 @@ class PrintFacts:
 
     Attributes:
         mask: The printed area (m, m) bool.
-        volume: The deposited volume, scene units^3, or None when unknown.
+        volume: The deposited volume, scene units^3, or None when unknown (or not known yet).
+        volume_at_load: True when the data know the volume once they load (synthetic data: the
+            ground truth's), though not before.
     """
 
     mask: torch.Tensor
     volume: float | None
+    volume_at_load: bool = False
 
 
 @runtime_checkable
@@ -71,4 +78,14 @@ class DataSource(Protocol):
 
     def load(self, request: DataRequest) -> ReconstructionData:
         """The target image, mask, volume and noise level (and, for synthetic data, the truth)."""
+        ...
+
+
+@runtime_checkable
+class ShotStack(DataSource, Protocol):
+    """A ``data`` plugin of several shots of one print (framework/plugins/data/stack.py)."""
+
+    def setups(self, base: Scene, mm: float) -> Sequence[ShotSetup]:
+        """Every shot's setup against the configured scene ``base`` (``mm`` millimetres per scene
+        unit); an impossible one (a screen inside the glass) raises a ValueError naming the shot."""
         ...

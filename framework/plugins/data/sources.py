@@ -79,8 +79,9 @@ class SyntheticData:
         self.mask_dilation = non_negative_setting("mask_dilation", mask_dilation)
 
     def check(self, request: DataRequest) -> PrintFacts:
-        """The ground truth's printed area (its volume is known exactly, so not checked)."""
-        return PrintFacts(mask_from_height_field(request.design(), self.mask_threshold, self.mask_dilation), None)
+        """The ground truth's printed area (its volume, known exactly once loaded, is not checked)."""
+        return PrintFacts(mask_from_height_field(request.design(), self.mask_threshold, self.mask_dilation), None,
+                          volume_at_load=True)
 
     def load(self, request: DataRequest) -> ReconstructionData:
         """Render the ground truth twice (seeds seed + 1000 and seed + 2000) and add the noise."""

@@ -1,0 +1,135 @@
+"""Several shots of one print (operators/stack.py, framework/plugins/data/stack.py): the stacked
+data term against its shots, a stack of one against a run of one image, calibration across the
+stack, and bad stacks refused."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from framework.core.objective import DataFidelity
+from framework.pipeline.calibration import JointCalibration
+from framework.pipeline.reconstruction import Reconstruction, run_reconstruction
+from operators.heightfield.operator import CausticOperator
+from operators.imaging import ImagingOperator
+from operators.stack import StackOperator
+from tests.experiments.conftest import SMALL, compose_reconstruct
+from tests.operators.conftest import bump, make_operator
+
+DISTANCES = (0.05, 0.2)
+WEIGHTS = (1.0, 2.5)
+
+
+def _at(operator: CausticOperator, distance: float, seed: int | None = None) -> CausticOperator:
+    scene = dataclasses.replace(operator.scene, receiver=dataclasses.replace(operator.scene.receiver, z=-distance))
+    settings = operator.settings if seed is None else dataclasses.replace(operator.settings, seed=seed)
+    return CausticOperator(scene, settings)
+
+
+def _shots(photons: int = 20_000, seed: int = 0) -> list[CausticOperator]:
+    base = make_operator(photons=photons, resolution=32, seed=seed)
+    return [_at(base, z) for z in DISTANCES]
+
+
+def test_the_stacked_loss_and_gradient_are_the_weighted_sums_of_the_shots() -> None:
+    shots = _shots()
+    stack = StackOperator(shots, WEIGHTS)
+    heights = bump(16, (0.1, -0.15), 0.35, 0.06) + 0.01
+    targets = [_at(make_operator(photons=20_000, resolution=32, seed=5), z).render(bump(16, height=0.04))
+               for z in DISTANCES]
+    loss, grad, image = stack.loss_and_grad(heights, stack.stack(targets))
+    singles = [shot.loss_and_grad(heights, target) for shot, target in zip(shots, targets)]
+    expected_loss = sum(w * single[0] for w, single in zip(WEIGHTS, singles))
+    expected_grad = sum(w * single[1] for w, single in zip(WEIGHTS, singles))
+    assert abs(loss - expected_loss) <= 1e-10 * expected_loss
+    assert float((grad - expected_grad).abs().max()) <= 1e-10 * float(expected_grad.abs().max())
+    assert torch.allclose(image, stack.render(heights), rtol=0, atol=0)
+    # The same through the data term a solver sees, and against central differences of it.
+    fidelity = DataFidelity(stack, stack.stack(targets))
+    evaluation = fidelity.evaluate(heights)
+    direction = torch.randn(heights.shape, dtype=torch.float64, generator=torch.Generator().manual_seed(3))
+    eps = 1e-6
+    numeric = (fidelity.value(heights + eps * direction) - fidelity.value(heights - eps * direction)) / (2 * eps)
+    analytic = float((evaluation.grad * direction).sum())
+    assert abs(numeric - analytic) <= 2e-5 * abs(analytic), (numeric, analytic)
+    # Four passes (a render and a gradient pass, two value renders), each tracing every shot.
+    assert fidelity.photon_traces == 4 * 2 * stack.photons
+
+
+def test_a_stack_of_one_runs_exactly_as_the_one_image(tmp_path) -> None:
+    base = [*SMALL, "scene=bump", "height_field.params.sigma=0.15", "height_field.params.height=0.05",
+            "solver.step_size.tau=1e-3", "solver.max_iter=6"]
+    single = run_reconstruction(compose_reconstruct([*base, "data.delta=0.01"], tmp_path), tmp_path / "single",
+                                tmp_path)
+    stacked = run_reconstruction(compose_reconstruct(
+        [*base, "data=stack", "data.shots=[{offset: 0}]", "data.common.delta=0.01",
+         "+data.common.reference_photons=200000", "+data.common.reference_resolution=128"], tmp_path),
+        tmp_path / "stack", tmp_path)
+    for name in ("height_field.npy", "caustic_target.npy", "caustic_predicted.npy"):
+        assert np.array_equal(np.load(tmp_path / "single" / name), np.load(tmp_path / "stack" / name)), name
+    for key in ("iterations", "rel_discrepancy", "rel_error", "delta", "intrinsic_noise", "renders",
+                "gradient_passes", "photon_traces"):
+        assert stacked[key] == single[key], key
+
+
+def test_two_screens_report_each_shot(tmp_path) -> None:
+    cfg = compose_reconstruct([*SMALL, "scene=bump", "data=stack", "solver.max_iter=2",
+                               "+data.common.reference_photons=200000", "+data.common.reference_resolution=128"],
+                              tmp_path)
+    metrics = run_reconstruction(cfg, tmp_path / "run", tmp_path)
+    shares = [metrics[f"shot{i}_misfit_share"] for i in range(2)]
+    assert sum(shares) == pytest.approx(1.0) and min(shares) > 0
+    assert [metrics[f"shot{i}_screen_distance"] for i in range(2)] == pytest.approx(list(DISTANCES))
+    # The stacked discrepancy is the misfit-weighted mean of the shots' (equal weights, equal norms ~).
+    record = json.loads((tmp_path / "run" / "shots.json").read_text())
+    assert [r["screen_distance"] for r in record] == pytest.approx(list(DISTANCES))
+    assert np.load(tmp_path / "run" / "caustic_target.npy").shape == (2, 64, 64)
+
+
+def test_calibration_recovers_the_distance_and_every_gain_from_a_stack_with_known_offsets(tmp_path) -> None:
+    true_gains, truth = (1.3, 0.8), bump(32, sigma=0.25, height=0.06)
+    truth_base = make_operator(photons=1 << 17, resolution=48, seed=11)
+    target = torch.cat([g * _at(truth_base, z).render(truth) for g, z in zip(true_gains, DISTANCES)])
+    model = make_operator(photons=1 << 17, resolution=48)
+    told = 1.1 * DISTANCES[0]  # the configured distance 10% off; the second shot is 0.15 farther
+    shots = [ImagingOperator(lambda scene: CausticOperator(scene, model.settings), _at(model, told + z - DISTANCES[0]).scene)
+             for z in DISTANCES]
+    calibration = JointCalibration(StackOperator(shots), ["gain", "screen_distance"], scene=_at(model, told).scene)
+    assert calibration.params == ["gain_0", "gain_1", "screen_distance"]
+    calibration.setup(target, None, 0.05, tmp_path / "calibration.json")
+    for _ in range(4):
+        values = calibration.update(truth)
+    assert values["screen_distance"] == pytest.approx(DISTANCES[0], rel=5e-3)
+    assert [values["gain_0"], values["gain_1"]] == pytest.approx(list(true_gains), rel=5e-3)
+    assert shots[1].scene.receiver.z == pytest.approx(-(values["screen_distance"] + DISTANCES[1] - DISTANCES[0]))
+    assert 0 < calibration.std["screen_distance"] < 0.01 * DISTANCES[0]
+
+
+@pytest.mark.parametrize("overrides, message", [
+    (["data.shots=[]"], r"data.shots=\[\]: a stack needs a list of one or more shots"),
+    (["data.shots=[{offset: -0.06}]"], r"data.shots\[0\]: the screen would lie -0.01 below the substrate"),
+    (["data.shots=[{screen_distance: 0.1, offset: 0.1}]"], r"data.shots\[0\] gives both screen_distance and offset"),
+    (["data.shots=[{source: stack}]"], r"data.shots\[0\].source='stack'; use one of"),
+    (["data.start_shot=2"], r"data.start_shot=2 must be 'farthest' or a shot index in \[0, 2\)"),
+    (["data.shots=[{weight: 0}]"], r"data.shots\[0\]: gain=1.0 and weight=0.0 must both be > 0"),
+])
+def test_bad_stacks_are_refused_in_one_line(tmp_path, overrides, message) -> None:
+    cfg = compose_reconstruct([*SMALL, "data=stack", *overrides], tmp_path)
+    with pytest.raises(ValueError, match=message) as error:
+        Reconstruction.from_config(cfg, tmp_path).check(tmp_path, tmp_path / "run")
+    assert "\n" not in str(error.value)
+
+
+def test_image_files_of_different_sizes_are_refused(tmp_path) -> None:
+    for name, n in (("near.npy", 64), ("far.npy", 48)):
+        np.save(tmp_path / name, np.ones((1, n, n), dtype=np.float32))
+    cfg = compose_reconstruct([*SMALL, "data=stack", "data.common.source=file",
+                               f"data.shots=[{{image: {tmp_path / 'near.npy'}}}, {{image: {tmp_path / 'far.npy'}, "
+                               "offset: 0.15}]"], tmp_path)
+    with pytest.raises(ValueError, match=r"data.shots\[1\].image is 48x48 px but data.shots\[0\].image is 64x64; "
+                                         r".*use source: photo with each photo's corners"):
+        Reconstruction.from_config(cfg, tmp_path).check(tmp_path, tmp_path / "run")
