@@ -8,7 +8,10 @@ With the operators F_1 .. F_N of the N shots (each (c, n, n)) and per-shot misfi
 so that the squared misfit of the stack against the stacked data [sqrt(w_i) b_i] is the weighted
 sum sum_i w_i ||F_i(d) - b_i||^2 and its gradient the weighted sum of the shots' gradients:
 S'(d)^* [g_1; ...; g_N] = sum_i sqrt(w_i) F_i'(d)^* g_i (docs/method.md, "Several photos").
-A stack of one with weight 1 renders and differentiates exactly as its one operator does.
+A stack of one with weight 1 renders and differentiates exactly as its one operator does. Shots
+whose photons meet the print alike (the height-field operator with the same light: screens at
+several distances) search the print for the photons' hits once per set of heights; the other
+shots replay them.
 """
 
 from __future__ import annotations
@@ -49,6 +52,21 @@ class StackOperator(ImageOperator):
         self.shots = shots
         self.weights = weights
         self.scales = [math.sqrt(w) for w in weights]
+        self._share_hits()
+
+    def _share_hits(self) -> None:
+        """Shots whose photons meet the print alike (the same light and photon pattern; only the
+        screen differs) share one hit cache: the hits one shot's render finds at some heights, the
+        next shot's render of the same heights replays (operators/heightfield/trace_native.py)."""
+        first: dict[Any, Any] = {}
+        for shot in self.shots:
+            key = getattr(shot, "hit_key", None)
+            if key is None:
+                continue
+            if key in first:
+                shot.share_hits(first[key])
+            else:
+                first[key] = shot
 
     # -- the operator contract -------------------------------------------------------------------
     @property

@@ -31,7 +31,8 @@ class ReconstructionData:
     receiver pixels at weight 0 by reason (e.g. ``saturated``, ``unlit``), for the run's report;
     source: the file the measured data were read from (the run logs it as the dataset's source);
     shots: a stack's data shot by shot (framework/plugins/data/stack.py; empty for one image), whose
-    target above stacks theirs along the channel axis; start_shot: the shot a start reads.
+    target above stacks theirs along the channel axis; start_shot: the shot a start reads;
+    first_fit_shot: the shot a run from flat glass fits alone first (None: none).
     """
 
     target: torch.Tensor
@@ -46,6 +47,7 @@ class ReconstructionData:
     source: str | None = None
     shots: tuple[ReconstructionData, ...] = ()
     start_shot: int = 0
+    first_fit_shot: int | None = None
 
 
 def resample_image(image: torch.Tensor, resolution: int) -> torch.Tensor:

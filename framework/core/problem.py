@@ -80,14 +80,16 @@ class Problem:
             raise ValueError(f"the mask has shape {tuple(self.data.mask.shape)} but the height field is "
                              f"{self.grid.shape}; the mask must match the height field")
 
+    def shot(self, index: int) -> Problem:
+        """Shot ``index`` of a stack (framework/plugins/data/stack.py) alone, through its own
+        operator and scene."""
+        operator = self.operator.shots[index]
+        return Problem(operator, self.data.shots[index], self.grid, operator.scene)
+
     def for_start(self) -> Problem:
-        """The problem a start reads: this one, or for a stack of shots (framework/plugins/data/stack.py)
-        the one shot ``data.start_shot`` through its own operator and scene."""
-        if not self.data.shots:
-            return self
-        index = self.data.start_shot
-        shot = self.operator.shots[index]
-        return Problem(shot, self.data.shots[index], self.grid, shot.scene)
+        """The problem a start reads: this one, or for a stack of shots the one shot
+        ``data.start_shot``."""
+        return self.shot(self.data.start_shot) if self.data.shots else self
 
     @cached_property
     def fidelity(self) -> DataFidelity:

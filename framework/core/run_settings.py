@@ -24,8 +24,15 @@ __all__ = ["PhotonBudgetSettings", "RunSettings", "TrackingSettings", "design_gi
 def design_given(cfg: Mapping[str, Any]) -> bool:
     """Whether the configured height field is the design of a measured print: the user gave a
     height-field file (``height_field.path``), or declared it the design with ``data.mask=design``
-    or ``initial=design``. Synthetic data always have their ground truth."""
+    or ``initial=design``. Synthetic data always have their ground truth; a stack
+    (framework/plugins/data/stack.py) counts when one of its shots does."""
     data = cfg.get("data") or {}
+    if data.get("name") == "stack":
+        common = data.get("common") or {}
+        shots = [{**common, **shot} for shot in data.get("shots") or [] if isinstance(shot, Mapping)]
+        data = next((shot for shot in shots if shot.get("source", "synthetic") == "synthetic"
+                     or shot.get("mask") == "design"), {})
+        data = {**data, "name": data.get("source", "synthetic")} if data else {}
     if data.get("name") == "synthetic":
         return True
     initial = cfg.get("initial") or {}

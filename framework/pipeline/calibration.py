@@ -115,6 +115,15 @@ class JointCalibration(Callback):
         return cls(operator, list(params), every=settings.get("every", 10), damping=settings.get("damping", 1e-3),
                    prior=settings.get("prior", 0.1), scene=scene)
 
+    def gain_of_shot(self, index: int) -> JointCalibration | None:
+        """The calibration of shot ``index``'s gain alone (a stack's first fit,
+        framework/pipeline/first_fit.py), or None when the gains are not calibrated or there is no
+        stack."""
+        if not isinstance(self.setup_of, StackSetup) or not any(is_gain(p) for p in self.params):
+            return None
+        return JointCalibration(self.setup_of.shots[index], ["gain"], every=self.every, damping=self.damping,
+                                prior=self.prior)
+
     def values(self) -> dict[str, float]:
         """The current value of every calibrated parameter."""
         every_value = self.setup_of.values()

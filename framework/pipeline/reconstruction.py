@@ -31,6 +31,7 @@ from framework.core.solver_loop import Callback, RunResult
 from framework.pipeline.calibration import JointCalibration
 from framework.pipeline.callbacks import Checkpointer, GroundTruthError, MetricsHistory, ProgressBar
 from framework.pipeline.checkpoint import resume as resume_solver
+from framework.pipeline.first_fit import fit_first_shot
 from framework.pipeline.photon_budget import PhotonBudget, with_photons
 from framework.pipeline.report_figures import save_reconstruction_figures
 from framework.pipeline.run_checks import (CHECKPOINT, check_tracking_target, check_volume, check_volume_known,
@@ -45,6 +46,7 @@ from framework.plugins.data.sources import resolve_path
 from operators.scene import Scene
 
 CALIBRATION_STATE = "calibration.json"
+FIRST_FIT_CALIBRATION = "first_fit_calibration.json"  # a stack's first shot's gain, fitted before the stack
 MLFLOW_RUN = "mlflow_run.json"  # the run's MLflow run id, so that a job resumed in its directory logs into it
 
 
@@ -74,13 +76,13 @@ def passes(fidelity: DataFidelity) -> dict[str, int]:
 
 
 def photon_budget(parts: Reconstruction, problem: Problem) -> PhotonBudget | None:
-    """The run's photon budget, or None: every iteration traces the configured photons (no
-    ``photon_budget.start``, no noise level, or a joint calibration, which updates the configured
-    operator's setup)."""
+    """The photon budget of a run on ``problem`` (the run's, or one shot of its stack), or None:
+    every iteration traces the configured photons (no ``photon_budget.start``, no noise level, or
+    a joint calibration, which updates the configured operator's setup)."""
     budget, delta = parts.settings.photon_budget, problem.data.delta
     if budget.start is None or parts.calibration is not None or not delta or delta <= 0.0:
         return None
-    return PhotonBudget(problem.fidelity, parts.operator, budget.start, budget.noise_share, float(delta),
+    return PhotonBudget(problem.fidelity, problem.operator, budget.start, budget.noise_share, float(delta),
                         parts.settings.tau_dis, parts.settings.seed)
 
 
@@ -115,9 +117,21 @@ def _solve_from(parts: Reconstruction, problem: Problem, name: str, start: Start
         tracker.log_metrics({f"start_{k}": v for k, v in start_metrics.items()}, step=steps_before)
     else:
         d0 = torch.zeros(parts.grid.shape, dtype=operator.dtype)
+    shaped = checkpoint is None and computed.shaped
+    if checkpoint is None and not shaped and problem.data.first_fit_shot is not None:
+        def extra(shot: Problem) -> list[Callback]:
+            gain = None if parts.calibration is None else parts.calibration.gain_of_shot(problem.data.first_fit_shot)
+            if gain is not None:
+                gain.setup(shot.data.target, shot.data.weights, shot.data.delta, output_dir / FIRST_FIT_CALIBRATION)
+            return [c for c in (photon_budget(parts, shot), gain) if c is not None]
+
+        d0, first = fit_first_shot(problem, d0, parts.make_solver, build_stopping(parts.settings.cfg.get("stopping")),
+                                   extra, parts.max_iter, parts.settings.method)
+        start_metrics.update({f"{name}_{k}": v for k, v in first.items()})
+        shaped = True
     start_seconds = time.perf_counter() - began
     solver = parts.make_solver(problem, d0)
-    if checkpoint is None and computed.shaped:
+    if shaped:
         solver.start_finest()
     stopping = build_stopping(parts.settings.cfg.get("stopping"))
     for rule in stopping:
@@ -336,11 +350,13 @@ def _reconstruct(parts: Reconstruction, output_dir: Path, base_dir: Path, checkp
             "photons_per_iteration": final.photons, **passes(problem.fidelity),
             **(truth_error.errors(d) if truth_error else {}),
             **volume,
-            **start_metrics, **(calibration.report() if calibration else {}), **shot_metrics(problem, prediction)}
+            **start_metrics, **(calibration.report() if calibration else {})}
+        shots = shot_metrics(problem, prediction)
+        metrics.update(shots)
         metrics.update(save_outputs(output_dir, d, prediction, data, parts.grid, settings.mm_per_unit, design))
         save_shot_record(output_dir, problem, prediction)
         metrics.update(report_verdict(metrics["rel_discrepancy"], data, settings.tau_dis, chosen.returned_iteration,
-                                      result.stop_reason, volume))
+                                      result.stop_reason, volume, shots))
         (output_dir / "metrics.json").write_text(json.dumps(metrics, indent=2))
         save_reconstruction_figures(output_dir, d, problem, prediction, chosen.history)
         tracker.log_metrics({k: float(v) for k, v in metrics.items() if isinstance(v, (int, float)) and v is not None},

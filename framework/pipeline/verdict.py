@@ -10,7 +10,7 @@ less well than the data's noise allows, or hold another amount of glass than was
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -19,6 +19,7 @@ import torch
 __all__ = ["VOLUME_TOLERANCE", "Verdict", "run_verdict", "volume_report"]
 
 VOLUME_TOLERANCE = 0.02  # |volume / known volume - 1| within which the volume counts as held
+SHOT_FIT_FACTOR = 1.5  # a stack's shot whose own discrepancy exceeds this times its noise level is named
 
 
 def volume_report(d: torch.Tensor, volume: float | None, cell_area: float,
@@ -57,11 +58,14 @@ class Verdict:
 
 
 def run_verdict(rel_discrepancy: float, delta: float, tau_dis: float, returned_iteration: int, stop_reason: str,
-                volume: Mapping[str, Any], weights: torch.Tensor | None, left_out: Mapping[str, int]) -> Verdict:
+                volume: Mapping[str, Any], weights: torch.Tensor | None, left_out: Mapping[str, int],
+                shots: Sequence[tuple[str, float, float]] = ()) -> Verdict:
     """The verdict of a run whose returned iterate (``returned_iteration``) has ``rel_discrepancy``
     against data of noise level ``delta`` (goal: at most ``tau_dis`` * delta); ``volume`` is
-    :func:`volume_report`'s answer, ``weights`` (c, n, n) the data term's pixel weights and
-    ``left_out`` the data source's counts of weight-0 pixels by reason."""
+    :func:`volume_report`'s answer, ``weights`` (c, n, n) the data term's pixel weights,
+    ``left_out`` the data source's counts of weight-0 pixels by reason and ``shots`` a stack's
+    (label, own discrepancy, own noise level) per shot: a shot above :data:`SHOT_FIT_FACTOR` times
+    its noise level is named (the stack may meet its noise level while one photo stays unexplained)."""
     ratio = rel_discrepancy / delta
     reached = rel_discrepancy <= tau_dis * delta
     lines, warnings = [], []
@@ -81,6 +85,13 @@ def run_verdict(rel_discrepancy: float, delta: float, tau_dis: float, returned_i
                     f"(tolerance {100 * VOLUME_TOLERANCE:g}%).")
         lines.append(sentence)
         if not held:
+            warnings.append(sentence)
+    for label, discrepancy, shot_delta in shots:
+        if discrepancy > SHOT_FIT_FACTOR * shot_delta:
+            sentence = (f"{label} is not explained: its own discrepancy {discrepancy:.4g} = "
+                        f"{discrepancy / shot_delta:.2f} x its noise level {shot_delta:g} (more than {SHOT_FIT_FACTOR:g} x); "
+                        "check its setup (screen distance or offset, light) or raise its weight.")
+            lines.append(sentence)
             warnings.append(sentence)
     counts = dict(left_out)
     dropped = 0 if weights is None else int((weights == 0).sum())

@@ -249,10 +249,10 @@ def trace_packet(d, sc, shifts, indices, first, count, hits, channel, spots, sea
 
 
 @nb.njit(cache=True, fastmath=FAST_MATH, error_model="numpy")
-def render_range(d, sc, shifts, indices, lo, hi, img, capacity, splat, hit_t, t_first) -> float:
+def render_range(d, sc, shifts, indices, lo, hi, img, capacity, splat, hit_t, t_first, replay=False) -> float:
     """One thread's share of :func:`render_photons`: photons lo .. hi-1 into its own image ``img``
-    (c, n, n), their hits recorded in ``hit_t`` unless it is empty; returns the flux that reached
-    the receiver."""
+    (c, n, n), their hits recorded in ``hit_t`` unless it is empty (with ``replay``: read from it
+    instead of searched); returns the flux that reached the receiver."""
     buf = np.empty(capacity)
     hits = np.empty((17, PACKET))  # per photon: w, Dw_u, Dw_v, flux, t, jet, eta
     search = np.empty((5, PACKET))  # the hit search's brackets, state, gaps and slopes
@@ -261,7 +261,7 @@ def render_range(d, sc, shifts, indices, lo, hi, img, capacity, splat, hit_t, t_
     reached = 0.0
     for first in range(lo, hi, PACKET):
         count = min(PACKET, hi - first)
-        trace_packet(d, sc, shifts, indices, first, count, hits, channel, spots, search, hit_t, t_first, False)
+        trace_packet(d, sc, shifts, indices, first, count, hits, channel, spots, search, hit_t, t_first, replay)
         for k in range(count):
             reached += spots[5, k]
             if splat:
@@ -276,17 +276,18 @@ BLOCK = 4096
 
 
 @nb.njit(parallel=True, cache=True, fastmath=FAST_MATH, error_model="numpy")
-def render_photons(d, sc, shifts, indices, start, stop, out, capacity, splat, hit_t):
+def render_photons(d, sc, shifts, indices, start, stop, out, capacity, splat, hit_t, replay=False):
     """Splat photons start .. stop-1 into ``out`` (threads, c, n, n) (flux per pixel, sum over
     axis 0 after). ``d`` (m, m) float64 heights, ``shifts`` (c, 2) emission offsets, ``indices``
     (c,) refractive indices, ``capacity`` the pixels of the largest footprint. With ``splat``
     False only the traces run (for timing). ``hit_t`` (stop - start,) receives the hits' ray
-    parameters, for :func:`vjp_photons` to replay (empty: not recorded). Returns the total flux
-    that reached the receiver."""
+    parameters, for :func:`vjp_photons` to replay (empty: not recorded); with ``replay`` it holds
+    them already (recorded for these heights and this light) and the hit search is skipped.
+    Returns the total flux that reached the receiver."""
     blocks = (stop - start + BLOCK - 1) // BLOCK
     reached = np.zeros(blocks)
     for b in nb.prange(blocks):
         lo = start + b * BLOCK
         reached[b] = render_range(d, sc, shifts, indices, lo, min(stop, lo + BLOCK), out[nb.get_thread_id()],
-                                   capacity, splat, hit_t, start)
+                                   capacity, splat, hit_t, start, replay)
     return reached.sum()

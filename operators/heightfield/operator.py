@@ -209,10 +209,16 @@ class CausticOperator(PhotonOperator):
         if self.gpu is not None:
             return self._render_gpu(d, progress).to(heights.device)
         out = self.fused.image_buffers(np.dtype(self.settings.dtype))
-        self.hit_cache.start_render()
+        cache = self.hit_cache
+        replaying = cache.replayable(d, self)  # hits a stack's other shot recorded for these heights
+        if not replaying:
+            cache.start_render(self)
         for start, stop in tqdm(self.chunks(), desc="photons", unit="chunk", disable=not progress):
-            self.fused.render(d, start, stop, out, hit_t=self.hit_cache.slot(start, stop))
-        self.hit_cache.finish_render(d)
+            known = cache.hits(d, start, stop) if replaying else None
+            self.fused.render(d, start, stop, out, hit_t=known if replaying else cache.slot(start, stop),
+                              replay=known is not None)
+        if not replaying:
+            cache.finish_render(d)
         return torch.from_numpy(out.sum(axis=0) / self.pixel_area).to(heights.device)
 
     def vjp(self, heights: torch.Tensor, grad_image: torch.Tensor) -> torch.Tensor:
@@ -228,6 +234,22 @@ class CausticOperator(PhotonOperator):
         for start, stop in self.chunks():
             self.fused.vjp(d, start, stop, padded, out, hit_t=self.hit_cache.hits(d, start, stop))
         return torch.from_numpy(out.sum(axis=0)).to(self.dtype).to(dtype=heights.dtype, device=heights.device)
+
+    @property
+    def hit_key(self) -> tuple:
+        """What decides where the photons meet the print besides the heights: the light, the
+        substrate, the photon pattern, the chunks and the device. Operators with equal keys may
+        share their hit cache (:meth:`share_hits`)."""
+        s = self.settings
+        return (self.scene.light.position, self.scene.substrate, self.scene.channels, s.photons, s.seed, s.chunk_size,
+                s.footprint_px, s.device)
+
+    def share_hits(self, other: CausticOperator) -> None:
+        """Use ``other``'s hit cache (its :attr:`hit_key` must equal this one's): a render of heights
+        that ``other`` rendered last replays its hits instead of searching (operators/stack.py)."""
+        if other.hit_key != self.hit_key:
+            raise ValueError("operators whose photons meet the print differently cannot share their hits")
+        self.hit_cache = other.hit_cache
 
     def _render_gpu(self, d: np.ndarray, progress: bool) -> torch.Tensor:
         """:meth:`render` on the GPU: one image (c, n, n) that all photons add into (the chunk

@@ -58,14 +58,17 @@ class FusedTracer:
         return np.zeros((nb.get_num_threads(), self.scene.channels, n, n), dtype=dtype)
 
     def render(self, d: np.ndarray, start: int, stop: int, out: np.ndarray, splat: bool = True,
-               hit_t: np.ndarray | None = None) -> float:
+               hit_t: np.ndarray | None = None, replay: bool = False) -> float:
         """Add the flux per pixel of photons start .. stop-1 to ``out`` (threads, c, n, n) for
         float64 heights ``d`` (m, m); returns the flux that reached the receiver (W). ``hit_t``
-        (stop - start,) float64, if given, receives the hits' ray parameters for :meth:`vjp`."""
+        (stop - start,) float64, if given, receives the hits' ray parameters for :meth:`vjp`; with
+        ``replay`` it holds them (for these heights and this light) and they are not searched."""
         _check_contiguous(d=d, out=out)
+        if replay and hit_t is None:
+            raise ValueError("replay needs the recorded hits (hit_t)")
         with nb.parallel_chunksize(1):
             return render_photons(d, self.constants(d), self.shifts, self.indices, start, stop, out,
-                                  self.capacity, splat, NO_HITS if hit_t is None else hit_t)
+                                  self.capacity, splat, NO_HITS if hit_t is None else hit_t, replay)
 
     def pad_gradient(self, grad_image: np.ndarray) -> np.ndarray:
         """The adjoint image G (c, n, n) as :meth:`vjp` takes it: float64 with a zero border wide
@@ -96,16 +99,27 @@ class HitCache:
 
     8 bytes per photon, for the chunks that fit in ``budget_mb`` (the rest are searched again), so
     the memory stays bounded whatever the photon count. Arrays are kept and reused across renders.
+    Operators whose photons meet the print alike (the same light, substrate, photon pattern and
+    chunks: the shots of a stack at several screen distances, operators/stack.py) may share one
+    cache; a render then replays the hits another of them recorded for the same heights.
     """
 
     def __init__(self, budget_mb: float) -> None:
         self.budget = int(budget_mb * 2 ** 20) // 8  # photons
         self.slots: dict[tuple[int, int], np.ndarray] = {}
         self.heights: np.ndarray | None = None  # the heights the slots hold hits for; None: none valid
+        self.recorded_by: object | None = None  # the operator whose render recorded them
 
-    def start_render(self) -> None:
-        """Forget the hits held: a render is about to record new ones."""
+    def start_render(self, recorder: object | None = None) -> None:
+        """Forget the hits held: a render (of ``recorder``) is about to record new ones."""
         self.heights = None
+        self.recorded_by = recorder
+
+    def replayable(self, d: np.ndarray, renderer: object) -> bool:
+        """Whether a render of ``renderer`` at heights ``d`` can replay the hits held: another
+        operator sharing the cache recorded them for the same heights (an operator's own repeated
+        render searches again, so that it costs what a render costs)."""
+        return self.recorded_by is not renderer and self.heights is not None and np.array_equal(self.heights, d)
 
     def slot(self, start: int, stop: int) -> np.ndarray | None:
         """The array that records chunk start .. stop-1 of the render under way, or None if it

@@ -133,3 +133,22 @@ def test_image_files_of_different_sizes_are_refused(tmp_path) -> None:
     with pytest.raises(ValueError, match=r"data.shots\[1\].image is 48x48 px but data.shots\[0\].image is 64x64; "
                                          r".*use source: photo with each photo's corners"):
         Reconstruction.from_config(cfg, tmp_path).check(tmp_path, tmp_path / "run")
+
+
+def test_shots_at_several_screens_share_the_hit_search_and_render_as_alone() -> None:
+    heights = bump(16, (0.1, -0.15), 0.35, 0.06) + 0.01
+    alone = _shots()
+    shared = _shots()
+    stack = StackOperator(shared)
+    assert shared[1].hit_cache is shared[0].hit_cache and alone[1].hit_cache is not alone[0].hit_cache
+    image = stack.render(heights)
+    assert shared[1].hit_cache.recorded_by is shared[0]  # the second shot replayed the first one's hits
+    assert torch.equal(image, torch.cat([op.render(heights) for op in alone]))
+    grad_image = torch.randn(stack.output_shape, dtype=torch.float64, generator=torch.Generator().manual_seed(2))
+    expected = sum(op.vjp(heights, g) for op, g in zip(alone, stack.blocks(grad_image)))
+    assert torch.allclose(stack.vjp(heights, grad_image), expected, rtol=1e-12, atol=0)
+    # A shot whose light moved meets the print elsewhere: it keeps its own hits.
+    near = shared[0].scene
+    moved = CausticOperator(dataclasses.replace(near, light=dataclasses.replace(near.light, position=(0.1, 0.0, 10.0))),
+                            shared[0].settings)
+    assert StackOperator([shared[0], moved]).shots[1].hit_cache is not shared[0].hit_cache

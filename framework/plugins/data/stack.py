@@ -41,7 +41,8 @@ def _norm_sq(image: torch.Tensor, weights: torch.Tensor | None) -> float:
     return float((squares if weights is None else squares * weights.double()).sum())
 
 
-def stacked_data(shots: Sequence[ReconstructionData], weights: Sequence[float], start_shot: int) -> ReconstructionData:
+def stacked_data(shots: Sequence[ReconstructionData], weights: Sequence[float], start_shot: int,
+                 first_fit_shot: int | None = None) -> ReconstructionData:
     """The data of a stack from its shots' data: targets (and clean images) scaled by sqrt(w_i)
     and stacked along the channel axis, pixel weights stacked, the noise level
     delta = sqrt(sum w_i delta_i^2 ||b_i||^2 / sum w_i ||b_i||^2), the print's mask and volume,
@@ -68,7 +69,8 @@ def stacked_data(shots: Sequence[ReconstructionData], weights: Sequence[float], 
     return ReconstructionData(
         target=torch.cat([s.target * k for s, k in zip(shots, scales)]), mask=first.mask, volume=first.volume,
         delta=delta, weights=pixel_weights, ground_truth=truth, clean=clean, intrinsic_noise=intrinsic,
-        left_out=left_out, source="; ".join(sources) if sources else None, shots=tuple(shots), start_shot=start_shot)
+        left_out=left_out, source="; ".join(sources) if sources else None, shots=tuple(shots), start_shot=start_shot,
+        first_fit_shot=first_fit_shot)
 
 
 class StackData:
@@ -81,10 +83,26 @@ class StackData:
         common: Keys given to every shot that does not set them (e.g. ``{delta: 0.05}``).
         start_shot: The shot a start reads (the transport start inverts one caustic): its index, or
             ``farthest`` (the shot with the farthest screen, whose caustic is the strongest).
+        weighting: ``equal``: each shot's misfit counts with its ``weight`` (the maximum-likelihood
+            weighting for shots of equal noise); ``distance``: times (s_near / s_i)^2, s_i the
+            shot's screen distance and s_near the nearest one's. A screen k times farther
+            displaces the light k times more for the same slope error, so its misfit weighs about
+            k^2 more in the gradient; ``distance`` evens that out (docs/method.md, "Several photos").
+        first_fit: ``nearest``: a run from flat glass fits the nearest shot alone first
+            (framework/pipeline/first_fit.py); ``none``: the whole stack from the start.
     """
 
+    FIRST_FITS = ("nearest", "none")
+
+    WEIGHTINGS = ("equal", "distance")
+
     def __init__(self, shots: Sequence[Mapping[str, Any]] | None = None, common: Mapping[str, Any] | None = None,
-                 start_shot: int | str = "farthest") -> None:
+                 start_shot: int | str = "farthest", weighting: str = "equal", first_fit: str = "nearest") -> None:
+        if weighting not in self.WEIGHTINGS:
+            raise ValueError(f"data.weighting={weighting!r}; use {' or '.join(self.WEIGHTINGS)}")
+        if first_fit not in self.FIRST_FITS:
+            raise ValueError(f"data.first_fit={first_fit!r}; use {' or '.join(self.FIRST_FITS)}")
+        self.weighting, self.first_fit = weighting, first_fit
         if not isinstance(shots, (list, tuple)) or not shots:
             raise ValueError(f"data.shots={shots!r}: a stack needs a list of one or more shots, e.g. "
                              "data.shots='[{screen_distance: 0.05}, {screen_distance: 0.2}]'")
@@ -112,8 +130,10 @@ class StackData:
     def setups(self, base: Scene, mm: float) -> list[ShotSetup]:
         """Every shot's setup against the configured scene ``base`` (``mm`` mm per scene unit)."""
         setups = [shot_setup(spec, f"data.shots[{i}]", base, mm) for i, spec in enumerate(self.specs)]
-        for i, setup in enumerate(setups):
-            setup.scene(base, f"data.shots[{i}]")
+        distances = [-setup.scene(base, f"data.shots[{i}]").receiver.z for i, setup in enumerate(setups)]
+        if self.weighting == "distance":
+            setups = [dataclasses.replace(setup, weight=setup.weight * (min(distances) / z) ** 2)
+                      for setup, z in zip(setups, distances)]
         return setups
 
     def _requests(self, request: DataRequest) -> list[DataRequest]:
@@ -156,8 +176,10 @@ class StackData:
         requests = self._requests(request)
         shots = [source.load(shot) for source, shot in zip(self.sources, requests)]
         weights = request.operator.weights
+        distances = [-r.operator.scene.receiver.z for r in requests]
         start = self.start_shot
         if start == "farthest":
-            distances = [-r.operator.scene.receiver.z for r in requests]
             start = max(range(len(distances)), key=lambda i: distances[i])
-        return stacked_data(shots, weights, int(start))
+        nearest = min(range(len(distances)), key=lambda i: distances[i])
+        first = nearest if self.first_fit == "nearest" and len(shots) > 1 else None
+        return stacked_data(shots, weights, int(start), first)
