@@ -15,9 +15,10 @@ import numpy as np
 from framework.core.contracts.checks import (ContractViolation, check_data_source, check_operator, check_post_step,
                                              check_regularizer, check_solver, check_start, check_stopping,
                                              example_settings, smooth_bump)
-from framework.core.contracts.data_source import DataRequest
+from framework.core.contracts.data_source import DataRequest, ShotStack
 from framework.core.contracts.start import StartRequest
 from framework.core.data import ReconstructionData
+from operators.stack import StackOperator
 from framework.core.masks import mask_from_height_field
 from framework.core.problem import HeightGrid, Problem
 from framework.plugins.stopping import StagnationStopping
@@ -133,6 +134,9 @@ def _data_settings(name: str, problem: Problem, directory: Path) -> dict:
 def test_every_data_source_keeps_the_contract(name, known_problem, tmp_path) -> None:
     source = build_plugin("data", name, _data_settings(name, known_problem, tmp_path), "data")
     operator = known_problem.operator
+    if isinstance(source, ShotStack):  # the run renders through the stacked operator of the shots' setups
+        operator = StackOperator([type(operator)(setup.scene(known_problem.scene, "shot"), operator.settings)
+                                  for setup in source.setups(known_problem.scene, 25.0)])
     request = DataRequest(operator, known_problem.grid, lambda: known_problem.data.ground_truth.clone(), 0, tmp_path)
     check_data_source(source, request, who=f"data/{name}")
 

@@ -14,6 +14,7 @@ import torch
 from framework.core.objective import DataFidelity
 from framework.pipeline.calibration import JointCalibration
 from framework.pipeline.reconstruction import Reconstruction, run_reconstruction
+from framework.pipeline.verdict import run_verdict
 from operators.heightfield.operator import CausticOperator
 from operators.imaging import ImagingOperator
 from operators.stack import StackOperator
@@ -81,6 +82,8 @@ def test_two_screens_report_each_shot(tmp_path) -> None:
                                "+data.common.reference_photons=200000", "+data.common.reference_resolution=128"],
                               tmp_path)
     metrics = run_reconstruction(cfg, tmp_path / "run", tmp_path)
+    # From flat glass the nearest shot is fitted alone first (at most max_iter = 2 iterations).
+    assert metrics["start_zero_first_fit_shot"] == 0 and metrics["start_zero_first_fit_iterations"] == 2
     shares = [metrics[f"shot{i}_misfit_share"] for i in range(2)]
     assert sum(shares) == pytest.approx(1.0) and min(shares) > 0
     assert [metrics[f"shot{i}_screen_distance"] for i in range(2)] == pytest.approx(list(DISTANCES))
@@ -116,6 +119,9 @@ def test_calibration_recovers_the_distance_and_every_gain_from_a_stack_with_know
     (["data.shots=[{source: stack}]"], r"data.shots\[0\].source='stack'; use one of"),
     (["data.start_shot=2"], r"data.start_shot=2 must be 'farthest' or a shot index in \[0, 2\)"),
     (["data.shots=[{weight: 0}]"], r"data.shots\[0\]: gain=1.0 and weight=0.0 must both be > 0"),
+    (["data.weighting=loud"], r"data.weighting='loud'; use equal or distance"),
+    (["data.first_fit=farthest"], r"data.first_fit='farthest'; use nearest or none"),
+    (["data.shots=[{light_offset: [0, 0, -9.95]}]"], r"data.shots\[0\]: the light would sit at z = 0.05"),
 ])
 def test_bad_stacks_are_refused_in_one_line(tmp_path, overrides, message) -> None:
     cfg = compose_reconstruct([*SMALL, "data=stack", *overrides], tmp_path)
@@ -152,3 +158,11 @@ def test_shots_at_several_screens_share_the_hit_search_and_render_as_alone() -> 
     moved = CausticOperator(dataclasses.replace(near, light=dataclasses.replace(near.light, position=(0.1, 0.0, 10.0))),
                             shared[0].settings)
     assert StackOperator([shared[0], moved]).shots[1].hit_cache is not shared[0].hit_cache
+
+
+def test_the_verdict_names_a_shot_its_heights_do_not_explain() -> None:
+    shots = [("Shot 0 (screen 0.05)", 0.049, 0.05), ("Shot 1 (screen 1)", 0.26, 0.05)]
+    verdict = run_verdict(0.0504, 0.05, 1.01, 95, "discrepancy principle", {}, None, {}, shots)
+    assert verdict.reached_noise_level
+    (warning,) = verdict.warnings
+    assert warning.startswith("Shot 1 (screen 1) is not explained: its own discrepancy 0.26 = 5.20 x its noise level")

@@ -96,6 +96,13 @@ class StackData:
 
     WEIGHTINGS = ("equal", "distance")
 
+    @staticmethod
+    def example_settings() -> dict[str, Any]:
+        """Settings of the contract checks (framework/core/contracts/checks.py): two synthetic shots,
+        the configured screen and one 0.1 farther, with small reference renders."""
+        return {"shots": [{"offset": 0.0}, {"offset": 0.1}],
+                "common": {"reference_photons": 1 << 18, "reference_resolution": 64}}
+
     def __init__(self, shots: Sequence[Mapping[str, Any]] | None = None, common: Mapping[str, Any] | None = None,
                  start_shot: int | str = "farthest", weighting: str = "equal", first_fit: str = "nearest") -> None:
         if weighting not in self.WEIGHTINGS:
