@@ -9,6 +9,7 @@ with the splat switched off against the full pass), the peak memory of a gradien
 with the paper's 8.4 million photons, and the native splat against the straightforward PyTorch
 splat on the same photons, side by side, each in a fresh process so that their peak memories are
 comparable; the mesh-scene operator (plain scene, two lenses) beside the height-field operator;
+a stack of two screens with its shots sharing the hit search and without (operators/stack.py);
 and the default reconstruction with today's solver beside the earlier one
 (experiments/bench_reconstruction.py).
 """
@@ -16,6 +17,7 @@ and the default reconstruction with today's solver beside the earlier one
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import math
 import multiprocessing as mp
@@ -33,6 +35,7 @@ from experiments.bench_stages import stage_profile
 from framework.core.shapes import make_shape
 from operators.heightfield.operator import CausticOperator, OperatorSettings
 from operators.scene import Scene
+from operators.stack import StackOperator
 from operators.splat.splat import splat_photons
 from operators.splat.reference import splat_photons_reference
 
@@ -245,6 +248,35 @@ def cuda_report(heights: torch.Tensor, photons: int, grad_photons: int, footprin
     }
 
 
+def time_stack(heights: torch.Tensor, photons: int, footprint_px: float, chunk_size: int,
+               rounds: int = 3) -> dict[str, float]:
+    """A stack of two shots (screens 0.05 and 0.2 below the substrate, operators/stack.py) with the
+    second shot replaying the first one's hit search and without, side by side: the best of
+    ``rounds`` alternating rounds of a render and of a render plus its gradient (one iteration's
+    passes), and the one shot's alone for scale."""
+    def shot(distance: float) -> CausticOperator:
+        scene = Scene(receiver=dataclasses.replace(Scene().receiver, z=-distance))
+        return CausticOperator(scene, OperatorSettings(photons=photons, footprint_px=footprint_px,
+                                                       chunk_size=chunk_size))
+
+    stacks = {"shared": StackOperator([shot(0.05), shot(0.2)]),
+              "separate": StackOperator([shot(0.05), shot(0.2)], share_hits=False), "one_shot": shot(0.05)}
+    targets = {name: op.render(torch.zeros_like(heights)) for name, op in stacks.items()}
+    best = {name: [math.inf, math.inf] for name in stacks}
+
+    def iteration(op, target) -> None:
+        op.loss_and_grad(heights, target, image=op.render(heights))
+
+    for _ in range(rounds):
+        for name, op in stacks.items():
+            best[name][0] = min(best[name][0], best_seconds(lambda: op.render(heights), repeats=1))
+            best[name][1] = min(best[name][1], best_seconds(lambda: iteration(op, targets[name]), repeats=1))
+    return {"photons_per_shot": photons, **{f"{name}_render_s": b[0] for name, b in best.items()},
+            **{f"{name}_render_and_gradient_s": b[1] for name, b in best.items()},
+            "render_speedup_shared": best["separate"][0] / best["shared"][0],
+            "iteration_speedup_shared": best["separate"][1] / best["shared"][1]}
+
+
 def profile_stages(op: CausticOperator, heights: torch.Tensor, target: torch.Tensor, photons: int
                    ) -> dict[str, object]:
     """The one-thread stage profile (experiments.bench_stages) with the per-photon time budget
@@ -272,6 +304,8 @@ def main(argv: list[str] | None = None) -> None:
                         help="photons of the one-thread per-stage profile (0: leave it out)")
     parser.add_argument("--mesh-photons", type=int, default=1 << 18,
                         help="photons of the mesh-scene comparison (0: leave it out)")
+    parser.add_argument("--stack-photons", type=int, default=1 << 20,
+                        help="photons per shot of the two-screen stack's timing (0: skip)")
     parser.add_argument("--reconstruction-rounds", type=int, default=1,
                         help="default reconstructions with today's and the earlier solver, each (0: leave them out)")
     parser.add_argument("--reconstruction-overrides", nargs="*", default=[],
@@ -322,6 +356,8 @@ def main(argv: list[str] | None = None) -> None:
     report["splat_comparison"] = compare_splats(op, heights, args.splat_photons)
     if args.stage_photons > 0:
         report["stage_profile"] = profile_stages(op, heights, target, args.stage_photons)
+    if args.stack_photons > 0:
+        report["stack"] = time_stack(heights, args.stack_photons, args.footprint_px, args.chunk_size)
     if args.mesh_photons > 0:
         report["mesh_scene"] = time_mesh_scenes(heights, args.mesh_photons, args.footprint_px)
     if args.reconstruction_rounds > 0:

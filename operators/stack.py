@@ -34,9 +34,10 @@ class StackOperator(ImageOperator):
     Args:
         shots: The operator of every shot (the same dtype, photons and image shape (c, n, n)).
         weights: w_i >= 0, the weight of shot i's squared misfit (None: 1 each).
+        share_hits: Let shots whose photons meet the print alike share their hit search.
     """
 
-    def __init__(self, shots: Sequence[Any], weights: Sequence[float] | None = None) -> None:
+    def __init__(self, shots: Sequence[Any], weights: Sequence[float] | None = None, share_hits: bool = True) -> None:
         shots = list(shots)
         if not shots:
             raise ValueError("a stack needs at least one shot (data.shots=[...])")
@@ -52,7 +53,8 @@ class StackOperator(ImageOperator):
         self.shots = shots
         self.weights = weights
         self.scales = [math.sqrt(w) for w in weights]
-        self._share_hits()
+        if share_hits:
+            self._share_hits()
 
     def _share_hits(self) -> None:
         """Shots whose photons meet the print alike (the same light and photon pattern; only the

@@ -20,7 +20,7 @@ SMALL_RUN = ["solver.max_iter=3", "initial=zero", "photons=16384", "photon_budge
 def test_bench_prints_the_promised_figures(capsys):
     main(["--photons", "200000", "--grad-photons", "30000", "--splat-photons", "3000", "--chunk-size", "8192",
           "--reference-photons", "20000", "--stage-photons", "0", "--mesh-photons", "20000",
-          "--reconstruction-overrides", *SMALL_RUN])
+          "--stack-photons", "20000", "--reconstruction-overrides", *SMALL_RUN])
     report = json.loads(capsys.readouterr().out)
     assert report["forward_photons_per_s"] > 0 and report["forward_backward_photons_per_s"] > 0
     plain = report["numba_kernels_only"]
@@ -41,6 +41,9 @@ def test_bench_prints_the_promised_figures(capsys):
     assert mesh["mesh_scene_plain"]["gradient_time_over_plain_mesh_scene"] == 1.0
     assert mesh["height_field"]["gradient_time_over_height_field"] == 1.0
     assert all(m["forward_photons_per_s"] > 0 and m["forward_backward_photons_per_s"] > 0 for m in mesh.values())
+    stack = report["stack"]
+    assert stack["photons_per_shot"] == 20000 and stack["render_speedup_shared"] > 0
+    assert stack["shared_render_and_gradient_s"] > stack["shared_render_s"] > 0
     runs = report["reconstruction"]
     for which in ("now", "earlier"):
         run = runs[which]
