@@ -166,3 +166,10 @@ def test_the_verdict_names_a_shot_its_heights_do_not_explain() -> None:
     assert verdict.reached_noise_level
     (warning,) = verdict.warnings
     assert warning.startswith("Shot 1 (screen 1) is not explained: its own discrepancy 0.26 = 5.20 x its noise level")
+
+
+def test_a_shot_s_missing_file_is_named(tmp_path) -> None:
+    cfg = compose_reconstruct([*SMALL, "data=stack", "data.common.source=file",
+                               f"data.shots=[{{image: {tmp_path / 'missing.npy'}}}]"], tmp_path)
+    with pytest.raises(FileNotFoundError, match=r"^data.shots\[0\]: .*missing.npy"):
+        Reconstruction.from_config(cfg, tmp_path).check(tmp_path, tmp_path / "run")

@@ -73,6 +73,16 @@ def stacked_data(shots: Sequence[ReconstructionData], weights: Sequence[float], 
         first_fit_shot=first_fit_shot)
 
 
+def _named(index: int, step: Any, request: DataRequest) -> Any:
+    """``step(request)`` of shot ``index``'s source, its errors prefixed with the shot."""
+    try:
+        return step(request)
+    except FileNotFoundError as error:
+        raise FileNotFoundError(f"data.shots[{index}]: {error}") from None
+    except ValueError as error:
+        raise ValueError(f"data.shots[{index}]: {error}") from None
+
+
 class StackData:
     """Several measurements of one print (``data=stack``), module docstring.
 
@@ -156,7 +166,8 @@ class StackData:
 
     def check(self, request: DataRequest) -> PrintFacts:
         """Every shot's files and print facts checked; the shots must agree on the print."""
-        facts = [source.check(shot) for source, shot in zip(self.sources, self._requests(request))]
+        facts = [_named(i, source.check, shot) for i, (source, shot) in enumerate(zip(self.sources,
+                                                                                    self._requests(request)))]
         for i, fact in enumerate(facts[1:], start=1):
             if tuple(fact.mask.shape) != tuple(facts[0].mask.shape) or not torch.equal(fact.mask, facts[0].mask):
                 raise ValueError(f"data.shots[{i}] has another printed-area mask than shot 0; one print has one mask "
@@ -181,7 +192,7 @@ class StackData:
     def load(self, request: DataRequest) -> ReconstructionData:
         """Every shot's data from its own source in its own setup, stacked (:func:`stacked_data`)."""
         requests = self._requests(request)
-        shots = [source.load(shot) for source, shot in zip(self.sources, requests)]
+        shots = [_named(i, source.load, shot) for i, (source, shot) in enumerate(zip(self.sources, requests))]
         weights = request.operator.weights
         distances = [-r.operator.scene.receiver.z for r in requests]
         start = self.start_shot
