@@ -184,6 +184,15 @@ class IterativeSolver(ABC):
         or its photons, framework/pipeline/photon_budget.py): forget whatever was computed with the
         old one. Solvers that cache evaluations override it."""
 
+    def set_heights(self, d: Tensor) -> None:
+        """Go on from heights ``d`` (m, m) instead of the current ones (joint calibration moves the
+        heights with the screen distance it changes, framework/pipeline/calibration.py): forgets
+        whatever was computed at the old ones."""
+        if tuple(d.shape) != tuple(self.state.d.shape) or not bool(torch.isfinite(d).all()):
+            raise ValueError(f"set_heights needs finite heights of shape {tuple(self.state.d.shape)}")
+        self.state.d = d.detach().to(self.state.d).clone()
+        self.setup_changed()
+
     def volume_band(self) -> tuple[float, float] | None:
         """The band [q1, q2] of the height sum sum_j d_j that the solver enforces (a known
         deposited volume), or None; Morozov's rule accepts only iterates inside it."""

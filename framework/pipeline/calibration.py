@@ -25,6 +25,14 @@ error is sqrt(diag((J^T W J / s^2 + P)^-1)) at the final heights: it holds the h
 where heights and a parameter trade off (docs/method.md, "Joint calibration") it is too small, and
 the prior term is what keeps such a parameter near its measured value.
 
+A stack of shots at known offsets (framework/plugins/data/stack.py) tells the screen distance, but
+only jointly with the heights' strength: heights k d with the screen at s / k cast nearly the
+caustic of d at s on one screen (docs/method.md, "Several photos"), so at heights fitted to a wrong
+distance a step on the distance alone goes the wrong way. On a stack the step on
+``screen_distance`` therefore also takes a factor k on the heights (a column dG/dk by central
+differences of renders of (1 +- 1e-3) d, no prior, within BOUND x prior of 1 per update), and the
+solver goes on from k d (:meth:`framework.core.solver_loop.IterativeSolver.set_heights`).
+
 The state (parameters, updates, uncertainties) is written to ``calibration.json`` beside the
 checkpoint after every update, and a resumed run starts from it.
 """
@@ -52,6 +60,8 @@ CALIBRATION_PARAMS = ("gain", "screen_distance", "light_height", "light_x", "lig
 _FD_STEP = 1e-3
 # The geometry stays within BOUND prior standard deviations of its measured value.
 BOUND = 2.0
+# The factor on the heights that a stack's screen distance moves with (internal, not reported).
+HEIGHT_SCALE = "height_scale"
 _MAX_TRIES = 3
 
 
@@ -94,6 +104,10 @@ class JointCalibration(Callback):
         self.weights: Tensor | None = None
         self.delta = 0.0
         self.geometry_started = False
+        # A stack's screen distance moves with a scale of the heights (the shots' offsets tell the
+        # distance only jointly with the heights' strength; module docstring).
+        self.scales_heights = isinstance(self.setup_of, StackSetup) and "screen_distance" in self.params
+        self.height_scale = 1.0  # the last update's factor on the heights (1: none)
 
     @classmethod
     def from_config(cls, operator: Any, settings: Mapping[str, Any], scene: Any = None) -> JointCalibration | None:
@@ -158,6 +172,8 @@ class JointCalibration(Callback):
         params = self.params if self.geometry_started else [p for p in self.params if is_gain(p)]
         if record.iteration % self.every == 0 and params:
             self.update(solver.d, params)
+            if self.height_scale != 1.0:
+                solver.set_heights(solver.d * self.height_scale)
             solver.setup_changed()
         record.extras.update({f"calibration_{p}": v for p, v in self.values().items()})
 
@@ -166,20 +182,23 @@ class JointCalibration(Callback):
         self.setup_of.apply(values)
 
     def _render(self, d: Tensor, values: Mapping[str, float]) -> Tensor:
-        """G(d) with ``values`` in place of the current parameters (the setup unchanged)."""
-        return self.setup_of.render(d, values)
+        """G(k d) with ``values`` in place of the current parameters (the setup unchanged), k their
+        ``height_scale`` (1 if absent)."""
+        return self.setup_of.render(d * values.get(HEIGHT_SCALE, 1.0), values)
 
     def _weighted_sq(self, x: Tensor) -> float:
         return float((x ** 2 if self.weights is None else self.weights * x ** 2).sum())
 
     def _scale(self, p: str) -> float:
         """The size of parameter p at its measured value (of the light height for the light's x, y)."""
+        if p == HEIGHT_SCALE:
+            return 1.0
         own = is_gain(p) or p in ("screen_distance", "light_height")
         return abs(self.initial.get(p, 1.0)) if own else abs(setup_values(self.setup_of.scene, 1.0)["light_height"])
 
     def jacobian(self, d: Tensor, params: Sequence[str]) -> tuple[Tensor, Tensor]:
         """(G(d) (c, n, n), dG/dp (k, c, n, n)) at the current values, for ``params``."""
-        values = self.values()
+        values = {**self.values(), HEIGHT_SCALE: 1.0}
         image = self.setup_of.render(d)
         columns = []
         for p in params:
@@ -198,33 +217,39 @@ class JointCalibration(Callback):
         if self.target is None:
             raise RuntimeError("JointCalibration.setup(target, weights) must be called before the first update")
         params = list(self.params if params is None else params)
+        if self.scales_heights and "screen_distance" in params:
+            params.append(HEIGHT_SCALE)
         image, jac = self.jacobian(d, params)
         w = torch.ones_like(self.target) if self.weights is None else self.weights
         k = len(params)
         s2 = self._weighted_sq(image - self.target) / max(int((w > 0).sum()) - k, 1)
         flat_j = jac.reshape(k, -1)
         data_normal = (flat_j * w.reshape(1, -1)) @ flat_j.T / s2
-        precision = torch.diag(torch.tensor([0.0 if is_gain(p) else (self.prior * self._scale(p)) ** -2
-                                             for p in params], dtype=torch.float64))
-        values, lam = self.values(), self.damping
-        offset = torch.tensor([values[p] - self.initial[p] for p in params], dtype=torch.float64)
+        precision = torch.diag(torch.tensor([0.0 if is_gain(p) or p == HEIGHT_SCALE else
+                                             (self.prior * self._scale(p)) ** -2 for p in params], dtype=torch.float64))
+        values, lam = {**self.values(), HEIGHT_SCALE: 1.0}, self.damping
+        initial = {**self.initial, HEIGHT_SCALE: 1.0}
+        offset = torch.tensor([values[p] - initial[p] for p in params], dtype=torch.float64)
         rhs = -(flat_j * w.reshape(1, -1)) @ (image - self.target).reshape(-1) / s2 - precision @ offset
         normal = data_normal + precision
 
         def posterior(trial: Mapping[str, float], rendered: Tensor) -> float:
-            shift = torch.tensor([trial[p] - self.initial[p] for p in params], dtype=torch.float64)
+            shift = torch.tensor([trial[p] - initial[p] for p in params], dtype=torch.float64)
             return self._weighted_sq(rendered - self.target) / s2 + float(shift @ precision @ shift)
 
         before = posterior(values, image)
+        self.height_scale = 1.0
         for _ in range(_MAX_TRIES):
             step = torch.linalg.solve(normal + lam * torch.diag(torch.diag(normal)), rhs)
             trial = {**values, **{p: self._bounded(p, values[p] + float(s)) for p, s in zip(params, step)}}
             if self._valid(trial) and posterior(trial, self._render(d, trial)) < before:
                 self._apply(trial)
+                self.height_scale = trial[HEIGHT_SCALE]
                 break
             lam *= 10.0
         covariance = torch.linalg.pinv(normal)
-        self.std.update({p: math.sqrt(max(float(covariance[i, i]), 0.0)) for i, p in enumerate(params)})
+        self.std.update({p: math.sqrt(max(float(covariance[i, i]), 0.0)) for i, p in enumerate(params)
+                         if p != HEIGHT_SCALE})
         self.updates += 1
         self._save()
         return self.values()
@@ -233,6 +258,8 @@ class JointCalibration(Callback):
         """``value`` of parameter p clipped to BOUND prior standard deviations around its measured value."""
         if is_gain(p):
             return value
+        if p == HEIGHT_SCALE:
+            return min(max(value, 1.0 - BOUND * self.prior), 1.0 + BOUND * self.prior)
         reach = BOUND * self.prior * self._scale(p)
         return min(max(value, self.initial[p] - reach), self.initial[p] + reach)
 

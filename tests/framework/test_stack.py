@@ -173,3 +173,24 @@ def test_a_shot_s_missing_file_is_named(tmp_path) -> None:
                                f"data.shots=[{{image: {tmp_path / 'missing.npy'}}}]"], tmp_path)
     with pytest.raises(FileNotFoundError, match=r"^data.shots\[0\]: .*missing.npy"):
         Reconstruction.from_config(cfg, tmp_path).check(tmp_path, tmp_path / "run")
+
+
+def test_the_stack_moves_the_heights_with_the_distance_it_calibrates(tmp_path) -> None:
+    # Heights fitted to the near shot with the distance told 10% too far are 1/1.1 of the truth;
+    # a step on the distance alone would move it farther still. With the heights' factor in the
+    # step, distance and heights come back together.
+    truth = bump(32, sigma=0.25, height=0.06)
+    truth_base = make_operator(photons=1 << 17, resolution=48, seed=11)
+    target = torch.cat([_at(truth_base, z).render(truth) for z in DISTANCES])
+    model = make_operator(photons=1 << 17, resolution=48)
+    told = 1.1 * DISTANCES[0]
+    shots = [ImagingOperator(lambda scene: CausticOperator(scene, model.settings), _at(model, told + z - DISTANCES[0]).scene)
+             for z in DISTANCES]
+    calibration = JointCalibration(StackOperator(shots), ["screen_distance"], scene=_at(model, told).scene)
+    calibration.setup(target, None, 0.05, tmp_path / "calibration.json")
+    heights = truth / 1.1
+    for _ in range(4):
+        values = calibration.update(heights)
+        heights = heights * calibration.height_scale
+    assert values["screen_distance"] == pytest.approx(DISTANCES[0], rel=1e-2)
+    assert float((heights - truth).abs().max()) <= 0.01 * float(truth.max())
