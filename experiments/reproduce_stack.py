@@ -52,9 +52,10 @@ def _run(overrides: list[str], out: Path, store: TrackingStore, name: str) -> di
 
 
 def screens_study(scene: str, distances: tuple[float, ...], weighting: str, work: Path, store: TrackingStore,
-                  overrides: list[str]) -> dict[str, Any]:
-    """One reconstruction of ``scene`` from synthetic caustics at ``distances`` (data.weighting)."""
-    photons = TOTAL_PHOTONS // len(distances)
+                  overrides: list[str], total_photons: int = TOTAL_PHOTONS) -> dict[str, Any]:
+    """One reconstruction of ``scene`` from synthetic caustics at ``distances`` (data.weighting),
+    ``total_photons`` per evaluation split over the shots."""
+    photons = total_photons // len(distances)
     name = "_".join(f"{z:g}" for z in distances) + f"_{weighting}"
     metrics = _run([f"scene={scene}", "data=stack", shots_override(distances), f"photons={photons}",
                     f"data.weighting={weighting}", *overrides], work / scene, store, name)
@@ -139,6 +140,10 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--weightings", nargs="+", default=["equal"], choices=WEIGHTINGS,
                         help="data.weighting of the runs with several screens")
     parser.add_argument("--lab-scenes", nargs="+", default=["print_lines", "bump"])
+    parser.add_argument("--total-photons", type=int, default=TOTAL_PHOTONS,
+                        help="photons per evaluation of the screens study, split over the shots")
+    parser.add_argument("--reference-photons", type=int, default=1 << 22,
+                        help="photons of each of the lab study's two renders of the truth per screen")
     parser.add_argument("--store", type=Path, default=Path("mlruns"), help="MLflow store directory")
     parser.add_argument("--tracking-uri", default=None, help="a shared MLflow tracking server instead of --store")
     parser.add_argument("--work", type=Path, default=Path("outputs/stack"))
@@ -149,7 +154,8 @@ def main(argv: list[str] | None = None) -> None:
     args.out.mkdir(parents=True, exist_ok=True)
     if args.part in ("screens", "all"):
         sets = [tuple(float(z) for z in s.split(",")) for s in args.screen_sets]
-        rows = [screens_study(scene, s, weighting, work / "screens", store, args.overrides) for scene in args.scenes
+        rows = [screens_study(scene, s, weighting, work / "screens", store, args.overrides, args.total_photons)
+                for scene in args.scenes
                 for s in sets for weighting in (args.weightings if len(s) > 1 else ["equal"])]
         (args.out / "stack_screens.md").write_text(screens_table(rows))
         with (args.out / "stack_screens.csv").open("w", newline="") as f:
@@ -158,7 +164,8 @@ def main(argv: list[str] | None = None) -> None:
             writer.writerows(rows)
         print(screens_table(rows))
     if args.part in ("lab", "all"):
-        rows = [lab_study(scene, work / "lab", store, args.overrides) for scene in args.lab_scenes]
+        rows = [lab_study(scene, work / "lab", store, args.overrides, args.reference_photons)
+                for scene in args.lab_scenes]
         (args.out / "stack_lab.md").write_text(lab_table(rows))
         print(lab_table(rows))
 
