@@ -31,7 +31,11 @@ caustic of d at s on one screen (docs/method.md, "Several photos"), so at height
 distance a step on the distance alone goes the wrong way. On a stack the step on
 ``screen_distance`` therefore also takes a factor k on the heights (a column dG/dk by central
 differences of renders of (1 +- 1e-3) d, no prior, within BOUND x prior of 1 per update), and the
-solver goes on from k d (:meth:`framework.core.solver_loop.IterativeSolver.set_heights`).
+solver goes on from k d (:meth:`framework.core.solver_loop.IterativeSolver.set_heights`). And on
+a stack an iteration whose discrepancy Morozov's rule would accept (``goal``) is first followed by
+an update at its heights, and the rule judges the discrepancy under the updated setup: a stack
+whose fit reaches the noise level within a few iterations (a gentle print) would otherwise end at
+the configured geometry.
 
 The state (parameters, updates, uncertainties) is written to ``calibration.json`` beside the
 checkpoint after every update, and a resumed run starts from it.
@@ -79,7 +83,9 @@ class JointCalibration(Callback):
             distance known to 10%; the light's x and y relative to its height.
     """
 
-    order = 40  # after the stopping rules, before the loggers (50): an update acts on the next iteration
+    # Before the stopping rules: on a stack, an iteration whose discrepancy Morozov's rule would
+    # accept is first judged under the setup calibrated at its heights (module docstring).
+    order = -40
 
     def __init__(self, operator: Any, params: Sequence[str], every: int = 10,
                  damping: float = 1e-3, prior: float = 0.1, scene: Any = None) -> None:
@@ -103,6 +109,7 @@ class JointCalibration(Callback):
         self.target: Tensor | None = None
         self.weights: Tensor | None = None
         self.delta = 0.0
+        self.goal: float | None = None
         self.geometry_started = False
         # A stack's screen distance moves with a scale of the heights (the shots' offsets tell the
         # distance only jointly with the heights' strength; module docstring).
@@ -144,13 +151,15 @@ class JointCalibration(Callback):
         return {p: every_value[p] for p in self.params}
 
     def setup(self, target: Tensor, weights: Tensor | None, delta: float, state_path: Path,
-              resume_from: Path | None = None) -> None:
+              resume_from: Path | None = None, goal: float | None = None) -> None:
         """The data b (c, n, n), their weights (None: 1) and relative noise level delta; the state
         is written to ``state_path`` after every update; ``resume_from``, the state file of an
-        interrupted run, restores it."""
+        interrupted run, restores it; ``goal``: the discrepancy Morozov's rule accepts (tau_dis
+        delta; None: no rule)."""
         self.target = target.double()
         self.weights = None if weights is None else weights.double()
         self.delta = float(delta)
+        self.goal = goal
         self.state_path = state_path
         if resume_from is not None:
             if not resume_from.is_file():
@@ -170,11 +179,16 @@ class JointCalibration(Callback):
     def on_iteration(self, solver, record) -> None:  # noqa: D102
         self.geometry_started |= record.rel_discrepancy <= 2.0 * self.delta
         params = self.params if self.geometry_started else [p for p in self.params if is_gain(p)]
-        if record.iteration % self.every == 0 and params:
+        settle = (self.scales_heights and self.geometry_started and self.goal is not None
+                  and record.rel_discrepancy <= self.goal)
+        if (record.iteration % self.every == 0 or settle) and params:
             self.update(solver.d, params)
             if self.height_scale != 1.0:
                 solver.set_heights(solver.d * self.height_scale)
             solver.setup_changed()
+            if settle:  # the stopping rules judge the heights under the setup calibrated at them
+                record.rel_discrepancy = math.sqrt(self._weighted_sq(self.setup_of.render(solver.d) - self.target)
+                                                   / self._weighted_sq(self.target))
         record.extras.update({f"calibration_{p}": v for p, v in self.values().items()})
 
     # -- one Levenberg-Marquardt update -----------------------------------------------------------

@@ -322,7 +322,8 @@ def _reconstruct(parts: Reconstruction, output_dir: Path, base_dir: Path, checkp
         calibration = parts.calibration
         if calibration is not None:
             resume_from = None if checkpoint is None else checkpoint.parent / CALIBRATION_STATE
-            calibration.setup(data.target, data.weights, data.delta, output_dir / CALIBRATION_STATE, resume_from)
+            calibration.setup(data.target, data.weights, data.delta, output_dir / CALIBRATION_STATE, resume_from,
+                              goal=settings.tau_dis * data.delta)
         truth_error = None
         if data.ground_truth is not None:
             truth_error = GroundTruthError(data.ground_truth.to(operator.dtype), parts.grid.base)
