@@ -48,7 +48,7 @@ def test_every_config_group_option_composes_and_builds(tmp_path, group, option):
                                      resolve=True)
     np.save(tmp_path / "start.npy", np.zeros((32, 32)))
     parts = Reconstruction.from_config(cfg, tmp_path)  # every plugin built and checked, nothing rendered
-    channels = len(cfg["wavelengths"])
+    channels = len(cfg["wavelengths"]) * len((cfg["data"].get("shots") or [None]))  # a stack: every shot's
     assert callable(parts.start) and parts.operator.output_shape == (channels, 64, 64)
     assert parts.max_iter >= 1 and [type(rule).__name__ for rule in parts.stopping] == [
         {"morozov": "MorozovStopping", "stagnation": "StagnationStopping"}[name] for name in cfg.get("stopping") or {}]
@@ -82,6 +82,7 @@ MINIMAL = {
     ("stopping", "morozov"): ({"tau_dis": 1.05}, {}), ("stopping", "stagnation"): ({}, {}),
     ("data", "synthetic"): ({}, {}), ("data", "file"): ({"image": "caustic.npy"}, {}),
     ("data", "photo"): ({"photo": "photo.npy", "corners": [[0, 63], [63, 63], [63, 0], [0, 0]]}, {}),
+    ("data", "stack"): ({"shots": [{"offset": 0.0}, {"offset": 0.15}]}, {}),
     ("initial", "zero"): ({}, {}), ("initial", "design"): ({}, {}), ("initial", "file"): ({"path": "start.npy"}, {}),
     ("initial", "transport"): ({}, {}), ("initial", "auto"): ({"candidates": {"zero": {}, "transport": {}}}, {}),
 }

@@ -22,7 +22,8 @@ class Shot:
 
     Attributes:
         label: ``shot i`` (or ``caustic`` for a run of one image).
-        setup: screen_distance, light_x / light_y / light_z (scene units), gain and weight.
+        setup: screen_distance, light_x / light_y / light_z (scene units), gain and weight (a
+            stack's shot; empty for the one image of a run).
         half_width: The receiver's half width, scene units.
         target, predicted: Its data and the prediction (c, n, n), in the shot's own units (not weighted).
         weights: Its pixel weights (c, n, n), or None (1 everywhere).
@@ -46,9 +47,8 @@ def _setup(operator: Any, weight: float) -> dict[str, float]:
 def shots_of(problem: Problem, prediction: torch.Tensor) -> list[Shot]:
     """The run's images: one per shot of a stack, else the one image."""
     data = problem.data
-    if not data.shots:
-        return [Shot("caustic", _setup(problem.operator, 1.0), problem.scene.receiver.half_width, data.target,
-                     prediction, data.weights)]
+    if not data.shots:  # one image: its setup is the run's scene (any operator plugin)
+        return [Shot("caustic", {}, problem.scene.receiver.half_width, data.target, prediction, data.weights)]
     stack = problem.operator
     blocks = stack.blocks(prediction)
     return [Shot(f"shot {i}", _setup(op, w), op.scene.receiver.half_width, shot.target, block / scale, shot.weights)
