@@ -50,6 +50,12 @@ class ReconstructionData:
     first_fit_shot: int | None = None
 
 
+def weighted_norm_sq(image: torch.Tensor, weights: torch.Tensor | None) -> float:
+    """sum w image^2 over an image (c, n, n) in float64, with per-pixel weights w (None: 1)."""
+    squares = image.double() ** 2
+    return float((squares if weights is None else squares * weights.double()).sum())
+
+
 def resample_image(image: torch.Tensor, resolution: int) -> torch.Tensor:
     """Resample (c, N, N) irradiance to (c, n, n): area averaging down, bilinear up (keeps units)."""
     if image.shape[-1] == resolution:

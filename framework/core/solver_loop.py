@@ -16,7 +16,7 @@ from typing import Any, ClassVar, Sequence
 import torch
 from torch import Tensor
 
-__all__ = ["Callback", "IterationRecord", "RunResult", "SolverState", "IterativeSolver", "IterationFailed"]
+__all__ = ["Callback", "IterationRecord", "RunResult", "SolverState", "IterativeSolver", "IterationFailed", "returned_iterate"]
 
 
 class IterationFailed(RuntimeError):
@@ -132,6 +132,16 @@ class Callback:
         """(d, iteration) to report instead of the last iterate when the run was not accepted
         (e.g. the lowest discrepancy seen), or None."""
         return None
+
+
+def returned_iterate(result: RunResult, callbacks: Sequence[Callback]) -> tuple[Tensor, int]:
+    """(d, iteration) a run reports: its last iterate, or when no callback accepted it the best one
+    a callback kept (:meth:`Callback.best_iterate`, e.g. a stagnation rule's lowest discrepancy)."""
+    if not result.accepted:
+        best = next((b for b in (cb.best_iterate() for cb in callbacks) if b is not None), None)
+        if best is not None:
+            return best
+    return result.d.detach(), result.iterations
 
 
 class IterativeSolver(ABC):

@@ -102,7 +102,7 @@ class StackSetup:
         self.base = base
         self.base_values = setup_values(base, 1.0)
         self.shot_values = [setup_values(shot.scene, 1.0) for shot in self.shots]
-        self.geometry = dict(self.base_values)
+        self.geometry = {k: self.base_values[k] for k in GEOMETRY}
 
     def names(self, requested: Sequence[str]) -> list[str]:
         """``gain`` stands for every shot's gain."""
@@ -118,8 +118,7 @@ class StackSetup:
 
     def values(self) -> dict[str, float]:
         """Every parameter's current value: the shared geometry and each shot's gain."""
-        geometry = {k: v for k, v in self.geometry.items() if k != "gain"}
-        return {**geometry, **{f"gain_{i}": shot.gain for i, shot in enumerate(self.shots)}}
+        return {**self.geometry, **{f"gain_{i}": shot.gain for i, shot in enumerate(self.shots)}}
 
     def _shot_scene(self, i: int, values: Mapping[str, float]) -> Scene:
         """Shot i's scene with the configured geometry moved to ``values`` (its offsets kept)."""

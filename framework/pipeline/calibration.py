@@ -52,6 +52,7 @@ from typing import Any
 import torch
 from torch import Tensor
 
+from framework.core.data import weighted_norm_sq
 from framework.core.solver_loop import Callback
 from framework.pipeline.calibrated_setup import CameraSetup, StackSetup, is_gain, setup_values, with_setup
 from operators.stack import StackOperator
@@ -201,7 +202,7 @@ class JointCalibration(Callback):
         return self.setup_of.render(d * values.get(HEIGHT_SCALE, 1.0), values)
 
     def _weighted_sq(self, x: Tensor) -> float:
-        return float((x ** 2 if self.weights is None else self.weights * x ** 2).sum())
+        return weighted_norm_sq(x, self.weights)
 
     def _scale(self, p: str) -> float:
         """The size of parameter p at its measured value (of the light height for the light's x, y)."""

@@ -17,7 +17,7 @@ import torch
 
 from framework.core.contracts.stopping import StoppingRule
 from framework.core.problem import Problem
-from framework.core.solver_loop import Callback
+from framework.core.solver_loop import Callback, returned_iterate
 from framework.pipeline.callbacks import ProgressBar
 
 __all__ = ["fit_first_shot"]
@@ -37,10 +37,7 @@ def fit_first_shot(problem: Problem, d0: torch.Tensor, make_solver: Callable[[Pr
         rule.setup(shot)
     callbacks = [*stopping, ProgressBar(desc=f"{label}: shot {index} first"), *extra(shot)]
     result = solver.run(max_iter, callbacks)
-    d = result.d.detach()
-    if not result.accepted:
-        best = next((b for b in (rule.best_iterate() for rule in stopping) if b is not None), None)
-        d = d if best is None else best[0]
+    d, _ = returned_iterate(result, stopping)
     fidelity = shot.fidelity
     return d, {"first_fit_shot": float(index), "first_fit_iterations": float(result.iterations),
                "first_fit_rel_discrepancy": fidelity.relative_discrepancy(shot.operator.render(d)),

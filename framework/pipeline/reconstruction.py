@@ -27,7 +27,7 @@ from framework.core.problem import HeightGrid, Problem
 from framework.core.run_settings import RunSettings
 from framework.core.values import positive_int
 from framework.core.scene_config import SceneSetup
-from framework.core.solver_loop import Callback, RunResult
+from framework.core.solver_loop import Callback, RunResult, returned_iterate
 from framework.pipeline.calibration import JointCalibration
 from framework.pipeline.callbacks import Checkpointer, GroundTruthError, MetricsHistory, ProgressBar
 from framework.pipeline.checkpoint import resume as resume_solver
@@ -148,11 +148,7 @@ def _solve_from(parts: Reconstruction, problem: Problem, name: str, start: Start
         result = resume_solver(solver, checkpoint, parts.max_iter, callbacks)
     else:
         result = solver.run(parts.max_iter, callbacks)
-    d, returned = result.d.detach(), result.iterations
-    if not result.accepted:  # no accepted iterate: report the best one a stopping rule kept
-        best = next((b for b in (rule.best_iterate() for rule in stopping) if b is not None), None)
-        if best is not None:
-            d, returned = best
+    d, returned = returned_iterate(result, stopping)
     discrepancy = problem.fidelity.relative_discrepancy(final_operator(parts, result).render(d))
     return PhaseOutcome(name, result, d, returned, discrepancy, history.columns(), time.perf_counter() - began,
                         start_seconds, start_metrics, truth_error.errors(d) if truth_error else {})
@@ -355,7 +351,7 @@ def _reconstruct(parts: Reconstruction, output_dir: Path, base_dir: Path, checkp
         shots = shot_metrics(problem, prediction)
         metrics.update(shots)
         metrics.update(save_outputs(output_dir, d, prediction, data, parts.grid, settings.mm_per_unit, design))
-        save_shot_record(output_dir, problem, prediction)
+        save_shot_record(output_dir, shots, len(data.shots))
         metrics.update(report_verdict(metrics["rel_discrepancy"], data, settings.tau_dis, chosen.returned_iteration,
                                       result.stop_reason, volume, shots))
         (output_dir / "metrics.json").write_text(json.dumps(metrics, indent=2))

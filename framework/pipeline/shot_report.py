@@ -11,6 +11,7 @@ from typing import Any
 
 import torch
 
+from framework.core.data import weighted_norm_sq
 from framework.core.problem import Problem
 
 __all__ = ["Shot", "shots_of", "shot_metrics", "save_shot_record"]
@@ -56,11 +57,6 @@ def shots_of(problem: Problem, prediction: torch.Tensor) -> list[Shot]:
                                                                   blocks))]
 
 
-def _norm_sq(image: torch.Tensor, weights: torch.Tensor | None) -> float:
-    squares = image.double() ** 2
-    return float((squares if weights is None else squares * weights.double()).sum())
-
-
 def shot_metrics(problem: Problem, prediction: torch.Tensor) -> dict[str, float]:
     """``shot<i>_rel_discrepancy`` (||F_i - b_i|| / ||b_i||), ``shot<i>_misfit_share`` (its part
     of the summed weighted squared misfit), ``shot<i>_delta`` and its setup, for a stack; none for
@@ -68,24 +64,22 @@ def shot_metrics(problem: Problem, prediction: torch.Tensor) -> dict[str, float]
     if not problem.data.shots:
         return {}
     shots = shots_of(problem, prediction)
-    misfits = [s.setup["weight"] * _norm_sq(s.predicted.double() - s.target.double(), s.weights) for s in shots]
+    misfits = [s.setup["weight"] * weighted_norm_sq(s.predicted.double() - s.target.double(), s.weights) for s in shots]
     total = sum(misfits) or 1.0
     out: dict[str, float] = {}
     for i, (shot, misfit, data) in enumerate(zip(shots, misfits, problem.data.shots)):
-        out[f"shot{i}_rel_discrepancy"] = math.sqrt(misfit / shot.setup["weight"] / _norm_sq(shot.target, shot.weights))
+        out[f"shot{i}_rel_discrepancy"] = math.sqrt(misfit / shot.setup["weight"] / weighted_norm_sq(shot.target, shot.weights))
         out[f"shot{i}_misfit_share"] = misfit / total
         out[f"shot{i}_delta"] = data.delta
         out.update({f"shot{i}_{key}": value for key, value in shot.setup.items()})
     return out
 
 
-def save_shot_record(output_dir: Path, problem: Problem, prediction: torch.Tensor) -> Path | None:
+def save_shot_record(output_dir: Path, metrics: dict[str, float], count: int) -> Path | None:
     """shots.json in ``output_dir``: every shot's setup, noise level, discrepancy and misfit share
-    (a stack only; None for one image)."""
-    metrics = shot_metrics(problem, prediction)
+    from :func:`shot_metrics` of a stack of ``count`` shots (None for one image)."""
     if not metrics:
         return None
-    count = len(problem.data.shots)
     record = [{key[len(f"shot{i}_"):]: value for key, value in metrics.items() if key.startswith(f"shot{i}_")}
               for i in range(count)]
     path = output_dir / "shots.json"

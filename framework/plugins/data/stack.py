@@ -24,7 +24,7 @@ from typing import Any
 import torch
 
 from framework.core.contracts.data_source import DataRequest, PrintFacts
-from framework.core.data import ReconstructionData
+from framework.core.data import ReconstructionData, weighted_norm_sq
 from framework.core.image_io import load_caustic_image
 from framework.core.plugin_config import build_plugin
 from framework.core.registry import available
@@ -36,11 +36,6 @@ __all__ = ["StackData", "stacked_data"]
 
 SHOT_SEED_STRIDE = 100_000  # shot i's reference renders and noise draw from seed + i * stride
 
-def _norm_sq(image: torch.Tensor, weights: torch.Tensor | None) -> float:
-    squares = image.double() ** 2
-    return float((squares if weights is None else squares * weights.double()).sum())
-
-
 def stacked_data(shots: Sequence[ReconstructionData], weights: Sequence[float], start_shot: int,
                  first_fit_shot: int | None = None) -> ReconstructionData:
     """The data of a stack from its shots' data: targets (and clean images) scaled by sqrt(w_i)
@@ -48,7 +43,7 @@ def stacked_data(shots: Sequence[ReconstructionData], weights: Sequence[float], 
     delta = sqrt(sum w_i delta_i^2 ||b_i||^2 / sum w_i ||b_i||^2), the print's mask and volume,
     the truth and the source of shot 0 (or the first that has one)."""
     scales = [math.sqrt(w) for w in weights]
-    norms = [w * _norm_sq(s.target, s.weights) for s, w in zip(shots, weights)]
+    norms = [w * weighted_norm_sq(s.target, s.weights) for s, w in zip(shots, weights)]
     delta = math.sqrt(sum(n * s.delta ** 2 for n, s in zip(norms, shots)) / sum(norms))
     pixel_weights = None
     if any(s.weights is not None for s in shots):
