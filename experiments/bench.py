@@ -10,6 +10,7 @@ with the paper's 8.4 million photons, and the native splat against the straightf
 splat on the same photons, side by side, each in a fresh process so that their peak memories are
 comparable; the mesh-scene operator (plain scene, two lenses) beside the height-field operator;
 a stack of two screens with its shots sharing the hit search and without (operators/stack.py);
+the fidelity of each irradiance model against the exact caustic (experiments/bench_fidelity.py);
 and the default reconstruction with today's solver beside the earlier one
 (experiments/bench_reconstruction.py).
 """
@@ -30,6 +31,7 @@ import numba
 import numpy as np
 import torch
 
+from experiments.bench_fidelity import fidelity_report
 from experiments.bench_reconstruction import reconstruction_report
 from experiments.bench_stages import stage_profile
 from framework.core.shapes import make_shape
@@ -310,6 +312,14 @@ def main(argv: list[str] | None = None) -> None:
                         help="default reconstructions with today's and the earlier solver, each (0: leave them out)")
     parser.add_argument("--reconstruction-overrides", nargs="*", default=[],
                         help="Hydra overrides for both reconstructions, e.g. experiment=m3v1")
+    parser.add_argument("--fidelity-photons", type=int, default=1 << 20,
+                        help="photons of the fidelity section's budget renders (0: leave the section out)")
+    parser.add_argument("--fidelity-bias-photons", type=int, default=1 << 24,
+                        help="photons of the fidelity section's renders that measure the bias")
+    parser.add_argument("--fidelity-reference-photons", type=int, default=1 << 25,
+                        help="photons of the exact reference through the two lenses")
+    parser.add_argument("--wavefront-vertices", type=int, default=4097,
+                        help="aim points per side of the height field's exact (wavefront-triangle) reference")
     parser.add_argument("--footprint-px", type=float, default=3.0)
     parser.add_argument("--chunk-size", type=int, default=1 << 18)
     parser.add_argument("--device", choices=("cpu", "cuda"), default="cpu",
@@ -360,6 +370,9 @@ def main(argv: list[str] | None = None) -> None:
         report["stack"] = time_stack(heights, args.stack_photons, args.footprint_px, args.chunk_size)
     if args.mesh_photons > 0:
         report["mesh_scene"] = time_mesh_scenes(heights, args.mesh_photons, args.footprint_px)
+    if args.fidelity_photons > 0:
+        report["fidelity"] = fidelity_report(args.fidelity_photons, args.fidelity_bias_photons,
+                                             args.fidelity_reference_photons, args.wavefront_vertices)
     if args.reconstruction_rounds > 0:
         report["reconstruction"] = reconstruction_report(args.reconstruction_overrides, args.reconstruction_rounds)
     print(json.dumps(report, indent=2))

@@ -9,9 +9,14 @@ Each photon carries the flux of its cell of the square, Phi = P / (4 pi c) * A_c
 (P the light power split evenly over the c channels), and direction differentials that map the
 unit disk onto a disk of radius ``footprint_radius`` around q_j in that plane:
 Dw_u = radius (e_x - w w_x) / r, Dw_v = radius (e_y - w w_y) / r (positional differentials are zero
-for a point light). ``footprint_radius`` follows from the requested footprint on the receiver:
-``footprint_px`` pixels for light that went straight through (the paper's "smoothing", given
-independent of the photon count so that renders with different counts blur alike).
+for a point light). ``footprint_radius`` follows from ``footprint_px``:
+
+- ``"cell"`` (the default of both operators): the photon's own cell, the disk of area A_cell,
+  radius sqrt(A_cell / pi); the optics then carry it to the receiver, so every footprint is the
+  image of the cell it stands for and the model adds no blur of its own beyond the pixel filter
+  (docs/method.md, "Photon emission");
+- a number: that many receiver pixels for light that went straight through (the paper's
+  "smoothing", independent of the photon count so that renders with different counts blur alike).
 """
 
 from __future__ import annotations
@@ -25,7 +30,18 @@ import torch
 from operators.scene import Scene
 
 PLASTIC_NUMBER = 1.324717957244746
+CELL_FOOTPRINT = "cell"  # footprint_px setting: footprints the size of the photon's emission cell
 R2_STEP = (1.0 / PLASTIC_NUMBER, 1.0 / PLASTIC_NUMBER ** 2)
+
+
+def check_footprint(value: object) -> float | str:
+    """``operator.footprint_px`` checked: ``"cell"`` or a positive number of receiver pixels."""
+    if value == CELL_FOOTPRINT:
+        return CELL_FOOTPRINT
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not (math.isfinite(value) and value > 0.0):
+        raise ValueError(f"operator.footprint_px={value!r} must be 'cell' (the photon's own emission cell) or a "
+                         "positive number of receiver pixels, e.g. 3")
+    return float(value)
 
 
 @dataclass
@@ -46,13 +62,12 @@ class PhotonBatch:
 class PointLightEmitter:
     """Deterministic photon source: the same seed gives the same photons, chunk by chunk."""
 
-    def __init__(self, scene: Scene, photons: int, seed: int, footprint_px: float,
+    def __init__(self, scene: Scene, photons: int, seed: int, footprint_px: float | str,
                  dtype: torch.dtype = torch.float32, device: torch.device | str = "cpu") -> None:
         if int(photons) != photons or photons < scene.channels:
             raise ValueError(f"photons={photons} must be an integer >= the number of wavelengths "
                              f"({scene.channels}); typical values are 1e6 - 1e8")
-        if not footprint_px > 0.0:
-            raise ValueError(f"footprint_px={footprint_px} must be positive (receiver pixels), e.g. 3")
+        footprint_px = check_footprint(footprint_px)
         self.scene = scene
         self.per_channel = int(photons) // scene.channels
         self.dtype = dtype
@@ -61,9 +76,12 @@ class PointLightEmitter:
         self.shifts = torch.from_numpy(rng.random((scene.channels, 2)))
         half = scene.substrate.half_width
         self.cell_area = (2.0 * half) ** 2 / self.per_channel
-        lz = scene.light.position[2]
-        drop = (lz - scene.substrate.thickness) / (lz - scene.receiver.z)
-        self.footprint_radius = footprint_px * scene.receiver.pixel_size * drop
+        if footprint_px == CELL_FOOTPRINT:
+            self.footprint_radius = math.sqrt(self.cell_area / math.pi)
+        else:
+            lz = scene.light.position[2]
+            drop = (lz - scene.substrate.thickness) / (lz - scene.receiver.z)
+            self.footprint_radius = footprint_px * scene.receiver.pixel_size * drop
 
     @property
     def total(self) -> int:

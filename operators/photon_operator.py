@@ -43,10 +43,10 @@ def filter_radius_px(min_footprint_px: float, pixel_integration: bool) -> float:
 
 def check_setting_keys(settings: dict[str, Any], settings_class: type, plugin: str, extra: tuple[str, ...] = ()) -> None:
     """Refuse a key of the ``operator`` group that is not a field of ``settings_class`` (photons and
-    seed come from the run), naming the keys the plugin takes."""
+    seed come from the run) or one of ``extra``, naming the keys the plugin takes."""
     fields = {f.name for f in dataclasses.fields(settings_class)} - {"photons", "seed"}
     for key in settings:
-        if key not in fields:
+        if key not in fields and key not in extra:
             raise ValueError(f"unknown key operator.{key}; operator/{plugin} takes: "
                              f"{', '.join([*extra, *sorted(fields)])}")
 
@@ -93,6 +93,12 @@ class ImageOperator:
     def variant(self, photons: int, seed: int, resolution: int) -> "ImageOperator":
         """The same physics with another sampling (photons, seed, an n = resolution receiver)."""
         raise NotImplementedError
+
+    def exact_variant(self, photons: int, seed: int, resolution: int) -> Any:
+        """A renderer (``render(heights)`` -> (c, resolution, resolution)) of the same physics for
+        the references of synthetic data, free of this operator's own approximations where the
+        operator knows an exact method; here, lacking one, its :meth:`variant`."""
+        return self.variant(photons, seed, resolution)
 
     def warm_up(self) -> AbstractContextManager[Any]:
         """Nothing to start in the background: yields :class:`NothingRunning`."""
@@ -158,9 +164,10 @@ class PhotonOperator(ImageOperator):
 
     def resampled(self, photons: int, seed: int, resolution: int) -> tuple[Scene, Any]:
         """Scene and settings of the same physics with another sampling (photons, seed, an
-        n = resolution receiver), footprints scaled so that it blurs like this one."""
+        n = resolution receiver), footprints in pixels scaled so that it blurs like this one."""
         zoom = resolution / self.scene.receiver.resolution
-        scaled = {key: getattr(self.settings, key) * zoom for key in PIXEL_SETTINGS}
+        scaled = {key: getattr(self.settings, key) * zoom for key in PIXEL_SETTINGS
+                  if not isinstance(getattr(self.settings, key), str)}  # "cell" footprints scale themselves
         receiver = dataclasses.replace(self.scene.receiver, resolution=resolution)
         return (dataclasses.replace(self.scene, receiver=receiver),
                 dataclasses.replace(self.settings, photons=photons, seed=seed, **scaled))

@@ -76,17 +76,18 @@ def validate_delta(delta: float) -> float:
 
 
 def synthetic_data(ground_truth: torch.Tensor, render_a: Callable[[torch.Tensor], torch.Tensor],
-                   render_b: Callable[[torch.Tensor], torch.Tensor], resolution: int, delta: float,
+                   render_b: Callable[[torch.Tensor], torch.Tensor] | None, resolution: int, delta: float,
                    seed: int, pixel_area: float, mask_threshold: float = 1e-3,
                    mask_dilation: float = 0.05) -> ReconstructionData:
     """Noisy reference caustic of ``ground_truth`` (m, m) from two independent renders.
 
-    render_a / render_b render (c, N, N) images with independent photon seeds; ``seed`` draws the
-    added Gaussian noise; ``pixel_area`` (scene units^2 per height sample) gives the volume.
+    render_a / render_b render (c, N, N) images with independent photon seeds (render_b None: the
+    method of render_a carries no render noise, and one render is the clean image); ``seed`` draws
+    the added Gaussian noise; ``pixel_area`` (scene units^2 per height sample) gives the volume.
     """
     delta = validate_delta(delta)
     first = resample_image(render_a(ground_truth).double(), resolution)
-    second = resample_image(render_b(ground_truth).double(), resolution)
+    second = first if render_b is None else resample_image(render_b(ground_truth).double(), resolution)
     clean = 0.5 * (first + second)
     norm = float(torch.linalg.vector_norm(clean))
     intrinsic = float(torch.linalg.vector_norm(first - second)) / (2.0 * norm)

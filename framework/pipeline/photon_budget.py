@@ -5,13 +5,20 @@ docs/performance.md, "Fewer photon-traces").
 A render with N photons carries render noise: its relative distance to a render of the same
 heights with another photon pattern is sqrt(2) s(N), s(N) ~ N^(-1/2). The squared discrepancy that
 Morozov's rule tests is then about delta^2 + misfit^2 + s^2, and the rule allows
-(tau_dis^2 - 1) delta^2 above the data noise. The run starts with ``start`` photons (the first
-iterations only need a direction) and, after every change of the solver's stage, when the
-discrepancy first comes within ``near`` x tau_dis delta and before Morozov's rule may accept an
-iterate, measures s at the current heights (two renders with different photon patterns) and
-raises the budget, in powers of two up to the configured ``photons``, until
-s^2 <= noise_share (tau_dis^2 - 1) delta^2. So the rule is never applied to a discrepancy whose
-render noise exceeds that share. The budget never falls within a run from one start.
+(tau_dis^2 - 1) delta^2 above the data noise. Far from the noise level the render only needs to
+be precise against the misfit still to be removed, r^2 - delta^2 (r the relative discrepancy).
+The budget allows
+
+    s^2 <= noise_share * max(r^2 - delta^2, (tau_dis^2 - 1) delta^2).
+
+The run starts with ``start`` photons (the first iterations only need a direction) and measures s
+at the current heights (two renders with different photon patterns) after every change of the
+solver's stage, when the discrepancy first comes within ``near`` x tau_dis delta, before
+Morozov's rule may accept an iterate, and whenever the last measured noise (scaled by
+N^(-1/2) to the photons in force) exceeds what the falling discrepancy allows; it then raises the
+budget in powers of two, up to the configured ``photons``. So the rule is never applied to a
+discrepancy whose render noise exceeds that share. The budget never falls within a run from one
+start.
 """
 
 from __future__ import annotations
@@ -70,8 +77,10 @@ class PhotonBudget(Callback):
         self.fidelity, self.operator, self.seed = fidelity, operator, seed
         self.cap = int(operator.photons)
         self.start = min(int(start), self.cap)
-        self.allowed = math.sqrt(noise_share * max(tau_dis * tau_dis - 1.0, 0.0)) * delta
+        self.noise_share, self.delta = noise_share, delta
+        self.morozov_excess = max(tau_dis * tau_dis - 1.0, 0.0) * delta * delta
         self.near = near * tau_dis * delta
+        self.noise: float | None = None  # the render noise last measured, scaled to the photons in force
         self.goal = tau_dis * delta
         self.checked_at_goal: set[int] = set()
         self.photons = self.cap
@@ -103,11 +112,12 @@ class PhotonBudget(Callback):
         stage_changed = solver.stage() != self.stage
         near = not self.checked_near and record.rel_discrepancy <= self.near
         at_goal = record.rel_discrepancy <= self.goal and self.photons not in self.checked_at_goal
-        if (stage_changed or near or at_goal) and self.photons < self.cap:
+        outgrown = self.noise is not None and self.noise > self.allowance(record.rel_discrepancy)
+        if (stage_changed or near or at_goal or outgrown) and self.photons < self.cap:
             if at_goal:
                 self.checked_at_goal.add(self.photons)
             before = self.photons
-            record.extras["render_noise"] = self._check(solver)
+            record.extras["render_noise"] = self._check(solver, record.rel_discrepancy)
             if self.photons != before:
                 self._measure_again(solver, record)
         self.stage = solver.stage()
@@ -115,16 +125,24 @@ class PhotonBudget(Callback):
         record.extras["photons"] = float(self.photons)
         return None
 
-    def _check(self, solver: IterativeSolver) -> float:
-        """Measure the render noise at the solver's heights, raise the budget if it needs more;
-        returns the noise."""
+    def allowance(self, discrepancy: float) -> float:
+        """The render noise allowed at relative discrepancy r: sqrt(noise_share max(r^2 - delta^2,
+        (tau_dis^2 - 1) delta^2))."""
+        return math.sqrt(self.noise_share * max(discrepancy * discrepancy - self.delta * self.delta,
+                                                self.morozov_excess))
+
+    def _check(self, solver: IterativeSolver, discrepancy: float) -> float:
+        """Measure the render noise at the solver's heights, raise the budget if the discrepancy
+        ``discrepancy`` needs more; returns the noise."""
         current = self.fidelity.operator
         other = self.operator.variant(self.photons, self.seed + SEED_OFFSET, int(self.operator.output_shape[-1]))
         noise = render_noise(self.fidelity, current, other, solver.d)
         self.fidelity.count_passes(renders=2, gradients=0, photons=self.photons)
-        needed = photons_needed(self.photons, noise, self.allowed, self.cap)
+        measured_at = self.photons
+        needed = photons_needed(self.photons, noise, self.allowance(discrepancy), self.cap)
         if needed != self.photons:
             self._use(solver, needed)
+        self.noise = noise * math.sqrt(measured_at / needed)
         return noise
 
     def _measure_again(self, solver: IterativeSolver, record: IterationRecord) -> None:

@@ -29,7 +29,7 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
-from operators.emission import PointLightEmitter
+from operators.emission import CELL_FOOTPRINT, PointLightEmitter, check_footprint
 from operators.heightfield.trace_native import FusedTracer, HitCache
 from operators.light_paths import Arrivals, straight_landing
 from operators.kernels.numba_settings import to_numpy
@@ -37,6 +37,8 @@ from operators.photon_operator import (PIXEL_SETTINGS, PhotonOperator, backward_
                                       filter_radius_px)
 from operators.heightfield.precompile import BackgroundCompile
 from operators.scene import Scene
+from operators.supersample import SupersampledOperator, build_supersampled
+from operators.wavefront.renderer import WavefrontRenderer
 from operators.splat.splat import splat_photons
 from operators.heightfield.trace_reference import trace_substrate
 
@@ -49,7 +51,10 @@ class OperatorSettings:
 
     photons: total photons per evaluation (split evenly over the wavelengths).
     seed: seeds the emission pattern; the same seed gives the same photons (common random numbers).
-    footprint_px: nominal footprint radius on the receiver in pixels (the paper's smoothing).
+    footprint_px: ``"cell"``: every footprint is the photon's own emission cell carried through
+        the optics (no blur of the model's own); a number: the footprint radius on the receiver
+        in pixels for light that went straight through (the paper's smoothing;
+        operators/emission.py).
     min_footprint_px: pixel-filter radius added in quadrature to every footprint (pixels).
     pixel_integration: every pixel averages the irradiance over its area (a camera pixel, or an
         image area-averaged from a finer render), modelled by widening every footprint by the
@@ -68,8 +73,8 @@ class OperatorSettings:
 
     photons: int = 1 << 22
     seed: int = 0
-    footprint_px: float = 3.0
-    min_footprint_px: float = 1.0
+    footprint_px: float | str = CELL_FOOTPRINT
+    min_footprint_px: float = 0.3
     pixel_integration: bool = True
     max_pixel_radius: float = 20.0
     chunk_size: int = 1 << 18
@@ -85,8 +90,11 @@ class OperatorSettings:
             if isinstance(value, bool) or not isinstance(value, (int, float)) or int(value) != value:
                 raise ValueError(f"{key}={value!r} must be an integer")
             object.__setattr__(self, key, int(value))
+        object.__setattr__(self, "footprint_px", check_footprint(self.footprint_px))
         for key in (*PIXEL_SETTINGS, "hit_cache_mb"):
             value = getattr(self, key)
+            if key == "footprint_px":
+                continue
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
                 raise ValueError(f"operator.{key}={value!r} must be a finite number")
             object.__setattr__(self, key, float(value))
@@ -138,8 +146,9 @@ class CausticOperator(PhotonOperator):
 
     @classmethod
     def example_settings(cls) -> dict[str, Any]:
-        """Settings for the plugin contract checks (framework/core/contracts/checks.py): double precision."""
-        return {"dtype": "float64"}
+        """Settings for the plugin contract checks (framework/core/contracts/checks.py): double
+        precision, rendered on a 2 x finer receiver (operators/supersample.py)."""
+        return {"dtype": "float64", "supersample": 2}
 
     @property
     def conserves_energy(self) -> bool:
@@ -147,17 +156,28 @@ class CausticOperator(PhotonOperator):
         return not self.settings.fresnel
 
     @classmethod
-    def from_config(cls, scene: Scene, photons: int, seed: int, **settings: Any) -> CausticOperator:
+    def from_config(cls, scene: Scene, photons: int, seed: int, **settings: Any) -> CausticOperator | SupersampledOperator:
         """The operator for ``scene`` from the config's ``operator`` group (the fields of
-        :class:`OperatorSettings` but photons and seed, which the run gives); checks every value."""
-        check_setting_keys(settings, OperatorSettings, "height_field")
+        :class:`OperatorSettings` but photons and seed, which the run gives, and ``supersample``:
+        rendered that many times finer and block-averaged, operators/supersample.py, footprints
+        given in output pixels); checks every value."""
+        check_setting_keys(settings, OperatorSettings, "height_field", extra=("supersample",))
         if photons < scene.channels:
             raise ValueError(f"photons={photons} is too few; need at least one per wavelength ({scene.channels})")
-        return cls(scene, OperatorSettings(photons=photons, seed=seed, **settings))
+        return build_supersampled(lambda fine, given: cls(fine, OperatorSettings(photons=photons, seed=seed, **given)),
+                                  scene, settings, OperatorSettings)
 
     def variant(self, photons: int, seed: int, resolution: int) -> CausticOperator:
         """The same physics with another sampling (:meth:`PhotonOperator.resampled`)."""
         return CausticOperator(*self.resampled(photons, seed, resolution))
+
+    def exact_variant(self, photons: int, seed: int, resolution: int) -> WavefrontRenderer:
+        """The same physics by wavefront triangles with exact pixel coverage
+        (operators/wavefront/renderer.py): no footprint, no photon noise, about ``photons``
+        vertices per wavelength over the square; ``seed`` is not needed (the method is deterministic)."""
+        scene, _ = self.resampled(photons, seed, resolution)
+        vertices = max(int(round(math.sqrt(photons / scene.channels))), 2) + 1
+        return WavefrontRenderer(scene, vertices=vertices, fresnel=self.settings.fresnel)
 
     def warm_up(self) -> BackgroundCompile:
         """Context for a run that will take gradients: on the CPU, compiles the gradient kernel in a

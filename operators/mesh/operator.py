@@ -34,7 +34,7 @@ import torch
 from tqdm.auto import tqdm
 
 from operators.heightfield.operator import DTYPES, validate_heights
-from operators.emission import PointLightEmitter
+from operators.emission import CELL_FOOTPRINT, PointLightEmitter, check_footprint
 from operators.heightfield.surface import HeightFieldGrid, intersect_height_field
 from operators.light_paths import Arrivals
 from operators.materials import refractive_indices
@@ -45,10 +45,14 @@ from operators.mesh.rays import AIR, Rays, Surface, box_planes, reflect
 from operators.optics.reference import fresnel_transmittance, height_field_normal, height_field_normal_differential, refract, transfer
 from operators.photon_operator import PIXEL_SETTINGS, PhotonOperator, backward_through_splat, check_setting_keys
 from operators.scene import Scene
+from operators.supersample import SupersampledOperator, build_supersampled, finer_scene
 from operators.splat.splat import splat_photons
 from operators.units import scene_length
 
-__all__ = ["MeshSceneSettings", "MeshSceneOperator"]
+__all__ = ["EXACT_FILTER_PX", "MeshSceneSettings", "MeshSceneOperator"]
+
+EXACT_SUPERSAMPLE = 4  # the exact references render 4 x 4 fine pixels per pixel ...
+EXACT_FILTER_PX = 0.3  # ... with this pixel filter (fine pixels)
 
 
 @dataclass(frozen=True)
@@ -57,8 +61,8 @@ class MeshSceneSettings:
 
     photons: int = 1 << 20
     seed: int = 0
-    footprint_px: float = 3.0
-    min_footprint_px: float = 1.0
+    footprint_px: float | str = CELL_FOOTPRINT
+    min_footprint_px: float = 0.3
     pixel_integration: bool = True
     max_pixel_radius: float = 20.0
     chunk_size: int = 1 << 17
@@ -73,8 +77,11 @@ class MeshSceneSettings:
             value = getattr(self, key)
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                 raise ValueError(f"operator.{key}={value!r} must be an integer >= 1")
+        object.__setattr__(self, "footprint_px", check_footprint(self.footprint_px))
         for key in PIXEL_SETTINGS:
             value = getattr(self, key)
+            if key == "footprint_px":
+                continue
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not value > 0:
                 raise ValueError(f"operator.{key}={value!r} must be a positive number (pixels)")
         if not self.min_footprint_px < self.max_pixel_radius:
@@ -123,8 +130,8 @@ class MeshSceneOperator(PhotonOperator):
     @classmethod
     def example_settings(cls) -> dict[str, Any]:
         """Settings for the plugin contract checks (framework/core/contracts/checks.py): one lens above the
-        print, double precision."""
-        return {"dtype": "float64", "elements": [{"name": "lens", "shape": "lens", "position": [0, 0, 1.15], "params": {
+        print, double precision, rendered on a 2 x finer receiver (operators/supersample.py)."""
+        return {"dtype": "float64", "supersample": 2, "elements": [{"name": "lens", "shape": "lens", "position": [0, 0, 1.15], "params": {
             "radius": 1.0, "thickness": 0.3, "front_radius": 4.0, "back_radius": 4.0}}]}
 
     @property
@@ -134,21 +141,35 @@ class MeshSceneOperator(PhotonOperator):
 
     @classmethod
     def from_config(cls, scene: Scene, photons: int, seed: int, elements: Any = (), **settings: Any
-                    ) -> MeshSceneOperator:
+                    ) -> MeshSceneOperator | SupersampledOperator:
         """The plugin ``operator/mesh_scene``: ``elements`` is a list of element configs
-        (:func:`operators.mesh.elements.make_elements`), the rest are :class:`MeshSceneSettings`;
-        lengths may be given with a unit (``scene.mm_per_unit``)."""
-        check_setting_keys(settings, MeshSceneSettings, "mesh_scene", extra=("elements",))
+        (:func:`operators.mesh.elements.make_elements`), ``supersample`` as for the height-field
+        operator (operators/supersample.py), the rest are :class:`MeshSceneSettings`; lengths may
+        be given with a unit (``scene.mm_per_unit``)."""
         if settings.get("aperture_half_width") is not None:
             settings["aperture_half_width"] = scene_length(settings["aperture_half_width"], scene.mm_per_unit,
                                                            "operator.aperture_half_width")
+        check_setting_keys(settings, MeshSceneSettings, "mesh_scene", extra=("elements", "supersample"))
         built = make_elements(elements, mm_per_unit=scene.mm_per_unit)
-        return cls(scene, built, MeshSceneSettings(photons=photons, seed=seed, **settings))
+        return build_supersampled(lambda fine, given: cls(fine, built, MeshSceneSettings(photons=photons, seed=seed, **given)),
+                                  scene, settings, MeshSceneSettings)
 
     def variant(self, photons: int, seed: int, resolution: int) -> MeshSceneOperator:
         """The same scene with another sampling (:meth:`PhotonOperator.resampled`)."""
         scene, settings = self.resampled(photons, seed, resolution)
         return MeshSceneOperator(scene, self.elements, settings)
+
+    def exact_variant(self, photons: int, seed: int, resolution: int) -> SupersampledOperator:
+        """The references of synthetic data: ``photons`` photons with ``seed``'s pattern at their
+        own cells' footprints, rendered :data:`EXACT_SUPERSAMPLE` times finer than the n =
+        ``resolution`` receiver with a pixel filter of :data:`EXACT_FILTER_PX` fine pixels and
+        block-averaged (operators/supersample.py): no footprint of the model's, pixels that
+        integrate exactly."""
+        scene, settings = self.resampled(photons, seed, resolution)
+        settings = dataclasses.replace(settings, footprint_px=CELL_FOOTPRINT, min_footprint_px=EXACT_FILTER_PX,
+                                       max_pixel_radius=settings.max_pixel_radius * EXACT_SUPERSAMPLE)
+        fine = MeshSceneOperator(finer_scene(scene, EXACT_SUPERSAMPLE), self.elements, settings)
+        return SupersampledOperator(fine, scene, EXACT_SUPERSAMPLE)
 
     def _element_within(self, top: float) -> OpticalElement | None:
         """The first element that reaches into the substrate's box, z 0 .. top over its square."""

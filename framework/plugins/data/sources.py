@@ -57,7 +57,12 @@ class SyntheticData:
 
     Args:
         delta: Relative noise level ||b^delta - b|| / ||b|| in (0, 1).
-        reference_photons: Photons of each of the two independent reference renders.
+        reference: ``exact``: the truth rendered by the operator's exact method, free of the
+            model's footprint, photons and seed (``exact_variant``: wavefront triangles for the
+            height field); ``model``: by the model itself at the references' sampling (the paper's
+            protocol: data and model share the model's blur).
+        reference_photons: Photons of each of the two independent reference renders (wavefront
+            triangles: about this many vertices, rendered once: they carry no noise).
         reference_resolution: Receiver pixels of the references (resampled to the reconstruction's).
         mask_threshold: Printed area N^: |d_true| >= threshold ...
         mask_dilation: ... dilated by this fraction of the grid width.
@@ -70,8 +75,14 @@ class SyntheticData:
         """Settings of the contract checks (framework/core/contracts/checks.py): small reference renders."""
         return {"reference_photons": 1 << 18, "reference_resolution": 64}
 
-    def __init__(self, delta: float = 0.05, reference_photons: int = 1 << 22, reference_resolution: int = 256,
-                 mask_threshold: float = 1e-3, mask_dilation: float = 0.05) -> None:
+    REFERENCES = ("exact", "model")
+
+    def __init__(self, delta: float = 0.05, reference: str = "exact", reference_photons: int = 1 << 22,
+                 reference_resolution: int = 256, mask_threshold: float = 1e-3, mask_dilation: float = 0.05) -> None:
+        if reference not in self.REFERENCES:
+            raise ValueError(f"data.reference={reference!r}; use exact (an independent exact render of the truth) "
+                             "or model (the model's own render, the paper's protocol)")
+        self.reference = reference
         self.delta = validate_delta(delta)
         self.reference_photons = _count("reference_photons", reference_photons, 1)
         self.reference_resolution = _count("reference_resolution", reference_resolution, 2)
@@ -84,13 +95,17 @@ class SyntheticData:
                           volume_at_load=True)
 
     def load(self, request: DataRequest) -> ReconstructionData:
-        """Render the ground truth twice (seeds seed + 1000 and seed + 2000) and add the noise."""
+        """Render the ground truth (twice, seeds seed + 1000 and seed + 2000, unless the method is
+        deterministic) and add the noise."""
         operator = request.operator
         truth = request.design().to(operator.dtype)
-        first, second = (operator.variant(self.reference_photons, request.seed + offset, self.reference_resolution)
-                         for offset in (1000, 2000))
-        return synthetic_data(truth, first.render, second.render, operator.output_shape[-1], self.delta,
-                              request.seed, request.grid.cell_area, self.mask_threshold, self.mask_dilation)
+        make = operator.exact_variant if self.reference == "exact" else operator.variant
+        first = make(self.reference_photons, request.seed + 1000, self.reference_resolution)
+        second = None if getattr(first, "deterministic", False) else make(
+            self.reference_photons, request.seed + 2000, self.reference_resolution)
+        return synthetic_data(truth, first.render, second.render if second is not None else None,
+                              operator.output_shape[-1], self.delta, request.seed, request.grid.cell_area,
+                              self.mask_threshold, self.mask_dilation)
 
 
 class KnownPrint:

@@ -1,0 +1,113 @@
+"""sfc-bench's fidelity section: how far each irradiance model is from the exact caustic.
+
+For print_lines on the plain substrate and through the paper's two lenses (receiver at z = -1),
+at receivers of 128 and 256 pixels, every model design is compared with the exact reference:
+
+- bias: the relative L2 distance of the mean of two renders with ``bias_photons`` photons each
+  (independent photon patterns) to the exact reference; what is left of the render noise in that
+  mean is half the noise at those photons squared, reported beside it (``bias_noise``);
+- noise: the render noise at the budget, ||F_a - F_b|| / (sqrt(2) ||exact||), two photon patterns
+  of ``photons`` photons each;
+- seconds per render and per gradient (loss and gradient in one call) at the budget, the best of
+  two, one design after the other on the same machine.
+
+The exact reference of the height field is the wavefront-triangle renderer
+(operators/wavefront/renderer.py, ``wavefront_vertices`` aim points per side); through the lenses
+it is the mesh-scene operator's exact variant (cell footprints, 4 x supersampled) with
+``reference_photons`` photons.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from framework.core.shapes import make_shape
+
+# The designs compared: the paper's splat, photon differentials at their own cells' size, and those
+# rendered on a 4 x finer receiver and block-averaged (the default, conf/operator/height_field.yaml).
+DESIGNS: dict[str, dict[str, Any]] = {
+    "paper_splat_5px": {"footprint_px": 5.0, "min_footprint_px": 1.0, "supersample": 1},
+    "cell_footprints": {"footprint_px": "cell", "min_footprint_px": 0.3, "supersample": 1},
+    "cell_footprints_supersampled_4x": {"footprint_px": "cell", "min_footprint_px": 0.1, "supersample": 4},
+}
+SCENES = {"height_field": "height_field", "two_lenses": "two_lenses"}
+
+
+def configured_operator(scene_name: str, resolution: int, photons: int, seed: int, design: dict[str, Any]) -> Any:
+    """The operator of ``conf/operator/<scene_name>.yaml`` with ``design``'s footprint settings."""
+    from hydra import compose, initialize_config_dir
+    from omegaconf import OmegaConf
+
+    from framework.core.scene_config import build_operator, build_scene
+
+    overrides = [f"operator={scene_name}", f"photons={photons}", f"seed={seed}", f"receiver.resolution={resolution}",
+                 *[f"operator.{key}={value}" for key, value in design.items()]]
+    with initialize_config_dir(config_dir=str(Path(__file__).resolve().parent.parent / "conf"), version_base=None):
+        cfg = OmegaConf.to_container(compose("simulate", overrides=overrides), resolve=True)
+    return build_operator(cfg, build_scene(cfg))
+
+
+def relative(a: torch.Tensor, b: torch.Tensor) -> float:
+    """||a - b|| / ||b||."""
+    return float(torch.linalg.vector_norm(a.double() - b.double()) / torch.linalg.vector_norm(b.double()))
+
+
+def best_of_two(run) -> float:
+    """The shorter of two timed calls of ``run`` (seconds)."""
+    times = []
+    for _ in range(2):
+        t0 = time.perf_counter()
+        run()
+        times.append(time.perf_counter() - t0)
+    return min(times)
+
+
+def exact_reference(scene_name: str, resolution: int, heights: torch.Tensor, vertices: int,
+                    reference_photons: int) -> tuple[torch.Tensor, float]:
+    """The exact caustic (c, n, n) and the seconds it took."""
+    t0 = time.perf_counter()
+    if scene_name == "height_field":
+        from operators.wavefront.renderer import WavefrontRenderer
+        probe = configured_operator(scene_name, resolution, 1 << 10, 0, DESIGNS["paper_splat_5px"])
+        image = WavefrontRenderer(probe.scene, vertices=vertices).render(heights.double())
+    else:
+        probe = configured_operator(scene_name, resolution, 1 << 10, 0, DESIGNS["paper_splat_5px"])
+        image = probe.exact_variant(reference_photons, 4242, resolution).render(heights)
+    return image.double(), time.perf_counter() - t0
+
+
+def fidelity_report(photons: int, bias_photons: int, reference_photons: int, vertices: int,
+                    resolutions: tuple[int, ...] = (128, 256)) -> dict[str, Any]:
+    """The section's JSON: per scene and resolution, the exact reference's seconds and, per design,
+    bias, noise and seconds (module docstring)."""
+    heights = torch.from_numpy(make_shape("print_lines", 128)).float()
+    report: dict[str, Any] = {"photons": photons, "bias_photons": bias_photons,
+                              "reference_photons": reference_photons, "wavefront_vertices": vertices}
+    for scene_name in SCENES:
+        for n in resolutions:
+            exact, seconds = exact_reference(scene_name, n, heights, vertices, reference_photons)
+            entry: dict[str, Any] = {"exact_seconds": seconds}
+            for name, design in DESIGNS.items():
+                ops = [configured_operator(scene_name, n, photons, seed, design) for seed in (0, 1)]
+                renders = [op.render(heights) for op in ops]
+                fine = [configured_operator(scene_name, n, bias_photons, seed, design).render(heights).double()
+                        for seed in (0, 1)]
+                target = exact.to(ops[0].dtype)
+                fine_noise = relative(fine[0], fine[1]) * torch.linalg.vector_norm(fine[1]).item() \
+                    / torch.linalg.vector_norm(exact).item() / math.sqrt(2.0)
+                entry[name] = {
+                    "bias": relative(0.5 * (fine[0] + fine[1]), exact),
+                    "bias_noise": fine_noise / math.sqrt(2.0),
+                    "error_at_budget": relative(renders[0], exact),
+                    "noise_at_budget": float(torch.linalg.vector_norm(renders[0].double() - renders[1].double())
+                                             / torch.linalg.vector_norm(exact)) / math.sqrt(2.0),
+                    "render_seconds": best_of_two(lambda: ops[0].render(heights)),
+                    "gradient_seconds": best_of_two(lambda: ops[0].loss_and_grad(heights, target)),
+                }
+            report[f"{scene_name}_{n}px"] = entry
+    return report

@@ -1,0 +1,399 @@
+"""Exact irradiance of the caustic by wavefront triangles: an independent, blur-free forward renderer.
+
+The light's wavefront is sampled by a K x K grid of aim points covering the substrate's top square
+[-W, W]^2 on the plane z = h, aimed at as the photon emitter aims (docs/method.md, "Photon
+emission"; :meth:`operators.emission.PointLightEmitter.photons_toward`); each grid cell is split
+into two triangles. Every vertex ray is traced in float64 through the printed Catmull-Rom top, the
+substrate and onto the receiver plane (docs/method.md, "Refraction through the glass") by the
+fused native kernels' per-photon optics (:mod:`operators.heightfield.kernels_native`: the exact
+hit on the interpolant, Snell at both faces, rays lost at the side walls or by total internal
+reflection) or, with ``tracer="torch"``, by
+:func:`operators.heightfield.trace_reference.trace_substrate`: the same receiver points to ~1e-13
+pixels, the native tracer about 10 times faster.
+
+Aim triangle A of channel k carries the flux P / (4 pi c) Omega(A) (c channels: the light's
+power split evenly, as the emitter splits it), Omega(A) its solid angle seen from the light in
+closed form (Van Oosterom and Strackee 1983), so the emitted flux is exact; the mean of the three
+vertex values of P / (4 pi c) cos(theta) / r^2 times |A| would err by O(Delta^2) relative (Delta
+the grid step). With Fresnel weights the flux is multiplied by the mean of the vertices'
+transmittances. The flux spreads evenly over the image triangle on the receiver, rasterised with
+exact pixel coverage (:mod:`operators.wavefront.coverage`); the image is flux per pixel over the
+pixel area, irradiance in W per scene unit^2 (c, n, n), as :meth:`CausticOperator.render` gives.
+
+Lost rays (side walls, total internal reflection; the tracer gives them zero flux): a triangle
+whose three vertices are lost is dropped; one with lost and kept vertices is cut into 4 by its
+edge midpoints, the new vertices traced, ``subdivisions`` times over, and only the sub-triangles
+still touching a lost vertex are dropped. What this drops is a band of width ~ Delta / 2^L along
+the edge of the lit region (measured in tests/operators/test_wavefront.py).
+
+Error: the map from aim points to receiver points is replaced by its piecewise-linear
+interpolant and the irradiance by a constant per image triangle; for a smooth height field the
+pixel values err by O(Delta^2) (second-order terms of the map; the triangles tile the image
+without gaps or overlaps wherever the map is one-to-one, so the flux is only redistributed near
+pixel edges). At folds (caustics) the map folds over: flipped triangles count with their |area|
+and overlapping sheets add, which is the exact irradiance in the limit Delta -> 0; the inverse
+square-root singularity along a fold is integrable, so pixel values converge, more slowly there.
+No smoothing footprint: unlike the splat renderer (docs/method.md, "Photon-differential
+splatting") the result does not blur, which makes it the reference for synthetic data.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+
+import numba as nb
+import numpy as np
+import torch
+
+from operators.emission import PointLightEmitter
+from operators.heightfield.kernels_native import hit_jet, optics_state
+from operators.heightfield.trace_native import FusedTracer
+from operators.heightfield.trace_reference import trace_substrate
+from operators.kernels.numba_settings import jit_call, jit_inline, jit_parallel
+from operators.optics.native import ZERO, fresnel
+from operators.scene import Scene
+from operators.wavefront.coverage import rasterize_grid, rasterize_triangles
+
+# Triangle vertices per receiver pixel side that the default grid gives over the printed square.
+VERTICES_PER_PIXEL = 8
+MAX_SUBDIVISIONS = 8
+TRACERS = ("native", "torch")
+# Children of a triangle (v0, v1, v2) cut at its edge midpoints m01, m12, m20, as indices into
+# (v0, v1, v2, m01, m12, m20).
+CHILDREN = np.array([[0, 3, 5], [3, 1, 4], [5, 4, 2], [3, 4, 5]])
+
+
+def wavefront_vertices(photons: int, channels: int) -> int:
+    """Grid size K for a photon budget: (K - 1)^2 = photons / channels cells per channel, each
+    of the emitter's cell area (2 W)^2 / photons-per-channel; about ``photons`` vertices in all."""
+    if isinstance(photons, bool) or int(photons) != photons or photons < channels:
+        raise ValueError(f"photons={photons!r} must be an integer >= the number of wavelengths ({channels})")
+    return int(round(math.sqrt(photons / channels))) + 1
+
+
+def check_heights(heights: torch.Tensor, scene: Scene) -> None:
+    """Refuse what is not a finite, square (m, m) height field (m >= 4) with the glass top above
+    the substrate bottom (d > -h) and below the light."""
+    if not isinstance(heights, torch.Tensor):
+        raise TypeError(f"heights must be a torch.Tensor, got {type(heights).__name__}")
+    if heights.dim() != 2 or heights.shape[0] != heights.shape[1] or heights.shape[0] < 4:
+        raise ValueError(f"heights must be a square (m, m) array with m >= 4, got shape {tuple(heights.shape)}")
+    if not bool(torch.isfinite(heights).all()):
+        raise ValueError("heights contain NaN or infinite values; clean the height field first")
+    if float(heights.min()) <= -scene.substrate.thickness:
+        raise ValueError(f"heights reach {float(heights.min()):.4g}, below the substrate bottom "
+                         f"(d must exceed -thickness = {-scene.substrate.thickness})")
+    scene.check_heights_below_light(float(heights.max()))
+
+
+@jit_inline
+def triangle_solid_angle(ax, ay, bx, by, cx, cy, dz) -> float:
+    """Solid angle (sr) of the triangle (a, b, c) on a plane dz below the light (dz < 0); the
+    vertices' x, y are relative to the light's. Van Oosterom-Strackee:
+    tan(Omega / 2) = |a . (b x c)| / (|a||b||c| + (a.b)|c| + (a.c)|b| + (b.c)|a|), with
+    a . (b x c) = dz ((b - a) x (c - a))_z for a flat triangle (no cancellation)."""
+    num = abs(dz * ((bx - ax) * (cy - ay) - (by - ay) * (cx - ax)))
+    la = math.sqrt(ax * ax + ay * ay + dz * dz)
+    lb = math.sqrt(bx * bx + by * by + dz * dz)
+    lc = math.sqrt(cx * cx + cy * cy + dz * dz)
+    dz2 = dz * dz
+    den = (la * lb * lc + (ax * bx + ay * by + dz2) * lc + (ax * cx + ay * cy + dz2) * lb
+           + (bx * cx + by * cy + dz2) * la)
+    return 2.0 * math.atan2(num, den)
+
+
+@jit_parallel
+def _grid_solid_angles(k, half, base, lx, ly, lz, out) -> None:
+    """Solid angles (2, K-1, K-1) of the grid's triangles (split as in coverage.rasterize_grid)
+    with aim points x_j = -half + 2 half j / (K - 1) (y likewise by row) on z = base."""
+    dz = base - lz
+    for i in nb.prange(k - 1):
+        y0 = -half + (2.0 * half) * i / (k - 1) - ly
+        y1 = -half + (2.0 * half) * (i + 1) / (k - 1) - ly
+        for j in range(k - 1):
+            x0 = -half + (2.0 * half) * j / (k - 1) - lx
+            x1 = -half + (2.0 * half) * (j + 1) / (k - 1) - lx
+            out[0, i, j] = triangle_solid_angle(x0, y0, x1, y0, x1, y1, dz)
+            out[1, i, j] = triangle_solid_angle(x0, y0, x1, y1, x0, y1, dz)
+
+
+@jit_parallel
+def _list_solid_angles(aim, lx, ly, dz, out) -> None:
+    """Solid angles (T,) of triangles with aim points ``aim`` (T, 3, 2) on the plane dz below the light."""
+    for t in nb.prange(aim.shape[0]):
+        out[t] = triangle_solid_angle(aim[t, 0, 0] - lx, aim[t, 0, 1] - ly, aim[t, 1, 0] - lx, aim[t, 1, 1] - ly,
+                                      aim[t, 2, 0] - lx, aim[t, 2, 1] - ly, dz)
+
+
+@jit_parallel
+def _grid_flux(omega, ratio, scale, flux, mixed) -> None:
+    """flux (2, K-1, K-1) = scale * omega * mean vertex transmittance ``ratio`` (K, K) for
+    triangles with no lost vertex (ratio 0), else 0; mixed = 1 where some but not all are lost."""
+    for i in nb.prange(omega.shape[1]):
+        for j in range(omega.shape[2]):
+            r00 = ratio[i, j]
+            r01 = ratio[i, j + 1]
+            r10 = ratio[i + 1, j]
+            r11 = ratio[i + 1, j + 1]
+            for t in range(2):
+                ra = r00
+                rb = r11
+                rc = r01 if t == 0 else r10
+                lost = int(ra == 0.0) + int(rb == 0.0) + int(rc == 0.0)
+                flux[t, i, j] = scale * omega[t, i, j] * (ra + rb + rc) / 3.0 if lost == 0 else 0.0
+                mixed[t, i, j] = 1 if 0 < lost < 3 else 0
+
+
+@jit_call
+def _trace_ray(d, sc, eta, ax, ay) -> tuple[float, float, float]:
+    """One ray aimed at (ax, ay) on z = sc.base, by the fused kernels' per-photon optics
+    (:func:`operators.heightfield.kernels_native.hit_jet`, :func:`~operators.heightfield.kernels_native.optics_state`
+    with zero differentials): receiver position (x, y) in pixel corner units and transmittance
+    (1, the Fresnel product with sc.fresnel, 0 if lost). A call, not inlined into the parallel
+    loop (numba's parfor analysis trips over the inlined tuples)."""
+    dx = ax - sc.light_x
+    dy = ay - sc.light_y
+    dz = sc.base - sc.light_z
+    inv_r = 1.0 / math.sqrt(dx * dx + dy * dy + dz * dz)
+    w = (dx * inv_r, dy * inv_r, dz * inv_r)
+    t, jet = hit_jet(d, sc, w)
+    top, below, _, _ = optics_state(sc, w, ZERO, ZERO, t, jet, eta)
+    p3 = below[11]
+    x = (p3[0] + sc.receiver_half) * sc.to_px
+    y = (p3[1] + sc.receiver_half) * sc.to_px
+    transmittance = 1.0
+    if sc.fresnel:
+        transmittance = fresnel(top[9], top[10], 1.0 / eta) * fresnel(below[8], below[9], eta)
+    good = not below[0] and math.isfinite(x) and math.isfinite(y) and transmittance > 0.0
+    return x, y, transmittance if good else 0.0
+
+
+@jit_parallel
+def _trace_native(d, sc, eta, aim, pos, ratio) -> None:
+    """Rays aimed at ``aim`` (N, 2) through heights ``d`` (m, m) with glass index ``eta``
+    (:func:`_trace_ray`): positions (N, 2) into ``pos``, transmittances (N,) into ``ratio``."""
+    for k in nb.prange(aim.shape[0]):
+        pos[k, 0], pos[k, 1], ratio[k] = _trace_ray(d, sc, eta, aim[k, 0], aim[k, 1])
+
+
+@dataclass
+class FluxBudget:
+    """Where the light of the last render went (W, all channels summed).
+
+    emitted: P / (4 pi) times the solid angle of the top square (exact);
+    dropped: emitted flux of the dropped (sub-)triangles (before Fresnel weights);
+    rasterised: flux of the kept triangles (with Fresnel weights if on);
+    received: flux that landed on the receiver's image (rasterised minus what fell off it).
+    """
+
+    emitted: float
+    dropped: float
+    rasterised: float
+    received: float
+
+
+class WavefrontRenderer:
+    """Blur-free caustic irradiance of a height field by wavefront triangles (module docstring).
+
+    ``vertices`` K: aim points per side of the grid (default: :meth:`default_vertices`, at
+    least 8 triangle vertices per receiver pixel side over the printed square); ``fresnel``:
+    Fresnel weights as in :class:`operators.heightfield.operator.OperatorSettings`;
+    ``chunk_size``: rays traced at once (sets the peak memory, ~1 kB per ray); ``subdivisions``:
+    levels of 4-way cuts of triangles at the edge of the lit region; ``tracer``: ``"native"``
+    traces each ray with the fused numba kernels' optics (:func:`_trace_native`), ``"torch"``
+    with :func:`operators.heightfield.trace_reference.trace_substrate` (the same rays to
+    rounding, ~10x slower).
+    """
+
+    deterministic = True  # no sampling noise: one render is the clean image (framework/plugins/data/sources.py)
+
+    def __init__(self, scene: Scene, vertices: int | None = None, fresnel: bool = False,
+                 chunk_size: int = 1 << 18, subdivisions: int = 3, tracer: str = "native") -> None:
+        k = self.default_vertices(scene) if vertices is None else vertices
+        if isinstance(k, bool) or int(k) != k or k < 2:
+            raise ValueError(f"vertices={vertices!r} must be an integer >= 2 (aim points per side), e.g. 2049")
+        if isinstance(chunk_size, bool) or int(chunk_size) != chunk_size or chunk_size < 1:
+            raise ValueError(f"chunk_size={chunk_size!r} must be a positive integer, e.g. 262144")
+        if isinstance(subdivisions, bool) or int(subdivisions) != subdivisions or not 0 <= subdivisions <= MAX_SUBDIVISIONS:
+            raise ValueError(f"subdivisions={subdivisions!r} must be an integer in [0, {MAX_SUBDIVISIONS}]")
+        if tracer not in TRACERS:
+            raise ValueError(f"tracer={tracer!r} must be one of {', '.join(TRACERS)}")
+        if not isinstance(fresnel, bool):
+            raise ValueError(f"fresnel={fresnel!r} must be true or false")
+        self.scene = scene
+        self.vertices = int(k)
+        self.fresnel = fresnel
+        self.chunk_size = int(chunk_size)
+        self.subdivisions = int(subdivisions)
+        self.tracer = tracer
+        self.emitter = PointLightEmitter(scene, scene.channels, 0, 1.0, torch.float64)
+        self.fused = FusedTracer(scene, self.emitter, 1.0, 20.0, fresnel, False)  # footprint settings unused
+        self.glass_index = torch.tensor(scene.indices, dtype=torch.float64)
+        self.last_budget: FluxBudget | None = None
+        self._omega: np.ndarray | None = None
+
+    @staticmethod
+    def default_vertices(scene: Scene) -> int:
+        """Smallest K with VERTICES_PER_PIXEL triangle vertices per receiver pixel side across the
+        straight-line image of the top square (magnified by (l_z - s) / (l_z - h))."""
+        lz, h, s = scene.light.position[2], scene.substrate.thickness, scene.receiver.z
+        image_width = 2.0 * scene.substrate.half_width * (lz - s) / (lz - h)
+        return int(math.ceil(VERTICES_PER_PIXEL * image_width / scene.receiver.pixel_size - 1e-9)) + 1
+
+    @property
+    def output_shape(self) -> tuple[int, int, int]:
+        n = self.scene.receiver.resolution
+        return self.scene.channels, n, n
+
+    @property
+    def pixel_area(self) -> float:
+        """Area of one receiver pixel (scene units^2)."""
+        return self.scene.receiver.pixel_size ** 2
+
+    def _channel_scale(self) -> float:
+        """P / (4 pi c): flux per steradian per channel (W / sr)."""
+        return self.scene.light.power / (4.0 * math.pi * self.scene.channels)
+
+    def grid_solid_angles(self) -> np.ndarray:
+        """Solid angles (2, K-1, K-1) (sr) of the grid's aim triangles (computed once)."""
+        if self._omega is None:
+            k = self.vertices
+            light = self.scene.light.position
+            self._omega = np.empty((2, k - 1, k - 1))
+            _grid_solid_angles(k, float(self.scene.substrate.half_width), float(self.scene.substrate.thickness),
+                               float(light[0]), float(light[1]), float(light[2]), self._omega)
+        return self._omega
+
+    def aim_coordinates(self, index: np.ndarray) -> np.ndarray:
+        """Aim coordinates x_j = -W + 2 W j / (K - 1) (scene units) of grid indices ``index``."""
+        half = self.scene.substrate.half_width
+        return -half + (2.0 * half) * index / (self.vertices - 1)
+
+    def trace(self, heights: torch.Tensor, aim: np.ndarray, channel: int) -> tuple[np.ndarray, np.ndarray]:
+        """Rays of ``channel`` aimed at ``aim`` (N, 2) (x, y on z = h) traced onto the receiver:
+        positions (N, 2) in pixel corner units (pixel p spans [p, p + 1]) and transmittance
+        (N,) = flux out / flux in (1 without Fresnel, 0 for a lost ray)."""
+        count = aim.shape[0]
+        pos = np.empty((count, 2))
+        ratio = np.empty(count)
+        if self.tracer == "native":
+            d = heights.numpy()
+            sc = self.fused.constants(d)
+            eta = float(self.scene.indices[channel])
+            for start in range(0, count, self.chunk_size):
+                stop = min(count, start + self.chunk_size)
+                _trace_native(d, sc, eta, np.ascontiguousarray(aim[start:stop]), pos[start:stop], ratio[start:stop])
+            return pos, ratio
+        scene = self.scene
+        to_px = 1.0 / scene.receiver.pixel_size
+        for start in range(0, count, self.chunk_size):
+            stop = min(count, start + self.chunk_size)
+            part = torch.from_numpy(np.ascontiguousarray(aim[start:stop].T))
+            targets = torch.cat([part, torch.full((1, stop - start), scene.substrate.thickness, dtype=torch.float64)])
+            batch = self.emitter.photons_toward(targets, torch.full((stop - start,), channel, dtype=torch.int64))
+            hits = trace_substrate(heights, scene, batch, self.glass_index, self.fresnel)
+            p = ((hits.position + scene.receiver.half_width) * to_px).numpy()
+            r = (hits.flux / batch.flux).numpy()
+            good = np.isfinite(r) & np.isfinite(p).all(axis=0) & (r > 0.0)
+            pos[start:stop] = p.T
+            ratio[start:stop] = np.where(good, r, 0.0)
+        return pos, ratio
+
+    def _trace_grid(self, heights: torch.Tensor, channel: int) -> tuple[np.ndarray, np.ndarray]:
+        """Receiver positions (K, K, 2) (pixel corner units) and transmittances (K, K) of the grid."""
+        k = self.vertices
+        pos = np.empty((k * k, 2))
+        ratio = np.empty(k * k)
+        rows_per_chunk = max(1, self.chunk_size // k)
+        cols = self.aim_coordinates(np.arange(k))
+        for r0 in range(0, k, rows_per_chunk):
+            r1 = min(k, r0 + rows_per_chunk)
+            aim = np.empty((r1 - r0, k, 2))
+            aim[:, :, 0] = cols[None, :]
+            aim[:, :, 1] = self.aim_coordinates(np.arange(r0, r1))[:, None]
+            pos[r0 * k:r1 * k], ratio[r0 * k:r1 * k] = self.trace(heights, aim.reshape(-1, 2), channel)
+        return pos.reshape(k, k, 2), ratio.reshape(k, k)
+
+    def _subdivide(self, heights: torch.Tensor, channel: int, pos: np.ndarray, ratio: np.ndarray,
+                   mixed: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Cut the grid triangles flagged ``mixed`` (2, K-1, K-1) recursively at their edge
+        midpoints; returns the kept sub-triangles: aim points (T, 3, 2) (scene units), receiver
+        positions (T, 3, 2) (pixel corner units) and vertex transmittances (T, 3)."""
+        t, i, j = np.nonzero(mixed)
+        rows = np.stack([i, i + (t == 1), i + 1], axis=1)
+        cols = np.stack([j, j + 1, j + (t == 0)], axis=1)
+        aim = np.stack([self.aim_coordinates(cols), self.aim_coordinates(rows)], axis=-1)
+        rec = pos[rows, cols]
+        q = ratio[rows, cols]
+        kept_aim, kept_rec, kept_q = [], [], []
+        for _ in range(self.subdivisions):
+            if aim.shape[0] == 0:
+                break
+            mid = 0.5 * (aim + aim[:, [1, 2, 0]])  # m01, m12, m20
+            mid_rec, mid_q = self.trace(heights, mid.reshape(-1, 2), channel)
+            aim = np.concatenate([aim, mid], axis=1)[:, CHILDREN].reshape(-1, 3, 2)
+            rec = np.concatenate([rec, mid_rec.reshape(-1, 3, 2)], axis=1)[:, CHILDREN].reshape(-1, 3, 2)
+            q = np.concatenate([q, mid_q.reshape(-1, 3)], axis=1)[:, CHILDREN].reshape(-1, 3)
+            lost = (q == 0.0).sum(axis=1)
+            keep = lost == 0
+            kept_aim.append(aim[keep])
+            kept_rec.append(rec[keep])
+            kept_q.append(q[keep])
+            again = (lost > 0) & (lost < 3)
+            aim, rec, q = aim[again], rec[again], q[again]
+        if not kept_aim:
+            return np.empty((0, 3, 2)), np.empty((0, 3, 2)), np.empty((0, 3))
+        return np.concatenate(kept_aim), np.concatenate(kept_rec), np.concatenate(kept_q)
+
+    def render(self, heights: torch.Tensor) -> torch.Tensor:
+        """Irradiance (c, n, n) float64 (W per scene unit^2, [channel, row = y, col = x]) of the
+        printed ``heights`` (m, m) (scene units), on their device; no autograd (traced on the CPU).
+        Sets :attr:`last_budget`."""
+        check_heights(heights, self.scene)
+        d = heights.detach().to(device="cpu", dtype=torch.float64).contiguous()
+        n = self.scene.receiver.resolution
+        scale = self._channel_scale()
+        omega = self.grid_solid_angles()
+        light = self.scene.light.position
+        dz = self.scene.substrate.thickness - light[2]
+        image = np.zeros(self.output_shape)
+        budget = FluxBudget(0.0, 0.0, 0.0, 0.0)
+        with torch.no_grad():
+            for c in range(self.scene.channels):
+                pos, ratio = self._trace_grid(d, c)
+                flux = np.empty_like(omega)
+                mixed = np.empty(omega.shape, dtype=np.int8)
+                _grid_flux(omega, ratio, scale, flux, mixed)
+                image[c] = rasterize_grid(pos, flux, n)
+                kept_omega = float(omega[flux != 0.0].sum())
+                rasterised = float(flux.sum())
+                if self.subdivisions and mixed.any():
+                    aim, rec, q = self._subdivide(d, c, pos, ratio, mixed)
+                    sub_omega = np.empty(aim.shape[0])
+                    if aim.shape[0]:
+                        _list_solid_angles(aim, float(light[0]), float(light[1]), float(dz), sub_omega)
+                    sub_flux = scale * sub_omega * q.mean(axis=1)
+                    image[c] += rasterize_triangles(rec, sub_flux, n)
+                    kept_omega += float(sub_omega.sum())
+                    rasterised += float(sub_flux.sum())
+                total_omega = float(omega.sum())
+                budget.emitted += scale * total_omega
+                budget.dropped += scale * (total_omega - kept_omega)
+                budget.rasterised += rasterised
+                budget.received += float(image[c].sum())
+        self.last_budget = budget
+        return torch.from_numpy(image / self.pixel_area).to(heights.device)
+
+    def describe(self) -> dict[str, float]:
+        """Sampling figures for logs: grid, triangles, vertices per receiver pixel side and the
+        flux budget (W) of the last render, if any."""
+        k = self.vertices
+        info: dict[str, float] = {
+            "vertices": k, "triangles": 2 * (k - 1) ** 2,
+            "vertices_per_pixel": (k - 1) * self.scene.receiver.pixel_size / (2.0 * self.scene.substrate.half_width),
+            "subdivisions": self.subdivisions, "fresnel": self.fresnel, "chunk_size": self.chunk_size,
+            "tracer": self.tracer}
+        if self.last_budget is not None:
+            info.update({f"flux_{key}": value for key, value in asdict(self.last_budget).items()})
+        return info
