@@ -320,6 +320,8 @@ def main(argv: list[str] | None = None) -> None:
                         help="photons of the exact reference through the two lenses")
     parser.add_argument("--wavefront-vertices", type=int, default=4097,
                         help="aim points per side of the height field's exact (wavefront-triangle) reference")
+    parser.add_argument("--only", choices=("fidelity",), default=None,
+                        help="fidelity: print only the fidelity section")
     parser.add_argument("--footprint-px", type=float, default=3.0)
     parser.add_argument("--chunk-size", type=int, default=1 << 18)
     parser.add_argument("--device", choices=("cpu", "cuda"), default="cpu",
@@ -327,6 +329,11 @@ def main(argv: list[str] | None = None) -> None:
     args = parser.parse_args(argv)
 
     heights = heights_print_lines()
+    if args.only == "fidelity":
+        print(json.dumps({"fidelity": fidelity_report(args.fidelity_photons, args.fidelity_bias_photons,
+                                                      args.fidelity_reference_photons, args.wavefront_vertices)},
+                         indent=2))
+        return
     if args.device == "cuda":
         if not torch.cuda.is_available():
             parser.error("--device cuda needs a CUDA GPU; none is visible (torch.cuda.is_available() is False)")

@@ -7,11 +7,13 @@ flash energy). :class:`ImagingOperator` wraps any operator plugin F into
 
     G(d) = gain * K * F(d),
 
-K a convolution over the receiver with the point-spread function (zero outside the receiver),
-and gives its adjoint G'(d)^* g = F'(d)^* (gain * K^T g) for the gradient. The scene it was
-built for can be changed (joint calibration of the setup, framework/pipeline/calibration.py): the
-wrapped operator is then rebuilt for the new scene; ``revision`` counts the changes so that
-cached renders of an earlier setup are not reused.
+K a convolution over the receiver with the point-spread function (a Gaussian integrated over
+each pixel, :class:`ScreenBlur`; zero outside the receiver), and gives its adjoint
+G'(d)^* g = F'(d)^* (gain * K^T g) for the gradient. The scene it was built for, the gain and the
+blur's width can be changed (joint calibration of the setup, framework/pipeline/calibration.py,
+which takes dG/dsigma = gain (dK/dsigma) F(d) from the same render): the wrapped operator is
+rebuilt for a new scene; ``revision`` counts the changes so that cached renders of an earlier
+setup are not reused.
 """
 
 from __future__ import annotations
@@ -27,9 +29,38 @@ import torch.nn.functional as F
 from operators.photon_operator import ImageOperator
 from operators.scene import Scene
 
-__all__ = ["ScreenBlur", "ImagingOperator", "PSF_KINDS"]
+__all__ = ["ScreenBlur", "ImagingOperator", "PSF_KINDS", "pixel_integrated_gaussian"]
 
 PSF_KINDS = ("none", "gaussian")
+PSF_TRUNCATE = 6.0  # the blur's taps reach 6 sigma: the Gaussian's mass beyond is 2e-9
+
+
+def pixel_integrated_gaussian(sigma_px: float, truncate: float = PSF_TRUNCATE
+                              ) -> tuple[torch.Tensor, torch.Tensor]:
+    """The normalised 1-D taps p_k (k = -R .. R, R = ceil(truncate sigma), at least 1 for sigma > 0)
+    of a Gaussian of standard deviation ``sigma_px`` (pixels) integrated over each pixel
+    [k - 1/2, k + 1/2], and their derivative dp_k/dsigma (per pixel), both float64 (2R + 1,).
+    sigma 0 gives the delta [1] and a zero derivative."""
+    if sigma_px <= 0.0:
+        return torch.ones(1, dtype=torch.float64), torch.zeros(1, dtype=torch.float64)
+    radius = max(1, int(math.ceil(truncate * sigma_px)))
+    scale = sigma_px * math.sqrt(2.0)
+    # Taps k >= 0 (the kernel is even); erfc of the outer edges keeps the far taps accurate.
+    taps = [math.erf(0.5 / scale)] + [0.5 * (math.erfc((k - 0.5) / scale) - math.erfc((k + 0.5) / scale))
+                                     for k in range(1, radius + 1)]
+
+    def density(x: float) -> float:  # x phi(x / sigma) / sigma^2 (0 where phi underflows)
+        z = abs(x) / sigma_px
+        return 0.0 if z > 40.0 else x * math.exp(-0.5 * z * z) / (math.sqrt(2.0 * math.pi) * sigma_px ** 2)
+
+    # d/dsigma [Phi(b / sigma) - Phi(a / sigma)] = (a phi(a / sigma) - b phi(b / sigma)) / sigma^2
+    slopes = [-2.0 * density(0.5)] + [density(k - 0.5) - density(k + 0.5) for k in range(1, radius + 1)]
+    half, half_slope = torch.tensor(taps, dtype=torch.float64), torch.tensor(slopes, dtype=torch.float64)
+    t = torch.cat([half.flip(0), half[1:]])
+    dt = torch.cat([half_slope.flip(0), half_slope[1:]])
+    total, total_slope = t.sum(), dt.sum()
+    p = t / total
+    return p, (dt - p * total_slope) / total
 
 
 class ScreenBlur:
@@ -39,35 +70,45 @@ class ScreenBlur:
         sigma: Standard deviation of the Gaussian spot, scene units (0: no blur).
         pixel_size: Receiver pixel size, scene units.
 
-    The kernel is sampled at the pixel centres out to 4 sigma and normalised to sum 1, so the
-    blur keeps the light that stays on the receiver; light spread past the edge is lost, as on
-    a screen of that size.
+    Each tap of the (separable) kernel is the Gaussian's integral over that pixel, by erf
+    differences: the light of a point at a pixel's centre, spread by the screen, as the pixels
+    collect it. Taps reach ``PSF_TRUNCATE`` (6) sigma (at least one pixel) and are normalised to sum 1, so
+    the blur keeps the light that stays on the receiver; light spread past the edge is lost, as
+    on a screen of that size. The kernel's variance is sigma^2 + 1/12 pixel^2 (the pixel box's),
+    widths below a pixel keep their weight on the neighbours, and the taps are smooth in sigma
+    down to 0, where the kernel is a delta (:meth:`derivative`: dK/dsigma, analytic).
     """
 
     def __init__(self, sigma: float, pixel_size: float) -> None:
         if isinstance(sigma, bool) or not isinstance(sigma, (int, float)) or not (math.isfinite(sigma) and sigma >= 0):
             raise ValueError(f"screen.sigma={sigma!r} must be a length >= 0 (scene units or e.g. '0.1 mm')")
         self.sigma = float(sigma)
-        self.sigma_px = self.sigma / pixel_size
-        radius = int(math.ceil(4.0 * self.sigma_px))
-        offsets = torch.arange(-radius, radius + 1, dtype=torch.float64)
-        profile = torch.exp(-0.5 * (offsets / max(self.sigma_px, 1e-12)) ** 2)
-        self.profile = profile / profile.sum()  # separable: the 2-D kernel is the outer product
+        self.pixel_size = float(pixel_size)
+        self.sigma_px = self.sigma / self.pixel_size
+        self.profile, self.profile_derivative = pixel_integrated_gaussian(self.sigma_px)
 
     @property
     def active(self) -> bool:
-        """Whether the blur changes an image (a kernel wider than one pixel)."""
-        return self.profile.numel() > 1
+        """Whether the blur changes an image: sigma > 0 and a kernel that differs from a delta by more
+        than rounding."""
+        if self.profile.numel() == 1:
+            return False
+        centre = (self.profile.numel() - 1) // 2
+        return 1.0 - float(self.profile[centre]) > 4.0 * torch.finfo(torch.float64).eps
+
+    @staticmethod
+    def _separable(image: torch.Tensor, rows: torch.Tensor, cols: torch.Tensor) -> torch.Tensor:
+        """The image (c, n, n) convolved with rows (x) cols, both odd-length and centred, zero padding."""
+        r = (rows.numel() - 1) // 2
+        x = image.unsqueeze(1)  # (c, 1, n, n)
+        x = F.conv2d(x, rows.to(image).view(1, 1, -1, 1), padding=(r, 0))
+        x = F.conv2d(x, cols.to(image).view(1, 1, 1, -1), padding=(0, r))
+        return x.squeeze(1)
 
     def _convolve(self, image: torch.Tensor) -> torch.Tensor:
         if not self.active:
             return image
-        k = self.profile.to(image)
-        r = (k.numel() - 1) // 2
-        x = image.unsqueeze(1)  # (c, 1, n, n)
-        x = F.conv2d(x, k.view(1, 1, -1, 1), padding=(r, 0))
-        x = F.conv2d(x, k.view(1, 1, 1, -1), padding=(0, r))
-        return x.squeeze(1)
+        return self._separable(image, self.profile, self.profile)
 
     def apply(self, image: torch.Tensor) -> torch.Tensor:
         """K image: the blurred image (c, n, n)."""
@@ -76,6 +117,14 @@ class ScreenBlur:
     def adjoint(self, image: torch.Tensor) -> torch.Tensor:
         """K^T image; the kernel is symmetric and the padding zero, so K^T = K."""
         return self._convolve(image)
+
+    def derivative(self, image: torch.Tensor) -> torch.Tensor:
+        """(dK/dsigma) image (c, n, n), sigma in scene units: the 2-D kernel is p (x) p, so its
+        derivative is p' (x) p + p (x) p'. Zero where the blur is not active."""
+        if not self.active:
+            return torch.zeros_like(image)
+        p, dp = self.profile, self.profile_derivative / self.pixel_size
+        return self._separable(image, dp, p) + self._separable(image, p, dp)
 
 
 class ImagingOperator(ImageOperator):
@@ -96,22 +145,40 @@ class ImagingOperator(ImageOperator):
         self.revision = -1
         self.set_setup(scene, gain)
 
-    def set_setup(self, scene: Scene, gain: float) -> None:
-        """Rebuild for another scene (light, receiver distance) and gain; counts a revision."""
+    def set_setup(self, scene: Scene, gain: float, psf_sigma: float | None = None) -> None:
+        """Rebuild for another scene (light, receiver distance), gain and screen blur (None: the
+        current one); counts a revision."""
         if not (math.isfinite(gain) and gain > 0.0):
             raise ValueError(f"gain={gain!r} must be a positive finite number")
+        sigma = self.psf_sigma if psf_sigma is None else psf_sigma
         if self.scene != scene:
             self.inner = self._build(scene)
             self.scene = scene
-            self.blur = ScreenBlur(self.psf_sigma, self.inner.scene.receiver.pixel_size)
+            self.blur = ScreenBlur(sigma, self.inner.scene.receiver.pixel_size)
+        elif sigma != self.blur.sigma:
+            self.blur = ScreenBlur(sigma, self.inner.scene.receiver.pixel_size)
+        self.psf_sigma = self.blur.sigma
         self.gain = float(gain)
         self.revision += 1
 
-    def render_with(self, scene: Scene, gain: float, heights: torch.Tensor) -> torch.Tensor:
-        """gain * K * F(d) (c, n, n) for another setup (the same receiver grid), leaving this
-        operator's own setup, and its wrapped operator, as they are."""
+    def _blur_of(self, psf_sigma: float | None) -> ScreenBlur:
+        if psf_sigma is None or psf_sigma == self.blur.sigma:
+            return self.blur
+        return ScreenBlur(psf_sigma, self.inner.scene.receiver.pixel_size)
+
+    def render_with(self, scene: Scene, gain: float, heights: torch.Tensor, psf_sigma: float | None = None
+                    ) -> torch.Tensor:
+        """gain * K * F(d) (c, n, n) for another setup (the same receiver grid; ``psf_sigma`` None:
+        the current blur), leaving this operator's own setup, and its wrapped operator, as they are."""
         inner = self.inner if scene == self.scene else self._build(scene)
-        return gain * self.blur.apply(inner.render(heights))
+        return gain * self._blur_of(psf_sigma).apply(inner.render(heights))
+
+    def render_and_sigma_derivative(self, heights: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """(G(d), dG/dsigma) (c, n, n) each from one render of F(d): gain K F(d) and
+        gain (dK/dsigma) F(d), sigma the screen blur's in scene units (joint calibration of
+        ``psf_sigma``)."""
+        caustic = self.inner.render(heights)
+        return self.gain * self.blur.apply(caustic), self.gain * self.blur.derivative(caustic)
 
     # -- what the framework uses of an operator plugin -------------------------------------------
     @property
@@ -151,6 +218,11 @@ class ImagingOperator(ImageOperator):
         """The same camera on another sampling of the wrapped operator (the references of
         synthetic data); its setup stays fixed."""
         inner = self.inner.variant(photons, seed, resolution)
+        return ImagingOperator(lambda scene: inner, self.scene, self.psf_sigma, self.gain)
+
+    def exact_variant(self, photons: int, seed: int, resolution: int) -> ImagingOperator:
+        """The same camera on the wrapped operator's exact references (synthetic data)."""
+        inner = self.inner.exact_variant(photons, seed, resolution)
         return ImagingOperator(lambda scene: inner, self.scene, self.psf_sigma, self.gain)
 
     def __getattr__(self, name: str) -> Any:

@@ -69,8 +69,9 @@ def test_defaults_are_the_official_ones() -> None:
     assert cfg.height_field.resolution == 128 and cfg.height_field.shape == "print_lines"
     assert cfg.photons == 4194304 and cfg.seed == 0
     op = build_operator(cfg, scene)
-    s = op.settings
-    assert (s.footprint_px, s.min_footprint_px, s.max_pixel_radius, s.chunk_size) == (3.0, 1.0, 20, 262144)
+    s = op.settings  # the fine operator's: 4 x 4 fine pixels per receiver pixel, footprints in fine pixels
+    assert op.factor == 4 and op.output_shape == (1, 512, 512) and op.fine.output_shape == (1, 2048, 2048)
+    assert (s.footprint_px, s.min_footprint_px, s.max_pixel_radius, s.chunk_size) == ("cell", 0.4, 80, 262144)
     assert (s.fresnel, s.dtype, s.device, s.photons) == (False, "float32", "cpu", 4194304)
 
 

@@ -12,6 +12,7 @@ Config layout (top-level keys; see conf/scene/*.yaml and conf/operator/*.yaml)::
     seed: int
     operator:     {name: <operator plugin>, ...its own settings}
     screen:       {psf: none | gaussian, sigma: s}  # the screen's blur (operators/imaging.py)
+                                                    # (sigma: also where calibrating psf_sigma starts)
     units:        {mm_per_unit: 25.0}               # framework/core/units.py
 
 Lengths are in scene units, or strings with a unit such as "2.5 mm" (framework/core/units.py). Groups
@@ -21,6 +22,7 @@ naming the key. The operator plugin checks its own settings.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -43,7 +45,7 @@ from operators.scene import PointLight, Receiver, Scene, Substrate
 from operators.stack import StackOperator
 
 __all__ = ["SceneSetup", "build_scene", "build_heights", "build_operator", "build_stack", "operator_builder", "heights_from_spec", "height_grid",
-           "screen_sigma", "to_plain"]
+           "screen_settings", "screen_sigma", "to_plain"]
 
 SCENE_KEYS: dict[str, tuple[str, ...]] = {
     "light": ("position", "power"),
@@ -169,15 +171,21 @@ def height_grid(cfg: Mapping[str, Any], scene: Scene) -> HeightGrid:
     return HeightGrid(resolution, scene.substrate.half_width, scene.substrate.thickness)
 
 
-def screen_sigma(cfg: Mapping[str, Any], mm: float | None = None) -> float:
-    """The screen's Gaussian spot (standard deviation, scene units) from ``screen``; 0 for none."""
+def screen_settings(cfg: Mapping[str, Any], mm: float | None = None) -> tuple[str, float]:
+    """(``screen.psf``, ``screen.sigma`` in scene units as configured, whatever the psf)."""
     screen = _group(cfg, "screen", SCREEN_KEYS)
     psf = screen.get("psf", "none")
     if psf not in PSF_KINDS:
         raise ValueError(f"screen.psf={psf!r}; use {' or '.join(PSF_KINDS)}")
-    sigma = scene_length(screen.get("sigma", 0.0), mm_per_unit(cfg) if mm is None else mm, "screen.sigma")
-    if psf == "gaussian" and not sigma > 0.0:
-        raise ValueError(f"screen.psf=gaussian needs screen.sigma > 0 (scene units or e.g. '0.1 mm'), got {sigma}")
+    return psf, scene_length(screen.get("sigma", 0.0), mm_per_unit(cfg) if mm is None else mm, "screen.sigma")
+
+
+def screen_sigma(cfg: Mapping[str, Any], mm: float | None = None) -> float:
+    """The screen's Gaussian spot (standard deviation, scene units) from ``screen``; 0 for none."""
+    psf, sigma = screen_settings(cfg, mm)
+    if psf == "gaussian" and not (math.isfinite(sigma) and sigma > 0.0):
+        raise ValueError(f"screen.psf=gaussian needs a finite screen.sigma > 0 (scene units or e.g. '0.1 mm'), "
+                         f"got {sigma}")
     return sigma if psf == "gaussian" else 0.0
 
 
@@ -227,6 +235,8 @@ class SceneSetup:
             ``imaging``).
         height_field: The ``height_field`` group, keys checked.
         mm_per_unit: Millimetres per scene unit.
+        screen_sigma: ``screen.sigma`` in scene units, whatever ``screen.psf`` (where joint
+            calibration of the blur's width starts, framework/pipeline/calibration.py).
     """
 
     scene: Scene
@@ -234,6 +244,7 @@ class SceneSetup:
     operator: Operator
     height_field: dict[str, Any]
     mm_per_unit: float
+    screen_sigma: float = 0.0
 
     @classmethod
     def parse(cls, cfg: Mapping[str, Any], mm: float, imaging: bool = False,
@@ -245,7 +256,8 @@ class SceneSetup:
             operator = build_operator(cfg, scene, imaging, mm)
         else:
             operator = build_stack(cfg, scene, shots(scene, mm), imaging, mm)
-        return cls(scene, height_grid(cfg, scene), operator, _group(cfg, "height_field", HEIGHT_FIELD_KEYS), mm)
+        return cls(scene, height_grid(cfg, scene), operator, _group(cfg, "height_field", HEIGHT_FIELD_KEYS), mm,
+                   screen_settings(cfg, mm)[1])
 
     def heights(self, base_dir: str | Path | None = None) -> torch.Tensor:
         """The configured heights (m, m), float64, scene units (:func:`build_heights`)."""

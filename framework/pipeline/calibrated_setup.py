@@ -2,12 +2,16 @@
 name, renders with other values, and the change applied.
 
 - :class:`CameraSetup`: one image seen through the camera (operators/imaging.py): ``gain``,
-  ``screen_distance``, ``light_height``, ``light_x``, ``light_y``.
+  ``screen_distance``, ``light_height``, ``light_x``, ``light_y`` and the screen blur's width
+  ``psf_sigma``.
 - :class:`StackSetup`: a stack of shots (operators/stack.py), each seen through the camera: one
-  gain per shot (``gain_0`` .. ``gain_<N-1>``) and the shared geometry. ``screen_distance`` and
-  the light's position are those of the configured scene; every shot keeps its offset from them
-  (a translation stage's or a lamp rail's known moves), so moving the configured distance moves
-  every screen by the same amount.
+  gain per shot (``gain_0`` .. ``gain_<N-1>``), the shared geometry and the shared ``psf_sigma``
+  (one screen). ``screen_distance`` and the light's position are those of the configured scene;
+  every shot keeps its offset from them (a translation stage's or a lamp rail's known moves), so
+  moving the configured distance moves every screen by the same amount.
+
+Both give dG/dpsf_sigma = gain (dK/dsigma) F(d) analytically, from the render of G(d) itself
+(:meth:`CameraSetup.render_and_psf_column`).
 """
 
 from __future__ import annotations
@@ -22,9 +26,10 @@ from operators.imaging import ImagingOperator
 from operators.scene import Scene
 from operators.stack import StackOperator
 
-__all__ = ["GEOMETRY", "CameraSetup", "StackSetup", "is_gain", "setup_values", "with_setup"]
+__all__ = ["GEOMETRY", "PSF", "CameraSetup", "StackSetup", "is_gain", "setup_values", "with_setup"]
 
 GEOMETRY = ("screen_distance", "light_height", "light_x", "light_y")
+PSF = "psf_sigma"  # the screen blur's standard deviation, scene units (operators/imaging.py)
 
 
 def is_gain(name: str) -> bool:
@@ -54,7 +59,7 @@ def _camera(operator: object, where: str) -> ImagingOperator:
 
 
 class CameraSetup:
-    """One image through the camera: G(d; p) = gain K F(d; geometry)."""
+    """One image through the camera: G(d; p) = gain K(psf_sigma) F(d; geometry)."""
 
     def __init__(self, operator: ImagingOperator) -> None:
         self.operator = _camera(operator, "the operator")
@@ -68,16 +73,26 @@ class CameraSetup:
         """The configured scene as calibrated so far."""
         return self.operator.scene
 
+    @property
+    def pixel_size(self) -> float:
+        """The receiver's pixel size, scene units."""
+        return float(self.operator.inner.scene.receiver.pixel_size)
+
     def values(self) -> dict[str, float]:
         """Every parameter's current value."""
-        return setup_values(self.operator.scene, self.operator.gain)
+        return {**setup_values(self.operator.scene, self.operator.gain), PSF: self.operator.psf_sigma}
 
     def render(self, d: Tensor, values: Mapping[str, float] | None = None) -> Tensor:
         """G(d) (c, n, n), float64, at the current values or at ``values`` (the setup unchanged)."""
         if values is None:
             return self.operator.render(d).double()
         scene = with_setup(self.operator.scene, values)
-        return self.operator.render_with(scene, values.get("gain", self.operator.gain), d).double()
+        return self.operator.render_with(scene, values.get("gain", self.operator.gain), d, values.get(PSF)).double()
+
+    def render_and_psf_column(self, d: Tensor) -> tuple[Tensor, Tensor]:
+        """(G(d), dG/dpsf_sigma) (c, n, n) each, float64, at the current values: one render."""
+        image, column = self.operator.render_and_sigma_derivative(d)
+        return image.double(), column.double()
 
     def gain_column(self, image: Tensor, name: str, values: Mapping[str, float]) -> Tensor:
         """dG/d(gain) = G / gain, exactly."""
@@ -85,7 +100,8 @@ class CameraSetup:
 
     def apply(self, values: Mapping[str, float]) -> None:
         """Move the setup to ``values``."""
-        self.operator.set_setup(with_setup(self.operator.scene, values), values.get("gain", self.operator.gain))
+        self.operator.set_setup(with_setup(self.operator.scene, values), values.get("gain", self.operator.gain),
+                                values.get(PSF))
 
 
 class StackSetup:
@@ -116,9 +132,15 @@ class StackSetup:
         """The configured scene as calibrated so far."""
         return with_setup(self.base, self.geometry)
 
+    @property
+    def pixel_size(self) -> float:
+        """The receiver's pixel size (the first shot's), scene units."""
+        return float(self.shots[0].inner.scene.receiver.pixel_size)
+
     def values(self) -> dict[str, float]:
-        """Every parameter's current value: the shared geometry and each shot's gain."""
-        return {**self.geometry, **{f"gain_{i}": shot.gain for i, shot in enumerate(self.shots)}}
+        """Every parameter's current value: the shared geometry and blur, and each shot's gain."""
+        return {**self.geometry, PSF: self.shots[0].psf_sigma,
+                **{f"gain_{i}": shot.gain for i, shot in enumerate(self.shots)}}
 
     def _shot_scene(self, i: int, values: Mapping[str, float]) -> Scene:
         """Shot i's scene with the configured geometry moved to ``values`` (its offsets kept)."""
@@ -129,9 +151,14 @@ class StackSetup:
         """The stacked G(d) (N c, n, n), float64, at the current values or at ``values``."""
         if values is None:
             return self.stack.render(d).double()
-        images = [shot.render_with(self._shot_scene(i, values), values.get(f"gain_{i}", shot.gain), d)
-                  for i, shot in enumerate(self.shots)]
+        images = [shot.render_with(self._shot_scene(i, values), values.get(f"gain_{i}", shot.gain), d,
+                                   values.get(PSF)) for i, shot in enumerate(self.shots)]
         return self.stack.stack(images).double()
+
+    def render_and_psf_column(self, d: Tensor) -> tuple[Tensor, Tensor]:
+        """The stacked (G(d), dG/dpsf_sigma) (N c, n, n) each, float64: one render per shot."""
+        pairs = [shot.render_and_sigma_derivative(d) for shot in self.shots]
+        return (self.stack.stack([p[0] for p in pairs]).double(), self.stack.stack([p[1] for p in pairs]).double())
 
     def gain_column(self, image: Tensor, name: str, values: Mapping[str, float]) -> Tensor:
         """dG/d(gain_i): shot i's part of G over its gain, zero elsewhere."""
@@ -145,4 +172,4 @@ class StackSetup:
         """Move every shot to ``values``."""
         self.geometry.update({k: v for k, v in values.items() if k in GEOMETRY})
         for i, shot in enumerate(self.shots):
-            shot.set_setup(self._shot_scene(i, self.geometry), values.get(f"gain_{i}", shot.gain))
+            shot.set_setup(self._shot_scene(i, self.geometry), values.get(f"gain_{i}", shot.gain), values.get(PSF))

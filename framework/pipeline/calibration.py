@@ -1,29 +1,30 @@
 """Joint calibration: estimate parts of the setup together with the heights.
 
 A lab setup is never known exactly: the screen's distance below the substrate, the light's
-position and the camera's exposure gain are measured with a ruler or not at all. With
-``calibration.params`` set, :class:`JointCalibration` alternates with the height solver: every
-``every`` iterations it takes a damped Gauss-Newton (Levenberg-Marquardt) step on the chosen
+position, the camera's exposure gain and the screen's blur are measured with a ruler or not at
+all. With ``calibration.params`` set, :class:`JointCalibration` alternates with the height solver:
+every ``every`` iterations it takes a damped Gauss-Newton (Levenberg-Marquardt) step on the chosen
 parameters p at the current heights d, on the posterior of p given the data and the measured
 (configured) values p0 with relative standard deviation ``prior`` (the ruler's uncertainty; the
-gain has no prior),
+gain has no prior, the blur's width a weak one, below),
 
     Phi(p) = ||W^(1/2) (G(d; p) - b)||^2 / s^2 + sum_i ((p_i - p0_i) / (prior * |p0_i|))^2,
 
 s^2 = ||W^(1/2) r||^2 / (N - k) the residual's variance per pixel at the current heights (so a
 poor fit early in the run lets the prior keep the geometry where it was measured). J = dG/dp by
 central differences of renders with the same photons (common random numbers: the renders differ
-only by the change of p), exactly for the gain (dG/dgain = G / gain). The step solves the damped
-normal equations (J^T W J / s^2 + P + lambda diag) dp = -(J^T W r / s^2 + P (p - p0)); it is kept
-only if it lowers Phi, otherwise lambda grows tenfold (up to three tries). Heights and geometry
-trade off (a farther screen spreads the caustic as a stronger print does), and at heights that
-still miss the data the geometry runs off to make up for them; so the geometry is updated only
-once the fit has come within twice the noise level (relative discrepancy <= 2 delta; the gain
-from the start), and it stays within ``BOUND`` prior standard deviations of its measured value
-(``calibration_<p>_at_bound`` in the metrics says when a parameter ended there). The reported standard
-error is sqrt(diag((J^T W J / s^2 + P)^-1)) at the final heights: it holds the heights fixed, so
-where heights and a parameter trade off (docs/method.md, "Joint calibration") it is too small, and
-the prior term is what keeps such a parameter near its measured value.
+only by the change of p), exactly for the gain (dG/dgain = G / gain) and the screen blur's width
+(dG/dsigma = gain (dK/dsigma) F(d), analytic, from the same render: operators/imaging.py). The
+step solves the damped normal equations (J^T W J / s^2 + P + lambda diag) dp = -(J^T W r / s^2 +
+P (p - p0)); it is kept only if it lowers Phi, otherwise lambda grows tenfold (up to three tries).
+Heights and geometry trade off (a farther screen spreads the caustic as a stronger print does), and
+at heights that still miss the data the geometry runs off to make up for them; so the geometry is
+updated only once the fit has come within twice the noise level (relative discrepancy <= 2 delta;
+the gain from the start), and it stays within ``BOUND`` prior standard deviations of its measured
+value (``calibration_<p>_at_bound`` in the metrics says when a parameter ended there). The reported
+standard error is sqrt(diag((J^T W J / s^2 + P)^-1)) at the final heights: it holds the heights
+fixed, so where heights and a parameter trade off (docs/method.md, "Joint calibration") it is too
+small, and the prior term is what keeps such a parameter near its measured value.
 
 A stack of shots at known offsets (framework/plugins/data/stack.py) tells the screen distance, but
 only jointly with the heights' strength: heights k d with the screen at s / k cast nearly the
@@ -36,6 +37,21 @@ a stack an iteration whose discrepancy Morozov's rule would accept (``goal``) is
 an update at its heights, and the rule judges the discrepancy under the updated setup: a stack
 whose fit reaches the noise level within a few iterations (a gentle print) would otherwise end at
 the configured geometry.
+
+``psf_sigma``, the standard deviation of the screen's Gaussian spot (scene units), starts at
+``calibration.psf_sigma_start``, else at the configured ``screen.sigma`` when > 0, else at one
+receiver pixel; with ``screen.psf: none`` the fitted blur is Gaussian all the same. It is moved to
+its start when the data are set (:meth:`JointCalibration.setup`), after a synthetic source has
+rendered its references through the configured screen. The configured width is a guess, so its
+prior is weak: a standard deviation of ``PSF_PRIOR`` (10) times the start (at least one receiver
+pixel), which keeps the normal equations regular where the blur is far below a pixel and the data
+say nothing of it. One update changes it by at most a factor ``PSF_STEP`` (2) either way: the image
+is far from linear in a width below a pixel, where a Gauss-Newton step overshoots; so it stays > 0
+(a width far below a pixel is no blur: the kernel is then a delta to rounding), and a start must be
+> 0 (at 0 the image does not change with the width). It has no other bound, and it is updated with
+the geometry (once the fit is within twice the noise level: heights that still miss the data's
+detail would pull the blur down). Its value and standard error are also reported in receiver
+pixels and mm (``calibration_psf_sigma_px``, ``_mm``, ``_std_px``, ``_std_mm``).
 
 The state (parameters, updates, uncertainties) is written to ``calibration.json`` beside the
 checkpoint after every update, and a resumed run starts from it.
@@ -54,12 +70,13 @@ from torch import Tensor
 
 from framework.core.data import weighted_norm_sq
 from framework.core.solver_loop import Callback
-from framework.pipeline.calibrated_setup import CameraSetup, StackSetup, is_gain, setup_values, with_setup
+from framework.core.units import scene_length
+from framework.pipeline.calibrated_setup import PSF, CameraSetup, StackSetup, is_gain, setup_values, with_setup
 from operators.stack import StackOperator
 
 __all__ = ["CALIBRATION_PARAMS", "JointCalibration", "setup_values", "with_setup"]
 
-CALIBRATION_PARAMS = ("gain", "screen_distance", "light_height", "light_x", "light_y")
+CALIBRATION_PARAMS = ("gain", "screen_distance", "light_height", "light_x", "light_y", PSF)
 # Central-difference step, relative to the value (of the light height for the light's x and y,
 # which may be 0).
 _FD_STEP = 1e-3
@@ -68,6 +85,15 @@ BOUND = 2.0
 # The factor on the heights that a stack's screen distance moves with (internal, not reported).
 HEIGHT_SCALE = "height_scale"
 _MAX_TRIES = 3
+# The prior of psf_sigma: standard deviation PSF_PRIOR x its start (at least one receiver pixel).
+PSF_PRIOR = 10.0
+# One update changes psf_sigma by at most this factor either way (the image is far from linear in a
+# width below a pixel, where a Gauss-Newton step overshoots).
+PSF_STEP = 2.0
+
+
+def _positive_length(value: Any) -> bool:
+    return not isinstance(value, bool) and isinstance(value, (int, float)) and math.isfinite(value) and value > 0.0
 
 
 class JointCalibration(Callback):
@@ -82,6 +108,8 @@ class JointCalibration(Callback):
         damping: Initial lambda of the Levenberg-Marquardt step.
         prior: Relative standard deviation of the configured (measured) geometry, e.g. 0.1 for a
             distance known to 10%; the light's x and y relative to its height.
+        psf_sigma_start: Where ``psf_sigma`` starts, scene units (None: the operator's blur when it
+            has one, else one receiver pixel); it is moved there by :meth:`setup`.
     """
 
     # Before the stopping rules: on a stack, an iteration whose discrepancy Morozov's rule would
@@ -89,7 +117,8 @@ class JointCalibration(Callback):
     order = -40
 
     def __init__(self, operator: Any, params: Sequence[str], every: int = 10,
-                 damping: float = 1e-3, prior: float = 0.1, scene: Any = None) -> None:
+                 damping: float = 1e-3, prior: float = 0.1, scene: Any = None,
+                 psf_sigma_start: float | None = None) -> None:
         unknown = [p for p in params if p not in CALIBRATION_PARAMS]
         if unknown or not params or len(set(params)) != len(params):
             raise ValueError(f"calibration.params={list(params)!r}: give distinct names from "
@@ -105,6 +134,13 @@ class JointCalibration(Callback):
         self.damping, self.prior = float(damping), float(prior)
         self.state_path: Path | None = None
         self.initial = self.values()
+        if PSF in self.params:
+            if psf_sigma_start is not None and not _positive_length(psf_sigma_start):
+                raise ValueError(f"calibration.psf_sigma_start={psf_sigma_start!r} must be a length > 0 (scene units "
+                                 "or e.g. '0.1 mm'), or null to start from screen.sigma")
+            configured = self.initial[PSF]
+            self.initial[PSF] = float(psf_sigma_start if psf_sigma_start is not None else
+                                      configured if configured > 0.0 else self.setup_of.pixel_size)
         self.std: dict[str, float] = {}
         self.updates = 0
         self.target: Tensor | None = None
@@ -118,11 +154,14 @@ class JointCalibration(Callback):
         self.height_scale = 1.0  # the last update's factor on the heights (1: none)
 
     @classmethod
-    def from_config(cls, operator: Any, settings: Mapping[str, Any], scene: Any = None) -> JointCalibration | None:
-        """The calibration of the config group ``calibration`` (keys params, every, damping, prior),
-        or None when ``params`` is empty; ``scene``: the configured scene (a stack's shots keep
-        their offsets from it)."""
-        keys = ("params", "every", "damping", "prior")
+    def from_config(cls, operator: Any, settings: Mapping[str, Any], scene: Any = None,
+                    screen_sigma: float = 0.0) -> JointCalibration | None:
+        """The calibration of the config group ``calibration`` (keys params, every, damping, prior,
+        psf_sigma_start), or None when ``params`` is empty; ``scene``: the configured scene (a
+        stack's shots keep their offsets from it); ``screen_sigma``: the configured ``screen.sigma``
+        (scene units, whatever ``screen.psf``), where ``psf_sigma`` starts unless
+        ``psf_sigma_start`` is given (0: one receiver pixel)."""
+        keys = ("params", "every", "damping", "prior", "psf_sigma_start")
         unknown = [k for k in settings if k not in keys]
         if unknown:
             raise ValueError(f"unknown key calibration.{unknown[0]}; calibration takes {', '.join(keys)}")
@@ -134,8 +173,25 @@ class JointCalibration(Callback):
                              "[gain, screen_distance], or [] for none")
         if not params:
             return None
+        start = settings.get("psf_sigma_start")
+        if start is not None and PSF not in params:
+            raise ValueError(f"calibration.psf_sigma_start={start!r} is set but calibration.params={list(params)!r} "
+                             f"lacks {PSF}: add it, or drop the start")
+        if PSF in params:
+            if start is not None:
+                mm = scene.mm_per_unit if scene is not None else operator.scene.mm_per_unit
+                given, start = start, scene_length(start, mm, "calibration.psf_sigma_start")
+                if not _positive_length(start):
+                    raise ValueError(f"calibration.psf_sigma_start={given!r} must be a length > 0 (scene units or "
+                                     "e.g. '0.1 mm'), or null to start from screen.sigma")
+            elif not (isinstance(screen_sigma, (int, float)) and math.isfinite(screen_sigma) and screen_sigma >= 0):
+                raise ValueError(f"screen.sigma={screen_sigma!r} cannot start calibration.params' psf_sigma: give a "
+                                 "length >= 0 (scene units or e.g. '0.1 mm'; 0: one receiver pixel), or "
+                                 "calibration.psf_sigma_start")
+            elif screen_sigma > 0.0:
+                start = float(screen_sigma)
         return cls(operator, list(params), every=settings.get("every", 10), damping=settings.get("damping", 1e-3),
-                   prior=settings.get("prior", 0.1), scene=scene)
+                   prior=settings.get("prior", 0.1), scene=scene, psf_sigma_start=start)
 
     def gain_of_shot(self, index: int) -> JointCalibration | None:
         """The calibration of shot ``index``'s gain alone (a stack's first fit,
@@ -156,12 +212,14 @@ class JointCalibration(Callback):
         """The data b (c, n, n), their weights (None: 1) and relative noise level delta; the state
         is written to ``state_path`` after every update; ``resume_from``, the state file of an
         interrupted run, restores it; ``goal``: the discrepancy Morozov's rule accepts (tau_dis
-        delta; None: no rule)."""
+        delta; None: no rule). A calibrated ``psf_sigma`` moves to its start here (a fresh run)."""
         self.target = target.double()
         self.weights = None if weights is None else weights.double()
         self.delta = float(delta)
         self.goal = goal
         self.state_path = state_path
+        if PSF in self.params and resume_from is None:
+            self._apply({PSF: self.initial[PSF]})
         if resume_from is not None:
             if not resume_from.is_file():
                 raise FileNotFoundError(f"resuming a calibrated run needs {resume_from} beside the checkpoint")
@@ -214,11 +272,17 @@ class JointCalibration(Callback):
     def jacobian(self, d: Tensor, params: Sequence[str]) -> tuple[Tensor, Tensor]:
         """(G(d) (c, n, n), dG/dp (k, c, n, n)) at the current values, for ``params``."""
         values = {**self.values(), HEIGHT_SCALE: 1.0}
-        image = self.setup_of.render(d)
+        if PSF in params:
+            image, psf_column = self.setup_of.render_and_psf_column(d)
+        else:
+            image = self.setup_of.render(d)
         columns = []
         for p in params:
             if is_gain(p):
                 columns.append(self.setup_of.gain_column(image, p, values))
+                continue
+            if p == PSF:
+                columns.append(psf_column)
                 continue
             h = _FD_STEP * self._scale(p)
             plus = self._render(d, {**values, p: values[p] + h})
@@ -240,8 +304,7 @@ class JointCalibration(Callback):
         s2 = self._weighted_sq(image - self.target) / max(int((w > 0).sum()) - k, 1)
         flat_j = jac.reshape(k, -1)
         data_normal = (flat_j * w.reshape(1, -1)) @ flat_j.T / s2
-        precision = torch.diag(torch.tensor([0.0 if is_gain(p) or p == HEIGHT_SCALE else
-                                             (self.prior * self._scale(p)) ** -2 for p in params], dtype=torch.float64))
+        precision = torch.diag(torch.tensor([self._precision(p) for p in params], dtype=torch.float64))
         values, lam = {**self.values(), HEIGHT_SCALE: 1.0}, self.damping
         initial = {**self.initial, HEIGHT_SCALE: 1.0}
         offset = torch.tensor([values[p] - initial[p] for p in params], dtype=torch.float64)
@@ -256,7 +319,7 @@ class JointCalibration(Callback):
         self.height_scale = 1.0
         for _ in range(_MAX_TRIES):
             step = torch.linalg.solve(normal + lam * torch.diag(torch.diag(normal)), rhs)
-            trial = {**values, **{p: self._bounded(p, values[p] + float(s)) for p, s in zip(params, step)}}
+            trial = {**values, **{p: self._bounded(p, values[p] + float(s), values[p]) for p, s in zip(params, step)}}
             if self._valid(trial) and posterior(trial, self._render(d, trial)) < before:
                 self._apply(trial)
                 self.height_scale = trial[HEIGHT_SCALE]
@@ -269,10 +332,21 @@ class JointCalibration(Callback):
         self._save()
         return self.values()
 
-    def _bounded(self, p: str, value: float) -> float:
-        """``value`` of parameter p clipped to BOUND prior standard deviations around its measured value."""
+    def _precision(self, p: str) -> float:
+        """The prior's precision of parameter p: 0 for the gains (no prior), weak for psf_sigma."""
+        if is_gain(p) or p == HEIGHT_SCALE:
+            return 0.0
+        if p == PSF:
+            return (PSF_PRIOR * max(self.initial[PSF], self.setup_of.pixel_size)) ** -2
+        return (self.prior * self._scale(p)) ** -2
+
+    def _bounded(self, p: str, value: float, current: float) -> float:
+        """``value`` of parameter p clipped to BOUND prior standard deviations around its measured
+        value; psf_sigma's to [current / 2, 2 current] (PSF_STEP), so it stays > 0."""
         if is_gain(p):
             return value
+        if p == PSF:
+            return min(max(value, current / PSF_STEP), current * PSF_STEP)
         if p == HEIGHT_SCALE:
             return min(max(value, 1.0 - BOUND * self.prior), 1.0 + BOUND * self.prior)
         reach = BOUND * self.prior * self._scale(p)
@@ -287,20 +361,35 @@ class JointCalibration(Callback):
         return all(v > 0.0 for p, v in values.items() if is_gain(p)) and values.get("screen_distance", 1.0) > 0.0
 
     def report(self) -> dict[str, float]:
-        """Initial and final value and standard error of every parameter, for metrics."""
+        """Initial and final value and standard error of every parameter, for metrics (psf_sigma
+        also in receiver pixels and mm)."""
         out: dict[str, float] = {}
         for p, v in self.values().items():
             out[f"calibration_{p}"] = v
             out[f"calibration_{p}_initial"] = self.initial[p]
             if p in self.std:
                 out[f"calibration_{p}_std"] = self.std[p]
-            if not is_gain(p):
+            if not is_gain(p) and p != PSF:
                 reach = BOUND * self.prior * self._scale(p)
                 out[f"calibration_{p}_at_bound"] = float(abs(v - self.initial[p]) >= reach * (1 - 1e-9))
+        out.update({f"calibration_{k}": v for k, v in self.psf_units().items()})
+        return out
+
+    def psf_units(self) -> dict[str, float]:
+        """The calibrated psf_sigma and its standard error in receiver pixels and mm
+        (``psf_sigma_px``, ``psf_sigma_mm``, ``psf_sigma_std_px``, ``psf_sigma_std_mm``); empty when
+        it is not calibrated."""
+        if PSF not in self.params:
+            return {}
+        units = {"px": 1.0 / self.setup_of.pixel_size, "mm": float(self.setup_of.scene.mm_per_unit)}
+        out = {f"{PSF}_{unit}": self.values()[PSF] * factor for unit, factor in units.items()}
+        if PSF in self.std:
+            out.update({f"{PSF}_std_{unit}": self.std[PSF] * factor for unit, factor in units.items()})
         return out
 
     def _save(self) -> None:
         if self.state_path is not None:
             state: dict[str, Any] = {"values": self.values(), "std": self.std, "updates": self.updates,
-                                     "initial": self.initial, "geometry_started": self.geometry_started}
+                                     "initial": self.initial, "geometry_started": self.geometry_started,
+                                     **self.psf_units()}
             self.state_path.write_text(json.dumps(state, indent=2))

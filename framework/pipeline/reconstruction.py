@@ -215,7 +215,7 @@ class Reconstruction:
         data_source = build_plugin("data", data_name, data_params, "data")
         setup = SceneSetup.parse(cfg, settings.mm_per_unit, imaging=bool(calibration_cfg.get("params")),
                                  shots=data_source.setups if isinstance(data_source, ShotStack) else None)
-        calibration = JointCalibration.from_config(setup.operator, calibration_cfg, setup.scene)
+        calibration = JointCalibration.from_config(setup.operator, calibration_cfg, setup.scene, setup.screen_sigma)
         solver_name, solver_params = split_name(cfg.get("solver"), "solver")
         max_iter = positive_int(solver_params.pop("max_iter", None), "solver.max_iter")  # the loop's, not the solver's
         make_solver = build_plugin("solver", solver_name, solver_params, "solver")

@@ -206,6 +206,7 @@ class WavefrontRenderer:
     rounding, ~10x slower).
     """
 
+    dtype = torch.float64
     deterministic = True  # no sampling noise: one render is the clean image (framework/plugins/data/sources.py)
 
     def __init__(self, scene: Scene, vertices: int | None = None, fresnel: bool = False,
@@ -346,10 +347,11 @@ class WavefrontRenderer:
             return np.empty((0, 3, 2)), np.empty((0, 3, 2)), np.empty((0, 3))
         return np.concatenate(kept_aim), np.concatenate(kept_rec), np.concatenate(kept_q)
 
-    def render(self, heights: torch.Tensor) -> torch.Tensor:
+    def render(self, heights: torch.Tensor, progress: bool = False) -> torch.Tensor:
         """Irradiance (c, n, n) float64 (W per scene unit^2, [channel, row = y, col = x]) of the
         printed ``heights`` (m, m) (scene units), on their device; no autograd (traced on the CPU).
-        Sets :attr:`last_budget`."""
+        Sets :attr:`last_budget`. ``progress`` is accepted as an operator's render takes it (a
+        render takes seconds: nothing to show)."""
         check_heights(heights, self.scene)
         d = heights.detach().to(device="cpu", dtype=torch.float64).contiguous()
         n = self.scene.receiver.resolution

@@ -121,9 +121,10 @@ def test_the_exit_path_through_the_two_lenses_lands_photons_where_the_mesh_opera
     index = INDEX_OF(operator.scene)
     exits = flat_exit(arrivals.points, arrivals.directions, index, operator.scene.substrate.thickness)
     landed = operator.land_from_bottom(*exits)
-    pos, _, flux, _, _ = operator.trace(torch.zeros(16, 16, dtype=torch.float64), 0, 8192)
+    fine = operator.fine  # the configured operator renders 4 x finer (operators/supersample.py): its photons
+    pos, _, flux, _, _ = fine.trace(torch.zeros(16, 16, dtype=torch.float64), 0, 8192)
     half = operator.scene.receiver.half_width
-    traced = ((pos.T.numpy() + 0.5) / operator._to_pixels - half)[arrivals.photon]
+    traced = ((pos.T.numpy() + 0.5) / fine._to_pixels - half)[arrivals.photon]
     # Photons that reach the receiver and leave through the bottom (not a side wall, which the
     # start's flat slab does not model: 29 of 7710 here).
     bottom = (np.abs(exits[0]) <= operator.scene.substrate.half_width).all(axis=1)

@@ -23,5 +23,10 @@ def make_operator(photons: int = 40_000, resolution: int = 32, half_width: float
                   receiver=Receiver(z=-0.05, resolution=resolution, half_width=half_width),
                   wavelengths=wavelengths)
     settings.setdefault("dtype", "float64")
+    # A 3-pixel footprint with a 1-pixel filter: the smooth renders at few photons that the tests of
+    # the machinery around the operator (gradients, stacks, calibration, starts) are built on; the
+    # default model's own tests are in tests/operators/test_irradiance_model.py.
+    settings.setdefault("footprint_px", 3.0)
+    settings.setdefault("min_footprint_px", 1.0)
     return CausticOperator(scene, OperatorSettings(photons=photons, chunk_size=chunk_size, **settings))
 

@@ -26,7 +26,8 @@ def test_blur_is_self_adjoint_and_keeps_interior_energy() -> None:
     assert abs(float(spot.sum()) - 1.0) < 1e-12  # a spot inside the receiver keeps its light
     rows = torch.arange(64, dtype=torch.float64) - 32
     variance = float((spot.sum(dim=1) * rows ** 2).sum())
-    assert abs(math.sqrt(variance) - blur.sigma_px) < 0.01 * blur.sigma_px  # the spot's width is sigma
+    width = math.sqrt(blur.sigma_px ** 2 + 1.0 / 12.0)  # sigma widened by the pixel box (pixel-integrated taps)
+    assert abs(math.sqrt(variance) - width) < 1e-6 * width
 
 
 def test_no_blur_below_a_pixel_and_bad_sigma() -> None:

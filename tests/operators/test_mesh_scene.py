@@ -122,7 +122,7 @@ def test_the_native_path_equals_the_torch_tracer(operator_config):
     with initialize_config_dir(config_dir=CONF, version_base=None):
         cfg = OmegaConf.to_container(compose("simulate", overrides=[
             f"operator={operator_config}", "photons=12000", "receiver.resolution=32", "height_field.resolution=24",
-            "operator.dtype=float64", "operator.fresnel=true"]), resolve=True)
+            "operator.dtype=float64", "operator.fresnel=true", "operator.supersample=1"]), resolve=True)
     scene = build_scene(cfg)
     heights = build_heights(cfg).double()
     native = build_operator(cfg, scene)
