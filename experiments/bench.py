@@ -318,6 +318,8 @@ def main(argv: list[str] | None = None) -> None:
                         help="photons of the fidelity section's renders that measure the bias")
     parser.add_argument("--fidelity-reference-photons", type=int, default=1 << 25,
                         help="photons of the exact reference through the two lenses")
+    parser.add_argument("--fidelity-resolutions", type=int, nargs="*", default=[128, 256],
+                        help="receiver pixels per side of the fidelity section's renders")
     parser.add_argument("--wavefront-vertices", type=int, default=4097,
                         help="aim points per side of the height field's exact (wavefront-triangle) reference")
     parser.add_argument("--only", choices=("fidelity",), default=None,
@@ -330,9 +332,9 @@ def main(argv: list[str] | None = None) -> None:
 
     heights = heights_print_lines()
     if args.only == "fidelity":
-        print(json.dumps({"fidelity": fidelity_report(args.fidelity_photons, args.fidelity_bias_photons,
-                                                      args.fidelity_reference_photons, args.wavefront_vertices)},
-                         indent=2))
+        print(json.dumps({"fidelity": fidelity_report(
+            args.fidelity_photons, args.fidelity_bias_photons, args.fidelity_reference_photons,
+            args.wavefront_vertices, tuple(args.fidelity_resolutions))}, indent=2))
         return
     if args.device == "cuda":
         if not torch.cuda.is_available():
@@ -379,7 +381,8 @@ def main(argv: list[str] | None = None) -> None:
         report["mesh_scene"] = time_mesh_scenes(heights, args.mesh_photons, args.footprint_px)
     if args.fidelity_photons > 0:
         report["fidelity"] = fidelity_report(args.fidelity_photons, args.fidelity_bias_photons,
-                                             args.fidelity_reference_photons, args.wavefront_vertices)
+                                             args.fidelity_reference_photons, args.wavefront_vertices,
+                                             tuple(args.fidelity_resolutions))
     if args.reconstruction_rounds > 0:
         report["reconstruction"] = reconstruction_report(args.reconstruction_overrides, args.reconstruction_rounds)
     print(json.dumps(report, indent=2))

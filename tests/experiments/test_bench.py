@@ -20,7 +20,9 @@ SMALL_RUN = ["solver.max_iter=3", "initial=zero", "photons=16384", "photon_budge
 def test_bench_prints_the_promised_figures(capsys):
     main(["--photons", "200000", "--grad-photons", "30000", "--splat-photons", "3000", "--chunk-size", "8192",
           "--reference-photons", "20000", "--stage-photons", "0", "--mesh-photons", "20000",
-          "--stack-photons", "20000", "--reconstruction-overrides", *SMALL_RUN])
+          "--stack-photons", "20000", "--fidelity-photons", "20000", "--fidelity-bias-photons", "40000",
+          "--fidelity-reference-photons", "40000", "--wavefront-vertices", "257", "--fidelity-resolutions", "48",
+          "--reconstruction-overrides", *SMALL_RUN])
     report = json.loads(capsys.readouterr().out)
     assert report["forward_photons_per_s"] > 0 and report["forward_backward_photons_per_s"] > 0
     plain = report["numba_kernels_only"]
@@ -44,6 +46,16 @@ def test_bench_prints_the_promised_figures(capsys):
     stack = report["stack"]
     assert stack["photons_per_shot"] == 20000 and stack["render_speedup_shared"] > 0
     assert stack["shared_render_and_gradient_s"] > stack["shared_render_s"] > 0
+    fidelity = report["fidelity"]
+    assert set(fidelity) >= {"height_field_48px", "two_lenses_48px"}
+    for scene in ("height_field", "two_lenses"):
+        entry = fidelity[f"{scene}_48px"]
+        assert entry["exact_seconds"] > 0
+        assert set(entry) - {"exact_seconds"} == {"paper_splat_5px", "cell_footprints", "cell_footprints_supersampled_4x"}
+        for design in ("paper_splat_5px", "cell_footprints", "cell_footprints_supersampled_4x"):
+            figures = entry[design]
+            assert 0 < figures["bias"] < 1 and 0 < figures["noise_at_budget"] < 1
+            assert figures["render_seconds"] > 0 and figures["gradient_seconds"] > 0
     runs = report["reconstruction"]
     for which in ("now", "earlier"):
         run = runs[which]

@@ -88,8 +88,11 @@ def test_starts_from_zero_design_or_file(tmp_path):
         build_start("start.npy")
 
 
+FLAT_FIRST = ["initial=auto", "~initial.candidates", "+initial.candidates={zero: {}, transport: {}}"]
+
+
 def test_auto_tries_the_next_start_only_when_a_run_ends_short_of_the_noise_level(tmp_path):
-    base = [*SMALL, *BUMP, "initial=auto", "solver.max_iter=3"]
+    base = [*SMALL, *BUMP, *FLAT_FIRST, "solver.max_iter=3"]
     # Two iterations cannot reach a 1% noise level from flat glass: the transport start runs next.
     metrics = run_reconstruction(compose_reconstruct(base, tmp_path), tmp_path / "both", tmp_path)
     assert metrics["start_zero_iterations"] == 3 and metrics["start_zero_reached_noise_level"] == 0.0
@@ -108,7 +111,7 @@ def test_auto_tries_the_next_start_only_when_a_run_ends_short_of_the_noise_level
 
 
 def test_an_auto_run_interrupted_in_its_second_start_resumes_there(tmp_path, monkeypatch):
-    base = [*SMALL, *BUMP, "initial=auto", "solver.max_iter=4", "~stopping.morozov"]  # neither start is accepted
+    base = [*SMALL, *BUMP, *FLAT_FIRST, "solver.max_iter=4", "~stopping.morozov"]  # neither start is accepted
     full = run_reconstruction(compose_reconstruct(base, tmp_path), tmp_path / "full", tmp_path)
     assert full["start_zero_iterations"] == 4 and full["start_transport_iterations"] == 4
     calls = {"n": 0}
