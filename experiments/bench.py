@@ -34,6 +34,7 @@ import torch
 from experiments.bench_fidelity import fidelity_report
 from experiments.bench_reconstruction import reconstruction_report
 from experiments.bench_stages import stage_profile
+from experiments.timing import best_seconds
 from framework.core.shapes import make_shape
 from operators.heightfield.operator import CausticOperator, OperatorSettings
 from operators.scene import Scene
@@ -60,16 +61,6 @@ def make_operator(photons: int, footprint_px: float, chunk_size: int, simd: bool
 
 def heights_print_lines() -> torch.Tensor:
     return torch.from_numpy(make_shape("print_lines", 128)).float()
-
-
-def best_seconds(run, repeats: int = 3) -> float:
-    """Shortest wall time of ``repeats`` calls of ``run`` (the least disturbed by other load)."""
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        run()
-        times.append(time.perf_counter() - t0)
-    return min(times)
 
 
 def time_side_by_side(ops: tuple[CausticOperator, ...], heights: torch.Tensor, target: torch.Tensor,

@@ -26,6 +26,7 @@ from typing import Any
 
 import torch
 
+from experiments.timing import best_seconds
 from framework.core.shapes import make_shape
 
 # The designs compared: the paper's splat, photon differentials at their own cells' size, and those
@@ -35,7 +36,7 @@ DESIGNS: dict[str, dict[str, Any]] = {
     "cell_footprints": {"footprint_px": "cell", "min_footprint_px": 0.3, "supersample": 1},
     "cell_footprints_supersampled_4x": {"footprint_px": "cell", "min_footprint_px": 0.1, "supersample": 4},
 }
-SCENES = {"height_field": "height_field", "two_lenses": "two_lenses"}
+SCENES = ("height_field", "two_lenses")  # conf/operator/<name>.yaml
 
 
 def configured_operator(scene_name: str, resolution: int, photons: int, seed: int, design: dict[str, Any]) -> Any:
@@ -57,26 +58,21 @@ def relative(a: torch.Tensor, b: torch.Tensor) -> float:
     return float(torch.linalg.vector_norm(a.double() - b.double()) / torch.linalg.vector_norm(b.double()))
 
 
-def best_of_two(run) -> float:
-    """The shorter of two timed calls of ``run`` (seconds)."""
-    times = []
-    for _ in range(2):
-        t0 = time.perf_counter()
-        run()
-        times.append(time.perf_counter() - t0)
-    return min(times)
+def render_noise(a: torch.Tensor, b: torch.Tensor, exact: torch.Tensor) -> float:
+    """||a - b|| / (sqrt(2) ||exact||): the noise of one render from two photon patterns."""
+    difference = torch.linalg.vector_norm(a.double() - b.double())
+    return float(difference / torch.linalg.vector_norm(exact.double())) / math.sqrt(2.0)
 
 
 def exact_reference(scene_name: str, resolution: int, heights: torch.Tensor, vertices: int,
                     reference_photons: int) -> tuple[torch.Tensor, float]:
     """The exact caustic (c, n, n) and the seconds it took."""
     t0 = time.perf_counter()
+    probe = configured_operator(scene_name, resolution, 1 << 10, 0, DESIGNS["paper_splat_5px"])
     if scene_name == "height_field":
         from operators.wavefront.renderer import WavefrontRenderer
-        probe = configured_operator(scene_name, resolution, 1 << 10, 0, DESIGNS["paper_splat_5px"])
         image = WavefrontRenderer(probe.scene, vertices=vertices).render(heights.double())
     else:
-        probe = configured_operator(scene_name, resolution, 1 << 10, 0, DESIGNS["paper_splat_5px"])
         image = probe.exact_variant(reference_photons, 4242, resolution).render(heights)
     return image.double(), time.perf_counter() - t0
 
@@ -98,16 +94,13 @@ def fidelity_report(photons: int, bias_photons: int, reference_photons: int, ver
                 fine = [configured_operator(scene_name, n, bias_photons, seed, design).render(heights).double()
                         for seed in (0, 1)]
                 target = exact.to(ops[0].dtype)
-                fine_noise = relative(fine[0], fine[1]) * torch.linalg.vector_norm(fine[1]).item() \
-                    / torch.linalg.vector_norm(exact).item() / math.sqrt(2.0)
                 entry[name] = {
                     "bias": relative(0.5 * (fine[0] + fine[1]), exact),
-                    "bias_noise": fine_noise / math.sqrt(2.0),
+                    "bias_noise": render_noise(fine[0], fine[1], exact) / math.sqrt(2.0),
                     "error_at_budget": relative(renders[0], exact),
-                    "noise_at_budget": float(torch.linalg.vector_norm(renders[0].double() - renders[1].double())
-                                             / torch.linalg.vector_norm(exact)) / math.sqrt(2.0),
-                    "render_seconds": best_of_two(lambda: ops[0].render(heights)),
-                    "gradient_seconds": best_of_two(lambda: ops[0].loss_and_grad(heights, target)),
+                    "noise_at_budget": render_noise(renders[0], renders[1], exact),
+                    "render_seconds": best_seconds(lambda: ops[0].render(heights), repeats=2),
+                    "gradient_seconds": best_seconds(lambda: ops[0].loss_and_grad(heights, target), repeats=2),
                 }
             report[f"{scene_name}_{n}px"] = entry
     return report

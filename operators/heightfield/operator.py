@@ -37,8 +37,9 @@ from operators.photon_operator import (PIXEL_SETTINGS, PhotonOperator, backward_
                                       filter_radius_px)
 from operators.heightfield.precompile import BackgroundCompile
 from operators.scene import Scene
+from operators.heightfield.surface import validate_heights
 from operators.supersample import SupersampledOperator, build_supersampled
-from operators.wavefront.renderer import WavefrontRenderer
+from operators.wavefront.renderer import WavefrontRenderer, wavefront_vertices
 from operators.splat.splat import splat_photons
 from operators.heightfield.trace_reference import trace_substrate
 
@@ -120,22 +121,6 @@ class OperatorSettings:
                              f"({self.max_pixel_radius})")
 
 
-def validate_heights(heights: torch.Tensor, thickness: float) -> None:
-    """Refuse arrays that are not a finite, square (m, m) height field (m >= 4) whose glass top
-    stays above the substrate bottom (d > -thickness; iterates of M1 may dip below d = 0)."""
-    if not isinstance(heights, torch.Tensor):
-        raise TypeError(f"heights must be a torch.Tensor, got {type(heights).__name__}")
-    if heights.dim() != 2 or heights.shape[0] != heights.shape[1]:
-        raise ValueError(f"heights must be a square (m, m) array, got shape {tuple(heights.shape)}")
-    if heights.shape[0] < 4:
-        raise ValueError(f"heights resolution {heights.shape[0]} is too small; use m >= 4")
-    if not bool(torch.isfinite(heights).all()):
-        raise ValueError("heights contain NaN or infinite values; clean the height field first")
-    if float(heights.min()) <= -thickness:
-        raise ValueError(f"heights reach {float(heights.min()):.4g}, below the substrate bottom "
-                         f"(d must exceed -thickness = {-thickness}); printed heights are >= 0")
-
-
 class CausticOperator(PhotonOperator):
     """Differentiable caustic of a printed height field on a flat substrate.
 
@@ -176,8 +161,8 @@ class CausticOperator(PhotonOperator):
         (operators/wavefront/renderer.py): no footprint, no photon noise, about ``photons``
         vertices per wavelength over the square; ``seed`` is not needed (the method is deterministic)."""
         scene, _ = self.resampled(photons, seed, resolution)
-        vertices = max(int(round(math.sqrt(photons / scene.channels))), 2) + 1
-        return WavefrontRenderer(scene, vertices=vertices, fresnel=self.settings.fresnel)
+        return WavefrontRenderer(scene, vertices=wavefront_vertices(photons, scene.channels),
+                                 fresnel=self.settings.fresnel)
 
     def warm_up(self) -> BackgroundCompile:
         """Context for a run that will take gradients: on the CPU, compiles the gradient kernel in a

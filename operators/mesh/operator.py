@@ -33,9 +33,9 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
-from operators.heightfield.operator import DTYPES, validate_heights
+from operators.heightfield.operator import DTYPES
 from operators.emission import CELL_FOOTPRINT, PointLightEmitter, check_footprint
-from operators.heightfield.surface import HeightFieldGrid, intersect_height_field
+from operators.heightfield.surface import HeightFieldGrid, intersect_height_field, validate_heights
 from operators.light_paths import Arrivals
 from operators.materials import refractive_indices
 from operators.mesh.intersect_reference import MIN_FACE_DISTANCE, MeshIntersector

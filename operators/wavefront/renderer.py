@@ -52,6 +52,7 @@ from operators.heightfield.trace_native import FusedTracer
 from operators.heightfield.trace_reference import trace_substrate
 from operators.kernels.numba_settings import jit_call, jit_inline, jit_parallel
 from operators.optics.native import ZERO, fresnel
+from operators.heightfield.surface import validate_heights
 from operators.scene import Scene
 from operators.wavefront.coverage import rasterize_grid, rasterize_triangles
 
@@ -70,21 +71,6 @@ def wavefront_vertices(photons: int, channels: int) -> int:
     if isinstance(photons, bool) or int(photons) != photons or photons < channels:
         raise ValueError(f"photons={photons!r} must be an integer >= the number of wavelengths ({channels})")
     return int(round(math.sqrt(photons / channels))) + 1
-
-
-def check_heights(heights: torch.Tensor, scene: Scene) -> None:
-    """Refuse what is not a finite, square (m, m) height field (m >= 4) with the glass top above
-    the substrate bottom (d > -h) and below the light."""
-    if not isinstance(heights, torch.Tensor):
-        raise TypeError(f"heights must be a torch.Tensor, got {type(heights).__name__}")
-    if heights.dim() != 2 or heights.shape[0] != heights.shape[1] or heights.shape[0] < 4:
-        raise ValueError(f"heights must be a square (m, m) array with m >= 4, got shape {tuple(heights.shape)}")
-    if not bool(torch.isfinite(heights).all()):
-        raise ValueError("heights contain NaN or infinite values; clean the height field first")
-    if float(heights.min()) <= -scene.substrate.thickness:
-        raise ValueError(f"heights reach {float(heights.min()):.4g}, below the substrate bottom "
-                         f"(d must exceed -thickness = {-scene.substrate.thickness})")
-    scene.check_heights_below_light(float(heights.max()))
 
 
 @jit_inline
@@ -352,7 +338,8 @@ class WavefrontRenderer:
         printed ``heights`` (m, m) (scene units), on their device; no autograd (traced on the CPU).
         Sets :attr:`last_budget`. ``progress`` is accepted as an operator's render takes it (a
         render takes seconds: nothing to show)."""
-        check_heights(heights, self.scene)
+        validate_heights(heights, self.scene.substrate.thickness)
+        self.scene.check_heights_below_light(float(heights.max()))
         d = heights.detach().to(device="cpu", dtype=torch.float64).contiguous()
         n = self.scene.receiver.resolution
         scale = self._channel_scale()

@@ -1,0 +1,17 @@
+"""Wall-clock timing shared by the benchmark sections (experiments/bench.py, bench_fidelity.py)."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from typing import Any
+
+
+def best_seconds(run: Callable[[], Any], repeats: int = 3) -> float:
+    """Shortest wall time of ``repeats`` calls of ``run`` (the least disturbed by other load)."""
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        run()
+        times.append(time.perf_counter() - t0)
+    return min(times)
