@@ -185,9 +185,9 @@ class IterativeSolver(ABC):
         """The stage of a coarse-to-fine schedule the solver is in (0 without one)."""
         return 0
 
-    def start_finest(self) -> None:
-        """Begin at the finest stage of a coarse-to-fine schedule (the start already holds the broad
-        shape the coarse stages build); nothing without one."""
+    def begin_from_shaped_start(self) -> None:
+        """The start already holds the print's broad shape (a transport, a design, a file): a solver
+        with a coarse-to-fine schedule may begin at a later stage; nothing without one."""
 
     def setup_changed(self) -> None:
         """The forward operator's setup changed (joint calibration, framework/pipeline/calibration.py,

@@ -116,7 +116,7 @@ class JointCalibration(Callback):
     # accept is first judged under the setup calibrated at its heights (module docstring).
     order = -40
 
-    def __init__(self, operator: Any, params: Sequence[str], every: int = 10,
+    def __init__(self, operator: Any, params: Sequence[str], every: int = 30,
                  damping: float = 1e-3, prior: float = 0.1, scene: Any = None,
                  psf_sigma_start: float | None = None) -> None:
         unknown = [p for p in params if p not in CALIBRATION_PARAMS]
@@ -124,7 +124,7 @@ class JointCalibration(Callback):
             raise ValueError(f"calibration.params={list(params)!r}: give distinct names from "
                              f"{', '.join(CALIBRATION_PARAMS)}")
         if isinstance(every, bool) or not isinstance(every, int) or every < 1:
-            raise ValueError(f"calibration.every={every!r} must be an integer >= 1, e.g. 10")
+            raise ValueError(f"calibration.every={every!r} must be an integer >= 1, e.g. 30")
         if isinstance(damping, bool) or not isinstance(damping, (int, float)) or not damping > 0:
             raise ValueError(f"calibration.damping={damping!r} must be a number > 0, e.g. 1e-3")
         if isinstance(prior, bool) or not isinstance(prior, (int, float)) or not prior > 0:
@@ -190,7 +190,7 @@ class JointCalibration(Callback):
                                  "calibration.psf_sigma_start")
             elif screen_sigma > 0.0:
                 start = float(screen_sigma)
-        return cls(operator, list(params), every=settings.get("every", 10), damping=settings.get("damping", 1e-3),
+        return cls(operator, list(params), every=settings.get("every", 30), damping=settings.get("damping", 1e-3),
                    prior=settings.get("prior", 0.1), scene=scene, psf_sigma_start=start)
 
     def gain_of_shot(self, index: int) -> JointCalibration | None:

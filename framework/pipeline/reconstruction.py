@@ -132,7 +132,7 @@ def _solve_from(parts: Reconstruction, problem: Problem, name: str, start: Start
     start_seconds = time.perf_counter() - began
     solver = parts.make_solver(problem, d0)
     if shaped:
-        solver.start_finest()
+        solver.begin_from_shaped_start()
     stopping = build_stopping(parts.settings.cfg.get("stopping"))
     for rule in stopping:
         rule.setup(problem)

@@ -120,12 +120,19 @@ def test_refine_restarts_from_the_given_iterate_with_the_finer_preconditioner_an
     assert restored.preconditioner.length == 0.25
 
 
-def test_start_finest_begins_at_the_last_length_and_every_built_solver_has_its_own_parts():
+def test_a_shaped_start_begins_where_configured_and_every_built_solver_has_its_own_parts():
     data, *_, L = make_problem()
     solver = PixelLandweber(data, torch.zeros(8, 8, dtype=DTYPE), BacktrackingStep(20.0 / L),
-                            regularizers=[L1(2e-3), Bounds()], preconditioner=_schedule())
-    solver.start_finest()
+                            regularizers=[L1(2e-3), Bounds()], preconditioner=_schedule(), shaped_start_from="finest")
+    solver.begin_from_shaped_start()
     assert solver.stage() == 1 and solver.step().extras["preconditioner_length"] == 0.25
+    whole = PixelLandweber(data, torch.zeros(8, 8, dtype=DTYPE), BacktrackingStep(20.0 / L),
+                           regularizers=[L1(2e-3), Bounds()], preconditioner=_schedule())
+    whole.begin_from_shaped_start()
+    assert whole.stage() == 0 and whole.step().extras["preconditioner_length"] == 0.5
+    with pytest.raises(ValueError, match="solver.shaped_start_from='coarse' must be one of first, finest"):
+        PixelLandweber(data, torch.zeros(8, 8, dtype=DTYPE), BacktrackingStep(1.0), regularizers=[Bounds()],
+                       shaped_start_from="coarse")
     build = PixelLandweber.from_config(step_size={"name": "backtracking", "tau": 1e-3},
                                        regularizers={"l1_bounds": {}},
                                        preconditioner={"name": "sobolev", "length": [0.5, 0.25]})

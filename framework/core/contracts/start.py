@@ -41,7 +41,7 @@ class StartResult:
     """A start d0 (m, m), scene units, in the operator's dtype, and what computing it measured
     (logged with the run as ``start_*`` metrics). ``shaped``: d0 already holds the print's broad
     shape (a transport, a design, a file), so the solver begins at its finest stage
-    (:meth:`framework.core.solver_loop.IterativeSolver.start_finest`)."""
+    (:meth:`framework.core.solver_loop.IterativeSolver.begin_from_shaped_start`)."""
 
     d: Tensor
     metrics: dict[str, float] = field(default_factory=dict)

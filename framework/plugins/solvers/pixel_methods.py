@@ -44,9 +44,11 @@ class GradientDescent(ProximalGradientSolver):
     def __init__(self, data: DataFidelity, d0: Tensor, step_size: StepSizePolicy | float,
                  preconditioner: GradientPreconditioner | None = None, context: Any = None,
                  floor: float | None = None, two_metric_from: int | None = None,
-                 momentum_from: int | None = None) -> None:
+                 momentum_from: int | None = None, quasi_newton: Mapping[str, Any] | None = None,
+                 shaped_start_from: str = "first") -> None:
         super().__init__(data, d0, step_size, preconditioner=preconditioner, context=context,
-                         two_metric_from=two_metric_from, momentum_from=momentum_from)
+                         two_metric_from=two_metric_from, momentum_from=momentum_from, quasi_newton=quasi_newton,
+                         shaped_start_from=shaped_start_from)
         if floor is not None and not (math.isfinite(float(floor)) and float(floor) < 0.0):
             raise ValueError(f"gradient_descent floor={floor!r} must be a negative height (scene units) or None")
         self.floor = None if floor is None else float(floor)
@@ -67,7 +69,8 @@ class GradientDescent(ProximalGradientSolver):
     @classmethod
     def from_config(cls, step_size: Mapping[str, Any], preconditioner: Mapping[str, Any] | None = None,
                     min_thickness: float | None = 0.1, two_metric_from: int | None = None,
-                    momentum_from: int | None = None) -> SolverBuilder:
+                    momentum_from: int | None = None, quasi_newton: Mapping[str, Any] | None = None,
+                    shaped_start_from: str = "first") -> SolverBuilder:
         """The plugin ``solver/gradient_descent`` from its config keys (see :func:`build_parts`;
         without regularisers no sample is pinned, so ``two_metric_from`` changes nothing);
         ``min_thickness`` in [0, 1): the fraction of the substrate thickness h that every sample
@@ -77,7 +80,8 @@ class GradientDescent(ProximalGradientSolver):
             raise ValueError(f"solver.min_thickness={min_thickness!r} must lie in [0, 1) (fraction of the substrate "
                              "thickness every sample keeps, e.g. 0.1) or be null")
         def fresh_parts() -> dict[str, Any]:
-            return build_parts(step_size, preconditioner, two_metric_from=two_metric_from, momentum_from=momentum_from)
+            return build_parts(step_size, preconditioner, two_metric_from=two_metric_from, momentum_from=momentum_from,
+                               quasi_newton=quasi_newton, shaped_start_from=shaped_start_from)
 
         fresh_parts()  # a bad value fails now, before any render
 
@@ -85,7 +89,8 @@ class GradientDescent(ProximalGradientSolver):
             parts = fresh_parts()  # every run from a start with its own step size and preconditioner stage
             floor = None if min_thickness is None else -(1.0 - float(min_thickness)) * problem.scene.substrate.thickness
             return cls(problem.fidelity, d0, parts["step_size"], parts["preconditioner"], context=problem.context,
-                       floor=floor, two_metric_from=parts["two_metric_from"], momentum_from=parts["momentum_from"])
+                       floor=floor, two_metric_from=parts["two_metric_from"], momentum_from=parts["momentum_from"],
+                       quasi_newton=parts["quasi_newton"], shaped_start_from=parts["shaped_start_from"])
 
         return build
 
@@ -111,10 +116,12 @@ class PixelLandweber(ProximalGradientSolver):
         context: Any = None,
         two_metric_from: int | None = None,
         momentum_from: int | None = None,
+        quasi_newton: Mapping[str, Any] | None = None,
+        shaped_start_from: str = "first",
     ) -> None:
         self._require_regularizers(regularizers)
         super().__init__(data, d0, step_size, regularizers, post_steps, preconditioner, context, two_metric_from,
-                         momentum_from)
+                         momentum_from, quasi_newton, shaped_start_from)
 
     @staticmethod
     def _require_regularizers(regularizers: Sequence[Any]) -> None:
@@ -128,15 +135,17 @@ class PixelLandweber(ProximalGradientSolver):
     def example_settings() -> dict[str, Any]:
         """Settings of the contract checks (framework/core/contracts/checks.py)."""
         return {"step_size": {"name": "backtracking", "tau": 5e-3}, "regularizers": {"l1_bounds": {}},
-                "preconditioner": {"name": "sobolev", "length": [0.25]}}
+                "preconditioner": {"name": "sobolev", "length": [0.25]}, "quasi_newton": {"memory": 8, "from_stage": 0}}
 
     @classmethod
     def from_config(cls, step_size: Mapping[str, Any], regularizers: Mapping[str, Any] | None = None,
                     post_steps: Mapping[str, Any] | None = None, preconditioner: Mapping[str, Any] | None = None,
-                    two_metric_from: int | None = None, momentum_from: int | None = None) -> SolverBuilder:
+                    two_metric_from: int | None = None, momentum_from: int | None = None,
+                    quasi_newton: Mapping[str, Any] | None = None, shaped_start_from: str = "first") -> SolverBuilder:
         """The plugin ``solver/landweber_pixel`` from its config keys (see :func:`build_parts`)."""
         def fresh_parts() -> dict[str, Any]:
-            parts = build_parts(step_size, preconditioner, regularizers, post_steps, two_metric_from, momentum_from)
+            parts = build_parts(step_size, preconditioner, regularizers, post_steps, two_metric_from, momentum_from,
+                                quasi_newton, shaped_start_from)
             cls._require_regularizers(parts["regularizers"])
             check_regularizers(parts["regularizers"], cls.name)
             return parts

@@ -30,10 +30,11 @@ from framework.core.plugin_config import build_plugin, build_plugin_map, split_n
 from framework.core.solver_loop import IterationFailed, IterationRecord, IterativeSolver
 from framework.plugins.solvers.momentum import NesterovMomentum, check_momentum_from
 from framework.plugins.solvers.preconditioner import GradientPreconditioner, check_stage_index
+from framework.plugins.solvers.quasi_newton import LbfgsMemory, check_quasi_newton
 from framework.plugins.solvers.step_size import LineSearchFailed, StepChoice, StepSizePolicy, as_step_policy
 
 __all__ = ["ProximalGradientSolver", "build_parts", "check_regularizers", "stage_changes",
-           "check_two_metric_from"]
+           "check_two_metric_from", "check_shaped_start_from"]
 
 Candidate = dict[str, Tensor]
 
@@ -41,11 +42,13 @@ Candidate = dict[str, Tensor]
 def build_parts(step_size: Mapping[str, Any], preconditioner: Mapping[str, Any] | None = None,
                 regularizers: Mapping[str, Any] | None = None,
                 post_steps: Mapping[str, Any] | None = None,
-                two_metric_from: int | None = None, momentum_from: int | None = None) -> dict[str, Any]:
+                two_metric_from: int | None = None, momentum_from: int | None = None,
+                quasi_newton: Mapping[str, Any] | None = None, shaped_start_from: str = "first") -> dict[str, Any]:
     """The configured parts of a proximal-gradient solver, by registry key: the step size
     ``{name: backtracking, tau: ...}``, the preconditioner ``{name: sobolev, ...}`` (or None), the
-    regularisers and post steps ``{name: {params}}`` in config order; ``two_metric_from`` and
-    ``momentum_from`` as :class:`ProximalGradientSolver` takes them (checked here)."""
+    regularisers and post steps ``{name: {params}}`` in config order; ``two_metric_from``,
+    ``momentum_from``, ``quasi_newton`` and ``shaped_start_from`` as :class:`ProximalGradientSolver`
+    takes them (checked here)."""
     step_name, step_params = split_name(step_size, "solver.step_size")
     parts: dict[str, Any] = {
         "step_size": build_plugin("step_size", step_name, step_params, "solver.step_size"),
@@ -54,11 +57,25 @@ def build_parts(step_size: Mapping[str, Any], preconditioner: Mapping[str, Any] 
         "post_steps": build_plugin_map("post_step", post_steps, "solver.post_steps"),
         "two_metric_from": check_two_metric_from(two_metric_from),
         "momentum_from": check_momentum_from(momentum_from),
+        "quasi_newton": check_quasi_newton(None if quasi_newton is None else dict(quasi_newton)),
+        "shaped_start_from": check_shaped_start_from(shaped_start_from),
     }
     if preconditioner:
         name, params = split_name(preconditioner, "solver.preconditioner")
         parts["preconditioner"] = build_plugin("preconditioner", name, params, "solver.preconditioner")
     return parts
+
+
+SHAPED_START_FROM = ("first", "finest")
+
+
+def check_shaped_start_from(value: Any) -> str:
+    """``solver.shaped_start_from``: where the schedule begins from a start that holds the broad
+    shape (``first``: the whole schedule; ``finest``: its last stage)."""
+    if value not in SHAPED_START_FROM:
+        raise ValueError(f"solver.shaped_start_from={value!r} must be one of {', '.join(SHAPED_START_FROM)} (where the "
+                         "preconditioner schedule begins from a transport, design or file start)")
+    return str(value)
 
 
 def check_two_metric_from(stage: Any) -> int | None:
@@ -110,6 +127,11 @@ class ProximalGradientSolver(IterativeSolver):
         momentum_from: Preconditioner stage from which the data term is evaluated at Nesterov's
             extrapolated point (:mod:`framework.plugins.solvers.momentum`); None: never. Without
             a preconditioner the stage is 0.
+        quasi_newton: ``{memory: k, from_stage: s}``: from preconditioner stage s on, the step
+            direction is the L-BFGS direction of the last k steps
+            (:mod:`framework.plugins.solvers.quasi_newton`), and no momentum; None: never.
+        shaped_start_from: From a start that holds the broad shape (:meth:`begin_from_shaped_start`)
+            the schedule begins at its ``first`` stage or its ``finest``.
         context: If given, ``setup(context)`` is called on every regulariser and post step that
             has ``setup`` (e.g. a :class:`regularizers.base.RegularizerContext`); if None the
             caller must have set them up.
@@ -126,6 +148,8 @@ class ProximalGradientSolver(IterativeSolver):
         context: Any = None,
         two_metric_from: int | None = None,
         momentum_from: int | None = None,
+        quasi_newton: Mapping[str, Any] | None = None,
+        shaped_start_from: str = "first",
     ) -> None:
         super().__init__(d0)
         if not callable(getattr(data, "evaluate", None)):
@@ -140,6 +164,9 @@ class ProximalGradientSolver(IterativeSolver):
         self.two_metric_from = check_two_metric_from(two_metric_from)
         self.momentum_from = check_momentum_from(momentum_from)
         self.momentum = NesterovMomentum()
+        self.quasi_newton = check_quasi_newton(None if quasi_newton is None else dict(quasi_newton))
+        self.lbfgs = LbfgsMemory(self.quasi_newton["memory"]) if self.quasi_newton else None
+        self.shaped_start_from = check_shaped_start_from(shaped_start_from)
         self._evaluation: DataEvaluation | None = None
         self._direction: Tensor | None = None
         if context is not None:
@@ -167,7 +194,9 @@ class ProximalGradientSolver(IterativeSolver):
         constraint)."""
         if self._direction is None:
             grad = self._current_evaluation().grad
-            if self.preconditioner is None:
+            if self._quasi_newton_active():
+                self._direction = self._quasi_newton_direction(grad)
+            elif self.preconditioner is None:
                 self._direction = grad
             elif not self._two_metric():
                 self._direction = self.preconditioner(grad)
@@ -176,6 +205,22 @@ class ProximalGradientSolver(IterativeSolver):
                 free_grad = torch.where(pinned, torch.zeros_like(grad), grad)
                 self._direction = torch.where(pinned, grad, self.preconditioner(free_grad))
         return self._direction
+
+    def _apply_metric(self, x: Tensor) -> Tensor:
+        """P x (x itself without a preconditioner)."""
+        return x if self.preconditioner is None else self.preconditioner(x)
+
+    def _quasi_newton_active(self) -> bool:
+        """Whether the current preconditioner stage takes the L-BFGS direction."""
+        return self.lbfgs is not None and self.stage() >= self.quasi_newton["from_stage"]
+
+    def _quasi_newton_direction(self, grad: Tensor) -> Tensor:
+        """The L-BFGS direction H grad / gamma on the free samples (all of them outside the two-metric
+        stages); the pinned ones take their plain gradient, as in :meth:`_step_direction`."""
+        if not self._two_metric():
+            return self.lbfgs.direction(grad, self._apply_metric)
+        pinned = self._pinned(grad)
+        return torch.where(pinned, grad, self.lbfgs.direction(grad, self._apply_metric, free=~pinned))
 
     def stage(self) -> int:
         """The preconditioner's stage (0 without one or for a single length)."""
@@ -187,7 +232,8 @@ class ProximalGradientSolver(IterativeSolver):
 
     def _with_momentum(self) -> bool:
         """Whether the current preconditioner stage evaluates at the extrapolated point."""
-        return self.momentum_from is not None and self.stage() >= self.momentum_from
+        return (self.momentum_from is not None and self.stage() >= self.momentum_from
+                and not self._quasi_newton_active())
 
     def _pinned(self, grad: Tensor) -> Tensor:
         """Samples (m, m, bool) that the regularisers hold where they are: a plain gradient step of
@@ -275,18 +321,26 @@ class ProximalGradientSolver(IterativeSolver):
         self._direction = None
         self.momentum.reset()
         self.step_size.reset()
+        self._forget_curvature()
         return True
 
-    def start_finest(self) -> None:
-        """Move the preconditioner to its finest length before the first iteration."""
-        while self.refine(self.state.d):
+    def begin_from_shaped_start(self) -> None:
+        """With ``shaped_start_from='finest'`` move the preconditioner to its finest length before
+        the first iteration; with ``'first'`` keep the whole schedule."""
+        while self.shaped_start_from == "finest" and self.refine(self.state.d):
             pass
 
     def setup_changed(self) -> None:
-        """Drop the cached evaluation, direction and momentum: they belong to the old setup."""
+        """Drop the cached evaluation, direction, momentum and curvature pairs: they belong to the old
+        setup."""
         self._evaluation = None
         self._direction = None
         self.momentum.reset()
+        self._forget_curvature()
+
+    def _forget_curvature(self) -> None:
+        if self.lbfgs is not None:
+            self.lbfgs.reset()
 
     # -- the iteration -------------------------------------------------------------------------
     def _current_evaluation(self) -> DataEvaluation:
@@ -336,6 +390,8 @@ class ProximalGradientSolver(IterativeSolver):
         if not math.isfinite(evaluation.value):
             raise IterationFailed(f"data term is {evaluation.value} at the new iterate; reduce the step size")
         regularization = self.regularization_value(new["d"])
+        if self._quasi_newton_active():
+            self.lbfgs.update(new["d"] - d, evaluation.grad - current.grad, self._apply_metric)
         self._accept(new)
         self.state.iteration += 1
         self.state.elapsed_s += time.perf_counter() - t0
@@ -370,6 +426,8 @@ class ProximalGradientSolver(IterativeSolver):
         state = super().state_dict()
         state["step_size"] = self.step_size.state_dict()
         state["momentum"] = self.momentum.state_dict()
+        if self.lbfgs is not None:
+            state["quasi_newton"] = self.lbfgs.state_dict()
         if callable(getattr(self.preconditioner, "state_dict", None)):
             state["preconditioner"] = self.preconditioner.state_dict()
         ev = self._evaluation
@@ -382,6 +440,8 @@ class ProximalGradientSolver(IterativeSolver):
         super().load_state_dict(state)
         self.step_size.load_state_dict(state.get("step_size", {}))
         self.momentum.load_state_dict(state.get("momentum", {}))
+        if self.lbfgs is not None:
+            self.lbfgs.load_state_dict(state.get("quasi_newton", {}))
         if callable(getattr(self.preconditioner, "load_state_dict", None)):
             self.preconditioner.load_state_dict(state.get("preconditioner", {}))
         self._direction = None

@@ -77,6 +77,8 @@ class WaveletLandweber(ProximalGradientSolver):
         context: Any = None,
         two_metric_from: int | None = None,
         momentum_from: int | None = None,
+        quasi_newton: Mapping[str, Any] | None = None,
+        shaped_start_from: str = "first",
     ) -> None:
         self._check_pixel_step_ratio(pixel_step_ratio)
         missing = [m for m in ("forward", "inverse", "inverse_adjoint") if not callable(getattr(wavelet, m, None))]
@@ -96,7 +98,7 @@ class WaveletLandweber(ProximalGradientSolver):
         self.wavelet_regularizer = wavelet_regularizer
         self.pixel_step_ratio = float(pixel_step_ratio)
         super().__init__(data, d0, step_size, pixel_regularizers, post_steps, preconditioner, context,
-                         two_metric_from, momentum_from)
+                         two_metric_from, momentum_from, quasi_newton, shaped_start_from)
         self.coefficients: Tensor = self.wavelet.forward(self.state.d)  # w = W d, flat
         self._metric: Tensor | None = None  # diag of W P W^* for the current preconditioner stage
 
@@ -109,18 +111,20 @@ class WaveletLandweber(ProximalGradientSolver):
     def example_settings() -> dict[str, Any]:
         """Settings of the contract checks (framework/core/contracts/checks.py)."""
         return {"step_size": {"name": "backtracking", "tau": 5e-3}, "wavelet_regularizer": {"name": "l1_wavelet", "levels": 2},
-                "preconditioner": {"name": "sobolev", "length": [0.25]}}
+                "preconditioner": {"name": "sobolev", "length": [0.25]}, "quasi_newton": {"memory": 8, "from_stage": 0}}
 
     @classmethod
     def from_config(cls, step_size: Mapping[str, Any], wavelet_regularizer: Mapping[str, Any],
                     regularizers: Mapping[str, Any] | None = None, post_steps: Mapping[str, Any] | None = None,
                     pixel_step_ratio: float = 1.0, preconditioner: Mapping[str, Any] | None = None,
-                    two_metric_from: int | None = None, momentum_from: int | None = None) -> SolverBuilder:
+                    two_metric_from: int | None = None, momentum_from: int | None = None,
+                    quasi_newton: Mapping[str, Any] | None = None, shaped_start_from: str = "first") -> SolverBuilder:
         """The plugin ``solver/landweber_wavelet``: ``wavelet_regularizer`` is a regulariser by key
         with ``prox_coefficients`` and ``transform_for`` (``{name: l1_wavelet, alpha_w: 1e-2,
         wavelet: db3, levels: 3}``); the other keys as :func:`build_parts`."""
         def fresh_parts() -> dict[str, Any]:
-            return build_parts(step_size, preconditioner, regularizers, post_steps, two_metric_from, momentum_from)
+            return build_parts(step_size, preconditioner, regularizers, post_steps, two_metric_from, momentum_from,
+                               quasi_newton, shaped_start_from)
 
         fresh_parts()  # a bad value fails now, before any render
         name, params = split_name(wavelet_regularizer, "solver.wavelet_regularizer")
