@@ -195,7 +195,7 @@ def calibration_study(scene: str, work: Path, store: TrackingStore, overrides: l
             "distance_at_bound": joint["calibration_screen_distance_at_bound"],
             "joint_error": error_against(truth, work / scene / "joint", cfg),
             "fixed_discrepancy": fixed["rel_discrepancy"], "joint_discrepancy": joint["rel_discrepancy"],
-            "distance": joint["calibration_screen_distance"], "distance_std": joint["calibration_screen_distance_std"],
+            "distance": joint["calibration_screen_distance"], "distance_std": joint.get("calibration_screen_distance_std"),
             "gain": joint["calibration_gain"], "gain_std": joint["calibration_gain_std"],
             "fixed_iterations": fixed["iterations"], "joint_iterations": joint["iterations"]}
 
@@ -209,14 +209,20 @@ def photo_table(rows: list[dict[str, Any]]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _distance(row: dict[str, Any]) -> str:
+    """The recovered distance with its standard error, or why there is none."""
+    if row["distance_std"] is None:
+        return f"{row['distance']:.5f}, not calibrated (noise level met at iteration {row['joint_iterations']})"
+    return f"{row['distance']:.5f} ± {row['distance_std']:.5f}{' (at its bound)' if row['distance_at_bound'] else ''}"
+
+
 def calibration_table(rows: list[dict[str, Any]]) -> str:
     lines = ["| scene | true distance | told | rel. err. told / true distance | rel. dis. told / true distance | "
              "rel. err. joint | rel. dis. joint | recovered distance (std at fixed heights) | "
              f"recovered gain (true {TRUE_GAIN}) |", "|---|---|---|---|---|---|---|---|---|"]
     lines += [f"| {r['scene']} | {r['true_distance']:.4f} | {r['start_distance']:.4f} | {r['fixed_error']:.4f} / "
               f"{r['true_distance_error']:.4f} | {r['fixed_discrepancy']:.4f} / {r['true_distance_discrepancy']:.4f} | "
-              f"{r['joint_error']:.4f} | {r['joint_discrepancy']:.4f} | {r['distance']:.5f} ± {r['distance_std']:.5f}"
-              f"{' (at its bound)' if r['distance_at_bound'] else ''} | {r['gain']:.4f} ± {r['gain_std']:.4f} |"
+              f"{r['joint_error']:.4f} | {r['joint_discrepancy']:.4f} | {_distance(r)} | {r['gain']:.4f} ± {r['gain_std']:.4f} |"
               for r in rows]
     return "\n".join(lines) + "\n"
 

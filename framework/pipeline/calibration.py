@@ -360,6 +360,11 @@ class JointCalibration(Callback):
             return False
         return all(v > 0.0 for p, v in values.items() if is_gain(p)) and values.get("screen_distance", 1.0) > 0.0
 
+    def never_updated(self) -> list[str]:
+        """The calibrated parameters that no update has moved yet (the run met the noise level before
+        the first update that includes them): they keep their configured values."""
+        return [p for p in self.params if p not in self.std]
+
     def report(self) -> dict[str, float]:
         """Initial and final value and standard error of every parameter, for metrics (psf_sigma
         also in receiver pixels and mm)."""

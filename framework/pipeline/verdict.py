@@ -59,13 +59,14 @@ class Verdict:
 
 def run_verdict(rel_discrepancy: float, delta: float, tau_dis: float, returned_iteration: int, stop_reason: str,
                 volume: Mapping[str, Any], weights: torch.Tensor | None, left_out: Mapping[str, int],
-                shots: Sequence[tuple[str, float, float]] = ()) -> Verdict:
+                shots: Sequence[tuple[str, float, float]] = (), never_calibrated: Sequence[str] = ()) -> Verdict:
     """The verdict of a run whose returned iterate (``returned_iteration``) has ``rel_discrepancy``
     against data of noise level ``delta`` (goal: at most ``tau_dis`` * delta); ``volume`` is
     :func:`volume_report`'s answer, ``weights`` (c, n, n) the data term's pixel weights,
     ``left_out`` the data source's counts of weight-0 pixels by reason and ``shots`` a stack's
     (label, own discrepancy, own noise level) per shot: a shot above :data:`SHOT_FIT_FACTOR` times
-    its noise level is named (the stack may meet its noise level while one photo stays unexplained)."""
+    its noise level is named (the stack may meet its noise level while one photo stays unexplained);
+    ``never_calibrated``: calibrated setup parameters that kept their configured values."""
     ratio = rel_discrepancy / delta
     reached = rel_discrepancy <= tau_dis * delta
     lines, warnings = [], []
@@ -93,6 +94,11 @@ def run_verdict(rel_discrepancy: float, delta: float, tau_dis: float, returned_i
                         "check its setup (screen distance or offset, light) or raise its weight.")
             lines.append(sentence)
             warnings.append(sentence)
+    if never_calibrated:
+        sentence = (f"Not calibrated: {', '.join(never_calibrated)} kept the configured value; the fit met the noise "
+                    "level before the first update of calibration.params (lower calibration.every).")
+        lines.append(sentence)
+        warnings.append(sentence)
     counts = dict(left_out)
     dropped = 0 if weights is None else int((weights == 0).sum())
     if dropped > sum(counts.values()):

@@ -39,6 +39,9 @@ def test_the_verdict_counts_what_it_says() -> None:
     assert len(short.warnings) == 2 and "6.20 x the noise level" in short.warnings[0]
     assert "1.1550 x the known volume" in short.warnings[1]
     assert short.lines[-1] == "Every receiver pixel used in the fit."
+    kept = run_verdict(0.0505, 0.05, 1.01, 9, "morozov", {}, None, {}, never_calibrated=["screen_distance"])
+    assert kept.reached_noise_level and len(kept.warnings) == 1
+    assert kept.warnings[0].startswith("Not calibrated: screen_distance kept the configured value")
 
 
 def _photo(image: np.ndarray, gain: float, noise: float, seed: int) -> np.ndarray:

@@ -31,13 +31,16 @@ def test_distance_and_gain_are_recovered_at_the_true_heights(tmp_path) -> None:
     op, truth, target = _case()
     calibration = JointCalibration(op, ["gain", "screen_distance"])
     calibration.setup(target, None, 0.05, tmp_path / "calibration.json")
+    assert calibration.never_updated() == ["gain", "screen_distance"]
+    calibration.update(truth, ["gain"])
+    assert calibration.never_updated() == ["screen_distance"]  # a gain-only update leaves the geometry as told
     for _ in range(4):
         values = calibration.update(truth)
     assert abs(values["screen_distance"] - TRUE_DISTANCE) < 0.01 * TRUE_DISTANCE  # from 10% off
     assert abs(values["gain"] - TRUE_GAIN) < 0.01 * TRUE_GAIN
     assert 0 < calibration.std["screen_distance"] < 0.01 * TRUE_DISTANCE
     saved = json.loads((tmp_path / "calibration.json").read_text())
-    assert saved["values"] == pytest.approx(values) and saved["updates"] == 4
+    assert saved["values"] == pytest.approx(values) and saved["updates"] == 5 and calibration.never_updated() == []
     assert saved["initial"]["screen_distance"] == pytest.approx(1.1 * TRUE_DISTANCE)
 
 
