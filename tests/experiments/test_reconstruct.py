@@ -149,7 +149,7 @@ def test_every_experiment_preset_runs_two_iterations(tmp_path, experiment):
 
 
 def test_the_papers_plain_iteration_runs_with_the_readme_overrides(tmp_path):
-    # Hydra merges a dict override into the default step size: the README deletes it first.
+    # Hydra merges a dict override into the default step size: docs/method.md deletes it first.
     plain = ["solver.preconditioner=null", "~solver.step_size", "+solver.step_size={name: constant, tau: 2.5e-4}"]
     cfg = compose_reconstruct([*SMALL, *plain, "solver.max_iter=2"], tmp_path)
     assert cfg["solver"]["step_size"] == {"name": "constant", "tau": 2.5e-4}
