@@ -57,7 +57,7 @@ def build_parts(step_size: Mapping[str, Any], preconditioner: Mapping[str, Any] 
         "post_steps": build_plugin_map("post_step", post_steps, "solver.post_steps"),
         "two_metric_from": check_two_metric_from(two_metric_from),
         "momentum_from": check_momentum_from(momentum_from),
-        "quasi_newton": check_quasi_newton(None if quasi_newton is None else dict(quasi_newton)),
+        "quasi_newton": check_quasi_newton(quasi_newton),
         "shaped_start_from": check_shaped_start_from(shaped_start_from),
     }
     if preconditioner:
@@ -164,7 +164,7 @@ class ProximalGradientSolver(IterativeSolver):
         self.two_metric_from = check_two_metric_from(two_metric_from)
         self.momentum_from = check_momentum_from(momentum_from)
         self.momentum = NesterovMomentum()
-        self.quasi_newton = check_quasi_newton(None if quasi_newton is None else dict(quasi_newton))
+        self.quasi_newton = check_quasi_newton(quasi_newton)
         self.lbfgs = LbfgsMemory(self.quasi_newton["memory"]) if self.quasi_newton else None
         self.shaped_start_from = check_shaped_start_from(shaped_start_from)
         self._evaluation: DataEvaluation | None = None
@@ -189,22 +189,27 @@ class ProximalGradientSolver(IterativeSolver):
 
     def _step_direction(self) -> Tensor:
         """The step direction at the current iterate (computed once per iterate): grad f, or with a
-        preconditioner P the two-metric direction of :meth:`_pinned`: P acts on the free samples
-        only, and the pinned ones take their plain gradient (which the prox then stops at the
-        constraint)."""
+        preconditioner P (or quasi-Newton steps) the two-metric direction of :meth:`_pinned`: P (or
+        L-BFGS) acts on the free samples only, and the pinned ones take their plain gradient (which
+        the prox then stops at the constraint)."""
         if self._direction is None:
             grad = self._current_evaluation().grad
-            if self._quasi_newton_active():
-                self._direction = self._quasi_newton_direction(grad)
-            elif self.preconditioner is None:
+            if self.preconditioner is None and not self._quasi_newton_active():
                 self._direction = grad
             elif not self._two_metric():
-                self._direction = self.preconditioner(grad)
+                self._direction = self._free_direction(grad)
             else:
                 pinned = self._pinned(grad)
-                free_grad = torch.where(pinned, torch.zeros_like(grad), grad)
-                self._direction = torch.where(pinned, grad, self.preconditioner(free_grad))
+                self._direction = torch.where(pinned, grad, self._free_direction(grad, ~pinned))
         return self._direction
+
+    def _free_direction(self, grad: Tensor, free: Tensor | None = None) -> Tensor:
+        """The direction on the ``free`` samples (m, m, bool; None: all): in the quasi-Newton stages
+        the L-BFGS direction H grad / gamma, else P applied to the gradient with the other samples
+        zeroed."""
+        if self._quasi_newton_active():
+            return self.lbfgs.direction(grad, self._apply_metric, free)
+        return self._apply_metric(grad if free is None else torch.where(free, grad, torch.zeros_like(grad)))
 
     def _apply_metric(self, x: Tensor) -> Tensor:
         """P x (x itself without a preconditioner)."""
@@ -213,14 +218,6 @@ class ProximalGradientSolver(IterativeSolver):
     def _quasi_newton_active(self) -> bool:
         """Whether the current preconditioner stage takes the L-BFGS direction."""
         return self.lbfgs is not None and self.stage() >= self.quasi_newton["from_stage"]
-
-    def _quasi_newton_direction(self, grad: Tensor) -> Tensor:
-        """The L-BFGS direction H grad / gamma on the free samples (all of them outside the two-metric
-        stages); the pinned ones take their plain gradient, as in :meth:`_step_direction`."""
-        if not self._two_metric():
-            return self.lbfgs.direction(grad, self._apply_metric)
-        pinned = self._pinned(grad)
-        return torch.where(pinned, grad, self.lbfgs.direction(grad, self._apply_metric, free=~pinned))
 
     def stage(self) -> int:
         """The preconditioner's stage (0 without one or for a single length)."""

@@ -23,7 +23,7 @@ s^T y <= 0 (no positive curvature along s, e.g. across a post-step heuristic) is
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from typing import Any
 
 import torch
@@ -37,7 +37,7 @@ def check_quasi_newton(settings: Any) -> dict[str, int] | None:
     memory 8 and from_stage 1."""
     if settings is None:
         return None
-    if not isinstance(settings, dict) or set(settings) - {"memory", "from_stage"}:
+    if not isinstance(settings, Mapping) or set(settings) - {"memory", "from_stage"}:
         raise ValueError(f"solver.quasi_newton={settings!r} must be null or a map with keys memory (pairs kept, "
                          "e.g. 8) and from_stage (the preconditioner stage it starts at, e.g. 1)")
     out = {"memory": settings.get("memory", 8), "from_stage": settings.get("from_stage", 1)}
