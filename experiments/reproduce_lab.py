@@ -31,18 +31,18 @@ from typing import Any
 
 import numpy as np
 import torch
-from hydra import compose, initialize_config_dir
 from PIL import Image
 
+from experiments.calibrate_screen import calibrate
+from experiments.configs import reconstruct_config
 from experiments.mlflow_store import TrackingStore
 from framework.pipeline.calibration import with_setup
 from framework.pipeline.callbacks import GroundTruthError
 from framework.core.data import resample_image
 from framework.plugins.data.photo_synthesis import synthesize_photo
 from framework.pipeline.reconstruction import Reconstruction, run_reconstruction
-from framework.core.scene_config import build_heights, build_operator, build_scene, height_grid, to_plain
+from framework.core.scene_config import build_heights, build_operator, build_scene, height_grid
 
-CONF = str(Path(__file__).resolve().parent.parent / "conf")
 SCENES = ("print_lines", "bump")
 # The photo: 960 x 720 px, the receiver seen in perspective (about 3.6 photo pixels per receiver
 # pixel at n = 128), corners bottom-left, bottom-right, top-right, top-left of the receiver.
@@ -51,12 +51,7 @@ CORNERS = [[230.0, 660.0], [745.0, 640.0], [700.0, 150.0], [265.0, 120.0]]
 PHOTO = {"vignetting": 0.3, "gamma": 2.2, "black_level_dn": 512.0, "noise": 0.004, "saturated_pixels": 40}
 SCREEN_SIGMA = 0.01  # the screen's blur, scene units (0.25 mm at 25 mm per unit)
 TRUE_GAIN, DISTANCE_ERROR = 1.7, 1.10
-
-
-def reconstruct_config(overrides: list[str]) -> dict[str, Any]:
-    """The plain config of conf/reconstruct.yaml with ``overrides``."""
-    with initialize_config_dir(config_dir=CONF, version_base=None):
-        return to_plain(compose("reconstruct", overrides=overrides))
+SCREEN_BLURS_PX = (0.5, 1.5)  # the screen study's Gaussian blurs, receiver pixels
 
 
 def true_caustic(cfg: dict[str, Any], photons: int, resolution: int, seed: int,
@@ -115,6 +110,24 @@ def _run(overrides: list[str], out: Path, store: TrackingStore, name: str) -> di
     return run_reconstruction(cfg, out / name, out)
 
 
+def photo_arguments(files: dict[str, Any], volume: float) -> list[str]:
+    """The overrides that import write_photos' photo (data=photo) with the design's mask and volume."""
+    return ["data=photo", f"data.photo={files['photo']}", f"data.flat={files['flat']}",
+            "data.flat_kind=substrate", "data.response=gamma", f"data.gamma={PHOTO['gamma']}",
+            f"data.black_level={PHOTO['black_level_dn']}", "data.mask=design", f"data.volume={volume}",
+            f"data.corners={json.dumps(CORNERS, separators=(',', ':'))}"]
+
+
+def imported_error(base: list[str], photo_args: list[str], files: dict[str, Any], work: Path
+                   ) -> tuple[float, np.ndarray]:
+    """The imported photo's relative error against the clean render (after the best scale), and the
+    import's weights (n, n)."""
+    parts = Reconstruction.from_config(reconstruct_config([*base, *photo_args]), work)
+    imported = parts.data_source.load(parts.data_request(work, work / "import"))
+    weights = imported.weights.numpy()
+    return relative_error_after_scale(imported.target.numpy(), files["clean"], weights), weights
+
+
 def photo_study(scene: str, work: Path, store: TrackingStore, overrides: list[str],
                 reference_photons: int = 1 << 22) -> dict[str, Any]:
     """One scene of the photo study: import error and both reconstruction errors; the truth's
@@ -124,15 +137,9 @@ def photo_study(scene: str, work: Path, store: TrackingStore, overrides: list[st
     seed = int(cfg["seed"])
     files = write_photos(cfg, work / scene, reference_photons, seed)
     truth, volume = truth_and_volume(cfg)
-    photo_args = ["data=photo", f"data.photo={files['photo']}", f"data.flat={files['flat']}",
-                  "data.flat_kind=substrate", "data.response=gamma", f"data.gamma={PHOTO['gamma']}",
-                  f"data.black_level={PHOTO['black_level_dn']}", "data.mask=design", f"data.volume={volume}",
-                  f"data.corners={json.dumps(CORNERS, separators=(',', ':'))}"]
+    photo_args = photo_arguments(files, volume)
     # The imported image's error against the clean render decides the noise level both runs get.
-    parts = Reconstruction.from_config(reconstruct_config([*base, *photo_args]), work / scene)
-    imported = parts.data_source.load(parts.data_request(work / scene, work / scene / "import"))
-    target, weights = imported.target.numpy(), imported.weights.numpy()
-    import_error = relative_error_after_scale(target, files["clean"], weights)
+    import_error, weights = imported_error(base, photo_args, files, work / scene)
     delta = max(import_error, 0.01)
     np.save(work / scene / "clean_noisy.npy", with_noise(files["clean"], delta, seed))
     from_photo = _run([*base, *photo_args, f"data.delta={delta}"], work / scene, store, "photo")
@@ -200,6 +207,35 @@ def calibration_study(scene: str, work: Path, store: TrackingStore, overrides: l
             "fixed_iterations": fixed["iterations"], "joint_iterations": joint["iterations"]}
 
 
+def screen_study(scene: str, sigma_px: float, work: Path, store: TrackingStore, overrides: list[str],
+                 reference_photons: int = 1 << 22) -> dict[str, Any]:
+    """One case of the screen-blur study: a photo of ``scene``'s caustic through a Gaussian screen
+    blur of ``sigma_px`` receiver pixels; the run told the blur, the blur found by its profile
+    (experiments/calibrate_screen.py) and the run with the found blur."""
+    cfg = reconstruct_config([f"scene={scene}", *overrides])
+    pixel = 2.0 * float(cfg["receiver"]["half_width"]) / int(cfg["receiver"]["resolution"])
+    told_screen = ["screen.psf=gaussian", f"screen.sigma={sigma_px * pixel!r}"]
+    base = [f"scene={scene}", *told_screen, *overrides]
+    cfg = reconstruct_config(base)
+    case = work / f"{scene}_{sigma_px:g}px"
+    files = write_photos(cfg, case, reference_photons, int(cfg["seed"]))
+    truth, volume = truth_and_volume(cfg)
+    photo_args = photo_arguments(files, volume)
+    delta = max(imported_error(base, photo_args, files, case)[0], 0.01)
+    data = [*photo_args, f"data.delta={delta}"]
+    told = _run([*base, *data], case, store, "told")
+    found = calibrate([f"scene={scene}", *overrides, *data, *store.overrides()], case / "profile")
+    row = {"scene": scene, "true_px": sigma_px, "delta": delta, "found_px": found["sigma_px"],
+           "identified": found["identified"], "rise": found["rise_at_factor_2"],
+           "profile_runs": len(found["profile"]), "told_error": error_against(truth, case / "told", cfg),
+           "told_iterations": told["iterations"], "found_error": None, "found_iterations": None}
+    if found["identified"]:
+        run = _run([f"scene={scene}", "screen.psf=gaussian", f"screen.sigma={found['sigma']!r}", *overrides, *data],
+                   case, store, "found")
+        row.update(found_error=error_against(truth, case / "found", cfg), found_iterations=run["iterations"])
+    return row
+
+
 def photo_table(rows: list[dict[str, Any]]) -> str:
     lines = ["| scene | imported vs render (rel.) | saturated photo px | receiver px weighted 0 | delta | "
              "rel. err. from the photo | rel. err. from the render | ratio |", "|---|---|---|---|---|---|---|---|"]
@@ -227,9 +263,23 @@ def calibration_table(rows: list[dict[str, Any]]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def screen_table(rows: list[dict[str, Any]]) -> str:
+    lines = ["| scene | true blur (px) | delta | found blur (px) | found / true | misfit rise at x2 | fits | "
+             "rel. err. told | rel. err. found | ratio |", "|---|---|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        found = (f"{r['found_error']:.4f} | {r['found_error'] / r['told_error']:.3f}" if r["found_error"] is not None
+                 else "not told | -")
+        lines.append(f"| {r['scene']} | {r['true_px']:g} | {r['delta']:.4f} | {r['found_px']:.3f} | "
+                     f"{r['found_px'] / r['true_px']:.3f} | {100 * r['rise']:.0f}% | {r['profile_runs']} | "
+                     f"{r['told_error']:.4f} ({r['told_iterations']} it.) | {found} |")
+    return "\n".join(lines) + "\n"
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--study", choices=("photo", "calibration", "all"), default="all")
+    parser.add_argument("--study", choices=("photo", "calibration", "screen", "all"), default="all")
+    parser.add_argument("--blurs", nargs="+", type=float, default=list(SCREEN_BLURS_PX),
+                        help="the screen study's blurs, receiver pixels")
     parser.add_argument("--scenes", nargs="+", default=list(SCENES))
     parser.add_argument("--store", type=Path, default=Path("mlruns"), help="MLflow store directory")
     parser.add_argument("--tracking-uri", default=None, help="a shared MLflow tracking server instead of --store")
@@ -249,6 +299,11 @@ def main(argv: list[str] | None = None) -> None:
                 for s in args.scenes]
         (args.out / "lab_calibration.md").write_text(calibration_table(rows))
         print(calibration_table(rows))
+    if args.study in ("screen", "all"):
+        rows = [screen_study(s, b, work / "screen", store, args.overrides, args.reference_photons)
+                for s in args.scenes for b in args.blurs]
+        (args.out / "lab_screen.md").write_text(screen_table(rows))
+        print(screen_table(rows))
 
 
 if __name__ == "__main__":

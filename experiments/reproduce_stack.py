@@ -30,7 +30,8 @@ import numpy as np
 import torch
 
 from experiments.mlflow_store import TrackingStore
-from experiments.reproduce_lab import error_against, reconstruct_config, true_caustic, truth_and_volume, with_noise
+from experiments.configs import reconstruct_config
+from experiments.reproduce_lab import error_against, true_caustic, truth_and_volume, with_noise
 from framework.core.data import resample_image
 from framework.pipeline.reconstruction import run_reconstruction
 

@@ -1,0 +1,19 @@
+"""The plain config of an app's Hydra config (conf/) with overrides, for scripts that run several
+reconstructions in one process."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from hydra import compose, initialize_config_dir
+
+from framework.core.scene_config import to_plain
+
+CONF = str(Path(__file__).resolve().parent.parent / "conf")
+
+
+def reconstruct_config(overrides: list[str]) -> dict[str, Any]:
+    """The plain config of conf/reconstruct.yaml with ``overrides``."""
+    with initialize_config_dir(config_dir=CONF, version_base=None):
+        return to_plain(compose("reconstruct", overrides=overrides))
