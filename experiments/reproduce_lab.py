@@ -13,11 +13,16 @@ gain of 1.7; the reconstruction is told a distance 10% too large and runs once w
 fixed (the image scaled to the model's power) and once estimating the distance and the gain with
 the heights (calibration.params, the image as it is).
 
-    python -m experiments.reproduce_lab                    # both studies, two scenes each
+``screen``: the caustic through a Gaussian screen blur of 0.5 and 1.5 receiver pixels, as the
+clean render with noise and as the imported photo (both at the photo's noise level); the run told
+the blur, the blur found by sfc-calibrate-screen (experiments/calibrate_screen.py) and the run with
+the found blur.
+
+    python -m experiments.reproduce_lab                    # all three studies, two scenes each
     python -m experiments.reproduce_lab --study photo --scenes bump
     python -m experiments.reproduce_lab --overrides photons=262144
 
-Writes lab_photo.md / lab_calibration.md (and the photo study's figure lab_photo.png) into
+Writes lab_photo.md / lab_calibration.md / lab_screen.md (and the photo study's figure lab_photo.png) into
 --out (default docs/results); every reconstruction is an MLflow run of the experiment ``lab`` in
 --store (default mlruns/), its files under --work (default outputs/lab).
 """
@@ -56,13 +61,15 @@ SCREEN_BLURS_PX = (0.5, 1.5)  # the screen study's Gaussian blurs, receiver pixe
 
 def true_caustic(cfg: dict[str, Any], photons: int, resolution: int, seed: int,
                  setup: dict[str, float] | None = None, heights: torch.Tensor | None = None) -> np.ndarray:
-    """The caustic (1, N, N) of the configured (or given) heights with ``photons`` at an N =
-    ``resolution`` receiver, the screen's blur included, in the configured setup with ``setup``
-    (calibration parameter values, framework/pipeline/calibration.py) replaced."""
+    """The caustic (1, N, N) of the configured (or given) heights by the operator's exact method
+    (the height field's wavefront triangles: about ``photons`` vertices, no footprint, no noise;
+    ``seed`` for a method that samples) at an N = ``resolution`` receiver, the screen's blur
+    included, in the configured setup with ``setup`` (calibration parameter values,
+    framework/pipeline/calibration.py) replaced."""
     scene = build_scene(cfg)
     if setup:
         scene = with_setup(scene, setup)
-    operator = build_operator(cfg, scene).variant(photons, seed, resolution)
+    operator = build_operator(cfg, scene).exact_variant(photons, seed, resolution)
     d = build_heights(cfg) if heights is None else heights
     return operator.render(d.to(operator.dtype)).double().numpy()
 
@@ -108,6 +115,12 @@ def relative_error_after_scale(image: np.ndarray, reference: np.ndarray, weights
 def _run(overrides: list[str], out: Path, store: TrackingStore, name: str) -> dict[str, Any]:
     cfg = reconstruct_config([*overrides, "tracking.experiment=lab", *store.overrides()])
     return run_reconstruction(cfg, out / name, out)
+
+
+def _run_once(overrides: list[str], out: Path, store: TrackingStore, name: str) -> dict[str, Any]:
+    """:func:`_run`, or the metrics of its finished run when the study runs again."""
+    metrics = out / name / "metrics.json"
+    return json.loads(metrics.read_text()) if metrics.is_file() else _run(overrides, out, store, name)
 
 
 def photo_arguments(files: dict[str, Any], volume: float) -> list[str]:
@@ -207,32 +220,41 @@ def calibration_study(scene: str, work: Path, store: TrackingStore, overrides: l
             "fixed_iterations": fixed["iterations"], "joint_iterations": joint["iterations"]}
 
 
-def screen_study(scene: str, sigma_px: float, work: Path, store: TrackingStore, overrides: list[str],
+def screen_study(scene: str, sigma_px: float, source: str, work: Path, store: TrackingStore, overrides: list[str],
                  reference_photons: int = 1 << 22) -> dict[str, Any]:
-    """One case of the screen-blur study: a photo of ``scene``'s caustic through a Gaussian screen
-    blur of ``sigma_px`` receiver pixels; the run told the blur, the blur found by its profile
-    (experiments/calibrate_screen.py) and the run with the found blur."""
+    """One case of the screen-blur study: ``scene``'s caustic through a Gaussian screen blur of
+    ``sigma_px`` receiver pixels, as a photo (``source`` "photo": write_photos' camera, imported) or
+    as the clean render with noise of the photo's level ("render"); the run told the blur, the blur
+    found by its profile (experiments/calibrate_screen.py) and the run with the found blur."""
     cfg = reconstruct_config([f"scene={scene}", *overrides])
     pixel = 2.0 * float(cfg["receiver"]["half_width"]) / int(cfg["receiver"]["resolution"])
-    told_screen = ["screen.psf=gaussian", f"screen.sigma={sigma_px * pixel!r}"]
-    base = [f"scene={scene}", *told_screen, *overrides]
+    base = [f"scene={scene}", "screen.psf=gaussian", f"screen.sigma={sigma_px * pixel!r}", *overrides]
     cfg = reconstruct_config(base)
-    case = work / f"{scene}_{sigma_px:g}px"
-    files = write_photos(cfg, case, reference_photons, int(cfg["seed"]))
+    seed, case = int(cfg["seed"]), work / f"{scene}_{sigma_px:g}px"
+    files = write_photos(cfg, case, reference_photons, seed)
     truth, volume = truth_and_volume(cfg)
     photo_args = photo_arguments(files, volume)
     delta = max(imported_error(base, photo_args, files, case)[0], 0.01)
-    data = [*photo_args, f"data.delta={delta}"]
-    told = _run([*base, *data], case, store, "told")
-    found = calibrate([f"scene={scene}", *overrides, *data, *store.overrides()], case / "profile")
-    row = {"scene": scene, "true_px": sigma_px, "delta": delta, "found_px": found["sigma_px"],
+    if source == "photo":
+        data = [*photo_args, f"data.delta={delta}"]
+    else:
+        np.save(case / "render_noisy.npy", with_noise(files["clean"], delta, seed))
+        data = ["data=file", f"data.image={case / 'render_noisy.npy'}", "data.mask=design", f"data.volume={volume}",
+                f"data.delta={delta}"]
+    out = case / source
+    told = _run_once([*base, *data], out, store, "told")
+    found = calibrate([f"scene={scene}", *overrides, *data, *store.overrides()], out / "profile")
+    row = {"scene": scene, "source": source, "true_px": sigma_px, "delta": delta, "found_px": found["sigma_px"],
            "identified": found["identified"], "rise": found["rise_at_factor_2"],
-           "profile_runs": len(found["profile"]), "told_error": error_against(truth, case / "told", cfg),
-           "told_iterations": told["iterations"], "found_error": None, "found_iterations": None}
+           "profile_runs": len(found["profile"]), "told_error": error_against(truth, out / "told", cfg),
+           "told_iterations": told["iterations"], "told_over_delta": told["discrepancy_over_delta"],
+           "found_error": None, "found_iterations": None, "found_over_delta": None}
     if found["identified"]:
-        run = _run([f"scene={scene}", "screen.psf=gaussian", f"screen.sigma={found['sigma']!r}", *overrides, *data],
-                   case, store, "found")
-        row.update(found_error=error_against(truth, case / "found", cfg), found_iterations=run["iterations"])
+        run = _run_once([f"scene={scene}", "screen.psf=gaussian", f"screen.sigma={found['sigma']!r}", *overrides,
+                         *data], out, store, f"found_{found['sigma_px']:.4f}px")
+        row.update(found_error=error_against(truth, out / f"found_{found['sigma_px']:.4f}px", cfg),
+                   found_iterations=run["iterations"],
+                   found_over_delta=run["discrepancy_over_delta"])
     return row
 
 
@@ -264,14 +286,15 @@ def calibration_table(rows: list[dict[str, Any]]) -> str:
 
 
 def screen_table(rows: list[dict[str, Any]]) -> str:
-    lines = ["| scene | true blur (px) | delta | found blur (px) | found / true | misfit rise at x2 | fits | "
-             "rel. err. told | rel. err. found | ratio |", "|---|---|---|---|---|---|---|---|---|---|"]
+    lines = ["| scene | data | true blur (px) | delta | found blur (px) | found / true | misfit rise at x2 | fits | "
+             "told: rel. err. (it., dis./delta) | found: rel. err. (it., dis./delta) | ratio |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
-        found = (f"{r['found_error']:.4f} | {r['found_error'] / r['told_error']:.3f}" if r["found_error"] is not None
-                 else "not told | -")
-        lines.append(f"| {r['scene']} | {r['true_px']:g} | {r['delta']:.4f} | {r['found_px']:.3f} | "
+        found = (f"{r['found_error']:.4f} ({r['found_iterations']}, {r['found_over_delta']:.2f}) | "
+                 f"{r['found_error'] / r['told_error']:.3f}" if r["found_error"] is not None else "not told | -")
+        lines.append(f"| {r['scene']} | {r['source']} | {r['true_px']:g} | {r['delta']:.4f} | {r['found_px']:.3f} | "
                      f"{r['found_px'] / r['true_px']:.3f} | {100 * r['rise']:.0f}% | {r['profile_runs']} | "
-                     f"{r['told_error']:.4f} ({r['told_iterations']} it.) | {found} |")
+                     f"{r['told_error']:.4f} ({r['told_iterations']}, {r['told_over_delta']:.2f}) | {found} |")
     return "\n".join(lines) + "\n"
 
 
@@ -280,6 +303,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--study", choices=("photo", "calibration", "screen", "all"), default="all")
     parser.add_argument("--blurs", nargs="+", type=float, default=list(SCREEN_BLURS_PX),
                         help="the screen study's blurs, receiver pixels")
+    parser.add_argument("--sources", nargs="+", choices=("render", "photo"), default=["render", "photo"],
+                        help="the screen study's data: the render with noise, the imported photo")
     parser.add_argument("--scenes", nargs="+", default=list(SCENES))
     parser.add_argument("--store", type=Path, default=Path("mlruns"), help="MLflow store directory")
     parser.add_argument("--tracking-uri", default=None, help="a shared MLflow tracking server instead of --store")
@@ -300,8 +325,8 @@ def main(argv: list[str] | None = None) -> None:
         (args.out / "lab_calibration.md").write_text(calibration_table(rows))
         print(calibration_table(rows))
     if args.study in ("screen", "all"):
-        rows = [screen_study(s, b, work / "screen", store, args.overrides, args.reference_photons)
-                for s in args.scenes for b in args.blurs]
+        rows = [screen_study(s, b, source, work / "screen", store, args.overrides, args.reference_photons)
+                for source in args.sources for s in args.scenes for b in args.blurs]
         (args.out / "lab_screen.md").write_text(screen_table(rows))
         print(screen_table(rows))
 

@@ -11,8 +11,12 @@ photo to tell the blur apart from the heights, r(w) has a clear minimum at the t
 no blur, and the search says so.
 
 :func:`search_width` brackets the minimum on a grid of widths a factor 2 apart (extended at its
-edges within [lower, upper]) and refines it by parabolas in log w through the three best widths,
-each vertex evaluated, until a vertex moves the width by less than ``tolerance``.
+edges within [lower, upper]) and refines it by parabolas in log w through the best width and its
+neighbours, each vertex evaluated, until the vertex lies within ``tolerance`` of the best width and
+either both neighbours lie within a factor BRACKET (1.25) of it or the previous parabola's vertex
+agrees; a vertex on the best width with a wide bracket halves the bracket's wider side (in log w)
+instead (on an even bracket the vertex's side), so that the parabola is fitted where the profile
+is close to one.
 """
 
 from __future__ import annotations
@@ -26,6 +30,8 @@ __all__ = ["WidthProfile", "search_width", "MIN_RISE"]
 # The profile must rise by at least this share of its minimum a factor 2 from the found width on
 # both sides (by the fitted parabola) for the width to count as told by the data.
 MIN_RISE = 0.05
+# A bracket whose neighbours lie within this factor of the best width is narrow enough to end on.
+BRACKET = 1.25
 
 
 @dataclass
@@ -83,14 +89,15 @@ def _three_around_best(profile: WidthProfile) -> list[tuple[float, float]]:
 
 def search_width(misfit_of: Callable[[float], float], grid: Sequence[float] = (0.35, 0.7, 1.4, 2.8),
                  lower: float = 0.125, upper: float = 8.0, tolerance: float = 0.05,
-                 max_evaluations: int = 9) -> WidthProfile:
+                 max_evaluations: int = 10) -> WidthProfile:
     """The width (receiver pixels) that minimises ``misfit_of`` (one reconstruction per call).
 
     Args:
         misfit_of: Width in pixels -> the relative discrepancy a fit under that width reaches.
         grid: The first widths, pixels, increasing (at least three).
         lower, upper: The search's bounds, pixels.
-        tolerance: Stop when a parabola's vertex moves the width by less than this share.
+        tolerance: Stop when a parabola's vertex moves the width by less than this share (and
+            the bracket is narrow, BRACKET).
         max_evaluations: At most this many calls in all.
     """
     grid = sorted(float(w) for w in grid)
@@ -118,11 +125,21 @@ def search_width(misfit_of: Callable[[float], float], grid: Sequence[float] = (0
     if best in (points[0][0], points[-1][0]):
         profile.width, profile.at_bound = best, "lower" if best == points[0][0] else "upper"
         return profile
+    previous = math.inf
     while True:
-        x_star, curvature = _vertex(_three_around_best(profile))
-        width = math.exp(x_star)
-        profile.width = width
+        three = _three_around_best(profile)
+        x_star, curvature = _vertex(three)
+        profile.width = math.exp(x_star)
         profile.rise = curvature * math.log(2.0) ** 2 / profile.best()[1]
-        if abs(width / profile.best()[0] - 1.0) < tolerance or len(profile.widths) >= max_evaluations:
+        (x0, _), (x1, _), (x2, _) = three
+        close = math.log1p(tolerance)
+        settled = abs(x_star - x1) < close
+        narrow = max(x1 - x0, x2 - x1) <= math.log(BRACKET)
+        if (settled and (narrow or abs(x_star - previous) < close)) or len(profile.widths) >= max_evaluations:
             return profile
-        evaluate(width)
+        previous = x_star
+        if settled:  # the vertex sits on the best width: halve the wider side of the bracket instead
+            left, right = x1 - x0, x2 - x1  # (on a symmetric bracket the vertex's side)
+            wider_left = left > 1.01 * right or (left >= 0.99 * right and x_star < x1)
+            x_star = 0.5 * (x1 + (x0 if wider_left else x2))
+        evaluate(math.exp(x_star))

@@ -13,18 +13,20 @@ SMALL = ["photons=131072", "receiver.resolution=64", "height_field.resolution=64
 REFERENCE_PHOTONS = 1 << 20
 
 
-# The photo pipeline is checked with the paper's smoothing: at this budget (64 px, flat glass, 60
-# iterations) the blur-free model's error from the photo is 1.30 x the render's (the rectification
-# resamples the photo); at the full budget it is 1.007 x (docs/results.md, "Lab workflow").
-SMOOTHED = ["operator.footprint_px=5", "operator.min_footprint_px=1", "operator.supersample=1"]
+# The photo is rendered by the exact method (wavefront triangles), so the photo test runs the
+# default blur-free model from the transport start (PHOTO_SMALL): from flat glass, 60 iterations at this budget
+# leave the photo's fit 2.7 x the render's error (the rectification resamples the photo), and the
+# paper's 5-pixel smoothing puts its own edge fall-off into the flat field's correction (an import
+# error of 8.5% against 0.64%).
+PHOTO_SMALL = [o for o in SMALL if o != "initial=zero"] + ["initial=transport"]
 
 
 def test_a_photo_reconstructs_as_well_as_the_render_it_shows(tmp_path) -> None:
-    row = photo_study("bump", tmp_path / "work", TrackingStore(tmp_path / "mlruns"), [*SMALL, *SMOOTHED],
+    row = photo_study("bump", tmp_path / "work", TrackingStore(tmp_path / "mlruns"), PHOTO_SMALL,
                       REFERENCE_PHOTONS)
     assert row["import_error"] < 0.02  # the rectified, linearised, flat-fielded photo against the render
     assert row["weighted_out"] > 0  # its saturated pixels left the fit
-    assert row["photo_error"] <= 1.2 * row["clean_error"]
+    assert row["photo_error"] <= 1.2 * row["clean_error"] and row["photo_error"] < 0.01  # the bump: 0.0053
 
 
 def test_joint_calibration_finds_the_gain_and_keeps_the_geometry_sane(tmp_path) -> None:
