@@ -11,7 +11,8 @@ reconstruct every print with ``screen.psf=gaussian screen.sigma=<found>``.
 
 Every other argument is a Hydra override of conf/reconstruct.yaml, as for sfc-reconstruct. Writes
 screen_calibration.json and screen_profile.png into --work (default outputs/screen_calibration),
-one reconstruction per width beneath it (reused when the command runs again), each an MLflow run of
+one reconstruction per width beneath it (reused when the command runs again with the same
+overrides and iterations; other settings need another --work), each an MLflow run of
 the experiment ``screen_calibration``. Needs a photo whose noise is below the blur's imprint: at 5%
 noise the heights absorb a blur of 1.5 px and the profile says the width is not told.
 """
@@ -44,6 +45,13 @@ class ProfileRuns:
 
     def __init__(self, overrides: list[str], work: Path, iterations: int) -> None:
         self.overrides, self.work, self.iterations = list(overrides), work, iterations
+        settings = {"overrides": self.overrides, "iterations": iterations}
+        saved = work / "profile_settings.json"
+        if saved.is_file() and json.loads(saved.read_text()) != settings:
+            raise ValueError(f"--work {work} holds fits of other settings ({saved}): give another --work, or delete it "
+                             "to start afresh")
+        work.mkdir(parents=True, exist_ok=True)
+        saved.write_text(json.dumps(settings, indent=2))
         cfg = reconstruct_config(self.overrides)
         receiver = cfg["receiver"]
         self.pixel = 2.0 * float(receiver["half_width"]) / int(receiver["resolution"])  # scene units
@@ -116,7 +124,6 @@ def calibrate(overrides: list[str], work: Path, widths: tuple[float, ...] = GRID
     """Search the width, write screen_calibration.json and screen_profile.png into ``work``; returns the result."""
     if isinstance(iterations, bool) or not isinstance(iterations, int) or iterations < 1:
         raise ValueError(f"--iterations={iterations!r} must be an integer >= 1, e.g. 60")
-    work.mkdir(parents=True, exist_ok=True)
     runs = ProfileRuns(overrides, work, iterations)
     result = runs.summary(search_width(runs.misfit, widths, tolerance=tolerance))
     result["verdict"] = verdict(result)

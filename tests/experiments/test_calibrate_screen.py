@@ -36,6 +36,8 @@ def test_the_blur_of_a_low_noise_caustic_is_found_and_a_rerun_reuses_the_fits(tm
 
     monkeypatch.setattr(calibrate_screen, "run_reconstruction", refuse)
     assert calibrate(overrides, tmp_path / "work", (0.7, 1.4, 2.8), iterations=20) == result
+    with pytest.raises(ValueError, match="holds fits of other settings"):  # never mixed with other fits
+        calibrate(overrides, tmp_path / "work", (0.7, 1.4, 2.8), iterations=30)
 
 
 def _result(**changes) -> dict:
