@@ -103,6 +103,8 @@ def search_width(misfit_of: Callable[[float], float], grid: Sequence[float] = (0
     grid = sorted(float(w) for w in grid)
     if len(grid) < 3 or grid[0] <= 0.0 or not lower <= grid[0] or not grid[-1] <= upper:
         raise ValueError(f"width grid {grid} must hold >= 3 widths > 0 within [{lower}, {upper}] px")
+    if not 0.0 < tolerance < 1.0:
+        raise ValueError(f"tolerance={tolerance!r} must lie in (0, 1), e.g. 0.05 (5%)")
     profile = WidthProfile()
 
     def evaluate(width: float) -> None:

@@ -62,3 +62,9 @@ def test_a_minimum_at_a_bound_or_a_flat_profile_is_not_told() -> None:
 def test_a_bad_grid_is_refused(grid: tuple[float, ...]) -> None:
     with pytest.raises(ValueError, match="width grid"):
         search_width(lambda w: w, grid)
+
+
+@pytest.mark.parametrize("tolerance", [0.0, -0.1, 1.5])
+def test_a_bad_tolerance_is_refused(tolerance: float) -> None:
+    with pytest.raises(ValueError, match="tolerance"):
+        search_width(lambda w: w, tolerance=tolerance)
