@@ -31,6 +31,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 
 from experiments.input_errors import one_line_input_errors  # noqa: E402
 from experiments.configs import reconstruct_config  # noqa: E402
+from framework.core.scene_config import build_scene  # noqa: E402
 from framework.pipeline.reconstruction import run_reconstruction  # noqa: E402
 from framework.pipeline.width_search import MIN_RISE, WidthProfile, search_width  # noqa: E402
 
@@ -52,10 +53,8 @@ class ProfileRuns:
                              "to start afresh")
         work.mkdir(parents=True, exist_ok=True)
         saved.write_text(json.dumps(settings, indent=2))
-        cfg = reconstruct_config(self.overrides)
-        receiver = cfg["receiver"]
-        self.pixel = 2.0 * float(receiver["half_width"]) / int(receiver["resolution"])  # scene units
-        self.mm_per_unit = float(cfg["units"]["mm_per_unit"])
+        scene = build_scene(reconstruct_config(self.overrides))
+        self.pixel, self.mm_per_unit = scene.receiver.pixel_size, float(scene.mm_per_unit)  # scene units, mm
         # A start of its own (initial=auto would retry from flat glass: every profile run ends short
         # of the noise level by design).
         self.start = [] if any(o.split("=")[0].lstrip("+~") == "initial" for o in overrides) else ["initial=transport"]

@@ -226,8 +226,7 @@ def screen_study(scene: str, sigma_px: float, source: str, work: Path, store: Tr
     ``sigma_px`` receiver pixels, as a photo (``source`` "photo": write_photos' camera, imported) or
     as the clean render with noise of the photo's level ("render"); the run told the blur, the blur
     found by its profile (experiments/calibrate_screen.py) and the run with the found blur."""
-    cfg = reconstruct_config([f"scene={scene}", *overrides])
-    pixel = 2.0 * float(cfg["receiver"]["half_width"]) / int(cfg["receiver"]["resolution"])
+    pixel = build_scene(reconstruct_config([f"scene={scene}", *overrides])).receiver.pixel_size
     base = [f"scene={scene}", "screen.psf=gaussian", f"screen.sigma={sigma_px * pixel!r}", *overrides]
     cfg = reconstruct_config(base)
     seed, case = int(cfg["seed"]), work / f"{scene}_{sigma_px:g}px"
@@ -250,10 +249,10 @@ def screen_study(scene: str, sigma_px: float, source: str, work: Path, store: Tr
            "told_iterations": told["iterations"], "told_over_delta": told["discrepancy_over_delta"],
            "found_error": None, "found_iterations": None, "found_over_delta": None}
     if found["identified"]:
+        name = f"found_{found['sigma_px']:.4f}px"
         run = _run_once([f"scene={scene}", "screen.psf=gaussian", f"screen.sigma={found['sigma']!r}", *overrides,
-                         *data], out, store, f"found_{found['sigma_px']:.4f}px")
-        row.update(found_error=error_against(truth, out / f"found_{found['sigma_px']:.4f}px", cfg),
-                   found_iterations=run["iterations"],
+                         *data], out, store, name)
+        row.update(found_error=error_against(truth, out / name, cfg), found_iterations=run["iterations"],
                    found_over_delta=run["discrepancy_over_delta"])
     return row
 
