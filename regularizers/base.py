@@ -30,11 +30,14 @@ class RegularizerContext:
         volume: Deposited volume V in scene units^3, or None if unknown.
         pixel_area: Area a of one height-field sample in scene units^2
             (e.g. (2/m)^2 for an m x m grid on [-1, 1]^2).
+        design: The print's design (m, m), scene units, when one is given (a prior toward it:
+            regularizers/l1_design.py), else None.
     """
 
     mask: torch.Tensor
     volume: float | None = None
     pixel_area: float = 1.0
+    design: torch.Tensor | None = None
 
     def __post_init__(self) -> None:
         if not isinstance(self.mask, torch.Tensor) or self.mask.ndim != 2:
@@ -43,6 +46,11 @@ class RegularizerContext:
         if self.mask.dtype != torch.bool:
             raise ValueError(f"mask has dtype {self.mask.dtype}, expected torch.bool; pass mask > 0.5 or mask.bool()")
         check_positive(self.pixel_area, "pixel_area", "pass the area of one height-field sample, e.g. (2/m)**2")
+        if self.design is not None and (not isinstance(self.design, torch.Tensor)
+                                        or tuple(self.design.shape) != tuple(self.mask.shape)):
+            shape = tuple(self.design.shape) if isinstance(self.design, torch.Tensor) else type(self.design).__name__
+            raise ValueError(f"design has shape {shape}, the mask {tuple(self.mask.shape)}; give the design on the "
+                             "height grid")
         if self.volume is not None:
             v = float(self.volume)
             if not math.isfinite(v) or v <= 0.0:

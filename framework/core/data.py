@@ -30,6 +30,8 @@ class ReconstructionData:
     ground_truth (m, m), clean (c, n, n) and intrinsic_noise: synthetic data only; left_out:
     receiver pixels at weight 0 by reason (e.g. ``saturated``, ``unlit``), for the run's report;
     source: the file the measured data were read from (the run logs it as the dataset's source);
+    design: the print's design (m, m), scene units, when one was given (None: no design, or synthetic
+    data of a print equal to its configuration, whose ground truth is then no design but the answer);
     shots: a stack's data shot by shot (framework/plugins/data/stack.py; empty for one image), whose
     target above stacks theirs along the channel axis; start_shot: the shot a start reads;
     first_fit_shot: the shot a run from flat glass fits alone first (None: none).
@@ -45,6 +47,7 @@ class ReconstructionData:
     intrinsic_noise: float | None = None
     left_out: dict[str, int] = field(default_factory=dict)
     source: str | None = None
+    design: torch.Tensor | None = None
     shots: tuple[ReconstructionData, ...] = ()
     start_shot: int = 0
     first_fit_shot: int | None = None
@@ -78,8 +81,11 @@ def validate_delta(delta: float) -> float:
 def synthetic_data(ground_truth: torch.Tensor, render_a: Callable[[torch.Tensor], torch.Tensor],
                    render_b: Callable[[torch.Tensor], torch.Tensor] | None, resolution: int, delta: float,
                    seed: int, pixel_area: float, mask_threshold: float = 1e-3,
-                   mask_dilation: float = 0.05) -> ReconstructionData:
+                   mask_dilation: float = 0.05, design: torch.Tensor | None = None) -> ReconstructionData:
     """Noisy reference caustic of ``ground_truth`` (m, m) from two independent renders.
+
+    With a ``design`` (m, m) the printed area comes from it (what is known of a measured print) and
+    the data carry it; else from the ground truth.
 
     render_a / render_b render (c, N, N) images with independent photon seeds (render_b None: the
     method of render_a carries no render noise, and one render is the clean image); ``seed`` draws
@@ -98,9 +104,10 @@ def synthetic_data(ground_truth: torch.Tensor, render_a: Callable[[torch.Tensor]
     noise *= (delta - intrinsic) * norm / float(torch.linalg.vector_norm(noise))
     truth = ground_truth.double()
     return ReconstructionData(
-        target=clean + noise, mask=mask_from_height_field(truth, mask_threshold, mask_dilation),
+        target=clean + noise, mask=mask_from_height_field(truth if design is None else design.double(),
+                                                          mask_threshold, mask_dilation),
         volume=float(truth.sum()) * pixel_area, delta=delta, ground_truth=truth, clean=clean,
-        intrinsic_noise=intrinsic)
+        intrinsic_noise=intrinsic, design=None if design is None else design.double())
 
 
 def measured_data(image: torch.Tensor, resolution: int, delta: float, mask: torch.Tensor,

@@ -99,5 +99,6 @@ class Problem:
 
     @cached_property
     def context(self) -> RegularizerContext:
-        """What the regularisers know: the mask, the volume and the cell area."""
-        return RegularizerContext(mask=self.data.mask, volume=self.data.volume, pixel_area=self.grid.cell_area)
+        """What the regularisers know: the mask, the volume, the cell area and the design (if given)."""
+        return RegularizerContext(mask=self.data.mask, volume=self.data.volume, pixel_area=self.grid.cell_area,
+                                  design=self.data.design)

@@ -10,7 +10,7 @@ from __future__ import annotations
 import json
 import time
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -24,14 +24,16 @@ from framework.core.contracts.stopping import StoppingRule
 from framework.core.plugin_config import as_mapping, build_plugin, split_name
 from framework.core.objective import DataFidelity
 from framework.core.problem import HeightGrid, Problem
-from framework.core.run_settings import RunSettings
+from framework.core.run_settings import RunSettings, design_given
 from framework.core.values import positive_int
 from framework.core.scene_config import SceneSetup
 from framework.core.solver_loop import Callback, RunResult, returned_iterate
 from framework.pipeline.calibration import JointCalibration
 from framework.pipeline.callbacks import Checkpointer, GroundTruthError, MetricsHistory, ProgressBar
 from framework.pipeline.checkpoint import resume as resume_solver
+from framework.pipeline.defect_stage import DefectSettings, report_defects
 from framework.pipeline.first_fit import fit_first_shot
+from framework.defects.report import defect_lines
 from framework.pipeline.photon_budget import PhotonBudget, with_photons
 from framework.pipeline.report_figures import save_reconstruction_figures
 from framework.pipeline.run_checks import (CHECKPOINT, check_tracking_target, check_volume, check_volume_known,
@@ -179,6 +181,7 @@ class Reconstruction:
     max_iter: int
     fingerprint: dict[str, str]
     calibration: JointCalibration | None = None
+    defects: DefectSettings = field(default_factory=DefectSettings)
     _designs: dict[str, torch.Tensor] = field(default_factory=dict, repr=False)
 
     @property
@@ -222,8 +225,12 @@ class Reconstruction:
         stopping = build_stopping(cfg.get("stopping"))
         start = build_start(cfg.get("initial"))
         start.check(base_dir)
+        defects = DefectSettings.parse(cfg.get("defects"))
+        if defects.enabled == "on" and not _has_design(cfg):
+            raise ValueError("defects.enabled=on needs the print's design: give height_field.path (the design) with "
+                             "data=file or data=photo, or data.printed with synthetic data; or defects.enabled=auto")
         return cls(settings, setup, data_source, make_solver, stopping, start, max_iter,
-                   run_fingerprint(cfg, base_dir), calibration)
+                   run_fingerprint(cfg, base_dir), calibration, defects)
 
     def check(self, base_dir: Path, output_dir: Path) -> Path | None:
         """Everything a run needs that the plugins' configs alone do not show, checked without a
@@ -261,6 +268,15 @@ def run_reconstruction(cfg: Mapping[str, Any], output_dir: Path, base_dir: Path,
     return _reconstruct(parts, output_dir, base_dir, checkpoint, sweep_id, None)
 
 
+def _has_design(cfg: Mapping[str, Any]) -> bool:
+    """Whether the run's data will carry the print's design: synthetic data of another print
+    (data.printed), or measured data with a design (framework/core/run_settings.py)."""
+    data = cfg.get("data") or {}
+    if data.get("name") == "synthetic":
+        return bool(data.get("printed"))
+    return design_given(cfg)
+
+
 def _run_starts(parts: Reconstruction, problem: Problem, request: StartRequest, output_dir: Path,
                 checkpoint: Path | None, tracker: MlflowTracker, truth_error: GroundTruthError | None
                 ) -> tuple[list[PhaseOutcome], bool, int]:
@@ -272,6 +288,8 @@ def _run_starts(parts: Reconstruction, problem: Problem, request: StartRequest, 
     steps = sum(outcome.result.iterations for outcome in finished)
     for index in range(first, len(phases)):
         name, start = phases[index]
+        if len(phases) > 1 and getattr(start, "reads_design", False) and problem.data.design is None:
+            continue  # initial=auto's design candidate: these data have no design
         if len(phases) > 1:  # so that a resumed run knows which start its checkpoint belongs to
             torch.save({"done": [outcome.saved() for outcome in finished], "phase": index}, output_dir / PHASES)
         resume_from = checkpoint if index == first else None
@@ -308,13 +326,14 @@ def _reconstruct(parts: Reconstruction, output_dir: Path, base_dir: Path, checkp
                                                          "tracking_uri": tracker.tracking_uri}))
         start = time.perf_counter()
         data = parts.data_source.load(parts.data_request(base_dir, output_dir))
+        if data.design is None and data.ground_truth is None and settings.design_given:
+            data = replace(data, design=parts.design(base_dir))  # a measured print's design
         data_seconds = time.perf_counter() - start
         tracker.log_data(data, cfg)
         problem = Problem(operator, data, parts.grid, parts.scene)
-        # The design the mm outputs compare with: the truth of synthetic data, else the configured
-        # height field when the user declared it the print's design (framework/pipeline/run_checks.py).
-        design = data.ground_truth if data.ground_truth is not None else (
-            parts.design(base_dir) if settings.design_given else None)
+        # The design the mm outputs compare with: the print's design when the data carry one, else
+        # the truth of synthetic data (framework/pipeline/run_checks.py).
+        design = data.design if data.design is not None else data.ground_truth
         calibration = parts.calibration
         if calibration is not None:
             resume_from = None if checkpoint is None else checkpoint.parent / CALIBRATION_STATE
@@ -355,6 +374,10 @@ def _reconstruct(parts: Reconstruction, output_dir: Path, base_dir: Path, checkp
         metrics.update(report_verdict(metrics["rel_discrepancy"], data, settings.tau_dis, chosen.returned_iteration,
                                       result.stop_reason, volume, shots,
                                       calibration.never_updated() if calibration else ()))
+        if data.design is not None and parts.defects.enabled != "off" and not data.shots:
+            report = report_defects(problem, d, parts.defects, settings.seed, settings.mm_per_unit, output_dir)
+            metrics.update(report.metrics())
+            metrics["verdict"] += " " + " ".join(defect_lines(report.defects, parts.defects.min_evidence))
         (output_dir / "metrics.json").write_text(json.dumps(metrics, indent=2))
         save_reconstruction_figures(output_dir, d, problem, prediction, chosen.history)
         tracker.log_metrics({k: float(v) for k, v in metrics.items() if isinstance(v, (int, float)) and v is not None},

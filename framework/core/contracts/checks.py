@@ -165,7 +165,9 @@ def _context(m: int) -> RegularizerContext:
     mask = torch.zeros(m, m, dtype=torch.bool)
     mask[m // 4: 3 * m // 4, m // 4: 3 * m // 4] = True
     area = (2.0 / m) ** 2
-    return RegularizerContext(mask=mask, volume=0.05 * float(mask.sum()) * area, pixel_area=area)
+    x = torch.linspace(-1.0, 1.0, m, dtype=torch.float64)
+    design = 0.1 * torch.exp(-8.0 * (x[:, None] ** 2 + x[None, :] ** 2)) * mask
+    return RegularizerContext(mask=mask, volume=0.05 * float(mask.sum()) * area, pixel_area=area, design=design)
 
 
 def check_regularizer(regularizer: Regularizer, m: int = 16, who: str = "regularizer", trials: int = 30) -> None:

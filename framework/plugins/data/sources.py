@@ -20,6 +20,7 @@ import torch
 
 from framework.core.contracts.data_source import DataRequest, PrintFacts
 from framework.core.data import ReconstructionData, measured_data, synthetic_data, validate_delta
+from framework.core.height_field_io import load_height_field
 from framework.core.image_io import load_caustic_image, load_mask
 from framework.core.masks import mask_from_height_field
 from framework.core.units import scene_volume
@@ -66,6 +67,10 @@ class SyntheticData:
         reference_resolution: Receiver pixels of the references (resampled to the reconstruction's).
         mask_threshold: Printed area N^: |d_true| >= threshold ...
         mask_dilation: ... dilated by this fraction of the grid width.
+        printed: A height-field file (.npy in scene units or a 16-bit PNG; the reconstruction's grid)
+            of what was printed: the data are its caustic and the configured height field is the
+            print's design (its printed area gives the mask, as for a measured print). None: the
+            configured height field was printed exactly and is the ground truth, with no design.
     """
 
     length_keys = ("mask_threshold",)  # may be given with a unit, e.g. '0.02 mm' (framework/core/plugin_config.py)
@@ -78,7 +83,8 @@ class SyntheticData:
     REFERENCES = ("exact", "model")
 
     def __init__(self, delta: float = 0.05, reference: str = "exact", reference_photons: int = 1 << 22,
-                 reference_resolution: int = 256, mask_threshold: float = 1e-3, mask_dilation: float = 0.05) -> None:
+                 reference_resolution: int = 256, mask_threshold: float = 1e-3, mask_dilation: float = 0.05,
+                 printed: str | None = None) -> None:
         if reference not in self.REFERENCES:
             raise ValueError(f"data.reference={reference!r}; use exact (an independent exact render of the truth) "
                              "or model (the model's own render, the paper's protocol)")
@@ -88,24 +94,44 @@ class SyntheticData:
         self.reference_resolution = _count("reference_resolution", reference_resolution, 2)
         self.mask_threshold = non_negative_setting("mask_threshold", mask_threshold)
         self.mask_dilation = non_negative_setting("mask_dilation", mask_dilation)
+        self.printed = file_setting("printed", printed)
+
+    def printed_heights(self, request: DataRequest) -> torch.Tensor:
+        """The printed heights (m, m), float64: ``printed`` on the reconstruction's grid, else the
+        configured height field."""
+        if self.printed is None:
+            return request.design()
+        file = resolve_path(self.printed, request.base_dir)
+        if not file.is_file():
+            raise FileNotFoundError(f"data.printed={self.printed!r}: {file} does not exist; give the printed "
+                                    "heights as .npy (scene units) or a 16-bit PNG")
+        heights = torch.from_numpy(load_height_field(file))
+        m = request.grid.resolution
+        if tuple(heights.shape) != (m, m):
+            raise ValueError(f"data.printed={self.printed!r} has {heights.shape[0]} x {heights.shape[1]} samples, "
+                             f"the design {m} x {m}; give the print on the design's grid (height_field.resolution)")
+        return heights
 
     def check(self, request: DataRequest) -> PrintFacts:
-        """The ground truth's printed area (its volume, known exactly once loaded, is not checked)."""
+        """The printed area of the design (with ``printed``) or of the ground truth (its volume,
+        known exactly once loaded, is not checked)."""
+        self.printed_heights(request)
         return PrintFacts(mask_from_height_field(request.design(), self.mask_threshold, self.mask_dilation), None,
                           volume_at_load=True)
 
     def load(self, request: DataRequest) -> ReconstructionData:
-        """Render the ground truth (twice, seeds seed + 1000 and seed + 2000, unless the method is
+        """Render the printed heights (twice, seeds seed + 1000 and seed + 2000, unless the method is
         deterministic) and add the noise."""
         operator = request.operator
-        truth = request.design().to(operator.dtype)
+        truth = self.printed_heights(request).to(operator.dtype)
+        design = None if self.printed is None else request.design().double()
         make = operator.exact_variant if self.reference == "exact" else operator.variant
         first = make(self.reference_photons, request.seed + 1000, self.reference_resolution)
         second = None if getattr(first, "deterministic", False) else make(
             self.reference_photons, request.seed + 2000, self.reference_resolution)
         return synthetic_data(truth, first.render, second.render if second is not None else None,
                               operator.output_shape[-1], self.delta, request.seed, request.grid.cell_area,
-                              self.mask_threshold, self.mask_dilation)
+                              self.mask_threshold, self.mask_dilation, design)
 
 
 class KnownPrint:

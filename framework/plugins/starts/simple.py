@@ -41,9 +41,11 @@ class ZeroStart(Start):
 
 class DesignStart(Start):
     """The configured height field times ``scale`` (with ``data=file`` the print's design, with
-    synthetic data the ground truth). Plugin ``initial/design``."""
+    synthetic data the ground truth). Plugin ``initial/design``. Among ``initial=auto``'s candidates it
+    is tried only when the data carry a design (``reads_design``): never the truth of synthetic data."""
 
     name = "design"
+    reads_design = True
 
     def __init__(self, scale: float = 1.0) -> None:
         self.scale = _scale(scale)

@@ -1,0 +1,200 @@
+"""Each candidate sized and named by the defect model that explains the caustic best
+(docs/method.md, "Defects against the design").
+
+For a candidate (framework/defects/regions.py) the four models of framework/defects/models.py are
+fitted to the photo, each on the design alone (the print = the design with this one defect), by
+Nelder-Mead on its misfit ||F(c + defect) - b||_W^2 from a start read off the candidate's deviation.
+The evidence of the best model is the misfit it removes in units of the pixel noise variance s^2:
+E = (||F(c) - b||^2 - ||F(c + defect) - b||^2) / s^2. When the print is the design, E of a k-parameter
+model is about a chi-square with k degrees of freedom (a few units); a candidate is a defect when E
+reaches ``min_evidence``. Its confidence is 1 - the chance that noise alone gives such an E at any of the
+candidates tested (chi-square tail, Bonferroni).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import asdict, dataclass
+
+import numpy as np
+import torch
+from scipy import optimize, stats
+
+from framework.defects.models import MODELS, Frame, apply_model
+from framework.defects.regions import Candidate
+
+__all__ = ["Defect", "KINDS", "fit_candidate", "frame_of"]
+
+KINDS = ("interruption", "too_low", "too_high", "excess", "too_wide", "too_narrow", "displaced")
+INTERRUPTED = 0.5  # a modulation that removes at least this fraction of the design is an interruption
+FEATURE_MM = 6.0  # half-width across a feature of the changed band (mm)
+
+
+@dataclass(frozen=True)
+class Defect:
+    """One defect, lengths in mm, volumes in mm^3.
+
+    Attributes:
+        kind: One of :data:`KINDS`. x_mm, y_mm: its centre on the substrate.
+        length_mm: Its extent along the design's feature (a drop: its diameter, 2.355 r).
+        size: The kind's own measure: interruption / too_low / too_high: the fraction of the design's
+            height missing (negative: added); too_wide / too_narrow: the relative change of the
+            feature's width; displaced: the shift in mm; excess: the volume in mm^3.
+        peak_mm: The largest height change (signed). volume_mm3: The glass added (negative: missing).
+        evidence: The misfit removed, in pixel noise variances. confidence: see the module.
+        model: The defect model fitted, params: its parameters (samples, scene units).
+    """
+
+    kind: str
+    x_mm: float
+    y_mm: float
+    length_mm: float
+    size: float
+    peak_mm: float
+    volume_mm3: float
+    evidence: float
+    confidence: float
+    model: str
+    params: tuple[float, ...]
+
+    def as_dict(self) -> dict[str, object]:
+        out = {k: (round(v, 4) if isinstance(v, float) else v) for k, v in asdict(self).items()}
+        out["params"] = [round(float(p), 5) for p in self.params]
+        return out
+
+
+def frame_of(design: np.ndarray, candidate: Candidate, cell_mm: float) -> Frame:
+    """The candidate's frame: its centre, the design's feature direction there (the structure
+    tensor's eigenvector of least change; along the columns where the design is flat), the ridge
+    (the design's maximum across, within the band) and the band's half-width."""
+    row, col = candidate.centre
+    reach = FEATURE_MM / cell_mm
+    gr, gc = np.gradient(design)
+    r0, c0 = max(int(row - reach), 0), max(int(col - reach), 0)
+    r1, c1 = int(row + reach) + 1, int(col + reach) + 1
+    a, b = gr[r0:r1, c0:c1], gc[r0:r1, c0:c1]
+    tensor = np.array([[np.sum(a * a), np.sum(a * b)], [np.sum(a * b), np.sum(b * b)]])
+    along = np.array([0.0, 1.0]) if np.trace(tensor) <= 1e-30 else np.linalg.eigh(tensor)[1][:, 0]
+    across = np.array([-along[1], along[0]])
+    offsets = np.arange(-reach, reach + 0.25, 0.5)
+    m = design.shape[0]
+    rr = np.clip(np.round(row + offsets * across[0]).astype(int), 0, m - 1)
+    cc = np.clip(np.round(col + offsets * across[1]).astype(int), 0, m - 1)
+    ridge = float(offsets[int(np.argmax(design[rr, cc]))])
+    return Frame(row, col, (float(along[0]), float(along[1])), (float(across[0]), float(across[1])), ridge, reach)
+
+
+def _starts(design: np.ndarray, candidate: Candidate, frame: Frame, cell_area: float) -> dict[str, list[np.ndarray]]:
+    """Each model's trial starts, read off the candidate's deviation (the fit keeps the best after a
+    scan of the position along the feature, :func:`_scanned`)."""
+    t = (candidate.rows - frame.row) * frame.along[0] + (candidate.cols - frame.col) * frame.along[1]
+    w = np.abs(candidate.e)
+    strong = w >= 0.5 * w.max()
+    length = float(t[strong].max() - t[strong].min() + 1.0)
+    top = int(np.argmax(w))
+    reference = float(design[candidate.rows[top], candidate.cols[top]])
+    a = float(np.clip(-candidate.e[top] / reference, -1.0, 1.0)) if reference > 1e-9 else 0.3
+    short = float(np.clip(length * abs(a), 1.0, length))  # the same missing volume, all of the height
+    volume = max(float(candidate.e.sum()) * cell_area, 1e-9)
+    row, col = candidate.centre
+    return {"modulation": [np.array([0.0, length, a]), np.array([0.0, short, 1.0 if a > 0 else a])],
+            "shift": [np.array([0.0, length, 1.0]), np.array([0.0, length, -1.0])],
+            "width": [np.array([0.0, length, 0.3]), np.array([0.0, length, -0.3])],
+            "blob": [np.array([row, col, volume, 1.5])]}
+
+
+def _scanned(objective: Callable[[np.ndarray], float], starts: list[np.ndarray], span: float,
+             model: str) -> np.ndarray:
+    """The start with the least misfit, each tried at positions t0 every sample within +-span/2 along
+    the feature (a narrow defect's misfit is sharp in t0); the drop is started where it is."""
+    if model == "blob":
+        return starts[0]
+    best, best_value = starts[0], np.inf
+    offsets = np.arange(-np.ceil(span / 2), np.ceil(span / 2) + 1.0)
+    for start in starts:
+        for t0 in offsets:
+            trial = start.copy()
+            trial[0] = t0
+            value = objective(trial)
+            if value < best_value:
+                best, best_value = trial, value
+    return best
+
+
+STEPS = {"modulation": (1.0, 1.0, 0.25), "shift": (1.0, 1.0, 0.7), "width": (1.0, 1.0, 0.2), "blob": (1.0, 1.0, None, 0.7)}
+LIMITS = {"modulation": ((-40, 40), (0.5, 80), (-1.5, 1.0)), "shift": ((-40, 40), (0.5, 80), (-8.0, 8.0)),
+          "width": ((-40, 40), (0.5, 80), (-0.8, 2.0)), "blob": ((-1e9, 1e9), (-1e9, 1e9), (0.0, 1e9), (0.5, 8.0))}
+
+
+def fit_candidate(design: torch.Tensor, candidate: Candidate, misfit: Callable[[torch.Tensor], float],
+                  base_misfit: float, noise: float, cell_area: float, cell_mm: float, mm_per_unit: float,
+                  tested: int, evaluations: int = 60) -> Defect:
+    """The best defect model at ``candidate`` (evidence and confidence included; the caller keeps it
+    when the evidence is enough).
+
+    Args:
+        design: c (m, m), scene units. misfit: ||F(d) - b||_W^2 of heights d (m, m). base_misfit: at c.
+        noise: Pixel noise standard deviation s (image units). cell_area: scene units^2.
+        cell_mm, mm_per_unit: sample spacing and unit. tested: candidates tested (Bonferroni).
+        evaluations: misfit evaluations per model at most.
+    """
+    design_np = design.double().cpu().numpy()
+    frame = frame_of(design_np, candidate, cell_mm)
+    starts = _starts(design_np, candidate, frame, cell_area)
+    flat = float(design_np.max()) <= 0.0 or float(design_np[candidate.rows, candidate.cols].max()) < \
+        0.05 * float(design_np.max())
+    best: tuple[float, str, np.ndarray] | None = None
+    for model in MODELS:
+        if flat and model != "blob":
+            continue
+        limits = LIMITS[model]
+
+        def objective(p: np.ndarray, model: str = model, limits: tuple = limits) -> float:
+            clipped = tuple(float(np.clip(v, lo, hi)) for v, (lo, hi) in zip(p, limits))
+            return misfit(apply_model(design, frame, model, clipped, cell_area))
+
+        x0 = _scanned(objective, starts[model], float(starts["modulation"][0][1]), model)
+        steps = [s if s is not None else 0.7 * x0[i] for i, s in enumerate(STEPS[model])]
+        simplex = np.vstack([x0] + [x0 + np.eye(len(x0))[i] * steps[i] for i in range(len(x0))])
+        result = optimize.minimize(objective, x0, method="Nelder-Mead",
+                                   options={"initial_simplex": simplex, "maxfev": evaluations, "xatol": 1e-3,
+                                            "fatol": 1e-6 * base_misfit})
+        params = np.array([np.clip(v, lo, hi) for v, (lo, hi) in zip(result.x, limits)])
+        if best is None or result.fun < best[0]:
+            best = (float(result.fun), model, params)
+    assert best is not None
+    value, model, params = best
+    evidence = (base_misfit - value) / noise ** 2
+    dof = len(params)
+    chance = min(1.0, float(stats.chi2.sf(max(evidence, 0.0), dof)) * max(tested, 1))
+    change = apply_model(design, frame, model, tuple(float(p) for p in params), cell_area) - design
+    return _described(model, params, frame, change.double().cpu().numpy(), design_np, evidence, 1.0 - chance,
+                      cell_mm, mm_per_unit)
+
+
+def _described(model: str, params: np.ndarray, frame: Frame, change: np.ndarray, design: np.ndarray,
+               evidence: float, confidence: float, cell_mm: float, mm_per_unit: float) -> Defect:
+    m = design.shape[0]
+    half = 0.5 * (m - 1) * cell_mm
+    if model == "blob":
+        row, col, volume, radius = params
+        kind, size, length = "excess", float(volume) * mm_per_unit ** 3, 2.355 * float(radius) * cell_mm
+    else:
+        t0, length_samples, amount = params
+        row = frame.row + t0 * frame.along[0]
+        col = frame.col + t0 * frame.along[1]
+        length = float(length_samples) * cell_mm
+        if model == "modulation":
+            kind = "interruption" if amount >= INTERRUPTED else ("too_low" if amount > 0 else "too_high")
+            size = float(amount)
+        elif model == "shift":
+            kind, size = "displaced", abs(float(amount)) * cell_mm
+        else:
+            kind, size = ("too_wide" if amount > 0 else "too_narrow"), float(amount)
+    top = np.unravel_index(int(np.argmax(np.abs(change))), change.shape)
+    return Defect(kind=kind, x_mm=float(col * cell_mm - half), y_mm=float(row * cell_mm - half), length_mm=length,
+                  size=size, peak_mm=float(change[top]) * mm_per_unit,
+                  volume_mm3=float(change.sum()) * cell_mm ** 2 * mm_per_unit, evidence=float(evidence),
+                  confidence=float(confidence), model=model, params=tuple(float(p) for p in params))
+
+

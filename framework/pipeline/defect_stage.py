@@ -1,0 +1,148 @@
+"""The defect report of a run whose data carry the print's design (docs/method.md, "Defects against
+the design"; the parts in framework/defects/).
+
+After the run: the uncertainty of every height sample (framework/defects/information.py), the
+candidate places where the result leaves the design (framework/defects/regions.py), each kept only
+if putting the design back there raises the misfit, then sized and named by the defect model that
+explains the photo best and kept if its evidence is enough (framework/defects/fit.py). Writes
+defects.json, defects.csv, defects.png, defect_sigma_mm.npy; returns ``defects_*`` metrics; prints
+``verdict:`` lines.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from framework.core.plugin_config import as_mapping
+from framework.core.problem import Problem
+from framework.core.values import positive_int, positive_number
+from framework.defects.fit import Defect, fit_candidate
+from framework.defects.information import column_norms, height_uncertainty, pixel_noise
+from framework.defects.regions import candidate_regions
+from framework.defects.report import defect_lines, save_defect_figure, save_defect_table
+
+__all__ = ["DefectSettings", "DefectReport", "report_defects"]
+
+ENABLED = ("auto", "on", "off")
+
+
+@dataclass(frozen=True)
+class DefectSettings:
+    """The ``defects`` config group (conf/reconstruct.yaml says what each means)."""
+
+    enabled: str = "auto"
+    min_deviation: float = 0.02
+    z_min: float = 3.0
+    grow: float = 2.0
+    cluster_mm: float = 3.0
+    max_candidates: int = 10
+    min_evidence: float = 50.0
+    probes: int = 16
+    photons: int = 262144
+    evaluations: int = 60
+
+    @classmethod
+    def parse(cls, spec: Any) -> DefectSettings:
+        values = dict(as_mapping(spec or {}, "defects"))
+        unknown = set(values) - set(cls.__dataclass_fields__)
+        if unknown:
+            raise ValueError(f"defects.{sorted(unknown)[0]} is not a setting; use "
+                             f"{', '.join(cls.__dataclass_fields__)}")
+        settings = cls(**values)
+        if settings.enabled not in ENABLED:
+            raise ValueError(f"defects.enabled={settings.enabled!r}; use {' | '.join(ENABLED)}")
+        for key in ("min_deviation", "z_min", "grow", "cluster_mm", "min_evidence"):
+            positive_number(getattr(settings, key), f"defects.{key}")
+        if settings.grow > settings.z_min:
+            raise ValueError(f"defects.grow={settings.grow} exceeds defects.z_min={settings.z_min}; the extent's "
+                             "level must not be above the peak's")
+        for key in ("max_candidates", "probes", "photons", "evaluations"):
+            positive_int(getattr(settings, key), f"defects.{key}")
+        return settings
+
+
+@dataclass(frozen=True)
+class DefectReport:
+    """The defects (most evident first), the deviation and its uncertainty (m, m), mm, and the
+    candidates tested."""
+
+    defects: list[Defect]
+    deviation_mm: np.ndarray
+    sigma_mm: np.ndarray
+    candidates: int
+
+    def metrics(self) -> dict[str, Any]:
+        counts = {f"defects_{kind}": sum(d.kind == kind for d in self.defects)
+                  for kind in sorted({d.kind for d in self.defects})}
+        return {"defects_count": len(self.defects), **counts, "defects_candidates": self.candidates,
+                "defects_sigma_median_mm": float(np.median(self.sigma_mm))}
+
+
+class _Misfit:
+    """||F(d) - b||_W^2 through a renderer of ``photons`` (common random numbers: one seed)."""
+
+    def __init__(self, problem: Problem, photons: int, seed: int) -> None:
+        operator = problem.operator
+        self.render = operator.variant(photons, seed, operator.output_shape[-1]).render
+        self.target = problem.data.target.double()
+        self.weights = None if problem.data.weights is None else problem.data.weights.double()
+
+    def __call__(self, d: torch.Tensor) -> float:
+        r = self.render(d).double() - self.target
+        return float(((r ** 2) if self.weights is None else self.weights * r ** 2).sum())
+
+
+def report_defects(problem: Problem, d: torch.Tensor, settings: DefectSettings, seed: int, mm_per_unit: float,
+                   output_dir: Path) -> DefectReport:
+    """The defect report of the heights ``d`` (m, m) against ``problem.data.design``, written into
+    ``output_dir``."""
+    data, grid = problem.data, problem.grid
+    if data.design is None:
+        raise ValueError("a defect report needs the print's design: give height_field.path with measured data, "
+                         "or data.printed with synthetic data")
+    dtype = problem.operator.dtype
+    design = data.design.to(dtype)
+    d = d.to(dtype)
+    noise = pixel_noise(data.target, data.delta, data.weights)
+    norms = column_norms(problem.operator, d, data.weights, settings.probes, seed + 4000)
+    peak = max(float(design.abs().max()), 1e-12)
+    sigma = height_uncertainty(norms, noise, peak)
+    cell_mm = 2.0 * grid.half_width / (grid.resolution - 1) * mm_per_unit
+    deviation = (d - design).double().cpu().numpy()
+    mask = data.mask.cpu().numpy()
+    floor = settings.min_deviation * peak
+    z_map = np.maximum(sigma.double().cpu().numpy(), floor / settings.z_min)
+    candidates = candidate_regions(deviation, z_map, mask, cell_mm, settings.z_min, settings.grow,
+                                   settings.cluster_mm)
+    misfit = _Misfit(problem, settings.photons, seed + 5000)
+    at_d, at_design = misfit(d), misfit(design)
+    screened = []
+    for candidate in candidates:  # put the design back at the candidate: does the photo object?
+        reset = d.clone()
+        reset[torch.from_numpy(candidate.rows), torch.from_numpy(candidate.cols)] = \
+            design[torch.from_numpy(candidate.rows), torch.from_numpy(candidate.cols)]
+        objection = (misfit(reset) - at_d) / noise ** 2
+        if objection >= 0.5 * settings.min_evidence:
+            screened.append((objection, candidate))
+    screened = [c for _, c in sorted(screened, key=lambda item: -item[0])][: settings.max_candidates]
+    defects = []
+    for candidate in screened:
+        defect = fit_candidate(design, candidate, misfit, at_design, noise, grid.cell_area, cell_mm, mm_per_unit,
+                               len(screened), settings.evaluations)
+        if defect.evidence >= settings.min_evidence:
+            defects.append(defect)
+    defects.sort(key=lambda item: -item.evidence)
+    report = DefectReport(defects, deviation * mm_per_unit, sigma.double().cpu().numpy() * mm_per_unit,
+                          len(screened))
+    save_defect_table(output_dir, defects, settings, report.metrics())
+    np.save(output_dir / "defect_sigma_mm.npy", report.sigma_mm.astype(np.float32))
+    save_defect_figure(output_dir / "defects.png", report.deviation_mm, design.double().cpu().numpy() * mm_per_unit,
+                       defects, grid.half_width * mm_per_unit, settings.min_evidence)
+    for line in defect_lines(defects, settings.min_evidence):
+        print(f"verdict: {line}", flush=True)
+    return report
