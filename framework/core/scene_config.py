@@ -32,6 +32,7 @@ import numpy as np
 import torch
 from omegaconf import DictConfig, ListConfig, OmegaConf
 
+from framework.core.design_mesh import MESH_SUFFIXES, heights_from_mesh
 from framework.core.height_field_io import load_height_field
 from framework.core.contracts.operator import Operator
 from framework.core.plugin_config import build_plugin, split_name
@@ -135,22 +136,32 @@ def build_heights(cfg: Mapping[str, Any], base_dir: str | Path | None = None) ->
     ``shape``; ``resolution`` m defaults to 128; ``scale`` multiplies the heights (for images:
     the height of full white, in scene units or e.g. "0.4 mm"); ``params`` go to the shape function.
     """
-    return heights_from_spec(_group(cfg, "height_field", HEIGHT_FIELD_KEYS), mm_per_unit(cfg), base_dir)
+    mm = mm_per_unit(cfg)
+    spec = _group(cfg, "height_field", HEIGHT_FIELD_KEYS)
+    path = spec.get("path")
+    mesh = isinstance(path, str) and Path(path).suffix.lower() in MESH_SUFFIXES
+    return heights_from_spec(spec, mm, base_dir, build_scene(cfg, mm).substrate if mesh else None)
 
 
-def heights_from_spec(spec: Mapping[str, Any], mm: float, base_dir: str | Path | None = None) -> torch.Tensor:
+def heights_from_spec(spec: Mapping[str, Any], mm: float, base_dir: str | Path | None = None,
+                      substrate: Substrate | None = None) -> torch.Tensor:
     """:func:`build_heights` of the ``height_field`` group ``spec`` (keys checked) with ``mm``
-    millimetres per scene unit."""
+    millimetres per scene unit; a glass mesh (.stl/.obj/.ply, framework/core/design_mesh.py) is read
+    over ``substrate``."""
     resolution = _grid_resolution(spec)
     scale = scene_length(spec.get("scale", 1.0), mm, "height_field.scale")
     path = spec.get("path")
     if path is not None and (not isinstance(path, str) or isinstance(path, bool)):
-        raise ValueError(f"height_field.path={path!r} must be a file name (.npy/.png/.tif) or null")
+        raise ValueError(f"height_field.path={path!r} must be a file name (.npy/.png/.tif/.stl/.obj/.ply) or null")
     if path:
         path = Path(path)
         if not path.is_absolute() and base_dir is not None:
             path = Path(base_dir) / path
-        heights = load_height_field(path, resolution=resolution, scale=scale)
+        if path.suffix.lower() in MESH_SUFFIXES:
+            substrate = substrate or Substrate()
+            heights = heights_from_mesh(path, resolution, substrate.half_width, substrate.thickness, mm) * scale
+        else:
+            heights = load_height_field(path, resolution=resolution, scale=scale)
     else:
         shape = spec.get("shape")
         if not shape:
@@ -261,5 +272,5 @@ class SceneSetup:
 
     def heights(self, base_dir: str | Path | None = None) -> torch.Tensor:
         """The configured heights (m, m), float64, scene units (:func:`build_heights`)."""
-        return heights_from_spec(self.height_field, self.mm_per_unit, base_dir)
+        return heights_from_spec(self.height_field, self.mm_per_unit, base_dir, self.scene.substrate)
 

@@ -13,6 +13,7 @@ candidates tested (chi-square tail, Bonferroni).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
 
@@ -95,22 +96,32 @@ def _starts(design: np.ndarray, candidate: Candidate, frame: Frame, cell_area: f
     reference = float(design[candidate.rows[top], candidate.cols[top]])
     a = float(np.clip(-candidate.e[top] / reference, -1.0, 1.0)) if reference > 1e-9 else 0.3
     short = float(np.clip(length * abs(a), 1.0, length))  # the same missing volume, all of the height
-    volume = max(float(candidate.e.sum()) * cell_area, 1e-9)
-    row, col = candidate.centre
+    added = candidate.e > 0
+    # a drop starts where the most glass was added, with that volume (at least a 3 x 3 sample drop at 5%
+    # of the design's peak: a drop the reconstruction smeared out still gets a start that moves)
+    volume = max(float(candidate.e[added].sum()) * cell_area, 0.45 * float(design.max()) * cell_area, 1e-12)
+    k = int(np.argmax(np.where(added, candidate.e, -np.inf))) if added.any() else top
+    row, col = float(candidate.rows[k]), float(candidate.cols[k])
     return {"modulation": [np.array([0.0, length, a]), np.array([0.0, short, 1.0 if a > 0 else a])],
             "shift": [np.array([0.0, length, 1.0]), np.array([0.0, length, -1.0])],
             "width": [np.array([0.0, length, 0.3]), np.array([0.0, length, -0.3])],
-            "blob": [np.array([row, col, volume, 1.5])]}
+            "blob": [np.array([row, col, math.log(v), math.log(r)]) for v in (volume, 3.0 * volume, volume / 3.0)
+                     for r in (0.8, 1.2, 1.8)]}
 
 
 def _scanned(objective: Callable[[np.ndarray], float], starts: list[np.ndarray], span: float,
              model: str) -> np.ndarray:
     """The start with the least misfit, each tried at positions t0 every sample within +-span/2 along
-    the feature (a narrow defect's misfit is sharp in t0); the drop is started where it is."""
-    if model == "blob":
-        return starts[0]
+    the feature (a narrow defect's misfit is sharp in t0); a drop's starts as they are."""
     best, best_value = starts[0], np.inf
-    offsets = np.arange(-np.ceil(span / 2), np.ceil(span / 2) + 1.0)
+    if model == "blob":
+        for start in starts:
+            value = objective(start)
+            if value < best_value:
+                best, best_value = start, value
+        return best
+    reach = max(np.ceil(span / 2), 3.0)
+    offsets = np.arange(-reach, reach + 1.0)
     for start in starts:
         for t0 in offsets:
             trial = start.copy()
@@ -121,9 +132,16 @@ def _scanned(objective: Callable[[np.ndarray], float], starts: list[np.ndarray],
     return best
 
 
-STEPS = {"modulation": (1.0, 1.0, 0.25), "shift": (1.0, 1.0, 0.7), "width": (1.0, 1.0, 0.2), "blob": (1.0, 1.0, None, 0.7)}
+# Simplex steps and limits of each model's parameters; a drop's volume and radius as logarithms.
+STEPS = {"modulation": (1.0, 1.0, 0.25), "shift": (1.0, 1.0, 0.7), "width": (1.0, 1.0, 0.2), "blob": (1.0, 1.0, 0.7, 0.3)}
 LIMITS = {"modulation": ((-40, 40), (0.5, 80), (-1.5, 1.0)), "shift": ((-40, 40), (0.5, 80), (-8.0, 8.0)),
-          "width": ((-40, 40), (0.5, 80), (-0.8, 2.0)), "blob": ((-1e9, 1e9), (-1e9, 1e9), (0.0, 1e9), (0.5, 8.0))}
+          "width": ((-40, 40), (0.5, 80), (-0.8, 2.0)),
+          "blob": ((-1e9, 1e9), (-1e9, 1e9), (-60.0, 0.0), (math.log(0.5), math.log(8.0)))}
+
+
+def _model_params(model: str, p: tuple[float, ...]) -> tuple[float, ...]:
+    """The model's parameters from the optimiser's (a drop's volume and radius from their logarithms)."""
+    return (p[0], p[1], math.exp(p[2]), math.exp(p[3])) if model == "blob" else p
 
 
 def fit_candidate(design: torch.Tensor, candidate: Candidate, misfit: Callable[[torch.Tensor], float],
@@ -151,15 +169,14 @@ def fit_candidate(design: torch.Tensor, candidate: Candidate, misfit: Callable[[
 
         def objective(p: np.ndarray, model: str = model, limits: tuple = limits) -> float:
             clipped = tuple(float(np.clip(v, lo, hi)) for v, (lo, hi) in zip(p, limits))
-            return misfit(apply_model(design, frame, model, clipped, cell_area))
+            return misfit(apply_model(design, frame, model, _model_params(model, clipped), cell_area))
 
         x0 = _scanned(objective, starts[model], float(starts["modulation"][0][1]), model)
-        steps = [s if s is not None else 0.7 * x0[i] for i, s in enumerate(STEPS[model])]
-        simplex = np.vstack([x0] + [x0 + np.eye(len(x0))[i] * steps[i] for i in range(len(x0))])
+        simplex = np.vstack([x0] + [x0 + np.eye(len(x0))[i] * STEPS[model][i] for i in range(len(x0))])
         result = optimize.minimize(objective, x0, method="Nelder-Mead",
                                    options={"initial_simplex": simplex, "maxfev": evaluations, "xatol": 1e-3,
                                             "fatol": 1e-6 * base_misfit})
-        params = np.array([np.clip(v, lo, hi) for v, (lo, hi) in zip(result.x, limits)])
+        params = np.array(_model_params(model, tuple(float(np.clip(v, lo, hi)) for v, (lo, hi) in zip(result.x, limits))))
         if best is None or result.fun < best[0]:
             best = (float(result.fun), model, params)
     assert best is not None
@@ -180,9 +197,9 @@ def _described(model: str, params: np.ndarray, frame: Frame, change: np.ndarray,
         row, col, volume, radius = params
         kind, size, length = "excess", float(volume) * mm_per_unit ** 3, 2.355 * float(radius) * cell_mm
     else:
-        t0, length_samples, amount = params
-        row = frame.row + t0 * frame.along[0]
-        col = frame.col + t0 * frame.along[1]
+        t0, length_samples, amount = params  # the centre on the feature's ridge
+        row = frame.row + t0 * frame.along[0] + frame.ridge * frame.across[0]
+        col = frame.col + t0 * frame.along[1] + frame.ridge * frame.across[1]
         length = float(length_samples) * cell_mm
         if model == "modulation":
             kind = "interruption" if amount >= INTERRUPTED else ("too_low" if amount > 0 else "too_high")

@@ -28,9 +28,9 @@ class Candidate:
 
     @property
     def centre(self) -> tuple[float, float]:
-        """The |e|-weighted centre (row, col), samples."""
-        w = np.abs(self.e)
-        return float(np.average(self.rows, weights=w)), float(np.average(self.cols, weights=w))
+        """The sample (row, col) of the largest |e| (a cluster's weighted centre may lie between its parts)."""
+        k = int(np.argmax(np.abs(self.e)))
+        return float(self.rows[k]), float(self.cols[k])
 
 
 def candidate_regions(deviation: np.ndarray, sigma: np.ndarray, tested: np.ndarray, cell_mm: float,

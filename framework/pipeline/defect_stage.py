@@ -39,7 +39,7 @@ class DefectSettings:
     min_deviation: float = 0.02
     z_min: float = 3.0
     grow: float = 2.0
-    cluster_mm: float = 3.0
+    cluster_mm: float = 1.5
     max_candidates: int = 10
     min_evidence: float = 50.0
     probes: int = 16

@@ -1,0 +1,223 @@
+"""The defect benchmark: prints with defects of known kind, place and size made from every built-in
+design (experiments/defect_prints.py), and prints equal to their design, reconstructed with
+``experiment=design`` from their exact caustics (wavefront triangles, not the model's splats) at 2%, 5%
+and 10% noise, as multiruns into one MLflow experiment; then the table and the figure from the store:
+recall by kind and size, false alarms per print, the smallest defect found per kind and noise, the
+errors of the found defects' places and sizes.
+
+    python -m experiments.reproduce_defects                      # everything (about 70 min on 2 cores)
+    python -m experiments.reproduce_defects --scenes print_lines --deltas 0.05
+    python -m experiments.reproduce_defects --table-only
+
+Writes defects.md, defects.csv and defects.png into --out (default docs/results); the prints and
+their planned defects into --prints (default outputs/defect_prints).
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+from collections import defaultdict
+from pathlib import Path
+
+import numpy as np
+from matplotlib.figure import Figure
+
+from experiments.configs import reconstruct_config
+from experiments.defect_prints import PlannedDefect, apply_defect, feature_sites
+from experiments.mlflow_store import TrackingStore, artifact, latest_runs, reproduction_parser, run_sweep, tracking_store
+from framework.core.scene_config import build_heights
+
+EXPERIMENT = "defects"
+SCENES = ("print_lines", "oblique_lines", "bump", "gaussian", "letter_a")
+MATCH_MM = 3.0  # a reported defect within this distance of a planned one found it
+SPACING_MM = 14.0  # planned defects of one print at least this far apart
+# Each print: (kind, size, length in mm). The first two are also run at 2% and 10% noise.
+PRINTS: tuple[tuple[tuple[str, float, float], ...], ...] = (
+    (),
+    (("interruption", 1.0, 1.0), ("too_low", 0.2, 3.0), ("excess", 0.3, 0.0)),
+    (("interruption", 1.0, 2.0), ("displaced", 0.5, 6.0), ("too_high", -0.2, 6.0)),
+    (),
+    (("interruption", 1.0, 0.5), ("excess", 1.0, 0.0), ("too_wide", 0.3, 6.0)),
+    (("displaced", 1.0, 6.0), ("too_narrow", -0.3, 6.0), ("too_low", 0.4, 10.0)),
+    (("excess", 0.1, 0.0), ("too_high", -0.1, 2.0), ("interruption", 1.0, 3.0)),
+    (("displaced", 0.2, 6.0), ("too_wide", 0.2, 6.0), ("too_low", 0.1, 2.0)),
+)
+SHORT = 2  # prints run at every noise level
+
+
+def make_prints(scene: str, folder: Path, seed: int) -> list[Path]:
+    """Write the prints of ``scene`` (``<scene>_<i>.npy``, scene units, with ``.json``: the planned defects)."""
+    cfg = reconstruct_config([f"scene={scene}"])
+    design = build_heights(cfg).numpy()
+    mm = float(cfg["units"]["mm_per_unit"])
+    cell_mm = 2.0 * float(cfg["substrate"]["half_width"]) / (design.shape[0] - 1) * mm
+    folder.mkdir(parents=True, exist_ok=True)
+    files = []
+    for index, plan in enumerate(PRINTS):
+        rng = np.random.default_rng(seed + 100 * index + SCENES.index(scene) if scene in SCENES else seed)
+        sites = feature_sites(design, cell_mm, len(plan), SPACING_MM, rng)
+        printed, planned = design.copy(), []
+        for site, (kind, size, length) in zip(sites, plan):
+            printed, defect = apply_defect(design, printed, site, kind, size, length, cell_mm, mm)
+            planned.append(defect.as_dict())
+        path = folder / f"{scene}_{index}.npy"
+        np.save(path, printed)
+        path.with_suffix(".json").write_text(json.dumps({"scene": scene, "defects": planned}, indent=1))
+        files.append(path)
+    return files
+
+
+def case_of(run) -> tuple[str, str, float]:
+    """(scene, print file, noise level) of a run."""
+    params = run.data.params
+    return run.data.tags.get("scene", ""), Path(params.get("data.printed", "")).name, float(params.get("data.delta", 0))
+
+
+def collect(store: TrackingStore, prints: Path) -> dict[tuple[str, str, float], dict]:
+    """Per case: the latest finished run's defects.json and metrics, and the planned defects."""
+    chosen, client = latest_runs(store, EXPERIMENT, key=case_of)
+    out = {}
+    for key, run in sorted(chosen.items()):
+        plan = prints / Path(key[1]).with_suffix(".json").name
+        if not plan.is_file():
+            continue
+        out[key] = {"report": artifact(client, run, "defects.json"), "metrics": artifact(client, run, "metrics.json"),
+                    "planned": json.loads(plan.read_text())["defects"]}
+    return out
+
+
+def size_error(planned: dict, found: dict) -> float:
+    """|found / planned - 1| of the kind's measure (interruptions: their length)."""
+    if planned["kind"] == "interruption":
+        return abs(found["length_mm"] / planned["length_mm"] - 1.0)
+    return abs(abs(found["size"]) / abs(planned["size"]) - 1.0)
+
+
+def match(case: dict) -> tuple[list[dict], int]:
+    """Every planned defect with what was found of it, and the number of false alarms."""
+    found = list(case["report"]["defects"])
+    rows, used = [], set()
+    for planned in case["planned"]:
+        best, gap = None, MATCH_MM
+        for i, defect in enumerate(found):
+            distance = math.hypot(defect["x_mm"] - planned["x_mm"], defect["y_mm"] - planned["y_mm"])
+            if i not in used and distance <= gap:
+                best, gap = i, distance
+        row = {**planned, "found": best is not None, "kind_found": None, "position_error_mm": None,
+               "size_error": None}
+        if best is not None:
+            used.add(best)
+            row.update(kind_found=found[best]["kind"], position_error_mm=gap,
+                       size_error=size_error(planned, found[best]) if found[best]["kind"] == planned["kind"] else None)
+        rows.append(row)
+    return rows, len(found) - len(used)
+
+
+def label(row: dict) -> str:
+    """A planned defect's size in words: '1 mm', '-20% / 3 mm', '0.3 mm3', '0.5 mm', '+30%'."""
+    kind, size, length = row["kind"], row["size"], row["length_mm"]
+    if kind == "interruption":
+        return f"{length:g} mm"
+    if kind in ("too_low", "too_high"):
+        return f"{-100 * size:+.0f}% / {length:g} mm"
+    if kind == "excess":
+        return f"{size:g} mm3"
+    if kind == "displaced":
+        return f"{size:g} mm"
+    return f"{100 * size:+.0f}%"
+
+
+def write_outputs(cases: dict, out: Path) -> None:
+    """defects.csv (one row per planned defect), defects.md (recall by kind and size per noise level,
+    false alarms per print, errors of place and size) and defects.png."""
+    rows, alarms = [], defaultdict(list)
+    for (scene, name, delta), case in cases.items():
+        matched, false = match(case)
+        alarms[delta].append(false)
+        for row in matched:
+            rows.append({"scene": scene, "print": name, "delta": delta, **row})
+    with open(out / "defects.csv", "w", newline="") as handle:
+        writer = csv.DictWriter(handle, fieldnames=list(rows[0]) if rows else ["scene"])
+        writer.writeheader()
+        writer.writerows(rows)
+    lines = ["# Defects against the design: recall, false alarms, place and size", "",
+             "`python -m experiments.reproduce_defects`; `experiment=design` on exact caustics (wavefront triangles) of "
+             "prints with planned defects (experiments/defect_prints.py). A planned defect counts as found when a "
+             f"reported defect of the same kind lies within {MATCH_MM:g} mm of it.", ""]
+    for delta in sorted({r["delta"] for r in rows} | set(alarms)):
+        chosen = [r for r in rows if r["delta"] == delta]
+        prints = len(alarms[delta])
+        lines += [f"## {100 * delta:g}% noise: {prints} prints, {sum(alarms[delta])} false alarm(s) "
+                  f"({sum(alarms[delta]) / max(prints, 1):.2f} per print)", "",
+                  "| kind | size | planned | found, right kind | found, other kind | position error mm (mean) | size error (mean) |",
+                  "|---|---|---|---|---|---|---|"]
+        groups = defaultdict(list)
+        for r in chosen:
+            groups[(r["kind"], label(r))].append(r)
+        for (kind, size), group in sorted(groups.items()):
+            right = [r for r in group if r["found"] and r["kind_found"] == kind]
+            other = [r for r in group if r["found"] and r["kind_found"] != kind]
+            pos = np.mean([r["position_error_mm"] for r in right]) if right else float("nan")
+            err = [r["size_error"] for r in right if r["size_error"] is not None]
+            lines.append(f"| {kind} | {size} | {len(group)} | {len(right)} | "
+                         f"{', '.join(sorted(r['kind_found'] for r in other)) or 0} | {pos:.2f} | "
+                         f"{np.mean(err) if err else float('nan'):.2f} |")
+        lines.append("")
+    (out / "defects.md").write_text("\n".join(lines))
+    write_figure(rows, out)
+
+
+def write_figure(rows: list[dict], out: Path) -> None:
+    """Recall (right kind) by kind at each noise level."""
+    kinds = sorted({r["kind"] for r in rows})
+    deltas = sorted({r["delta"] for r in rows})
+    fig = Figure(figsize=(9, 4))
+    ax = fig.add_subplot()
+    width = 0.8 / max(len(deltas), 1)
+    for k, delta in enumerate(deltas):
+        recall = []
+        for kind in kinds:
+            group = [r for r in rows if r["delta"] == delta and r["kind"] == kind]
+            recall.append(sum(r["found"] and r["kind_found"] == kind for r in group) / max(len(group), 1))
+        ax.bar(np.arange(len(kinds)) + k * width, recall, width, label=f"{100 * delta:g}% noise")
+    ax.set_xticks(np.arange(len(kinds)) + 0.4 - width / 2, kinds, rotation=20)
+    ax.set_ylabel("recall (right kind)")
+    ax.set_ylim(0, 1.05)
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(out / "defects.png", dpi=110)
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = reproduction_parser(__doc__.splitlines()[0])
+    parser.add_argument("--scenes", default=",".join(SCENES), help="the designs (built-in scenes)")
+    parser.add_argument("--deltas", default="0.02,0.05,0.1", help="noise levels; all prints run at 0.05, the first "
+                                                                   f"{SHORT} at the others")
+    parser.add_argument("--prints", type=Path, default=Path("outputs/defect_prints"), help="where the prints go")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the defects' places")
+    args = parser.parse_args(argv)
+    store = tracking_store(args)
+    prints = args.prints.resolve()
+    if not args.table_only:
+        deltas = [float(x) for x in args.deltas.split(",")]
+        for scene in args.scenes.split(","):
+            files = make_prints(scene, prints, args.seed)
+            groups = [([d for d in deltas if d == 0.05], files), ([d for d in deltas if d != 0.05], files[:SHORT])]
+            for levels, chosen in groups:
+                if levels and chosen:
+                    run_sweep(store, EXPERIMENT, ["experiment=design", f"scene={scene}",
+                                                  f"data.printed={','.join(str(f) for f in chosen)}",
+                                                  f"data.delta={','.join(str(x) for x in levels)}"],
+                              args.overrides, args.launcher)
+    cases = collect(store, prints)
+    if not cases:
+        raise SystemExit(f"no finished runs of '{EXPERIMENT}' in {store.uri or store.directory}")
+    args.out.mkdir(parents=True, exist_ok=True)
+    write_outputs(cases, args.out)
+    print((args.out / "defects.md").read_text())
+
+
+if __name__ == "__main__":
+    main()
