@@ -9,7 +9,8 @@ Examples::
     sfc-export RUN --design none
 
 Reads RUN/height_field.npy and RUN/.hydra/config.yaml (substrate.thickness, substrate.half_width,
-height_field, units.mm_per_unit) and writes into RUN/export unless --out is given. An input error
+height_field, units.mm_per_unit) and writes into RUN/export unless --out is given; a run with a defect
+report (defects.json) has it copied there and its verdict printed. An input error
 (a missing run directory or file, a corrupt or truncated heights file or config, heights that are not
 a square array of finite numbers, an --out that cannot be a directory) ends in one line on stderr and
 exit status 2.
@@ -18,7 +19,9 @@ exit status 2.
 from __future__ import annotations
 
 import argparse
+import json
 import os
+import shutil
 import sys
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -29,6 +32,8 @@ import yaml
 from omegaconf import OmegaConf
 
 from experiments.input_errors import one_line_input_errors
+from framework.defects.fit import Defect
+from framework.defects.report import defect_lines
 from framework.pipeline.mm_outputs import MESH_FORMATS, export_outputs
 from framework.core.height_field_io import load_height_field, read_npy, validate_heights
 from framework.core.run_settings import design_given
@@ -115,6 +120,8 @@ def load_design(spec: str, run_dir: Path, cfg: Mapping[str, Any], m: int) -> tup
             raise FileNotFoundError(f"--design {spec!r} is not a file; pass a .npy/.png height field in scene "
                                     "units, config or none")
         return load_height_field(spec, resolution=m), spec
+    if (cfg.get("data") or {}).get("printed"):  # synthetic data of another print: the config is its design
+        return build_heights(cfg, base_dir=_launch_dir(run_dir)).numpy(), "the run's height_field (data.printed's design)"
     truth = run_dir / "ground_truth.npy"
     if truth.is_file():
         return _heights(truth, f"{RUN_FIX}, or pass --design none or a design file"), str(truth)
@@ -143,6 +150,23 @@ def export_run(args: argparse.Namespace) -> None:
         print(f"wrote {path}")
     for key, value in result["deviation"].items():
         print(f"deviation {key} = {'n/a' if value is None else f'{value:.6g}'}")
+    copy_defect_report(run_dir, out)
+
+
+def copy_defect_report(run_dir: Path, out: Path) -> None:
+    """The run's defect report (defects.json, .csv, .png; framework/pipeline/defect_stage.py) copied
+    into ``out`` and its verdict printed; nothing when the run has none."""
+    report = run_dir / "defects.json"
+    if not report.is_file():
+        return
+    for name in ("defects.json", "defects.csv", "defects.png"):
+        if (run_dir / name).is_file() and (run_dir / name).resolve() != (out / name).resolve():
+            shutil.copyfile(run_dir / name, out / name)
+            print(f"wrote {out / name}")
+    saved = json.loads(report.read_text())
+    defects = [Defect(**{**item, "params": tuple(item["params"])}) for item in saved["defects"]]
+    for line in defect_lines(defects, float(saved["settings"]["min_evidence"])):
+        print(f"verdict: {line}")
 
 
 def main(argv: Sequence[str] | None = None) -> None:

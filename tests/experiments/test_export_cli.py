@@ -183,3 +183,17 @@ def test_a_run_config_that_is_not_yaml_is_one_line_and_exit_status_2(tmp_path, c
     err = capsys.readouterr().err
     assert err.count("\n") == 1
     assert err.startswith(f"error: run config {str(run / '.hydra' / 'config.yaml')!r} is not readable YAML at line 2")
+
+
+def test_a_run_with_a_defect_report_has_it_exported_and_said(tmp_path, capsys):
+    run = fake_run(tmp_path / "run", box(0.04), box(0.03), data={"name": "synthetic", "printed": "print.npy"})
+    defect = {"kind": "interruption", "x_mm": 1.5, "y_mm": -2.0, "length_mm": 1.2, "size": 0.95, "peak_mm": -0.8,
+              "volume_mm3": -0.4, "evidence": 900.0, "confidence": 1.0, "model": "modulation", "params": [0, 3, 0.95]}
+    (run / "defects.json").write_text(json.dumps({"settings": {"min_evidence": 50.0}, "defects": [defect]}))
+    (run / "defects.csv").write_text("number,kind\n1,interruption\n")
+    main([str(run)])
+    out = capsys.readouterr().out
+    assert "design: the run's height_field (data.printed's design)" in out  # not the print's ground truth
+    assert "verdict: 1 defect: 1. interruption at (1.5, -2.0) mm, 1.2 mm long, 95% of the height missing" in out
+    assert json.loads((run / "export" / "defects.json").read_text())["defects"][0]["kind"] == "interruption"
+    assert (run / "export" / "defects.csv").is_file()
