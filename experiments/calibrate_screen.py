@@ -68,7 +68,8 @@ class ProfileRuns:
         else:
             cfg = reconstruct_config([*self.overrides, *self.start, "screen.psf=gaussian",
                                       f"screen.sigma={width_px * self.pixel!r}", "~stopping.morozov",
-                                      f"solver.max_iter={self.iterations}", "tracking.experiment=screen_calibration"])
+                                      f"solver.max_iter={self.iterations}", "tracking.experiment=screen_calibration",
+                                      "defects.enabled=off"])
             metrics = run_reconstruction(cfg, run_dir, self.work)
         misfit, self.delta = float(metrics["rel_discrepancy"]), float(metrics["delta"])
         print(f"screen blur {width_px:.3f} px: relative discrepancy {misfit:.5f} after {metrics['iterations']} "

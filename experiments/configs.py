@@ -17,3 +17,12 @@ def reconstruct_config(overrides: list[str]) -> dict[str, Any]:
     """The plain config of conf/reconstruct.yaml with ``overrides``."""
     with initialize_config_dir(config_dir=CONF, version_base=None):
         return to_plain(compose("reconstruct", overrides=overrides))
+
+
+def known_print(overrides: list[str]) -> list[str]:
+    """``overrides`` for a study whose configured height field is the print's truth given as its design
+    (data.mask=design on a photo of a known print): no defect report, and ``initial=auto`` does not
+    start from the design (the truth) unless a start is chosen in ``overrides``."""
+    chosen = any(o.split("=")[0].lstrip("+~") == "initial" for o in overrides)
+    return [*overrides, "defects.enabled=off", *([] if chosen else ["~initial.candidates.design"])]
+

@@ -202,13 +202,13 @@ def main(argv: list[str] | None = None) -> None:
     prints = args.prints.resolve()
     if not args.table_only:
         deltas = [float(x) for x in args.deltas.split(",")]
-        for scene in args.scenes.split(","):
-            files = make_prints(scene, prints, args.seed)
-            groups = [([d for d in deltas if d == 0.05], files), ([d for d in deltas if d != 0.05], files[:SHORT])]
-            for levels, chosen in groups:
-                if levels and chosen:
+        files = {scene: make_prints(scene, prints, args.seed) for scene in args.scenes.split(",")}
+        # every print at 5% noise first (the targets), then the first ones at the other levels
+        for levels, count in (([d for d in deltas if d == 0.05], len(PRINTS)), ([d for d in deltas if d != 0.05], SHORT)):
+            for scene, chosen in files.items():
+                if levels:
                     run_sweep(store, EXPERIMENT, ["experiment=design", f"scene={scene}",
-                                                  f"data.printed={','.join(str(f) for f in chosen)}",
+                                                  f"data.printed={','.join(str(f) for f in chosen[:count])}",
                                                   f"data.delta={','.join(str(x) for x in levels)}"],
                               args.overrides, args.launcher)
     cases = collect(store, prints)

@@ -39,7 +39,7 @@ import torch
 from PIL import Image
 
 from experiments.calibrate_screen import calibrate
-from experiments.configs import reconstruct_config
+from experiments.configs import known_print, reconstruct_config
 from experiments.mlflow_store import TrackingStore
 from framework.pipeline.calibration import with_setup
 from framework.pipeline.callbacks import GroundTruthError
@@ -113,7 +113,7 @@ def relative_error_after_scale(image: np.ndarray, reference: np.ndarray, weights
 
 
 def _run(overrides: list[str], out: Path, store: TrackingStore, name: str) -> dict[str, Any]:
-    cfg = reconstruct_config([*overrides, "tracking.experiment=lab", *store.overrides()])
+    cfg = reconstruct_config([*known_print(overrides), "tracking.experiment=lab", *store.overrides()])
     return run_reconstruction(cfg, out / name, out)
 
 

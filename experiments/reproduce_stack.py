@@ -30,7 +30,7 @@ import numpy as np
 import torch
 
 from experiments.mlflow_store import TrackingStore
-from experiments.configs import reconstruct_config
+from experiments.configs import known_print, reconstruct_config
 from experiments.reproduce_lab import error_against, true_caustic, truth_and_volume, with_noise
 from framework.core.data import resample_image
 from framework.pipeline.reconstruction import run_reconstruction
@@ -48,7 +48,7 @@ def shots_override(distances: tuple[float, ...], extra: list[dict[str, Any]] | N
 
 
 def _run(overrides: list[str], out: Path, store: TrackingStore, name: str) -> dict[str, Any]:
-    cfg = reconstruct_config([*overrides, "tracking.experiment=stack", *store.overrides()])
+    cfg = reconstruct_config([*known_print(overrides), "tracking.experiment=stack", *store.overrides()])
     return run_reconstruction(cfg, out / name, out)
 
 

@@ -75,7 +75,7 @@ MINIMAL = {
                                        "preconditioner": {"name": "sobolev"}}, {}),
     ("solver", "schwartzburg"): ({"outer_tolerance": 0.5}, {}),
     ("regularizer", "bounds"): ({}, {}), ("regularizer", "l1_bounds"): ({}, {}), ("regularizer", "l1_pixel"): ({}, {}),
-    ("regularizer", "l1_wavelet"): ({}, {}), ("regularizer", "volume_v2"): ({}, {}),
+    ("regularizer", "l1_wavelet"): ({}, {}), ("regularizer", "volume_v2"): ({}, {}), ("regularizer", "l1_design"): ({}, {}),
     ("post_step", "volume_v1"): ({}, {}),
     ("step_size", "constant"): ({"tau": 0.1}, {}), ("step_size", "backtracking"): ({"tau": 0.1}, {}),
     ("preconditioner", "sobolev"): ({}, {}),

@@ -40,11 +40,11 @@ class DefectSettings:
     z_min: float = 3.0
     grow: float = 2.0
     cluster_mm: float = 1.5
-    max_candidates: int = 10
+    max_candidates: int = 6
     min_evidence: float = 50.0
-    probes: int = 16
-    photons: int = 262144
-    evaluations: int = 60
+    probes: int = 8
+    photons: int = 131072
+    evaluations: int = 40
 
     @classmethod
     def parse(cls, spec: Any) -> DefectSettings:
