@@ -6,6 +6,7 @@ The plugins (declared as entry points in pyproject.toml; kind ``regularizer`` un
 - ``bounds``     :class:`HeightBounds`       indicator of [p1, p2] on the mask N^, 0 off it
 - ``l1_bounds``  :class:`PixelL1Bounds`      both at once; its prox is the paper's eq. (7)
 - ``l1_wavelet`` :class:`WaveletL1`          alpha_w ||W d||_1, orthogonal Daubechies DWT
+- ``l1_design``  :class:`PixelL1DesignBounds` alpha ||d - c||_1 + bounds, c the print's design
 - ``volume_v1``  :class:`VolumeHeuristic`    the paper's volume heuristic eq. (8) (kind ``post_step``)
 - ``volume_v2``  :class:`VolumeSlabL1Bounds` eq. (7) plus an exact volume slab constraint (a prox)
 """
@@ -14,6 +15,7 @@ from .base import PostStepUpdate, Regularizer, RegularizerContext
 from .bounds import HeightBounds
 from .pixel_l1 import PixelL1
 from .l1_bounds import PixelL1Bounds
+from .l1_design import PixelL1DesignBounds
 from .shrinkage import clamp_on_mask, soft_shrink
 from .volume_heuristic import VolumeHeuristic, volume_band, window_mean
 from .volume_prox import VolumeSlabL1Bounds
@@ -23,6 +25,7 @@ __all__ = [
     "HeightBounds",
     "PixelL1",
     "PixelL1Bounds",
+    "PixelL1DesignBounds",
     "PostStepUpdate",
     "Regularizer",
     "RegularizerContext",

@@ -1,4 +1,4 @@
-"""Defects of a print against its design: how well the caustic pins each height sample down
-(information.py), the sparse deviation from the design the caustic asks for (design_fit.py),
-the regions of that deviation measured and classified (regions.py), and the report (report.py).
-docs/method.md, "Defects against the design"."""
+"""Defects of a print against its design (docs/method.md, "Defects against the design"): how well
+the caustic pins each height sample down (information.py), where the result leaves the design
+(regions.py), the defect models of a design (models.py) fitted to the photo to size and name each
+defect (fit.py), and the report's files and sentences (report.py)."""

@@ -189,6 +189,22 @@ def fit_candidate(design: torch.Tensor, candidate: Candidate, misfit: Callable[[
                       cell_mm, mm_per_unit)
 
 
+def _changed_span(change: np.ndarray, frame: Frame, t0: float, length: float, cell_mm: float
+                  ) -> tuple[float, float, float]:
+    """(row, col, length in mm) of a feature model's defect, its middle on the ridge: the window's
+    (t0, length in samples), or where the window reaches past the feature's end (it changes nothing
+    there) the span along the feature of the samples changed by at least a quarter of the largest change."""
+    magnitude = np.abs(change)
+    rows, cols = np.nonzero(magnitude >= 0.25 * magnitude.max())
+    t = (rows - frame.row) * frame.along[0] + (cols - frame.col) * frame.along[1]
+    span = float(t.max() - t.min()) + 1.0
+    if length > span:
+        t0, length = 0.5 * (float(t.min()) + float(t.max())), span
+    row = frame.row + t0 * frame.along[0] + frame.ridge * frame.across[0]
+    col = frame.col + t0 * frame.along[1] + frame.ridge * frame.across[1]
+    return row, col, length * cell_mm
+
+
 def _described(model: str, params: np.ndarray, frame: Frame, change: np.ndarray, design: np.ndarray,
                evidence: float, confidence: float, cell_mm: float, mm_per_unit: float) -> Defect:
     m = design.shape[0]
@@ -197,10 +213,8 @@ def _described(model: str, params: np.ndarray, frame: Frame, change: np.ndarray,
         row, col, volume, radius = params
         kind, size, length = "excess", float(volume) * mm_per_unit ** 3, 2.355 * float(radius) * cell_mm
     else:
-        t0, length_samples, amount = params  # the centre on the feature's ridge
-        row = frame.row + t0 * frame.along[0] + frame.ridge * frame.across[0]
-        col = frame.col + t0 * frame.along[1] + frame.ridge * frame.across[1]
-        length = float(length_samples) * cell_mm
+        t0, length_samples, amount = params
+        row, col, length = _changed_span(change, frame, float(t0), float(length_samples), cell_mm)
         if model == "modulation":
             kind = "interruption" if amount >= INTERRUPTED else ("too_low" if amount > 0 else "too_high")
             size = float(amount)
