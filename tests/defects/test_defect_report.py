@@ -17,9 +17,9 @@ from tests.experiments.conftest import compose_reconstruct
 
 M = 64
 CELL_MM = 50.0 / (M - 1)
-SMALL = ["experiment=design", f"height_field.resolution={M}", "receiver.resolution=64", "photons=262144",
-         "data.reference_photons=1048576", "data.reference_resolution=128", "defects.photons=131072",
-         "defects.probes=8", "checkpoint_every=50"]
+SMALL = ["experiment=design", f"height_field.resolution={M}", "receiver.resolution=64", "photons=131072",
+         "data.reference_photons=1048576", "data.reference_resolution=128", "defects.photons=65536",
+         "defects.probes=4", "defects.max_candidates=3", "defects.evaluations=30", "checkpoint_every=50"]
 
 
 def _design() -> np.ndarray:
