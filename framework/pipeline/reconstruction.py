@@ -225,6 +225,11 @@ class Reconstruction:
         stopping = build_stopping(cfg.get("stopping"))
         start = build_start(cfg.get("initial"))
         start.check(base_dir)
+        regularizers = (cfg.get("solver") or {}).get("regularizers") or {}
+        if "l1_design" in regularizers and not _has_design(cfg):
+            raise ValueError("solver.regularizers.l1_design (experiment=design) needs the print's design: give "
+                             "height_field.path (the design) with data=file or data=photo, or data.printed (the print) "
+                             "with synthetic data")
         defects = DefectSettings.parse(cfg.get("defects"))
         if defects.enabled == "on" and not _has_design(cfg):
             raise ValueError("defects.enabled=on needs the print's design: give height_field.path (the design) with "

@@ -102,10 +102,13 @@ def test_a_mesh_that_is_no_height_field_is_refused_in_one_line(tmp_path) -> None
 
 
 def test_defects_on_without_a_design_and_bad_settings_are_refused(tmp_path) -> None:
+    with pytest.raises(ValueError, match="l1_design .experiment=design. needs the print's design"):
+        Reconstruction.from_config(compose_reconstruct(SMALL, tmp_path), tmp_path)
     with pytest.raises(ValueError, match="defects.enabled=on needs the print's design"):
         Reconstruction.from_config(compose_reconstruct([*SMALL, "defects.enabled=on", "initial=zero",
                                                         "experiment=m2v1"], tmp_path), tmp_path)
     with pytest.raises(ValueError, match="defects.enabled='sometimes'"):
-        Reconstruction.from_config(compose_reconstruct([*SMALL, "defects.enabled=sometimes"], tmp_path), tmp_path)
+        Reconstruction.from_config(compose_reconstruct([*SMALL, "experiment=m2v1", "defects.enabled=sometimes"],
+                                                        tmp_path), tmp_path)
     with pytest.raises(ValueError, match="defects.grow=5.0 exceeds defects.z_min=3.0"):
-        Reconstruction.from_config(compose_reconstruct([*SMALL, "defects.grow=5.0"], tmp_path), tmp_path)
+        Reconstruction.from_config(compose_reconstruct([*SMALL, "experiment=m2v1", "defects.grow=5.0"], tmp_path), tmp_path)
