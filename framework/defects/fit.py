@@ -161,6 +161,7 @@ def fit_candidate(design: torch.Tensor, candidate: Candidate, misfit: Callable[[
     starts = _starts(design_np, candidate, frame, cell_area)
     flat = float(design_np.max()) <= 0.0 or float(design_np[candidate.rows, candidate.cols].max()) < \
         0.05 * float(design_np.max())
+    ceiling = 3.0 * max(float(design_np.max()), 1e-12)
     best: tuple[float, str, np.ndarray] | None = None
     for model in MODELS:
         if flat and model != "blob":
@@ -169,7 +170,10 @@ def fit_candidate(design: torch.Tensor, candidate: Candidate, misfit: Callable[[
 
         def objective(p: np.ndarray, model: str = model, limits: tuple = limits) -> float:
             clipped = tuple(float(np.clip(v, lo, hi)) for v, (lo, hi) in zip(p, limits))
-            return misfit(apply_model(design, frame, model, _model_params(model, clipped), cell_area))
+            heights = apply_model(design, frame, model, _model_params(model, clipped), cell_area)
+            if float(heights.max()) > ceiling:  # no print this high: the optimiser's step went astray
+                return math.inf
+            return misfit(heights)
 
         x0 = _scanned(objective, starts[model], float(starts["modulation"][0][1]), model)
         simplex = np.vstack([x0] + [x0 + np.eye(len(x0))[i] * STEPS[model][i] for i in range(len(x0))])
