@@ -165,12 +165,12 @@ def write_outputs(cases: dict, out: Path) -> None:
             lines.append(f"| {kind} | {size} | {len(group)} | {len(right)} | "
                          f"{', '.join(sorted(r['kind_found'] for r in other)) or 0} | {pos:.2f} | "
                          f"{np.mean(err) if err else float('nan'):.2f} |")
-        lines += ["", target_recall(chosen), smallest_found(chosen), ""]
+        lines += ["", key_class_recall(chosen), smallest_found(chosen), ""]
     (out / "defects.md").write_text("\n".join(lines))
     write_figure(rows, out)
 
 
-TARGETS = {  # the classes a print engineer must not miss, as (name, test of a planned defect)
+KEY_CLASSES = {  # the defects a print engineer must not miss, as (name, test of a planned defect)
     "interruptions >= 1 mm": lambda r: r["kind"] == "interruption" and r["length_mm"] >= 1.0,
     "height errors >= 20% over >= 3 mm": lambda r: r["kind"] in ("too_low", "too_high") and abs(r["size"]) >= 0.2
     and r["length_mm"] >= 3.0,
@@ -179,10 +179,10 @@ TARGETS = {  # the classes a print engineer must not miss, as (name, test of a p
 }
 
 
-def target_recall(rows: list[dict]) -> str:
+def key_class_recall(rows: list[dict]) -> str:
     """'Found with the right kind: interruptions >= 1 mm 5/5, ...' for one noise level."""
     parts = []
-    for name, test in TARGETS.items():
+    for name, test in KEY_CLASSES.items():
         chosen = [r for r in rows if test(r)]
         parts.append(f"{name} {sum(r['found'] and r['kind_found'] == r['kind'] for r in chosen)}/{len(chosen)}")
     return "Found with the right kind: " + "; ".join(parts) + "."
