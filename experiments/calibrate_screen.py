@@ -30,7 +30,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
 from experiments.input_errors import one_line_input_errors  # noqa: E402
-from experiments.configs import reconstruct_config  # noqa: E402
+from experiments.configs import chooses_start, reconstruct_config  # noqa: E402
 from framework.core.scene_config import build_scene  # noqa: E402
 from framework.pipeline.reconstruction import run_reconstruction  # noqa: E402
 from framework.pipeline.width_search import MIN_RISE, WidthProfile, search_width  # noqa: E402
@@ -57,7 +57,7 @@ class ProfileRuns:
         self.pixel, self.mm_per_unit = scene.receiver.pixel_size, float(scene.mm_per_unit)  # scene units, mm
         # A start of its own (initial=auto would retry from flat glass: every profile run ends short
         # of the noise level by design).
-        self.start = [] if any(o.split("=")[0].lstrip("+~") == "initial" for o in overrides) else ["initial=transport"]
+        self.start = [] if chooses_start(overrides) else ["initial=transport"]
         self.delta = float("nan")  # the data's noise level, from the first fit
 
     def misfit(self, width_px: float) -> float:

@@ -19,10 +19,13 @@ def reconstruct_config(overrides: list[str]) -> dict[str, Any]:
         return to_plain(compose("reconstruct", overrides=overrides))
 
 
+def chooses_start(overrides: list[str]) -> bool:
+    """Whether ``overrides`` choose the start (``initial=...``, also with ``+``/``~``)."""
+    return any(o.split("=")[0].lstrip("+~") == "initial" for o in overrides)
+
+
 def known_print(overrides: list[str]) -> list[str]:
     """``overrides`` for a study whose configured height field is the print's truth given as its design
     (data.mask=design on a photo of a known print): no defect report, and ``initial=auto`` does not
     start from the design (the truth) unless a start is chosen in ``overrides``."""
-    chosen = any(o.split("=")[0].lstrip("+~") == "initial" for o in overrides)
-    return [*overrides, "defects.enabled=off", *([] if chosen else ["~initial.candidates.design"])]
-
+    return [*overrides, "defects.enabled=off", *([] if chooses_start(overrides) else ["~initial.candidates.design"])]

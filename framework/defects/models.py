@@ -3,8 +3,8 @@
 
 Every model changes the design c (m, m) near one place, in a frame of the design's feature there:
 the unit vector ``along`` the feature, ``across`` it, the origin at the candidate's centre; lengths
-in samples. A window W(t) along the feature (a box from t0 - L/2 to t0 + L/2 with edges half a
-sample wide) limits the change along it, a box of half-width ``reach`` across it:
+in samples. A window W(t) along the feature (a box from t0 - L/2 to t0 + L/2 with tanh edges of
+``EDGE`` samples) limits the change along it, a box of half-width ``reach`` across it:
 
 - ``modulation`` (t0, L, a): the design times 1 - a inside the window (a = 1: material missing,
   an interruption; 0 < a < 1: too low; a < 0: too high);
@@ -81,8 +81,7 @@ def apply_model(design: torch.Tensor, frame: Frame, model: str, params: tuple[fl
             back = amount * window
         else:
             back = (s - frame.ridge) * (1.0 - 1.0 / (1.0 + amount)) * window
-        moved = _sampled(design, rows - back * frame.across[0], cols - back * frame.across[1])
-        return moved
+        return _sampled(design, rows - back * frame.across[0], cols - back * frame.across[1])
     if model == "blob":
         row, col, volume, radius = params
         radius = max(radius, 0.3)

@@ -379,9 +379,10 @@ def _reconstruct(parts: Reconstruction, output_dir: Path, base_dir: Path, checkp
         metrics.update(report_verdict(metrics["rel_discrepancy"], data, settings.tau_dis, chosen.returned_iteration,
                                       result.stop_reason, volume, shots,
                                       calibration.never_updated() if calibration else ()))
-        if data.design is not None and parts.defects.enabled != "off" and data.shots:
+        reports_defects = data.design is not None and parts.defects.enabled != "off"
+        if reports_defects and data.shots:
             print("no defect report: it reads one photo; reconstruct a single shot for it", flush=True)
-        elif data.design is not None and parts.defects.enabled != "off":
+        elif reports_defects:
             report = report_defects(problem, d, parts.defects, settings.seed, settings.mm_per_unit, output_dir)
             metrics.update(report.metrics())
             metrics["verdict"] += " " + " ".join(defect_lines(report.defects, parts.defects.min_evidence))
