@@ -3,7 +3,9 @@
 
 Each defect is built here independently of the report's own defect models (framework/defects/models.py):
 ends rounded by an error function of 0.3 mm (printed glass has no sharp steps), drops shaped as
-(1 - r^2 / R^2)^(3/2) caps, the feature's direction from the design's Hessian. Lengths in mm; the
+(1 - r^2 / R^2)^(3/2) caps, the feature's direction from the design's Hessian, the change limited across
+to the feature's own half-width (moves and width changes joining the glass beside it), so that a defect of
+one feature leaves its neighbours as designed. Lengths in mm; the
 design (m, m) in scene units on [-W, W]^2, row i at y = -W + i h, column j at x = -W + j h.
 """
 
@@ -19,7 +21,7 @@ from scipy.special import erf
 __all__ = ["PlannedDefect", "feature_sites", "apply_defect"]
 
 EDGE_MM = 0.3  # the rounding of a defect's ends
-BAND_MM = 8.0  # half-width across the feature that a defect changes
+BAND_MM = 8.0  # most half-width across the feature that a defect changes
 
 
 @dataclass(frozen=True)
@@ -76,6 +78,43 @@ def _box(t_mm: np.ndarray, length_mm: float) -> np.ndarray:
     return 0.5 * (erf((t_mm + length_mm / 2) / scale) - erf((t_mm - length_mm / 2) / scale))
 
 
+def _half_width(design: np.ndarray, row: int, col: int, across: np.ndarray, cell_mm: float) -> float:
+    """The feature's half-width at a site (mm): the farther of the two places across it where the
+    design falls below 5% of the site's height, plus 0.5 mm, at most BAND_MM (a defect of one feature
+    leaves its neighbours alone)."""
+    m = design.shape[0]
+    level = 0.05 * design[row, col]
+    reach = int(math.ceil(BAND_MM / cell_mm))
+    widths = []
+    for sign in (1.0, -1.0):
+        steps = np.arange(reach + 1)
+        rr = np.clip(np.round(row + sign * steps * across[0]).astype(int), 0, m - 1)
+        cc = np.clip(np.round(col + sign * steps * across[1]).astype(int), 0, m - 1)
+        below = np.nonzero(design[rr, cc] < level)[0]
+        widths.append((below[0] if below.size else reach) * cell_mm)
+    return float(min(max(widths) + 0.5, BAND_MM))
+
+
+def _fade(s_mm: np.ndarray, plateau_mm: float, fade_mm: float) -> np.ndarray:
+    """1 within ``plateau_mm`` across the feature, falling linearly to 0 over ``fade_mm`` beyond:
+    a moved cross-section joins the unchanged glass beside it without tearing it."""
+    return np.clip((plateau_mm + fade_mm - np.abs(s_mm)) / fade_mm, 0.0, 1.0)
+
+
+def _source(s_mm: np.ndarray, plateau_mm: float, size: float, fade_mm: float = 2.0) -> np.ndarray:
+    """Where a width change by the factor 1 + ``size`` takes each offset across the feature from (mm):
+    s / (1 + size) over the feature; a narrowed feature leaves the glass at its old edge beside it,
+    a widened one joins the glass beside it over ``fade_mm``; unchanged beyond."""
+    a = np.abs(s_mm)
+    if size < 0:
+        source = np.where(a <= plateau_mm, np.minimum(a / (1.0 + size), plateau_mm), a)
+    else:
+        outer = plateau_mm * (1.0 + size)
+        source = np.where(a <= outer, a / (1.0 + size),
+                          a - size * plateau_mm * np.clip((outer + fade_mm - a) / fade_mm, 0.0, 1.0))
+    return np.sign(s_mm) * source
+
+
 def apply_defect(design: np.ndarray, printed: np.ndarray, site: tuple[int, int], kind: str, size: float,
                  length_mm: float, cell_mm: float, mm_per_unit: float, offset_mm: float = 2.5) -> tuple[np.ndarray, PlannedDefect]:
     """``printed`` with one defect at ``site`` (row, col) of the design; returns the new print and
@@ -87,17 +126,17 @@ def apply_defect(design: np.ndarray, printed: np.ndarray, site: tuple[int, int],
     rr, cc = np.meshgrid(index, index, indexing="ij")
     t = ((rr - row) * along[0] + (cc - col) * along[1]) * cell_mm
     s = ((rr - row) * across[0] + (cc - col) * across[1]) * cell_mm
-    band = _box(s, 2.0 * BAND_MM)
-    window = _box(t, length_mm) * band
+    width = _half_width(design, row, col, across, cell_mm)
+    window = _box(t, length_mm) * _box(s, 2.0 * width)
     half = 0.5 * (m - 1) * cell_mm
     centre = (col * cell_mm - half, row * cell_mm - half)
     if kind in ("interruption", "too_low", "too_high"):
         out = printed * (1.0 - size * window)
     elif kind == "displaced":
-        shift = size / cell_mm * window
+        shift = size / cell_mm * _box(t, length_mm) * _fade(s, width, 2.0 + abs(size))
         out = ndimage.map_coordinates(printed, [rr - shift * across[0], cc - shift * across[1]], order=1, mode="nearest")
     elif kind in ("too_wide", "too_narrow"):
-        back = s / cell_mm * (1.0 - 1.0 / (1.0 + size)) * window
+        back = (s - _source(s, width, size)) / cell_mm * _box(t, length_mm)
         out = ndimage.map_coordinates(printed, [rr - back * across[0], cc - back * across[1]], order=1, mode="nearest")
     elif kind == "excess":
         radius = 0.6 + 0.5 * size ** (1.0 / 3.0)  # mm: larger drops spread wider

@@ -2,13 +2,12 @@
 (docs/method.md, "Defects against the design").
 
 For a candidate (framework/defects/regions.py) the four models of framework/defects/models.py are
-fitted to the photo, each on the design alone (the print = the design with this one defect), by
-Nelder-Mead on its misfit ||F(c + defect) - b||_W^2 from a start read off the candidate's deviation.
-The evidence of the best model is the misfit it removes in units of the pixel noise variance s^2:
-E = (||F(c) - b||^2 - ||F(c + defect) - b||^2) / s^2. When the print is the design, E of a k-parameter
-model is about a chi-square with k degrees of freedom (a few units); a candidate is a defect when E
-reaches ``min_evidence``. Its confidence is 1 - the chance that noise alone gives such an E at any of the
-candidates tested (chi-square tail, Bonferroni).
+fitted to the photo, each added to the heights that explain the photo so far (the design with the
+defects already found, framework/defects/pursuit.py), by Nelder-Mead on the misfit
+||F(base + defect) - b||_W^2 from starts read off the candidate's deviation. The evidence of the best
+model is the misfit it removes in units of the pixel noise variance s^2:
+E = (||F(base) - b||^2 - ||F(base + defect) - b||^2) / s^2. When the photo needs no defect there, E of
+a k-parameter model is about a chi-square with k degrees of freedom (a few units).
 """
 
 from __future__ import annotations
@@ -24,11 +23,13 @@ from scipy import optimize, stats
 from framework.defects.models import MODELS, Frame, apply_model
 from framework.defects.regions import Candidate
 
-__all__ = ["Defect", "KINDS", "fit_candidate", "frame_of"]
+__all__ = ["Defect", "Fit", "KINDS", "chance_of", "fit_candidate", "frame_of"]
 
 KINDS = ("interruption", "too_low", "too_high", "excess", "too_wide", "too_narrow", "displaced")
 INTERRUPTED = 0.5  # a modulation that removes at least this fraction of the design is an interruption
 FEATURE_MM = 6.0  # half-width across a feature of the changed band (mm)
+SHIFTS_MM = (0.4, 1.0)  # a displacement's starts, either way (mm)
+SCAN_POSITIONS = 17  # a feature model's starts are tried at up to this many places along the feature
 
 
 @dataclass(frozen=True)
@@ -85,7 +86,8 @@ def frame_of(design: np.ndarray, candidate: Candidate, cell_mm: float) -> Frame:
     return Frame(row, col, (float(along[0]), float(along[1])), (float(across[0]), float(across[1])), ridge, reach)
 
 
-def _starts(design: np.ndarray, candidate: Candidate, frame: Frame, cell_area: float) -> dict[str, list[np.ndarray]]:
+def _starts(design: np.ndarray, candidate: Candidate, frame: Frame, cell_area: float,
+            cell_mm: float) -> dict[str, list[np.ndarray]]:
     """Each model's trial starts, read off the candidate's deviation (the fit keeps the best after a
     scan of the position along the feature, :func:`_scanned`)."""
     t = (candidate.rows - frame.row) * frame.along[0] + (candidate.cols - frame.col) * frame.along[1]
@@ -102,8 +104,10 @@ def _starts(design: np.ndarray, candidate: Candidate, frame: Frame, cell_area: f
     volume = max(float(candidate.e[added].sum()) * cell_area, 0.45 * float(design.max()) * cell_area, 1e-12)
     k = int(np.argmax(np.where(added, candidate.e, -np.inf))) if added.any() else top
     row, col = float(candidate.rows[k]), float(candidate.cols[k])
-    return {"modulation": [np.array([0.0, length, a]), np.array([0.0, short, 1.0 if a > 0 else a])],
-            "shift": [np.array([0.0, length, 1.0]), np.array([0.0, length, -1.0])],
+    longer = float(min(2.0 * length, 2.0 * frame.reach))  # a long defect's candidate may show only its ends
+    return {"modulation": [np.array([0.0, length, a]), np.array([0.0, short, 1.0 if a > 0 else a]),
+                           np.array([0.0, longer, a])],
+            "shift": [np.array([0.0, length, sign * mm / cell_mm]) for mm in SHIFTS_MM for sign in (1.0, -1.0)],
             "width": [np.array([0.0, length, 0.3]), np.array([0.0, length, -0.3])],
             "blob": [np.array([row, col, math.log(v), math.log(r)]) for v in (volume, 3.0 * volume, volume / 3.0)
                      for r in (0.8, 1.2, 1.8)]}
@@ -111,8 +115,9 @@ def _starts(design: np.ndarray, candidate: Candidate, frame: Frame, cell_area: f
 
 def _scanned(objective: Callable[[np.ndarray], float], starts: list[np.ndarray], span: float,
              model: str) -> np.ndarray:
-    """The start with the least misfit, each tried at positions t0 every sample within +-span/2 along
-    the feature (a narrow defect's misfit is sharp in t0); a drop's starts as they are."""
+    """The start with the least misfit, each tried at up to :data:`SCAN_POSITIONS` positions t0 within
+    +-span/2 along the feature, a sample apart where the span allows (a narrow defect's misfit is sharp
+    in t0); a drop's starts as they are."""
     best, best_value = starts[0], np.inf
     if model == "blob":
         for start in starts:
@@ -121,7 +126,7 @@ def _scanned(objective: Callable[[np.ndarray], float], starts: list[np.ndarray],
                 best, best_value = start, value
         return best
     reach = max(np.ceil(span / 2), 3.0)
-    offsets = np.arange(-reach, reach + 1.0)
+    offsets = np.linspace(-reach, reach, int(min(2 * reach + 1, SCAN_POSITIONS)))
     for start in starts:
         for t0 in offsets:
             trial = start.copy()
@@ -144,25 +149,47 @@ def _model_params(model: str, p: tuple[float, ...]) -> tuple[float, ...]:
     return (p[0], p[1], math.exp(p[2]), math.exp(p[3])) if model == "blob" else p
 
 
-def fit_candidate(design: torch.Tensor, candidate: Candidate, misfit: Callable[[torch.Tensor], float],
-                  base_misfit: float, noise: float, cell_area: float, cell_mm: float, mm_per_unit: float,
-                  tested: int, evaluations: int = 60) -> Defect:
-    """The best defect model at ``candidate`` (evidence and confidence included; the caller keeps it
-    when the evidence is enough).
+@dataclass(frozen=True)
+class Fit:
+    """One fitted defect: its description, where its model sits (frame, model, parameters in the
+    model's own units) and the misfit of ``heights`` (the base with the defect)."""
+
+    defect: Defect
+    frame: Frame
+    heights: torch.Tensor
+    misfit: float
+
+    def added_to(self, base: torch.Tensor, cell_area: float) -> torch.Tensor:
+        """This defect's model applied to other heights ``base`` (m, m)."""
+        return apply_model(base, self.frame, self.defect.model, self.defect.params, cell_area)
+
+
+def chance_of(evidence: float, dof: int, tested: int) -> float:
+    """The chance that noise alone gives ``evidence`` to a ``dof``-parameter model at any of ``tested``
+    places: the chi-square tail, Bonferroni."""
+    return min(1.0, float(stats.chi2.sf(max(evidence, 0.0), dof)) * max(tested, 1))
+
+
+def fit_candidate(design: torch.Tensor, base: torch.Tensor, candidate: Candidate,
+                  misfit: Callable[[torch.Tensor], float], base_misfit: float, noise: float, cell_area: float,
+                  cell_mm: float, mm_per_unit: float, evaluations: int = 60) -> Fit:
+    """The best defect model at ``candidate``, added to ``base`` (its evidence against ``base``;
+    confidence 1 - :func:`chance_of` at one place: the caller corrects it for the places tested).
 
     Args:
-        design: c (m, m), scene units. misfit: ||F(d) - b||_W^2 of heights d (m, m). base_misfit: at c.
+        design: c (m, m), scene units: the feature's frame and the height limits come from it.
+        base: The heights the defect is added to (m, m): c with the defects found so far.
+        misfit: ||F(d) - b||_W^2 of heights d (m, m). base_misfit: at ``base``.
         noise: Pixel noise standard deviation s (image units). cell_area: scene units^2.
-        cell_mm, mm_per_unit: sample spacing and unit. tested: candidates tested (Bonferroni).
-        evaluations: misfit evaluations per model at most.
+        cell_mm, mm_per_unit: sample spacing and unit. evaluations: misfit evaluations per model at most.
     """
     design_np = design.double().cpu().numpy()
     frame = frame_of(design_np, candidate, cell_mm)
-    starts = _starts(design_np, candidate, frame, cell_area)
+    starts = _starts(design_np, candidate, frame, cell_area, cell_mm)
     flat = float(design_np.max()) <= 0.0 or float(design_np[candidate.rows, candidate.cols].max()) < \
         0.05 * float(design_np.max())
     ceiling = 3.0 * max(float(design_np.max()), 1e-12)
-    best: tuple[float, str, np.ndarray] | None = None
+    best: tuple[float, str, np.ndarray, Callable[[np.ndarray], float]] | None = None
     for model in MODELS:
         if flat and model != "blob":
             continue
@@ -170,7 +197,7 @@ def fit_candidate(design: torch.Tensor, candidate: Candidate, misfit: Callable[[
 
         def objective(p: np.ndarray, model: str = model, limits: tuple = limits) -> float:
             clipped = tuple(float(np.clip(v, lo, hi)) for v, (lo, hi) in zip(p, limits))
-            heights = apply_model(design, frame, model, _model_params(model, clipped), cell_area)
+            heights = apply_model(base, frame, model, _model_params(model, clipped), cell_area)
             if float(heights.max()) > ceiling:  # no print this high: the optimiser's step went astray
                 return math.inf
             return misfit(heights)
@@ -180,17 +207,25 @@ def fit_candidate(design: torch.Tensor, candidate: Candidate, misfit: Callable[[
         result = optimize.minimize(objective, x0, method="Nelder-Mead",
                                    options={"initial_simplex": simplex, "maxfev": evaluations, "xatol": 1e-3,
                                             "fatol": 1e-6 * base_misfit})
-        params = np.array(_model_params(model, tuple(float(np.clip(v, lo, hi)) for v, (lo, hi) in zip(result.x, limits))))
         if best is None or result.fun < best[0]:
-            best = (float(result.fun), model, params)
+            best = (float(result.fun), model, result.x, objective)
     assert best is not None
-    value, model, params = best
+    value, model, x, objective = best
+    # the winner gets as many evaluations again, from where it stopped, on a smaller simplex
+    simplex = np.vstack([x] + [x + np.eye(len(x))[i] * 0.3 * STEPS[model][i] for i in range(len(x))])
+    polished = optimize.minimize(objective, x, method="Nelder-Mead",
+                                 options={"initial_simplex": simplex, "maxfev": evaluations, "xatol": 1e-3,
+                                          "fatol": 1e-6 * base_misfit})
+    if polished.fun < value:
+        value, x = float(polished.fun), polished.x
+    limits = LIMITS[model]
+    params = np.array(_model_params(model, tuple(float(np.clip(v, lo, hi)) for v, (lo, hi) in zip(x, limits))))
     evidence = (base_misfit - value) / noise ** 2
-    dof = len(params)
-    chance = min(1.0, float(stats.chi2.sf(max(evidence, 0.0), dof)) * max(tested, 1))
-    change = apply_model(design, frame, model, tuple(float(p) for p in params), cell_area) - design
-    return _described(model, params, frame, change.double().cpu().numpy(), design_np, evidence, 1.0 - chance,
-                      cell_mm, mm_per_unit)
+    heights = apply_model(base, frame, model, tuple(float(p) for p in params), cell_area)
+    change = (heights - base).double().cpu().numpy()
+    defect = _described(model, params, frame, change, design_np, evidence,
+                        1.0 - chance_of(evidence, len(params), 1), cell_mm, mm_per_unit)
+    return Fit(defect, frame, heights, value)
 
 
 def _changed_span(change: np.ndarray, frame: Frame, t0: float, length: float, cell_mm: float

@@ -32,6 +32,13 @@ class Candidate:
         k = int(np.argmax(np.abs(self.e)))
         return float(self.rows[k]), float(self.cols[k])
 
+    def near(self, radius: float) -> Candidate:
+        """The samples within ``radius`` (samples) of the centre: one defect's share of a region
+        that a faint deviation joins to others."""
+        row, col = self.centre
+        inside = (self.rows - row) ** 2 + (self.cols - col) ** 2 <= radius ** 2
+        return Candidate(self.rows[inside], self.cols[inside], self.e[inside])
+
 
 def candidate_regions(deviation: np.ndarray, sigma: np.ndarray, tested: np.ndarray, cell_mm: float,
                       z_min: float, grow: float, cluster_mm: float, min_samples: int = 2) -> list[Candidate]:

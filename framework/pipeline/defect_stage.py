@@ -21,9 +21,9 @@ import torch
 from framework.core.plugin_config import as_mapping
 from framework.core.problem import Problem
 from framework.core.values import positive_int, positive_number
-from framework.defects.fit import Defect, fit_candidate
+from framework.defects.fit import Defect
 from framework.defects.information import column_norms, height_uncertainty, pixel_noise
-from framework.defects.regions import candidate_regions
+from framework.defects.pursuit import Search, find_defects
 from framework.defects.report import defect_lines, save_defect_figure, save_defect_table
 
 __all__ = ["DefectSettings", "DefectReport", "report_defects"]
@@ -117,28 +117,12 @@ def report_defects(problem: Problem, d: torch.Tensor, settings: DefectSettings, 
     mask = data.mask.cpu().numpy()
     floor = settings.min_deviation * peak
     z_map = np.maximum(sigma.double().cpu().numpy(), floor / settings.z_min)
-    candidates = candidate_regions(deviation, z_map, mask, cell_mm, settings.z_min, settings.grow,
-                                   settings.cluster_mm)
+    search = Search(settings.z_min, settings.grow, settings.cluster_mm, settings.min_evidence,
+                    settings.max_candidates, settings.evaluations, cell_mm, grid.cell_area, mm_per_unit)
     misfit = _Misfit(problem, settings.photons, seed + 5000)
-    at_d, at_design = misfit(d), misfit(design)
-    screened = []
-    for candidate in candidates:  # put the design back at the candidate: does the photo object?
-        reset = d.clone()
-        reset[torch.from_numpy(candidate.rows), torch.from_numpy(candidate.cols)] = \
-            design[torch.from_numpy(candidate.rows), torch.from_numpy(candidate.cols)]
-        objection = (misfit(reset) - at_d) / noise ** 2
-        if objection >= 0.5 * settings.min_evidence:
-            screened.append((objection, candidate))
-    screened = [c for _, c in sorted(screened, key=lambda item: -item[0])][: settings.max_candidates]
-    defects = []
-    for candidate in screened:
-        defect = fit_candidate(design, candidate, misfit, at_design, noise, grid.cell_area, cell_mm, mm_per_unit,
-                               len(screened), settings.evaluations)
-        if defect.evidence >= settings.min_evidence:
-            defects.append(defect)
-    defects.sort(key=lambda item: -item.evidence)
+    defects, tried = find_defects(d, design, mask, z_map, misfit, noise, search)
     report = DefectReport(defects, deviation * mm_per_unit, sigma.double().cpu().numpy() * mm_per_unit,
-                          len(screened))
+                          tried)
     save_defect_table(output_dir, defects, settings, report.metrics())
     np.save(output_dir / "defect_sigma_mm.npy", report.sigma_mm.astype(np.float32))
     save_defect_figure(output_dir / "defects.png", report.deviation_mm, design.double().cpu().numpy() * mm_per_unit,
