@@ -79,11 +79,11 @@ def _box(t_mm: np.ndarray, length_mm: float) -> np.ndarray:
 
 
 def _half_width(design: np.ndarray, row: int, col: int, across: np.ndarray, cell_mm: float) -> float:
-    """The feature's half-width at a site (mm): the farther of the two places across it where the
-    design falls below 5% of the site's height, plus 0.5 mm, at most BAND_MM (a defect of one feature
-    leaves its neighbours alone)."""
+    """The feature's half-width at a site (mm): twice the nearer distance across it at which the
+    design falls to half the site's height, plus 0.5 mm, at most BAND_MM (a defect of one feature
+    leaves its neighbours alone, also where another feature joins it)."""
     m = design.shape[0]
-    level = 0.05 * design[row, col]
+    level = 0.5 * design[row, col]
     reach = int(math.ceil(BAND_MM / cell_mm))
     widths = []
     for sign in (1.0, -1.0):
@@ -92,7 +92,7 @@ def _half_width(design: np.ndarray, row: int, col: int, across: np.ndarray, cell
         cc = np.clip(np.round(col + sign * steps * across[1]).astype(int), 0, m - 1)
         below = np.nonzero(design[rr, cc] < level)[0]
         widths.append((below[0] if below.size else reach) * cell_mm)
-    return float(min(max(widths) + 0.5, BAND_MM))
+    return float(min(2.0 * min(widths) + 0.5, BAND_MM))
 
 
 def _fade(s_mm: np.ndarray, plateau_mm: float, fade_mm: float) -> np.ndarray:

@@ -165,7 +165,7 @@ def copy_defect_report(run_dir: Path, out: Path) -> None:
             print(f"wrote {out / name}")
     saved = json.loads(report.read_text())
     defects = [Defect(**{**item, "params": tuple(item["params"])}) for item in saved["defects"]]
-    for line in defect_lines(defects, float(saved["settings"]["min_evidence"])):
+    for line in defect_lines(defects, float(saved.get("defects_evidence_needed", saved["settings"]["min_evidence"]))):
         print(f"verdict: {line}")
 
 

@@ -4,7 +4,8 @@
 For a candidate (framework/defects/regions.py) the four models of framework/defects/models.py are
 fitted to the photo, each added to the heights that explain the photo so far (the design with the
 defects already found, framework/defects/pursuit.py), by Nelder-Mead on the misfit
-||F(base + defect) - b||_W^2 from starts read off the candidate's deviation. The evidence of the best
+||F(base + defect) - b||_W^2: a feature model from the best point of a linearised scan of its place and
+length (:func:`_feature_start`), a drop from starts read off the candidate's deviation. The evidence of the best
 model is the misfit it removes in units of the pixel noise variance s^2:
 E = (||F(base) - b||^2 - ||F(base + defect) - b||^2) / s^2. When the photo needs no defect there, E of
 a k-parameter model is about a chi-square with k degrees of freedom (a few units).
@@ -15,6 +16,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
+from typing import Protocol
 
 import numpy as np
 import torch
@@ -23,13 +25,23 @@ from scipy import optimize, stats
 from framework.defects.models import MODELS, Frame, apply_model
 from framework.defects.regions import Candidate
 
-__all__ = ["Defect", "Fit", "KINDS", "chance_of", "fit_candidate", "frame_of"]
+__all__ = ["Defect", "Fit", "KINDS", "Misfit", "chance_of", "fit_candidate", "frame_of"]
 
 KINDS = ("interruption", "too_low", "too_high", "excess", "too_wide", "too_narrow", "displaced")
 INTERRUPTED = 0.5  # a modulation that removes at least this fraction of the design is an interruption
 FEATURE_MM = 6.0  # half-width across a feature of the changed band (mm)
-SHIFTS_MM = (0.4, 1.0)  # a displacement's starts, either way (mm)
-SCAN_POSITIONS = 17  # a feature model's starts are tried at up to this many places along the feature
+SCAN_POSITIONS = 15  # a feature model's start is sought at up to this many places along the feature ...
+SCAN_LENGTHS_MM = (1.0, 2.5, 6.0, 12.0)  # ... with each of these lengths
+PROBES = {"modulation": 0.3, "width": 0.3}  # the amount whose image change is scaled; a shift's: 0.5 mm
+
+
+class Misfit(Protocol):
+    """The data term of heights h (m, m): ``misfit(h)`` = ||F(h) - b||_W^2 and ``residual(h)`` =
+    sqrt(w) (F(h) - b), the image it sums."""
+
+    def __call__(self, heights: torch.Tensor) -> float: ...
+
+    def residual(self, heights: torch.Tensor) -> torch.Tensor: ...
 
 
 @dataclass(frozen=True)
@@ -86,54 +98,42 @@ def frame_of(design: np.ndarray, candidate: Candidate, cell_mm: float) -> Frame:
     return Frame(row, col, (float(along[0]), float(along[1])), (float(across[0]), float(across[1])), ridge, reach)
 
 
-def _starts(design: np.ndarray, candidate: Candidate, frame: Frame, cell_area: float,
-            cell_mm: float) -> dict[str, list[np.ndarray]]:
-    """Each model's trial starts, read off the candidate's deviation (the fit keeps the best after a
-    scan of the position along the feature, :func:`_scanned`)."""
-    t = (candidate.rows - frame.row) * frame.along[0] + (candidate.cols - frame.col) * frame.along[1]
-    w = np.abs(candidate.e)
-    strong = w >= 0.5 * w.max()
-    length = float(t[strong].max() - t[strong].min() + 1.0)
-    top = int(np.argmax(w))
-    reference = float(design[candidate.rows[top], candidate.cols[top]])
-    a = float(np.clip(-candidate.e[top] / reference, -1.0, 1.0)) if reference > 1e-9 else 0.3
-    short = float(np.clip(length * abs(a), 1.0, length))  # the same missing volume, all of the height
+def _drop_starts(design: np.ndarray, candidate: Candidate, cell_area: float) -> list[np.ndarray]:
+    """A drop's trial starts (row, col, log V, log r): where the most glass was added, with that volume
+    and three radii (at least a 3 x 3 sample drop at 5% of the design's peak: a drop the reconstruction
+    smeared out still gets a start that moves)."""
     added = candidate.e > 0
-    # a drop starts where the most glass was added, with that volume (at least a 3 x 3 sample drop at 5%
-    # of the design's peak: a drop the reconstruction smeared out still gets a start that moves)
     volume = max(float(candidate.e[added].sum()) * cell_area, 0.45 * float(design.max()) * cell_area, 1e-12)
-    k = int(np.argmax(np.where(added, candidate.e, -np.inf))) if added.any() else top
+    k = int(np.argmax(np.where(added, candidate.e, -np.inf))) if added.any() else int(np.argmax(np.abs(candidate.e)))
     row, col = float(candidate.rows[k]), float(candidate.cols[k])
-    longer = float(min(2.0 * length, 2.0 * frame.reach))  # a long defect's candidate may show only its ends
-    return {"modulation": [np.array([0.0, length, a]), np.array([0.0, short, 1.0 if a > 0 else a]),
-                           np.array([0.0, longer, a])],
-            "shift": [np.array([0.0, length, sign * mm / cell_mm]) for mm in SHIFTS_MM for sign in (1.0, -1.0)],
-            "width": [np.array([0.0, length, 0.3]), np.array([0.0, length, -0.3])],
-            "blob": [np.array([row, col, math.log(v), math.log(r)]) for v in (volume, 3.0 * volume, volume / 3.0)
-                     for r in (0.8, 1.2, 1.8)]}
+    return [np.array([row, col, math.log(v), math.log(r)]) for v in (volume, 3.0 * volume, volume / 3.0)
+            for r in (0.8, 1.2, 1.8)]
 
 
-def _scanned(objective: Callable[[np.ndarray], float], starts: list[np.ndarray], span: float,
-             model: str) -> np.ndarray:
-    """The start with the least misfit, each tried at up to :data:`SCAN_POSITIONS` positions t0 within
-    +-span/2 along the feature, a sample apart where the span allows (a narrow defect's misfit is sharp
-    in t0); a drop's starts as they are."""
-    best, best_value = starts[0], np.inf
-    if model == "blob":
-        for start in starts:
-            value = objective(start)
+def _feature_start(misfit: Misfit, base: torch.Tensor, frame: Frame, model: str, along: tuple[float, float],
+                   cell_mm: float, cell_area: float) -> np.ndarray:
+    """A feature model's start (t0, L, amount): over a grid of places t0 along the candidate's extent
+    ``along`` (samples) and lengths L, the image change g of a probe amount, scaled by least squares
+    against the residual r (amount = probe k, k = -<g, r> / <g, g>, within the model's limits); the
+    (t0, L, amount) whose linearised misfit ||r + k g||^2 is least. One render per grid point, the
+    sign and size of the amount come out of the photo rather than from a guess."""
+    r0 = misfit.residual(base)
+    probe = PROBES.get(model, 0.5 / cell_mm)
+    low, high = min(along[0], -3.0), max(along[1], 3.0)
+    places = np.linspace(low, high, int(min(np.floor(high - low) + 1, SCAN_POSITIONS)))
+    (_, _), (_, _), (amount_low, amount_high) = LIMITS[model]
+    best, best_value = np.array([0.0, SCAN_LENGTHS_MM[0] / cell_mm, probe]), math.inf
+    for t0 in places:
+        for length_mm in SCAN_LENGTHS_MM:
+            length = length_mm / cell_mm
+            g = misfit.residual(apply_model(base, frame, model, (float(t0), length, probe), cell_area)) - r0
+            gg = float((g * g).sum())
+            if gg <= 0.0:
+                continue
+            amount = float(np.clip(-float((g * r0).sum()) / gg * probe, amount_low, amount_high))
+            value = float(((r0 + (amount / probe) * g) ** 2).sum())
             if value < best_value:
-                best, best_value = start, value
-        return best
-    reach = max(np.ceil(span / 2), 3.0)
-    offsets = np.linspace(-reach, reach, int(min(2 * reach + 1, SCAN_POSITIONS)))
-    for start in starts:
-        for t0 in offsets:
-            trial = start.copy()
-            trial[0] = t0
-            value = objective(trial)
-            if value < best_value:
-                best, best_value = trial, value
+                best, best_value = np.array([float(t0), length, amount]), value
     return best
 
 
@@ -171,7 +171,7 @@ def chance_of(evidence: float, dof: int, tested: int) -> float:
 
 
 def fit_candidate(design: torch.Tensor, base: torch.Tensor, candidate: Candidate,
-                  misfit: Callable[[torch.Tensor], float], base_misfit: float, noise: float, cell_area: float,
+                  misfit: Misfit, base_misfit: float, noise: float, cell_area: float,
                   cell_mm: float, mm_per_unit: float, evaluations: int = 60) -> Fit:
     """The best defect model at ``candidate``, added to ``base`` (its evidence against ``base``;
     confidence 1 - :func:`chance_of` at one place: the caller corrects it for the places tested).
@@ -185,10 +185,11 @@ def fit_candidate(design: torch.Tensor, base: torch.Tensor, candidate: Candidate
     """
     design_np = design.double().cpu().numpy()
     frame = frame_of(design_np, candidate, cell_mm)
-    starts = _starts(design_np, candidate, frame, cell_area, cell_mm)
     flat = float(design_np.max()) <= 0.0 or float(design_np[candidate.rows, candidate.cols].max()) < \
         0.05 * float(design_np.max())
     ceiling = 3.0 * max(float(design_np.max()), 1e-12)
+    t = (candidate.rows - frame.row) * frame.along[0] + (candidate.cols - frame.col) * frame.along[1]
+    along = (float(t.min()), float(t.max()))
     best: tuple[float, str, np.ndarray, Callable[[np.ndarray], float]] | None = None
     for model in MODELS:
         if flat and model != "blob":
@@ -202,7 +203,10 @@ def fit_candidate(design: torch.Tensor, base: torch.Tensor, candidate: Candidate
                 return math.inf
             return misfit(heights)
 
-        x0 = _scanned(objective, starts[model], float(starts["modulation"][0][1]), model)
+        if model == "blob":
+            x0 = min(_drop_starts(design_np, candidate, cell_area), key=objective)
+        else:
+            x0 = _feature_start(misfit, base, frame, model, along, cell_mm, cell_area)
         simplex = np.vstack([x0] + [x0 + np.eye(len(x0))[i] * STEPS[model][i] for i in range(len(x0))])
         result = optimize.minimize(objective, x0, method="Nelder-Mead",
                                    options={"initial_simplex": simplex, "maxfev": evaluations, "xatol": 1e-3,

@@ -8,7 +8,8 @@ explained heights back at its samples in d (the photo must object: the misfit ri
 the evidence asked for); the one whose reset raises the misfit most is fitted
 (framework/defects/fit.py) on top of the explained heights. A fit with enough evidence joins them and
 closes the samples it changed (and a margin) to later rounds: what is left there is that defect's
-imperfect fit, not another defect; a fit without it closes the candidate's samples. A print with several defects thus gets one
+imperfect fit, not another defect (a fit whose centre lands there is not taken either); a fit
+without it closes the candidate's samples. A print with several defects thus gets one
 candidate per defect even where a faint deviation joins them into one region, and each defect's fit
 sees the others already in place.
 
@@ -19,14 +20,13 @@ confidences are corrected for the number of fits tried (Bonferroni).
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass, replace
 
 import numpy as np
 import torch
 from scipy import ndimage
 
-from framework.defects.fit import FEATURE_MM, Defect, Fit, chance_of, fit_candidate
+from framework.defects.fit import FEATURE_MM, Defect, Fit, Misfit, chance_of, fit_candidate
 from framework.defects.regions import Candidate, candidate_regions
 
 __all__ = ["Search", "find_defects"]
@@ -54,7 +54,7 @@ class Search:
 
 
 def _screened(d: torch.Tensor, explained: torch.Tensor, candidates: list[Candidate],
-              misfit: Callable[[torch.Tensor], float], at_d: float, noise: float, needed: float) -> Candidate | None:
+              misfit: Misfit, at_d: float, noise: float, needed: float) -> Candidate | None:
     """The candidate whose reset to the explained heights raises the misfit of d most, if by ``needed``
     noise variances or more."""
     best, best_rise = None, needed
@@ -76,6 +76,16 @@ def _footprint(change: np.ndarray, cell_mm: float) -> np.ndarray:
     return ndimage.binary_dilation(changed, iterations=max(int(round(MARGIN_MM / cell_mm)), 1))
 
 
+def _inside(defect: Defect, closed: np.ndarray, cell_mm: float) -> bool:
+    """Whether a defect's centre lies on a found defect's samples (or on a closed candidate's): the
+    fit then reworks that defect's leftovers."""
+    m = closed.shape[0]
+    half = 0.5 * (m - 1) * cell_mm
+    row = int(np.clip(round((defect.y_mm + half) / cell_mm), 0, m - 1))
+    col = int(np.clip(round((defect.x_mm + half) / cell_mm), 0, m - 1))
+    return bool(closed[row, col])
+
+
 def _rebuilt(design: torch.Tensor, fits: list[Fit], cell_area: float) -> torch.Tensor:
     heights = design
     for fit in fits:
@@ -84,7 +94,7 @@ def _rebuilt(design: torch.Tensor, fits: list[Fit], cell_area: float) -> torch.T
 
 
 def find_defects(d: torch.Tensor, design: torch.Tensor, mask: np.ndarray, z_map: np.ndarray,
-                 misfit: Callable[[torch.Tensor], float], noise: float, search: Search) -> tuple[list[Defect], int]:
+                 misfit: Misfit, noise: float, search: Search) -> tuple[list[Defect], int]:
     """The defects that the photo needs, most evident first, and the number of fits tried.
 
     Args:
@@ -110,7 +120,7 @@ def find_defects(d: torch.Tensor, design: torch.Tensor, mask: np.ndarray, z_map:
         tried += 1
         fit = fit_candidate(design, explained, candidate, misfit, at_explained, noise, search.cell_area,
                             search.cell_mm, search.mm_per_unit, search.evaluations)
-        if fit.defect.evidence >= search.min_evidence:
+        if fit.defect.evidence >= search.min_evidence and not _inside(fit.defect, closed, search.cell_mm):
             fits.append(fit)
             closed |= _footprint((fit.heights - explained).double().cpu().numpy(), search.cell_mm)
             explained, at_explained = fit.heights, fit.misfit

@@ -39,7 +39,7 @@ def describe(defect: Defect) -> str:
 
 def defect_lines(defects: list[Defect], min_evidence: float) -> list[str]:
     """The report in sentences: how many defects, each described, and what the rest means."""
-    rest = f"no other deviation from the design that the photo needs (evidence >= {min_evidence:g} noise variances)"
+    rest = f"no other deviation from the design that the photo needs (evidence >= {min_evidence:.0f} noise variances)"
     if not defects:
         return [f"No defect: {rest}."]
     listed = "; ".join(f"{i}. {describe(d)}" for i, d in enumerate(defects, start=1))
@@ -82,7 +82,7 @@ def save_defect_figure(path: Path, deviation_mm: np.ndarray, design_mm: np.ndarr
                     fontweight="bold")
     ax.set_xlabel("x (mm)")
     ax.set_ylabel("y (mm)")
-    ax.set_title(f"{len(defects)} defect(s) (evidence >= {min_evidence:g}); design outline in black")
+    ax.set_title(f"{len(defects)} defect(s) (evidence >= {min_evidence:.0f}); design outline in black")
     table_ax.axis("off")
     if defects:
         rows = [[str(i), NAMES[d.kind], f"({d.x_mm:.1f}, {d.y_mm:.1f})", f"{d.length_mm:.1f}", f"{d.size:+.2f}",

@@ -2,9 +2,10 @@
 the design"; the parts in framework/defects/).
 
 After the run: the uncertainty of every height sample (framework/defects/information.py), the
-candidate places where the result leaves the design (framework/defects/regions.py), each kept only
-if putting the design back there raises the misfit, then sized and named by the defect model that
-explains the photo best and kept if its evidence is enough (framework/defects/fit.py). Writes
+evidence a defect needs (:func:`evidence_needed`), then the defects found one after another
+(framework/defects/pursuit.py): candidate places where the result leaves the design
+(framework/defects/regions.py), sized and named by the defect model that explains the photo best
+(framework/defects/fit.py), kept if their evidence is enough. Writes
 defects.json, defects.csv, defects.png, defect_sigma_mm.npy; returns ``defects_*`` metrics; prints
 ``verdict:`` lines.
 """
@@ -26,7 +27,7 @@ from framework.defects.information import column_norms, height_uncertainty, pixe
 from framework.defects.pursuit import Search, find_defects
 from framework.defects.report import defect_lines, save_defect_figure, save_defect_table
 
-__all__ = ["DefectSettings", "DefectReport", "report_defects"]
+__all__ = ["DefectSettings", "DefectReport", "evidence_needed", "report_defects"]
 
 ENABLED = ("auto", "on", "off")
 
@@ -42,6 +43,7 @@ class DefectSettings:
     cluster_mm: float = 1.5
     max_candidates: int = 6
     min_evidence: float = 50.0
+    model_error_share: float = 0.1
     probes: int = 8
     photons: int = 131072
     evaluations: int = 40
@@ -56,7 +58,7 @@ class DefectSettings:
         settings = cls(**values)
         if settings.enabled not in ENABLED:
             raise ValueError(f"defects.enabled={settings.enabled!r}; use {' | '.join(ENABLED)}")
-        for key in ("min_deviation", "z_min", "grow", "cluster_mm", "min_evidence"):
+        for key in ("min_deviation", "z_min", "grow", "cluster_mm", "min_evidence", "model_error_share"):
             positive_number(getattr(settings, key), f"defects.{key}")
         if settings.grow > settings.z_min:
             raise ValueError(f"defects.grow={settings.grow} exceeds defects.z_min={settings.z_min}; the extent's "
@@ -68,33 +70,52 @@ class DefectSettings:
 
 @dataclass(frozen=True)
 class DefectReport:
-    """The defects (most evident first), the deviation and its uncertainty (m, m), mm, and the
-    candidates tested."""
+    """The defects (most evident first), the deviation and its uncertainty (m, m), mm, the
+    candidates fitted and the evidence a defect needed (pixel noise variances)."""
 
     defects: list[Defect]
     deviation_mm: np.ndarray
     sigma_mm: np.ndarray
     candidates: int
+    evidence_needed: float
 
     def metrics(self) -> dict[str, Any]:
         counts = {f"defects_{kind}": sum(d.kind == kind for d in self.defects)
                   for kind in sorted({d.kind for d in self.defects})}
         return {"defects_count": len(self.defects), **counts, "defects_candidates": self.candidates,
+                "defects_evidence_needed": self.evidence_needed,
                 "defects_sigma_median_mm": float(np.median(self.sigma_mm))}
 
 
 class _Misfit:
-    """||F(d) - b||_W^2 through a renderer of ``photons`` (common random numbers: one seed)."""
+    """||F(d) - b||_W^2 and the weighted residual sqrt(w) (F(d) - b) through a renderer of
+    ``photons`` (common random numbers: one seed)."""
 
     def __init__(self, problem: Problem, photons: int, seed: int) -> None:
         operator = problem.operator
         self.render = operator.variant(photons, seed, operator.output_shape[-1]).render
         self.target = problem.data.target.double()
-        self.weights = None if problem.data.weights is None else problem.data.weights.double()
+        self.root_weights = None if problem.data.weights is None else problem.data.weights.double().sqrt()
+
+    def residual(self, d: torch.Tensor) -> torch.Tensor:
+        r = self.render(d).double() - self.target
+        return r if self.root_weights is None else self.root_weights * r
 
     def __call__(self, d: torch.Tensor) -> float:
-        r = self.render(d).double() - self.target
-        return float(((r ** 2) if self.weights is None else self.weights * r ** 2).sum())
+        return float((self.residual(d) ** 2).sum())
+
+
+def _pixels_used(target: torch.Tensor, weights: torch.Tensor | None) -> int:
+    return target.numel() if weights is None else int((weights > 0).sum())
+
+
+def evidence_needed(misfit_d: float, noise: float, pixels: int, settings: DefectSettings) -> float:
+    """The misfit (pixel noise variances) a defect must remove: ``min_evidence``, or
+    ``model_error_share`` of what the reconstruction leaves beyond the pixel noise (misfit_d / s^2 -
+    pixels: the model's own error and its photon noise, which a defect model fitted anywhere absorbs
+    a part of) if that is more. Both sides scale as 1 / s^2, so the smallest defect reported does not
+    depend on the noise level where the model's error dominates."""
+    return max(settings.min_evidence, settings.model_error_share * (misfit_d / noise ** 2 - pixels))
 
 
 def report_defects(problem: Problem, d: torch.Tensor, settings: DefectSettings, seed: int, mm_per_unit: float,
@@ -117,16 +138,16 @@ def report_defects(problem: Problem, d: torch.Tensor, settings: DefectSettings, 
     mask = data.mask.cpu().numpy()
     floor = settings.min_deviation * peak
     z_map = np.maximum(sigma.double().cpu().numpy(), floor / settings.z_min)
-    search = Search(settings.z_min, settings.grow, settings.cluster_mm, settings.min_evidence,
-                    settings.max_candidates, settings.evaluations, cell_mm, grid.cell_area, mm_per_unit)
     misfit = _Misfit(problem, settings.photons, seed + 5000)
+    needed = evidence_needed(misfit(d), noise, _pixels_used(data.target, data.weights), settings)
+    search = Search(settings.z_min, settings.grow, settings.cluster_mm, needed, settings.max_candidates,
+                    settings.evaluations, cell_mm, grid.cell_area, mm_per_unit)
     defects, tried = find_defects(d, design, mask, z_map, misfit, noise, search)
-    report = DefectReport(defects, deviation * mm_per_unit, sigma.double().cpu().numpy() * mm_per_unit,
-                          tried)
+    report = DefectReport(defects, deviation * mm_per_unit, sigma.double().cpu().numpy() * mm_per_unit, tried, needed)
     save_defect_table(output_dir, defects, settings, report.metrics())
     np.save(output_dir / "defect_sigma_mm.npy", report.sigma_mm.astype(np.float32))
     save_defect_figure(output_dir / "defects.png", report.deviation_mm, design.double().cpu().numpy() * mm_per_unit,
-                       defects, grid.half_width * mm_per_unit, settings.min_evidence)
-    for line in defect_lines(defects, settings.min_evidence):
+                       defects, grid.half_width * mm_per_unit, needed)
+    for line in defect_lines(defects, needed):
         print(f"verdict: {line}", flush=True)
     return report

@@ -385,7 +385,7 @@ def _reconstruct(parts: Reconstruction, output_dir: Path, base_dir: Path, checkp
         elif reports_defects:
             report = report_defects(problem, d, parts.defects, settings.seed, settings.mm_per_unit, output_dir)
             metrics.update(report.metrics())
-            metrics["verdict"] += " " + " ".join(defect_lines(report.defects, parts.defects.min_evidence))
+            metrics["verdict"] += " " + " ".join(defect_lines(report.defects, report.evidence_needed))
         (output_dir / "metrics.json").write_text(json.dumps(metrics, indent=2))
         save_reconstruction_figures(output_dir, d, problem, prediction, chosen.history)
         tracker.log_metrics({k: float(v) for k, v in metrics.items() if isinstance(v, (int, float)) and v is not None},
