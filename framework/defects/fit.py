@@ -31,7 +31,7 @@ KINDS = ("interruption", "too_low", "too_high", "excess", "too_wide", "too_narro
 INTERRUPTED = 0.5  # a modulation that removes at least this fraction of the design is an interruption
 FEATURE_MM = 6.0  # half-width across a feature of the changed band (mm)
 SCAN_POSITIONS = 15  # a feature model's start is sought at up to this many places along the feature ...
-SCAN_LENGTHS_MM = (1.0, 2.5, 6.0, 12.0)  # ... with each of these lengths
+SCAN_LENGTHS_MM = (1.0, 3.0, 8.0)  # ... with each of these lengths
 PROBES = {"modulation": 0.3, "width": 0.3}  # the amount whose image change is scaled; a shift's: 0.5 mm
 
 
@@ -113,10 +113,11 @@ def _drop_starts(design: np.ndarray, candidate: Candidate, cell_area: float) -> 
 def _feature_start(misfit: Misfit, base: torch.Tensor, frame: Frame, model: str, along: tuple[float, float],
                    cell_mm: float, cell_area: float) -> np.ndarray:
     """A feature model's start (t0, L, amount): over a grid of places t0 along the candidate's extent
-    ``along`` (samples) and lengths L, the image change g of a probe amount, scaled by least squares
-    against the residual r (amount = probe k, k = -<g, r> / <g, g>, within the model's limits); the
-    (t0, L, amount) whose linearised misfit ||r + k g||^2 is least. One render per grid point, the
-    sign and size of the amount come out of the photo rather than from a guess."""
+    ``along`` (samples), lengths L and a probe amount p of either sign, the image change g of p scaled
+    by least squares against the residual r (amount = k p, k = -<g, r> / <g, g> >= 0, within the
+    model's limits); the (t0, L, amount) whose linearised misfit ||r + k g||^2 is least. The caustic
+    is far from linear in the amount (raising a line moves its focus otherwise than lowering it), so
+    each sign gets its own probe; the sign and size of the amount come out of the photo."""
     r0 = misfit.residual(base)
     probe = PROBES.get(model, 0.5 / cell_mm)
     low, high = min(along[0], -3.0), max(along[1], 3.0)
@@ -126,14 +127,16 @@ def _feature_start(misfit: Misfit, base: torch.Tensor, frame: Frame, model: str,
     for t0 in places:
         for length_mm in SCAN_LENGTHS_MM:
             length = length_mm / cell_mm
-            g = misfit.residual(apply_model(base, frame, model, (float(t0), length, probe), cell_area)) - r0
-            gg = float((g * g).sum())
-            if gg <= 0.0:
-                continue
-            amount = float(np.clip(-float((g * r0).sum()) / gg * probe, amount_low, amount_high))
-            value = float(((r0 + (amount / probe) * g) ** 2).sum())
-            if value < best_value:
-                best, best_value = np.array([float(t0), length, amount]), value
+            for signed in (probe, -probe):
+                g = misfit.residual(apply_model(base, frame, model, (float(t0), length, signed), cell_area)) - r0
+                gg = float((g * g).sum())
+                if gg <= 0.0:
+                    continue
+                k = max(-float((g * r0).sum()) / gg, 0.0)
+                amount = float(np.clip(k * signed, amount_low, amount_high))
+                value = float(((r0 + (amount / signed) * g) ** 2).sum())
+                if value < best_value:
+                    best, best_value = np.array([float(t0), length, amount]), value
     return best
 
 
