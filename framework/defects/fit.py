@@ -147,9 +147,20 @@ LIMITS = {"modulation": ((-40, 40), (0.5, 80), (-1.5, 1.0)), "shift": ((-40, 40)
           "blob": ((-1e9, 1e9), (-1e9, 1e9), (-60.0, 0.0), (math.log(0.5), math.log(8.0)))}
 
 
-def _model_params(model: str, p: tuple[float, ...]) -> tuple[float, ...]:
-    """The model's parameters from the optimiser's (a drop's volume and radius from their logarithms)."""
-    return (p[0], p[1], math.exp(p[2]), math.exp(p[3])) if model == "blob" else p
+def _model_params(model: str, p: np.ndarray) -> tuple[float, ...]:
+    """The model's parameters from the optimiser's, within the model's limits (a drop's volume and
+    radius from their logarithms)."""
+    q = tuple(float(np.clip(v, lo, hi)) for v, (lo, hi) in zip(p, LIMITS[model]))
+    return (q[0], q[1], math.exp(q[2]), math.exp(q[3])) if model == "blob" else q
+
+
+def _nelder_mead(objective: Callable[[np.ndarray], float], x0: np.ndarray, steps: np.ndarray, evaluations: int,
+                 base_misfit: float) -> optimize.OptimizeResult:
+    """Nelder-Mead from ``x0`` on the simplex of ``steps``, at most ``evaluations`` misfits."""
+    simplex = np.vstack([x0] + [x0 + np.eye(len(x0))[i] * steps[i] for i in range(len(x0))])
+    return optimize.minimize(objective, x0, method="Nelder-Mead",
+                             options={"initial_simplex": simplex, "maxfev": evaluations, "xatol": 1e-3,
+                                      "fatol": 1e-6 * base_misfit})
 
 
 @dataclass(frozen=True)
@@ -197,11 +208,9 @@ def fit_candidate(design: torch.Tensor, base: torch.Tensor, candidate: Candidate
     for model in MODELS:
         if flat and model != "blob":
             continue
-        limits = LIMITS[model]
 
-        def objective(p: np.ndarray, model: str = model, limits: tuple = limits) -> float:
-            clipped = tuple(float(np.clip(v, lo, hi)) for v, (lo, hi) in zip(p, limits))
-            heights = apply_model(base, frame, model, _model_params(model, clipped), cell_area)
+        def objective(p: np.ndarray, model: str = model) -> float:
+            heights = apply_model(base, frame, model, _model_params(model, p), cell_area)
             if float(heights.max()) > ceiling:  # no print this high: the optimiser's step went astray
                 return math.inf
             return misfit(heights)
@@ -210,23 +219,16 @@ def fit_candidate(design: torch.Tensor, base: torch.Tensor, candidate: Candidate
             x0 = min(_drop_starts(design_np, candidate, cell_area), key=objective)
         else:
             x0 = _feature_start(misfit, base, frame, model, along, cell_mm, cell_area)
-        simplex = np.vstack([x0] + [x0 + np.eye(len(x0))[i] * STEPS[model][i] for i in range(len(x0))])
-        result = optimize.minimize(objective, x0, method="Nelder-Mead",
-                                   options={"initial_simplex": simplex, "maxfev": evaluations, "xatol": 1e-3,
-                                            "fatol": 1e-6 * base_misfit})
+        result = _nelder_mead(objective, x0, np.array(STEPS[model]), evaluations, base_misfit)
         if best is None or result.fun < best[0]:
             best = (float(result.fun), model, result.x, objective)
     assert best is not None
     value, model, x, objective = best
     # the winner gets as many evaluations again, from where it stopped, on a smaller simplex
-    simplex = np.vstack([x] + [x + np.eye(len(x))[i] * 0.3 * STEPS[model][i] for i in range(len(x))])
-    polished = optimize.minimize(objective, x, method="Nelder-Mead",
-                                 options={"initial_simplex": simplex, "maxfev": evaluations, "xatol": 1e-3,
-                                          "fatol": 1e-6 * base_misfit})
+    polished = _nelder_mead(objective, x, 0.3 * np.array(STEPS[model]), evaluations, base_misfit)
     if polished.fun < value:
         value, x = float(polished.fun), polished.x
-    limits = LIMITS[model]
-    params = np.array(_model_params(model, tuple(float(np.clip(v, lo, hi)) for v, (lo, hi) in zip(x, limits))))
+    params = np.array(_model_params(model, x))
     evidence = (base_misfit - value) / noise ** 2
     heights = apply_model(base, frame, model, tuple(float(p) for p in params), cell_area)
     change = (heights - base).double().cpu().numpy()

@@ -19,7 +19,7 @@ import torch.nn.functional as F
 
 from framework.core.contracts.operator import Operator
 
-__all__ = ["column_norms", "pixel_noise", "height_uncertainty"]
+__all__ = ["column_norms", "pixel_noise", "pixels_used", "height_uncertainty"]
 
 
 def column_norms(operator: Operator, d: torch.Tensor, weights: torch.Tensor | None, probes: int, seed: int,
@@ -54,6 +54,11 @@ def column_norms(operator: Operator, d: torch.Tensor, weights: torch.Tensor | No
     return squares.sqrt()
 
 
+def pixels_used(target: torch.Tensor, weights: torch.Tensor | None) -> int:
+    """The number of pixels the fit uses (weight > 0; all of ``target``'s without weights)."""
+    return target.numel() if weights is None else int((weights > 0).sum())
+
+
 def pixel_noise(target: torch.Tensor, delta: float, weights: torch.Tensor | None) -> float:
     """The standard deviation s of white pixel noise whose norm is ``delta`` ||b||_W over the pixels
     the fit uses (weight > 0): s = delta ||b||_W / sqrt(count)."""
@@ -62,8 +67,7 @@ def pixel_noise(target: torch.Tensor, delta: float, weights: torch.Tensor | None
     squares = target.double() ** 2
     if weights is None:
         return delta * math.sqrt(float(squares.sum()) / squares.numel())
-    used = weights > 0
-    count = int(used.sum())
+    count = pixels_used(target, weights)
     if count == 0:
         raise ValueError("every pixel has weight 0; the photo leaves nothing to fit")
     return delta * math.sqrt(float((squares * weights.double()).sum()) / count)

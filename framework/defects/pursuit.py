@@ -93,19 +93,18 @@ def _rebuilt(design: torch.Tensor, fits: list[Fit], cell_area: float) -> torch.T
     return heights
 
 
-def find_defects(d: torch.Tensor, design: torch.Tensor, mask: np.ndarray, z_map: np.ndarray,
+def find_defects(d: torch.Tensor, at_d: float, design: torch.Tensor, mask: np.ndarray, z_map: np.ndarray,
                  misfit: Misfit, noise: float, search: Search) -> tuple[list[Defect], int]:
     """The defects that the photo needs, most evident first, and the number of fits tried.
 
     Args:
-        d: The reconstruction (m, m), scene units. design: c (m, m), scene units.
+        d: The reconstruction (m, m), scene units. at_d: its misfit. design: c (m, m), scene units.
         mask: bool (m, m), the samples the fit could change. z_map: each sample's uncertainty (m, m),
             scene units, > 0 (the deviation's significance is |e| / z_map).
         misfit: ||F(h) - b||_W^2 of heights h (m, m). noise: pixel noise standard deviation s.
     """
     reach = REACH_MM / search.cell_mm
     explained, at_explained = design, misfit(design)
-    at_d = misfit(d)
     closed = np.zeros_like(mask, dtype=bool)
     fits: list[Fit] = []
     tried = 0

@@ -23,7 +23,7 @@ from framework.core.plugin_config import as_mapping
 from framework.core.problem import Problem
 from framework.core.values import positive_int, positive_number
 from framework.defects.fit import Defect
-from framework.defects.information import column_norms, height_uncertainty, pixel_noise
+from framework.defects.information import column_norms, height_uncertainty, pixel_noise, pixels_used
 from framework.defects.pursuit import Search, find_defects
 from framework.defects.report import defect_lines, save_defect_figure, save_defect_table
 
@@ -105,10 +105,6 @@ class _Misfit:
         return float((self.residual(d) ** 2).sum())
 
 
-def _pixels_used(target: torch.Tensor, weights: torch.Tensor | None) -> int:
-    return target.numel() if weights is None else int((weights > 0).sum())
-
-
 def evidence_needed(misfit_d: float, noise: float, pixels: int, settings: DefectSettings) -> float:
     """The misfit (pixel noise variances) a defect must remove: ``min_evidence``, or
     ``model_error_share`` of what the reconstruction leaves beyond the pixel noise (misfit_d / s^2 -
@@ -139,10 +135,11 @@ def report_defects(problem: Problem, d: torch.Tensor, settings: DefectSettings, 
     floor = settings.min_deviation * peak
     z_map = np.maximum(sigma.double().cpu().numpy(), floor / settings.z_min)
     misfit = _Misfit(problem, settings.photons, seed + 5000)
-    needed = evidence_needed(misfit(d), noise, _pixels_used(data.target, data.weights), settings)
+    at_d = misfit(d)
+    needed = evidence_needed(at_d, noise, pixels_used(data.target, data.weights), settings)
     search = Search(settings.z_min, settings.grow, settings.cluster_mm, needed, settings.max_candidates,
                     settings.evaluations, cell_mm, grid.cell_area, mm_per_unit)
-    defects, tried = find_defects(d, design, mask, z_map, misfit, noise, search)
+    defects, tried = find_defects(d, at_d, design, mask, z_map, misfit, noise, search)
     report = DefectReport(defects, deviation * mm_per_unit, sigma.double().cpu().numpy() * mm_per_unit, tried, needed)
     save_defect_table(output_dir, defects, settings, report.metrics())
     np.save(output_dir / "defect_sigma_mm.npy", report.sigma_mm.astype(np.float32))

@@ -41,8 +41,9 @@ def _search() -> Search:
 
 def _found(design: np.ndarray, printed: np.ndarray, d: np.ndarray) -> list:
     z_map = np.full(design.shape, 0.02 * float(design.max()) / 3.0)
-    defects, _ = find_defects(torch.from_numpy(d), torch.from_numpy(design), np.ones(design.shape, dtype=bool),
-                              z_map, HeightsPhoto(torch.from_numpy(printed)), NOISE, _search())
+    photo = HeightsPhoto(torch.from_numpy(printed))
+    defects, _ = find_defects(torch.from_numpy(d), photo(torch.from_numpy(d)), torch.from_numpy(design),
+                              np.ones(design.shape, dtype=bool), z_map, photo, NOISE, _search())
     return defects
 
 
