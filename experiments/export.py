@@ -165,7 +165,10 @@ def copy_defect_report(run_dir: Path, out: Path) -> None:
             print(f"wrote {out / name}")
     saved = json.loads(report.read_text())
     defects = [Defect(**{**item, "params": tuple(item["params"])}) for item in saved["defects"]]
-    for line in defect_lines(defects, float(saved.get("defects_evidence_needed", saved["settings"]["min_evidence"]))):
+    settings = saved["settings"]
+    for line in defect_lines(defects, float(saved.get("defects_evidence_needed", settings["min_evidence"])),
+                             int(saved.get("defects_within_tolerance", 0)), float(settings.get("tolerance", 0.0)),
+                             float(settings.get("tolerance_mm", 0.0))):
         print(f"verdict: {line}")
 
 

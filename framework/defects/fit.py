@@ -14,7 +14,7 @@ a k-parameter model is about a chi-square with k degrees of freedom (a few units
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
 from typing import Protocol
 
@@ -22,14 +22,16 @@ import numpy as np
 import torch
 from scipy import optimize, stats
 
-from framework.defects.models import MODELS, Frame, apply_model
+from framework.defects.models import MODELS, Frame, apply_model, drop_volume
 from framework.defects.regions import Candidate
 
-__all__ = ["Defect", "Fit", "KINDS", "Misfit", "chance_of", "fit_candidate", "frame_of"]
+__all__ = ["Defect", "Fit", "KINDS", "Misfit", "candidate_frames", "chance_of", "fit_candidate", "frame_of",
+           "refit"]
 
 KINDS = ("interruption", "too_low", "too_high", "excess", "too_wide", "too_narrow", "displaced")
-INTERRUPTED = 0.5  # a modulation that removes at least this fraction of the design is an interruption
+INTERRUPTED = 0.5  # a feature lowered or narrowed by at least this fraction of its glass is interrupted
 FEATURE_MM = 6.0  # half-width across a feature of the changed band (mm)
+OBLIQUE_DEG = 20.0  # a deviation's long axis this far from the design's direction gives frames of its own
 SCAN_POSITIONS = 15  # a feature model's start is sought at up to this many places along the feature ...
 SCAN_LENGTHS_MM = (1.0, 3.0, 8.0)  # ... with each of these lengths
 PROBES = {"modulation": 0.3, "width": 0.3}  # the amount whose image change is scaled; a shift's: 0.5 mm
@@ -52,7 +54,7 @@ class Defect:
         kind: One of :data:`KINDS`. x_mm, y_mm: its centre on the substrate.
         length_mm: Its extent along the design's feature (a drop: its diameter, 2.355 r).
         size: The kind's own measure: interruption / too_low / too_high: the fraction of the design's
-            height missing (negative: added); too_wide / too_narrow: the relative change of the
+            glass missing (negative: added; an interruption: lowered or narrowed); too_wide / too_narrow: the relative change of the
             feature's width; displaced: the shift in mm; excess: the volume in mm^3.
         peak_mm: The largest height change (signed). volume_mm3: The glass added (negative: missing).
         evidence: The misfit removed, in pixel noise variances. confidence: see the module.
@@ -77,18 +79,21 @@ class Defect:
         return out
 
 
-def frame_of(design: np.ndarray, candidate: Candidate, cell_mm: float) -> Frame:
-    """The candidate's frame: its centre, the design's feature direction there (the structure
-    tensor's eigenvector of least change; along the columns where the design is flat), the ridge
-    (the design's maximum across, within the band) and the band's half-width."""
+def frame_of(design: np.ndarray, candidate: Candidate, cell_mm: float,
+             along: tuple[float, float] | None = None) -> Frame:
+    """The candidate's frame: its centre, the feature's direction ``along`` (by default the design's
+    there: the structure tensor's eigenvector of least change; along the columns where the design is
+    flat), the ridge (the design's maximum across, within the band) and the band's half-width."""
     row, col = candidate.centre
     reach = FEATURE_MM / cell_mm
-    gr, gc = np.gradient(design)
-    r0, c0 = max(int(row - reach), 0), max(int(col - reach), 0)
-    r1, c1 = int(row + reach) + 1, int(col + reach) + 1
-    a, b = gr[r0:r1, c0:c1], gc[r0:r1, c0:c1]
-    tensor = np.array([[np.sum(a * a), np.sum(a * b)], [np.sum(a * b), np.sum(b * b)]])
-    along = np.array([0.0, 1.0]) if np.trace(tensor) <= 1e-30 else np.linalg.eigh(tensor)[1][:, 0]
+    if along is None:
+        gr, gc = np.gradient(design)
+        r0, c0 = max(int(row - reach), 0), max(int(col - reach), 0)
+        r1, c1 = int(row + reach) + 1, int(col + reach) + 1
+        a, b = gr[r0:r1, c0:c1], gc[r0:r1, c0:c1]
+        tensor = np.array([[np.sum(a * a), np.sum(a * b)], [np.sum(a * b), np.sum(b * b)]])
+        along = (0.0, 1.0) if np.trace(tensor) <= 1e-30 else tuple(np.linalg.eigh(tensor)[1][:, 0])
+    along = np.asarray(along, dtype=float)
     across = np.array([-along[1], along[0]])
     offsets = np.arange(-reach, reach + 0.25, 0.5)
     m = design.shape[0]
@@ -96,6 +101,29 @@ def frame_of(design: np.ndarray, candidate: Candidate, cell_mm: float) -> Frame:
     cc = np.clip(np.round(col + offsets * across[1]).astype(int), 0, m - 1)
     ridge = float(offsets[int(np.argmax(design[rr, cc]))])
     return Frame(row, col, (float(along[0]), float(along[1])), (float(across[0]), float(across[1])), ridge, reach)
+
+
+def candidate_frames(design: np.ndarray, candidate: Candidate, cell_mm: float) -> list[Frame]:
+    """The frames a feature model is tried in: the design's (:func:`frame_of`), and where the
+    candidate's deviation is elongated (its |e|-weighted spread at least twice as long as wide) with
+    its long axis oblique to the design's direction (by more than ``OBLIQUE_DEG``), also frames
+    along and across that axis: a defect runs along or across its feature, and where the design has
+    no one direction (a round bump) the deviation shows which."""
+    frames = [frame_of(design, candidate, cell_mm)]
+    w = np.abs(candidate.e)
+    if candidate.rows.size < 3 or float(w.sum()) <= 0.0:
+        return frames
+    points = np.stack([candidate.rows, candidate.cols], axis=1).astype(float)
+    centred = points - (w[:, None] * points).sum(axis=0) / w.sum()
+    values, vectors = np.linalg.eigh((w[:, None, None] * centred[:, :, None] * centred[:, None, :]).sum(axis=0))
+    if values[1] <= 0.0 or values[0] > 0.25 * values[1]:  # the spread's lengths go as the square roots
+        return frames
+    axis = vectors[:, 1]
+    angle = math.degrees(math.acos(min(abs(float(axis @ np.array(frames[0].along))), 1.0)))
+    if OBLIQUE_DEG < angle < 90.0 - OBLIQUE_DEG:
+        frames += [frame_of(design, candidate, cell_mm, (float(axis[0]), float(axis[1]))),
+                   frame_of(design, candidate, cell_mm, (float(-axis[1]), float(axis[0])))]
+    return frames
 
 
 def _drop_starts(design: np.ndarray, candidate: Candidate, cell_area: float) -> list[np.ndarray]:
@@ -110,17 +138,19 @@ def _drop_starts(design: np.ndarray, candidate: Candidate, cell_area: float) -> 
             for r in (0.8, 1.2, 1.8)]
 
 
-def _feature_start(misfit: Misfit, base: torch.Tensor, frame: Frame, model: str, along: tuple[float, float],
-                   cell_mm: float, cell_area: float) -> np.ndarray:
-    """A feature model's start (t0, L, amount): over a grid of places t0 along the candidate's extent
-    ``along`` (samples), lengths L and a probe amount p of either sign, the image change g of p scaled
-    by least squares against the residual r (amount = k p, k = -<g, r> / <g, g> >= 0, within the
-    model's limits); the (t0, L, amount) whose linearised misfit ||r + k g||^2 is least. The caustic
+def _feature_start(misfit: Misfit, base: torch.Tensor, frame: Frame, model: str, candidate: Candidate,
+                   cell_mm: float, cell_area: float) -> tuple[np.ndarray, float]:
+    """A feature model's start (t0, L, amount) and its linearised misfit: over a grid of places t0
+    along the candidate's extent along the feature (samples), lengths L and a probe amount p of either
+    sign, the image change g of p scaled by least squares against the residual r (amount = k p,
+    k = -<g, r> / <g, g> >= 0, within the model's limits); the (t0, L, amount) whose linearised misfit
+    ||r + k g||^2 is least. The caustic
     is far from linear in the amount (raising a line moves its focus otherwise than lowering it), so
     each sign gets its own probe; the sign and size of the amount come out of the photo."""
     r0 = misfit.residual(base)
     probe = PROBES.get(model, 0.5 / cell_mm)
-    low, high = min(along[0], -3.0), max(along[1], 3.0)
+    t = (candidate.rows - frame.row) * frame.along[0] + (candidate.cols - frame.col) * frame.along[1]
+    low, high = min(float(t.min()), -3.0), max(float(t.max()), 3.0)
     places = np.linspace(low, high, int(min(np.floor(high - low) + 1, SCAN_POSITIONS)))
     (_, _), (_, _), (amount_low, amount_high) = LIMITS[model]
     best, best_value = np.array([0.0, SCAN_LENGTHS_MM[0] / cell_mm, probe]), math.inf
@@ -137,7 +167,7 @@ def _feature_start(misfit: Misfit, base: torch.Tensor, frame: Frame, model: str,
                 value = float(((r0 + (amount / signed) * g) ** 2).sum())
                 if value < best_value:
                     best, best_value = np.array([float(t0), length, amount]), value
-    return best
+    return best, best_value
 
 
 # Simplex steps and limits of each model's parameters; a drop's volume and radius as logarithms.
@@ -198,43 +228,70 @@ def fit_candidate(design: torch.Tensor, base: torch.Tensor, candidate: Candidate
         cell_mm, mm_per_unit: sample spacing and unit. evaluations: misfit evaluations per model at most.
     """
     design_np = design.double().cpu().numpy()
-    frame = frame_of(design_np, candidate, cell_mm)
+    frames = candidate_frames(design_np, candidate, cell_mm)
     flat = float(design_np.max()) <= 0.0 or float(design_np[candidate.rows, candidate.cols].max()) < \
         0.05 * float(design_np.max())
-    ceiling = 3.0 * max(float(design_np.max()), 1e-12)
-    t = (candidate.rows - frame.row) * frame.along[0] + (candidate.cols - frame.col) * frame.along[1]
-    along = (float(t.min()), float(t.max()))
-    best: tuple[float, str, np.ndarray, Callable[[np.ndarray], float]] | None = None
+    ceiling = _ceiling(design_np)
+    best: tuple[float, str, np.ndarray, Frame] | None = None
     for model in MODELS:
         if flat and model != "blob":
             continue
-
-        def objective(p: np.ndarray, model: str = model) -> float:
-            heights = apply_model(base, frame, model, _model_params(model, p), cell_area)
-            if float(heights.max()) > ceiling:  # no print this high: the optimiser's step went astray
-                return math.inf
-            return misfit(heights)
-
         if model == "blob":
+            frame = frames[0]
+            objective = _objective(base, frame, model, misfit, ceiling, cell_area)
             x0 = min(_drop_starts(design_np, candidate, cell_area), key=objective)
-        else:
-            x0 = _feature_start(misfit, base, frame, model, along, cell_mm, cell_area)
+        else:  # in the frame whose scan fits best
+            starts = [(_feature_start(misfit, base, f, model, candidate, cell_mm, cell_area), f) for f in frames]
+            (x0, _), frame = min(starts, key=lambda item: item[0][1])
+            objective = _objective(base, frame, model, misfit, ceiling, cell_area)
         result = _nelder_mead(objective, x0, np.array(STEPS[model]), evaluations, base_misfit)
         if best is None or result.fun < best[0]:
-            best = (float(result.fun), model, result.x, objective)
+            best = (float(result.fun), model, result.x, frame)
     assert best is not None
-    value, model, x, objective = best
+    _, model, x, frame = best
     # the winner gets as many evaluations again, from where it stopped, on a smaller simplex
-    polished = _nelder_mead(objective, x, 0.3 * np.array(STEPS[model]), evaluations, base_misfit)
-    if polished.fun < value:
-        value, x = float(polished.fun), polished.x
-    params = np.array(_model_params(model, x))
-    evidence = (base_misfit - value) / noise ** 2
+    return refit(design, base, frame, model, _model_params(model, x), misfit, base_misfit, noise, cell_area, cell_mm,
+                 mm_per_unit, evaluations, 0.3)
+
+
+def _ceiling(design: np.ndarray) -> float:
+    """No print is higher than three times its design's peak: a fit's step beyond went astray."""
+    return 3.0 * max(float(design.max()), 1e-12)
+
+
+def _objective(base: torch.Tensor, frame: Frame, model: str, misfit: Misfit, ceiling: float,
+               cell_area: float) -> Callable[[np.ndarray], float]:
+    """The misfit of ``base`` with the defect ``model`` of the optimiser's parameters at ``frame``."""
+
+    def objective(p: np.ndarray) -> float:
+        heights = apply_model(base, frame, model, _model_params(model, p), cell_area)
+        if float(heights.max()) > ceiling:
+            return math.inf
+        return misfit(heights)
+
+    return objective
+
+
+def refit(design: torch.Tensor, base: torch.Tensor, frame: Frame, model: str, start: Sequence[float],
+          misfit: Misfit, base_misfit: float, noise: float, cell_area: float, cell_mm: float, mm_per_unit: float,
+          evaluations: int, step_scale: float = 1.0) -> Fit:
+    """The defect ``model`` at ``frame`` on top of ``base``, by Nelder-Mead from the model's parameters
+    ``start`` on a simplex of ``step_scale`` times the model's steps; arguments as :func:`fit_candidate`."""
+    design_np = design.double().cpu().numpy()
+    objective = _objective(base, frame, model, misfit, _ceiling(design_np), cell_area)
+    x0 = np.array(start, dtype=float)
+    if model == "blob":  # the optimiser sees a drop's volume and radius as logarithms
+        x0[2], x0[3] = math.log(x0[2]), math.log(x0[3])
+    result = _nelder_mead(objective, x0, step_scale * np.array(STEPS[model]), evaluations, base_misfit)
+    params = np.array(_model_params(model, result.x))
+    if model == "blob":  # the volume the drop holds at its radius
+        params[2] = drop_volume(float(params[2]), float(params[3]), cell_area)
+    evidence = (base_misfit - float(result.fun)) / noise ** 2
     heights = apply_model(base, frame, model, tuple(float(p) for p in params), cell_area)
     change = (heights - base).double().cpu().numpy()
     defect = _described(model, params, frame, change, design_np, evidence,
                         1.0 - chance_of(evidence, len(params), 1), cell_mm, mm_per_unit)
-    return Fit(defect, frame, heights, value)
+    return Fit(defect, frame, heights, float(result.fun))
 
 
 def _changed_span(change: np.ndarray, frame: Frame, t0: float, length: float, cell_mm: float
@@ -268,6 +325,8 @@ def _described(model: str, params: np.ndarray, frame: Frame, change: np.ndarray,
             size = float(amount)
         elif model == "shift":
             kind, size = "displaced", abs(float(amount)) * cell_mm
+        elif amount <= -INTERRUPTED:  # narrowed to less than half its width: most of its glass is missing
+            kind, size = "interruption", -float(amount)
         else:
             kind, size = ("too_wide" if amount > 0 else "too_narrow"), float(amount)
     top = np.unravel_index(int(np.argmax(np.abs(change))), change.shape)

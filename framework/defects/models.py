@@ -10,7 +10,10 @@ in samples. A window W(t) along the feature (a box from t0 - L/2 to t0 + L/2 wit
   an interruption; 0 < a < 1: too low; a < 0: too high);
 - ``shift`` (t0, L, s): the feature moved by s samples across itself inside the window;
 - ``width`` (t0, L, w): the feature's cross-section stretched by 1 + w about its ridge;
-- ``blob`` (x, y, V, r): a Gaussian drop of volume V (scene units^3) and radius r (samples) added.
+- ``blob`` (x, y, V, r): a Gaussian drop of volume V (scene units^3) and radius r (samples) added,
+  at most ``DROP_ASPECT`` r high (:func:`drop_volume`): a drop of molten glass wets the glass below
+  it and stays lower than a hemisphere (a hemisphere of base radius R holds the volume of a Gaussian
+  of radius r = R / 2 that peaks at 2.7 r); a taller, narrower spike is no drop a print makes.
 """
 
 from __future__ import annotations
@@ -20,10 +23,11 @@ from dataclasses import dataclass
 import torch
 import torch.nn.functional as F
 
-__all__ = ["Frame", "MODELS", "apply_model"]
+__all__ = ["Frame", "MODELS", "apply_model", "drop_volume"]
 
 MODELS = ("modulation", "shift", "width", "blob")
 EDGE = 1.0  # samples: the window's edge half-width
+DROP_ASPECT = 2.0  # a drop's peak height is at most this many times its Gaussian radius
 
 
 @dataclass(frozen=True)
@@ -64,6 +68,14 @@ def _sampled(design: torch.Tensor, rows: torch.Tensor, cols: torch.Tensor) -> to
                          align_corners=True)[0, 0]
 
 
+def drop_volume(volume: float, radius: float, cell_area: float) -> float:
+    """The volume (scene units^3) of a drop asked for ``volume`` with radius ``radius`` (samples,
+    at least 0.3): capped where its peak would exceed ``DROP_ASPECT`` times the radius."""
+    radius = max(radius, 0.3)
+    cap = DROP_ASPECT * radius * cell_area ** 0.5 * cell_area * 2.0 * torch.pi * radius ** 2
+    return min(volume, cap)
+
+
 def apply_model(design: torch.Tensor, frame: Frame, model: str, params: tuple[float, ...],
                 cell_area: float) -> torch.Tensor:
     """The design with the defect ``model`` of ``params`` at ``frame``, shape (m, m), scene units."""
@@ -84,7 +96,7 @@ def apply_model(design: torch.Tensor, frame: Frame, model: str, params: tuple[fl
         return _sampled(design, rows - back * frame.across[0], cols - back * frame.across[1])
     if model == "blob":
         row, col, volume, radius = params
-        radius = max(radius, 0.3)
+        volume, radius = drop_volume(volume, radius, cell_area), max(radius, 0.3)
         r2 = (rows - row) ** 2 + (cols - col) ** 2
         peak = volume / (cell_area * 2.0 * torch.pi * radius ** 2)
         return design + peak * torch.exp(-r2 / (2.0 * radius ** 2))

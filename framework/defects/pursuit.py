@@ -8,10 +8,16 @@ explained heights back at its samples in d (the photo must object: the misfit ri
 the evidence asked for); the one whose reset raises the misfit most is fitted
 (framework/defects/fit.py) on top of the explained heights. A fit with enough evidence joins them and
 closes the samples it changed (and a margin) to later rounds: what is left there is that defect's
-imperfect fit, not another defect (a fit whose centre lands there is not taken either); a fit
-without it closes the candidate's samples. A print with several defects thus gets one
+imperfect fit, not another defect. A later fit whose centre lands there anyway is refitted in that
+defect's place and takes it if it then explains the photo better (a first fit that found a shallow
+lowering where the line is interrupted); otherwise it reworked the leftovers and is not taken. A fit
+without enough evidence closes the candidate's samples. A print with several defects thus gets one
 candidate per defect even where a faint deviation joins them into one region, and each defect's fit
 sees the others already in place.
+
+Two pieces of one kind on one feature, close along it (a long height error that the search found
+as its two ends), are then tried as one defect spanning both: where the photo does not need the
+second piece (the misfit of the one rises by less than the evidence asked for), they are one.
 
 At the end every defect's evidence is what removing it alone from the final explanation costs (the
 misfit rise in noise variances); defects that fall below the evidence asked for are dropped, and the
@@ -26,7 +32,8 @@ import numpy as np
 import torch
 from scipy import ndimage
 
-from framework.defects.fit import FEATURE_MM, Defect, Fit, Misfit, chance_of, fit_candidate
+from framework.defects.fit import FEATURE_MM, Defect, Fit, Misfit, chance_of, fit_candidate, refit
+from framework.defects.models import Frame
 from framework.defects.regions import Candidate, candidate_regions
 
 __all__ = ["Search", "find_defects"]
@@ -34,6 +41,8 @@ __all__ = ["Search", "find_defects"]
 REACH_MM = FEATURE_MM + 1.0  # a candidate keeps the samples this close to its peak
 FOOTPRINT = 0.1  # a found defect's samples: changed by at least this fraction of its largest change
 MARGIN_MM = 1.0  # and those this close to them
+JOIN_GAP_MM = 3.0  # pieces of one kind on one feature at most this far apart along it ...
+JOIN_ACROSS_MM = 1.0  # ... and this far across it are tried as one defect
 
 
 @dataclass(frozen=True)
@@ -86,11 +95,78 @@ def _inside(defect: Defect, closed: np.ndarray, cell_mm: float) -> bool:
     return bool(closed[row, col])
 
 
+def _in_place_of(fits: list[Fit], owner: int, fit: Fit, design: torch.Tensor, at_explained: float,
+                 misfit: Misfit, noise: float, search: Search) -> Fit | None:
+    """A fit that landed on the samples of ``fits[owner]``, refitted in its place (on top of the
+    others), if it explains the photo better than all the fits so far; else None (it reworked the
+    leftovers of that defect)."""
+    base = _rebuilt(design, fits[:owner] + fits[owner + 1:], search.cell_area)
+    swapped = refit(design, base, fit.frame, fit.defect.model, fit.defect.params, misfit, misfit(base), noise,
+                    search.cell_area, search.cell_mm, search.mm_per_unit, search.evaluations)
+    return swapped if swapped.misfit < at_explained else None
+
+
 def _rebuilt(design: torch.Tensor, fits: list[Fit], cell_area: float) -> torch.Tensor:
     heights = design
     for fit in fits:
         heights = fit.added_to(heights, cell_area)
     return heights
+
+
+def _span(fit: Fit, frame: Frame) -> tuple[float, float, float]:
+    """(start, end) along ``frame``'s feature of a feature fit's window (samples) and its offset across
+    from that frame's ridge."""
+    own = fit.frame
+    t0, length, _ = fit.defect.params
+    row = own.row + t0 * own.along[0] + own.ridge * own.across[0] - frame.row
+    col = own.col + t0 * own.along[1] + own.ridge * own.across[1] - frame.col
+    t = row * frame.along[0] + col * frame.along[1]
+    s = row * frame.across[0] + col * frame.across[1] - frame.ridge
+    return t - length / 2.0, t + length / 2.0, s
+
+
+def _joined_start(a: Fit, b: Fit, search: Search) -> np.ndarray | None:
+    """The start (t0, L, amount) in ``a``'s frame of one defect spanning ``a`` and ``b``, if they are
+    pieces of one kind on one feature (same model and sign, parallel, close along and across)."""
+    if a.defect.model != b.defect.model or a.defect.model == "blob":
+        return None
+    if a.defect.params[2] * b.defect.params[2] <= 0.0:
+        return None
+    if abs(a.frame.along[0] * b.frame.along[0] + a.frame.along[1] * b.frame.along[1]) < 0.9:
+        return None
+    lo_a, hi_a, _ = _span(a, a.frame)
+    lo_b, hi_b, across = _span(b, a.frame)
+    gap = max(lo_b - hi_a, lo_a - hi_b)
+    if gap * search.cell_mm > JOIN_GAP_MM or abs(across) * search.cell_mm > JOIN_ACROSS_MM:
+        return None
+    lo, hi = min(lo_a, lo_b), max(hi_a, hi_b)
+    la, lb = a.defect.params[1], b.defect.params[1]
+    amount = (a.defect.params[2] * la + b.defect.params[2] * lb) / (la + lb)
+    return np.array([0.5 * (lo + hi), hi - lo, amount])
+
+
+def _joined(fits: list[Fit], design: torch.Tensor, at_explained: float, misfit: Misfit, noise: float,
+            search: Search) -> tuple[list[Fit], float]:
+    """The fits with pieces of one defect joined where the photo does not need them apart, and the
+    misfit of all of them."""
+    joined = True
+    while joined:
+        joined = False
+        for i, a in enumerate(fits):
+            for j in range(i + 1, len(fits)):
+                start = _joined_start(a, fits[j], search)
+                if start is None:
+                    continue
+                others = [fit for k, fit in enumerate(fits) if k not in (i, j)]
+                base = _rebuilt(design, others, search.cell_area)
+                one = refit(design, base, a.frame, a.defect.model, start, misfit, misfit(base), noise,
+                            search.cell_area, search.cell_mm, search.mm_per_unit, search.evaluations)
+                if (one.misfit - at_explained) / noise ** 2 < search.min_evidence:
+                    fits, at_explained, joined = others + [one], one.misfit, True
+                    break
+            if joined:
+                break
+    return fits, at_explained
 
 
 def find_defects(d: torch.Tensor, at_d: float, design: torch.Tensor, mask: np.ndarray, z_map: np.ndarray,
@@ -105,10 +181,12 @@ def find_defects(d: torch.Tensor, at_d: float, design: torch.Tensor, mask: np.nd
     """
     reach = REACH_MM / search.cell_mm
     explained, at_explained = design, misfit(design)
-    closed = np.zeros_like(mask, dtype=bool)
+    rejected = np.zeros_like(mask, dtype=bool)  # candidates whose fit the photo did not need
     fits: list[Fit] = []
+    footprints: list[np.ndarray] = []
     tried = 0
     while tried < search.max_fits:
+        closed = np.logical_or.reduce([rejected, *footprints])
         deviation = (d - explained).double().cpu().numpy()
         regions = candidate_regions(deviation, z_map, mask & ~closed, search.cell_mm, search.z_min, search.grow,
                                     search.cluster_mm)
@@ -119,12 +197,20 @@ def find_defects(d: torch.Tensor, at_d: float, design: torch.Tensor, mask: np.nd
         tried += 1
         fit = fit_candidate(design, explained, candidate, misfit, at_explained, noise, search.cell_area,
                             search.cell_mm, search.mm_per_unit, search.evaluations)
-        if fit.defect.evidence >= search.min_evidence and not _inside(fit.defect, closed, search.cell_mm):
-            fits.append(fit)
-            closed |= _footprint((fit.heights - explained).double().cpu().numpy(), search.cell_mm)
-            explained, at_explained = fit.heights, fit.misfit
-        else:
-            closed[candidate.rows, candidate.cols] = True
+        owner = next((i for i, footprint in enumerate(footprints) if _inside(fit.defect, footprint, search.cell_mm)),
+                     None)
+        if owner is not None and fit.defect.evidence >= search.min_evidence:
+            fit = _in_place_of(fits, owner, fit, design, at_explained, misfit, noise, search)
+            if fit is not None:
+                del fits[owner], footprints[owner]
+        if fit is None or fit.defect.evidence < search.min_evidence or _inside(fit.defect, rejected, search.cell_mm):
+            rejected[candidate.rows, candidate.cols] = True
+            continue
+        base = _rebuilt(design, fits, search.cell_area)
+        fits.append(fit)
+        footprints.append(_footprint((fit.heights - base).double().cpu().numpy(), search.cell_mm))
+        explained, at_explained = fit.heights, fit.misfit
+    fits, at_explained = _joined(fits, design, at_explained, misfit, noise, search)
     defects = []
     for i, fit in enumerate(fits):  # each defect's evidence: what leaving it alone out costs
         without = misfit(_rebuilt(design, fits[:i] + fits[i + 1:], search.cell_area))

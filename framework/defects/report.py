@@ -21,10 +21,10 @@ NAMES = {"interruption": "interruption", "too_low": "too low", "too_high": "too 
 
 
 def describe(defect: Defect) -> str:
-    """One defect in words, e.g. 'interruption at (12.1, -3.4) mm, 1.5 mm long, 98% of the height missing'."""
+    """One defect in words, e.g. 'interruption at (12.1, -3.4) mm, 1.5 mm long, 98% of the glass missing'."""
     where = f"{NAMES[defect.kind]} at ({defect.x_mm:.1f}, {defect.y_mm:.1f}) mm"
     if defect.kind == "interruption":
-        size = f"{defect.length_mm:.1f} mm long, {100 * defect.size:.0f}% of the height missing"
+        size = f"{defect.length_mm:.1f} mm long, {100 * defect.size:.0f}% of the glass missing"
     elif defect.kind in ("too_low", "too_high"):
         size = f"{100 * abs(defect.size):.0f}% {'low' if defect.size > 0 else 'high'} over {defect.length_mm:.1f} mm"
     elif defect.kind == "excess":
@@ -37,9 +37,15 @@ def describe(defect: Defect) -> str:
     return f"{where}, {size} (confidence {defect.confidence:.3f})"
 
 
-def defect_lines(defects: list[Defect], min_evidence: float) -> list[str]:
-    """The report in sentences: how many defects, each described, and what the rest means."""
+def defect_lines(defects: list[Defect], min_evidence: float, within: int = 0, tolerance: float = 0.0,
+                 tolerance_mm: float = 0.0) -> list[str]:
+    """The report in sentences: how many defects, each described, and what the rest means (``within``:
+    the defects the photo needs that lie within the tolerance, a fraction of height or width and a
+    shift in mm)."""
     rest = f"no other deviation from the design that the photo needs (evidence >= {min_evidence:.0f} noise variances)"
+    if within:
+        rest += (f"; {within} more within the tolerance ({100 * tolerance:.0f}% of height or width, "
+                 f"{tolerance_mm:.2f} mm of shift)")
     if not defects:
         return [f"No defect: {rest}."]
     listed = "; ".join(f"{i}. {describe(d)}" for i, d in enumerate(defects, start=1))

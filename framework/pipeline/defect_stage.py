@@ -12,6 +12,7 @@ defects.json, defects.csv, defects.png, defect_sigma_mm.npy; returns ``defects_*
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -47,6 +48,15 @@ class DefectSettings:
     probes: int = 8
     photons: int = 131072
     evaluations: int = 40
+    tolerance: float = 0.05
+    tolerance_mm: float = 0.1
+
+    def within_tolerance(self, defect: Defect) -> bool:
+        """Whether a defect is within the print's tolerance: a height or width change of less than
+        ``tolerance`` (a fraction), a shift of less than ``tolerance_mm``; interruptions and drops never are."""
+        if defect.kind in ("too_low", "too_high", "too_wide", "too_narrow"):
+            return abs(defect.size) < self.tolerance
+        return defect.kind == "displaced" and defect.size < self.tolerance_mm
 
     @classmethod
     def parse(cls, spec: Any) -> DefectSettings:
@@ -65,25 +75,32 @@ class DefectSettings:
                              "level must not be above the peak's")
         for key in ("max_candidates", "probes", "photons", "evaluations"):
             positive_int(getattr(settings, key), f"defects.{key}")
+        for key in ("tolerance", "tolerance_mm"):
+            value = getattr(settings, key)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0.0 <= value < math.inf:
+                raise ValueError(f"defects.{key}={value!r} must be a number >= 0 (0: report every defect)")
         return settings
 
 
 @dataclass(frozen=True)
 class DefectReport:
     """The defects (most evident first), the deviation and its uncertainty (m, m), mm, the
-    candidates fitted and the evidence a defect needed (pixel noise variances)."""
+    candidates fitted, the evidence a defect needed (pixel noise variances) and how many defects the
+    photo needs that lie within the tolerance (not reported); ``lines``: the report in sentences."""
 
     defects: list[Defect]
     deviation_mm: np.ndarray
     sigma_mm: np.ndarray
     candidates: int
     evidence_needed: float
+    within_tolerance: int
+    lines: list[str]
 
     def metrics(self) -> dict[str, Any]:
         counts = {f"defects_{kind}": sum(d.kind == kind for d in self.defects)
                   for kind in sorted({d.kind for d in self.defects})}
         return {"defects_count": len(self.defects), **counts, "defects_candidates": self.candidates,
-                "defects_evidence_needed": self.evidence_needed,
+                "defects_evidence_needed": self.evidence_needed, "defects_within_tolerance": self.within_tolerance,
                 "defects_sigma_median_mm": float(np.median(self.sigma_mm))}
 
 
@@ -139,12 +156,15 @@ def report_defects(problem: Problem, d: torch.Tensor, settings: DefectSettings, 
     needed = evidence_needed(at_d, noise, pixels_used(data.target, data.weights), settings)
     search = Search(settings.z_min, settings.grow, settings.cluster_mm, needed, settings.max_candidates,
                     settings.evaluations, cell_mm, grid.cell_area, mm_per_unit)
-    defects, tried = find_defects(d, at_d, design, mask, z_map, misfit, noise, search)
-    report = DefectReport(defects, deviation * mm_per_unit, sigma.double().cpu().numpy() * mm_per_unit, tried, needed)
+    found, tried = find_defects(d, at_d, design, mask, z_map, misfit, noise, search)
+    defects = [defect for defect in found if not settings.within_tolerance(defect)]
+    within = len(found) - len(defects)
+    report = DefectReport(defects, deviation * mm_per_unit, sigma.double().cpu().numpy() * mm_per_unit, tried, needed,
+                          within, defect_lines(defects, needed, within, settings.tolerance, settings.tolerance_mm))
     save_defect_table(output_dir, defects, settings, report.metrics())
     np.save(output_dir / "defect_sigma_mm.npy", report.sigma_mm.astype(np.float32))
     save_defect_figure(output_dir / "defects.png", report.deviation_mm, design.double().cpu().numpy() * mm_per_unit,
                        defects, grid.half_width * mm_per_unit, needed)
-    for line in defect_lines(defects, needed):
+    for line in report.lines:
         print(f"verdict: {line}", flush=True)
     return report

@@ -33,7 +33,6 @@ from framework.pipeline.callbacks import Checkpointer, GroundTruthError, Metrics
 from framework.pipeline.checkpoint import resume as resume_solver
 from framework.pipeline.defect_stage import DefectSettings, report_defects
 from framework.pipeline.first_fit import fit_first_shot
-from framework.defects.report import defect_lines
 from framework.pipeline.photon_budget import PhotonBudget, with_photons
 from framework.pipeline.report_figures import save_reconstruction_figures
 from framework.pipeline.run_checks import (CHECKPOINT, check_tracking_target, check_volume, check_volume_known,
@@ -385,7 +384,7 @@ def _reconstruct(parts: Reconstruction, output_dir: Path, base_dir: Path, checkp
         elif reports_defects:
             report = report_defects(problem, d, parts.defects, settings.seed, settings.mm_per_unit, output_dir)
             metrics.update(report.metrics())
-            metrics["verdict"] += " " + " ".join(defect_lines(report.defects, report.evidence_needed))
+            metrics["verdict"] += " " + " ".join(report.lines)
         (output_dir / "metrics.json").write_text(json.dumps(metrics, indent=2))
         save_reconstruction_figures(output_dir, d, problem, prediction, chosen.history)
         tracker.log_metrics({k: float(v) for k, v in metrics.items() if isinstance(v, (int, float)) and v is not None},

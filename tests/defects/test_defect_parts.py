@@ -14,7 +14,7 @@ from framework.core.contracts.checks import check_regularizer
 from framework.core.design_mesh import heights_from_mesh
 from framework.core.shapes import make_shape
 from framework.defects.information import column_norms, height_uncertainty, pixel_noise
-from framework.defects.models import Frame, apply_model
+from framework.defects.models import DROP_ASPECT, Frame, apply_model, drop_volume
 from framework.defects.regions import candidate_regions
 from framework.pipeline.mm_outputs import glass_mesh
 from regularizers import RegularizerContext
@@ -51,6 +51,19 @@ def test_the_defect_models_change_the_design_by_their_volume() -> None:
                                                                                              rel=0.05)
     shifted = apply_model(design, frame, "shift", (0.0, 100.0, 2.0), area)  # the whole band moved 2 samples
     assert torch.allclose(shifted[:, 34], design[:, 32], atol=1e-12)
+
+
+def test_a_drop_is_no_steeper_than_its_aspect_allows() -> None:
+    design = torch.zeros(M, M, dtype=torch.float64)
+    frame = Frame(row=32.0, col=32.0, along=(1.0, 0.0), across=(0.0, 1.0), ridge=0.0, reach=10.0)
+    cell = 2.0 / (M - 1)
+    radius = 2.0  # samples
+    # the volume of a Gaussian drop of this radius whose peak is DROP_ASPECT radii high
+    steepest = DROP_ASPECT * radius * cell * 2.0 * np.pi * (radius * cell) ** 2
+    assert drop_volume(0.5 * steepest, radius, cell ** 2) == pytest.approx(0.5 * steepest)
+    assert drop_volume(10.0 * steepest, radius, cell ** 2) == pytest.approx(steepest)
+    spike = apply_model(design, frame, "blob", (32.0, 32.0, 10.0 * steepest, radius), cell ** 2)
+    assert float(spike.max()) == pytest.approx(DROP_ASPECT * radius * cell, rel=1e-9)
 
 
 def test_candidates_keep_peaks_and_merge_near_parts() -> None:

@@ -1,6 +1,8 @@
 """The defect search on a photo that is the heights themselves (the image of h is h: every defect is
 seen exactly, renders cost nothing): two defects of a print joined by a faint deviation are found as
-two, each of its own kind and place; the evidence needed from the result's misfit."""
+two, each of its own kind and place; two pieces of one long defect are joined, two defects with glass
+as designed between them are not; a line narrowed to less than half its width is interrupted; the
+evidence needed from the result's misfit; the tolerance."""
 
 from __future__ import annotations
 
@@ -12,7 +14,10 @@ import torch
 
 from experiments.defect_prints import apply_defect, feature_sites
 from framework.core.shapes import make_shape
-from framework.defects.pursuit import Search, find_defects
+from framework.defects.fit import Defect, Fit, fit_candidate, frame_of
+from framework.defects.models import apply_model
+from framework.defects.pursuit import Search, _joined, find_defects
+from framework.defects.regions import Candidate
 from framework.pipeline.defect_stage import DefectSettings, evidence_needed
 
 M = 64
@@ -81,3 +86,74 @@ def test_the_evidence_needed_is_a_share_of_the_misfit_beyond_the_noise() -> None
     # half the noise asks four times the evidence, as a defect's own evidence grows
     assert evidence_needed(1000.0 * 4.0 + 8000.0, 2.0, 1000, settings) == pytest.approx(200.0)
     assert evidence_needed(1000.0 * 1.0 + 8000.0, 1.0, 1000, settings) == pytest.approx(800.0)
+
+
+def _pieces(design: np.ndarray, printed: np.ndarray, site: tuple[int, int], pieces: list[tuple[float, float]]) -> list:
+    """Fits of a raised line (a third too high) over each (centre, length) in mm along the feature at
+    ``site``, each on top of those before, against the photo of ``printed``."""
+    photo = HeightsPhoto(torch.from_numpy(printed))
+    frame = frame_of(design, Candidate(np.array([site[0]]), np.array([site[1]]), np.array([1.0])), CELL_MM)
+    fits, base = [], torch.from_numpy(design)
+    for centre_mm, length_mm in pieces:
+        params = (centre_mm / CELL_MM, length_mm / CELL_MM, -0.3)
+        heights = apply_model(base, frame, "modulation", params, _search().cell_area)
+        piece = Defect("too_high", 0.0, 0.0, length_mm, -0.3, 0.0, 0.0, 1e4, 1.0, "modulation", params)
+        fits.append(Fit(piece, frame, heights, photo(heights)))
+        base = heights
+    return fits
+
+
+def test_two_pieces_of_one_long_defect_are_joined_two_defects_apart_are_not() -> None:
+    design = make_shape("print_lines", M)
+    site = feature_sites(design, CELL_MM, 1, 16.0, np.random.default_rng(3))[0]
+    printed, planned = apply_defect(design, design, site, "too_high", -0.3, 8.0, CELL_MM, MM_PER_UNIT)
+    photo = HeightsPhoto(torch.from_numpy(printed))
+    pieces = _pieces(design, printed, site, [(-2.0, 4.0), (2.0, 4.0)])
+    joined, at = _joined(pieces, torch.from_numpy(design), pieces[-1].misfit, photo, NOISE, _search())
+    assert len(joined) == 1
+    assert joined[0].defect.kind == "too_high" and joined[0].defect.size == pytest.approx(-0.3, abs=0.05)
+    assert joined[0].defect.length_mm == pytest.approx(planned.length_mm, abs=1.0)
+    assert at <= pieces[-1].misfit + 50.0 * NOISE ** 2
+    # two raised stretches 2 mm long with 2.5 mm of the line as designed between them stay two
+    (along_r, along_c) = frame_of(design, Candidate(np.array([site[0]]), np.array([site[1]]), np.array([1.0])),
+                                  CELL_MM).along
+    offset = 2.25 / CELL_MM
+    two = design
+    for sign in (-1.0, 1.0):
+        at_site = (int(round(site[0] + sign * offset * along_r)), int(round(site[1] + sign * offset * along_c)))
+        two, _ = apply_defect(design, two, at_site, "too_high", -0.3, 2.0, CELL_MM, MM_PER_UNIT)
+    pieces = _pieces(design, two, site, [(-2.25, 2.0), (2.25, 2.0)])
+    kept, _ = _joined(pieces, torch.from_numpy(design), pieces[-1].misfit, HeightsPhoto(torch.from_numpy(two)), NOISE,
+                      _search())
+    assert len(kept) == 2
+
+
+def test_a_line_narrowed_to_less_than_half_its_width_is_interrupted() -> None:
+    design = make_shape("print_lines", M)
+    site = feature_sites(design, CELL_MM, 1, 16.0, np.random.default_rng(7))[0]
+    printed, planned = apply_defect(design, design, site, "too_narrow", -0.7, 3.0, CELL_MM, MM_PER_UNIT)
+    photo = HeightsPhoto(torch.from_numpy(printed))
+    e = printed - design
+    rows, cols = np.nonzero(np.abs(e) >= 0.05 * float(np.abs(e).max()))
+    design_t = torch.from_numpy(design)
+    fit = fit_candidate(design_t, design_t, Candidate(rows, cols, e[rows, cols]), photo, photo(design_t), NOISE,
+                        _search().cell_area, CELL_MM, MM_PER_UNIT, 40)
+    assert fit.defect.kind == "interruption" and fit.defect.size >= 0.5
+    assert math.hypot(fit.defect.x_mm - planned.x_mm, fit.defect.y_mm - planned.y_mm) <= 1.0
+
+
+def test_changes_within_the_tolerance_are_not_defects() -> None:
+    settings = DefectSettings(tolerance=0.05, tolerance_mm=0.1)
+
+    def defect(kind: str, size: float) -> Defect:
+        return Defect(kind, 0.0, 0.0, 3.0, size, 0.0, 0.0, 1e4, 1.0, "modulation", (0.0, 1.0, size))
+
+    assert settings.within_tolerance(defect("too_low", 0.04)) and settings.within_tolerance(defect("too_high", -0.04))
+    assert not settings.within_tolerance(defect("too_low", 0.06))
+    assert settings.within_tolerance(defect("too_narrow", -0.03)) and not settings.within_tolerance(defect("too_wide", 0.2))
+    assert settings.within_tolerance(defect("displaced", 0.05)) and not settings.within_tolerance(defect("displaced", 0.2))
+    assert not settings.within_tolerance(defect("interruption", 0.01)) and not settings.within_tolerance(defect("excess", 0.01))
+    assert not DefectSettings(tolerance=0.0, tolerance_mm=0.0).within_tolerance(defect("too_low", 0.01))
+    with pytest.raises(ValueError, match="defects.tolerance=-0.1"):
+        DefectSettings.parse({"tolerance": -0.1})
+

@@ -194,6 +194,6 @@ def test_a_run_with_a_defect_report_has_it_exported_and_said(tmp_path, capsys):
     main([str(run)])
     out = capsys.readouterr().out
     assert "design: the run's height_field (data.printed's design)" in out  # not the print's ground truth
-    assert "verdict: 1 defect: 1. interruption at (1.5, -2.0) mm, 1.2 mm long, 95% of the height missing" in out
+    assert "verdict: 1 defect: 1. interruption at (1.5, -2.0) mm, 1.2 mm long, 95% of the glass missing" in out
     assert json.loads((run / "export" / "defects.json").read_text())["defects"][0]["kind"] == "interruption"
     assert (run / "export" / "defects.csv").is_file()
