@@ -30,7 +30,11 @@ __all__ = ["Defect", "Fit", "KINDS", "Misfit", "candidate_frames", "chance_of", 
 
 KINDS = ("interruption", "too_low", "too_high", "excess", "too_wide", "too_narrow", "displaced")
 INTERRUPTED = 0.5  # a feature lowered or narrowed by at least this fraction of its glass is interrupted
-FEATURE_MM = 6.0  # half-width across a feature of the changed band (mm)
+FEATURE_MM = 6.0  # a feature's ridge is sought this far across from a candidate's centre (mm)
+BAND_FALL = 0.1  # a feature ends across where the design falls below this share of its ridge (or rises by it)
+BAND_MARGIN_MM = 1.0  # the changed band reaches this far beyond ...
+BAND_MM = 8.0  # ... and at most this far from the ridge
+COHERENT = 0.5  # a design with a structure-tensor coherence below this has no direction of its own there
 OBLIQUE_DEG = 20.0  # a deviation's long axis this far from the design's direction gives frames of its own
 SCAN_POSITIONS = 15  # a feature model's start is sought at up to this many places along the feature ...
 SCAN_LENGTHS_MM = (1.0, 3.0, 8.0)  # ... with each of these lengths
@@ -54,8 +58,9 @@ class Defect:
         kind: One of :data:`KINDS`. x_mm, y_mm: its centre on the substrate.
         length_mm: Its extent along the design's feature (a drop: its diameter, 2.355 r).
         size: The kind's own measure: interruption / too_low / too_high: the fraction of the design's
-            glass missing (negative: added; an interruption: lowered or narrowed); too_wide / too_narrow: the relative change of the
-            feature's width; displaced: the shift in mm; excess: the volume in mm^3.
+            glass missing (negative: added; an interruption: lowered or narrowed); too_wide /
+            too_narrow: the relative change of the feature's width; displaced: the shift in mm;
+            excess: the volume in mm^3.
         peak_mm: The largest height change (signed). volume_mm3: The glass added (negative: missing).
         evidence: The misfit removed, in pixel noise variances. confidence: see the module.
         model: The defect model fitted, params: its parameters (samples, scene units).
@@ -83,33 +88,70 @@ def frame_of(design: np.ndarray, candidate: Candidate, cell_mm: float,
              along: tuple[float, float] | None = None) -> Frame:
     """The candidate's frame: its centre, the feature's direction ``along`` (by default the design's
     there: the structure tensor's eigenvector of least change; along the columns where the design is
-    flat), the ridge (the design's maximum across, within the band) and the band's half-width."""
+    flat), the ridge (the design's maximum across within ``FEATURE_MM`` of the centre) and the band
+    of the feature's cross-section (:func:`_band`)."""
     row, col = candidate.centre
     reach = FEATURE_MM / cell_mm
-    if along is None:
-        gr, gc = np.gradient(design)
-        r0, c0 = max(int(row - reach), 0), max(int(col - reach), 0)
-        r1, c1 = int(row + reach) + 1, int(col + reach) + 1
-        a, b = gr[r0:r1, c0:c1], gc[r0:r1, c0:c1]
-        tensor = np.array([[np.sum(a * a), np.sum(a * b)], [np.sum(a * b), np.sum(b * b)]])
-        along = (0.0, 1.0) if np.trace(tensor) <= 1e-30 else tuple(np.linalg.eigh(tensor)[1][:, 0])
-    along = np.asarray(along, dtype=float)
+    along = np.asarray(_design_direction(design, row, col, reach)[0] if along is None else along, dtype=float)
     across = np.array([-along[1], along[0]])
     offsets = np.arange(-reach, reach + 0.25, 0.5)
     m = design.shape[0]
     rr = np.clip(np.round(row + offsets * across[0]).astype(int), 0, m - 1)
     cc = np.clip(np.round(col + offsets * across[1]).astype(int), 0, m - 1)
     ridge = float(offsets[int(np.argmax(design[rr, cc]))])
-    return Frame(row, col, (float(along[0]), float(along[1])), (float(across[0]), float(across[1])), ridge, reach)
+    low, high = _band(design, row, col, across, ridge, cell_mm)
+    return Frame(row, col, (float(along[0]), float(along[1])), (float(across[0]), float(across[1])), ridge, low, high)
+
+
+def _design_direction(design: np.ndarray, row: float, col: float, reach: float) -> tuple[tuple[float, float], float]:
+    """The design's direction of least change within ``reach`` samples of (row, col) (the structure
+    tensor's eigenvector; along the columns where the design is flat) and its coherence
+    (l1 - l2) / (l1 + l2) in [0, 1]: 0 where the design changes alike in every direction (a round bump)."""
+    gr, gc = np.gradient(design)
+    r0, c0 = max(int(row - reach), 0), max(int(col - reach), 0)
+    r1, c1 = int(row + reach) + 1, int(col + reach) + 1
+    a, b = gr[r0:r1, c0:c1], gc[r0:r1, c0:c1]
+    tensor = np.array([[np.sum(a * a), np.sum(a * b)], [np.sum(a * b), np.sum(b * b)]])
+    if np.trace(tensor) <= 1e-30:
+        return (0.0, 1.0), 0.0
+    values, vectors = np.linalg.eigh(tensor)
+    return (float(vectors[0, 0]), float(vectors[1, 0])), float((values[1] - values[0]) / (values[1] + values[0]))
+
+
+def _band(design: np.ndarray, row: float, col: float, across: np.ndarray, ridge: float, cell_mm: float
+          ) -> tuple[float, float]:
+    """The edges across (samples from the centre) of the feature whose ridge lies ``ridge`` across
+    from (row, col): on each side where the design falls below ``BAND_FALL`` of the ridge's height or
+    rises again by that much toward another feature, plus ``BAND_MARGIN_MM``, at most ``BAND_MM``
+    from the ridge; +-``FEATURE_MM`` about the centre where the design has no ridge there."""
+    m = design.shape[0]
+    steps = np.arange(0.0, BAND_MM / cell_mm + 0.25, 0.5)
+
+    def at(offsets: np.ndarray) -> np.ndarray:
+        return design[np.clip(np.round(row + offsets * across[0]).astype(int), 0, m - 1),
+                      np.clip(np.round(col + offsets * across[1]).astype(int), 0, m - 1)]
+
+    top = float(at(np.array([ridge]))[0])
+    if top <= 0.0:
+        return -FEATURE_MM / cell_mm, FEATURE_MM / cell_mm
+    edges = []
+    for sign in (-1.0, 1.0):
+        profile = at(ridge + sign * steps)
+        ends = (profile < BAND_FALL * top) | (profile > np.minimum.accumulate(profile) + BAND_FALL * top)
+        reach = steps[int(np.argmax(ends))] if ends.any() else steps[-1]
+        edges.append(ridge + sign * min(reach + BAND_MARGIN_MM / cell_mm, BAND_MM / cell_mm))
+    return edges[0], edges[1]
 
 
 def candidate_frames(design: np.ndarray, candidate: Candidate, cell_mm: float) -> list[Frame]:
-    """The frames a feature model is tried in: the design's (:func:`frame_of`), and where the
-    candidate's deviation is elongated (its |e|-weighted spread at least twice as long as wide) with
-    its long axis oblique to the design's direction (by more than ``OBLIQUE_DEG``), also frames
-    along and across that axis: a defect runs along or across its feature, and where the design has
-    no one direction (a round bump) the deviation shows which."""
-    frames = [frame_of(design, candidate, cell_mm)]
+    """The frames a feature model is tried in: the design's (:func:`frame_of`); where the candidate's
+    deviation is elongated (its |e|-weighted spread at least twice as long as wide) and its long axis
+    oblique to the design's direction (by more than ``OBLIQUE_DEG``), also frames along and across
+    that axis, instead of the design's where the design has no direction there (coherence below
+    ``COHERENT``: a round bump): a defect runs along or across its feature, and the deviation shows which."""
+    row, col = candidate.centre
+    along, coherence = _design_direction(design, row, col, FEATURE_MM / cell_mm)
+    frames = [frame_of(design, candidate, cell_mm, along)]
     w = np.abs(candidate.e)
     if candidate.rows.size < 3 or float(w.sum()) <= 0.0:
         return frames
@@ -119,11 +161,12 @@ def candidate_frames(design: np.ndarray, candidate: Candidate, cell_mm: float) -
     if values[1] <= 0.0 or values[0] > 0.25 * values[1]:  # the spread's lengths go as the square roots
         return frames
     axis = vectors[:, 1]
-    angle = math.degrees(math.acos(min(abs(float(axis @ np.array(frames[0].along))), 1.0)))
-    if OBLIQUE_DEG < angle < 90.0 - OBLIQUE_DEG:
-        frames += [frame_of(design, candidate, cell_mm, (float(axis[0]), float(axis[1]))),
-                   frame_of(design, candidate, cell_mm, (float(-axis[1]), float(axis[0])))]
-    return frames
+    own = [frame_of(design, candidate, cell_mm, (float(axis[0]), float(axis[1]))),
+           frame_of(design, candidate, cell_mm, (float(-axis[1]), float(axis[0])))]
+    if coherence < COHERENT:
+        return own
+    angle = math.degrees(math.acos(min(abs(float(axis @ np.array(along))), 1.0)))
+    return frames + own if OBLIQUE_DEG < angle < 90.0 - OBLIQUE_DEG else frames
 
 
 def _drop_starts(design: np.ndarray, candidate: Candidate, cell_area: float) -> list[np.ndarray]:

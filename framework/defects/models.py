@@ -4,7 +4,8 @@
 Every model changes the design c (m, m) near one place, in a frame of the design's feature there:
 the unit vector ``along`` the feature, ``across`` it, the origin at the candidate's centre; lengths
 in samples. A window W(t) along the feature (a box from t0 - L/2 to t0 + L/2 with tanh edges of
-``EDGE`` samples) limits the change along it, a box of half-width ``reach`` across it:
+``EDGE`` samples) limits the change along it, a band from ``low`` to ``high`` across it (the
+feature's own cross-section, framework/defects/fit.py ``frame_of``):
 
 - ``modulation`` (t0, L, a): the design times 1 - a inside the window (a = 1: material missing,
   an interruption; 0 < a < 1: too low; a < 0: too high);
@@ -33,15 +34,16 @@ DROP_ASPECT = 2.0  # a drop's peak height is at most this many times its Gaussia
 @dataclass(frozen=True)
 class Frame:
     """Where a candidate sits: its centre (row, col) in samples, the feature's direction ``along``
-    and normal ``across`` (row, col unit vectors), the ridge's offset across from the centre
-    (samples) and the half-width ``reach`` (samples) of the changed band across the feature."""
+    and normal ``across`` (row, col unit vectors), the ridge's offset across from the centre and the
+    edges ``low`` < ``high`` of the changed band across the feature (samples, from the centre)."""
 
     row: float
     col: float
     along: tuple[float, float]
     across: tuple[float, float]
     ridge: float
-    reach: float
+    low: float
+    high: float
 
 
 def _coordinates(m: int, frame: Frame, dtype: torch.dtype) -> tuple[torch.Tensor, torch.Tensor]:
@@ -53,10 +55,10 @@ def _coordinates(m: int, frame: Frame, dtype: torch.dtype) -> tuple[torch.Tensor
     return t, s
 
 
-def _window(t: torch.Tensor, s: torch.Tensor, t0: float, length: float, reach: float) -> torch.Tensor:
+def _window(t: torch.Tensor, s: torch.Tensor, t0: float, length: float, frame: Frame) -> torch.Tensor:
     half = max(length, 0.0) / 2.0
     along = 0.5 * (torch.tanh((t - t0 + half) / EDGE) - torch.tanh((t - t0 - half) / EDGE))
-    across = 0.5 * (torch.tanh((s + reach) / EDGE) - torch.tanh((s - reach) / EDGE))
+    across = 0.5 * (torch.tanh((s - frame.low) / EDGE) - torch.tanh((s - frame.high) / EDGE))
     return along * across
 
 
@@ -85,10 +87,10 @@ def apply_model(design: torch.Tensor, frame: Frame, model: str, params: tuple[fl
     rows, cols = index[:, None].expand(m, m), index[None, :].expand(m, m)
     if model == "modulation":
         t0, length, a = params
-        return design * (1.0 - a * _window(t, s, t0, length, frame.reach))
+        return design * (1.0 - a * _window(t, s, t0, length, frame))
     if model in ("shift", "width"):
         t0, length, amount = params
-        window = _window(t, s, t0, length, frame.reach)
+        window = _window(t, s, t0, length, frame)
         if model == "shift":
             back = amount * window
         else:

@@ -41,7 +41,7 @@ def test_the_design_prior_is_an_exact_prox_and_keeps_the_design() -> None:
 
 def test_the_defect_models_change_the_design_by_their_volume() -> None:
     design = torch.from_numpy(make_shape("print_lines", M))
-    frame = Frame(row=32.0, col=32.0, along=(1.0, 0.0), across=(0.0, 1.0), ridge=0.0, reach=10.0)
+    frame = Frame(row=32.0, col=32.0, along=(1.0, 0.0), across=(0.0, 1.0), ridge=0.0, low=-10.0, high=10.0)
     area = (2.0 / (M - 1)) ** 2
     assert torch.equal(apply_model(design, frame, "modulation", (0.0, 6.0, 0.0), area), design)
     blob = apply_model(design, frame, "blob", (20.0, 20.0, 1e-4, 2.0), area) - design
@@ -55,7 +55,7 @@ def test_the_defect_models_change_the_design_by_their_volume() -> None:
 
 def test_a_drop_is_no_steeper_than_its_aspect_allows() -> None:
     design = torch.zeros(M, M, dtype=torch.float64)
-    frame = Frame(row=32.0, col=32.0, along=(1.0, 0.0), across=(0.0, 1.0), ridge=0.0, reach=10.0)
+    frame = Frame(row=32.0, col=32.0, along=(1.0, 0.0), across=(0.0, 1.0), ridge=0.0, low=-10.0, high=10.0)
     cell = 2.0 / (M - 1)
     radius = 2.0  # samples
     # the volume of a Gaussian drop of this radius whose peak is DROP_ASPECT radii high
