@@ -5,7 +5,7 @@ and 10% noise, as multiruns into one MLflow experiment; then the table and the f
 recall by kind and size, false alarms per print, the smallest defect found per kind and noise, the
 errors of the found defects' places and sizes.
 
-    python -m experiments.reproduce_defects                      # everything (about 70 min on 2 cores)
+    python -m experiments.reproduce_defects                      # everything (about 65 min on 2 cores)
     python -m experiments.reproduce_defects --scenes print_lines --deltas 0.05
     python -m experiments.reproduce_defects --table-only
 
