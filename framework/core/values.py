@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
-__all__ = ["positive_int", "positive_number"]
+__all__ = ["non_negative_number", "positive_int", "positive_number"]
 
 
 def positive_number(value: Any, where: str, what: str = "number") -> float:
@@ -13,6 +13,14 @@ def positive_number(value: Any, where: str, what: str = "number") -> float:
     finite <what> > 0'."""
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not (math.isfinite(value) and value > 0):
         raise ValueError(f"{where}={value!r} must be a finite {what} > 0")
+    return float(value)
+
+
+def non_negative_number(value: Any, where: str, what: str = "number") -> float:
+    """``value`` as a finite float >= 0 (not a bool), else a ValueError: '<where>=<value> must be a
+    finite <what> >= 0'."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not (math.isfinite(value) and value >= 0):
+        raise ValueError(f"{where}={value!r} must be a finite {what} >= 0")
     return float(value)
 
 

@@ -95,12 +95,16 @@ def frame_of(design: np.ndarray, candidate: Candidate, cell_mm: float,
     along = np.asarray(_design_direction(design, row, col, reach)[0] if along is None else along, dtype=float)
     across = np.array([-along[1], along[0]])
     offsets = np.arange(-reach, reach + 0.25, 0.5)
-    m = design.shape[0]
-    rr = np.clip(np.round(row + offsets * across[0]).astype(int), 0, m - 1)
-    cc = np.clip(np.round(col + offsets * across[1]).astype(int), 0, m - 1)
-    ridge = float(offsets[int(np.argmax(design[rr, cc]))])
+    ridge = float(offsets[int(np.argmax(_across(design, row, col, across, offsets)))])
     low, high = _band(design, row, col, across, ridge, cell_mm)
     return Frame(row, col, (float(along[0]), float(along[1])), (float(across[0]), float(across[1])), ridge, low, high)
+
+
+def _across(design: np.ndarray, row: float, col: float, across: np.ndarray, offsets: np.ndarray) -> np.ndarray:
+    """The design at ``offsets`` (samples) across from (row, col), nearest samples, clamped to the grid."""
+    m = design.shape[0]
+    return design[np.clip(np.round(row + offsets * across[0]).astype(int), 0, m - 1),
+                  np.clip(np.round(col + offsets * across[1]).astype(int), 0, m - 1)]
 
 
 def _design_direction(design: np.ndarray, row: float, col: float, reach: float) -> tuple[tuple[float, float], float]:
@@ -124,19 +128,13 @@ def _band(design: np.ndarray, row: float, col: float, across: np.ndarray, ridge:
     from (row, col): on each side where the design falls below ``BAND_FALL`` of the ridge's height or
     rises again by that much toward another feature, plus ``BAND_MARGIN_MM``, at most ``BAND_MM``
     from the ridge; +-``FEATURE_MM`` about the centre where the design has no ridge there."""
-    m = design.shape[0]
     steps = np.arange(0.0, BAND_MM / cell_mm + 0.25, 0.5)
-
-    def at(offsets: np.ndarray) -> np.ndarray:
-        return design[np.clip(np.round(row + offsets * across[0]).astype(int), 0, m - 1),
-                      np.clip(np.round(col + offsets * across[1]).astype(int), 0, m - 1)]
-
-    top = float(at(np.array([ridge]))[0])
+    top = float(_across(design, row, col, across, np.array([ridge]))[0])
     if top <= 0.0:
         return -FEATURE_MM / cell_mm, FEATURE_MM / cell_mm
     edges = []
     for sign in (-1.0, 1.0):
-        profile = at(ridge + sign * steps)
+        profile = _across(design, row, col, across, ridge + sign * steps)
         ends = (profile < BAND_FALL * top) | (profile > np.minimum.accumulate(profile) + BAND_FALL * top)
         reach = steps[int(np.argmax(ends))] if ends.any() else steps[-1]
         edges.append(ridge + sign * min(reach + BAND_MARGIN_MM / cell_mm, BAND_MM / cell_mm))

@@ -29,6 +29,7 @@ __all__ = ["Frame", "MODELS", "apply_model", "drop_volume"]
 MODELS = ("modulation", "shift", "width", "blob")
 EDGE = 1.0  # samples: the window's edge half-width
 DROP_ASPECT = 2.0  # a drop's peak height is at most this many times its Gaussian radius
+DROP_RADIUS = 0.3  # samples: a drop's radius at least
 
 
 @dataclass(frozen=True)
@@ -72,8 +73,8 @@ def _sampled(design: torch.Tensor, rows: torch.Tensor, cols: torch.Tensor) -> to
 
 def drop_volume(volume: float, radius: float, cell_area: float) -> float:
     """The volume (scene units^3) of a drop asked for ``volume`` with radius ``radius`` (samples,
-    at least 0.3): capped where its peak would exceed ``DROP_ASPECT`` times the radius."""
-    radius = max(radius, 0.3)
+    at least ``DROP_RADIUS``): capped where its peak would exceed ``DROP_ASPECT`` times the radius."""
+    radius = max(radius, DROP_RADIUS)
     cap = DROP_ASPECT * radius * cell_area ** 0.5 * cell_area * 2.0 * torch.pi * radius ** 2
     return min(volume, cap)
 
@@ -98,7 +99,7 @@ def apply_model(design: torch.Tensor, frame: Frame, model: str, params: tuple[fl
         return _sampled(design, rows - back * frame.across[0], cols - back * frame.across[1])
     if model == "blob":
         row, col, volume, radius = params
-        volume, radius = drop_volume(volume, radius, cell_area), max(radius, 0.3)
+        volume, radius = drop_volume(volume, radius, cell_area), max(radius, DROP_RADIUS)
         r2 = (rows - row) ** 2 + (cols - col) ** 2
         peak = volume / (cell_area * 2.0 * torch.pi * radius ** 2)
         return design + peak * torch.exp(-r2 / (2.0 * radius ** 2))

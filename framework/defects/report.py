@@ -37,8 +37,8 @@ def describe(defect: Defect) -> str:
     return f"{where}, {size} (confidence {defect.confidence:.3f})"
 
 
-def defect_lines(defects: list[Defect], min_evidence: float, within: int = 0, tolerance: float = 0.0,
-                 tolerance_mm: float = 0.0) -> list[str]:
+def defect_lines(defects: list[Defect], min_evidence: float, within: int, tolerance: float,
+                 tolerance_mm: float) -> list[str]:
     """The report in sentences: how many defects, each described, and what the rest means (``within``:
     the defects the photo needs that lie within the tolerance, a fraction of height or width and a
     shift in mm)."""

@@ -12,7 +12,6 @@ defects.json, defects.csv, defects.png, defect_sigma_mm.npy; returns ``defects_*
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -22,7 +21,7 @@ import torch
 
 from framework.core.plugin_config import as_mapping
 from framework.core.problem import Problem
-from framework.core.values import positive_int, positive_number
+from framework.core.values import non_negative_number, positive_int, positive_number
 from framework.defects.fit import Defect
 from framework.defects.information import column_norms, height_uncertainty, pixel_noise, pixels_used
 from framework.defects.pursuit import Search, find_defects
@@ -76,9 +75,7 @@ class DefectSettings:
         for key in ("max_candidates", "probes", "photons", "evaluations"):
             positive_int(getattr(settings, key), f"defects.{key}")
         for key in ("tolerance", "tolerance_mm"):
-            value = getattr(settings, key)
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0.0 <= value < math.inf:
-                raise ValueError(f"defects.{key}={value!r} must be a number >= 0 (0: report every defect)")
+            non_negative_number(getattr(settings, key), f"defects.{key}")
         return settings
 
 
