@@ -41,9 +41,6 @@ class StackOperator(ImageOperator):
         shots = list(shots)
         if not shots:
             raise ValueError("a stack needs at least one shot (data.shots=[...])")
-        weights = [1.0] * len(shots) if weights is None else [float(w) for w in weights]
-        if len(weights) != len(shots) or not all(math.isfinite(w) and w > 0.0 for w in weights):
-            raise ValueError(f"stack weights {weights} must be one positive number per shot ({len(shots)})")
         first = shots[0]
         for i, shot in enumerate(shots[1:], start=1):
             for key in ("output_shape", "dtype", "photons"):
@@ -51,10 +48,18 @@ class StackOperator(ImageOperator):
                     raise ValueError(f"shot {i} has {key} {getattr(shot, key)} but shot 0 has {getattr(first, key)}; "
                                      "the shots of a stack share the receiver's pixels, the dtype and the photons")
         self.shots = shots
-        self.weights = weights
-        self.scales = [math.sqrt(w) for w in weights]
+        self.reweight([1.0] * len(shots) if weights is None else weights)
+        self.configured_weights = list(self.weights)  # as built, before any reweighting by the data
         if share_hits:
             self._share_hits()
+
+    def reweight(self, weights: Sequence[float]) -> None:
+        """Set the shots' misfit weights w_i > 0 (one per shot)."""
+        weights = [float(w) for w in weights]
+        if len(weights) != len(self.shots) or not all(math.isfinite(w) and w > 0.0 for w in weights):
+            raise ValueError(f"stack weights {weights} must be one positive number per shot ({len(self.shots)})")
+        self.weights = weights
+        self.scales = [math.sqrt(w) for w in weights]
 
     def _share_hits(self) -> None:
         """Shots whose photons meet the print alike (the same light and photon pattern; only the

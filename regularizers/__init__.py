@@ -9,6 +9,7 @@ The plugins (declared as entry points in pyproject.toml; kind ``regularizer`` un
 - ``l1_design``  :class:`PixelL1DesignBounds` alpha ||d - c||_1 + bounds, c the print's design
 - ``volume_v1``  :class:`VolumeHeuristic`    the paper's volume heuristic eq. (8) (kind ``post_step``)
 - ``volume_v2``  :class:`VolumeSlabL1Bounds` eq. (7) plus an exact volume slab constraint (a prox)
+- ``volume_hold`` :class:`VolumeHold`       the projection onto bounds, mask and a narrow volume band (kind ``post_step``)
 """
 
 from .base import PostStepUpdate, Regularizer, RegularizerContext
@@ -18,6 +19,7 @@ from .l1_bounds import PixelL1Bounds
 from .l1_design import PixelL1DesignBounds
 from .shrinkage import clamp_on_mask, soft_shrink
 from .volume_heuristic import VolumeHeuristic, volume_band, window_mean
+from .volume_hold import VolumeHold
 from .volume_prox import VolumeSlabL1Bounds
 from .wavelet import WaveletL1, WaveletTransform
 
@@ -30,6 +32,7 @@ __all__ = [
     "Regularizer",
     "RegularizerContext",
     "VolumeHeuristic",
+    "VolumeHold",
     "VolumeSlabL1Bounds",
     "WaveletL1",
     "WaveletTransform",

@@ -54,9 +54,10 @@ def check_bounds(p1: float, p2: float) -> tuple[float, float]:
     return lo, hi
 
 
-def check_relative_tolerance(v_eps: float) -> float:
-    """Return ``v_eps`` as float if it lies in [0, 1), else raise ``ValueError``."""
+def check_relative_tolerance(v_eps: float, name: str = "v_eps") -> float:
+    """Return ``v_eps`` as float if it lies in [0, 1), else raise ``ValueError`` naming ``name``."""
     v = float(v_eps)
     if not (0.0 <= v < 1.0):
-        raise ValueError(f"relative volume uncertainty v_eps={v_eps!r} must lie in [0, 1); the paper uses 0.25")
+        raise ValueError(f"relative volume uncertainty {name}={v_eps!r} must lie in [0, 1), e.g. 0.25 (the paper's "
+                         "V1 band) or 0.02")
     return v

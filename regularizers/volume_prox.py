@@ -130,33 +130,41 @@ class VolumeSlabL1Bounds(Regularizer):
 
     def _multiplier(self, d: torch.Tensor, k: float) -> float:
         """lambda with clamp(S(d - lambda, k)) summing into the band over the mask (0 inside it)."""
-        mask = self._mask_for(d)
-        q1, q2 = self.band
-        w = d.detach().to(torch.float64)[mask]  # only the printed samples enter the sum
+        w = d.detach().to(torch.float64)[self._mask_for(d)]  # only the printed samples enter the sum
+        return slab_multiplier(w, k, self.p1, self.p2, self.band, self.tol, self.max_iter)
 
-        def total(lam: float) -> float:
-            return float(torch.clamp(soft_shrink(w - lam, k), self.p1, self.p2).sum())
 
-        s0 = total(0.0)
-        if q1 <= s0 <= q2:
-            return 0.0
-        if s0 > q2:  # s(lo) > target >= s(hi)
-            target, lo, hi = q2, 0.0, float(w.max()) + k - self.p1
-        else:  # s(lo) >= target > s(hi)
-            target, lo, hi = q1, float(w.min()) - k - self.p2, 0.0
-        s_lo, s_hi = total(lo), total(hi)
-        for _ in range(self.max_iter):
-            if hi - lo <= self.tol * (1.0 + abs(lo) + abs(hi)):
-                break
-            mid = 0.5 * (lo + hi)
-            s_mid = total(mid)
-            if s_mid > target:
-                lo, s_lo = mid, s_mid
-            else:
-                hi, s_hi = mid, s_mid
-        # s is piecewise linear: a secant step on the final bracket is exact when it holds one piece.
-        if s_lo > s_hi:
-            lam = lo + (s_lo - target) / (s_lo - s_hi) * (hi - lo)
-            if q1 - 1e-12 * abs(q1) <= total(lam) <= q2 + 1e-12 * abs(q2):
-                return lam
-        return hi if target == q2 else lo
+def slab_multiplier(w: torch.Tensor, k: float, p1: float, p2: float, band: tuple[float, float],
+                    tol: float = 1e-12, max_iter: int = 200) -> float:
+    """The scalar lambda with s(lambda) = sum clamp_[p1,p2](S(w - lambda, k)) in ``band`` = (q1, q2):
+    0 if s(0) lies in it, else the root of s = q2 (lambda > 0) or s = q1 (lambda < 0), by bisection
+    to the relative bracket width ``tol`` and a final secant step (s is piecewise linear and
+    non-increasing). ``w``: the printed samples (1-D, float64); ``k``: the L1 threshold (0: none)."""
+    q1, q2 = band
+
+    def total(lam: float) -> float:
+        return float(torch.clamp(soft_shrink(w - lam, k), p1, p2).sum())
+
+    s0 = total(0.0)
+    if q1 <= s0 <= q2:
+        return 0.0
+    if s0 > q2:  # s(lo) > target >= s(hi)
+        target, lo, hi = q2, 0.0, float(w.max()) + k - p1
+    else:  # s(lo) >= target > s(hi)
+        target, lo, hi = q1, float(w.min()) - k - p2, 0.0
+    s_lo, s_hi = total(lo), total(hi)
+    for _ in range(max_iter):
+        if hi - lo <= tol * (1.0 + abs(lo) + abs(hi)):
+            break
+        mid = 0.5 * (lo + hi)
+        s_mid = total(mid)
+        if s_mid > target:
+            lo, s_lo = mid, s_mid
+        else:
+            hi, s_hi = mid, s_mid
+    # s is piecewise linear: a secant step on the final bracket is exact when it holds one piece.
+    if s_lo > s_hi:
+        lam = lo + (s_lo - target) / (s_lo - s_hi) * (hi - lo)
+        if q1 - 1e-12 * abs(q1) <= total(lam) <= q2 + 1e-12 * abs(q2):
+            return lam
+    return hi if target == q2 else lo

@@ -73,11 +73,12 @@ def check_volume_known(cfg: Mapping[str, Any], facts: PrintFacts) -> None:
     if facts.volume is not None or facts.volume_at_load:
         return
     solver = cfg.get("solver") or {}
-    for group, kind in (("regularizers", "regularizer"), ("post_steps", "post_step")):
-        for name in dict(solver.get(group) or {}):
-            if getattr(lookup(kind, name), "needs_volume", False):
-                raise ValueError(f"solver.{group}.{name} needs the deposited volume: set data.volume=... (scene "
-                                 f"units^3 or e.g. '1.7 mm3'), or leave {name} out ('~solver.{group}.{name}')")
+    needing = [f"solver.{group}.{name}" for group, kind in (("regularizers", "regularizer"), ("post_steps", "post_step"))
+               for name in dict(solver.get(group) or {}) if getattr(lookup(kind, name), "needs_volume", False)]
+    if needing:
+        raise ValueError(f"{' and '.join(needing)} need{'s' if len(needing) == 1 else ''} the deposited volume: set "
+                         "data.volume=... (scene units^3 or e.g. '1.7 mm3'), or leave "
+                         f"{'it' if len(needing) == 1 else 'them'} out ({' '.join(repr('~' + n) for n in needing)})")
 
 
 def checked_resume(spec: Any, output_dir: Path, base_dir: Path, fingerprint: Mapping[str, str]) -> Path | None:

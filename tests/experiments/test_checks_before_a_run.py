@@ -147,7 +147,7 @@ def test_bad_photo_input_is_refused_before_the_run_opens(refused, overrides, nam
 
 @pytest.mark.parametrize("overrides, named", [
     (["data=file", "data.image=a_directory"], "is a directory"),
-    (["data=file", "data.image=caustic.npy"], "solver.post_steps.volume_v1 needs the deposited volume"),
+    (["data=file", "data.image=caustic.npy"], "solver.post_steps.volume_v1 and solver.post_steps.volume_hold need the deposited volume"),
     (["data=file", "data.image=truncated.npy"], "truncated.npy is corrupt or truncated"),
     (["data=file", "data.image=caustic.npy", "wavelengths=[0.5,0.6]"], "set wavelengths"),
     (["tracking.uri=foo://bar"], "unknown scheme 'foo'"),

@@ -71,7 +71,7 @@ def lab(tmp_path_factory) -> Path:
 def _photo_args(photo: str, *extra: str) -> list[str]:
     return ["scene=bump", "data=photo", f"data.photo={photo}", "data.flat=flat.png", "data.response=gamma",
             f"data.gamma={GAMMA}", f"data.black_level={BLACK}", f"data.corners={json.dumps(CORNERS)}".replace(" ", ""),
-            "~solver.post_steps.volume_v1", *extra]
+            "~solver.post_steps.volume_v1", "~solver.post_steps.volume_hold", *extra]
 
 
 def _loaded(lab: Path, args: list[str]):

@@ -119,7 +119,7 @@ def test_calibration_recovers_the_distance_and_every_gain_from_a_stack_with_know
     (["data.shots=[{source: stack}]"], r"data.shots\[0\].source='stack'; use one of"),
     (["data.start_shot=2"], r"data.start_shot=2 must be 'farthest' or a shot index in \[0, 2\)"),
     (["data.shots=[{weight: 0}]"], r"data.shots\[0\]: gain=1.0 and weight=0.0 must both be > 0"),
-    (["data.weighting=loud"], r"data.weighting='loud'; use equal or distance"),
+    (["data.weighting=loud"], r"data.weighting='loud'; use equal, distance, noise"),
     (["data.first_fit=farthest"], r"data.first_fit='farthest'; use nearest or none"),
     (["data.shots=[{light_offset: [0, 0, -9.95]}]"], r"data.shots\[0\]: the light would sit at z = 0.05"),
 ])
@@ -194,3 +194,21 @@ def test_the_stack_moves_the_heights_with_the_distance_it_calibrates(tmp_path) -
         heights = heights * calibration.height_scale
     assert values["screen_distance"] == pytest.approx(DISTANCES[0], rel=1e-2)
     assert float((heights - truth).abs().max()) <= 0.01 * float(truth.max())
+
+
+def test_noise_weighting_counts_every_shot_in_units_of_its_own_noise(tmp_path) -> None:
+    cfg = compose_reconstruct([*SMALL, "scene=bump", "data=stack", "data.weighting=noise", "solver.max_iter=1",
+                               "data.shots=[{screen_distance: 0.2, delta: 0.1}, {screen_distance: 0.05}]",
+                               "+data.common.reference_photons=200000", "+data.common.reference_resolution=128"],
+                              tmp_path)
+    parts = Reconstruction.from_config(cfg, tmp_path)
+    data = parts.data_source.load(parts.data_request(tmp_path, tmp_path / "run"))
+    weights = parts.operator.weights
+    # The nearest screen (shot 1) keeps weight 1; w_i delta_i^2 ||b_i||^2 is the same for every shot.
+    assert weights[1] == 1.0
+    noise = [w * s.delta ** 2 * float(torch.sum(s.target.double() ** 2)) for w, s in zip(weights, data.shots)]
+    assert noise[0] == pytest.approx(noise[1], rel=1e-12)
+    # The stacked target is [sqrt(w_i) b_i]; its noise level sqrt(sum w_i delta_i^2 ||b_i||^2 /
+    # sum w_i ||b_i||^2) is then sqrt(N / sum 1 / delta_i^2).
+    assert torch.equal(data.target[:1], data.shots[0].target * weights[0] ** 0.5)
+    assert data.delta == pytest.approx((2 / (1 / 0.1 ** 2 + 1 / 0.05 ** 2)) ** 0.5, rel=1e-12)

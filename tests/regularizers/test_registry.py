@@ -11,7 +11,8 @@ from framework.core.registry import available
 from regularizers import PostStepUpdate, Regularizer, RegularizerContext
 
 PLUGINS = [("regularizer", "bounds"), ("regularizer", "l1_bounds"), ("regularizer", "l1_pixel"),
-           ("regularizer", "l1_wavelet"), ("regularizer", "volume_v2"), ("post_step", "volume_v1")]
+           ("regularizer", "l1_wavelet"), ("regularizer", "volume_v2"), ("post_step", "volume_v1"),
+           ("post_step", "volume_hold")]
 
 
 def test_all_plugins_declared() -> None:

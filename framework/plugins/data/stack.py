@@ -32,7 +32,7 @@ from framework.core.shots import SETUP_KEYS, ShotSetup, shot_setup
 from framework.plugins.data.sources import FileData, resolve_path
 from operators.scene import Scene
 
-__all__ = ["StackData", "stacked_data"]
+__all__ = ["StackData", "noise_weights", "stacked_data"]
 
 SHOT_SEED_STRIDE = 100_000  # shot i's reference renders and noise draw from seed + i * stride
 
@@ -68,6 +68,15 @@ def stacked_data(shots: Sequence[ReconstructionData], weights: Sequence[float], 
         first_fit_shot=first_fit_shot)
 
 
+def noise_weights(shots: Sequence[ReconstructionData], weights: Sequence[float],
+                  distances: Sequence[float]) -> list[float]:
+    """``weights`` times 1 / (delta_i^2 ||b_i||_W^2), scaled so that the nearest screen's shot keeps
+    its weight: each shot's misfit in units of its own noise (``data.weighting: noise``)."""
+    inverse_noise = [1.0 / (s.delta ** 2 * weighted_norm_sq(s.target, s.weights)) for s in shots]
+    nearest = min(range(len(distances)), key=lambda i: distances[i])
+    return [w * r / inverse_noise[nearest] for w, r in zip(weights, inverse_noise)]
+
+
 def _named(index: int, step: Any, request: DataRequest) -> Any:
     """``step(request)`` of shot ``index``'s source, its errors prefixed with the shot."""
     try:
@@ -92,14 +101,17 @@ class StackData:
             weighting for shots of equal noise); ``distance``: times (s_near / s_i)^2, s_i the
             shot's screen distance and s_near the nearest one's. A screen k times farther
             displaces the light k times more for the same slope error, so its misfit weighs about
-            k^2 more in the gradient; ``distance`` evens that out (docs/method.md, "Several photos").
+            k^2 more in the gradient; ``distance`` evens that out (docs/method.md, "Several photos");
+            ``noise``: times 1 / (delta_i^2 ||b_i||^2), relative to the nearest shot's, the
+            maximum-likelihood weighting for shots whose noise is a share delta_i of their norm:
+            each shot's relative misfit counts alike, however bright or peaked its caustic.
         first_fit: ``nearest``: a run from flat glass fits the nearest shot alone first
             (framework/pipeline/first_fit.py); ``none``: the whole stack from the start.
     """
 
     FIRST_FITS = ("nearest", "none")
 
-    WEIGHTINGS = ("equal", "distance")
+    WEIGHTINGS = ("equal", "distance", "noise")
 
     @staticmethod
     def example_settings() -> dict[str, Any]:
@@ -111,7 +123,7 @@ class StackData:
     def __init__(self, shots: Sequence[Mapping[str, Any]] | None = None, common: Mapping[str, Any] | None = None,
                  start_shot: int | str = "farthest", weighting: str = "equal", first_fit: str = "nearest") -> None:
         if weighting not in self.WEIGHTINGS:
-            raise ValueError(f"data.weighting={weighting!r}; use {' or '.join(self.WEIGHTINGS)}")
+            raise ValueError(f"data.weighting={weighting!r}; use {', '.join(self.WEIGHTINGS)}")
         if first_fit not in self.FIRST_FITS:
             raise ValueError(f"data.first_fit={first_fit!r}; use {' or '.join(self.FIRST_FITS)}")
         self.weighting, self.first_fit = weighting, first_fit
@@ -188,8 +200,10 @@ class StackData:
         """Every shot's data from its own source in its own setup, stacked (:func:`stacked_data`)."""
         requests = self._requests(request)
         shots = [_named(i, source.load, shot) for i, (source, shot) in enumerate(zip(self.sources, requests))]
-        weights = request.operator.weights
         distances = [-r.operator.scene.receiver.z for r in requests]
+        if self.weighting == "noise":
+            request.operator.reweight(noise_weights(shots, request.operator.configured_weights, distances))
+        weights = request.operator.weights
         start = self.start_shot
         if start == "farthest":
             start = max(range(len(distances)), key=lambda i: distances[i])

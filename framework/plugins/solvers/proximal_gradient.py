@@ -194,7 +194,7 @@ class ProximalGradientSolver(IterativeSolver):
         the prox then stops at the constraint)."""
         if self._direction is None:
             grad = self._current_evaluation().grad
-            if self.preconditioner is None and not self._quasi_newton_active():
+            if self._plain_gradient():
                 self._direction = grad
             elif not self._two_metric():
                 self._direction = self._free_direction(grad)
@@ -202,6 +202,10 @@ class ProximalGradientSolver(IterativeSolver):
                 pinned = self._pinned(grad)
                 self._direction = torch.where(pinned, grad, self._free_direction(grad, ~pinned))
         return self._direction
+
+    def _plain_gradient(self) -> bool:
+        """Whether the direction is grad f itself (no preconditioner, no quasi-Newton stage)."""
+        return self.preconditioner is None and not self._quasi_newton_active()
 
     def _free_direction(self, grad: Tensor, free: Tensor | None = None) -> Tensor:
         """The direction on the ``free`` samples (m, m, bool; None: all): in the quasi-Newton stages
@@ -298,13 +302,11 @@ class ProximalGradientSolver(IterativeSolver):
         return None, spent
 
     def volume_band(self) -> tuple[float, float] | None:
-        """The band of the first regulariser or post step that enforces the deposited volume
-        (V1, V2: a ``band`` (q1, q2)), or None."""
-        for part in [*self.regularizers, *self.post_steps]:
-            band = getattr(part, "band", None)
-            if band is not None:
-                return band
-        return None
+        """The narrowest band of the regularisers and post steps that enforce the deposited volume
+        (V1, V2, the hold: a ``band`` (q1, q2)), or None."""
+        bands = [band for part in [*self.regularizers, *self.post_steps]
+                 if (band := getattr(part, "band", None)) is not None]
+        return min(bands, key=lambda band: band[1] - band[0]) if bands else None
 
     def refine(self, d: Tensor) -> bool:
         """Switch the preconditioner to its next, finer stage and continue from ``d`` (m, m) (the

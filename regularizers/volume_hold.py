@@ -1,0 +1,66 @@
+"""Beyond the paper: the known volume held exactly, within a tolerance, after every step.
+
+V1 (eq. (8)) keeps the height sum in a wide band (25%) by nudging it; a print whose volume is
+known should come out with that volume unless the data contradict it. This post step moves every
+printed sample by one common amount lambda, the Euclidean projection onto
+
+    {p1 <= d_j <= p2 on N^, d_j = 0 on N°, V (1 - eps) / a <= sum_{N^} d_j <= V (1 + eps) / a}
+
+(the volume prox of regularizers/volume_prox.py without its L1 term): d_j <- clamp_[p1,p2](d_j -
+lambda) on N^, lambda = 0 when the sum already lies in the band. Measured on every built-in scene
+in docs/results.md ("The volume held").
+"""
+
+from __future__ import annotations
+
+import torch
+
+from ._checks import check_bounds, check_height_field, check_relative_tolerance
+from .base import PostStepUpdate, RegularizerContext
+from .shrinkage import clamp_on_mask
+from .volume_heuristic import volume_band
+from .volume_prox import slab_multiplier
+
+
+class VolumeHold(PostStepUpdate):
+    """Project d onto the bounds, the mask and the volume band of relative width ``tolerance``.
+
+    Args:
+        tolerance: Relative volume tolerance eps in [0, 1) (0.02: within 2% of the known volume).
+        p1: Lower height bound (scene units), that of the pixel regulariser (l1_bounds).
+        p2: Upper height bound (scene units), likewise.
+    """
+
+    length_keys = ("p1", "p2")  # may be given with a unit, e.g. '0.4 mm' (framework/core/plugin_config.py)
+
+    needs_volume = True  # the run's checks refuse measured data without data.volume (framework/pipeline/run_checks.py)
+
+    def __init__(self, tolerance: float = 0.02, p1: float = 0.0, p2: float = 0.3) -> None:
+        self.tolerance = check_relative_tolerance(tolerance, "tolerance")
+        self.p1, self.p2 = check_bounds(p1, p2)
+        self._q: tuple[float, float] | None = None
+
+    def setup(self, ctx: RegularizerContext) -> None:
+        """Store the context and the band [q1, q2] (a sum of heights); refuse a band the bounds cannot
+        reach on the mask."""
+        super().setup(ctx)
+        q1, q2 = volume_band(ctx, self.tolerance, "volume_hold")
+        n = int(ctx.mask.sum())
+        if n * self.p1 > q2 or n * self.p2 < q1:
+            raise ValueError(f"volume_hold: the volume band [{q1:.6g}, {q2:.6g}] (sum of heights) is unreachable with "
+                             f"{n} printed samples within [{self.p1}, {self.p2}]; check data.volume, the mask and p2")
+        self._q = (q1, q2)
+
+    @property
+    def band(self) -> tuple[float, float]:
+        """(q1, q2) in scene units (sum of heights)."""
+        self.ctx  # raises if not set up
+        assert self._q is not None
+        return self._q
+
+    def __call__(self, d: torch.Tensor) -> torch.Tensor:
+        """The projection of d (m, m) onto bounds, mask and band; a new tensor of d's dtype and device."""
+        check_height_field(d)
+        mask = self._mask_for(d)
+        shift = slab_multiplier(d.detach().to(torch.float64)[mask], 0.0, self.p1, self.p2, self.band)
+        return clamp_on_mask(d - shift, mask, self.p1, self.p2)
