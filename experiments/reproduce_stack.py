@@ -4,7 +4,7 @@ third screen distance change the reconstruction, and the lab study with two phot
 - ``screens``: print_lines and letter_a from 1, 2 and 3 screens (0.05, 0.2, 1.0 below the
   substrate), the same total photons (``photons`` split over the shots) and the same noise
   level per image, and the Fig. 7 distance (1.0) with a near screen (0.05); several screens
-  with both weightings of the shots' misfits (data.weighting: equal, distance).
+  with the weightings of the shots' misfits (data.weighting: equal, distance, noise).
 - ``lab``: the caustics at the true screen distance 0.05 and 0.15 farther (a translation stage),
   times camera gains of 1.7 and 1.3, with 5% noise; the reconstruction is told a distance 10% too
   large and estimates it with both gains (calibration.params=[gain, screen_distance]), beside the
@@ -36,7 +36,7 @@ from framework.core.data import resample_image
 from framework.pipeline.reconstruction import run_reconstruction
 
 SCREEN_SETS = ((0.05,), (0.05, 0.2), (0.05, 0.2, 1.0), (1.0, 0.05))
-WEIGHTINGS = ("equal", "distance")  # data.weighting
+WEIGHTINGS = ("equal", "distance", "noise")  # data.weighting
 TOTAL_PHOTONS = 1 << 20  # split over the shots: each traces TOTAL_PHOTONS / N per evaluation
 LAB_DISTANCES, LAB_GAINS, DISTANCE_ERROR = (0.05, 0.2), (1.7, 1.3), 1.10
 

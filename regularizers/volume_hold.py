@@ -35,6 +35,8 @@ class VolumeHold(PostStepUpdate):
 
     needs_volume = True  # the run's checks refuse measured data without data.volume (framework/pipeline/run_checks.py)
 
+    holds_volume = True  # a stack's calibrated distance moves without a factor on the heights (calibration.py)
+
     def __init__(self, tolerance: float = 0.02, p1: float = 0.0, p2: float = 0.3) -> None:
         self.tolerance = check_relative_tolerance(tolerance, "tolerance")
         self.p1, self.p2 = check_bounds(p1, p2)

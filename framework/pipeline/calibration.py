@@ -85,6 +85,9 @@ BOUND = 2.0
 # The factor on the heights that a stack's screen distance moves with (internal, not reported).
 HEIGHT_SCALE = "height_scale"
 _MAX_TRIES = 3
+# Iterations at the noise level in a row whose update still moves the geometry by more than its
+# standard error, after which Morozov's rule may stop anyway.
+MAX_SETTLE_ROUNDS = 20
 # The prior of psf_sigma: standard deviation PSF_PRIOR x its start (at least one receiver pixel).
 PSF_PRIOR = 10.0
 # One update changes psf_sigma by at most this factor either way (the image is far from linear in a
@@ -118,7 +121,7 @@ class JointCalibration(Callback):
 
     def __init__(self, operator: Any, params: Sequence[str], every: int = 30,
                  damping: float = 1e-3, prior: float = 0.1, scene: Any = None,
-                 psf_sigma_start: float | None = None) -> None:
+                 psf_sigma_start: float | None = None, volume_held: bool = False) -> None:
         unknown = [p for p in params if p not in CALIBRATION_PARAMS]
         if unknown or not params or len(set(params)) != len(params):
             raise ValueError(f"calibration.params={list(params)!r}: give distinct names from "
@@ -149,18 +152,23 @@ class JointCalibration(Callback):
         self.goal: float | None = None
         self.geometry_started = False
         # A stack's screen distance moves with a scale of the heights (the shots' offsets tell the
-        # distance only jointly with the heights' strength; module docstring).
-        self.scales_heights = isinstance(self.setup_of, StackSetup) and "screen_distance" in self.params
+        # distance only jointly with the heights' strength; module docstring), unless the solver
+        # holds the known volume (regularizers/volume_hold.py), which fixes that strength itself.
+        # Its geometry is updated at every iteration at the noise level until it settles.
+        self.settles = isinstance(self.setup_of, StackSetup) and "screen_distance" in self.params
+        self.scales_heights = self.settles and not volume_held
         self.height_scale = 1.0  # the last update's factor on the heights (1: none)
+        self.settle_rounds = 0  # updates at the noise level in a row that still moved the geometry
 
     @classmethod
     def from_config(cls, operator: Any, settings: Mapping[str, Any], scene: Any = None,
-                    screen_sigma: float = 0.0) -> JointCalibration | None:
+                    screen_sigma: float = 0.0, volume_held: bool = False) -> JointCalibration | None:
         """The calibration of the config group ``calibration`` (keys params, every, damping, prior,
         psf_sigma_start), or None when ``params`` is empty; ``scene``: the configured scene (a
         stack's shots keep their offsets from it); ``screen_sigma``: the configured ``screen.sigma``
         (scene units, whatever ``screen.psf``), where ``psf_sigma`` starts unless
-        ``psf_sigma_start`` is given (0: one receiver pixel)."""
+        ``psf_sigma_start`` is given (0: one receiver pixel); ``volume_held``: the solver holds the
+        known volume, so a stack's distance moves without a factor on the heights."""
         keys = ("params", "every", "damping", "prior", "psf_sigma_start")
         unknown = [k for k in settings if k not in keys]
         if unknown:
@@ -191,7 +199,7 @@ class JointCalibration(Callback):
             elif screen_sigma > 0.0:
                 start = float(screen_sigma)
         return cls(operator, list(params), every=settings.get("every", 30), damping=settings.get("damping", 1e-3),
-                   prior=settings.get("prior", 0.1), scene=scene, psf_sigma_start=start)
+                   prior=settings.get("prior", 0.1), scene=scene, psf_sigma_start=start, volume_held=volume_held)
 
     def gain_of_shot(self, index: int) -> JointCalibration | None:
         """The calibration of shot ``index``'s gain alone (a stack's first fit,
@@ -238,10 +246,15 @@ class JointCalibration(Callback):
     def on_iteration(self, solver, record) -> None:  # noqa: D102
         self.geometry_started |= record.rel_discrepancy <= 2.0 * self.delta
         params = self.params if self.geometry_started else [p for p in self.params if is_gain(p)]
-        settle = (self.scales_heights and self.geometry_started and self.goal is not None
+        settle = (self.settles and self.geometry_started and self.goal is not None
                   and record.rel_discrepancy <= self.goal)
         if (record.iteration % self.every == 0 or settle) and params:
+            before = self.values()
             self.update(solver.d, params)
+            if settle:  # a geometry still moving by more than its standard error has not settled
+                moved = [p for p in params if not is_gain(p) and abs(self.values()[p] - before[p]) > self.std.get(p, 0.0)]
+                self.settle_rounds = self.settle_rounds + 1 if moved else 0
+                record.extras["calibration_settled"] = float(not moved or self.settle_rounds > MAX_SETTLE_ROUNDS)
             if self.height_scale != 1.0:
                 solver.set_heights(solver.d * self.height_scale)
             solver.setup_changed()

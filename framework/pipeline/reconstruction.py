@@ -22,6 +22,7 @@ from framework.core.contracts.solver import SolverBuilder
 from framework.core.contracts.start import Start, StartRequest
 from framework.core.contracts.stopping import StoppingRule
 from framework.core.plugin_config import as_mapping, build_plugin, split_name
+from framework.core.registry import lookup
 from framework.core.objective import DataFidelity
 from framework.core.problem import HeightGrid, Problem
 from framework.core.run_settings import RunSettings, design_given
@@ -217,7 +218,10 @@ class Reconstruction:
         data_source = build_plugin("data", data_name, data_params, "data")
         setup = SceneSetup.parse(cfg, settings.mm_per_unit, imaging=bool(calibration_cfg.get("params")),
                                  shots=data_source.setups if isinstance(data_source, ShotStack) else None)
-        calibration = JointCalibration.from_config(setup.operator, calibration_cfg, setup.scene, setup.screen_sigma)
+        post_steps = dict(as_mapping(cfg.get("solver") or {}, "solver").get("post_steps") or {})
+        volume_held = any(getattr(lookup("post_step", name), "holds_volume", False) for name in post_steps)
+        calibration = JointCalibration.from_config(setup.operator, calibration_cfg, setup.scene, setup.screen_sigma,
+                                                   volume_held)
         solver_name, solver_params = split_name(cfg.get("solver"), "solver")
         max_iter = positive_int(solver_params.pop("max_iter", None), "solver.max_iter")  # the loop's, not the solver's
         make_solver = build_plugin("solver", solver_name, solver_params, "solver")

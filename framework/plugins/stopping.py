@@ -32,10 +32,13 @@ class MorozovStopping(StoppingRule):
     solution is about delta, so tau_dis <= 1 may never trigger, or only by chance); we therefore
     refuse tau_dis <= 1. The paper uses 1.01 to 1.2.
 
-    When the deposited volume is known (a volume band [q1, q2] of the height sum, from V1 or V2),
-    it is data too: an iterate is then admissible only if its height sum lies in the band as
-    well. Without that, a smooth print whose caustic barely sees volume spread over the mask stops
+    When the deposited volume is known (a volume band [q1, q2] of the height sum, the narrowest of
+    V1, V2 and the hold), it is data too: an iterate is then admissible only if its height sum lies
+    in the band as well. Without that, a smooth print whose caustic barely sees volume spread over the mask stops
     as soon as it fits the image, with a fraction of its volume (a 0.05-high bump: at 31%).
+    Likewise a jointly calibrated geometry (framework/pipeline/calibration.py) must have settled:
+    an iteration whose calibration update still moved it by more than its standard error
+    (``record.extras["calibration_settled"] == 0``) is not accepted.
 
     Args:
         delta: Relative noise level of the data, 0 < delta < 1 (the paper: 0.05); None: set by
@@ -80,7 +83,7 @@ class MorozovStopping(StoppingRule):
             self.volume_band = solver.volume_band()
 
     def on_iteration(self, solver, record) -> bool:  # noqa: D102
-        if record.rel_discrepancy > self.threshold:
+        if record.rel_discrepancy > self.threshold or not record.extras.get("calibration_settled", 1.0):
             return False
         volume = ""
         if self.volume_band is not None:
@@ -139,6 +142,9 @@ class StagnationStopping(StoppingRule):
             self.best_discrepancy = record.rel_discrepancy
             self.best_iteration = record.iteration
             self.best_d = solver.d.detach().clone()
+        if not record.extras.get("calibration_settled", 1.0):  # a calibrated geometry still moving is progress
+            self._progress_iteration = record.iteration
+            return False
         if record.rel_discrepancy < (1.0 - self.min_improvement) * self._reference:
             self._reference = record.rel_discrepancy
             self._progress_iteration = record.iteration

@@ -171,3 +171,27 @@ def test_stagnation_keeps_the_lowest_discrepancy_even_below_the_improvement_thre
 def test_stagnation_refuses_bad_settings(kwargs):
     with pytest.raises(ValueError, match="patience|min_improvement"):
         StagnationStopping(**kwargs)
+
+
+class Unsettled(Callback):
+    """Marks the first ``rounds`` iterations' calibrated geometry as still moving."""
+
+    order = -40
+
+    def __init__(self, rounds):
+        self.rounds = rounds
+
+    def on_iteration(self, solver, record):
+        record.extras["calibration_settled"] = float(record.iteration > self.rounds)
+        return False
+
+
+def test_morozov_and_stagnation_wait_while_a_calibrated_geometry_still_moves():
+    flat = [0.5] + [0.1] * 20  # at the noise level from iteration 2 on, never better
+    assert ScriptedSolver(flat).run(30, [MorozovStopping(0.1, 1.05)]).iterations == 2
+    result = ScriptedSolver(flat).run(30, [Unsettled(9), MorozovStopping(0.1, 1.05)])
+    assert result.iterations == 10 and result.stopped_by == "MorozovStopping"
+    # stagnation (patience 3) counts no iteration whose geometry still moved; the first settled one
+    # (10) improves on the discrepancy before the geometry moved, so it stops three later
+    result = ScriptedSolver(flat).run(30, [Unsettled(9), StagnationStopping(patience=3)])
+    assert result.iterations == 13 and result.stopped_by == "StagnationStopping"

@@ -175,10 +175,8 @@ def test_a_shot_s_missing_file_is_named(tmp_path) -> None:
         Reconstruction.from_config(cfg, tmp_path).check(tmp_path, tmp_path / "run")
 
 
-def test_the_stack_moves_the_heights_with_the_distance_it_calibrates(tmp_path) -> None:
-    # Heights fitted to the near shot with the distance told 10% too far are 1/1.1 of the truth;
-    # a step on the distance alone would move it farther still. With the heights' factor in the
-    # step, distance and heights come back together.
+def _distance_told_too_far(tmp_path, volume_held: bool) -> tuple[torch.Tensor, JointCalibration]:
+    """A bump's caustics at DISTANCES and the stack's distance calibration told 10% too far."""
     truth = bump(32, sigma=0.25, height=0.06)
     truth_base = make_operator(photons=1 << 17, resolution=48, seed=11)
     target = torch.cat([_at(truth_base, z).render(truth) for z in DISTANCES])
@@ -186,14 +184,33 @@ def test_the_stack_moves_the_heights_with_the_distance_it_calibrates(tmp_path) -
     told = 1.1 * DISTANCES[0]
     shots = [ImagingOperator(lambda scene: CausticOperator(scene, model.settings), _at(model, told + z - DISTANCES[0]).scene)
              for z in DISTANCES]
-    calibration = JointCalibration(StackOperator(shots), ["screen_distance"], scene=_at(model, told).scene)
+    calibration = JointCalibration(StackOperator(shots), ["screen_distance"], scene=_at(model, told).scene,
+                                   volume_held=volume_held)
     calibration.setup(target, None, 0.05, tmp_path / "calibration.json")
+    return truth, calibration
+
+
+def test_the_stack_moves_the_heights_with_the_distance_it_calibrates(tmp_path) -> None:
+    # Heights fitted to the near shot with the distance told 10% too far are 1/1.1 of the truth;
+    # a step on the distance alone would move it farther still. With the heights' factor in the
+    # step, distance and heights come back together.
+    truth, calibration = _distance_told_too_far(tmp_path, volume_held=False)
     heights = truth / 1.1
     for _ in range(4):
         values = calibration.update(heights)
         heights = heights * calibration.height_scale
     assert values["screen_distance"] == pytest.approx(DISTANCES[0], rel=1e-2)
     assert float((heights - truth).abs().max()) <= 0.01 * float(truth.max())
+
+
+def test_with_the_volume_held_the_distance_moves_alone_and_is_found(tmp_path) -> None:
+    # Heights that hold the known volume have the truth's strength: the distance told 10% too far
+    # comes back from the stack's offsets without a factor on the heights.
+    truth, calibration = _distance_told_too_far(tmp_path, volume_held=True)
+    for _ in range(4):
+        values = calibration.update(truth)
+        assert calibration.height_scale == 1.0
+    assert values["screen_distance"] == pytest.approx(DISTANCES[0], rel=1e-2)
 
 
 def test_noise_weighting_counts_every_shot_in_units_of_its_own_noise(tmp_path) -> None:
