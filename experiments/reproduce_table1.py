@@ -44,6 +44,7 @@ def write_table(runs: list, client, out: Path) -> list[dict]:
             "rel_err_d": metrics.get("rel_error_d"), "iter": int(metrics.get("iterations", 0)),
             "returned_iter": int(metrics.get("returned_iteration", metrics.get("iterations", 0))),
             "photon_traces": metrics.get("photon_traces"),
+            "stop": str(metrics.get("stop_reason", "")).split(":")[0], "volume_ratio": metrics.get("volume_ratio"),
             "tau_dis": params.get("stopping.morozov.tau_dis"), "tau": params.get("solver.step_size.tau"),
             "paper_run_time_min": paper[0], "paper_rel_dis": paper[1], "paper_rel_err": paper[2],
             "paper_iter": paper[3]})
@@ -55,12 +56,12 @@ def write_table(runs: list, client, out: Path) -> list[dict]:
     def fmt(v, spec):
         return "" if v is None else format(v, spec)
 
-    lines = ["| method | run time (min) | rel. dis. | rel. err. | rel. err. (d) | #iter (returned) | photon-traces (G) "
-             "| tau_dis | paper: time | paper: dis. | paper: err. | paper: #iter |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    lines = ["| method | stop | run time (min) | rel. dis. | rel. err. | rel. err. (d) | volume ratio | #iter (returned) "
+             "| photon-traces (G) | tau_dis | paper: time | paper: dis. | paper: err. | paper: #iter |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
-        lines.append(f"| {r['method']} | {r['run_time_min']:.2f} | {r['rel_dis']:.4f} | {r['rel_err']:.4f} "
-                     f"| {r['rel_err_d']:.4f} | {r['iter']} ({r['returned_iter']}) "
+        lines.append(f"| {r['method']} | {r['stop']} | {r['run_time_min']:.2f} | {r['rel_dis']:.4f} | {r['rel_err']:.4f} "
+                     f"| {r['rel_err_d']:.4f} | {fmt(r['volume_ratio'], '.3f')} | {r['iter']} ({r['returned_iter']}) "
                      f"| {fmt(r['photon_traces'] and r['photon_traces'] / 1e9, '.3f')} | {r['tau_dis']} "
                      f"| {fmt(r['paper_run_time_min'], '.2f')} "
                      f"| {fmt(r['paper_rel_dis'], '.4f')} | {fmt(r['paper_rel_err'], '.4f')} "

@@ -41,16 +41,31 @@ def qp_projection(w: np.ndarray, mask: np.ndarray, q1: float, q2: float) -> np.n
 
 @pytest.mark.parametrize("volume", [1.0, 2.5, 4.0])
 def test_projection_matches_qp_and_lands_in_the_band(volume: float, rng: np.random.Generator) -> None:
+    """Too much glass: the projection onto bounds, mask and band. Too little (4.0 > the sum of
+    about 3.3): the same on the samples above p1 only, the others clamped to the bounds."""
     w = rng.uniform(-0.1, 0.4, size=(5, 5))
     step = hold(volume)
     out = step(torch.from_numpy(w))
     q1, q2 = step.band
     assert (q1, q2) == pytest.approx((volume * (1 - TOLERANCE), volume * (1 + TOLERANCE)))
-    expected = qp_projection(w, mask5().numpy(), q1, q2)
+    raising = float(np.clip(w, P1, P2)[mask5().numpy()].sum()) < q1
+    assert raising == (volume == 4.0)
+    support = mask5().numpy() & (w > P1) if raising else mask5().numpy()
+    expected = qp_projection(w, support, q1, q2)
     np.testing.assert_allclose(out.numpy(), expected, atol=1e-7)
     assert q1 - 1e-9 <= float(out.sum()) <= q2 + 1e-9
     assert float(out.min()) >= P1 and float(out.max()) <= P2
     assert float(out[~mask5()].abs().max()) == 0.0
+
+
+def test_flat_glass_stays_flat_and_only_raised_glass_is_raised() -> None:
+    flat = torch.zeros(5, 5, dtype=torch.float64)
+    assert torch.equal(hold(2.0)(flat), flat)
+    w = torch.zeros(5, 5, dtype=torch.float64)
+    w[2, 1:4] = 0.1
+    out = hold(0.6)(w)
+    assert float(out.sum()) == pytest.approx(0.6 * (1 - TOLERANCE), rel=1e-12)
+    assert torch.equal(out[w == 0], w[w == 0]) and torch.allclose(out[2, 1:4], torch.full((3,), 0.196, dtype=w.dtype))
 
 
 def test_heights_inside_the_band_and_bounds_are_untouched(rng: np.random.Generator) -> None:
