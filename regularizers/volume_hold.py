@@ -73,4 +73,5 @@ class VolumeHold(PostStepUpdate):
             if not bool(moving.any()):
                 return d.clone()
         shift = slab_multiplier(d.detach().to(torch.float64)[moving], 0.0, self.p1, self.p2, self.band)
-        return torch.where(moving, torch.clamp(d - shift, self.p1, self.p2), clamp_on_mask(d, printed, self.p1, self.p2))
+        held = torch.clamp(d - shift, self.p1, self.p2)
+        return torch.where(moving, held, clamp_on_mask(d, printed, self.p1, self.p2))

@@ -252,7 +252,8 @@ class JointCalibration(Callback):
             before = self.values()
             self.update(solver.d, params)
             if settle:  # a geometry still moving by more than its standard error has not settled
-                moved = [p for p in params if not is_gain(p) and abs(self.values()[p] - before[p]) > self.std.get(p, 0.0)]
+                now = self.values()
+                moved = [p for p in params if not is_gain(p) and abs(now[p] - before[p]) > self.std.get(p, 0.0)]
                 self.settle_rounds = self.settle_rounds + 1 if moved else 0
                 record.extras["calibration_settled"] = float(not moved or self.settle_rounds > MAX_SETTLE_ROUNDS)
             if self.height_scale != 1.0:

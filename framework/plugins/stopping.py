@@ -34,8 +34,9 @@ class MorozovStopping(StoppingRule):
 
     When the deposited volume is known (a volume band [q1, q2] of the height sum, the narrowest of
     V1, V2 and the hold), it is data too: an iterate is then admissible only if its height sum lies
-    in the band as well. Without that, a smooth print whose caustic barely sees volume spread over the mask stops
-    as soon as it fits the image, with a fraction of its volume (a 0.05-high bump: at 31%).
+    in the band as well. Without that, a smooth print whose caustic barely sees volume spread over
+    the mask stops as soon as it fits the image, with a fraction of its volume (a 0.05-high bump:
+    at 31%).
     Likewise a jointly calibrated geometry (framework/pipeline/calibration.py) must have settled:
     an iteration whose calibration update still moved it by more than its standard error
     (``record.extras["calibration_settled"] == 0``) is not accepted.
