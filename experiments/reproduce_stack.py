@@ -33,10 +33,11 @@ from experiments.mlflow_store import TrackingStore
 from experiments.configs import known_print, reconstruct_config
 from experiments.reproduce_lab import error_against, true_caustic, truth_and_volume, with_noise
 from framework.core.data import resample_image
+from framework.plugins.data.stack import StackData
 from framework.pipeline.reconstruction import run_reconstruction
 
 SCREEN_SETS = ((0.05,), (0.05, 0.2), (0.05, 0.2, 1.0), (1.0, 0.05))
-WEIGHTINGS = ("equal", "distance", "noise")  # data.weighting
+WEIGHTINGS = StackData.WEIGHTINGS  # data.weighting
 TOTAL_PHOTONS = 1 << 20  # split over the shots: each traces TOTAL_PHOTONS / N per evaluation
 LAB_DISTANCES, LAB_GAINS, DISTANCE_ERROR = (0.05, 0.2), (1.7, 1.3), 1.10
 

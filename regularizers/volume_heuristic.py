@@ -29,6 +29,37 @@ def volume_band(ctx: RegularizerContext, v_eps: float, who: str) -> tuple[float,
     return volume * (1.0 - v_eps) / ctx.pixel_area, volume * (1.0 + v_eps) / ctx.pixel_area
 
 
+class VolumeBand:
+    """Mixin of the volume terms (V1, V2, the hold): the band [q1, q2] of the height sum, set up once
+    from the context (:meth:`set_band`) and read as :attr:`band`. Needs ``ctx`` (a set-up
+    :class:`regularizers.base._UsesContext`)."""
+
+    _q: tuple[float, float] | None = None
+
+    def set_band(self, ctx: RegularizerContext, v_eps: float, who: str,
+                 bounds: tuple[float, float] | None = None) -> None:
+        """The band of :func:`volume_band`; with ``bounds`` (p1, p2), refuse a band that heights within
+        them on the mask cannot reach."""
+        q1, q2 = volume_band(ctx, v_eps, who)
+        if bounds is not None:
+            p1, p2 = bounds
+            n = int(ctx.mask.sum())
+            if n * p1 > q2 or n * p2 < q1:
+                raise ValueError(
+                    f"{who}: the volume band [{q1:.6g}, {q2:.6g}] (sum of heights) is unreachable with {n} mask "
+                    f"pixels and bounds [{p1}, {p2}] (reachable [{n * p1:.6g}, {n * p2:.6g}]); check volume, "
+                    "pixel_area, mask and p2, and check data.volume's unit"
+                )
+        self._q = (q1, q2)
+
+    @property
+    def band(self) -> tuple[float, float]:
+        """(q1, q2) in scene units (sum of heights)."""
+        self.ctx  # raises if not set up
+        assert self._q is not None
+        return self._q
+
+
 def window_mean(d: torch.Tensor, radius: int) -> torch.Tensor:
     """dbar_j: mean of d over the (2r+1) x (2r+1) window around j, zero padding at the borders.
 
@@ -38,7 +69,7 @@ def window_mean(d: torch.Tensor, radius: int) -> torch.Tensor:
     return F.avg_pool2d(d[None, None], kernel_size=k, stride=1, padding=radius, count_include_pad=True)[0, 0]
 
 
-class VolumeHeuristic(PostStepUpdate):
+class VolumeHeuristic(VolumeBand, PostStepUpdate):
     """Eq. (8): push the total height sum v(d) = sum_j d_j back into [q1, q2].
 
     With q1 = V (1 - V_eps) / a, q2 = V (1 + V_eps) / a and dbar the local window mean
@@ -64,19 +95,11 @@ class VolumeHeuristic(PostStepUpdate):
         if int(r_v) != r_v or int(r_v) < 0:
             raise ValueError(f"window radius r_v={r_v!r} must be a non-negative integer; the paper uses 2")
         self.r_v = int(r_v)
-        self._q: tuple[float, float] | None = None
 
     def setup(self, ctx: RegularizerContext) -> None:
         """Store the context and compute the band [q1, q2]; requires ``ctx.volume``."""
         super().setup(ctx)
-        self._q = volume_band(ctx, self.v_eps, "volume_v1")
-
-    @property
-    def band(self) -> tuple[float, float]:
-        """(q1, q2) in scene units (sum of heights)."""
-        self.ctx  # raises if not set up
-        assert self._q is not None
-        return self._q
+        self.set_band(ctx, self.v_eps, "volume_v1")
 
     def __call__(self, d: torch.Tensor) -> torch.Tensor:
         """Apply eq. (8) once; returns a new tensor of d's shape (m, m), dtype and device."""

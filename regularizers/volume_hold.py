@@ -20,11 +20,11 @@ import torch
 from ._checks import check_bounds, check_height_field, check_relative_tolerance
 from .base import PostStepUpdate, RegularizerContext
 from .shrinkage import clamp_on_mask
-from .volume_heuristic import volume_band
+from .volume_heuristic import VolumeBand
 from .volume_prox import slab_multiplier
 
 
-class VolumeHold(PostStepUpdate):
+class VolumeHold(VolumeBand, PostStepUpdate):
     """Bring d onto the bounds, the mask and the volume band of relative width ``tolerance`` (module
     docstring: lowering is the Euclidean projection, raising moves the samples above p1 only).
 
@@ -43,25 +43,12 @@ class VolumeHold(PostStepUpdate):
     def __init__(self, tolerance: float = 0.02, p1: float = 0.0, p2: float = 0.3) -> None:
         self.tolerance = check_relative_tolerance(tolerance, "tolerance")
         self.p1, self.p2 = check_bounds(p1, p2)
-        self._q: tuple[float, float] | None = None
 
     def setup(self, ctx: RegularizerContext) -> None:
         """Store the context and the band [q1, q2] (a sum of heights); refuse a band the bounds cannot
         reach on the mask."""
         super().setup(ctx)
-        q1, q2 = volume_band(ctx, self.tolerance, "volume_hold")
-        n = int(ctx.mask.sum())
-        if n * self.p1 > q2 or n * self.p2 < q1:
-            raise ValueError(f"volume_hold: the volume band [{q1:.6g}, {q2:.6g}] (sum of heights) is unreachable with "
-                             f"{n} printed samples within [{self.p1}, {self.p2}]; check data.volume, the mask and p2")
-        self._q = (q1, q2)
-
-    @property
-    def band(self) -> tuple[float, float]:
-        """(q1, q2) in scene units (sum of heights)."""
-        self.ctx  # raises if not set up
-        assert self._q is not None
-        return self._q
+        self.set_band(ctx, self.tolerance, "volume_hold", (self.p1, self.p2))
 
     def __call__(self, d: torch.Tensor) -> torch.Tensor:
         """d (m, m) held in bounds, mask and band; a new tensor of d's dtype and device."""

@@ -16,10 +16,10 @@ import torch
 from ._checks import check_bounds, check_height_field, check_nonnegative, check_positive, check_relative_tolerance
 from .base import Regularizer, RegularizerContext
 from .shrinkage import clamp_on_mask, soft_shrink
-from .volume_heuristic import volume_band
+from .volume_heuristic import VolumeBand
 
 
-class VolumeSlabL1Bounds(Regularizer):
+class VolumeSlabL1Bounds(VolumeBand, Regularizer):
     """R(d) = alpha ||d||_1 + iota_C(d) + iota_{q1 <= sum_{N^} d <= q2}(d).
 
     C = {p1 <= d_j <= p2 on N^, d_j = 0 on N°}; q1 = V (1 - V_eps)/a, q2 = V (1 + V_eps)/a
@@ -76,27 +76,11 @@ class VolumeSlabL1Bounds(Regularizer):
         if int(max_iter) < 1:
             raise ValueError(f"max_iter={max_iter!r} must be >= 1; 200 bisection steps reach float64 precision")
         self.max_iter = int(max_iter)
-        self._q: tuple[float, float] | None = None
 
     def setup(self, ctx: RegularizerContext) -> None:
         """Store the context, compute [q1, q2] and check that the constraints can be met."""
         super().setup(ctx)
-        q1, q2 = volume_band(ctx, self.v_eps, "volume_v2")
-        n = int(ctx.mask.sum())
-        if n * self.p1 > q2 or n * self.p2 < q1:
-            raise ValueError(
-                f"volume band [{q1:.6g}, {q2:.6g}] (sum of heights) is unreachable with {n} mask pixels "
-                f"and bounds [{self.p1}, {self.p2}] (reachable [{n * self.p1:.6g}, {n * self.p2:.6g}]); "
-                "check volume, pixel_area, mask and p2"
-            )
-        self._q = (q1, q2)
-
-    @property
-    def band(self) -> tuple[float, float]:
-        """(q1, q2) in scene units (sum of heights)."""
-        self.ctx  # raises if not set up
-        assert self._q is not None
-        return self._q
+        self.set_band(ctx, self.v_eps, "volume_v2", (self.p1, self.p2))
 
     def value(self, d: torch.Tensor, rtol: float = 1e-9) -> float:
         """alpha ||d||_1 if d meets bounds, mask and band (relative tolerance ``rtol``), else ``inf``."""
