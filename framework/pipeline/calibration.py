@@ -235,6 +235,7 @@ class JointCalibration(Callback):
             self._apply(state["values"])
             self.initial, self.std, self.updates = state["initial"], state["std"], state["updates"]
             self.geometry_started = state["geometry_started"]
+            self.settle_rounds = int(state.get("settle_rounds", 0))  # a state without it: none counted
 
     # -- the callback ----------------------------------------------------------------------------
     def on_start(self, solver) -> None:  # noqa: D102
@@ -256,6 +257,7 @@ class JointCalibration(Callback):
                 moved = [p for p in params if not is_gain(p) and abs(now[p] - before[p]) > self.std.get(p, 0.0)]
                 self.settle_rounds = self.settle_rounds + 1 if moved else 0
                 record.extras["calibration_settled"] = float(not moved or self.settle_rounds > MAX_SETTLE_ROUNDS)
+                self._save()
             if self.height_scale != 1.0:
                 solver.set_heights(solver.d * self.height_scale)
             solver.setup_changed()
@@ -410,5 +412,5 @@ class JointCalibration(Callback):
         if self.state_path is not None:
             state: dict[str, Any] = {"values": self.values(), "std": self.std, "updates": self.updates,
                                      "initial": self.initial, "geometry_started": self.geometry_started,
-                                     **self.psf_units()}
+                                     "settle_rounds": self.settle_rounds, **self.psf_units()}
             self.state_path.write_text(json.dumps(state, indent=2))

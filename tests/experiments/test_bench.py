@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 
 import pytest
 import torch
@@ -83,9 +84,12 @@ print(json.dumps(profile_stages(op, heights, torch.zeros(op.output_shape), 300))
 def test_stage_profile_times_every_stage():
     profile = run_json_script(PROFILE, NUMBA_DISABLE_JIT="1", NUMBA_NUM_THREADS="2")
     stages = ("emission_ns", "hit_search_ns", "surface_jet_ns", "optics_and_footprint_ns", "splat_ns")
-    assert all(profile[name] > 0 for name in stages), profile
-    # How the stages compare is the benchmark's to print (timings of a loaded machine order them
-    # either way); here every stage is timed and the totals add up.
+    # A stage is the difference of two cumulative timings, each the best of a few runs: on a loaded
+    # machine one can come out at or below zero, so each is only required to be timed (finite) and the
+    # stages to add up to the forward total. How they compare is the benchmark's to print.
+    assert all(math.isfinite(profile[name]) for name in stages), profile
+    assert sum(profile[name] for name in stages) == pytest.approx(profile["forward_total_ns"], rel=1e-9)
+    assert profile["forward_total_ns"] > 0
     assert profile["adjoint_searching_hits_ns"] > 0 and profile["adjoint_replaying_hits_ns"] > 0
     assert profile["forward_backward_total_ns"] == profile["forward_total_ns"] + profile["adjoint_replaying_hits_ns"]
     assert profile["one_surface_evaluation_ns"] > 0

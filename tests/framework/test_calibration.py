@@ -48,11 +48,13 @@ def test_a_resumed_calibration_starts_where_the_state_file_ends(tmp_path) -> Non
     op, truth, target = _case()
     first = JointCalibration(op, ["gain", "screen_distance"])
     first.setup(target, None, 0.05, tmp_path / "a.json")
+    first.settle_rounds = 3  # updates at the noise level that still moved the geometry
     values = first.update(truth)
     fresh, _, _ = _case()
     resumed = JointCalibration(fresh, ["gain", "screen_distance"])
     resumed.setup(target, None, 0.05, tmp_path / "b.json", resume_from=tmp_path / "a.json")
     assert resumed.values() == pytest.approx(values)
+    assert resumed.settle_rounds == 3  # the limit on settling rounds counts on from where it was
     assert fresh.scene.receiver.z == pytest.approx(-values["screen_distance"])
     with pytest.raises(FileNotFoundError, match="missing.json"):
         JointCalibration(fresh, ["gain"]).setup(target, None, 0.05, tmp_path / "c.json", tmp_path / "missing.json")
