@@ -37,6 +37,7 @@ def check_outputs(out: Path, channels: int, n: int, m: int) -> np.ndarray:
     return caustic
 
 
+@pytest.mark.slow
 def test_console_script_renders_the_print_lines(tmp_path: Path) -> None:
     out = tmp_path / "run"
     result = run_app(TINY + [f"hydra.run.dir={out}"], cwd=tmp_path)
@@ -50,6 +51,7 @@ def test_console_script_renders_the_print_lines(tmp_path: Path) -> None:
     assert (out / ".hydra" / "config.yaml").exists()
 
 
+@pytest.mark.slow
 def test_height_field_path_and_three_wavelengths(tmp_path: Path) -> None:
     heights = np.zeros((16, 16))
     heights[4:12, 4:12] = 0.01
@@ -74,6 +76,7 @@ def test_unknown_shape_fails_with_a_clear_message(tmp_path: Path) -> None:
     assert not (out / "caustic.npy").exists()
 
 
+@pytest.mark.slow
 def test_missing_height_file_fails_in_one_line_and_the_traceback_is_on_request(tmp_path: Path,
                                                                               monkeypatch: pytest.MonkeyPatch) -> None:
     args = TINY + [f"hydra.run.dir={tmp_path / 'run'}", "height_field.path=missing.npy"]

@@ -3,6 +3,8 @@
 
 from __future__ import annotations
 
+import pytest
+
 from tests.architecture.config_path import small_run_calls, stays
 
 
@@ -11,6 +13,7 @@ def test_stays_are_counted_per_run_of_calls():
     assert stays(calls) == {"a": 2, "b": 1}
 
 
+@pytest.mark.slow
 def test_a_reconstruction_hands_its_config_to_each_module_at_most_twice(tmp_path):
     visits = stays(small_run_calls(tmp_path))
     assert "framework.core.run_settings" in visits and "framework.core.scene_config" in visits  # it is traced

@@ -18,6 +18,7 @@ SMALL_RUN = ["solver.max_iter=3", "initial=zero", "photons=16384", "photon_budge
              "height_field.resolution=32", "checkpoint_every=100"]
 
 
+@pytest.mark.slow
 def test_bench_prints_the_promised_figures(capsys):
     main(["--photons", "200000", "--grad-photons", "30000", "--splat-photons", "3000", "--chunk-size", "8192",
           "--reference-photons", "20000", "--stage-photons", "0", "--mesh-photons", "20000",
@@ -81,6 +82,7 @@ print(json.dumps(profile_stages(op, heights, torch.zeros(op.output_shape), 300))
 """
 
 
+@pytest.mark.slow
 def test_stage_profile_times_every_stage():
     profile = run_json_script(PROFILE, NUMBA_DISABLE_JIT="1", NUMBA_NUM_THREADS="2")
     stages = ("emission_ns", "hit_search_ns", "surface_jet_ns", "optics_and_footprint_ns", "splat_ns")

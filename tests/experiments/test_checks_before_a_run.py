@@ -206,6 +206,7 @@ def test_sweep_jobs_follow_the_basic_sweepers_order() -> None:
         ["seed=1", "data.delta=0.05", "photons=7"], ["seed=1", "data.delta=0.1", "photons=7"]]
 
 
+@pytest.mark.slow
 def test_a_sweep_with_one_bad_value_starts_no_job(tmp_path) -> None:
     done = subprocess.run([sys.executable, "-m", "experiments.reconstruct", "-m", *SMALL, "seed=0,1",
                            "data.delta=0.05,1.5", f"hydra.sweep.dir={tmp_path / 'sweep'}",

@@ -42,6 +42,7 @@ def box(value: float) -> np.ndarray:
     return d
 
 
+@pytest.mark.slow
 def test_export_of_a_synthetic_run_in_a_subprocess(tmp_path):
     run = fake_run(tmp_path / "run", box(0.04), box(0.05))
     proc = subprocess.run([sys.executable, "-m", "experiments.export", str(run), "--format", "stl", "ply"],

@@ -4,6 +4,8 @@ noise, imported and reconstructed; and a screen distance 10% off, calibrated wit
 
 from __future__ import annotations
 
+import pytest
+
 from experiments.mlflow_store import TrackingStore
 from experiments.reproduce_lab import calibration_study, photo_study
 
@@ -21,6 +23,7 @@ REFERENCE_PHOTONS = 1 << 20
 PHOTO_SMALL = [o for o in SMALL if o != "initial=zero"] + ["initial=transport"]
 
 
+@pytest.mark.slow
 def test_a_photo_reconstructs_as_well_as_the_render_it_shows(tmp_path) -> None:
     row = photo_study("bump", tmp_path / "work", TrackingStore(tmp_path / "mlruns"), PHOTO_SMALL,
                       REFERENCE_PHOTONS)
@@ -29,6 +32,7 @@ def test_a_photo_reconstructs_as_well_as_the_render_it_shows(tmp_path) -> None:
     assert row["photo_error"] <= 1.4 * row["clean_error"] and row["photo_error"] < 0.01  # the bump: 0.0053 against 0.0041
 
 
+@pytest.mark.slow
 def test_joint_calibration_finds_the_gain_and_keeps_the_geometry_sane(tmp_path) -> None:
     row = calibration_study("bump", tmp_path / "work", TrackingStore(tmp_path / "mlruns"), SMALL, REFERENCE_PHOTONS)
     assert abs(row["gain"] - 1.7) < 0.01 * 1.7  # from the image as it is: nothing told

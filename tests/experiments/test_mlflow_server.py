@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import re
 
+import pytest
 from mlflow.tracking import MlflowClient
 
 from framework.pipeline.reconstruction import run_reconstruction
@@ -15,6 +16,7 @@ from tests.mlflow_server import mlflow_server
 ITERATIONS = 3
 
 
+@pytest.mark.slow
 def test_a_reconstruction_against_a_tracking_server_is_read_back(tmp_path):
     with mlflow_server(tmp_path / "server") as url:
         cfg = compose_reconstruct([*SMALL, f"solver.max_iter={ITERATIONS}", "stopping=none", f"tracking.uri={url}"],

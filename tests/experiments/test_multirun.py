@@ -5,11 +5,13 @@ from __future__ import annotations
 import subprocess
 import sys
 
+import pytest
 from mlflow.tracking import MlflowClient
 
 from tests.experiments.conftest import SMALL
 
 
+@pytest.mark.slow
 def test_multirun_logs_one_grouped_mlflow_run_per_job(tmp_path):
     store = tmp_path / "mlruns"
     cmd = [sys.executable, "-m", "experiments.reconstruct", "-m", "experiment=m1,m2v0", *SMALL,

@@ -40,6 +40,7 @@ def _log_run(url: str, index: int, cfg: dict) -> str:
         return tracker.run_id
 
 
+@pytest.mark.slow
 def test_eight_concurrent_runs_all_arrive(tmp_path) -> None:
     pytest.importorskip("psycopg")
     cfg = _config()

@@ -26,6 +26,7 @@ BUMP = ["scene=bump", "height_field.params.sigma=0.15", "height_field.params.hei
         "solver.step_size.tau=1e-3"]
 
 
+@pytest.mark.slow
 def test_smooth_bump_is_recovered_and_the_run_is_tracked(tmp_path):
     cfg = compose_reconstruct([*SMALL, *BUMP, "solver.max_iter=40"], tmp_path)
     metrics = run_reconstruction(cfg, tmp_path / "run", tmp_path)
@@ -51,6 +52,7 @@ def test_smooth_bump_is_recovered_and_the_run_is_tracked(tmp_path):
     assert {"height_field.npy", "metrics.json"} <= artifacts
 
 
+@pytest.mark.slow
 def test_resume_continues_an_interrupted_run_to_the_same_result(tmp_path):
     base = [*SMALL, *BUMP]
     full = run_reconstruction(compose_reconstruct([*base, "solver.max_iter=6"], tmp_path),
@@ -91,6 +93,7 @@ def test_starts_from_zero_design_or_file(tmp_path):
 FLAT_FIRST = ["initial=auto", "~initial.candidates", "+initial.candidates={zero: {}, transport: {}}"]
 
 
+@pytest.mark.slow
 def test_auto_tries_the_next_start_only_when_a_run_ends_short_of_the_noise_level(tmp_path):
     base = [*SMALL, *BUMP, *FLAT_FIRST, "solver.max_iter=3"]
     # Two iterations cannot reach a 1% noise level from flat glass: the transport start runs next.
@@ -110,6 +113,7 @@ def test_auto_tries_the_next_start_only_when_a_run_ends_short_of_the_noise_level
     assert "start_transport_rel_discrepancy" not in loose and loose["iterations"] == 1
 
 
+@pytest.mark.slow
 def test_an_auto_run_interrupted_in_its_second_start_resumes_there(tmp_path, monkeypatch):
     base = [*SMALL, *BUMP, *FLAT_FIRST, "solver.max_iter=4", "~stopping.morozov"]  # neither start is accepted
     full = run_reconstruction(compose_reconstruct(base, tmp_path), tmp_path / "full", tmp_path)
@@ -132,6 +136,7 @@ def test_an_auto_run_interrupted_in_its_second_start_resumes_there(tmp_path, mon
     assert np.array_equal(np.load(tmp_path / "full" / "height_field.npy"), np.load(tmp_path / "cut" / "height_field.npy"))
 
 
+@pytest.mark.slow
 def test_a_start_from_half_the_design_beats_the_flat_start(tmp_path):
     # The starts alone: the held volume would lift half the design to its volume in the first step.
     base = [*SMALL, *BUMP, "solver.max_iter=6", "~solver.post_steps.volume_hold"]
@@ -142,6 +147,7 @@ def test_a_start_from_half_the_design_beats_the_flat_start(tmp_path):
 
 
 @pytest.mark.parametrize("experiment", ["m1", "m2v0", "m2v1", "m2v2", "m3v0", "m3v1", "m3v2"])
+@pytest.mark.slow
 def test_every_experiment_preset_runs_two_iterations(tmp_path, experiment):
     cfg = compose_reconstruct([*SMALL, f"experiment={experiment}", "solver.max_iter=2"], tmp_path)
     metrics = run_reconstruction(cfg, tmp_path / experiment, tmp_path)
@@ -149,6 +155,7 @@ def test_every_experiment_preset_runs_two_iterations(tmp_path, experiment):
     assert metrics["method"] == experiment.upper()
 
 
+@pytest.mark.slow
 def test_the_papers_plain_iteration_runs_with_the_readme_overrides(tmp_path):
     # Hydra merges a dict override into the default step size: docs/method.md deletes it first.
     plain = ["solver.preconditioner=null", "~solver.step_size", "+solver.step_size={name: constant, tau: 2.5e-4}"]
@@ -229,6 +236,7 @@ def test_stage_changes_come_from_the_records_whoever_asked_for_them():
     assert stage_changes([record(i + 1, None) for i in range(4)]) == []  # no preconditioner
 
 
+@pytest.mark.slow
 def test_the_app_refuses_a_bad_value_in_one_line(tmp_path):
     done = subprocess.run([sys.executable, "-m", "experiments.reconstruct", *SMALL, "stopping.stagnation.patience=0",
                            f"hydra.run.dir={tmp_path / 'run'}", f"tracking.store_dir={tmp_path / 'mlruns'}"],

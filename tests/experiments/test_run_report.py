@@ -79,6 +79,7 @@ def _loaded(lab: Path, args: list[str]):
     return parts.data_source.load(parts.data_request(lab))
 
 
+@pytest.mark.slow
 def test_the_noise_level_estimated_from_two_exposures_is_the_datas(lab) -> None:
     data = _loaded(lab, _photo_args("first.png", "data.repeat=second.png", "data.delta=auto"))
     clean = _loaded(lab, _photo_args("clean.png"))

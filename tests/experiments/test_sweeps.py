@@ -49,6 +49,7 @@ def _check_two_finished_runs(store: Path, sweep: Path) -> None:
         assert run.data.params["solver.max_iter"] == "2" and len(run.data.params) > 40
 
 
+@pytest.mark.slow
 def test_a_sweep_through_submitits_local_executor(tmp_path, shared_store) -> None:
     pytest.importorskip("hydra_plugins.hydra_submitit_launcher")
     done = _sweep(tmp_path, ["hydra/launcher=submitit_local", "hydra.launcher.timeout_min=10"], shared_store)
@@ -57,6 +58,7 @@ def test_a_sweep_through_submitits_local_executor(tmp_path, shared_store) -> Non
     assert list((tmp_path / "sweep" / ".submitit").iterdir())  # the jobs went through submitit
 
 
+@pytest.mark.slow
 def test_a_sweep_on_a_local_ray_instance(tmp_path, shared_store) -> None:
     pytest.importorskip("hydra_plugins.hydra_ray_launcher")
     done = _sweep(tmp_path, ["hydra/launcher=ray_cluster", "hydra.launcher.ray.init.num_cpus=2",
@@ -72,6 +74,7 @@ def _iteration(checkpoint: Path) -> int:
         return 0
 
 
+@pytest.mark.slow
 def test_a_killed_sweep_job_run_again_resumes_and_ends_as_an_uninterrupted_one(tmp_path) -> None:
     common = [sys.executable, "-m", "experiments.reconstruct", "-m", "seed=3", *SMALL, "solver.max_iter=14",
               "checkpoint_every=2", "stopping=none", f"tracking.store_dir={tmp_path / 'mlruns'}"]

@@ -174,6 +174,7 @@ def test_a_config_with_a_negative_screen_sigma_is_refused_before_any_render(tmp_
         Reconstruction.from_config(cfg, tmp_path)
 
 
+@pytest.mark.slow
 def test_a_run_reports_the_width_in_scene_units_pixels_and_mm(tmp_path) -> None:
     cfg = compose_reconstruct([*SMALL, "solver.max_iter=2", "screen.psf=gaussian", "screen.sigma=0.5mm",
                                "calibration.params=[gain,psf_sigma]", "calibration.psf_sigma_start=0.04"], tmp_path)

@@ -61,6 +61,7 @@ def test_the_stacked_loss_and_gradient_are_the_weighted_sums_of_the_shots() -> N
     assert fidelity.photon_traces == 4 * 2 * stack.photons
 
 
+@pytest.mark.slow
 def test_a_stack_of_one_runs_exactly_as_the_one_image(tmp_path) -> None:
     base = [*SMALL, "scene=bump", "height_field.params.sigma=0.15", "height_field.params.height=0.05",
             "solver.step_size.tau=1e-3", "solver.max_iter=6"]
@@ -77,6 +78,7 @@ def test_a_stack_of_one_runs_exactly_as_the_one_image(tmp_path) -> None:
         assert stacked[key] == single[key], key
 
 
+@pytest.mark.slow
 def test_two_screens_report_each_shot(tmp_path) -> None:
     cfg = compose_reconstruct([*SMALL, "scene=bump", "data=stack", "solver.max_iter=2",
                                "+data.common.reference_photons=200000", "+data.common.reference_resolution=128"],

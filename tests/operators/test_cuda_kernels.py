@@ -52,6 +52,7 @@ print(json.dumps({
 """
 
 
+@pytest.mark.slow
 def test_simulated_cuda_kernels_match_the_cpu_kernels():
     result = run_json_script(SIMULATED, NUMBA_ENABLE_CUDASIM="1", NUMBA_DISABLE_JIT="1")
     cpu_reached, gpu_reached = result["reached"]

@@ -114,6 +114,7 @@ def test_gradients_through_lenses_above_and_below_the_print_match_finite_differe
 
 
 @pytest.mark.parametrize("operator_config", ["two_lenses", "prism_lens_array"])
+@pytest.mark.slow
 def test_the_native_path_equals_the_torch_tracer(operator_config):
     """Two independent implementations of the same photon paths: numba kernels with Embree on
     their threads and a cached prefix before the print (the default) against the event-by-event

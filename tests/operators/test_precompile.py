@@ -7,6 +7,8 @@ import subprocess
 import sys
 import textwrap
 
+import pytest
+
 import operators.heightfield.precompile as precompile
 from operators.heightfield.precompile import BackgroundCompile
 
@@ -24,6 +26,7 @@ _FRESH_GRADIENT = textwrap.dedent("""
 """)
 
 
+@pytest.mark.slow
 def test_precompiled_gradient_kernel_is_loaded_by_a_later_process(tmp_path):
     # An empty cache of its own, so the precompile really compiles (about 1.5 min on one core).
     env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path)}
