@@ -22,7 +22,7 @@ from framework.pipeline.checkpoint import load_checkpoint
 __all__ = ["PARTS", "run_fingerprint", "check_resumable"]
 
 # Operator settings that change speed, memory or the device, not the result.
-PERFORMANCE_KEYS = frozenset({"device", "chunk_size", "hit_cache_mb", "simd", "threads"})
+PERFORMANCE_KEYS = frozenset({"device", "chunk_size", "hit_cache_mb", "simd", "kernels", "threads"})
 # data.* and height_field.* keys that name input files whose bytes are part of the fingerprint.
 FILE_KEYS = ("image", "photo", "repeat", "dark", "flat", "mask", "path")
 SCENE_KEYS = ("light", "substrate", "receiver", "material", "wavelengths", "units", "screen", "calibration")

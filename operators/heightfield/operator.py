@@ -44,6 +44,7 @@ from operators.splat.splat import splat_photons
 from operators.heightfield.trace_reference import trace_substrate
 
 DTYPES = {"float32": torch.float32, "float64": torch.float64}
+KERNELS = ("auto", "c", "numba")  # OperatorSettings.kernels
 
 
 @dataclass(frozen=True)
@@ -70,6 +71,12 @@ class OperatorSettings:
         jets and the hit adjoint from the AVX2 kernels of the compiled extension
         (operators/kernels/simd_kernels.c) where it was built and the CPU has AVX2; elsewhere, or with
         False, the numba kernels do them (same results to rounding).
+    kernels: which CPU photon kernels trace (same results to rounding): ``c``, those of the
+        compiled extension (operators/kernels/heightfield_photons.c, compiled at install: no wait);
+        ``numba``, the numba kernels (compiled into numba's cache on first use, 1-2 minutes; on
+        CPUs with wide vector units faster than the C ones, docs/performance.md); ``auto``, numba
+        where its kernels are cached, else C while they compile in a second process for later
+        runs (operators/heightfield/precompile.py). Without the extension: numba.
     """
 
     photons: int = 1 << 22
@@ -82,6 +89,7 @@ class OperatorSettings:
     hit_cache_mb: float = 256.0
     fresnel: bool = False
     simd: bool = True
+    kernels: str = "auto"
     dtype: str = "float32"
     device: str = "cpu"
 
@@ -99,6 +107,8 @@ class OperatorSettings:
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
                 raise ValueError(f"operator.{key}={value!r} must be a finite number")
             object.__setattr__(self, key, float(value))
+        if self.kernels not in KERNELS:
+            raise ValueError(f"operator.kernels={self.kernels!r} must be one of {', '.join(KERNELS)}")
         for key in ("fresnel", "simd", "pixel_integration"):
             if not isinstance(getattr(self, key), bool):
                 raise ValueError(f"operator.{key}={getattr(self, key)!r} must be true or false")
@@ -165,10 +175,15 @@ class CausticOperator(PhotonOperator):
                                  fresnel=self.settings.fresnel)
 
     def warm_up(self) -> BackgroundCompile:
-        """Context for a run that will take gradients: on the CPU, compiles the gradient kernel in a
-        second process while this one goes on (first run after an install, operators/heightfield/precompile.py);
-        ``wait()`` on what it yields before the first gradient."""
-        return BackgroundCompile(enabled=self.device.type != "cuda")
+        """Context for a run that will take gradients, on the CPU: the numba kernels compiling in a
+        second process where they are not cached (operators/heightfield/precompile.py): for later
+        runs while this one traces with the C kernels (``kernels: auto``), or the gradient kernel
+        while this one compiles the render kernel (numba traces); ``wait()`` on what it yields
+        before the first gradient (returns at once in the first case)."""
+        cpu = self.device.type != "cuda"
+        if self.fused.compiled:
+            return BackgroundCompile(enabled=cpu and self.settings.kernels == "auto", blocking=False)
+        return BackgroundCompile(enabled=cpu)
 
     def __init__(self, scene: Scene, settings: OperatorSettings | None = None) -> None:
         self.scene = scene
@@ -180,7 +195,8 @@ class CausticOperator(PhotonOperator):
         self.glass_index = torch.tensor(scene.indices, dtype=self.dtype, device=self.device)
         self.fused = FusedTracer(scene, self.emitter,
                                  filter_radius_px(self.settings.min_footprint_px, self.settings.pixel_integration),
-                                 self.settings.max_pixel_radius, self.settings.fresnel, self.settings.simd)
+                                 self.settings.max_pixel_radius, self.settings.fresnel, self.settings.simd,
+                                 self.settings.kernels)
         self.hit_cache = HitCache(self.settings.hit_cache_mb)
         self.gpu = None
         if self.device.type == "cuda":

@@ -1,4 +1,6 @@
-"""Host side of the fused photon kernels (:mod:`operators.heightfield.kernels_native`): image and gradient."""
+"""Host side of the fused photon kernels: image and gradient, by the C kernels compiled at install
+(:mod:`operators.heightfield.trace_compiled`) where the extension was built, else by the numba
+kernels (:mod:`operators.heightfield.kernels_native`, :mod:`operators.heightfield.adjoint_native`)."""
 
 from __future__ import annotations
 
@@ -8,8 +10,10 @@ import numba as nb
 import numpy as np
 
 from operators.emission import PointLightEmitter
+from operators.heightfield import trace_compiled
 from operators.heightfield.adjoint_native import vjp_photons
 from operators.heightfield.kernels_native import FusedScene, render_photons
+from operators.heightfield.precompile import numba_kernels_cached
 from operators.heightfield.surface import HeightFieldGrid
 from operators.scene import Scene
 from operators.kernels.simd import AVAILABLE as SIMD_AVAILABLE
@@ -22,13 +26,18 @@ class FusedTracer:
     """Photons ``start .. stop-1`` of ``emitter`` traced through ``scene`` in one native pass each.
 
     Matches the torch path (PointLightEmitter.batch, trace_substrate, footprint_metric,
-    splat_photons) photon by photon, computed in float64.
+    splat_photons) photon by photon, computed in float64. ``kernels``: ``c``, ``numba`` or
+    ``auto`` (OperatorSettings.kernels; C only where the extension was built); ``simd``: both
+    take the AVX2 splat, gather, jets and hit adjoint where the CPU has them.
     """
 
     def __init__(self, scene: Scene, emitter: PointLightEmitter, filter_px: float,
-                 max_pixel_radius: float, fresnel: bool, simd: bool) -> None:
+                 max_pixel_radius: float, fresnel: bool, simd: bool, kernels: str = "auto") -> None:
         self.scene = scene
         self.simd = bool(simd) and SIMD_AVAILABLE  # whether the kernels use the AVX2 extension
+        # Whether the C kernels trace (else the numba kernels).
+        self.compiled = trace_compiled.AVAILABLE and (
+            kernels == "c" or (kernels == "auto" and not numba_kernels_cached()))
         self.shifts = np.ascontiguousarray(emitter.shifts.numpy(), dtype=np.float64)
         self.indices = np.asarray(scene.indices, dtype=np.float64)
         self.capacity = (2 * math.ceil(max_pixel_radius) + 3) ** 2
@@ -66,6 +75,9 @@ class FusedTracer:
         _check_contiguous(d=d, out=out)
         if replay and hit_t is None:
             raise ValueError("replay needs the recorded hits (hit_t)")
+        if self.compiled:
+            return trace_compiled.render(d, self.constants(d), self.shifts, self.indices, start, stop, out,
+                                         self.capacity, splat, NO_HITS if hit_t is None else hit_t, replay)
         with nb.parallel_chunksize(1):
             return render_photons(d, self.constants(d), self.shifts, self.indices, start, stop, out,
                                   self.capacity, splat, NO_HITS if hit_t is None else hit_t, replay)
@@ -81,6 +93,10 @@ class FusedTracer:
         start .. stop-1, G>, ``padded`` = :meth:`pad_gradient` (G). ``hit_t``: the hits that
         :meth:`render` recorded for these photons and these heights, replayed instead of searched."""
         _check_contiguous(d=d, padded=padded, out=out)
+        if self.compiled:
+            trace_compiled.vjp(d, self.constants(d), self.shifts, self.indices, start, stop, padded, self.gather_pad,
+                               out, NO_HITS if hit_t is None else hit_t)
+            return
         with nb.parallel_chunksize(1):
             vjp_photons(d, self.constants(d), self.shifts, self.indices, start, stop, padded, self.gather_pad, out,
                         NO_HITS if hit_t is None else hit_t)

@@ -4,29 +4,25 @@ the 4 x 4 heights around it.
 
 numba calls the C functions by symbol name (``ExternalFunction``), so kernels that call them can
 still be cached on disk: the symbols are resolved again in every process. Where the extension
-was not built (no C compiler at install) or the CPU lacks AVX2 / FMA, the symbols are bound to a
-function that does nothing, so the kernels still link, and ``AVAILABLE`` is False: the kernels
-then take their numba branch (they test ``FusedScene.simd`` / their ``simd`` argument, which
-the host sets from ``AVAILABLE`` and ``operator.simd``). A build from other sources (its
-``sfc_abi_version`` differs from ``ABI_VERSION``) is not used.
+was not built or is stale (:mod:`operators.kernels.extension`) or the CPU lacks AVX2 / FMA, the
+symbols are bound to a function that does nothing, so the kernels still link, and ``AVAILABLE``
+is False: the kernels then take their numba branch (they test ``FusedScene.simd`` / their
+``simd`` argument, which the host sets from ``AVAILABLE`` and ``operator.simd``).
 
-numba does not see the C functions in its cache keys: after changing their signatures, bump both
-ABI versions and delete the kernels' caches (``operators/__pycache__/*.nb*``).
+numba does not see the C functions in its cache keys: after changing their signatures, bump the
+ABI version (``extension.ABI_VERSION`` and ``sfc_abi_version``) and delete the kernels' caches
+(``operators/__pycache__/*.nb*``).
 """
 
 from __future__ import annotations
 
 import ctypes
-import importlib.util
-import warnings
 
 import llvmlite.binding as llvm
 from numba import config, types
 from numba.extending import intrinsic
 
-
-# Version of the C functions' signatures that the declarations below match (sfc_abi_version).
-ABI_VERSION = 2
+from operators.kernels import extension
 
 
 def _load() -> bool:
@@ -34,18 +30,13 @@ def _load() -> bool:
     the JIT off: plain Python cannot call them)."""
     if config.DISABLE_JIT:
         return False
-    spec = importlib.util.find_spec("operators.kernels._simd")
-    if spec is None or spec.origin is None:
+    library = extension.load()
+    if library is None:
         return False
     try:
-        library = ctypes.CDLL(spec.origin)
-        if library.sfc_abi_version() != ABI_VERSION:
-            warnings.warn(f"{spec.origin} was built from other sources (ABI {library.sfc_abi_version()}, need "
-                          f"{ABI_VERSION}); using the numba kernels. Rebuild it: pip install -e .", stacklevel=2)
-            return False
         supported = bool(library.sfc_simd_supported())
         if supported:
-            llvm.load_library_permanently(spec.origin)
+            llvm.load_library_permanently(extension.origin())
     except (OSError, AttributeError, RuntimeError):
         return False
     return supported

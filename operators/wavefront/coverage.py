@@ -17,15 +17,21 @@ flux into the pixel containing its centroid; one that lies inside a single pixel
 Threads: the work (rows of grid cells, or blocks of listed triangles) is dealt round-robin to a
 fixed number of lanes, one image per lane, summed in lane order; so a rerun with the same thread
 count is bit-identical whatever the scheduler does.
+
+The same kernels in C (``operators/kernels/coverage_kernels.c``, compiled at install) do the work
+where the extension was built; these numba kernels where it was not.
 """
 
 from __future__ import annotations
 
 import math
 
+import ctypes
+
 import numba as nb
 import numpy as np
 
+from operators.kernels import extension
 from operators.kernels.numba_settings import jit_call, jit_inline, jit_parallel
 
 # Triangles with less area than this (in pixel areas) deposit at their centroid.
@@ -215,6 +221,21 @@ def _lanes() -> int:
     return max(1, nb.get_num_threads())
 
 
+def _compiled() -> ctypes.CDLL | None:
+    """The extension with its C rasterisers bound, or None where it was not built."""
+    library = extension.load()
+    if library is not None and library.sfc_rasterize_grid.argtypes is None:
+        p, i = ctypes.c_void_p, ctypes.c_int64
+        library.sfc_rasterize_grid.argtypes = [p, i, p, p, i, i]
+        library.sfc_rasterize_list.argtypes = [p, p, i, p, i, i]
+    return library
+
+
+def _check_status(status: int) -> None:
+    if status != 0:
+        raise MemoryError("the C rasteriser could not start its threads")
+
+
 def rasterize_grid(vertices: np.ndarray, flux: np.ndarray, n: int) -> np.ndarray:
     """Flux per pixel (n, n) float64 of the triangles of a vertex grid.
 
@@ -229,7 +250,12 @@ def rasterize_grid(vertices: np.ndarray, flux: np.ndarray, n: int) -> np.ndarray
     if vertices.shape != (k, k, 2) or flux.shape != (2, k - 1, k - 1) or k < 2:
         raise ValueError(f"need vertices (K, K, 2) and flux (2, K-1, K-1), got {vertices.shape} and {flux.shape}")
     out = np.zeros((_lanes(), int(n), int(n)))
-    _rasterize_grid(vertices, flux, out)
+    library = _compiled()
+    if library is None:
+        _rasterize_grid(vertices, flux, out)
+    else:
+        _check_status(library.sfc_rasterize_grid(vertices.ctypes.data, k, flux.ctypes.data, out.ctypes.data,
+                                                 out.shape[0], out.shape[1]))
     return out.sum(axis=0)
 
 
@@ -241,6 +267,10 @@ def rasterize_triangles(triangles: np.ndarray, flux: np.ndarray, n: int) -> np.n
     if flux.shape[0] != triangles.shape[0]:
         raise ValueError(f"{triangles.shape[0]} triangles but {flux.shape[0]} fluxes")
     out = np.zeros((_lanes(), int(n), int(n)))
-    if flux.shape[0]:
+    library = _compiled()
+    if flux.shape[0] and library is None:
         _rasterize_list(triangles, flux, out)
+    elif flux.shape[0]:
+        _check_status(library.sfc_rasterize_list(triangles.ctypes.data, flux.ctypes.data, flux.shape[0],
+                                                 out.ctypes.data, out.shape[0], out.shape[1]))
     return out.sum(axis=0)

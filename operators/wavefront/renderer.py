@@ -47,10 +47,11 @@ import numpy as np
 import torch
 
 from operators.emission import PointLightEmitter
+from operators.heightfield import trace_compiled
 from operators.heightfield.kernels_native import hit_jet, optics_state
 from operators.heightfield.trace_native import FusedTracer
 from operators.heightfield.trace_reference import trace_substrate
-from operators.kernels.numba_settings import jit_call, jit_inline, jit_parallel
+from operators.kernels.numba_settings import jit_call, jit_parallel
 from operators.optics.native import ZERO, fresnel
 from operators.heightfield.surface import validate_heights
 from operators.scene import Scene
@@ -73,62 +74,43 @@ def wavefront_vertices(photons: int, channels: int) -> int:
     return int(round(math.sqrt(photons / channels))) + 1
 
 
-@jit_inline
-def triangle_solid_angle(ax, ay, bx, by, cx, cy, dz) -> float:
-    """Solid angle (sr) of the triangle (a, b, c) on a plane dz below the light (dz < 0); the
-    vertices' x, y are relative to the light's. Van Oosterom-Strackee:
+def triangle_solid_angle(ax: np.ndarray, ay: np.ndarray, bx: np.ndarray, by: np.ndarray, cx: np.ndarray,
+                         cy: np.ndarray, dz: float) -> np.ndarray:
+    """Solid angles (sr) of triangles (a, b, c) on a plane dz below the light (dz < 0), arrays of
+    one shape; the vertices' x, y are relative to the light's. Van Oosterom-Strackee:
     tan(Omega / 2) = |a . (b x c)| / (|a||b||c| + (a.b)|c| + (a.c)|b| + (b.c)|a|), with
     a . (b x c) = dz ((b - a) x (c - a))_z for a flat triangle (no cancellation)."""
-    num = abs(dz * ((bx - ax) * (cy - ay) - (by - ay) * (cx - ax)))
-    la = math.sqrt(ax * ax + ay * ay + dz * dz)
-    lb = math.sqrt(bx * bx + by * by + dz * dz)
-    lc = math.sqrt(cx * cx + cy * cy + dz * dz)
+    num = np.abs(dz * ((bx - ax) * (cy - ay) - (by - ay) * (cx - ax)))
     dz2 = dz * dz
+    la = np.sqrt(ax * ax + ay * ay + dz2)
+    lb = np.sqrt(bx * bx + by * by + dz2)
+    lc = np.sqrt(cx * cx + cy * cy + dz2)
     den = (la * lb * lc + (ax * bx + ay * by + dz2) * lc + (ax * cx + ay * cy + dz2) * lb
            + (bx * cx + by * cy + dz2) * la)
-    return 2.0 * math.atan2(num, den)
+    return 2.0 * np.arctan2(num, den)
 
 
-@jit_parallel
-def _grid_solid_angles(k, half, base, lx, ly, lz, out) -> None:
+def grid_solid_angles(k: int, half: float, base: float, light: tuple[float, float, float]) -> np.ndarray:
     """Solid angles (2, K-1, K-1) of the grid's triangles (split as in coverage.rasterize_grid)
     with aim points x_j = -half + 2 half j / (K - 1) (y likewise by row) on z = base."""
-    dz = base - lz
-    for i in nb.prange(k - 1):
-        y0 = -half + (2.0 * half) * i / (k - 1) - ly
-        y1 = -half + (2.0 * half) * (i + 1) / (k - 1) - ly
-        for j in range(k - 1):
-            x0 = -half + (2.0 * half) * j / (k - 1) - lx
-            x1 = -half + (2.0 * half) * (j + 1) / (k - 1) - lx
-            out[0, i, j] = triangle_solid_angle(x0, y0, x1, y0, x1, y1, dz)
-            out[1, i, j] = triangle_solid_angle(x0, y0, x1, y1, x0, y1, dz)
+    axis = -half + (2.0 * half) * np.arange(k) / (k - 1)
+    x = (axis - light[0])[None, :]
+    y = (axis - light[1])[:, None]
+    x0, x1, y0, y1 = x[:, :-1], x[:, 1:], y[:-1], y[1:]
+    dz = base - light[2]
+    return np.stack([triangle_solid_angle(x0, y0, x1, y0, x1, y1, dz),
+                     triangle_solid_angle(x0, y0, x1, y1, x0, y1, dz)])
 
 
-@jit_parallel
-def _list_solid_angles(aim, lx, ly, dz, out) -> None:
-    """Solid angles (T,) of triangles with aim points ``aim`` (T, 3, 2) on the plane dz below the light."""
-    for t in nb.prange(aim.shape[0]):
-        out[t] = triangle_solid_angle(aim[t, 0, 0] - lx, aim[t, 0, 1] - ly, aim[t, 1, 0] - lx, aim[t, 1, 1] - ly,
-                                      aim[t, 2, 0] - lx, aim[t, 2, 1] - ly, dz)
-
-
-@jit_parallel
-def _grid_flux(omega, ratio, scale, flux, mixed) -> None:
-    """flux (2, K-1, K-1) = scale * omega * mean vertex transmittance ``ratio`` (K, K) for
-    triangles with no lost vertex (ratio 0), else 0; mixed = 1 where some but not all are lost."""
-    for i in nb.prange(omega.shape[1]):
-        for j in range(omega.shape[2]):
-            r00 = ratio[i, j]
-            r01 = ratio[i, j + 1]
-            r10 = ratio[i + 1, j]
-            r11 = ratio[i + 1, j + 1]
-            for t in range(2):
-                ra = r00
-                rb = r11
-                rc = r01 if t == 0 else r10
-                lost = int(ra == 0.0) + int(rb == 0.0) + int(rc == 0.0)
-                flux[t, i, j] = scale * omega[t, i, j] * (ra + rb + rc) / 3.0 if lost == 0 else 0.0
-                mixed[t, i, j] = 1 if 0 < lost < 3 else 0
+def grid_flux(omega: np.ndarray, ratio: np.ndarray, scale: float) -> tuple[np.ndarray, np.ndarray]:
+    """(flux, mixed), each (2, K-1, K-1): flux = scale * omega * the mean vertex transmittance
+    ``ratio`` (K, K) for triangles with no lost vertex (ratio 0), else 0; mixed: some but not
+    all of its vertices lost."""
+    r00, r01, r10, r11 = ratio[:-1, :-1], ratio[:-1, 1:], ratio[1:, :-1], ratio[1:, 1:]
+    third = np.stack([r01, r10])
+    lost = (r00 == 0.0).astype(np.int64) + (r11 == 0.0) + (third == 0.0)
+    flux = np.where(lost == 0, scale * omega * (r00 + r11 + third) / 3.0, 0.0)
+    return flux, (lost > 0) & (lost < 3)
 
 
 @jit_call
@@ -245,11 +227,10 @@ class WavefrontRenderer:
     def grid_solid_angles(self) -> np.ndarray:
         """Solid angles (2, K-1, K-1) (sr) of the grid's aim triangles (computed once)."""
         if self._omega is None:
-            k = self.vertices
             light = self.scene.light.position
-            self._omega = np.empty((2, k - 1, k - 1))
-            _grid_solid_angles(k, float(self.scene.substrate.half_width), float(self.scene.substrate.thickness),
-                               float(light[0]), float(light[1]), float(light[2]), self._omega)
+            self._omega = grid_solid_angles(self.vertices, float(self.scene.substrate.half_width),
+                                            float(self.scene.substrate.thickness),
+                                            (float(light[0]), float(light[1]), float(light[2])))
         return self._omega
 
     def aim_coordinates(self, index: np.ndarray) -> np.ndarray:
@@ -265,12 +246,16 @@ class WavefrontRenderer:
         pos = np.empty((count, 2))
         ratio = np.empty(count)
         if self.tracer == "native":
-            d = heights.numpy()
+            d = np.ascontiguousarray(heights.numpy())
             sc = self.fused.constants(d)
             eta = float(self.scene.indices[channel])
             for start in range(0, count, self.chunk_size):
                 stop = min(count, start + self.chunk_size)
-                _trace_native(d, sc, eta, np.ascontiguousarray(aim[start:stop]), pos[start:stop], ratio[start:stop])
+                part = np.ascontiguousarray(aim[start:stop], dtype=np.float64)
+                if trace_compiled.AVAILABLE:
+                    trace_compiled.trace_aimed(d, sc, eta, part, pos[start:stop], ratio[start:stop])
+                else:
+                    _trace_native(d, sc, eta, part, pos[start:stop], ratio[start:stop])
             return pos, ratio
         scene = self.scene
         to_px = 1.0 / scene.receiver.pixel_size
@@ -351,17 +336,15 @@ class WavefrontRenderer:
         with torch.no_grad():
             for c in range(self.scene.channels):
                 pos, ratio = self._trace_grid(d, c)
-                flux = np.empty_like(omega)
-                mixed = np.empty(omega.shape, dtype=np.int8)
-                _grid_flux(omega, ratio, scale, flux, mixed)
+                flux, mixed = grid_flux(omega, ratio, scale)
                 image[c] = rasterize_grid(pos, flux, n)
                 kept_omega = float(omega[flux != 0.0].sum())
                 rasterised = float(flux.sum())
                 if self.subdivisions and mixed.any():
                     aim, rec, q = self._subdivide(d, c, pos, ratio, mixed)
-                    sub_omega = np.empty(aim.shape[0])
-                    if aim.shape[0]:
-                        _list_solid_angles(aim, float(light[0]), float(light[1]), float(dz), sub_omega)
+                    sub_omega = triangle_solid_angle(aim[:, 0, 0] - light[0], aim[:, 0, 1] - light[1],
+                                                     aim[:, 1, 0] - light[0], aim[:, 1, 1] - light[1],
+                                                     aim[:, 2, 0] - light[0], aim[:, 2, 1] - light[1], float(dz))
                     sub_flux = scale * sub_omega * q.mean(axis=1)
                     image[c] += rasterize_triangles(rec, sub_flux, n)
                     kept_omega += float(sub_omega.sum())

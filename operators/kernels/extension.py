@@ -1,0 +1,44 @@
+"""The compiled extension ``operators.kernels._simd`` (setup.py), loaded once with ctypes.
+
+It holds the AVX2 splat, gather, jet and hit-adjoint kernels (``simd_kernels.c``, called from
+numba: :mod:`operators.kernels.simd`) and the whole height-field photon kernels in C
+(``heightfield_photons.c``, called from the host: :mod:`operators.heightfield.trace_compiled`), both
+compiled at install, so neither waits for a JIT. Where it was not built (no C compiler at
+install) or was built from other sources (its ``sfc_abi_version`` differs from
+:data:`ABI_VERSION`), :func:`load` returns None and the numba kernels do its work.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import functools
+import importlib.util
+import warnings
+
+# Version of the C functions' signatures that the declarations in Python match (sfc_abi_version).
+ABI_VERSION = 3
+
+
+@functools.cache
+def load() -> ctypes.CDLL | None:
+    """The extension's library, or None where it is missing or stale (with a warning naming the fix)."""
+    spec = importlib.util.find_spec("operators.kernels._simd")
+    if spec is None or spec.origin is None:
+        return None
+    try:
+        library = ctypes.CDLL(spec.origin)
+        version = library.sfc_abi_version()
+    except (OSError, AttributeError):
+        return None
+    if version != ABI_VERSION:
+        warnings.warn(f"{spec.origin} was built from other sources (ABI {version}, need {ABI_VERSION}); using the "
+                      "numba kernels. Rebuild it: pip install -e .", stacklevel=2)
+        return None
+    return library
+
+
+def origin() -> str:
+    """The extension's file (for loading its symbols into another runtime)."""
+    spec = importlib.util.find_spec("operators.kernels._simd")
+    assert spec is not None and spec.origin is not None
+    return spec.origin

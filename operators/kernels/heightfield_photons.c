@@ -1,0 +1,1091 @@
+/* The fused height-field photon kernels in C: emission, surface hit, optics with photon
+ * differentials, splat (render) and, for the gradient, the splat adjoint back through the optics
+ * into the heights (vjp). Part of the compiled extension operators.kernels._simd (setup.py), so
+ * they are compiled once, at install, and a run starts tracing at once.
+ *
+ * The same arithmetic, step for step, as the numba kernels they stand in for (float64 throughout,
+ * only the images may be float32):
+ *   emission ............ emit in operators/heightfield/kernels_native.py
+ *   surface, hit search . surface_gradient / surface_jet_at in operators/heightfield/catmull_rom.py,
+ *                         solve_hit / solve_hits in operators/heightfield/intersect_native.py
+ *   optics .............. refract_top, below_top, splat_arguments in kernels_native.py, with
+ *                         operators/optics/native.py (refract, transfer, Fresnel, footprint metric)
+ *   splat, gather ....... splat_photon, gather_photon_simd in operators/splat/native.py
+ *   adjoint ............. optics_adjoint, vjp_range in operators/heightfield/adjoint_native.py
+ * With `simd` set (only where sfc_simd_supported()), the AVX2 functions of simd_kernels.c do the
+ * fixed 8 x 8 splat box, its gather, the surface jets and the hit adjoint, as in the numba kernels.
+ * The numba kernels stay the fallback (no C compiler at install) and the reference the tests
+ * compare these with.
+ *
+ * Threads: the host passes `threads` images (or gradients); this file starts that many POSIX
+ * threads, which take blocks of BLOCK photons from a shared counter (balanced where threads
+ * share a core with other work) and accumulate into their own image, summed by the host.
+ */
+/* The float semantics of the numba kernels' FAST_MATH (operators/kernels/numba_settings.py):
+ * contraction into FMA, reassociation, reciprocals, no signed zeros, and no errno from sqrt; not
+ * finite-math-only, so that the NaN and infinity checks keep their meaning. */
+#pragma GCC optimize("no-math-errno", "no-trapping-math", "no-signed-zeros", "reciprocal-math", "associative-math", \
+                     "fp-contract=fast")
+
+
+#include <math.h>
+#include <stdatomic.h>
+#include <stdint.h>
+#include <stdlib.h>
+
+#include "sfc_threads.h"
+
+/* The AVX2 kernels of simd_kernels.c (called only when the scene's `simd` is set). */
+void sfc_splat_box8_f64(double *img, int64_t offset, int64_t stride, int64_t rows, double rx0, double ry0,
+                        double q00, double q01, double q11, double f);
+void sfc_splat_box8_f32(float *img, int64_t offset, int64_t stride, int64_t rows, double rx0, double ry0,
+                        double q00, double q01, double q11, double f);
+void sfc_gather_box8(const double *g, int64_t offset, int64_t stride, int64_t rows, double rx0, double ry0,
+                     double q00, double q01, double q11, double *sums);
+void sfc_surface_jets(const double *d, int64_t m, double origin, double inv_spacing, double ox, double oy,
+                      const double *dirs, int64_t stride, const double *t, int64_t count, double *jets);
+void sfc_hit_adjoint(const double *d, double *grad, int64_t m, double x, double y, double origin, double inv_spacing,
+                     double wx, double wy, double wz, double g_t, double g_sx, double g_sy, double g_sxx,
+                     double g_sxy, double g_syy);
+
+/* Scene constants, field for field the ctypes structure in operators/heightfield/trace_compiled.py:
+ * FusedScene (operators/heightfield/kernels_native.py) followed by the constants the numba kernels
+ * import from Python modules. */
+typedef struct {
+    double light_x, light_y, light_z, half, base, spacing, zlo, zstart, zhi, slope_x, slope_y;
+    int64_t per_channel;
+    double flux_scale, radius, receiver_z, receiver_half, to_px, min_px, max_px;
+    int64_t fresnel, simd;
+    double r2_u, r2_v;          /* emission's R2 sequence steps (operators/emission.py) */
+    double grazing;             /* optics.reference.GRAZING */
+    double max_differential_px; /* splat.splat.MAX_DIFFERENTIAL_PX */
+    double settle;              /* intersect_native.SETTLE */
+    int64_t max_march_steps, newton_iterations;
+    double far_px;              /* splat.native.FAR_PX */
+} sfc_scene;
+
+typedef struct { double x, y, z; } vec3;
+
+enum { PACKET = 128, BLOCK = 4096, LANES = 8 };
+
+static const vec3 UP = {0.0, 0.0, 1.0};
+static const vec3 ZERO = {0.0, 0.0, 0.0};
+
+static inline vec3 v3(double x, double y, double z) { vec3 r = {x, y, z}; return r; }
+static inline double dot(vec3 a, vec3 b) { return a.x * b.x + a.y * b.y + a.z * b.z; }
+static inline vec3 axpy(double s, vec3 x, vec3 y) { return v3(s * x.x + y.x, s * x.y + y.y, s * x.z + y.z); }
+static inline vec3 scale3(double s, vec3 x) { return v3(s * x.x, s * x.y, s * x.z); }
+static inline vec3 add3(vec3 a, vec3 b) { return v3(a.x + b.x, a.y + b.y, a.z + b.z); }
+static inline double dmin(double a, double b) { return a < b ? a : b; }
+static inline double dmax(double a, double b) { return a > b ? a : b; }
+static inline int64_t imin(int64_t a, int64_t b) { return a < b ? a : b; }
+static inline int64_t imax(int64_t a, int64_t b) { return a > b ? a : b; }
+
+static inline double away_from_zero(const sfc_scene *sc, double x) {
+    if (fabs(x) < sc->grazing) return x < 0.0 ? -sc->grazing : sc->grazing;
+    return x;
+}
+static inline double passes(const sfc_scene *sc, double x) { return fabs(x) < sc->grazing ? 0.0 : 1.0; }
+
+/* ---------------------------------------------------------------- emission */
+
+typedef struct { int64_t c; vec3 w, dwu, dwv; double flux; } emitted;
+
+static inline emitted emit(const sfc_scene *sc, const double *shifts, int64_t index) {
+    emitted e;
+    e.c = index / sc->per_channel;
+    const double j = (double)(index - e.c * sc->per_channel);
+    double u = shifts[2 * e.c] + j * sc->r2_u, v = shifts[2 * e.c + 1] + j * sc->r2_v;
+    u -= floor(u);
+    v -= floor(v);
+    const double dx = (2.0 * sc->half) * u - sc->half - sc->light_x;
+    const double dy = (2.0 * sc->half) * v - sc->half - sc->light_y;
+    const double dz = sc->base - sc->light_z;
+    const double inv_r = 1.0 / sqrt(dx * dx + dy * dy + dz * dz);
+    e.w = v3(dx * inv_r, dy * inv_r, dz * inv_r);
+    const double s = sc->radius * inv_r;
+    e.dwu = v3(s - e.w.x * e.w.x * s, -e.w.y * e.w.x * s, -e.w.z * e.w.x * s);
+    e.dwv = v3(-e.w.x * e.w.y * s, s - e.w.y * e.w.y * s, -e.w.z * e.w.y * s);
+    e.flux = sc->flux_scale * inv_r * inv_r * inv_r;
+    return e;
+}
+
+/* ---------------------------------------------------------------- Catmull-Rom surface */
+
+static inline int64_t clamped_node(int64_t i, int64_t m) { return imin(imax(i, 0), m - 1); }
+
+/* Cell index i, offset s in [0, 1], d/dcoord scale k (1 / spacing on the grid, 0 off it). */
+static inline int64_t cell(double coord, double origin, double spacing, int64_t m, double *s, double *k) {
+    double g = (coord - origin) / spacing;
+    const int inside = 0.0 <= g && g <= (double)(m - 1);
+    g = dmin(dmax(g, 0.0), (double)(m - 1));
+    const int64_t i = imin((int64_t)floor(g), m - 2);
+    *s = g - (double)i;
+    *k = inside ? 1.0 / spacing : 0.0;
+    return i;
+}
+
+/* Catmull-Rom weights at s (a) and their s-derivatives times k (b). */
+static inline void basis(double s, double k, double a[4], double b[4]) {
+    const double s2 = s * s, s3 = s2 * s;
+    a[0] = 0.5 * (-s3 + 2.0 * s2 - s);
+    a[1] = 0.5 * (3.0 * s3 - 5.0 * s2 + 2.0);
+    a[2] = 0.5 * (-3.0 * s3 + 4.0 * s2 + s);
+    a[3] = 0.5 * (s3 - s2);
+    b[0] = k * 0.5 * (-3.0 * s2 + 4.0 * s - 1.0);
+    b[1] = k * 0.5 * (9.0 * s2 - 10.0 * s);
+    b[2] = k * 0.5 * (-9.0 * s2 + 8.0 * s + 1.0);
+    b[3] = k * 0.5 * (3.0 * s2 - 2.0 * s);
+}
+
+static inline void curvature_basis(double s, double k2, double c[4]) {
+    c[0] = k2 * (-3.0 * s + 2.0);
+    c[1] = k2 * (9.0 * s - 5.0);
+    c[2] = k2 * (-9.0 * s + 4.0);
+    c[3] = k2 * (3.0 * s - 1.0);
+}
+
+/* (S, S_x, S_y) at (x, y). */
+static inline void surface_gradient(const double *d, int64_t m, double x, double y, double origin, double spacing,
+                                    double *value, double *slope_x, double *slope_y) {
+    double sx, kx, sy, ky, a[4], b[4], e[4], f[4];
+    const int64_t ix = cell(x, origin, spacing, m, &sx, &kx);
+    const int64_t iy = cell(y, origin, spacing, m, &sy, &ky);
+    basis(sx, kx, a, b);
+    basis(sy, ky, e, f);
+    const int64_t c0 = imax(ix - 1, 0), c3 = imin(ix + 2, m - 1);
+    double val = 0.0, gx = 0.0, gy = 0.0;
+    for (int r = 0; r < 4; r++) {
+        const double *row = d + clamped_node(iy - 1 + r, m) * m;
+        const double d0 = row[c0], d1 = row[ix], d2 = row[ix + 1], d3 = row[c3];
+        const double v = a[0] * d0 + a[1] * d1 + a[2] * d2 + a[3] * d3;
+        val += e[r] * v;
+        gx += e[r] * (b[0] * d0 + b[1] * d1 + b[2] * d2 + b[3] * d3);
+        gy += f[r] * v;
+    }
+    *value = val;
+    *slope_x = gx;
+    *slope_y = gy;
+}
+
+/* Surface jet (S_x, S_y, S_xx, S_xy, S_yy) at (x, y) into jet[0 .. 4]. */
+static inline void surface_jet_at(const double *d, int64_t m, double x, double y, double origin, double spacing,
+                                  double jet[5]) {
+    double sx, kx, sy, ky, a[4], b[4], c[4], e[4], f[4], g[4];
+    const int64_t ix = cell(x, origin, spacing, m, &sx, &kx);
+    const int64_t iy = cell(y, origin, spacing, m, &sy, &ky);
+    basis(sx, kx, a, b);
+    curvature_basis(sx, kx * kx, c);
+    basis(sy, ky, e, f);
+    curvature_basis(sy, ky * ky, g);
+    const int64_t n0 = imax(ix - 1, 0), n3 = imin(ix + 2, m - 1);
+    double s_x = 0.0, s_y = 0.0, s_xx = 0.0, s_xy = 0.0, s_yy = 0.0;
+    for (int r = 0; r < 4; r++) {
+        const double *row = d + clamped_node(iy - 1 + r, m) * m;
+        const double d0 = row[n0], d1 = row[ix], d2 = row[ix + 1], d3 = row[n3];
+        const double v = a[0] * d0 + a[1] * d1 + a[2] * d2 + a[3] * d3;
+        const double vx = b[0] * d0 + b[1] * d1 + b[2] * d2 + b[3] * d3;
+        const double vxx = c[0] * d0 + c[1] * d1 + c[2] * d2 + c[3] * d3;
+        s_x += e[r] * vx;
+        s_xx += e[r] * vxx;
+        s_y += f[r] * v;
+        s_xy += f[r] * vx;
+        s_yy += g[r] * v;
+    }
+    jet[0] = s_x;
+    jet[1] = s_y;
+    jet[2] = s_xx;
+    jet[3] = s_xy;
+    jet[4] = s_yy;
+}
+
+/* Row k of the weight table (k-th s-derivative of the Catmull-Rom weights times scale). */
+static inline void fill_basis(double s, int k, double scale, double w[4][4]) {
+    const double s2 = s * s, s3 = s2 * s;
+    if (k == 0) {
+        w[0][0] = 0.5 * (-s3 + 2.0 * s2 - s);
+        w[0][1] = 0.5 * (3.0 * s3 - 5.0 * s2 + 2.0);
+        w[0][2] = 0.5 * (-3.0 * s3 + 4.0 * s2 + s);
+        w[0][3] = 0.5 * (s3 - s2);
+    } else if (k == 1) {
+        w[1][0] = scale * 0.5 * (-3.0 * s2 + 4.0 * s - 1.0);
+        w[1][1] = scale * 0.5 * (9.0 * s2 - 10.0 * s);
+        w[1][2] = scale * 0.5 * (-9.0 * s2 + 8.0 * s + 1.0);
+        w[1][3] = scale * 0.5 * (3.0 * s2 - 2.0 * s);
+    } else if (k == 2) {
+        w[2][0] = scale * (-3.0 * s + 2.0);
+        w[2][1] = scale * (9.0 * s - 5.0);
+        w[2][2] = scale * (-9.0 * s + 4.0);
+        w[2][3] = scale * (3.0 * s - 1.0);
+    } else {
+        w[3][0] = scale * -3.0;
+        w[3][1] = scale * 9.0;
+        w[3][2] = scale * -9.0;
+        w[3][3] = scale * 3.0;
+    }
+}
+
+/* Weight tables of derivative orders 0 .. 3 at coord (axis_weights); returns the cell index. */
+static inline int64_t axis_weights(double coord, double origin, double spacing, int64_t m, double w[4][4]) {
+    double g = (coord - origin) / spacing;
+    const int inside = 0.0 <= g && g <= (double)(m - 1);
+    g = dmin(dmax(g, 0.0), (double)(m - 1));
+    const int64_t i = imin((int64_t)floor(g), m - 2);
+    const double s = g - (double)i;
+    double scale = 1.0;
+    for (int k = 0; k < 4; k++) {
+        fill_basis(s, k, inside ? scale : 0.0, w);
+        scale /= spacing;
+    }
+    return i;
+}
+
+static inline double contract(const double p[4][4], const double wx[4][4], int kx, const double wy[4][4], int ky) {
+    double acc = 0.0;
+    for (int a = 0; a < 4; a++)
+        acc += wy[ky][a] * (wx[kx][0] * p[a][0] + wx[kx][1] * p[a][1] + wx[kx][2] * p[a][2] + wx[kx][3] * p[a][3]);
+    return acc;
+}
+
+/* Add to grad the gradient w.r.t. d of g_t t + <g_jet, jet> at the hit (x, y) of the ray along w
+ * (hit_adjoint_patch, then scatter_patch, in operators/heightfield/intersect_native.py). */
+static void hit_adjoint_scalar(const double *d, double *grad, int64_t m, double x, double y, double origin,
+                               double spacing, vec3 w, const double g[6]) {
+    double wx[4][4], wy[4][4], p[4][4];
+    const int64_t ix = axis_weights(x, origin, spacing, m, wx);
+    const int64_t iy = axis_weights(y, origin, spacing, m, wy);
+    for (int a = 0; a < 4; a++)
+        for (int b = 0; b < 4; b++) p[a][b] = d[clamped_node(iy - 1 + a, m) * m + clamped_node(ix - 1 + b, m)];
+    const double sx = contract(p, wx, 1, wy, 0), sy = contract(p, wx, 0, wy, 1);
+    const double sxx = contract(p, wx, 2, wy, 0), sxy = contract(p, wx, 1, wy, 1), syy = contract(p, wx, 0, wy, 2);
+    const double sxxx = contract(p, wx, 3, wy, 0), sxxy = contract(p, wx, 2, wy, 1);
+    const double sxyy = contract(p, wx, 1, wy, 2), syyy = contract(p, wx, 0, wy, 3);
+    const double g_t = g[0], g_sx = g[1], g_sy = g[2], g_sxx = g[3], g_sxy = g[4], g_syy = g[5];
+    const double along = g_t + g_sx * (sxx * w.x + sxy * w.y) + g_sy * (sxy * w.x + syy * w.y)
+                         + g_sxx * (sxxx * w.x + sxxy * w.y) + g_sxy * (sxxy * w.x + sxyy * w.y)
+                         + g_syy * (sxyy * w.x + syyy * w.y);
+    const double c = along / (w.z - sx * w.x - sy * w.y);
+    for (int a = 0; a < 4; a++) {
+        double *row = grad + clamped_node(iy - 1 + a, m) * m;
+        for (int b = 0; b < 4; b++)
+            row[clamped_node(ix - 1 + b, m)] += wy[0][a] * (c * wx[0][b] + g_sx * wx[1][b] + g_sxx * wx[2][b])
+                                                + wy[1][a] * (g_sy * wx[0][b] + g_sxy * wx[1][b])
+                                                + wy[2][a] * g_syy * wx[0][b];
+    }
+}
+
+/* ---------------------------------------------------------------- hit search */
+
+/* The packet's hit search state (solve_hits): per ray the bracket, whether it still iterates,
+ * and its gap and slope at t. */
+typedef struct { double lo[PACKET], hi[PACKET], active[PACKET], gap[PACKET], slope[PACKET]; } search_state;
+
+static inline int needs_march(vec3 w, double slope_x, double slope_y) {
+    return !(slope_x * fabs(w.x) + slope_y * fabs(w.y) < fabs(w.z));
+}
+
+static inline void gap_at(const double *d, int64_t m, const sfc_scene *sc, vec3 w, double t, double *g,
+                          double *slope) {
+    double s, sx, sy;
+    surface_gradient(d, m, sc->light_x + t * w.x, sc->light_y + t * w.y, -sc->half, sc->spacing, &s, &sx, &sy);
+    *g = sc->light_z + t * w.z - sc->base - s;
+    *slope = w.z - sx * w.x - sy * w.y;
+}
+
+/* One safeguarded Newton step inside the bracket; returns whether the step fell below `settle`. */
+static inline int newton_update(double *t, double g, double slope, double *lo, double *hi, double settle) {
+    if (g > 0.0) *lo = *t; else *hi = *t;
+    const double t_new = slope != 0.0 ? *t - g / slope : 0.5 * (*lo + *hi);
+    if (!(*lo <= t_new && t_new <= *hi)) {
+        *t = 0.5 * (*lo + *hi);
+        return 0;
+    }
+    const int settled = fabs(t_new - *t) <= settle;
+    *t = t_new;
+    return settled;
+}
+
+static double solve_hit(const double *d, int64_t m, const sfc_scene *sc, vec3 w) {
+    const double oz = sc->light_z;
+    const double t_a = (sc->zhi - oz) / w.z, t_b = (sc->zlo - oz) / w.z;
+    const double travel = sqrt(w.x * w.x + w.y * w.y) * (t_b - t_a);
+    int64_t steps = (int64_t)dmin(dmax(ceil(travel / (0.5 * sc->spacing)), 1.0), (double)sc->max_march_steps);
+    if (!needs_march(w, sc->slope_x, sc->slope_y)) steps = 1;
+    const double dt = (t_b - t_a) / (double)steps;
+    double lo = t_a, hi = t_b, g = 0.0, slope = 0.0;
+    int known = 0;
+    for (int64_t k = 1; k < steps; k++) {
+        const double t_k = t_a + (double)k * dt;
+        gap_at(d, m, sc, w, t_k, &g, &slope);
+        if (g <= 0.0) {
+            hi = t_k;
+            known = 1;
+            break;
+        }
+        lo = t_k;
+    }
+    double t = known ? hi : dmin(dmax((sc->zstart - oz) / w.z, lo), hi);
+    const double z_scale = fabs(oz) + fabs(sc->zhi) + 1.0, tol = 1e-12 * z_scale, settle = sc->settle * z_scale;
+    for (int64_t it = 0; it < sc->newton_iterations; it++) {
+        if (!known) gap_at(d, m, sc, w, t, &g, &slope);
+        known = 0;
+        if (fabs(g) <= tol) break;
+        if (newton_update(&t, g, slope, &lo, &hi, settle)) break;
+    }
+    return t;
+}
+
+/* Hits of the rays k < count along w[k] into t[k]; the rays that need no march iterate Newton in
+ * lockstep, so that the core overlaps their surface evaluations (solve_hits). */
+static void solve_hits(const double *d, int64_t m, const sfc_scene *sc, const vec3 *w, int64_t count, double *t,
+                       search_state *st) {
+    const double z_scale = fabs(sc->light_z) + fabs(sc->zhi) + 1.0;
+    const double tol = 1e-12 * z_scale, settle = sc->settle * z_scale;
+    for (int64_t k = 0; k < count; k++) {
+        if (needs_march(w[k], sc->slope_x, sc->slope_y)) {
+            t[k] = solve_hit(d, m, sc, w[k]);
+            st->active[k] = 0.0;
+        } else {
+            st->lo[k] = (sc->zhi - sc->light_z) / w[k].z;
+            st->hi[k] = (sc->zlo - sc->light_z) / w[k].z;
+            st->active[k] = 1.0;
+            t[k] = dmin(dmax((sc->zstart - sc->light_z) / w[k].z, st->lo[k]), st->hi[k]);
+        }
+    }
+    for (int64_t it = 0; it < sc->newton_iterations; it++) {
+        for (int64_t k = 0; k < count; k++)
+            if (st->active[k] != 0.0) gap_at(d, m, sc, w[k], t[k], &st->gap[k], &st->slope[k]);
+        int64_t iterating = 0;
+        for (int64_t k = 0; k < count; k++) {
+            if (st->active[k] == 0.0) continue;
+            int settled = fabs(st->gap[k]) <= tol;
+            if (!settled) settled = newton_update(&t[k], st->gap[k], st->slope[k], &st->lo[k], &st->hi[k], settle);
+            if (settled) st->active[k] = 0.0; else iterating++;
+        }
+        if (iterating == 0) break;
+    }
+}
+
+/* ---------------------------------------------------------------- optics */
+
+/* Move a photon dist along w onto a surface with normal n (transfer). */
+static inline void transfer(const sfc_scene *sc, vec3 p, vec3 dpu, vec3 dpv, vec3 w, vec3 dwu, vec3 dwv, double dist,
+                            vec3 n, vec3 *p1, vec3 *dpu1, vec3 *dpv1) {
+    const vec3 mu = axpy(dist, dwu, dpu), mv = axpy(dist, dwv, dpv);
+    const double den = away_from_zero(sc, dot(w, n));
+    *p1 = axpy(dist, w, p);
+    *dpu1 = axpy(-dot(mu, n) / den, w, mu);
+    *dpv1 = axpy(-dot(mv, n) / den, w, mv);
+}
+
+typedef struct { vec3 g_dpu, g_dpv, g_w, g_dwu, g_dwv, g_n; double g_dist; } transfer_grads;
+
+static inline transfer_grads transfer_adjoint(const sfc_scene *sc, vec3 dpu, vec3 dpv, vec3 w, vec3 dwu, vec3 dwv,
+                                              double dist, vec3 n, vec3 g_p, vec3 g_dpu, vec3 g_dpv) {
+    transfer_grads r;
+    const vec3 mu = axpy(dist, dwu, dpu), mv = axpy(dist, dwv, dpv);
+    const double wn = dot(w, n), den = away_from_zero(sc, wn);
+    const double ddu = -dot(mu, n) / den, ddv = -dot(mv, n) / den;
+    const double g_ddu = dot(g_dpu, w), g_ddv = dot(g_dpv, w);
+    vec3 g_w = axpy(dist, g_p, axpy(ddu, g_dpu, scale3(ddv, g_dpv)));
+    const vec3 g_mu = axpy(-g_ddu / den, n, g_dpu), g_mv = axpy(-g_ddv / den, n, g_dpv);
+    vec3 g_n = axpy(-g_ddu / den, mu, scale3(-g_ddv / den, mv));
+    const double g_wn = -(g_ddu * ddu + g_ddv * ddv) / den * passes(sc, wn);
+    r.g_w = axpy(g_wn, n, g_w);
+    r.g_n = axpy(g_wn, w, g_n);
+    r.g_dist = dot(g_p, w) + dot(g_mu, dwu) + dot(g_mv, dwv);
+    r.g_dpu = g_mu;
+    r.g_dpv = g_mv;
+    r.g_dwu = scale3(dist, g_mu);
+    r.g_dwv = scale3(dist, g_mv);
+    return r;
+}
+
+/* Snell refraction with differentials, eta = n_incident / n_transmitted; returns k (<= 0: TIR). */
+static inline double refract(vec3 w, vec3 dwu, vec3 dwv, vec3 n, vec3 dnu, vec3 dnv, double eta, vec3 *w1, vec3 *dwu1,
+                             vec3 *dwv1, double *ci_out, double *ct_out) {
+    const double ci = -dot(w, n);
+    const double k = 1.0 - eta * eta * (1.0 - ci * ci);
+    const double ct = sqrt(dmax(k, 1e-12));
+    const double a = eta * ci - ct;
+    const double dciu = -dot(dwu, n) - dot(w, dnu), dciv = -dot(dwv, n) - dot(w, dnv);
+    const double bu = eta * dciu - eta * eta * ci * dciu / ct, bv = eta * dciv - eta * eta * ci * dciv / ct;
+    *w1 = axpy(a, n, scale3(eta, w));
+    *dwu1 = axpy(a, dnu, axpy(bu, n, scale3(eta, dwu)));
+    *dwv1 = axpy(a, dnv, axpy(bv, n, scale3(eta, dwv)));
+    *ci_out = ci;
+    *ct_out = ct;
+    return k;
+}
+
+/* The adjoint of one refracted differential's b-term (_refract_differential_adjoint). */
+static inline void refract_differential_adjoint(vec3 w, vec3 dw, vec3 n, vec3 dn, double eta, double ci, double ct,
+                                                vec3 g_dw1, vec3 *g_dw, vec3 *g_dn, vec3 *g_n, vec3 *g_w, double *g_ci,
+                                                double *g_ct) {
+    const double e2 = eta * eta;
+    const double dci = -dot(dw, n) - dot(w, dn);
+    const double dct = e2 * ci * dci / ct;
+    const double g_b = dot(g_dw1, n);
+    const vec3 gn = axpy(eta * dci - dct, g_dw1, *g_n);
+    const double g_dct = -g_b;
+    const double g_dci = eta * g_b + g_dct * e2 * ci / ct;
+    *g_ci += g_dct * e2 * dci / ct;
+    *g_ct -= g_dct * dct / ct;
+    *g_dw = axpy(-g_dci, n, *g_dw);
+    *g_dn = axpy(-g_dci, w, *g_dn);
+    *g_n = axpy(-g_dci, dw, gn);
+    *g_w = axpy(-g_dci, dn, *g_w);
+}
+
+typedef struct { vec3 g_w, g_dwu, g_dwv, g_n, g_dnu, g_dnv; } refract_grads;
+
+static inline refract_grads refract_adjoint(vec3 w, vec3 dwu, vec3 dwv, vec3 n, vec3 dnu, vec3 dnv, double eta,
+                                            vec3 g_w1, vec3 g_dwu1, vec3 g_dwv1, double g_ci, double g_ct) {
+    refract_grads r;
+    const double ci = -dot(w, n);
+    const double k = 1.0 - eta * eta * (1.0 - ci * ci);
+    const double ct = sqrt(dmax(k, 1e-12));
+    const double a = eta * ci - ct, e2 = eta * eta;
+    r.g_w = scale3(eta, g_w1);
+    double g_a = dot(g_w1, n);
+    r.g_n = scale3(a, g_w1);
+    r.g_dwu = scale3(eta, g_dwu1);
+    r.g_dwv = scale3(eta, g_dwv1);
+    r.g_dnu = scale3(a, g_dwu1);
+    r.g_dnv = scale3(a, g_dwv1);
+    g_a += dot(g_dwu1, dnu) + dot(g_dwv1, dnv);
+    refract_differential_adjoint(w, dwu, n, dnu, eta, ci, ct, g_dwu1, &r.g_dwu, &r.g_dnu, &r.g_n, &r.g_w, &g_ci, &g_ct);
+    refract_differential_adjoint(w, dwv, n, dnv, eta, ci, ct, g_dwv1, &r.g_dwv, &r.g_dnv, &r.g_n, &r.g_w, &g_ci, &g_ct);
+    g_ci += eta * g_a;
+    g_ct -= g_a;
+    const double g_k = k >= 1e-12 ? 0.5 * g_ct / ct : 0.0;
+    g_ci += g_k * 2.0 * e2 * ci;
+    r.g_w = axpy(-g_ci, n, r.g_w);
+    r.g_n = axpy(-g_ci, w, r.g_n);
+    return r;
+}
+
+static inline double fresnel(double ci, double ct, double eta) {
+    const double rs = (eta * ci - ct) / (eta * ci + ct), rp = (ci - eta * ct) / (ci + eta * ct);
+    return 1.0 - 0.5 * (rs * rs + rp * rp);
+}
+
+static inline void fresnel_adjoint(double ci, double ct, double eta, double g_t, double *g_ci, double *g_ct) {
+    const double ss = eta * ci + ct, sp = ci + eta * ct;
+    const double g_rs = -g_t * (eta * ci - ct) / ss, g_rp = -g_t * (ci - eta * ct) / sp;
+    *g_ci = g_rs * 2.0 * eta * ct / (ss * ss) + g_rp * 2.0 * eta * ct / (sp * sp);
+    *g_ct = -g_rs * 2.0 * eta * ci / (ss * ss) - g_rp * 2.0 * eta * ci / (sp * sp);
+}
+
+static inline vec3 height_field_normal(double sx, double sy) {
+    const double inv = 1.0 / sqrt(1.0 + sx * sx + sy * sy);
+    return v3(-sx * inv, -sy * inv, inv);
+}
+
+static inline void height_field_normal_adjoint(double sx, double sy, vec3 g_n, double *g_sx, double *g_sy) {
+    const double inv = 1.0 / sqrt(1.0 + sx * sx + sy * sy);
+    const double g_inv = -g_n.x * sx - g_n.y * sy + g_n.z;
+    const double c = -g_inv * inv * inv * inv;
+    *g_sx = -g_n.x * inv + c * sx;
+    *g_sy = -g_n.y * inv + c * sy;
+}
+
+static inline vec3 normal_differential(double sxx, double sxy, double syy, vec3 n, vec3 dp) {
+    const vec3 r = v3(-(sxx * dp.x + sxy * dp.y), -(sxy * dp.x + syy * dp.y), 0.0);
+    return scale3(n.z, axpy(-dot(r, n), n, r));
+}
+
+/* Adjoint of normal_differential: adds to g_sxx, g_sxy, g_syy; returns g_n, g_dp. */
+static inline void normal_differential_adjoint(double sxx, double sxy, double syy, vec3 n, vec3 dp, vec3 g_dn,
+                                               double *g_sxx, double *g_sxy, double *g_syy, vec3 *g_n_out,
+                                               vec3 *g_dp) {
+    const vec3 r = v3(-(sxx * dp.x + sxy * dp.y), -(sxy * dp.x + syy * dp.y), 0.0);
+    const double s = dot(r, n);
+    const vec3 q = axpy(-s, n, r);
+    const vec3 g_q = scale3(n.z, g_dn);
+    const double g_s = -dot(g_q, n);
+    const vec3 g_r = axpy(g_s, n, g_q);
+    vec3 g_n = axpy(g_s, r, scale3(-s, g_q));
+    g_n.z += dot(g_dn, q);
+    *g_n_out = g_n;
+    *g_dp = v3(-g_r.x * sxx - g_r.y * sxy, -g_r.x * sxy - g_r.y * syy, 0.0);
+    *g_sxx += -g_r.x * dp.x;
+    *g_sxy += -g_r.x * dp.y - g_r.y * dp.x;
+    *g_syy += -g_r.y * dp.y;
+}
+
+static inline double bound(const sfc_scene *sc, double x) {
+    return dmin(dmax(x, -sc->max_differential_px), sc->max_differential_px);
+}
+static inline double inside_bound(const sfc_scene *sc, double x) {
+    return (-sc->max_differential_px <= x && x <= sc->max_differential_px) ? 1.0 : 0.0;
+}
+
+/* Metric (q00, q01, q11) of the footprint spanned by Du = (ux, uy), Dv = (vx, vy) (pixels). */
+static inline void footprint_metric(const sfc_scene *sc, double ux, double uy, double vx, double vy, double q[3]) {
+    const double r0 = sc->min_px, rmax = sc->max_px;
+    ux = bound(sc, ux);
+    uy = bound(sc, uy);
+    vx = bound(sc, vx);
+    vy = bound(sc, vy);
+    const double b00 = ux * ux + vx * vx, b01 = ux * uy + vx * vy, b11 = uy * uy + vy * vy;
+    const double major = 0.5 * (b00 + b11) + sqrt(0.25 * (b00 - b11) * (b00 - b11) + b01 * b01 + 1e-300);
+    const double r2 = r0 * r0;
+    const double s = dmin((rmax * rmax - r2) / dmax(major, 1e-300), 1.0);
+    const double a00 = b00 * s, a01 = b01 * s, a11 = b11 * s;
+    const double det = dmax(a00 * a11 - a01 * a01, 0.0) + r2 * (a00 + a11) + r2 * r2;
+    q[0] = (a11 + r2) / det;
+    q[1] = -a01 / det;
+    q[2] = (a00 + r2) / det;
+}
+
+static inline void footprint_metric_adjoint(const sfc_scene *sc, double ux, double uy, double vx, double vy,
+                                            double g00, double g01, double g11, double g[4]) {
+    const double r0 = sc->min_px, rmax = sc->max_px;
+    const double mux = inside_bound(sc, ux), muy = inside_bound(sc, uy);
+    const double mvx = inside_bound(sc, vx), mvy = inside_bound(sc, vy);
+    ux = bound(sc, ux);
+    uy = bound(sc, uy);
+    vx = bound(sc, vx);
+    vy = bound(sc, vy);
+    const double b00 = ux * ux + vx * vx, b01 = ux * uy + vx * vy, b11 = uy * uy + vy * vy;
+    const double root = sqrt(0.25 * (b00 - b11) * (b00 - b11) + b01 * b01 + 1e-300);
+    const double major = 0.5 * (b00 + b11) + root;
+    const double r2 = r0 * r0;
+    const double ratio = (rmax * rmax - r2) / dmax(major, 1e-300);
+    const double s = dmin(ratio, 1.0);
+    const double a00 = b00 * s, a01 = b01 * s, a11 = b11 * s;
+    const double e = a00 * a11 - a01 * a01;
+    const double det = dmax(e, 0.0) + r2 * (a00 + a11) + r2 * r2;
+    const double q00 = (a11 + r2) / det, q01 = -a01 / det, q11 = (a00 + r2) / det;
+    const double g_det = -(g00 * q00 + g01 * q01 + g11 * q11) / det;
+    const double pos = e >= 0.0 ? 1.0 : 0.0;
+    const double g_a00 = g11 / det + g_det * (r2 + pos * a11);
+    const double g_a11 = g00 / det + g_det * (r2 + pos * a00);
+    const double g_a01 = -g01 / det - g_det * pos * 2.0 * a01;
+    double g_b00 = s * g_a00, g_b01 = s * g_a01, g_b11 = s * g_a11;
+    if (ratio <= 1.0 && major >= 1e-300) {
+        const double g_major = -(g_a00 * b00 + g_a01 * b01 + g_a11 * b11) * s / major;
+        const double half_diff = 0.25 * (b00 - b11) / root;
+        g_b00 += g_major * (0.5 + half_diff);
+        g_b11 += g_major * (0.5 - half_diff);
+        g_b01 += g_major * b01 / root;
+    }
+    g[0] = (2.0 * ux * g_b00 + uy * g_b01) * mux;
+    g[1] = (2.0 * uy * g_b11 + ux * g_b01) * muy;
+    g[2] = (2.0 * vx * g_b00 + vy * g_b01) * mvx;
+    g[3] = (2.0 * vy * g_b11 + vx * g_b01) * mvy;
+}
+
+/* Every intermediate of a photon's optics from its hit to the receiver (optics_state). */
+typedef struct {
+    vec3 n1, p1, dpu1, dpv1, dnu, dnv, w1, dwu1, dwv1;
+    double ci1, ct1;
+    int lost;
+    double dist2;
+    vec3 p2, dpu2, dpv2, w2, dwu2, dwv2;
+    double ci2, ct2, dist3;
+    vec3 p3, dpu3, dpv3;
+    double fu[2], fv[2];
+} optics;
+
+static inline void optics_state(const sfc_scene *sc, vec3 w, vec3 dwu, vec3 dwv, double t, const double jet[5],
+                                double eta, optics *o) {
+    const double sxx = jet[2], sxy = jet[3], syy = jet[4];
+    o->n1 = height_field_normal(jet[0], jet[1]);
+    transfer(sc, v3(sc->light_x, sc->light_y, sc->light_z), ZERO, ZERO, w, dwu, dwv, t, o->n1, &o->p1, &o->dpu1,
+             &o->dpv1);
+    o->dnu = normal_differential(sxx, sxy, syy, o->n1, o->dpu1);
+    o->dnv = normal_differential(sxx, sxy, syy, o->n1, o->dpv1);
+    refract(w, dwu, dwv, o->n1, o->dnu, o->dnv, 1.0 / eta, &o->w1, &o->dwu1, &o->dwv1, &o->ci1, &o->ct1);
+    o->dist2 = -o->p1.z / away_from_zero(sc, o->w1.z);
+    transfer(sc, o->p1, o->dpu1, o->dpv1, o->w1, o->dwu1, o->dwv1, o->dist2, UP, &o->p2, &o->dpu2, &o->dpv2);
+    const double k2 = refract(o->w1, o->dwu1, o->dwv1, UP, ZERO, ZERO, eta, &o->w2, &o->dwu2, &o->dwv2, &o->ci2,
+                              &o->ct2);
+    o->lost = !(fabs(o->p2.x) <= sc->half && fabs(o->p2.y) <= sc->half) || k2 <= 0.0;
+    o->dist3 = (sc->receiver_z - o->p2.z) / away_from_zero(sc, o->w2.z);
+    transfer(sc, o->p2, o->dpu2, o->dpv2, o->w2, o->dwu2, o->dwv2, o->dist3, UP, &o->p3, &o->dpu3, &o->dpv3);
+    o->fu[0] = o->dpu3.x * sc->to_px;
+    o->fu[1] = o->dpu3.y * sc->to_px;
+    o->fv[0] = o->dpv3.x * sc->to_px;
+    o->fv[1] = o->dpv3.y * sc->to_px;
+}
+
+/* (px, py, q00, q01, q11, flux) of the photon on the receiver (splat_arguments). */
+static inline void splat_arguments(const sfc_scene *sc, double flux, double eta, const optics *o, double spot[6]) {
+    if (sc->fresnel) flux *= fresnel(o->ci1, o->ct1, 1.0 / eta) * fresnel(o->ci2, o->ct2, eta);
+    double q[3];
+    footprint_metric(sc, o->fu[0], o->fu[1], o->fv[0], o->fv[1], q);
+    if (o->lost) {
+        spot[0] = 0.0; spot[1] = 0.0; spot[2] = 1.0; spot[3] = 0.0; spot[4] = 1.0; spot[5] = 0.0;
+        return;
+    }
+    spot[0] = (o->p3.x + sc->receiver_half) * sc->to_px - 0.5;
+    spot[1] = (o->p3.y + sc->receiver_half) * sc->to_px - 0.5;
+    spot[2] = q[0];
+    spot[3] = q[1];
+    spot[4] = q[2];
+    spot[5] = flux;
+}
+
+/* Reverse mode through the optics (optics_adjoint): from the gradients w.r.t. the splat
+ * arguments g = (flux, px, py, q00, q01, q11) back to (t, S_x, S_y, S_xx, S_xy, S_yy) in out. */
+static void optics_adjoint(const sfc_scene *sc, vec3 w, vec3 dwu, vec3 dwv, double flux0, double t,
+                           const double jet[5], double eta, const optics *o, const double g[6], double out[6]) {
+    const double sx = jet[0], sy = jet[1], sxx = jet[2], sxy = jet[3], syy = jet[4];
+    const double t1 = sc->fresnel ? fresnel(o->ci1, o->ct1, 1.0 / eta) : 1.0;
+    const double t2 = sc->fresnel ? fresnel(o->ci2, o->ct2, eta) : 1.0;
+    const double k = sc->to_px;
+    double gf[4];
+    footprint_metric_adjoint(sc, o->fu[0], o->fu[1], o->fv[0], o->fv[1], g[3], g[4], g[5], gf);
+    /* Receiver plane. */
+    const vec3 g_p3 = v3(g[1] * k, g[2] * k, 0.0);
+    const transfer_grads a3 = transfer_adjoint(sc, o->dpu2, o->dpv2, o->w2, o->dwu2, o->dwv2, o->dist3, UP, g_p3,
+                                               v3(gf[0] * k, gf[1] * k, 0.0), v3(gf[2] * k, gf[3] * k, 0.0));
+    const double den3 = away_from_zero(sc, o->w2.z);
+    const vec3 g_p2 = v3(g_p3.x, g_p3.y, g_p3.z - a3.g_dist / den3);
+    const vec3 g_w2 = v3(a3.g_w.x, a3.g_w.y, a3.g_w.z - a3.g_dist * o->dist3 / den3 * passes(sc, o->w2.z));
+    /* Bottom refraction and transfer. */
+    double g_ci2 = 0.0, g_ct2 = 0.0, g_ci1 = 0.0, g_ct1 = 0.0;
+    if (sc->fresnel) {
+        fresnel_adjoint(o->ci2, o->ct2, eta, g[0] * flux0 * t1, &g_ci2, &g_ct2);
+        fresnel_adjoint(o->ci1, o->ct1, 1.0 / eta, g[0] * flux0 * t2, &g_ci1, &g_ct1);
+    }
+    const refract_grads r2 = refract_adjoint(o->w1, o->dwu1, o->dwv1, UP, ZERO, ZERO, eta, g_w2, a3.g_dwu, a3.g_dwv,
+                                             g_ci2, g_ct2);
+    const transfer_grads a2 = transfer_adjoint(sc, o->dpu1, o->dpv1, o->w1, o->dwu1, o->dwv1, o->dist2, UP, g_p2,
+                                               a3.g_dpu, a3.g_dpv);
+    const double den2 = away_from_zero(sc, o->w1.z);
+    const vec3 g_p1 = v3(g_p2.x, g_p2.y, g_p2.z - a2.g_dist / den2);
+    vec3 g_w1 = add3(r2.g_w, a2.g_w);
+    g_w1.z -= a2.g_dist * o->dist2 / den2 * passes(sc, o->w1.z);
+    /* Top refraction, normal differential, top transfer, normal. */
+    const refract_grads r1 = refract_adjoint(w, dwu, dwv, o->n1, o->dnu, o->dnv, 1.0 / eta, g_w1,
+                                             add3(r2.g_dwu, a2.g_dwu), add3(r2.g_dwv, a2.g_dwv), g_ci1, g_ct1);
+    double g_sxx = 0.0, g_sxy = 0.0, g_syy = 0.0, g_sxx2 = 0.0, g_sxy2 = 0.0, g_syy2 = 0.0;
+    vec3 g_nu, g_dpu, g_nv, g_dpv;
+    normal_differential_adjoint(sxx, sxy, syy, o->n1, o->dpu1, r1.g_dnu, &g_sxx, &g_sxy, &g_syy, &g_nu, &g_dpu);
+    normal_differential_adjoint(sxx, sxy, syy, o->n1, o->dpv1, r1.g_dnv, &g_sxx2, &g_sxy2, &g_syy2, &g_nv, &g_dpv);
+    const transfer_grads a1 = transfer_adjoint(sc, ZERO, ZERO, w, dwu, dwv, t, o->n1, g_p1, add3(a2.g_dpu, g_dpu),
+                                               add3(a2.g_dpv, g_dpv));
+    double g_sx, g_sy;
+    height_field_normal_adjoint(sx, sy, add3(add3(r1.g_n, g_nu), add3(g_nv, a1.g_n)), &g_sx, &g_sy);
+    out[0] = a1.g_dist;
+    out[1] = g_sx;
+    out[2] = g_sy;
+    out[3] = g_sxx + g_sxx2;
+    out[4] = g_sxy + g_sxy2;
+    out[5] = g_syy + g_syy2;
+}
+
+/* ---------------------------------------------------------------- splat and gather */
+
+static inline int footprint_usable(const sfc_scene *sc, double f, double px, double py, double q00, double q01,
+                                   double q11) {
+    return f != 0.0 && isfinite(f) && fabs(px) < sc->far_px && fabs(py) < sc->far_px && q00 > 0.0 && q11 > 0.0
+           && q00 * q11 - q01 * q01 > 0.0;
+}
+
+static inline void footprint_box(double px, double py, double q00, double q01, double q11, int64_t *x0, int64_t *x1,
+                                 int64_t *y0, int64_t *y1) {
+    const double det = q00 * q11 - q01 * q01;
+    const double hx = sqrt(q11 / det), hy = sqrt(q00 / det);
+    *x0 = (int64_t)ceil(px - hx);
+    *x1 = (int64_t)floor(px + hx);
+    *y0 = (int64_t)ceil(py - hy);
+    *y1 = (int64_t)floor(py + hy);
+}
+
+static inline int fits_fixed_box(int64_t x0, int64_t x1, int64_t y0, int64_t y1, int64_t lo, int64_t hi) {
+    return x1 - x0 < LANES && y1 - y0 < LANES && x0 >= lo && y0 >= lo && x0 + LANES - 1 <= hi && y0 + LANES - 1 <= hi;
+}
+
+/* Silverman weights of the rows x width pixels from (x0, y0) into buf; returns their sum. */
+static inline double box_weights(double *buf, int64_t x0, int64_t y0, int64_t width, int64_t rows, double px,
+                                 double py, double q00, double q01, double q11) {
+    double s = 0.0;
+    const double rx0 = (double)x0 - px;
+    for (int64_t r = 0; r < rows; r++) {
+        const double ry = (double)(y0 + r) - py;
+        const double b = 2.0 * q01 * ry, e = q11 * ry * ry;
+        for (int64_t j = 0; j < width; j++) {
+            const double rx = rx0 + (double)j;
+            const double u = dmax(1.0 - ((q00 * rx + b) * rx + e), 0.0);
+            buf[r * width + j] = u * u;
+            s += u * u;
+        }
+    }
+    return s;
+}
+
+/* One photon's flux into channel c of the image (channels, n, n), float64 or float32 (splat_photon). */
+static void splat_photon(const sfc_scene *sc, void *img, int f32, int64_t n, int64_t c, const double spot[6],
+                         double *buf, int64_t capacity) {
+    const double px = spot[0], py = spot[1], q00 = spot[2], q01 = spot[3], q11 = spot[4], f = spot[5];
+    if (!footprint_usable(sc, f, px, py, q00, q01, q11)) return;
+    int64_t x0, x1, y0, y1;
+    footprint_box(px, py, q00, q01, q11, &x0, &x1, &y0, &y1);
+    const int64_t plane = c * n * n;
+    int64_t width, rows, lo, hi, ylo, yhi;
+    if (fits_fixed_box(x0, x1, y0, y1, 0, n - 1) && capacity >= LANES * LANES) {
+        if (sc->simd) {
+            if (f32)
+                sfc_splat_box8_f32((float *)img, plane + y0 * n + x0, n, y1 - y0 + 1, (double)x0 - px,
+                                   (double)y0 - py, q00, q01, q11, f);
+            else
+                sfc_splat_box8_f64((double *)img, plane + y0 * n + x0, n, y1 - y0 + 1, (double)x0 - px,
+                                   (double)y0 - py, q00, q01, q11, f);
+            return;
+        }
+        width = rows = LANES;
+        lo = x0; hi = x0 + LANES - 1; ylo = y0; yhi = y0 + LANES - 1;
+    } else {
+        width = x1 - x0 + 1;
+        rows = y1 - y0 + 1;
+        if (width <= 0 || rows <= 0 || width * rows > capacity) return;
+        lo = imax(x0, 0); hi = imin(x1, n - 1); ylo = imax(y0, 0); yhi = imin(y1, n - 1);
+    }
+    const double s = box_weights(buf, x0, y0, width, rows, px, py, q00, q01, q11);
+    if (!(s > 0.0)) return;
+    const double scale = f / s;
+    for (int64_t iy = ylo; iy <= yhi; iy++) {
+        const double *w = buf + (iy - y0) * width - x0;
+        if (f32) {
+            float *row = (float *)img + plane + iy * n;
+            for (int64_t ix = lo; ix <= hi; ix++) row[ix] = (float)((double)row[ix] + scale * w[ix]);
+        } else {
+            double *row = (double *)img + plane + iy * n;
+            for (int64_t ix = lo; ix <= hi; ix++) row[ix] += scale * w[ix];
+        }
+    }
+}
+
+/* The sums of the splat's adjoint over rows x width pixels from (x0, y0) of the padded G
+ * (_gather_box): (s, sum G w, v0 .. v4, u0 .. u4). */
+static void gather_box(const double *plane, int64_t stride, int64_t pad, int64_t x0, int64_t y0, int64_t width,
+                       int64_t rows, double px, double py, double q00, double q01, double q11, double sums[12]) {
+    double s = 0.0, gw = 0.0, v[5] = {0.0, 0.0, 0.0, 0.0, 0.0}, u[5] = {0.0, 0.0, 0.0, 0.0, 0.0};
+    for (int64_t r = 0; r < rows; r++) {
+        const double ry = (double)(y0 + r) - py;
+        const double b = 2.0 * q01 * ry, e = q11 * ry * ry;
+        const double *row = plane + (y0 + r + pad) * stride + x0 + pad;
+        double sw = 0.0, a0 = 0.0, a1 = 0.0, a2 = 0.0, gsw = 0.0, g0 = 0.0, g1 = 0.0, g2 = 0.0;
+        for (int64_t j = 0; j < width; j++) {
+            const double rx = (double)(x0 + j) - px;
+            const double uu = dmax(1.0 - ((q00 * rx + b) * rx + e), 0.0);
+            const double gu = row[j] * uu;
+            sw += uu * uu;
+            a0 += uu;
+            a1 += uu * rx;
+            a2 += uu * rx * rx;
+            gsw += gu * uu;
+            g0 += gu;
+            g1 += gu * rx;
+            g2 += gu * rx * rx;
+        }
+        s += sw;
+        gw += gsw;
+        v[0] -= 2.0 * (q00 * a1 + q01 * ry * a0);
+        v[1] -= 2.0 * (q01 * a1 + q11 * ry * a0);
+        v[2] += a2;
+        v[3] += 2.0 * ry * a1;
+        v[4] += ry * ry * a0;
+        u[0] -= 2.0 * (q00 * g1 + q01 * ry * g0);
+        u[1] -= 2.0 * (q01 * g1 + q11 * ry * g0);
+        u[2] += g2;
+        u[3] += 2.0 * ry * g1;
+        u[4] += ry * ry * g0;
+    }
+    sums[0] = s;
+    sums[1] = gw;
+    for (int i = 0; i < 5; i++) {
+        sums[2 + i] = v[i];
+        sums[7 + i] = u[i];
+    }
+}
+
+/* One photon's splat adjoint (gather_photon_simd): gradients of <G, splat> w.r.t.
+ * (flux, px, py, q00, q01, q11) into g; G given padded (channels, n + 2 pad, n + 2 pad). */
+static void gather_photon(const sfc_scene *sc, const double *padded, int64_t n, int64_t pad, int64_t c,
+                          const double spot[6], double g[6]) {
+    const double px = spot[0], py = spot[1], q00 = spot[2], q01 = spot[3], q11 = spot[4], f = spot[5];
+    for (int i = 0; i < 6; i++) g[i] = 0.0;
+    if (!footprint_usable(sc, f, px, py, q00, q01, q11)) return;
+    int64_t x0, x1, y0, y1;
+    footprint_box(px, py, q00, q01, q11, &x0, &x1, &y0, &y1);
+    if (x1 < 0 || y1 < 0 || x0 > n - 1 || y0 > n - 1 || x1 < x0 || y1 < y0) return;
+    const int64_t stride = n + 2 * pad;
+    const double *plane = padded + c * stride * stride;
+    double sums[12];
+    if (fits_fixed_box(x0, x1, y0, y1, -pad, n - 1 + pad)) {
+        if (sc->simd)
+            sfc_gather_box8(plane, (y0 + pad) * stride + x0 + pad, stride, y1 - y0 + 1, (double)x0 - px,
+                            (double)y0 - py, q00, q01, q11, sums);
+        else
+            gather_box(plane, stride, pad, x0, y0, LANES, LANES, px, py, q00, q01, q11, sums);
+    } else {
+        x0 = imax(x0, -pad); x1 = imin(x1, n - 1 + pad);
+        y0 = imax(y0, -pad); y1 = imin(y1, n - 1 + pad);
+        gather_box(plane, stride, pad, x0, y0, x1 - x0 + 1, y1 - y0 + 1, px, py, q00, q01, q11, sums);
+    }
+    if (!(sums[0] > 0.0)) return;
+    const double mean = sums[1] / sums[0], scale = -2.0 * f / sums[0];
+    g[0] = mean;
+    for (int i = 0; i < 5; i++) g[1 + i] = scale * (sums[7 + i] - mean * sums[2 + i]);
+}
+
+/* ---------------------------------------------------------------- packets */
+
+/* A packet's photons: emission, hit and jet (trace_packet's hit table). */
+typedef struct {
+    int64_t channel[PACKET];
+    vec3 w[PACKET], dwu[PACKET], dwv[PACKET];
+    double flux[PACKET], eta[PACKET], t[PACKET];
+    double dirs[3 * PACKET];  /* w as rows (x, y, z), for the AVX2 jets */
+    double jets[5 * PACKET];  /* rows S_x, S_y, S_xx, S_xy, S_yy */
+    double spots[PACKET][6];  /* splat arguments (px, py, q00, q01, q11, flux) */
+    search_state search;
+} packet;
+
+typedef struct {
+    const double *d;
+    int64_t m;
+    const sfc_scene *sc;
+    const double *shifts, *indices;
+    double *hit_t;
+    int64_t hit_len, t_first, replay;
+} photons_in;
+
+/* Photons first .. first+count-1 traced to the receiver (trace_packet): hits, jets, splat
+ * arguments; each photon's optics state into o[k] when o is given. */
+static void trace_packet(const photons_in *in, int64_t first, int64_t count, packet *p, optics *o) {
+    const sfc_scene *sc = in->sc;
+    for (int64_t k = 0; k < count; k++) {
+        const emitted e = emit(sc, in->shifts, first + k);
+        p->channel[k] = e.c;
+        p->w[k] = e.w;
+        p->dwu[k] = e.dwu;
+        p->dwv[k] = e.dwv;
+        p->flux[k] = e.flux;
+        p->eta[k] = in->indices[e.c];
+    }
+    const int64_t offset = first - in->t_first;
+    if (in->replay) {
+        for (int64_t k = 0; k < count; k++) p->t[k] = in->hit_t[offset + k];
+    } else {
+        solve_hits(in->d, in->m, sc, p->w, count, p->t, &p->search);
+        if (in->hit_len > 0)
+            for (int64_t k = 0; k < count; k++) in->hit_t[offset + k] = p->t[k];
+    }
+    if (sc->simd) {
+        for (int64_t k = 0; k < count; k++) {
+            p->dirs[k] = p->w[k].x;
+            p->dirs[PACKET + k] = p->w[k].y;
+            p->dirs[2 * PACKET + k] = p->w[k].z;
+        }
+        sfc_surface_jets(in->d, in->m, -sc->half, 1.0 / sc->spacing, sc->light_x, sc->light_y, p->dirs, PACKET, p->t,
+                         count, p->jets);
+    } else {
+        for (int64_t k = 0; k < count; k++) {
+            double jet[5];
+            surface_jet_at(in->d, in->m, sc->light_x + p->t[k] * p->w[k].x, sc->light_y + p->t[k] * p->w[k].y,
+                           -sc->half, sc->spacing, jet);
+            for (int j = 0; j < 5; j++) p->jets[j * PACKET + k] = jet[j];
+        }
+    }
+    for (int64_t k = 0; k < count; k++) {
+        optics local;
+        optics *state = o ? &o[k] : &local;
+        double jet[5];
+        for (int j = 0; j < 5; j++) jet[j] = p->jets[j * PACKET + k];
+        optics_state(sc, p->w[k], p->dwu[k], p->dwv[k], p->t[k], jet, p->eta[k], state);
+        splat_arguments(sc, p->flux[k], p->eta[k], state, p->spots[k]);
+    }
+}
+
+/* ---------------------------------------------------------------- threads */
+
+typedef struct {
+    photons_in in;
+    int64_t start, stop, blocks;
+    _Atomic int64_t next_block;
+    /* render */
+    void *out;
+    int f32, splat;
+    int64_t channels, n, capacity;
+    double *reached;  /* per block */
+    /* vjp */
+    const double *padded;
+    int64_t pad;
+    double *grad;     /* (threads, m, m) */
+} job;
+
+static int render_worker(void *context, int64_t thread) {
+    job *j = (job *)context;
+    packet *p = (packet *)malloc(sizeof(packet));
+    double *buf = (double *)malloc(sizeof(double) * (size_t)imax(j->capacity, 1));
+    if (!p || !buf) {
+        free(p);
+        free(buf);
+        return 1;
+    }
+    const size_t elem = j->f32 ? sizeof(float) : sizeof(double);
+    void *img = (char *)j->out + (size_t)thread * (size_t)(j->channels * j->n * j->n) * elem;
+    for (;;) {
+        const int64_t b = atomic_fetch_add(&j->next_block, 1);
+        if (b >= j->blocks) break;
+        const int64_t lo = j->start + b * BLOCK, hi = imin(j->stop, lo + BLOCK);
+        double reached = 0.0;
+        for (int64_t first = lo; first < hi; first += PACKET) {
+            const int64_t count = imin(PACKET, hi - first);
+            trace_packet(&j->in, first, count, p, NULL);
+            for (int64_t k = 0; k < count; k++) {
+                reached += p->spots[k][5];
+                if (j->splat) splat_photon(j->in.sc, img, j->f32, j->n, p->channel[k], p->spots[k], buf, j->capacity);
+            }
+        }
+        j->reached[b] = reached;
+    }
+    free(p);
+    free(buf);
+    return 0;
+}
+
+static int vjp_worker(void *context, int64_t thread) {
+    job *j = (job *)context;
+    const sfc_scene *sc = j->in.sc;
+    const int64_t m = j->in.m;
+    packet *p = (packet *)malloc(sizeof(packet));
+    optics *o = (optics *)malloc(sizeof(optics) * PACKET);
+    if (!p || !o) {
+        free(p);
+        free(o);
+        return 1;
+    }
+    double *grad = j->grad + (size_t)thread * (size_t)(m * m);
+    for (;;) {
+        const int64_t b = atomic_fetch_add(&j->next_block, 1);
+        if (b >= j->blocks) break;
+        const int64_t lo = j->start + b * BLOCK, hi = imin(j->stop, lo + BLOCK);
+        for (int64_t first = lo; first < hi; first += PACKET) {
+            const int64_t count = imin(PACKET, hi - first);
+            trace_packet(&j->in, first, count, p, o);
+            for (int64_t k = 0; k < count; k++) {
+                double g[6], g_hit[6], jet[5];
+                gather_photon(sc, j->padded, j->n, j->pad, p->channel[k], p->spots[k], g);
+                if (g[0] == 0.0 && g[1] == 0.0 && g[2] == 0.0 && g[3] == 0.0 && g[4] == 0.0 && g[5] == 0.0) continue;
+                for (int i = 0; i < 5; i++) jet[i] = p->jets[i * PACKET + k];
+                optics_adjoint(sc, p->w[k], p->dwu[k], p->dwv[k], p->flux[k], p->t[k], jet, p->eta[k], &o[k], g,
+                               g_hit);
+                const double x = sc->light_x + p->t[k] * p->w[k].x, y = sc->light_y + p->t[k] * p->w[k].y;
+                if (sc->simd)
+                    sfc_hit_adjoint(j->in.d, grad, m, x, y, -sc->half, 1.0 / sc->spacing, p->w[k].x, p->w[k].y,
+                                    p->w[k].z, g_hit[0], g_hit[1], g_hit[2], g_hit[3], g_hit[4], g_hit[5]);
+                else
+                    hit_adjoint_scalar(j->in.d, grad, m, x, y, -sc->half, sc->spacing, p->w[k], g_hit);
+            }
+        }
+    }
+    free(p);
+    free(o);
+    return 0;
+}
+
+/* Render photons start .. stop-1 of heights d (m, m) into out (threads, channels, n, n) (float32
+ * if f32, else float64; each thread its own image, the host sums them); with splat 0 only the
+ * traces run. hit_t (hit_len = stop - start, or 0: none) receives the hits' ray parameters, or
+ * with replay holds them. *reached: the flux that reached the receiver. Returns 0, -1 on
+ * failure to allocate or start threads. */
+int sfc_hf_render(const double *d, int64_t m, const sfc_scene *sc, const double *shifts, const double *indices,
+                  int64_t start, int64_t stop, void *out, int64_t f32, int64_t threads, int64_t channels, int64_t n,
+                  int64_t capacity, int64_t splat, double *hit_t, int64_t hit_len, int64_t replay, double *reached) {
+    job j;
+    j.in.d = d; j.in.m = m; j.in.sc = sc; j.in.shifts = shifts; j.in.indices = indices;
+    j.in.hit_t = hit_t; j.in.hit_len = hit_len; j.in.t_first = start; j.in.replay = replay;
+    j.start = start; j.stop = stop; j.blocks = (stop - start + BLOCK - 1) / BLOCK;
+    atomic_init(&j.next_block, 0);
+    j.out = out; j.f32 = (int)f32; j.splat = (int)splat; j.channels = channels; j.n = n; j.capacity = capacity;
+    j.padded = NULL; j.pad = 0; j.grad = NULL;
+    j.reached = (double *)calloc((size_t)imax(j.blocks, 1), sizeof(double));
+    if (!j.reached) return -1;
+    const int status = sfc_parallel(threads, render_worker, &j);
+    double total = 0.0;
+    for (int64_t b = 0; b < j.blocks; b++) total += j.reached[b];
+    *reached = total;
+    free(j.reached);
+    return status;
+}
+
+/* Add to grad (threads, m, m) the gradient w.r.t. d of <splat of photons start .. stop-1, G>, G
+ * (channels, n, n) given as `padded` with `pad` zero pixels on every side; hit_t as in
+ * sfc_hf_render (replayed when hit_len > 0). Returns 0, -1 on failure. */
+int sfc_hf_vjp(const double *d, int64_t m, const sfc_scene *sc, const double *shifts, const double *indices,
+               int64_t start, int64_t stop, const double *padded, int64_t n, int64_t pad, double *grad,
+               int64_t threads, double *hit_t, int64_t hit_len) {
+    job j;
+    j.in.d = d; j.in.m = m; j.in.sc = sc; j.in.shifts = shifts; j.in.indices = indices;
+    j.in.hit_t = hit_t; j.in.hit_len = hit_len; j.in.t_first = start; j.in.replay = hit_len > 0;
+    j.start = start; j.stop = stop; j.blocks = (stop - start + BLOCK - 1) / BLOCK;
+    atomic_init(&j.next_block, 0);
+    j.out = NULL; j.f32 = 0; j.splat = 0; j.channels = 0; j.n = n; j.capacity = 0; j.reached = NULL;
+    j.padded = padded; j.pad = pad; j.grad = grad;
+    return sfc_parallel(threads, vjp_worker, &j);
+}
+
+/* ---------------------------------------------------------------- rays aimed at points */
+
+typedef struct {
+    const double *d;
+    int64_t m;
+    const sfc_scene *sc;
+    double eta;
+    const double *aim;
+    double *pos, *ratio;
+    int64_t count, blocks;
+    _Atomic int64_t next_block;
+} aimed_job;
+
+/* One ray aimed at (ax, ay) on z = base, zero differentials (_trace_ray in
+ * operators/wavefront/renderer.py): receiver position in pixel corner units and transmittance
+ * (1, or the Fresnel product; 0 if lost). */
+static void trace_aimed(const aimed_job *j, double ax, double ay, double *x, double *y, double *ratio) {
+    const sfc_scene *sc = j->sc;
+    const double dx = ax - sc->light_x, dy = ay - sc->light_y, dz = sc->base - sc->light_z;
+    const double inv_r = 1.0 / sqrt(dx * dx + dy * dy + dz * dz);
+    const vec3 w = v3(dx * inv_r, dy * inv_r, dz * inv_r);
+    const double t = solve_hit(j->d, j->m, sc, w);
+    double jet[5];
+    surface_jet_at(j->d, j->m, sc->light_x + t * w.x, sc->light_y + t * w.y, -sc->half, sc->spacing, jet);
+    optics o;
+    optics_state(sc, w, ZERO, ZERO, t, jet, j->eta, &o);
+    *x = (o.p3.x + sc->receiver_half) * sc->to_px;
+    *y = (o.p3.y + sc->receiver_half) * sc->to_px;
+    double transmittance = 1.0;
+    if (sc->fresnel) transmittance = fresnel(o.ci1, o.ct1, 1.0 / j->eta) * fresnel(o.ci2, o.ct2, j->eta);
+    const int good = !o.lost && isfinite(*x) && isfinite(*y) && transmittance > 0.0;
+    *ratio = good ? transmittance : 0.0;
+}
+
+static int aimed_worker(void *context, int64_t thread) {
+    (void)thread;
+    aimed_job *j = (aimed_job *)context;
+    for (;;) {
+        const int64_t b = atomic_fetch_add(&j->next_block, 1);
+        if (b >= j->blocks) break;
+        for (int64_t k = b * BLOCK; k < imin(j->count, (b + 1) * BLOCK); k++)
+            trace_aimed(j, j->aim[2 * k], j->aim[2 * k + 1], &j->pos[2 * k], &j->pos[2 * k + 1], &j->ratio[k]);
+    }
+    return 0;
+}
+
+/* Rays aimed at aim (count, 2) (x, y on z = base) through heights d (m, m), glass index eta:
+ * receiver positions (count, 2) in pixel corner units into pos, transmittances (count,) into
+ * ratio. Returns 0, -1 on failure to start threads. */
+int sfc_hf_trace_aimed(const double *d, int64_t m, const sfc_scene *sc, double eta, const double *aim, int64_t count,
+                       double *pos, double *ratio, int64_t threads) {
+    aimed_job j;
+    j.d = d; j.m = m; j.sc = sc; j.eta = eta; j.aim = aim; j.pos = pos; j.ratio = ratio; j.count = count;
+    j.blocks = (count + BLOCK - 1) / BLOCK;
+    atomic_init(&j.next_block, 0);
+    return sfc_parallel(threads, aimed_worker, &j);
+}
