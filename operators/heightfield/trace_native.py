@@ -4,6 +4,7 @@ kernels (:mod:`operators.heightfield.kernels_native`, :mod:`operators.heightfiel
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numba as nb
@@ -22,6 +23,21 @@ from operators.splat.native import gather_padding, pad_for_gather
 NO_HITS = np.empty(0)  # kernels' marker for "no hit cache"
 
 
+@functools.cache
+def _numba_cached_at_first_use() -> bool:
+    """Whether numba's photon kernels were cached when this process first asked: asked once, so
+    that every operator of a run traces with the same kernels even if a background compile
+    fills the cache meanwhile."""
+    return numba_kernels_cached()
+
+
+def traces_with_c(kernels: str) -> bool:
+    """Whether operators with ``kernels`` (OperatorSettings.kernels) trace with the C kernels:
+    ``c``, or ``auto`` where numba's kernels were not cached at this process's first use; never
+    where the extension was not built."""
+    return trace_compiled.AVAILABLE and (kernels == "c" or (kernels == "auto" and not _numba_cached_at_first_use()))
+
+
 class FusedTracer:
     """Photons ``start .. stop-1`` of ``emitter`` traced through ``scene`` in one native pass each.
 
@@ -35,9 +51,7 @@ class FusedTracer:
                  max_pixel_radius: float, fresnel: bool, simd: bool, kernels: str = "auto") -> None:
         self.scene = scene
         self.simd = bool(simd) and SIMD_AVAILABLE  # whether the kernels use the AVX2 extension
-        # Whether the C kernels trace (else the numba kernels).
-        self.compiled = trace_compiled.AVAILABLE and (
-            kernels == "c" or (kernels == "auto" and not numba_kernels_cached()))
+        self.compiled = traces_with_c(kernels)  # whether the C kernels trace (else the numba kernels)
         self.shifts = np.ascontiguousarray(emitter.shifts.numpy(), dtype=np.float64)
         self.indices = np.asarray(scene.indices, dtype=np.float64)
         self.capacity = (2 * math.ceil(max_pixel_radius) + 3) ** 2
