@@ -8,8 +8,16 @@ compiler is found the package still installs, and the numba kernels do the exten
 
 from setuptools import Extension, setup
 
+# The float semantics of the numba kernels (operators/kernels/numba_settings.py, FAST_MATH):
+# contraction into FMA, reassociation, reciprocals, no signed zeros, no errno from the maths; not
+# finite-math-only, so that NaN and infinity checks keep their meaning.
+FAST_MATH = ["-fno-math-errno", "-fno-trapping-math", "-fno-signed-zeros", "-freciprocal-math", "-fassociative-math",
+             "-ffp-contract=fast"]
+
 setup(ext_modules=[Extension("operators.kernels._simd",
                              sources=["operators/kernels/simd_kernels.c", "operators/kernels/heightfield_photons.c",
+                                      "operators/kernels/heightfield_photons_avx2.c",
                                       "operators/kernels/coverage_kernels.c"],
                              depends=["operators/kernels/sfc_threads.h"],
-                             extra_compile_args=["-O3", "-pthread"], extra_link_args=["-pthread"], optional=True)])
+                             extra_compile_args=["-O3", "-pthread", *FAST_MATH], extra_link_args=["-pthread"],
+                             optional=True)])

@@ -44,7 +44,7 @@ from operators.splat.splat import splat_photons
 from operators.heightfield.trace_reference import trace_substrate
 
 DTYPES = {"float32": torch.float32, "float64": torch.float64}
-KERNELS = ("auto", "c", "numba")  # OperatorSettings.kernels
+KERNELS = ("c", "numba")  # OperatorSettings.kernels
 
 
 @dataclass(frozen=True)
@@ -72,11 +72,9 @@ class OperatorSettings:
         (operators/kernels/simd_kernels.c) where it was built and the CPU has AVX2; elsewhere, or with
         False, the numba kernels do them (same results to rounding).
     kernels: which CPU photon kernels trace (same results to rounding): ``c``, those of the
-        compiled extension (operators/kernels/heightfield_photons.c, compiled at install: no wait);
-        ``numba``, the numba kernels (compiled into numba's cache on first use, 1-2 minutes; on
-        CPUs with wide vector units faster than the C ones, docs/performance.md); ``auto``, numba
-        where its kernels are cached, else C while they compile in a second process for later
-        runs (operators/heightfield/precompile.py). Without the extension: numba.
+        compiled extension (operators/kernels/heightfield_photons.c, compiled at install: a run
+        traces at once); ``numba``, the numba kernels (compiled into numba's cache on first use,
+        1-2 minutes; docs/performance.md compares the two). Without the extension: numba.
     """
 
     photons: int = 1 << 22
@@ -89,7 +87,7 @@ class OperatorSettings:
     hit_cache_mb: float = 256.0
     fresnel: bool = False
     simd: bool = True
-    kernels: str = "auto"
+    kernels: str = "c"
     dtype: str = "float32"
     device: str = "cpu"
 
@@ -175,15 +173,11 @@ class CausticOperator(PhotonOperator):
                                  fresnel=self.settings.fresnel)
 
     def warm_up(self) -> BackgroundCompile:
-        """Context for a run that will take gradients, on the CPU: the numba kernels compiling in a
-        second process where they are not cached (operators/heightfield/precompile.py): for later
-        runs while this one traces with the C kernels (``kernels: auto``), or the gradient kernel
-        while this one compiles the render kernel (numba traces); ``wait()`` on what it yields
-        before the first gradient (returns at once in the first case)."""
-        cpu = self.device.type != "cuda"
-        if self.fused.compiled:
-            return BackgroundCompile(enabled=cpu and self.settings.kernels == "auto", blocking=False)
-        return BackgroundCompile(enabled=cpu)
+        """Context for a run that will take gradients: where the numba kernels trace on the CPU,
+        compiles their gradient kernel in a second process while this one goes on (first run after
+        an install, operators/heightfield/precompile.py); ``wait()`` on what it yields before the
+        first gradient."""
+        return BackgroundCompile(enabled=self.device.type != "cuda" and not self.fused.compiled)
 
     def __init__(self, scene: Scene, settings: OperatorSettings | None = None) -> None:
         self.scene = scene

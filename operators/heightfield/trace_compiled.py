@@ -40,22 +40,32 @@ _P = ctypes.c_void_p
 _I = ctypes.c_int64
 
 
-def _bind() -> ctypes.CDLL | None:
+def _bind() -> tuple[ctypes.CDLL | None, str]:
+    """The extension and the suffix of the build its functions are taken from: ``_avx2`` (AVX2
+    and FMA) where the CPU has them, else the baseline build."""
     library = extension.load()
     if library is None:
-        return None
-    library.sfc_hf_render.argtypes = [_P, _I, ctypes.POINTER(SceneStruct), _P, _P, _I, _I, _P, _I, _I, _I, _I, _I, _I,
-                                      _P, _I, _I, ctypes.POINTER(ctypes.c_double)]
-    library.sfc_hf_render.restype = ctypes.c_int
-    library.sfc_hf_vjp.argtypes = [_P, _I, ctypes.POINTER(SceneStruct), _P, _P, _I, _I, _P, _I, _I, _P, _I, _P, _I]
-    library.sfc_hf_vjp.restype = ctypes.c_int
-    library.sfc_hf_trace_aimed.argtypes = [_P, _I, ctypes.POINTER(SceneStruct), ctypes.c_double, _P, _I, _P, _P, _I]
-    library.sfc_hf_trace_aimed.restype = ctypes.c_int
-    return library
+        return None, ""
+    suffix = "_avx2" if library.sfc_simd_supported() else ""
+    scene = ctypes.POINTER(SceneStruct)
+    for name, argtypes in (
+            ("sfc_hf_render", [_P, _I, scene, _P, _P, _I, _I, _P, _I, _I, _I, _I, _I, _I, _P, _I, _I,
+                               ctypes.POINTER(ctypes.c_double)]),
+            ("sfc_hf_vjp", [_P, _I, scene, _P, _P, _I, _I, _P, _I, _I, _P, _I, _P, _I]),
+            ("sfc_hf_trace_aimed", [_P, _I, scene, ctypes.c_double, _P, _I, _P, _P, _I])):
+        function = getattr(library, name + suffix)
+        function.argtypes = argtypes
+        function.restype = ctypes.c_int
+    return library, suffix
 
 
-_LIBRARY = _bind()
+_LIBRARY, _SUFFIX = _bind()
 AVAILABLE = _LIBRARY is not None  # whether the C photon kernels were built (they run on any CPU)
+
+
+def _function(name: str):
+    assert _LIBRARY is not None
+    return getattr(_LIBRARY, name + _SUFFIX)
 
 
 def _pointer(array: np.ndarray | None) -> int | None:
@@ -73,11 +83,10 @@ def render(d: np.ndarray, sc: FusedScene, shifts: np.ndarray, indices: np.ndarra
     ``out`` (threads, c, n, n) float32 or float64, one thread per image; returns the flux that
     reached the receiver. Arrays C-contiguous, ``d``, ``shifts``, ``indices`` and ``hit_t`` float64
     (``hit_t`` empty: no hits recorded)."""
-    assert _LIBRARY is not None
     if out.dtype not in (np.float32, np.float64):
         raise ValueError(f"images must be float32 or float64, not {out.dtype}")
     reached = ctypes.c_double(0.0)
-    status = _LIBRARY.sfc_hf_render(
+    status = _function("sfc_hf_render")(
         d.ctypes.data, d.shape[0], ctypes.byref(_scene(sc)), shifts.ctypes.data, indices.ctypes.data, start, stop,
         out.ctypes.data, int(out.dtype == np.float32), out.shape[0], out.shape[1], out.shape[2], capacity, int(splat),
         _pointer(hit_t), hit_t.shape[0], int(replay), ctypes.byref(reached))
@@ -91,8 +100,7 @@ def vjp(d: np.ndarray, sc: FusedScene, shifts: np.ndarray, indices: np.ndarray, 
     """:func:`operators.heightfield.adjoint_native.vjp_photons` in C: adds the gradient into ``out``
     (threads, m, m) float64, one thread per gradient; ``padded`` (c, n + 2 pad, n + 2 pad)
     float64; ``hit_t`` replayed unless empty."""
-    assert _LIBRARY is not None
-    status = _LIBRARY.sfc_hf_vjp(
+    status = _function("sfc_hf_vjp")(
         d.ctypes.data, d.shape[0], ctypes.byref(_scene(sc)), shifts.ctypes.data, indices.ctypes.data, start, stop,
         padded.ctypes.data, padded.shape[1] - 2 * pad, pad, out.ctypes.data, out.shape[0], _pointer(hit_t),
         hit_t.shape[0])
@@ -106,11 +114,10 @@ def trace_aimed(d: np.ndarray, sc: FusedScene, eta: float, aim: np.ndarray, pos:
     on the substrate's top plane) through heights ``d`` (m, m), glass index ``eta``: receiver
     positions (N, 2) (pixel corner units) into ``pos``, transmittances (N,) into ``ratio``; all
     float64, C-contiguous; as many threads as numba's."""
-    assert _LIBRARY is not None
     for name, array, shape in (("aim", aim, (aim.shape[0], 2)), ("pos", pos, (aim.shape[0], 2)),
                                ("ratio", ratio, (aim.shape[0],))):
         if array.shape != shape or array.dtype != np.float64 or not array.flags.c_contiguous:
             raise ValueError(f"{name} must be a C-contiguous float64 array of shape {shape}")
-    if _LIBRARY.sfc_hf_trace_aimed(d.ctypes.data, d.shape[0], ctypes.byref(_scene(sc)), float(eta), aim.ctypes.data,
+    if _function("sfc_hf_trace_aimed")(d.ctypes.data, d.shape[0], ctypes.byref(_scene(sc)), float(eta), aim.ctypes.data,
                                    aim.shape[0], pos.ctypes.data, ratio.ctypes.data, nb.get_num_threads()) != 0:
         raise MemoryError("the C photon kernels could not start their threads")

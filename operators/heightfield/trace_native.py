@@ -4,7 +4,6 @@ kernels (:mod:`operators.heightfield.kernels_native`, :mod:`operators.heightfiel
 
 from __future__ import annotations
 
-import functools
 import math
 
 import numba as nb
@@ -14,7 +13,6 @@ from operators.emission import PointLightEmitter
 from operators.heightfield import trace_compiled
 from operators.heightfield.adjoint_native import vjp_photons
 from operators.heightfield.kernels_native import FusedScene, render_photons
-from operators.heightfield.precompile import numba_kernels_cached
 from operators.heightfield.surface import HeightFieldGrid
 from operators.scene import Scene
 from operators.kernels.simd import AVAILABLE as SIMD_AVAILABLE
@@ -23,35 +21,23 @@ from operators.splat.native import gather_padding, pad_for_gather
 NO_HITS = np.empty(0)  # kernels' marker for "no hit cache"
 
 
-@functools.cache
-def _numba_cached_at_first_use() -> bool:
-    """Whether numba's photon kernels were cached when this process first asked: asked once, so
-    that every operator of a run traces with the same kernels even if a background compile
-    fills the cache meanwhile."""
-    return numba_kernels_cached()
-
-
-def traces_with_c(kernels: str) -> bool:
-    """Whether operators with ``kernels`` (OperatorSettings.kernels) trace with the C kernels:
-    ``c``, or ``auto`` where numba's kernels were not cached at this process's first use; never
-    where the extension was not built."""
-    return trace_compiled.AVAILABLE and (kernels == "c" or (kernels == "auto" and not _numba_cached_at_first_use()))
 
 
 class FusedTracer:
     """Photons ``start .. stop-1`` of ``emitter`` traced through ``scene`` in one native pass each.
 
     Matches the torch path (PointLightEmitter.batch, trace_substrate, footprint_metric,
-    splat_photons) photon by photon, computed in float64. ``kernels``: ``c``, ``numba`` or
-    ``auto`` (OperatorSettings.kernels; C only where the extension was built); ``simd``: both
-    take the AVX2 splat, gather, jets and hit adjoint where the CPU has them.
+    splat_photons) photon by photon, computed in float64. ``kernels``: ``c`` or ``numba``
+    (OperatorSettings.kernels; C only where the extension was built); ``simd``: both take the
+    AVX2 splat, gather, jets and hit adjoint where the CPU has them.
     """
 
     def __init__(self, scene: Scene, emitter: PointLightEmitter, filter_px: float,
-                 max_pixel_radius: float, fresnel: bool, simd: bool, kernels: str = "auto") -> None:
+                 max_pixel_radius: float, fresnel: bool, simd: bool, kernels: str = "c") -> None:
         self.scene = scene
         self.simd = bool(simd) and SIMD_AVAILABLE  # whether the kernels use the AVX2 extension
-        self.compiled = traces_with_c(kernels)  # whether the C kernels trace (else the numba kernels)
+        # Whether the C kernels trace (else the numba kernels).
+        self.compiled = trace_compiled.AVAILABLE and kernels == "c"
         self.shifts = np.ascontiguousarray(emitter.shifts.numpy(), dtype=np.float64)
         self.indices = np.asarray(scene.indices, dtype=np.float64)
         self.capacity = (2 * math.ceil(max_pixel_radius) + 3) ** 2

@@ -17,23 +17,27 @@
  * The numba kernels stay the fallback (no C compiler at install) and the reference the tests
  * compare these with.
  *
+ * Compiled twice (setup.py): for the baseline x86-64 (or any other CPU) and, through
+ * heightfield_photons_avx2.c, for AVX2 and FMA; the host calls the second where the CPU has them.
+ * The loops over a packet's optics are written branch-free so that GCC vectorises them across
+ * photons, as LLVM does in the numba kernels.
+ *
  * Threads: the host passes `threads` images (or gradients); this file starts that many POSIX
  * threads, which take blocks of BLOCK photons from a shared counter (balanced where threads
  * share a core with other work) and accumulate into their own image, summed by the host.
  */
-/* The float semantics of the numba kernels' FAST_MATH (operators/kernels/numba_settings.py):
- * contraction into FMA, reassociation, reciprocals, no signed zeros, and no errno from sqrt; not
- * finite-math-only, so that the NaN and infinity checks keep their meaning. */
-#pragma GCC optimize("no-math-errno", "no-trapping-math", "no-signed-zeros", "reciprocal-math", "associative-math", \
-                     "fp-contract=fast")
-
-
 #include <math.h>
 #include <stdatomic.h>
 #include <stdint.h>
 #include <stdlib.h>
 
 #include "sfc_threads.h"
+
+/* The exported functions' names: heightfield_photons_avx2.c compiles this file again for AVX2 and
+ * FMA, with the suffix _avx2. */
+#ifndef SFC_EXPORT
+#define SFC_EXPORT(name) name
+#endif
 
 /* The AVX2 kernels of simd_kernels.c (called only when the scene's `simd` is set). */
 void sfc_splat_box8_f64(double *img, int64_t offset, int64_t stride, int64_t rows, double rx0, double ry0,
@@ -66,32 +70,35 @@ typedef struct {
 
 typedef struct { double x, y, z; } vec3;
 
+/* Helpers are inlined into the loops over a packet, so that those vectorise across photons. */
+#define SFC_INLINE __attribute__((always_inline))
+
 enum { PACKET = 128, BLOCK = 4096, LANES = 8 };
 
 static const vec3 UP = {0.0, 0.0, 1.0};
 static const vec3 ZERO = {0.0, 0.0, 0.0};
 
-static inline vec3 v3(double x, double y, double z) { vec3 r = {x, y, z}; return r; }
-static inline double dot(vec3 a, vec3 b) { return a.x * b.x + a.y * b.y + a.z * b.z; }
-static inline vec3 axpy(double s, vec3 x, vec3 y) { return v3(s * x.x + y.x, s * x.y + y.y, s * x.z + y.z); }
-static inline vec3 scale3(double s, vec3 x) { return v3(s * x.x, s * x.y, s * x.z); }
-static inline vec3 add3(vec3 a, vec3 b) { return v3(a.x + b.x, a.y + b.y, a.z + b.z); }
-static inline double dmin(double a, double b) { return a < b ? a : b; }
-static inline double dmax(double a, double b) { return a > b ? a : b; }
-static inline int64_t imin(int64_t a, int64_t b) { return a < b ? a : b; }
-static inline int64_t imax(int64_t a, int64_t b) { return a > b ? a : b; }
+static inline SFC_INLINE vec3 v3(double x, double y, double z) { vec3 r = {x, y, z}; return r; }
+static inline SFC_INLINE double dot(vec3 a, vec3 b) { return a.x * b.x + a.y * b.y + a.z * b.z; }
+static inline SFC_INLINE vec3 axpy(double s, vec3 x, vec3 y) { return v3(s * x.x + y.x, s * x.y + y.y, s * x.z + y.z); }
+static inline SFC_INLINE vec3 scale3(double s, vec3 x) { return v3(s * x.x, s * x.y, s * x.z); }
+static inline SFC_INLINE vec3 add3(vec3 a, vec3 b) { return v3(a.x + b.x, a.y + b.y, a.z + b.z); }
+static inline SFC_INLINE double dmin(double a, double b) { return a < b ? a : b; }
+static inline SFC_INLINE double dmax(double a, double b) { return a > b ? a : b; }
+static inline SFC_INLINE int64_t imin(int64_t a, int64_t b) { return a < b ? a : b; }
+static inline SFC_INLINE int64_t imax(int64_t a, int64_t b) { return a > b ? a : b; }
 
-static inline double away_from_zero(const sfc_scene *sc, double x) {
-    if (fabs(x) < sc->grazing) return x < 0.0 ? -sc->grazing : sc->grazing;
-    return x;
+static inline SFC_INLINE double away_from_zero(const sfc_scene *sc, double x) {
+    const double raised = x < 0.0 ? -sc->grazing : sc->grazing;
+    return fabs(x) < sc->grazing ? raised : x;
 }
-static inline double passes(const sfc_scene *sc, double x) { return fabs(x) < sc->grazing ? 0.0 : 1.0; }
+static inline SFC_INLINE double passes(const sfc_scene *sc, double x) { return fabs(x) < sc->grazing ? 0.0 : 1.0; }
 
 /* ---------------------------------------------------------------- emission */
 
 typedef struct { int64_t c; vec3 w, dwu, dwv; double flux; } emitted;
 
-static inline emitted emit(const sfc_scene *sc, const double *shifts, int64_t index) {
+static inline SFC_INLINE emitted emit(const sfc_scene *sc, const double *shifts, int64_t index) {
     emitted e;
     e.c = index / sc->per_channel;
     const double j = (double)(index - e.c * sc->per_channel);
@@ -112,10 +119,10 @@ static inline emitted emit(const sfc_scene *sc, const double *shifts, int64_t in
 
 /* ---------------------------------------------------------------- Catmull-Rom surface */
 
-static inline int64_t clamped_node(int64_t i, int64_t m) { return imin(imax(i, 0), m - 1); }
+static inline SFC_INLINE int64_t clamped_node(int64_t i, int64_t m) { return imin(imax(i, 0), m - 1); }
 
 /* Cell index i, offset s in [0, 1], d/dcoord scale k (1 / spacing on the grid, 0 off it). */
-static inline int64_t cell(double coord, double origin, double spacing, int64_t m, double *s, double *k) {
+static inline SFC_INLINE int64_t cell(double coord, double origin, double spacing, int64_t m, double *s, double *k) {
     double g = (coord - origin) / spacing;
     const int inside = 0.0 <= g && g <= (double)(m - 1);
     g = dmin(dmax(g, 0.0), (double)(m - 1));
@@ -126,7 +133,7 @@ static inline int64_t cell(double coord, double origin, double spacing, int64_t 
 }
 
 /* Catmull-Rom weights at s (a) and their s-derivatives times k (b). */
-static inline void basis(double s, double k, double a[4], double b[4]) {
+static inline SFC_INLINE void basis(double s, double k, double a[4], double b[4]) {
     const double s2 = s * s, s3 = s2 * s;
     a[0] = 0.5 * (-s3 + 2.0 * s2 - s);
     a[1] = 0.5 * (3.0 * s3 - 5.0 * s2 + 2.0);
@@ -138,7 +145,7 @@ static inline void basis(double s, double k, double a[4], double b[4]) {
     b[3] = k * 0.5 * (3.0 * s2 - 2.0 * s);
 }
 
-static inline void curvature_basis(double s, double k2, double c[4]) {
+static inline SFC_INLINE void curvature_basis(double s, double k2, double c[4]) {
     c[0] = k2 * (-3.0 * s + 2.0);
     c[1] = k2 * (9.0 * s - 5.0);
     c[2] = k2 * (-9.0 * s + 4.0);
@@ -146,7 +153,7 @@ static inline void curvature_basis(double s, double k2, double c[4]) {
 }
 
 /* (S, S_x, S_y) at (x, y). */
-static inline void surface_gradient(const double *d, int64_t m, double x, double y, double origin, double spacing,
+static inline SFC_INLINE void surface_gradient(const double *d, int64_t m, double x, double y, double origin, double spacing,
                                     double *value, double *slope_x, double *slope_y) {
     double sx, kx, sy, ky, a[4], b[4], e[4], f[4];
     const int64_t ix = cell(x, origin, spacing, m, &sx, &kx);
@@ -169,7 +176,7 @@ static inline void surface_gradient(const double *d, int64_t m, double x, double
 }
 
 /* Surface jet (S_x, S_y, S_xx, S_xy, S_yy) at (x, y) into jet[0 .. 4]. */
-static inline void surface_jet_at(const double *d, int64_t m, double x, double y, double origin, double spacing,
+static inline SFC_INLINE void surface_jet_at(const double *d, int64_t m, double x, double y, double origin, double spacing,
                                   double jet[5]) {
     double sx, kx, sy, ky, a[4], b[4], c[4], e[4], f[4], g[4];
     const int64_t ix = cell(x, origin, spacing, m, &sx, &kx);
@@ -200,7 +207,7 @@ static inline void surface_jet_at(const double *d, int64_t m, double x, double y
 }
 
 /* Row k of the weight table (k-th s-derivative of the Catmull-Rom weights times scale). */
-static inline void fill_basis(double s, int k, double scale, double w[4][4]) {
+static inline SFC_INLINE void fill_basis(double s, int k, double scale, double w[4][4]) {
     const double s2 = s * s, s3 = s2 * s;
     if (k == 0) {
         w[0][0] = 0.5 * (-s3 + 2.0 * s2 - s);
@@ -226,7 +233,7 @@ static inline void fill_basis(double s, int k, double scale, double w[4][4]) {
 }
 
 /* Weight tables of derivative orders 0 .. 3 at coord (axis_weights); returns the cell index. */
-static inline int64_t axis_weights(double coord, double origin, double spacing, int64_t m, double w[4][4]) {
+static inline SFC_INLINE int64_t axis_weights(double coord, double origin, double spacing, int64_t m, double w[4][4]) {
     double g = (coord - origin) / spacing;
     const int inside = 0.0 <= g && g <= (double)(m - 1);
     g = dmin(dmax(g, 0.0), (double)(m - 1));
@@ -240,7 +247,7 @@ static inline int64_t axis_weights(double coord, double origin, double spacing, 
     return i;
 }
 
-static inline double contract(const double p[4][4], const double wx[4][4], int kx, const double wy[4][4], int ky) {
+static inline SFC_INLINE double contract(const double p[4][4], const double wx[4][4], int kx, const double wy[4][4], int ky) {
     double acc = 0.0;
     for (int a = 0; a < 4; a++)
         acc += wy[ky][a] * (wx[kx][0] * p[a][0] + wx[kx][1] * p[a][1] + wx[kx][2] * p[a][2] + wx[kx][3] * p[a][3]);
@@ -280,11 +287,11 @@ static void hit_adjoint_scalar(const double *d, double *grad, int64_t m, double 
  * and its gap and slope at t. */
 typedef struct { double lo[PACKET], hi[PACKET], active[PACKET], gap[PACKET], slope[PACKET]; } search_state;
 
-static inline int needs_march(vec3 w, double slope_x, double slope_y) {
+static inline SFC_INLINE int needs_march(vec3 w, double slope_x, double slope_y) {
     return !(slope_x * fabs(w.x) + slope_y * fabs(w.y) < fabs(w.z));
 }
 
-static inline void gap_at(const double *d, int64_t m, const sfc_scene *sc, vec3 w, double t, double *g,
+static inline SFC_INLINE void gap_at(const double *d, int64_t m, const sfc_scene *sc, vec3 w, double t, double *g,
                           double *slope) {
     double s, sx, sy;
     surface_gradient(d, m, sc->light_x + t * w.x, sc->light_y + t * w.y, -sc->half, sc->spacing, &s, &sx, &sy);
@@ -293,7 +300,7 @@ static inline void gap_at(const double *d, int64_t m, const sfc_scene *sc, vec3 
 }
 
 /* One safeguarded Newton step inside the bracket; returns whether the step fell below `settle`. */
-static inline int newton_update(double *t, double g, double slope, double *lo, double *hi, double settle) {
+static inline SFC_INLINE int newton_update(double *t, double g, double slope, double *lo, double *hi, double settle) {
     if (g > 0.0) *lo = *t; else *hi = *t;
     const double t_new = slope != 0.0 ? *t - g / slope : 0.5 * (*lo + *hi);
     if (!(*lo <= t_new && t_new <= *hi)) {
@@ -337,24 +344,26 @@ static double solve_hit(const double *d, int64_t m, const sfc_scene *sc, vec3 w)
 
 /* Hits of the rays k < count along w[k] into t[k]; the rays that need no march iterate Newton in
  * lockstep, so that the core overlaps their surface evaluations (solve_hits). */
-static void solve_hits(const double *d, int64_t m, const sfc_scene *sc, const vec3 *w, int64_t count, double *t,
-                       search_state *st) {
+static void solve_hits(const double *d, int64_t m, const sfc_scene *sc, const double w_rows[3][PACKET],
+                       int64_t count, double *t, search_state *st) {
     const double z_scale = fabs(sc->light_z) + fabs(sc->zhi) + 1.0;
     const double tol = 1e-12 * z_scale, settle = sc->settle * z_scale;
     for (int64_t k = 0; k < count; k++) {
-        if (needs_march(w[k], sc->slope_x, sc->slope_y)) {
-            t[k] = solve_hit(d, m, sc, w[k]);
+        const vec3 w = v3(w_rows[0][k], w_rows[1][k], w_rows[2][k]);
+        if (needs_march(w, sc->slope_x, sc->slope_y)) {
+            t[k] = solve_hit(d, m, sc, w);
             st->active[k] = 0.0;
         } else {
-            st->lo[k] = (sc->zhi - sc->light_z) / w[k].z;
-            st->hi[k] = (sc->zlo - sc->light_z) / w[k].z;
+            st->lo[k] = (sc->zhi - sc->light_z) / w.z;
+            st->hi[k] = (sc->zlo - sc->light_z) / w.z;
             st->active[k] = 1.0;
-            t[k] = dmin(dmax((sc->zstart - sc->light_z) / w[k].z, st->lo[k]), st->hi[k]);
+            t[k] = dmin(dmax((sc->zstart - sc->light_z) / w.z, st->lo[k]), st->hi[k]);
         }
     }
     for (int64_t it = 0; it < sc->newton_iterations; it++) {
         for (int64_t k = 0; k < count; k++)
-            if (st->active[k] != 0.0) gap_at(d, m, sc, w[k], t[k], &st->gap[k], &st->slope[k]);
+            if (st->active[k] != 0.0)
+                gap_at(d, m, sc, v3(w_rows[0][k], w_rows[1][k], w_rows[2][k]), t[k], &st->gap[k], &st->slope[k]);
         int64_t iterating = 0;
         for (int64_t k = 0; k < count; k++) {
             if (st->active[k] == 0.0) continue;
@@ -369,7 +378,7 @@ static void solve_hits(const double *d, int64_t m, const sfc_scene *sc, const ve
 /* ---------------------------------------------------------------- optics */
 
 /* Move a photon dist along w onto a surface with normal n (transfer). */
-static inline void transfer(const sfc_scene *sc, vec3 p, vec3 dpu, vec3 dpv, vec3 w, vec3 dwu, vec3 dwv, double dist,
+static inline SFC_INLINE void transfer(const sfc_scene *sc, vec3 p, vec3 dpu, vec3 dpv, vec3 w, vec3 dwu, vec3 dwv, double dist,
                             vec3 n, vec3 *p1, vec3 *dpu1, vec3 *dpv1) {
     const vec3 mu = axpy(dist, dwu, dpu), mv = axpy(dist, dwv, dpv);
     const double den = away_from_zero(sc, dot(w, n));
@@ -380,7 +389,7 @@ static inline void transfer(const sfc_scene *sc, vec3 p, vec3 dpu, vec3 dpv, vec
 
 typedef struct { vec3 g_dpu, g_dpv, g_w, g_dwu, g_dwv, g_n; double g_dist; } transfer_grads;
 
-static inline transfer_grads transfer_adjoint(const sfc_scene *sc, vec3 dpu, vec3 dpv, vec3 w, vec3 dwu, vec3 dwv,
+static inline SFC_INLINE transfer_grads transfer_adjoint(const sfc_scene *sc, vec3 dpu, vec3 dpv, vec3 w, vec3 dwu, vec3 dwv,
                                               double dist, vec3 n, vec3 g_p, vec3 g_dpu, vec3 g_dpv) {
     transfer_grads r;
     const vec3 mu = axpy(dist, dwu, dpu), mv = axpy(dist, dwv, dpv);
@@ -402,7 +411,7 @@ static inline transfer_grads transfer_adjoint(const sfc_scene *sc, vec3 dpu, vec
 }
 
 /* Snell refraction with differentials, eta = n_incident / n_transmitted; returns k (<= 0: TIR). */
-static inline double refract(vec3 w, vec3 dwu, vec3 dwv, vec3 n, vec3 dnu, vec3 dnv, double eta, vec3 *w1, vec3 *dwu1,
+static inline SFC_INLINE double refract(vec3 w, vec3 dwu, vec3 dwv, vec3 n, vec3 dnu, vec3 dnv, double eta, vec3 *w1, vec3 *dwu1,
                              vec3 *dwv1, double *ci_out, double *ct_out) {
     const double ci = -dot(w, n);
     const double k = 1.0 - eta * eta * (1.0 - ci * ci);
@@ -419,7 +428,7 @@ static inline double refract(vec3 w, vec3 dwu, vec3 dwv, vec3 n, vec3 dnu, vec3 
 }
 
 /* The adjoint of one refracted differential's b-term (_refract_differential_adjoint). */
-static inline void refract_differential_adjoint(vec3 w, vec3 dw, vec3 n, vec3 dn, double eta, double ci, double ct,
+static inline SFC_INLINE void refract_differential_adjoint(vec3 w, vec3 dw, vec3 n, vec3 dn, double eta, double ci, double ct,
                                                 vec3 g_dw1, vec3 *g_dw, vec3 *g_dn, vec3 *g_n, vec3 *g_w, double *g_ci,
                                                 double *g_ct) {
     const double e2 = eta * eta;
@@ -439,7 +448,7 @@ static inline void refract_differential_adjoint(vec3 w, vec3 dw, vec3 n, vec3 dn
 
 typedef struct { vec3 g_w, g_dwu, g_dwv, g_n, g_dnu, g_dnv; } refract_grads;
 
-static inline refract_grads refract_adjoint(vec3 w, vec3 dwu, vec3 dwv, vec3 n, vec3 dnu, vec3 dnv, double eta,
+static inline SFC_INLINE refract_grads refract_adjoint(vec3 w, vec3 dwu, vec3 dwv, vec3 n, vec3 dnu, vec3 dnv, double eta,
                                             vec3 g_w1, vec3 g_dwu1, vec3 g_dwv1, double g_ci, double g_ct) {
     refract_grads r;
     const double ci = -dot(w, n);
@@ -465,24 +474,24 @@ static inline refract_grads refract_adjoint(vec3 w, vec3 dwu, vec3 dwv, vec3 n, 
     return r;
 }
 
-static inline double fresnel(double ci, double ct, double eta) {
+static inline SFC_INLINE double fresnel(double ci, double ct, double eta) {
     const double rs = (eta * ci - ct) / (eta * ci + ct), rp = (ci - eta * ct) / (ci + eta * ct);
     return 1.0 - 0.5 * (rs * rs + rp * rp);
 }
 
-static inline void fresnel_adjoint(double ci, double ct, double eta, double g_t, double *g_ci, double *g_ct) {
+static inline SFC_INLINE void fresnel_adjoint(double ci, double ct, double eta, double g_t, double *g_ci, double *g_ct) {
     const double ss = eta * ci + ct, sp = ci + eta * ct;
     const double g_rs = -g_t * (eta * ci - ct) / ss, g_rp = -g_t * (ci - eta * ct) / sp;
     *g_ci = g_rs * 2.0 * eta * ct / (ss * ss) + g_rp * 2.0 * eta * ct / (sp * sp);
     *g_ct = -g_rs * 2.0 * eta * ci / (ss * ss) - g_rp * 2.0 * eta * ci / (sp * sp);
 }
 
-static inline vec3 height_field_normal(double sx, double sy) {
+static inline SFC_INLINE vec3 height_field_normal(double sx, double sy) {
     const double inv = 1.0 / sqrt(1.0 + sx * sx + sy * sy);
     return v3(-sx * inv, -sy * inv, inv);
 }
 
-static inline void height_field_normal_adjoint(double sx, double sy, vec3 g_n, double *g_sx, double *g_sy) {
+static inline SFC_INLINE void height_field_normal_adjoint(double sx, double sy, vec3 g_n, double *g_sx, double *g_sy) {
     const double inv = 1.0 / sqrt(1.0 + sx * sx + sy * sy);
     const double g_inv = -g_n.x * sx - g_n.y * sy + g_n.z;
     const double c = -g_inv * inv * inv * inv;
@@ -490,13 +499,13 @@ static inline void height_field_normal_adjoint(double sx, double sy, vec3 g_n, d
     *g_sy = -g_n.y * inv + c * sy;
 }
 
-static inline vec3 normal_differential(double sxx, double sxy, double syy, vec3 n, vec3 dp) {
+static inline SFC_INLINE vec3 normal_differential(double sxx, double sxy, double syy, vec3 n, vec3 dp) {
     const vec3 r = v3(-(sxx * dp.x + sxy * dp.y), -(sxy * dp.x + syy * dp.y), 0.0);
     return scale3(n.z, axpy(-dot(r, n), n, r));
 }
 
 /* Adjoint of normal_differential: adds to g_sxx, g_sxy, g_syy; returns g_n, g_dp. */
-static inline void normal_differential_adjoint(double sxx, double sxy, double syy, vec3 n, vec3 dp, vec3 g_dn,
+static inline SFC_INLINE void normal_differential_adjoint(double sxx, double sxy, double syy, vec3 n, vec3 dp, vec3 g_dn,
                                                double *g_sxx, double *g_sxy, double *g_syy, vec3 *g_n_out,
                                                vec3 *g_dp) {
     const vec3 r = v3(-(sxx * dp.x + sxy * dp.y), -(sxy * dp.x + syy * dp.y), 0.0);
@@ -514,15 +523,15 @@ static inline void normal_differential_adjoint(double sxx, double sxy, double sy
     *g_syy += -g_r.y * dp.y;
 }
 
-static inline double bound(const sfc_scene *sc, double x) {
+static inline SFC_INLINE double bound(const sfc_scene *sc, double x) {
     return dmin(dmax(x, -sc->max_differential_px), sc->max_differential_px);
 }
-static inline double inside_bound(const sfc_scene *sc, double x) {
-    return (-sc->max_differential_px <= x && x <= sc->max_differential_px) ? 1.0 : 0.0;
+static inline SFC_INLINE double inside_bound(const sfc_scene *sc, double x) {
+    return ((-sc->max_differential_px <= x) & (x <= sc->max_differential_px)) ? 1.0 : 0.0;
 }
 
 /* Metric (q00, q01, q11) of the footprint spanned by Du = (ux, uy), Dv = (vx, vy) (pixels). */
-static inline void footprint_metric(const sfc_scene *sc, double ux, double uy, double vx, double vy, double q[3]) {
+static inline SFC_INLINE void footprint_metric(const sfc_scene *sc, double ux, double uy, double vx, double vy, double q[3]) {
     const double r0 = sc->min_px, rmax = sc->max_px;
     ux = bound(sc, ux);
     uy = bound(sc, uy);
@@ -539,7 +548,7 @@ static inline void footprint_metric(const sfc_scene *sc, double ux, double uy, d
     q[2] = (a00 + r2) / det;
 }
 
-static inline void footprint_metric_adjoint(const sfc_scene *sc, double ux, double uy, double vx, double vy,
+static inline SFC_INLINE void footprint_metric_adjoint(const sfc_scene *sc, double ux, double uy, double vx, double vy,
                                             double g00, double g01, double g11, double g[4]) {
     const double r0 = sc->min_px, rmax = sc->max_px;
     const double mux = inside_bound(sc, ux), muy = inside_bound(sc, uy);
@@ -564,13 +573,13 @@ static inline void footprint_metric_adjoint(const sfc_scene *sc, double ux, doub
     const double g_a11 = g00 / det + g_det * (r2 + pos * a00);
     const double g_a01 = -g01 / det - g_det * pos * 2.0 * a01;
     double g_b00 = s * g_a00, g_b01 = s * g_a01, g_b11 = s * g_a11;
-    if (ratio <= 1.0 && major >= 1e-300) {
-        const double g_major = -(g_a00 * b00 + g_a01 * b01 + g_a11 * b11) * s / major;
-        const double half_diff = 0.25 * (b00 - b11) / root;
-        g_b00 += g_major * (0.5 + half_diff);
-        g_b11 += g_major * (0.5 - half_diff);
-        g_b01 += g_major * b01 / root;
-    }
+    /* Where the cut-off scales the footprint: its gradient through the major axis (a select). */
+    const int scaled = (ratio <= 1.0) & (major >= 1e-300);
+    const double g_major = scaled ? -(g_a00 * b00 + g_a01 * b01 + g_a11 * b11) * s / major : 0.0;
+    const double half_diff = 0.25 * (b00 - b11) / root;
+    g_b00 += g_major * (0.5 + half_diff);
+    g_b11 += g_major * (0.5 - half_diff);
+    g_b01 += g_major * b01 / root;
     g[0] = (2.0 * ux * g_b00 + uy * g_b01) * mux;
     g[1] = (2.0 * uy * g_b11 + ux * g_b01) * muy;
     g[2] = (2.0 * vx * g_b00 + vy * g_b01) * mvx;
@@ -581,7 +590,7 @@ static inline void footprint_metric_adjoint(const sfc_scene *sc, double ux, doub
 typedef struct {
     vec3 n1, p1, dpu1, dpv1, dnu, dnv, w1, dwu1, dwv1;
     double ci1, ct1;
-    int lost;
+    double lost;  /* 1 where the photon is lost (side walls, total internal reflection), else 0 */
     double dist2;
     vec3 p2, dpu2, dpv2, w2, dwu2, dwv2;
     double ci2, ct2, dist3;
@@ -589,7 +598,7 @@ typedef struct {
     double fu[2], fv[2];
 } optics;
 
-static inline void optics_state(const sfc_scene *sc, vec3 w, vec3 dwu, vec3 dwv, double t, const double jet[5],
+static inline SFC_INLINE void optics_state(const sfc_scene *sc, vec3 w, vec3 dwu, vec3 dwv, double t, const double jet[5],
                                 double eta, optics *o) {
     const double sxx = jet[2], sxy = jet[3], syy = jet[4];
     o->n1 = height_field_normal(jet[0], jet[1]);
@@ -602,7 +611,7 @@ static inline void optics_state(const sfc_scene *sc, vec3 w, vec3 dwu, vec3 dwv,
     transfer(sc, o->p1, o->dpu1, o->dpv1, o->w1, o->dwu1, o->dwv1, o->dist2, UP, &o->p2, &o->dpu2, &o->dpv2);
     const double k2 = refract(o->w1, o->dwu1, o->dwv1, UP, ZERO, ZERO, eta, &o->w2, &o->dwu2, &o->dwv2, &o->ci2,
                               &o->ct2);
-    o->lost = !(fabs(o->p2.x) <= sc->half && fabs(o->p2.y) <= sc->half) || k2 <= 0.0;
+    o->lost = (!((fabs(o->p2.x) <= sc->half) & (fabs(o->p2.y) <= sc->half)) | (k2 <= 0.0)) ? 1.0 : 0.0;
     o->dist3 = (sc->receiver_z - o->p2.z) / away_from_zero(sc, o->w2.z);
     transfer(sc, o->p2, o->dpu2, o->dpv2, o->w2, o->dwu2, o->dwv2, o->dist3, UP, &o->p3, &o->dpu3, &o->dpv3);
     o->fu[0] = o->dpu3.x * sc->to_px;
@@ -612,25 +621,27 @@ static inline void optics_state(const sfc_scene *sc, vec3 w, vec3 dwu, vec3 dwv,
 }
 
 /* (px, py, q00, q01, q11, flux) of the photon on the receiver (splat_arguments). */
-static inline void splat_arguments(const sfc_scene *sc, double flux, double eta, const optics *o, double spot[6]) {
-    if (sc->fresnel) flux *= fresnel(o->ci1, o->ct1, 1.0 / eta) * fresnel(o->ci2, o->ct2, eta);
+static inline SFC_INLINE void splat_arguments(const sfc_scene *sc, double flux, double eta, const optics *o,
+                                              double spot[6]) {
+    const double transmitted = fresnel(o->ci1, o->ct1, 1.0 / eta) * fresnel(o->ci2, o->ct2, eta);
+    flux = sc->fresnel ? flux * transmitted : flux;
     double q[3];
     footprint_metric(sc, o->fu[0], o->fu[1], o->fv[0], o->fv[1], q);
-    if (o->lost) {
-        spot[0] = 0.0; spot[1] = 0.0; spot[2] = 1.0; spot[3] = 0.0; spot[4] = 1.0; spot[5] = 0.0;
-        return;
-    }
-    spot[0] = (o->p3.x + sc->receiver_half) * sc->to_px - 0.5;
-    spot[1] = (o->p3.y + sc->receiver_half) * sc->to_px - 0.5;
-    spot[2] = q[0];
-    spot[3] = q[1];
-    spot[4] = q[2];
-    spot[5] = flux;
+    /* A lost photon carries no flux, so that the splat and its gather skip it (its position and
+     * metric may be NaN: not read). Arithmetic and one select, not branches: GCC vectorises the
+     * loop over the packet only in this form. */
+    const double kept = o->lost != 0.0 ? 0.0 : 1.0;
+    spot[0] = kept * ((o->p3.x + sc->receiver_half) * sc->to_px - 0.5);
+    spot[1] = kept * ((o->p3.y + sc->receiver_half) * sc->to_px - 0.5);
+    spot[2] = kept * q[0] + (1.0 - kept);
+    spot[3] = kept * q[1];
+    spot[4] = kept * q[2] + (1.0 - kept);
+    spot[5] = o->lost != 0.0 ? 0.0 : flux;
 }
 
 /* Reverse mode through the optics (optics_adjoint): from the gradients w.r.t. the splat
  * arguments g = (flux, px, py, q00, q01, q11) back to (t, S_x, S_y, S_xx, S_xy, S_yy) in out. */
-static void optics_adjoint(const sfc_scene *sc, vec3 w, vec3 dwu, vec3 dwv, double flux0, double t,
+static inline SFC_INLINE void optics_adjoint(const sfc_scene *sc, vec3 w, vec3 dwu, vec3 dwv, double flux0, double t,
                            const double jet[5], double eta, const optics *o, const double g[6], double out[6]) {
     const double sx = jet[0], sy = jet[1], sxx = jet[2], sxy = jet[3], syy = jet[4];
     const double t1 = sc->fresnel ? fresnel(o->ci1, o->ct1, 1.0 / eta) : 1.0;
@@ -646,11 +657,11 @@ static void optics_adjoint(const sfc_scene *sc, vec3 w, vec3 dwu, vec3 dwv, doub
     const vec3 g_p2 = v3(g_p3.x, g_p3.y, g_p3.z - a3.g_dist / den3);
     const vec3 g_w2 = v3(a3.g_w.x, a3.g_w.y, a3.g_w.z - a3.g_dist * o->dist3 / den3 * passes(sc, o->w2.z));
     /* Bottom refraction and transfer. */
-    double g_ci2 = 0.0, g_ct2 = 0.0, g_ci1 = 0.0, g_ct1 = 0.0;
-    if (sc->fresnel) {
-        fresnel_adjoint(o->ci2, o->ct2, eta, g[0] * flux0 * t1, &g_ci2, &g_ct2);
-        fresnel_adjoint(o->ci1, o->ct1, 1.0 / eta, g[0] * flux0 * t2, &g_ci1, &g_ct1);
-    }
+    double f_ci2, f_ct2, f_ci1, f_ct1;
+    fresnel_adjoint(o->ci2, o->ct2, eta, g[0] * flux0 * t1, &f_ci2, &f_ct2);
+    fresnel_adjoint(o->ci1, o->ct1, 1.0 / eta, g[0] * flux0 * t2, &f_ci1, &f_ct1);
+    const double g_ci2 = sc->fresnel ? f_ci2 : 0.0, g_ct2 = sc->fresnel ? f_ct2 : 0.0;
+    const double g_ci1 = sc->fresnel ? f_ci1 : 0.0, g_ct1 = sc->fresnel ? f_ct1 : 0.0;
     const refract_grads r2 = refract_adjoint(o->w1, o->dwu1, o->dwv1, UP, ZERO, ZERO, eta, g_w2, a3.g_dwu, a3.g_dwv,
                                              g_ci2, g_ct2);
     const transfer_grads a2 = transfer_adjoint(sc, o->dpu1, o->dpv1, o->w1, o->dwu1, o->dwv1, o->dist2, UP, g_p2,
@@ -680,13 +691,13 @@ static void optics_adjoint(const sfc_scene *sc, vec3 w, vec3 dwu, vec3 dwv, doub
 
 /* ---------------------------------------------------------------- splat and gather */
 
-static inline int footprint_usable(const sfc_scene *sc, double f, double px, double py, double q00, double q01,
+static inline SFC_INLINE int footprint_usable(const sfc_scene *sc, double f, double px, double py, double q00, double q01,
                                    double q11) {
     return f != 0.0 && isfinite(f) && fabs(px) < sc->far_px && fabs(py) < sc->far_px && q00 > 0.0 && q11 > 0.0
            && q00 * q11 - q01 * q01 > 0.0;
 }
 
-static inline void footprint_box(double px, double py, double q00, double q01, double q11, int64_t *x0, int64_t *x1,
+static inline SFC_INLINE void footprint_box(double px, double py, double q00, double q01, double q11, int64_t *x0, int64_t *x1,
                                  int64_t *y0, int64_t *y1) {
     const double det = q00 * q11 - q01 * q01;
     const double hx = sqrt(q11 / det), hy = sqrt(q00 / det);
@@ -696,12 +707,12 @@ static inline void footprint_box(double px, double py, double q00, double q01, d
     *y1 = (int64_t)floor(py + hy);
 }
 
-static inline int fits_fixed_box(int64_t x0, int64_t x1, int64_t y0, int64_t y1, int64_t lo, int64_t hi) {
+static inline SFC_INLINE int fits_fixed_box(int64_t x0, int64_t x1, int64_t y0, int64_t y1, int64_t lo, int64_t hi) {
     return x1 - x0 < LANES && y1 - y0 < LANES && x0 >= lo && y0 >= lo && x0 + LANES - 1 <= hi && y0 + LANES - 1 <= hi;
 }
 
 /* Silverman weights of the rows x width pixels from (x0, y0) into buf; returns their sum. */
-static inline double box_weights(double *buf, int64_t x0, int64_t y0, int64_t width, int64_t rows, double px,
+static inline SFC_INLINE double box_weights(double *buf, int64_t x0, int64_t y0, int64_t width, int64_t rows, double px,
                                  double py, double q00, double q01, double q11) {
     double s = 0.0;
     const double rx0 = (double)x0 - px;
@@ -836,14 +847,15 @@ static void gather_photon(const sfc_scene *sc, const double *padded, int64_t n, 
 
 /* ---------------------------------------------------------------- packets */
 
-/* A packet's photons: emission, hit and jet (trace_packet's hit table). */
+/* A packet's photons, one row per quantity (structure of arrays, so that the loops over the
+ * packet vectorise across photons): emission, hit, jet, splat arguments. */
 typedef struct {
     int64_t channel[PACKET];
-    vec3 w[PACKET], dwu[PACKET], dwv[PACKET];
+    double w[3][PACKET], dwu[3][PACKET], dwv[3][PACKET];
     double flux[PACKET], eta[PACKET], t[PACKET];
-    double dirs[3 * PACKET];  /* w as rows (x, y, z), for the AVX2 jets */
-    double jets[5 * PACKET];  /* rows S_x, S_y, S_xx, S_xy, S_yy */
-    double spots[PACKET][6];  /* splat arguments (px, py, q00, q01, q11, flux) */
+    double jets[5][PACKET];   /* S_x, S_y, S_xx, S_xy, S_yy */
+    double spots[6][PACKET];  /* splat arguments (px, py, q00, q01, q11, flux), then their gradients */
+    double g_hit[6][PACKET];  /* gradients w.r.t. (t, jet) */
     search_state search;
 } packet;
 
@@ -856,16 +868,22 @@ typedef struct {
     int64_t hit_len, t_first, replay;
 } photons_in;
 
-/* Photons first .. first+count-1 traced to the receiver (trace_packet): hits, jets, splat
- * arguments; each photon's optics state into o[k] when o is given. */
-static void trace_packet(const photons_in *in, int64_t first, int64_t count, packet *p, optics *o) {
+static inline SFC_INLINE vec3 row3(const double r[3][PACKET], int64_t k) { return v3(r[0][k], r[1][k], r[2][k]); }
+
+static inline SFC_INLINE void jet_of(const packet *p, int64_t k, double jet[5]) {
+    for (int j = 0; j < 5; j++) jet[j] = p->jets[j][k];
+}
+
+/* Photons first .. first+count-1 up to their hits and jets (trace_packet): emission, the hit
+ * search in lockstep (or the recorded hits), the jets. */
+static void trace_hits(const photons_in *in, int64_t first, int64_t count, packet *p) {
     const sfc_scene *sc = in->sc;
     for (int64_t k = 0; k < count; k++) {
         const emitted e = emit(sc, in->shifts, first + k);
         p->channel[k] = e.c;
-        p->w[k] = e.w;
-        p->dwu[k] = e.dwu;
-        p->dwv[k] = e.dwv;
+        p->w[0][k] = e.w.x; p->w[1][k] = e.w.y; p->w[2][k] = e.w.z;
+        p->dwu[0][k] = e.dwu.x; p->dwu[1][k] = e.dwu.y; p->dwu[2][k] = e.dwu.z;
+        p->dwv[0][k] = e.dwv.x; p->dwv[1][k] = e.dwv.y; p->dwv[2][k] = e.dwv.z;
         p->flux[k] = e.flux;
         p->eta[k] = in->indices[e.c];
     }
@@ -878,28 +896,42 @@ static void trace_packet(const photons_in *in, int64_t first, int64_t count, pac
             for (int64_t k = 0; k < count; k++) in->hit_t[offset + k] = p->t[k];
     }
     if (sc->simd) {
-        for (int64_t k = 0; k < count; k++) {
-            p->dirs[k] = p->w[k].x;
-            p->dirs[PACKET + k] = p->w[k].y;
-            p->dirs[2 * PACKET + k] = p->w[k].z;
-        }
-        sfc_surface_jets(in->d, in->m, -sc->half, 1.0 / sc->spacing, sc->light_x, sc->light_y, p->dirs, PACKET, p->t,
-                         count, p->jets);
+        sfc_surface_jets(in->d, in->m, -sc->half, 1.0 / sc->spacing, sc->light_x, sc->light_y, &p->w[0][0], PACKET,
+                         p->t, count, &p->jets[0][0]);
     } else {
         for (int64_t k = 0; k < count; k++) {
             double jet[5];
-            surface_jet_at(in->d, in->m, sc->light_x + p->t[k] * p->w[k].x, sc->light_y + p->t[k] * p->w[k].y,
+            surface_jet_at(in->d, in->m, sc->light_x + p->t[k] * p->w[0][k], sc->light_y + p->t[k] * p->w[1][k],
                            -sc->half, sc->spacing, jet);
-            for (int j = 0; j < 5; j++) p->jets[j * PACKET + k] = jet[j];
+            for (int j = 0; j < 5; j++) p->jets[j][k] = jet[j];
         }
     }
+}
+
+/* The splat arguments of the packet's photons from their hits: one loop over the packet. */
+static void packet_spots(const sfc_scene *sc, int64_t count, packet *p) {
     for (int64_t k = 0; k < count; k++) {
-        optics local;
-        optics *state = o ? &o[k] : &local;
-        double jet[5];
-        for (int j = 0; j < 5; j++) jet[j] = p->jets[j * PACKET + k];
-        optics_state(sc, p->w[k], p->dwu[k], p->dwv[k], p->t[k], jet, p->eta[k], state);
-        splat_arguments(sc, p->flux[k], p->eta[k], state, p->spots[k]);
+        optics o;
+        double jet[5], spot[6];
+        jet_of(p, k, jet);
+        optics_state(sc, row3(p->w, k), row3(p->dwu, k), row3(p->dwv, k), p->t[k], jet, p->eta[k], &o);
+        splat_arguments(sc, p->flux[k], p->eta[k], &o, spot);
+        for (int j = 0; j < 6; j++) p->spots[j][k] = spot[j];
+    }
+}
+
+/* The gradients w.r.t. (t, jet) of the packet's photons from those w.r.t. their splat arguments
+ * (p->spots, after the gathers): the optics again and their adjoint, one loop over the packet. */
+static void packet_adjoints(const sfc_scene *sc, int64_t count, packet *p) {
+    for (int64_t k = 0; k < count; k++) {
+        optics o;
+        double jet[5], g[6], g_hit[6];
+        jet_of(p, k, jet);
+        const vec3 w = row3(p->w, k), dwu = row3(p->dwu, k), dwv = row3(p->dwv, k);
+        optics_state(sc, w, dwu, dwv, p->t[k], jet, p->eta[k], &o);
+        for (int j = 0; j < 6; j++) g[j] = p->spots[j][k];
+        optics_adjoint(sc, w, dwu, dwv, p->flux[k], p->t[k], jet, p->eta[k], &o, g, g_hit);
+        for (int j = 0; j < 6; j++) p->g_hit[j][k] = g_hit[j];
     }
 }
 
@@ -938,10 +970,15 @@ static int render_worker(void *context, int64_t thread) {
         double reached = 0.0;
         for (int64_t first = lo; first < hi; first += PACKET) {
             const int64_t count = imin(PACKET, hi - first);
-            trace_packet(&j->in, first, count, p, NULL);
+            trace_hits(&j->in, first, count, p);
+            packet_spots(j->in.sc, count, p);
             for (int64_t k = 0; k < count; k++) {
-                reached += p->spots[k][5];
-                if (j->splat) splat_photon(j->in.sc, img, j->f32, j->n, p->channel[k], p->spots[k], buf, j->capacity);
+                reached += p->spots[5][k];
+                if (j->splat) {
+                    const double spot[6] = {p->spots[0][k], p->spots[1][k], p->spots[2][k], p->spots[3][k],
+                                            p->spots[4][k], p->spots[5][k]};
+                    splat_photon(j->in.sc, img, j->f32, j->n, p->channel[k], spot, buf, j->capacity);
+                }
             }
         }
         j->reached[b] = reached;
@@ -956,10 +993,10 @@ static int vjp_worker(void *context, int64_t thread) {
     const sfc_scene *sc = j->in.sc;
     const int64_t m = j->in.m;
     packet *p = (packet *)malloc(sizeof(packet));
-    optics *o = (optics *)malloc(sizeof(optics) * PACKET);
-    if (!p || !o) {
+    char *contributes = (char *)malloc(PACKET);
+    if (!p || !contributes) {
         free(p);
-        free(o);
+        free(contributes);
         return 1;
     }
     double *grad = j->grad + (size_t)thread * (size_t)(m * m);
@@ -969,25 +1006,34 @@ static int vjp_worker(void *context, int64_t thread) {
         const int64_t lo = j->start + b * BLOCK, hi = imin(j->stop, lo + BLOCK);
         for (int64_t first = lo; first < hi; first += PACKET) {
             const int64_t count = imin(PACKET, hi - first);
-            trace_packet(&j->in, first, count, p, o);
+            trace_hits(&j->in, first, count, p);
+            packet_spots(sc, count, p);
             for (int64_t k = 0; k < count; k++) {
-                double g[6], g_hit[6], jet[5];
-                gather_photon(sc, j->padded, j->n, j->pad, p->channel[k], p->spots[k], g);
-                if (g[0] == 0.0 && g[1] == 0.0 && g[2] == 0.0 && g[3] == 0.0 && g[4] == 0.0 && g[5] == 0.0) continue;
-                for (int i = 0; i < 5; i++) jet[i] = p->jets[i * PACKET + k];
-                optics_adjoint(sc, p->w[k], p->dwu[k], p->dwv[k], p->flux[k], p->t[k], jet, p->eta[k], &o[k], g,
-                               g_hit);
-                const double x = sc->light_x + p->t[k] * p->w[k].x, y = sc->light_y + p->t[k] * p->w[k].y;
+                const double spot[6] = {p->spots[0][k], p->spots[1][k], p->spots[2][k], p->spots[3][k],
+                                        p->spots[4][k], p->spots[5][k]};
+                double g[6];
+                gather_photon(sc, j->padded, j->n, j->pad, p->channel[k], spot, g);
+                contributes[k] = !(g[0] == 0.0 && g[1] == 0.0 && g[2] == 0.0 && g[3] == 0.0 && g[4] == 0.0
+                                   && g[5] == 0.0);
+                for (int i = 0; i < 6; i++) p->spots[i][k] = g[i];
+            }
+            packet_adjoints(sc, count, p);
+            for (int64_t k = 0; k < count; k++) {
+                if (!contributes[k]) continue;
+                const vec3 w = row3(p->w, k);
+                const double g_hit[6] = {p->g_hit[0][k], p->g_hit[1][k], p->g_hit[2][k], p->g_hit[3][k],
+                                         p->g_hit[4][k], p->g_hit[5][k]};
+                const double x = sc->light_x + p->t[k] * w.x, y = sc->light_y + p->t[k] * w.y;
                 if (sc->simd)
-                    sfc_hit_adjoint(j->in.d, grad, m, x, y, -sc->half, 1.0 / sc->spacing, p->w[k].x, p->w[k].y,
-                                    p->w[k].z, g_hit[0], g_hit[1], g_hit[2], g_hit[3], g_hit[4], g_hit[5]);
+                    sfc_hit_adjoint(j->in.d, grad, m, x, y, -sc->half, 1.0 / sc->spacing, w.x, w.y, w.z, g_hit[0],
+                                    g_hit[1], g_hit[2], g_hit[3], g_hit[4], g_hit[5]);
                 else
-                    hit_adjoint_scalar(j->in.d, grad, m, x, y, -sc->half, sc->spacing, p->w[k], g_hit);
+                    hit_adjoint_scalar(j->in.d, grad, m, x, y, -sc->half, sc->spacing, w, g_hit);
             }
         }
     }
     free(p);
-    free(o);
+    free(contributes);
     return 0;
 }
 
@@ -996,7 +1042,7 @@ static int vjp_worker(void *context, int64_t thread) {
  * traces run. hit_t (hit_len = stop - start, or 0: none) receives the hits' ray parameters, or
  * with replay holds them. *reached: the flux that reached the receiver. Returns 0, -1 on
  * failure to allocate or start threads. */
-int sfc_hf_render(const double *d, int64_t m, const sfc_scene *sc, const double *shifts, const double *indices,
+int SFC_EXPORT(sfc_hf_render)(const double *d, int64_t m, const sfc_scene *sc, const double *shifts, const double *indices,
                   int64_t start, int64_t stop, void *out, int64_t f32, int64_t threads, int64_t channels, int64_t n,
                   int64_t capacity, int64_t splat, double *hit_t, int64_t hit_len, int64_t replay, double *reached) {
     job j;
@@ -1019,7 +1065,7 @@ int sfc_hf_render(const double *d, int64_t m, const sfc_scene *sc, const double 
 /* Add to grad (threads, m, m) the gradient w.r.t. d of <splat of photons start .. stop-1, G>, G
  * (channels, n, n) given as `padded` with `pad` zero pixels on every side; hit_t as in
  * sfc_hf_render (replayed when hit_len > 0). Returns 0, -1 on failure. */
-int sfc_hf_vjp(const double *d, int64_t m, const sfc_scene *sc, const double *shifts, const double *indices,
+int SFC_EXPORT(sfc_hf_vjp)(const double *d, int64_t m, const sfc_scene *sc, const double *shifts, const double *indices,
                int64_t start, int64_t stop, const double *padded, int64_t n, int64_t pad, double *grad,
                int64_t threads, double *hit_t, int64_t hit_len) {
     job j;
@@ -1062,7 +1108,7 @@ static void trace_aimed(const aimed_job *j, double ax, double ay, double *x, dou
     *y = (o.p3.y + sc->receiver_half) * sc->to_px;
     double transmittance = 1.0;
     if (sc->fresnel) transmittance = fresnel(o.ci1, o.ct1, 1.0 / j->eta) * fresnel(o.ci2, o.ct2, j->eta);
-    const int good = !o.lost && isfinite(*x) && isfinite(*y) && transmittance > 0.0;
+    const int good = o.lost == 0.0 && isfinite(*x) && isfinite(*y) && transmittance > 0.0;
     *ratio = good ? transmittance : 0.0;
 }
 
@@ -1081,7 +1127,7 @@ static int aimed_worker(void *context, int64_t thread) {
 /* Rays aimed at aim (count, 2) (x, y on z = base) through heights d (m, m), glass index eta:
  * receiver positions (count, 2) in pixel corner units into pos, transmittances (count,) into
  * ratio. Returns 0, -1 on failure to start threads. */
-int sfc_hf_trace_aimed(const double *d, int64_t m, const sfc_scene *sc, double eta, const double *aim, int64_t count,
+int SFC_EXPORT(sfc_hf_trace_aimed)(const double *d, int64_t m, const sfc_scene *sc, double eta, const double *aim, int64_t count,
                        double *pos, double *ratio, int64_t threads) {
     aimed_job j;
     j.d = d; j.m = m; j.sc = sc; j.eta = eta; j.aim = aim; j.pos = pos; j.ratio = ratio; j.count = count;

@@ -20,7 +20,8 @@ _FRESH_GRADIENT = textwrap.dedent("""
     from operators.heightfield.adjoint_native import vjp_photons
     from operators.scene import Receiver, Scene
     op = CausticOperator(Scene(receiver=Receiver(resolution=32)),
-                         OperatorSettings(photons=5000, footprint_px=2.0, fresnel=True, dtype="float64"))
+                         OperatorSettings(photons=5000, footprint_px=2.0, fresnel=True, dtype="float64",
+                                          kernels="numba"))
     op.vjp(torch.rand(16, 16, dtype=torch.float64) * 0.01, torch.rand(op.output_shape, dtype=torch.float64))
     print(sum(vjp_photons.stats.cache_hits.values()), sum(vjp_photons.stats.cache_misses.values()))
 """)
@@ -49,48 +50,3 @@ def test_background_compile_starts_only_without_a_cached_kernel_and_stops_with_i
         assert compiling.running
     # Killed on leaving the context, not left running.
     assert not compiling.running and compiling.process.returncode is not None
-
-
-class _FakeProcess:
-    """Stands in for the compiling process: records how it was started, never ends by itself."""
-
-    def __init__(self, args, **kwargs):
-        self.args, self.kwargs, self.returncode = args, kwargs, None
-
-    def poll(self):
-        return self.returncode
-
-    def wait(self):
-        raise AssertionError("a run tracing with the C kernels must not wait for numba")
-
-    def kill(self):
-        raise AssertionError("the compile for later runs must outlive the run")
-
-
-def test_compile_for_later_runs_neither_blocks_nor_stops_and_runs_once_per_machine(monkeypatch):
-    monkeypatch.setattr(precompile.subprocess, "Popen", _FakeProcess)
-    monkeypatch.setattr(precompile, "numba_kernels_cached", lambda: False)
-    with BackgroundCompile(blocking=False) as compiling:
-        assert compiling.process.args[-2:] == ["--all", "--nice"] and compiling.process.kwargs["start_new_session"]
-        assert not compiling.running
-        compiling.wait()
-    # Another process holds the compile lock: nothing is started.
-    with open(precompile.LOCK, "a") as held:
-        precompile.fcntl.flock(held, precompile.fcntl.LOCK_EX)
-        with BackgroundCompile(blocking=False) as compiling:
-            assert compiling.process is None
-    monkeypatch.setattr(precompile, "numba_kernels_cached", lambda: True)
-    with BackgroundCompile(blocking=False) as compiling:
-        assert compiling.process is None
-
-
-def test_operator_traces_with_c_while_numba_was_not_cached_and_with_numba_once_it_was(monkeypatch):
-    from operators.heightfield import trace_compiled, trace_native
-    from tests.operators.conftest import make_operator
-
-    if not trace_compiled.AVAILABLE:
-        pytest.skip("compiled extension not built")
-    monkeypatch.setattr(trace_native, "_numba_cached_at_first_use", lambda: False)
-    assert make_operator(kernels="auto").fused.compiled and not make_operator(kernels="numba").fused.compiled
-    monkeypatch.setattr(trace_native, "_numba_cached_at_first_use", lambda: True)
-    assert not make_operator(kernels="auto").fused.compiled and make_operator(kernels="c").fused.compiled
