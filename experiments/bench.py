@@ -3,8 +3,9 @@
 Measures, at the default scene (print_lines, 128 x 128 heights, 512 x 512 receiver):
 forward and forward+backward photons/s of the operator (the fused native path), the same for the
 torch reference path in the same process (side by side: timings on a shared machine are noisy),
-the same with the numba kernels in place of the AVX2 ones (``operator.simd: false``),
-alternating with them, the time split between tracing and splatting in the fused kernel (a pass
+the same with the numba kernels in place of the C kernels compiled at install
+(``operator.kernels: numba``) and without the AVX2 splat / gather / jet kernels (``operator.simd:
+false``), alternating with them, the time split between tracing and splatting in the fused kernel (a pass
 with the splat switched off against the full pass), the peak memory of a gradient evaluation
 with the paper's 8.4 million photons, and the native splat against the straightforward PyTorch
 splat on the same photons, side by side, each in a fresh process so that their peak memories are
@@ -53,10 +54,10 @@ def peak_rss_mb() -> float:
 
 
 def make_operator(photons: int, footprint_px: float, chunk_size: int, simd: bool = True,
-                  pixel_integration: bool = True) -> CausticOperator:
+                  pixel_integration: bool = True, kernels: str = "c") -> CausticOperator:
     return CausticOperator(Scene(), OperatorSettings(photons=photons, footprint_px=footprint_px,
                                                      chunk_size=chunk_size, simd=simd,
-                                                     pixel_integration=pixel_integration))
+                                                     pixel_integration=pixel_integration, kernels=kernels))
 
 
 def heights_print_lines() -> torch.Tensor:
@@ -334,19 +335,24 @@ def main(argv: list[str] | None = None) -> None:
                          indent=2))
         return
     op = make_operator(args.photons, args.footprint_px, args.chunk_size)
+    jit = make_operator(args.photons, args.footprint_px, args.chunk_size, kernels="numba")
     plain = make_operator(args.photons, args.footprint_px, args.chunk_size, simd=False)
     point = make_operator(args.photons, args.footprint_px, args.chunk_size, pixel_integration=False)
     target = make_operator(args.photons, args.footprint_px, args.chunk_size).render(torch.zeros(128, 128))
-    (forward_s, gradient_s), (plain_forward_s, plain_gradient_s), (point_forward_s, point_gradient_s) = (
-        time_side_by_side((op, plain, point), heights, target))
+    ((forward_s, gradient_s), (jit_forward_s, jit_gradient_s), (plain_forward_s, plain_gradient_s),
+     (point_forward_s, point_gradient_s)) = time_side_by_side((op, jit, plain, point), heights, target)
     report = {
         "scene": "print_lines, m=128, n=512, light (0,0,10)",
         "threads": {"torch": torch.get_num_threads(), "numba": numba.get_num_threads()},
         "photons": op.photons, "footprint_px": args.footprint_px, "chunk_size": args.chunk_size,
-        "simd": op.fused.simd,
+        "simd": op.fused.simd, "c_kernels": op.fused.compiled,
         "forward_photons_per_s": op.photons / forward_s,
         "forward_backward_photons_per_s": op.photons / gradient_s,
-        "numba_kernels_only": {"forward_photons_per_s": op.photons / plain_forward_s,
+        "numba_kernels": {"forward_photons_per_s": op.photons / jit_forward_s,
+                          "forward_backward_photons_per_s": op.photons / jit_gradient_s,
+                          "c_speedup": {"forward": jit_forward_s / forward_s,
+                                        "forward_backward": jit_gradient_s / gradient_s}},
+        "without_avx2_kernels": {"forward_photons_per_s": op.photons / plain_forward_s,
                                "forward_backward_photons_per_s": op.photons / plain_gradient_s,
                                "simd_speedup": {"forward": plain_forward_s / forward_s,
                                                 "forward_backward": plain_gradient_s / gradient_s}},

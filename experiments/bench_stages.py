@@ -1,4 +1,5 @@
-"""Per-stage cost of the fused CPU photon kernels, for ``sfc-bench``'s ``stage_profile``.
+"""Per-stage cost of the fused numba photon kernels, for ``sfc-bench``'s ``stage_profile`` (the C
+kernels of operators/kernels/heightfield_photons.c run the same stages in the same order).
 
 One thread runs the kernels' own functions (:mod:`operators.heightfield.kernels_native`) cut after each
 stage: emission; emission + hit search (in lockstep over packets); + the surface jet at the hit

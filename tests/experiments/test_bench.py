@@ -27,9 +27,12 @@ def test_bench_prints_the_promised_figures(capsys):
           "--reconstruction-overrides", *SMALL_RUN])
     report = json.loads(capsys.readouterr().out)
     assert report["forward_photons_per_s"] > 0 and report["forward_backward_photons_per_s"] > 0
-    plain = report["numba_kernels_only"]
+    plain = report["without_avx2_kernels"]
     assert plain["forward_photons_per_s"] > 0 and plain["forward_backward_photons_per_s"] > 0
     assert plain["simd_speedup"]["forward"] > 0 and isinstance(report["simd"], bool)
+    jit = report["numba_kernels"]
+    assert jit["forward_photons_per_s"] > 0 and jit["c_speedup"]["forward_backward"] > 0
+    assert isinstance(report["c_kernels"], bool)
     point = report["point_sampled_pixels"]
     assert point["forward_photons_per_s"] > 0 and point["pixel_integration_cost"]["forward_backward"] > 0
     assert 0.0 < report["forward_split"]["trace_fraction"] < 1.0
