@@ -121,16 +121,20 @@ static inline SFC_INLINE emitted emit(const sfc_scene *sc, const double *shifts,
 
 static inline SFC_INLINE int64_t clamped_node(int64_t i, int64_t m) { return imin(imax(i, 0), m - 1); }
 
-/* Cell index i, offset s in [0, 1], d/dcoord scale k (1 / spacing on the grid, 0 off it). */
-static inline SFC_INLINE int64_t cell(double coord, double origin, double spacing, int64_t m, double *s, double *k) {
+/* Cell index i, offset s in [0, 1], d/dcoord scale k (1 / spacing on the grid, 0 off it). The
+ * index in 32 bits: double-to-int32 conversions vectorise with AVX2 (to int64 they need AVX-512). */
+static inline SFC_INLINE int cell(double coord, double origin, double spacing, int m, double *s, double *k) {
     double g = (coord - origin) / spacing;
-    const int inside = 0.0 <= g && g <= (double)(m - 1);
+    const int inside = (0.0 <= g) & (g <= (double)(m - 1));
     g = dmin(dmax(g, 0.0), (double)(m - 1));
-    const int64_t i = imin((int64_t)floor(g), m - 2);
+    const int floor_g = (int)floor(g);
+    const int i = floor_g < m - 2 ? floor_g : m - 2;
     *s = g - (double)i;
     *k = inside ? 1.0 / spacing : 0.0;
     return i;
 }
+
+static inline SFC_INLINE int node(int i, int m) { return i < 0 ? 0 : (i > m - 1 ? m - 1 : i); }
 
 /* Catmull-Rom weights at s (a) and their s-derivatives times k (b). */
 static inline SFC_INLINE void basis(double s, double k, double a[4], double b[4]) {
@@ -156,14 +160,15 @@ static inline SFC_INLINE void curvature_basis(double s, double k2, double c[4]) 
 static inline SFC_INLINE void surface_gradient(const double *d, int64_t m, double x, double y, double origin, double spacing,
                                     double *value, double *slope_x, double *slope_y) {
     double sx, kx, sy, ky, a[4], b[4], e[4], f[4];
-    const int64_t ix = cell(x, origin, spacing, m, &sx, &kx);
-    const int64_t iy = cell(y, origin, spacing, m, &sy, &ky);
+    const int mm = (int)m;
+    const int ix = cell(x, origin, spacing, mm, &sx, &kx);
+    const int iy = cell(y, origin, spacing, mm, &sy, &ky);
     basis(sx, kx, a, b);
     basis(sy, ky, e, f);
-    const int64_t c0 = imax(ix - 1, 0), c3 = imin(ix + 2, m - 1);
+    const int c0 = node(ix - 1, mm), c3 = node(ix + 2, mm);
     double val = 0.0, gx = 0.0, gy = 0.0;
     for (int r = 0; r < 4; r++) {
-        const double *row = d + clamped_node(iy - 1 + r, m) * m;
+        const double *row = d + node(iy - 1 + r, mm) * mm;
         const double d0 = row[c0], d1 = row[ix], d2 = row[ix + 1], d3 = row[c3];
         const double v = a[0] * d0 + a[1] * d1 + a[2] * d2 + a[3] * d3;
         val += e[r] * v;
@@ -179,16 +184,17 @@ static inline SFC_INLINE void surface_gradient(const double *d, int64_t m, doubl
 static inline SFC_INLINE void surface_jet_at(const double *d, int64_t m, double x, double y, double origin, double spacing,
                                   double jet[5]) {
     double sx, kx, sy, ky, a[4], b[4], c[4], e[4], f[4], g[4];
-    const int64_t ix = cell(x, origin, spacing, m, &sx, &kx);
-    const int64_t iy = cell(y, origin, spacing, m, &sy, &ky);
+    const int mm = (int)m;
+    const int ix = cell(x, origin, spacing, mm, &sx, &kx);
+    const int iy = cell(y, origin, spacing, mm, &sy, &ky);
     basis(sx, kx, a, b);
     curvature_basis(sx, kx * kx, c);
     basis(sy, ky, e, f);
     curvature_basis(sy, ky * ky, g);
-    const int64_t n0 = imax(ix - 1, 0), n3 = imin(ix + 2, m - 1);
+    const int n0 = node(ix - 1, mm), n3 = node(ix + 2, mm);
     double s_x = 0.0, s_y = 0.0, s_xx = 0.0, s_xy = 0.0, s_yy = 0.0;
     for (int r = 0; r < 4; r++) {
-        const double *row = d + clamped_node(iy - 1 + r, m) * m;
+        const double *row = d + node(iy - 1 + r, mm) * mm;
         const double d0 = row[n0], d1 = row[ix], d2 = row[ix + 1], d3 = row[n3];
         const double v = a[0] * d0 + a[1] * d1 + a[2] * d2 + a[3] * d3;
         const double vx = b[0] * d0 + b[1] * d1 + b[2] * d2 + b[3] * d3;
@@ -342,6 +348,16 @@ static double solve_hit(const double *d, int64_t m, const sfc_scene *sc, vec3 w)
     return t;
 }
 
+/* Gap and slope of every ray k < count at t[k], converged or not (packet_gaps): a branch-free
+ * loop over independent surface evaluations, which GCC vectorises with gathers (restrict: the
+ * heights and the scene are not written here). */
+static void packet_gaps(const double *restrict d, int64_t m, const sfc_scene *restrict sc,
+                        const double (*restrict w)[PACKET], const double *restrict t, int64_t count,
+                        double *restrict gap, double *restrict slope) {
+    for (int64_t k = 0; k < count; k++)
+        gap_at(d, m, sc, v3(w[0][k], w[1][k], w[2][k]), t[k], &gap[k], &slope[k]);
+}
+
 /* Hits of the rays k < count along w[k] into t[k]; the rays that need no march iterate Newton in
  * lockstep, so that the core overlaps their surface evaluations (solve_hits). */
 static void solve_hits(const double *d, int64_t m, const sfc_scene *sc, const double w_rows[3][PACKET],
@@ -361,9 +377,7 @@ static void solve_hits(const double *d, int64_t m, const sfc_scene *sc, const do
         }
     }
     for (int64_t it = 0; it < sc->newton_iterations; it++) {
-        for (int64_t k = 0; k < count; k++)
-            if (st->active[k] != 0.0)
-                gap_at(d, m, sc, v3(w_rows[0][k], w_rows[1][k], w_rows[2][k]), t[k], &st->gap[k], &st->slope[k]);
+        packet_gaps(d, m, sc, w_rows, t, count, st->gap, st->slope);
         int64_t iterating = 0;
         for (int64_t k = 0; k < count; k++) {
             if (st->active[k] == 0.0) continue;
