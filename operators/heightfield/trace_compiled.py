@@ -38,25 +38,27 @@ class SceneStruct(ctypes.Structure):
 
 _P = ctypes.c_void_p
 _I = ctypes.c_int64
+BUILDS = ("", "_avx2")  # suffixes of the extension's two builds of the kernels: baseline, AVX2 + FMA
 
 
 def _bind() -> tuple[ctypes.CDLL | None, str]:
-    """The extension and the suffix of the build its functions are taken from: ``_avx2`` (AVX2
-    and FMA) where the CPU has them, else the baseline build."""
+    """The extension, its functions' signatures declared (both builds), and the suffix of the
+    build that traces: ``_avx2`` (AVX2 and FMA) where the CPU has them, else the baseline build."""
     library = extension.load()
     if library is None:
         return None, ""
-    suffix = "_avx2" if library.sfc_simd_supported() else ""
     scene = ctypes.POINTER(SceneStruct)
-    for name, argtypes in (
-            ("sfc_hf_render", [_P, _I, scene, _P, _P, _I, _I, _P, _I, _I, _I, _I, _I, _I, _P, _I, _I,
-                               ctypes.POINTER(ctypes.c_double)]),
-            ("sfc_hf_vjp", [_P, _I, scene, _P, _P, _I, _I, _P, _I, _I, _P, _I, _P, _I]),
-            ("sfc_hf_trace_aimed", [_P, _I, scene, ctypes.c_double, _P, _I, _P, _P, _I])):
-        function = getattr(library, name + suffix)
-        function.argtypes = argtypes
-        function.restype = ctypes.c_int
-    return library, suffix
+    for suffix in BUILDS:
+        for name, argtypes in (
+                ("sfc_hf_render", [_P, _I, scene, _P, _P, _I, _I, _P, _I, _I, _I, _I, _I, _I, _P, _I, _I,
+                                   ctypes.POINTER(ctypes.c_double)]),
+                ("sfc_hf_vjp", [_P, _I, scene, _P, _P, _I, _I, _P, _I, _I, _P, _I, _P, _I]),
+                ("sfc_hf_trace_aimed", [_P, _I, scene, ctypes.c_double, _P, _I, _P, _P, _I])):
+            function = getattr(library, name + suffix, None)
+            if function is not None:
+                function.argtypes = argtypes
+                function.restype = ctypes.c_int
+    return library, "_avx2" if library.sfc_simd_supported() else ""
 
 
 _LIBRARY, _SUFFIX = _bind()
@@ -77,6 +79,18 @@ def _scene(sc: FusedScene) -> SceneStruct:
     return SceneStruct(**{name: int(values[name]) if name in _INTS else float(values[name]) for name in _FIELDS})
 
 
+def _check(d: np.ndarray, out: np.ndarray, dims: int, **arrays: np.ndarray) -> None:
+    """The C kernels address raw memory: heights (m, m) float64, buffers with a leading thread axis
+    of at least one, float64 C-contiguous inputs; anything else is refused here."""
+    if d.ndim != 2 or d.shape[0] != d.shape[1] or d.shape[0] < 2 or d.dtype != np.float64:
+        raise ValueError(f"heights must be a square float64 array of side >= 2, got {d.dtype} {d.shape}")
+    if out.ndim != dims or out.shape[0] < 1:
+        raise ValueError(f"the output buffers must have shape (threads >= 1, ...) with {dims} axes, got {out.shape}")
+    for name, array in {"d": d, "out": out, **arrays}.items():
+        if not array.flags.c_contiguous or (name != "out" and array.size and array.dtype != np.float64):
+            raise ValueError(f"{name} must be a C-contiguous float64 array")
+
+
 def render(d: np.ndarray, sc: FusedScene, shifts: np.ndarray, indices: np.ndarray, start: int, stop: int,
            out: np.ndarray, capacity: int, splat: bool, hit_t: np.ndarray, replay: bool) -> float:
     """:func:`operators.heightfield.kernels_native.render_photons` in C: photons start .. stop-1 into
@@ -85,6 +99,10 @@ def render(d: np.ndarray, sc: FusedScene, shifts: np.ndarray, indices: np.ndarra
     (``hit_t`` empty: no hits recorded)."""
     if out.dtype not in (np.float32, np.float64):
         raise ValueError(f"images must be float32 or float64, not {out.dtype}")
+    _check(d, out, 4, shifts=shifts, indices=indices, hit_t=hit_t)
+    if out.shape[1] != shifts.shape[0] or out.shape[2] != out.shape[3] or hit_t.size not in (0, stop - start):
+        raise ValueError(f"images {out.shape} must be square, one channel per emission shift ({shifts.shape[0]}); hit_t "
+                         f"{hit_t.shape} must be empty or hold stop - start = {stop - start} photons")
     reached = ctypes.c_double(0.0)
     status = _function("sfc_hf_render")(
         d.ctypes.data, d.shape[0], ctypes.byref(_scene(sc)), shifts.ctypes.data, indices.ctypes.data, start, stop,
@@ -100,6 +118,10 @@ def vjp(d: np.ndarray, sc: FusedScene, shifts: np.ndarray, indices: np.ndarray, 
     """:func:`operators.heightfield.adjoint_native.vjp_photons` in C: adds the gradient into ``out``
     (threads, m, m) float64, one thread per gradient; ``padded`` (c, n + 2 pad, n + 2 pad)
     float64; ``hit_t`` replayed unless empty."""
+    _check(d, out, 3, shifts=shifts, indices=indices, padded=padded, hit_t=hit_t)
+    if out.dtype != np.float64 or out.shape[1:] != d.shape or padded.shape[0] != shifts.shape[0] or hit_t.size not in (0, stop - start):
+        raise ValueError(f"gradients {out.dtype} {out.shape} must be float64 (threads, *{d.shape}), the padded image {padded.shape} "
+                         f"one channel per emission shift ({shifts.shape[0]}), hit_t empty or stop - start long")
     status = _function("sfc_hf_vjp")(
         d.ctypes.data, d.shape[0], ctypes.byref(_scene(sc)), shifts.ctypes.data, indices.ctypes.data, start, stop,
         padded.ctypes.data, padded.shape[1] - 2 * pad, pad, out.ctypes.data, out.shape[0], _pointer(hit_t),

@@ -50,6 +50,20 @@ def test_compiled_render_and_gradient_equal_the_numba_kernels(use_simd, fresnel,
 
 
 @needs_compiled
+def test_baseline_build_of_the_compiled_kernels_equals_the_numba_kernels(monkeypatch):
+    # The build for CPUs without AVX2 (its loops vectorise two photons wide, or not at all).
+    monkeypatch.setattr(trace_compiled, "_SUFFIX", "")
+    c_op, nb_op = _pair(photons=30_000, resolution=48, wavelengths=(0.45, 0.65), fresnel=True, simd=False,
+                        footprint_px="cell", min_footprint_px=0.3)
+    heights = smooth_random_heights(seed=19)
+    image_c, image_nb = c_op.render(heights), nb_op.render(heights)
+    assert float((image_c - image_nb).abs().max()) <= 1e-9 * float(image_nb.abs().max())
+    weights = torch.randn(c_op.output_shape, dtype=torch.float64, generator=torch.Generator().manual_seed(20))
+    grad_c, grad_nb = c_op.vjp(heights, weights), nb_op.vjp(heights, weights)
+    assert float((grad_c - grad_nb).abs().max()) <= 1e-8 * float(grad_nb.abs().max())
+
+
+@needs_compiled
 @pytest.mark.parametrize("use_simd", SIMD)
 def test_compiled_float32_images_equal_the_numba_kernels(use_simd):
     c_op, nb_op = _pair(photons=30_000, resolution=40, dtype="float32", simd=use_simd, footprint_px="cell",
@@ -131,3 +145,16 @@ def test_compiled_rasterisers_equal_the_numba_rasterisers():
     assert grid_c.sum() > 0 and list_c.sum() > 0
     assert np.abs(grid_c - grid_nb.sum(axis=0)).max() <= 1e-12 * grid_c.max()
     assert np.abs(list_c - list_nb.sum(axis=0)).max() <= 1e-12 * list_c.max()
+
+
+@needs_compiled
+def test_compiled_kernels_refuse_buffers_they_would_overrun():
+    op = make_operator(photons=5_000, resolution=16, kernels="c")
+    d = smooth_random_heights().numpy()
+    with pytest.raises(ValueError, match="threads >= 1"):
+        op.fused.render(d, 0, op.photons, np.zeros((0, *op.output_shape)))
+    with pytest.raises(ValueError, match="hit_t"):
+        op.fused.render(d, 0, op.photons, op.fused.image_buffers(np.dtype("float64")), hit_t=np.empty(10))
+    with pytest.raises(ValueError, match="float64"):
+        op.fused.vjp(d, 0, op.photons, op.fused.pad_gradient(np.zeros(op.output_shape)),
+                     np.zeros((1, *d.shape), dtype=np.float32))
