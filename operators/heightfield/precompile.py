@@ -1,8 +1,9 @@
 """Compile the numba gradient kernel in a second process while this one compiles the render kernel.
 
 Only where the numba kernels trace (``operator.kernels: numba``, or no compiled extension: the C
-kernels of operators/kernels/heightfield_photons.c need no JIT). Their first run after an install compiles the fused kernels into numba's on-disk cache, the render
-kernel and then the gradient (vjp) kernel, since one process compiles one function at a time (the
+kernels of operators/kernels/heightfield_photons.c need no JIT). Their first run after an install
+compiles the fused kernels into numba's on-disk cache, the render kernel and then the gradient
+(vjp) kernel, since one process compiles one function at a time (the
 time it adds: docs/results.md, "The default run"). :class:`BackgroundCompile` starts
 ``python -m operators.heightfield.compile_kernels`` when the gradient kernel is not cached yet; that process
 compiles it on the second core and writes it to the cache, and :meth:`BackgroundCompile.wait`

@@ -21,8 +21,6 @@ from operators.splat.native import gather_padding, pad_for_gather
 NO_HITS = np.empty(0)  # kernels' marker for "no hit cache"
 
 
-
-
 class FusedTracer:
     """Photons ``start .. stop-1`` of ``emitter`` traced through ``scene`` in one native pass each.
 

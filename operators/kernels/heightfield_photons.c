@@ -119,7 +119,6 @@ static inline SFC_INLINE emitted emit(const sfc_scene *sc, const double *shifts,
 
 /* ---------------------------------------------------------------- Catmull-Rom surface */
 
-static inline SFC_INLINE int64_t clamped_node(int64_t i, int64_t m) { return imin(imax(i, 0), m - 1); }
 
 /* Cell index i, offset s in [0, 1], d/dcoord scale k (1 / spacing on the grid, 0 off it). The
  * index in 32 bits: double-to-int32 conversions vectorise with AVX2 (to int64 they need AVX-512). */
@@ -239,15 +238,13 @@ static inline SFC_INLINE void fill_basis(double s, int k, double scale, double w
 }
 
 /* Weight tables of derivative orders 0 .. 3 at coord (axis_weights); returns the cell index. */
-static inline SFC_INLINE int64_t axis_weights(double coord, double origin, double spacing, int64_t m, double w[4][4]) {
-    double g = (coord - origin) / spacing;
-    const int inside = 0.0 <= g && g <= (double)(m - 1);
-    g = dmin(dmax(g, 0.0), (double)(m - 1));
-    const int64_t i = imin((int64_t)floor(g), m - 2);
-    const double s = g - (double)i;
+static inline SFC_INLINE int axis_weights(double coord, double origin, double spacing, int m, double w[4][4]) {
+    double s, k;
+    const int i = cell(coord, origin, spacing, m, &s, &k);
+    const int inside = k != 0.0;  /* cell's scale is 0 off the grid */
     double scale = 1.0;
-    for (int k = 0; k < 4; k++) {
-        fill_basis(s, k, inside ? scale : 0.0, w);
+    for (int order = 0; order < 4; order++) {
+        fill_basis(s, order, inside ? scale : 0.0, w);
         scale /= spacing;
     }
     return i;
@@ -265,10 +262,11 @@ static inline SFC_INLINE double contract(const double p[4][4], const double wx[4
 static void hit_adjoint_scalar(const double *d, double *grad, int64_t m, double x, double y, double origin,
                                double spacing, vec3 w, const double g[6]) {
     double wx[4][4], wy[4][4], p[4][4];
-    const int64_t ix = axis_weights(x, origin, spacing, m, wx);
-    const int64_t iy = axis_weights(y, origin, spacing, m, wy);
+    const int mm = (int)m;
+    const int ix = axis_weights(x, origin, spacing, mm, wx);
+    const int iy = axis_weights(y, origin, spacing, mm, wy);
     for (int a = 0; a < 4; a++)
-        for (int b = 0; b < 4; b++) p[a][b] = d[clamped_node(iy - 1 + a, m) * m + clamped_node(ix - 1 + b, m)];
+        for (int b = 0; b < 4; b++) p[a][b] = d[node(iy - 1 + a, mm) * mm + node(ix - 1 + b, mm)];
     const double sx = contract(p, wx, 1, wy, 0), sy = contract(p, wx, 0, wy, 1);
     const double sxx = contract(p, wx, 2, wy, 0), sxy = contract(p, wx, 1, wy, 1), syy = contract(p, wx, 0, wy, 2);
     const double sxxx = contract(p, wx, 3, wy, 0), sxxy = contract(p, wx, 2, wy, 1);
@@ -279,9 +277,9 @@ static void hit_adjoint_scalar(const double *d, double *grad, int64_t m, double 
                          + g_syy * (sxyy * w.x + syyy * w.y);
     const double c = along / (w.z - sx * w.x - sy * w.y);
     for (int a = 0; a < 4; a++) {
-        double *row = grad + clamped_node(iy - 1 + a, m) * m;
+        double *row = grad + node(iy - 1 + a, mm) * mm;
         for (int b = 0; b < 4; b++)
-            row[clamped_node(ix - 1 + b, m)] += wy[0][a] * (c * wx[0][b] + g_sx * wx[1][b] + g_sxx * wx[2][b])
+            row[node(ix - 1 + b, mm)] += wy[0][a] * (c * wx[0][b] + g_sx * wx[1][b] + g_sxx * wx[2][b])
                                                 + wy[1][a] * (g_sy * wx[0][b] + g_sxy * wx[1][b])
                                                 + wy[2][a] * g_syy * wx[0][b];
     }

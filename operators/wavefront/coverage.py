@@ -24,9 +24,8 @@ where the extension was built; these numba kernels where it was not.
 
 from __future__ import annotations
 
-import math
-
 import ctypes
+import math
 
 import numba as nb
 import numpy as np
