@@ -7,11 +7,13 @@ origin='lower' and PNG files are written with their rows flipped (+y up).
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Sequence
+from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
-from matplotlib.figure import Figure
 from PIL import Image
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 __all__ = ["normalise", "caustic_rgb", "label_xy_axes", "save_caustic_png", "save_figure",
            "save_height_and_caustic_figure"]
@@ -102,6 +104,8 @@ def save_height_and_caustic_figure(heights: np.ndarray, image: np.ndarray, path:
         raise ValueError(f"caustic image must have shape (c, n, n), got {image.shape}")
     total = image.sum(axis=0)
     vmax = float(np.percentile(total, percentile)) or float(total.max()) or 1.0
+    from matplotlib.figure import Figure  # matplotlib is imported when a figure is drawn
+
     fig = Figure(figsize=(10.0, 4.4), dpi=dpi, layout="constrained")
     ax_h, ax_c = fig.subplots(1, 2)
     shown = ax_h.imshow(heights, origin="lower", extent=height_extent, cmap=height_cmap)

@@ -16,14 +16,16 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 import torch
-from scipy import optimize, stats
 
 from framework.defects.models import MODELS, Frame, apply_model, drop_volume
 from framework.defects.regions import Candidate
+
+if TYPE_CHECKING:
+    from scipy.optimize import OptimizeResult
 
 __all__ = ["Defect", "Fit", "KINDS", "Misfit", "candidate_frames", "chance_of", "fit_candidate", "frame_of",
            "refit"]
@@ -226,8 +228,9 @@ def _model_params(model: str, p: np.ndarray) -> tuple[float, ...]:
 
 
 def _nelder_mead(objective: Callable[[np.ndarray], float], x0: np.ndarray, steps: np.ndarray, evaluations: int,
-                 base_misfit: float) -> optimize.OptimizeResult:
+                 base_misfit: float) -> OptimizeResult:
     """Nelder-Mead from ``x0`` on the simplex of ``steps``, at most ``evaluations`` misfits."""
+    from scipy import optimize  # scipy.optimize and .stats take ~1 s to import: only when defects are fitted
     simplex = np.vstack([x0] + [x0 + np.eye(len(x0))[i] * steps[i] for i in range(len(x0))])
     return optimize.minimize(objective, x0, method="Nelder-Mead",
                              options={"initial_simplex": simplex, "maxfev": evaluations, "xatol": 1e-3,
@@ -252,6 +255,7 @@ class Fit:
 def chance_of(evidence: float, dof: int, tested: int) -> float:
     """The chance that noise alone gives ``evidence`` to a ``dof``-parameter model at any of ``tested``
     places: the chi-square tail, Bonferroni."""
+    from scipy import stats
     return min(1.0, float(stats.chi2.sf(max(evidence, 0.0), dof)) * max(tested, 1))
 
 

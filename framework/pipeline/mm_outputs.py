@@ -12,16 +12,17 @@ import json
 import math
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import trimesh
-from matplotlib.figure import Figure
 from PIL import Image, PngImagePlugin
 
 from framework.core.plotting import label_xy_axes, save_figure
 from framework.core.units import mm_per_unit as checked_mm_per_unit
 from framework.core.values import positive_number
+
+if TYPE_CHECKING:
+    import trimesh
 
 __all__ = ["MESH_FORMATS", "PNG_KEYS", "PRINTED", "glass_mesh", "write_height_png", "read_height_png",
            "deviation_report", "save_deviation_figure", "export_outputs"]
@@ -94,6 +95,8 @@ def glass_mesh(d: np.ndarray, half_width: float, thickness: float, mm_per_unit: 
     corners = np.stack([x, y, top], axis=-1).reshape(-1, 3)
     vertices = np.concatenate([corners, np.stack([cx, cy, cz], axis=-1).reshape(-1, 3),
                                corners[loop] * np.array([1.0, 1.0, 0.0]), np.zeros((1, 3))])
+    import trimesh  # imported when a mesh is written (about 1 s), not before the run starts
+
     return trimesh.Trimesh(vertices=vertices * scale, faces=faces, process=False)
 
 
@@ -181,6 +184,8 @@ def save_deviation_figure(path: str | Path, d: np.ndarray, design: np.ndarray, h
     low = min(float(design_mm.min()), float(d_mm.min()), 0.0)
     high = max(float(design_mm.max()), float(d_mm.max()), low + 1e-9)
     limit = float(np.abs(error_um).max()) or 1.0
+    from matplotlib.figure import Figure  # matplotlib is imported when a figure is drawn
+
     fig = Figure(figsize=(19.0, 4.2), layout="constrained")
     axes = fig.subplots(1, 4)
     for ax, (title, field) in zip(axes, (("design", design_mm), ("reconstruction", d_mm))):

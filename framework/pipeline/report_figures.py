@@ -7,7 +7,6 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
-from matplotlib.figure import Figure
 
 from framework.core.plotting import normalise
 from framework.pipeline.shot_report import shots_of
@@ -21,6 +20,7 @@ def save_reconstruction_figures(output_dir: Path, heights: torch.Tensor, problem
     """Write heights.png, centre_slice.png, caustics.png and convergence.png into ``output_dir``:
     ``heights`` (m, m) and ``prediction`` (c, n, n) against the problem's data (caustics.png: one
     row per shot of a stack, framework/pipeline/shot_report.py)."""
+    from matplotlib.figure import Figure  # imported when the figures are drawn, not before the run starts
     d = heights.detach().cpu().double().numpy()
     data = problem.data
     truth = None if data.ground_truth is None else data.ground_truth.cpu().numpy()

@@ -55,7 +55,8 @@ class HeightFieldGrid:
 
 def _ray_origins(origin: torch.Tensor, n: int) -> np.ndarray:
     """Origins (3, n), float64, C-contiguous, from one origin (3,) shared by all rays or one per ray."""
-    return np.ascontiguousarray(np.broadcast_to(to_numpy(origin).astype(np.float64).reshape(3, -1), (3, n)))
+    # A writable copy: a read-only view would make numba compile the kernels a second time.
+    return np.require(np.broadcast_to(to_numpy(origin).astype(np.float64).reshape(3, -1), (3, n)), None, ("C", "W"))
 
 
 class _HeightFieldHit(torch.autograd.Function):

@@ -121,11 +121,12 @@ class NativeMeshTracer:
             slope_x, slope_y = grid.slope_bounds(d)
             spacing = grid.spacing
             top_max = thickness + float(d.max()) + 1e-9
-        return mk.MeshConstants(half, thickness, spacing, zlo, zstart, zhi, slope_x, slope_y, top_max,
-                                float(op._lowest_element), scene.receiver.z, settings.fresnel, op._to_pixels,
-                                scene.receiver.half_width,
-                                filter_radius_px(settings.min_footprint_px, settings.pixel_integration),
-                                settings.max_pixel_radius)
+        values = (half, thickness, spacing, zlo, zstart, zhi, slope_x, slope_y, top_max, op._lowest_element,
+                  scene.receiver.z, settings.fresnel, op._to_pixels, scene.receiver.half_width,
+                  filter_radius_px(settings.min_footprint_px, settings.pixel_integration), settings.max_pixel_radius)
+        # One type per field whatever the config gave (20 or 20.0): numba compiles a kernel per signature.
+        return mk.MeshConstants._make(bool(v) if name == "fresnel" else float(v)
+                                      for name, v in zip(mk.MeshConstants._fields, values))
 
     # -- events -------------------------------------------------------------------------------
     def _run(self, d: np.ndarray, chunk: _Chunk, sc: mk.MeshConstants, wait_at_top: bool, losses: dict[str, float],
