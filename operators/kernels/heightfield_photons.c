@@ -951,8 +951,8 @@ static void packet_adjoints(const sfc_scene *sc, int64_t count, packet *p) {
 
 typedef struct {
     photons_in in;
-    int64_t start, stop, blocks;
-    _Atomic int64_t next_block;
+    int64_t start, stop, blocks, threads;  /* thread t traces blocks t, t + threads, ...: a fixed share, so
+                                              that each per-thread image sums the same photons in every run */
     /* render */
     void *out;
     int f32, splat;
@@ -975,9 +975,7 @@ static int render_worker(void *context, int64_t thread) {
     }
     const size_t elem = j->f32 ? sizeof(float) : sizeof(double);
     void *img = (char *)j->out + (size_t)thread * (size_t)(j->channels * j->n * j->n) * elem;
-    for (;;) {
-        const int64_t b = atomic_fetch_add(&j->next_block, 1);
-        if (b >= j->blocks) break;
+    for (int64_t b = thread; b < j->blocks; b += j->threads) {
         const int64_t lo = j->start + b * BLOCK, hi = imin(j->stop, lo + BLOCK);
         double reached = 0.0;
         for (int64_t first = lo; first < hi; first += PACKET) {
@@ -1012,9 +1010,7 @@ static int vjp_worker(void *context, int64_t thread) {
         return 1;
     }
     double *grad = j->grad + (size_t)thread * (size_t)(m * m);
-    for (;;) {
-        const int64_t b = atomic_fetch_add(&j->next_block, 1);
-        if (b >= j->blocks) break;
+    for (int64_t b = thread; b < j->blocks; b += j->threads) {
         const int64_t lo = j->start + b * BLOCK, hi = imin(j->stop, lo + BLOCK);
         for (int64_t first = lo; first < hi; first += PACKET) {
             const int64_t count = imin(PACKET, hi - first);
@@ -1061,7 +1057,7 @@ int SFC_EXPORT(sfc_hf_render)(const double *d, int64_t m, const sfc_scene *sc, c
     j.in.d = d; j.in.m = m; j.in.sc = sc; j.in.shifts = shifts; j.in.indices = indices;
     j.in.hit_t = hit_t; j.in.hit_len = hit_len; j.in.t_first = start; j.in.replay = replay;
     j.start = start; j.stop = stop; j.blocks = (stop - start + BLOCK - 1) / BLOCK;
-    atomic_init(&j.next_block, 0);
+    j.threads = threads < 1 ? 1 : threads;
     j.out = out; j.f32 = (int)f32; j.splat = (int)splat; j.channels = channels; j.n = n; j.capacity = capacity;
     j.padded = NULL; j.pad = 0; j.grad = NULL;
     j.reached = (double *)calloc((size_t)imax(j.blocks, 1), sizeof(double));
@@ -1084,7 +1080,7 @@ int SFC_EXPORT(sfc_hf_vjp)(const double *d, int64_t m, const sfc_scene *sc, cons
     j.in.d = d; j.in.m = m; j.in.sc = sc; j.in.shifts = shifts; j.in.indices = indices;
     j.in.hit_t = hit_t; j.in.hit_len = hit_len; j.in.t_first = start; j.in.replay = hit_len > 0;
     j.start = start; j.stop = stop; j.blocks = (stop - start + BLOCK - 1) / BLOCK;
-    atomic_init(&j.next_block, 0);
+    j.threads = threads < 1 ? 1 : threads;
     j.out = NULL; j.f32 = 0; j.splat = 0; j.channels = 0; j.n = n; j.capacity = 0; j.reached = NULL;
     j.padded = padded; j.pad = pad; j.grad = grad;
     return sfc_parallel(threads, vjp_worker, &j);

@@ -105,6 +105,24 @@ def test_compiled_kernels_split_the_photons_over_any_number_of_threads():
 
 
 @needs_compiled
+def test_compiled_kernels_repeat_a_render_and_a_gradient_to_the_last_bit():
+    # Each thread sums a fixed share of the photon blocks into its own image: the same config
+    # gives the same image, gradient and run in every run, whichever thread is scheduled first.
+    op = make_operator(photons=200_000, resolution=64, chunk_size=1 << 17, kernels="c")
+    heights = smooth_random_heights(seed=16)
+    target = op.render(heights * 0.5)
+    for threads in (3, 8):
+        renders = []
+        for _ in range(3):
+            out = np.zeros((threads, *op.output_shape))
+            op.fused.render(heights.numpy(), 0, op.photons, out)
+            renders.append(out.sum(axis=0))
+        assert all(np.array_equal(renders[0], image) for image in renders[1:])
+    runs = [op.loss_and_grad(heights, target)[:2] for _ in range(3)]
+    assert all(loss == runs[0][0] and torch.equal(grad, runs[0][1]) for loss, grad in runs[1:])
+
+
+@needs_compiled
 def test_compiled_aimed_rays_equal_the_numba_tracer():
     from operators.wavefront.renderer import WavefrontRenderer, _trace_native
 
