@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import os
 
+import pytest
+
 _WORKERS = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
 
 if _WORKERS > 1:
@@ -19,7 +21,6 @@ if _WORKERS > 1:
 
     torch.set_num_threads(_THREADS)
     numba.set_num_threads(min(_THREADS, numba.config.NUMBA_NUM_THREADS))
-
 
 
 # Tests that run numba kernels (the mesh-scene operator's, the numba build of the height-field
@@ -45,8 +46,6 @@ SHARED_FIXTURE_FILES = ("tests/experiments/test_run_report.py", "tests/operators
 
 
 def pytest_collection_modifyitems(config, items) -> None:
-    import pytest
-
     for item in items:
         path = item.nodeid.split("::")[0]
         if any(key in item.nodeid for key in NUMBA_KERNEL_TESTS):
