@@ -74,9 +74,15 @@ def _pointer(array: np.ndarray | None) -> int | None:
     return None if array is None or array.size == 0 else array.ctypes.data
 
 
+def scene_struct(values: dict[str, float]) -> SceneStruct:
+    """``sfc_scene`` from FusedScene's fields in ``values`` (those missing: 0) and the constants."""
+    values = {**values, **_CONSTANTS}
+    return SceneStruct(**{name: int(values.get(name, 0)) if name in _INTS else float(values.get(name, 0.0))
+                          for name in _FIELDS})
+
+
 def _scene(sc: FusedScene) -> SceneStruct:
-    values = {**sc._asdict(), **_CONSTANTS}
-    return SceneStruct(**{name: int(values[name]) if name in _INTS else float(values[name]) for name in _FIELDS})
+    return scene_struct(sc._asdict())
 
 
 def _check(d: np.ndarray, out: np.ndarray, dims: int, **arrays: np.ndarray) -> None:

@@ -16,7 +16,7 @@ import importlib.util
 import warnings
 
 # Version of the C functions' signatures that the declarations in Python match (sfc_abi_version).
-ABI_VERSION = 3
+ABI_VERSION = 4
 
 
 @functools.cache

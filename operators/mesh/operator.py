@@ -33,7 +33,7 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
-from operators.heightfield.operator import DTYPES
+from operators.heightfield.operator import DTYPES, KERNELS
 from operators.emission import CELL_FOOTPRINT, PointLightEmitter, check_footprint
 from operators.heightfield.surface import HeightFieldGrid, intersect_height_field, validate_heights
 from operators.light_paths import Arrivals
@@ -57,7 +57,15 @@ EXACT_FILTER_PX = 0.3  # ... with this pixel filter (fine pixels)
 
 @dataclass(frozen=True)
 class MeshSceneSettings:
-    """Numerical settings (footprints in receiver pixels, as :class:`operators.heightfield.operator.OperatorSettings`)."""
+    """Numerical settings (footprints in receiver pixels, as :class:`operators.heightfield.operator.OperatorSettings`).
+
+    native: trace with the event kernels (Embree on every thread); False: the torch tracer
+        (autograd), the reference they are tested against.
+    kernels: which event kernels (same results to rounding): ``c``, those of the compiled
+        extension (operators/kernels/mesh_events.c, compiled at install); ``numba``, the numba
+        kernels (compiled into numba's cache on first use, about 2 minutes). Without the
+        extension: numba.
+    """
 
     photons: int = 1 << 20
     seed: int = 0
@@ -71,6 +79,7 @@ class MeshSceneSettings:
     aperture_half_width: float | None = None
     dtype: str = "float32"
     native: bool = True
+    kernels: str = "c"
 
     def __post_init__(self) -> None:
         for key in ("photons", "chunk_size", "max_depth"):
@@ -91,6 +100,8 @@ class MeshSceneSettings:
                 raise ValueError(f"operator.{key}={getattr(self, key)!r} must be true or false")
         if self.dtype not in DTYPES:
             raise ValueError(f"operator.dtype={self.dtype!r}; use float32 or float64")
+        if self.kernels not in KERNELS:
+            raise ValueError(f"operator.kernels={self.kernels!r} must be one of {', '.join(KERNELS)}")
         if self.aperture_half_width is not None and not self.aperture_half_width > 0:
             raise ValueError(f"operator.aperture_half_width={self.aperture_half_width!r} must be positive or null")
 

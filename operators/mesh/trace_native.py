@@ -1,5 +1,7 @@
-"""The mesh-scene operator's native path: photons traced event by event by the kernels of
-:mod:`operators.mesh.kernels_native`, which ask Embree for faces on their own threads.
+"""The mesh-scene operator's native path: photons traced event by event by the event kernels,
+which ask Embree for faces on their own threads: those in C (:mod:`operators.mesh.events_compiled`,
+compiled at install) or their numba twins (:mod:`operators.mesh.kernels_native`,
+:mod:`operators.mesh.adjoint_native`), as ``operator.kernels`` says.
 
 Everything a photon does before it first meets the printed top does not depend on the heights,
 so it is traced once per operator (:meth:`NativeMeshTracer.prefix`): photons that never reach the
@@ -12,12 +14,14 @@ the splat's adjoint gather to the heights.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Callable, NamedTuple
 
 import numba as nb
 import numpy as np
 import torch
 
 from operators.mesh import adjoint_native as ma
+from operators.mesh import events_compiled
 from operators.mesh import kernels_native as mk
 from operators.mesh.culling import clear_faces
 from operators.mesh.embree_native import EmbreeTriangles
@@ -47,6 +51,20 @@ class Prefix:
     losses: dict[str, float]
     place: np.ndarray
 
+
+class EventKernels(NamedTuple):
+    """One event of the photons under way, its reverse, and the splat arguments with their adjoint
+    (the signatures of :func:`operators.mesh.kernels_native.advance` and its siblings)."""
+
+    advance: Callable[..., None]
+    retreat: Callable[..., None]
+    splat_arguments: Callable[..., None]
+    splat_arguments_adjoint: Callable[..., None]
+
+
+NUMBA_KERNELS = EventKernels(mk.advance, ma.retreat, mk.splat_arguments, ma.splat_arguments_adjoint)
+C_KERNELS = EventKernels(events_compiled.advance, events_compiled.retreat, events_compiled.splat_arguments,
+                         events_compiled.splat_arguments_adjoint)
 
 # Event kinds, faces or planes and distances as the kernels take them.
 _EVENT_DTYPES = (np.int64, np.int64, np.float64)
@@ -97,6 +115,8 @@ class NativeMeshTracer:
         (self.face_element, self.v0, self.plane, self.dual, self.shading,
          self.neighbour) = intersector.face_arrays()
         self.indices = np.ascontiguousarray(operator.index_table.double().numpy())
+        use_c = operator.settings.kernels == "c" and events_compiled.AVAILABLE
+        self.kernels = C_KERNELS if use_c else NUMBA_KERNELS
         self._prefix: Prefix | None = None
         self._events_seen: tuple[np.ndarray, list[list]] | None = None
         # The same faces, in the same order, in an Embree scene that the kernels query.
@@ -157,7 +177,7 @@ class NativeMeshTracer:
                 kind, which, t = np.empty(n, np.int64), np.empty(n, np.int64), np.empty(n)
             fresnel = np.zeros(n)
             before = np.empty((n if tape is not None else 0, mk.STATE))
-            mk.advance(d, work.state, work.medium, work.channel, work.status, work.clear,
+            self.kernels.advance(d, work.state, work.medium, work.channel, work.status, work.clear,
                        event == 0 and not wait_at_top, self.embree, kind, which, t, events_replay is not None, fresnel,
                        before, wait_at_top, self.substrate, self.face_element, self.face_clear, self.indices, self.v0,
                        self.plane, self.dual, self.shading, self.neighbour, sc)
@@ -182,7 +202,7 @@ class NativeMeshTracer:
         for index, before, kind, which, t in reversed(tape):
             g = g_state if index is None else g_state[index]
             channel = chunk.channel if index is None else chunk.channel[index]
-            ma.retreat(d, before, kind, which, t, channel, self.substrate, self.face_element, self.indices, self.v0,
+            self.kernels.retreat(d, before, kind, which, t, channel, self.substrate, self.face_element, self.indices, self.v0,
                        self.plane, self.dual, self.shading, sc, g, g_heights)
             if index is not None:
                 g_state[index] = g
@@ -194,7 +214,7 @@ class NativeMeshTracer:
         the receiver is counted as missing it."""
         n = len(chunk.state)
         pos, metric, flux = np.empty((2, n)), np.empty((3, n)), np.empty(n)
-        mk.splat_arguments(chunk.state, chunk.status, np.arange(n) if where is None else where, sc, pos, metric, flux)
+        self.kernels.splat_arguments(chunk.state, chunk.status, np.arange(n) if where is None else where, sc, pos, metric, flux)
         landed = chunk.status == mk.LANDED
         outside = landed & (np.abs(chunk.state[:, mk.P:mk.P + 2]) > sc.receiver_half).any(1)
         losses["missed_receiver"] += float(chunk.state[outside, mk.FLUX].sum())
@@ -297,7 +317,7 @@ class NativeMeshTracer:
                 torch.from_numpy(pos).to(dtype), torch.from_numpy(metric).to(dtype), torch.from_numpy(flux).to(dtype),
                 torch.from_numpy(chunk.channel), grad_flux))
             g_state = np.empty_like(chunk.state)
-            ma.splat_arguments_adjoint(chunk.state, chunk.status, sc, np.ascontiguousarray(g_pos),
+            self.kernels.splat_arguments_adjoint(chunk.state, chunk.status, sc, np.ascontiguousarray(g_pos),
                                        np.ascontiguousarray(g_metric), np.ascontiguousarray(g_flux), g_state)
             self._reverse(d, chunk, sc, tape, g_state, g_heights)
         return g_heights.sum(axis=0)

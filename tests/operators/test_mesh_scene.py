@@ -9,6 +9,7 @@ import dataclasses
 import math
 from pathlib import Path
 
+import numba
 import numpy as np
 import pytest
 import torch
@@ -20,7 +21,9 @@ from framework.core.scene_config import build_heights, build_operator, build_sce
 from framework.core.shapes import make_shape
 from operators.heightfield.operator import CausticOperator, OperatorSettings
 from operators.materials import FUSED_SILICA, refractive_indices
+from operators.mesh import events_compiled
 from operators.mesh.operator import MeshSceneOperator, MeshSceneSettings
+from operators.mesh.trace_native import C_KERNELS, NUMBA_KERNELS
 from operators.mesh.elements import make_element
 from operators.scene import PointLight, Receiver, Scene
 
@@ -113,20 +116,28 @@ def test_gradients_through_lenses_above_and_below_the_print_match_finite_differe
         assert abs(numeric - analytic) <= 1e-5 * abs(analytic), (numeric, analytic)
 
 
-@pytest.mark.parametrize("operator_config", ["two_lenses", "prism_lens_array"])
-@pytest.mark.slow
-def test_the_native_path_equals_the_torch_tracer(operator_config):
-    """Two independent implementations of the same photon paths: numba kernels with Embree on
-    their threads and a cached prefix before the print (the default) against the event-by-event
-    torch tracer with autograd (operator.native=false), with Fresnel weighting, on the paper's
-    scenes (the prism + lens-array plate guides light by total internal reflection)."""
+def paper_scene(operator_config: str, *overrides: str) -> tuple[Scene, torch.Tensor, MeshSceneOperator]:
+    """One of the paper's mesh scenes at a test size, Fresnel weighting on: scene, heights, operator."""
     with initialize_config_dir(config_dir=CONF, version_base=None):
         cfg = OmegaConf.to_container(compose("simulate", overrides=[
             f"operator={operator_config}", "photons=12000", "receiver.resolution=32", "height_field.resolution=24",
-            "operator.dtype=float64", "operator.fresnel=true", "operator.supersample=1"]), resolve=True)
+            "operator.dtype=float64", "operator.fresnel=true", "operator.supersample=1", *overrides]), resolve=True)
     scene = build_scene(cfg)
-    heights = build_heights(cfg).double()
-    native = build_operator(cfg, scene)
+    return scene, build_heights(cfg).double(), build_operator(cfg, scene)
+
+
+@pytest.mark.parametrize("kernels", ["c", "numba"])
+@pytest.mark.parametrize("operator_config", ["two_lenses", "prism_lens_array"])
+@pytest.mark.slow
+def test_the_native_path_equals_the_torch_tracer(operator_config, kernels):
+    """Two independent implementations of the same photon paths: the event kernels (in C, the
+    default, or numba) with Embree on their threads and a cached prefix before the print against
+    the event-by-event torch tracer with autograd (operator.native=false), with Fresnel weighting,
+    on the paper's scenes (the prism + lens-array plate guides light by total internal reflection)."""
+    if kernels == "c" and not events_compiled.AVAILABLE:
+        pytest.fail("the compiled extension is missing: pip install -e . builds it")
+    scene, heights, native = paper_scene(operator_config, f"operator.kernels={kernels}")
+    assert native.native.kernels == (C_KERNELS if kernels == "c" else NUMBA_KERNELS)
     torch_path = MeshSceneOperator(scene, native.elements, dataclasses.replace(native.settings, native=False))
     image, reference = native.render(heights), torch_path.render(heights)
     assert float((image - reference).norm() / reference.norm()) < 1e-12
@@ -135,6 +146,19 @@ def test_the_native_path_equals_the_torch_tracer(operator_config):
     weights = torch.randn(native.output_shape, dtype=torch.float64, generator=torch.Generator().manual_seed(3))
     grad, grad_reference = native.vjp(heights, weights), torch_path.vjp(heights, weights)
     assert float((grad - grad_reference).norm() / grad_reference.norm()) < 1e-8
+
+
+def test_the_c_event_kernels_repeat_a_render_and_a_gradient_to_the_last_bit(monkeypatch):
+    """Each thread of the C kernels takes a fixed share of the photons and sums the heights'
+    gradient in its own array, so repeats agree bit for bit, whatever the threads' timing (four
+    threads, whatever share of the cores this process has)."""
+    monkeypatch.setattr(numba, "get_num_threads", lambda: 4)
+    _, heights, op = paper_scene("prism_lens_array")
+    weights = torch.randn(op.output_shape, dtype=torch.float64, generator=torch.Generator().manual_seed(5))
+    first_image, first_grad = op.render(heights), op.vjp(heights, weights)
+    for _ in range(2):
+        assert torch.equal(op.render(heights), first_image)
+        assert torch.equal(op.vjp(heights, weights), first_grad)
 
 
 @pytest.mark.parametrize("elements, message", [

@@ -1,0 +1,622 @@
+/* The mesh-scene operator's event kernels in C: one event of every photon under way (advance),
+ * its reverse (retreat), and the splat arguments of the landed photons with their adjoint. Part of
+ * the compiled extension operators.kernels._simd (setup.py): compiled at install, so the first
+ * render through lenses traces at once instead of waiting minutes for numba.
+ *
+ * The same arithmetic, step for step, as the numba kernels they stand in for, which stay the
+ * fallback (no C compiler at install) and the reference the tests compare these with:
+ *   events ............. advance, _next_event, event_surface, interface, splat_arguments in
+ *                        operators/mesh/kernels_native.py
+ *   reverse ............ retreat, _retreat_one, splat_arguments_adjoint in
+ *                        operators/mesh/adjoint_native.py
+ *   surface, optics .... photon_optics.h (the height-field kernels' own)
+ * A photon's state is a row of STATE doubles (position, its two differentials, direction, its two
+ * differentials, flux), as in kernels_native.py. Embree finds the faces: the host passes the
+ * scene handle and the address of the library's rtcIntersect1 (operators/mesh/embree_native.py),
+ * which every thread calls with its own ray.
+ *
+ * Threads: thread t takes the blocks t, t + threads, ... of BLOCK photons. The events write per
+ * photon; the reverse sums each thread's gradient w.r.t. the heights in its own array (the host
+ * sums those): the same sums in every run.
+ */
+#include <math.h>
+#include <stdint.h>
+#include <string.h>
+
+#include "photon_optics.h"
+#include "sfc_threads.h"
+
+enum { STATE = 19, P = 0, DPU = 3, DPV = 6, W = 9, DWU = 12, DWV = 15, FLUX = 18, BLOCK = 4096, REFINEMENTS = 2 };
+/* Event kinds, photon status and the medium of a photon in air (kernels_native.py). */
+enum { MESH = 0, TOP = 1, BOX = 2, RECEIVER = 3, ESCAPED = 4, INSIDE_TOP = 5, AT_TOP = 6 };
+enum { UNDER_WAY = 0, LANDED = 1, LOST = 2, WAITING = 3 };
+enum { AIR = -1 };
+
+/* Scene constants, field for field MeshSceneStruct in operators/mesh/events_compiled.py: the
+ * height-field constants (half, base = the substrate's thickness, the hit search's planes and
+ * slope bounds, receiver, footprint radii, Fresnel), then the mesh's own. */
+typedef struct {
+    sfc_scene hf;
+    double top_max;           /* a plane above the print */
+    double lowest;            /* the lowest z of any element */
+    double start_offset;      /* intersect_reference.START_OFFSET */
+    double min_face_distance; /* intersect_reference.MIN_FACE_DISTANCE */
+    double clear_cos;         /* culling.CLEAR_COS */
+} mesh_scene;
+
+/* The elements' faces (NativeMeshTracer's arrays) and the Embree scene that holds them. */
+typedef void (*intersect1_fn)(void *scene, void *ray_hit, void *arguments);
+typedef struct {
+    const int64_t *face_element; /* (F,) element of each face */
+    const uint8_t *face_clear;   /* (F,) bool: no element in front (culling.py) */
+    const double *v0, *plane;    /* (F, 3) first corner, unit plane normal */
+    const double *dual;          /* (F, 2, 3) dual basis: barycentric b_k = dual[k] . (p - v0) */
+    const double *shading;       /* (F, 3, 3) corner shading normals */
+    const int64_t *neighbour;    /* (F, 3) face across the edge opposite corner k, -1 for none */
+    const double *indices;       /* (K + 1, channels) refractive index of each element and the substrate */
+    int64_t channels, substrate;
+    void *embree;                /* RTCScene, NULL for no elements */
+    intersect1_fn intersect1;
+} mesh_faces;
+
+/* The photons of one event: state (N, STATE), medium, channel, status (N,), clear (N,) bool; the
+ * event's kind, face or plane and distance (N,); the Fresnel losses (N,); before (N, STATE) or
+ * NULL. */
+typedef struct {
+    const double *d;
+    int64_t m;
+    double *state;
+    int64_t *medium;
+    const int64_t *channel;
+    int64_t *status;
+    uint8_t *clear;
+    int64_t *kind;
+    int64_t *which;
+    double *t;
+    double *lost_fresnel;
+    double *before;
+    int64_t n, released, replay, wait_at_top;
+} event_photons;
+
+/* ---------------------------------------------------------------- small helpers */
+
+static inline SFC_INLINE vec3 sub3(vec3 a, vec3 b) { return v3(a.x - b.x, a.y - b.y, a.z - b.z); }
+static inline SFC_INLINE vec3 load3(const double *a) { return v3(a[0], a[1], a[2]); }
+static inline SFC_INLINE void store3(double *a, vec3 v) { a[0] = v.x; a[1] = v.y; a[2] = v.z; }
+static inline SFC_INLINE double component(vec3 a, int k) { return k == 0 ? a.x : (k == 1 ? a.y : a.z); }
+
+/* ---------------------------------------------------------------- faces */
+
+/* Embree's first face along the ray (float32) from o along w, -1 for none (first_face). RTCRayHit
+ * as 32 four-byte slots: origin 0-2, tnear 3, direction 4-6, time 7, tfar 8, mask 9, id 10, flags
+ * 11; hit: normal 12-14, u 15, v 16, primID 17, geomID 18. */
+typedef union { float f[32]; uint32_t u[32]; } __attribute__((aligned(16))) ray_hit;
+
+static int64_t first_face(const mesh_faces *fa, ray_hit *r, vec3 o, vec3 w) {
+    r->f[0] = (float)o.x; r->f[1] = (float)o.y; r->f[2] = (float)o.z; r->f[3] = 0.0f;
+    r->f[4] = (float)w.x; r->f[5] = (float)w.y; r->f[6] = (float)w.z; r->f[7] = 0.0f;
+    r->f[8] = INFINITY;
+    r->u[9] = 0xFFFFFFFFu; r->u[10] = 0; r->u[11] = 0;
+    r->u[18] = 0xFFFFFFFFu;
+    r->u[17] = 0xFFFFFFFFu;
+    fa->intersect1(fa->embree, r, NULL);
+    return r->u[18] == 0xFFFFFFFFu ? -1 : (int64_t)r->u[17];
+}
+
+static inline SFC_INLINE vec3 dual_row(const mesh_faces *fa, int64_t f, int k) { return load3(fa->dual + 6 * f + 3 * k); }
+
+/* The exact hit of the ray p + t w on face f's plane, moved across an edge (at most REFINEMENTS
+ * times) where it lies outside the face (_face_hit): returns the face, t in *t (inf on a plane
+ * parallel to w). */
+static int64_t face_hit(const mesh_faces *fa, vec3 p, vec3 w, int64_t f, double *t_out) {
+    double t = INFINITY;
+    for (int i = 0; i <= REFINEMENTS; i++) {
+        const vec3 n = load3(fa->plane + 3 * f);
+        const double cosine = dot(w, n);
+        if (fabs(cosine) <= 1e-12) {
+            *t_out = INFINITY;
+            return f;
+        }
+        const vec3 corner = load3(fa->v0 + 3 * f);
+        t = dot(sub3(corner, p), n) / cosine;
+        const vec3 rel = sub3(axpy(t, w, p), corner);
+        const double b1 = dot(rel, dual_row(fa, f, 0)), b2 = dot(rel, dual_row(fa, f, 1));
+        double lowest = 1.0 - b1 - b2;
+        int k = 0;
+        if (b1 < lowest) { lowest = b1; k = 1; }
+        if (b2 < lowest) { lowest = b2; k = 2; }
+        const int64_t across = fa->neighbour[3 * f + k];
+        if (i == REFINEMENTS || !(lowest < 0.0 && across >= 0)) break;
+        f = across;
+    }
+    *t_out = t;
+    return f;
+}
+
+/* The interpolated shading normal of face f at the point q on its plane (face_shading, _shading):
+ * N = raw / |raw|, raw = n0 + b1 e1 + b2 e2, e_k = n_k - n0, g_k the face's dual basis. */
+typedef struct { vec3 normal; double length; vec3 e1, e2, g1, g2; } shading_frame;
+
+static inline SFC_INLINE shading_frame face_shading(const mesh_faces *fa, vec3 q, int64_t f) {
+    shading_frame s;
+    const vec3 rel = sub3(q, load3(fa->v0 + 3 * f));
+    s.g1 = dual_row(fa, f, 0);
+    s.g2 = dual_row(fa, f, 1);
+    const double b1 = dot(rel, s.g1), b2 = dot(rel, s.g2);
+    const double *corners = fa->shading + 9 * f;
+    const vec3 n0 = load3(corners);
+    s.e1 = sub3(load3(corners + 3), n0);
+    s.e2 = sub3(load3(corners + 6), n0);
+    const vec3 raw = axpy(b1, s.e1, axpy(b2, s.e2, n0));
+    s.length = sqrt(dot(raw, raw));
+    s.normal = scale3(1.0 / s.length, raw);
+    return s;
+}
+
+/* D N = (I - N N^T) (e1 g1^T + e2 g2^T) D p / |raw| (shading_differential). */
+static inline SFC_INLINE vec3 shading_differential(const shading_frame *s, vec3 dp) {
+    const vec3 m = axpy(dot(s->g1, dp), s->e1, scale3(dot(s->g2, dp), s->e2));
+    return scale3(1.0 / s->length, axpy(-dot(s->normal, m), s->normal, m));
+}
+
+/* Adjoint of shading_differential: returns g_normal; *g_length, *g_dp. */
+static inline SFC_INLINE vec3 shading_differential_adjoint(const shading_frame *s, vec3 dp, vec3 dn, vec3 g_dn,
+                                                           double *g_length, vec3 *g_dp) {
+    const vec3 m = axpy(dot(s->g1, dp), s->e1, scale3(dot(s->g2, dp), s->e2));
+    const double sm = dot(s->normal, m), ng = dot(s->normal, g_dn);
+    const vec3 g_m = scale3(1.0 / s->length, axpy(-ng, s->normal, g_dn));
+    *g_length = -dot(dn, g_dn) / s->length;
+    *g_dp = axpy(dot(s->e1, g_m), s->g1, scale3(dot(s->e2, g_m), s->g2));
+    return scale3(-1.0 / s->length, axpy(sm, g_dn, scale3(ng, m)));
+}
+
+/* Mirror reflection r = w - 2 (w . n) n with its differentials (reflect). */
+static inline SFC_INLINE void reflect(vec3 w, vec3 dwu, vec3 dwv, vec3 n, vec3 dnu, vec3 dnv, vec3 *r, vec3 *ru, vec3 *rv) {
+    const double c = dot(w, n), cu = dot(dwu, n) + dot(w, dnu), cv = dot(dwv, n) + dot(w, dnv);
+    *r = axpy(-2.0 * c, n, w);
+    *ru = axpy(-2.0 * cu, n, axpy(-2.0 * c, dnu, dwu));
+    *rv = axpy(-2.0 * cv, n, axpy(-2.0 * c, dnv, dwv));
+}
+
+typedef struct { vec3 g_w, g_dwu, g_dwv, g_n, g_dnu, g_dnv; } reflect_grads;
+
+static inline SFC_INLINE reflect_grads reflect_adjoint(vec3 w, vec3 dwu, vec3 dwv, vec3 n, vec3 dnu, vec3 dnv, vec3 g_r,
+                                                       vec3 g_ru, vec3 g_rv) {
+    reflect_grads a;
+    const double c = dot(w, n), cu = dot(dwu, n) + dot(w, dnu), cv = dot(dwv, n) + dot(w, dnv);
+    const double g_cu = -2.0 * dot(g_ru, n), g_cv = -2.0 * dot(g_rv, n);
+    const double g_c = -2.0 * (dot(g_r, n) + dot(g_ru, dnu) + dot(g_rv, dnv));
+    a.g_w = axpy(g_c, n, axpy(g_cu, dnu, axpy(g_cv, dnv, g_r)));
+    a.g_n = axpy(-2.0 * c, g_r, axpy(-2.0 * cu, g_ru, axpy(-2.0 * cv, g_rv, axpy(g_c, w, axpy(g_cu, dwu, scale3(g_cv, dwv))))));
+    a.g_dwu = axpy(g_cu, n, g_ru);
+    a.g_dwv = axpy(g_cv, n, g_rv);
+    a.g_dnu = axpy(g_cu, w, scale3(-2.0 * c, g_ru));
+    a.g_dnv = axpy(g_cv, w, scale3(-2.0 * c, g_rv));
+    return a;
+}
+
+/* ---------------------------------------------------------------- the substrate */
+
+/* The substrate's walls and bottom: plane k at coordinate sign * half of its axis (walls) or z = 0
+ * (bottom), with its outward sign (BOX_PLANES). */
+static const int BOX_AXIS[5] = {0, 0, 1, 1, 2};
+static const double BOX_SIGN[5] = {1.0, -1.0, 1.0, -1.0, 0.0};
+static const double BOX_OUTWARD[5] = {1.0, -1.0, 1.0, -1.0, -1.0};
+
+/* The nearest wall or bottom the ray meets, leaving from inside or entering from air (_box):
+ * returns t (inf for none), plane in *which (-1 for none). */
+static double box_hit(const mesh_scene *ms, vec3 p, vec3 w, int64_t medium, int64_t substrate, int64_t *which) {
+    double best = INFINITY;
+    *which = -1;
+    for (int k = 0; k < 5; k++) {
+        const int axis = BOX_AXIS[k];
+        const double wa = component(w, axis), outward = BOX_OUTWARD[k];
+        if (fabs(wa) <= 1e-12) continue;
+        if (!((medium == substrate && wa * outward > 0.0) || (medium == AIR && wa * outward < 0.0))) continue;
+        const double t = (BOX_SIGN[k] * ms->hf.half - component(p, axis)) / wa;
+        if (!(t > 1e-9 && t < best)) continue;
+        int inside = 1;
+        for (int j = 0; j < 3; j++) {
+            if (j == axis) continue;
+            const double c = component(p, j) + t * component(w, j);
+            inside &= j == 2 ? (0.0 <= c && c <= ms->hf.base) : fabs(c) <= ms->hf.half;
+        }
+        if (inside) {
+            best = t;
+            *which = k;
+        }
+    }
+    return best;
+}
+
+static inline SFC_INLINE vec3 box_normal(int64_t k) {
+    const int axis = BOX_AXIS[k];
+    const double o = BOX_OUTWARD[k];
+    return v3(axis == 0 ? o : 0.0, axis == 1 ? o : 0.0, axis == 2 ? o : 0.0);
+}
+
+/* Whether a ray in air comes down onto the printed square from above the print (_over_print). */
+static inline SFC_INLINE int over_print(const mesh_scene *ms, vec3 p, vec3 w) {
+    if (!(w.z < 0.0 && p.z > ms->top_max)) return 0;
+    const double s = (ms->hf.base - p.z) / w.z;
+    return fabs(p.x + s * w.x) <= ms->hf.half && fabs(p.y + s * w.y) <= ms->hf.half;
+}
+
+/* ---------------------------------------------------------------- events */
+
+/* The photon's next event (_next_event): kind, face or box plane in *which, distance in *t. */
+static int64_t next_event(const mesh_scene *ms, const mesh_faces *fa, const event_photons *ph, int64_t i, ray_hit *ray,
+                          int64_t *which, double *t_out) {
+    const double *row = ph->state + STATE * i;
+    const vec3 p = load3(row + P), w = load3(row + W);
+    const int64_t medium = ph->medium[i];
+    const int in_air = medium == AIR, in_sub = medium == fa->substrate;
+    const double thickness = ms->hf.base;
+    double best = INFINITY;
+    int64_t kind = ESCAPED;
+    *which = -1;
+    const int over = in_air && over_print(ms, p, w);
+    double t_top = INFINITY;
+    if (over && !ph->wait_at_top) t_top = solve_hit(ph->d, ph->m, &ms->hf, p, w);
+    const int skip = ph->clear[i] || (in_air && w.z < 0.0 && p.z < ms->lowest)
+                     || (ph->released && t_top < (thickness - p.z) / w.z);
+    int64_t face = -1;
+    if (fa->embree != NULL && !in_sub && !skip)
+        face = first_face(fa, ray, axpy(ms->start_offset, w, p), w);
+    if (face >= 0) {
+        double t;
+        const int64_t f = face_hit(fa, p, w, face, &t);
+        if (t > ms->min_face_distance && t < best) {
+            best = t;
+            kind = MESH;
+            *which = f;
+        }
+    }
+    if (over) {
+        /* Nothing lies between the print and a ray above it, so while waiting the top comes next
+         * unless a face comes before z = thickness. */
+        if (ph->wait_at_top && !(best < (thickness - p.z) / w.z)) {
+            *which = -1;
+            *t_out = 0.0;
+            return AT_TOP;
+        }
+        if (t_top < best) {
+            best = t_top;
+            kind = TOP;
+            *which = -1;
+        }
+    }
+    int64_t plane;
+    double t = box_hit(ms, p, w, medium, fa->substrate, &plane);
+    if (t < best) {
+        best = t;
+        kind = BOX;
+        *which = plane;
+    }
+    if (in_air && w.z < 0.0) {
+        t = (ms->hf.receiver_z - p.z) / w.z;
+        if (t < best) {
+            best = t;
+            kind = RECEIVER;
+            *which = -1;
+        }
+    }
+    if (in_sub && w.z > 0.0) {
+        t = (thickness - p.z) / dmax(w.z, 1e-12);
+        if (t < best) {
+            best = t;
+            kind = INSIDE_TOP;
+            *which = -1;
+        }
+    }
+    *t_out = best;
+    return kind;
+}
+
+/* The surface of an event at distance t and the photon moved onto it (event_surface). */
+typedef struct {
+    vec3 n_plane, outward, dnu, dnv;
+    double jet[5];
+    vec3 q, dqu, dqv;
+} event_surface;
+
+static void surface_of(const mesh_scene *ms, const mesh_faces *fa, const double *d, int64_t m, const double *row,
+                       int64_t kind, int64_t which, double t, event_surface *s) {
+    const vec3 p = load3(row + P), dpu = load3(row + DPU), dpv = load3(row + DPV);
+    const vec3 w = load3(row + W), dwu = load3(row + DWU), dwv = load3(row + DWV);
+    for (int j = 0; j < 5; j++) s->jet[j] = 0.0;
+    if (kind == MESH) {
+        s->n_plane = load3(fa->plane + 3 * which);
+    } else if (kind == TOP) {
+        surface_jet_at(d, m, p.x + t * w.x, p.y + t * w.y, -ms->hf.half, ms->hf.spacing, s->jet);
+        s->n_plane = height_field_normal(s->jet[0], s->jet[1]);
+    } else if (kind == BOX) {
+        s->n_plane = box_normal(which);
+    } else {
+        s->n_plane = UP;
+    }
+    transfer(&ms->hf, p, dpu, dpv, w, dwu, dwv, t, s->n_plane, &s->q, &s->dqu, &s->dqv);
+    s->outward = s->n_plane;
+    s->dnu = ZERO;
+    s->dnv = ZERO;
+    if (kind == MESH) {
+        const shading_frame frame = face_shading(fa, s->q, which);
+        s->outward = frame.normal;
+        s->dnu = shading_differential(&frame, s->dqu);
+        s->dnv = shading_differential(&frame, s->dqv);
+    } else if (kind == TOP) {
+        s->dnu = normal_differential(s->jet[2], s->jet[3], s->jet[4], s->n_plane, s->dqu);
+        s->dnv = normal_differential(s->jet[2], s->jet[3], s->jet[4], s->n_plane, s->dqv);
+    }
+}
+
+/* Which side the photon comes from and how it leaves (interface): refracted, or reflected under
+ * total internal reflection (through = 0). */
+typedef struct {
+    int entering, through;
+    double sign, eta, ci, ct;
+    vec3 r, ru, rv;
+} crossing;
+
+static inline SFC_INLINE crossing interface(vec3 w, vec3 dwu, vec3 dwv, const event_surface *s, double n_solid) {
+    crossing x;
+    x.entering = dot(w, s->n_plane) < 0.0;
+    x.sign = x.entering ? 1.0 : -1.0;
+    x.eta = x.entering ? 1.0 / n_solid : n_solid;
+    const vec3 facing = scale3(x.sign, s->outward), dfu = scale3(x.sign, s->dnu), dfv = scale3(x.sign, s->dnv);
+    const double k = refract(w, dwu, dwv, facing, dfu, dfv, x.eta, &x.r, &x.ru, &x.rv, &x.ci, &x.ct);
+    if (k <= 0.0) reflect(w, dwu, dwv, facing, dfu, dfv, &x.r, &x.ru, &x.rv);
+    x.through = k > 0.0;
+    return x;
+}
+
+/* One event of photon i (_advance_one). */
+static void advance_one(const mesh_scene *ms, const mesh_faces *fa, const event_photons *ph, int64_t i, ray_hit *ray) {
+    double *row = ph->state + STATE * i;
+    int64_t kind, which;
+    double t;
+    if (ph->replay) {
+        kind = ph->kind[i];
+        which = ph->which[i];
+        t = ph->t[i];
+    } else {
+        kind = next_event(ms, fa, ph, i, ray, &which, &t);
+        ph->kind[i] = kind;
+        ph->which[i] = which;
+        ph->t[i] = t;
+    }
+    ph->clear[i] = 0;
+    if (kind == AT_TOP) {
+        ph->status[i] = WAITING;
+        return;
+    }
+    if (kind == ESCAPED || kind == INSIDE_TOP) {
+        ph->status[i] = LOST;
+        return;
+    }
+    event_surface s;
+    surface_of(ms, fa, ph->d, ph->m, row, kind, which, t, &s);
+    store3(row + P, s.q);
+    store3(row + DPU, s.dqu);
+    store3(row + DPV, s.dqv);
+    if (kind == RECEIVER) {
+        ph->status[i] = LANDED;
+        return;
+    }
+    const int64_t solid = kind == MESH ? fa->face_element[which] : fa->substrate;
+    const crossing x = interface(load3(row + W), load3(row + DWU), load3(row + DWV), &s,
+                                 fa->indices[solid * fa->channels + ph->channel[i]]);
+    store3(row + W, x.r);
+    store3(row + DWU, x.ru);
+    store3(row + DWV, x.rv);
+    if (x.through) {
+        if (ms->hf.fresnel) {
+            const double kept = fresnel(x.ci, x.ct, x.eta);
+            ph->lost_fresnel[i] += row[FLUX] * (1.0 - kept);
+            row[FLUX] *= kept;
+        }
+        ph->medium[i] = x.entering ? solid : AIR;
+        ph->clear[i] = kind == MESH && !x.entering && fa->face_clear[which] && dot(x.r, s.n_plane) >= ms->clear_cos;
+    }
+}
+
+typedef struct {
+    const mesh_scene *ms;
+    const mesh_faces *fa;
+    const event_photons *ph;
+    double *g_after, *g_heights;  /* the reverse's: (N, STATE); (threads, m, m) */
+    int64_t blocks, threads;
+} event_job;
+
+static int advance_worker(void *context, int64_t thread) {
+    const event_job *j = (const event_job *)context;
+    const event_photons *ph = j->ph;
+    ray_hit ray;
+    for (int64_t b = thread; b < j->blocks; b += j->threads) {
+        const int64_t hi = imin(ph->n, (b + 1) * BLOCK);
+        for (int64_t i = b * BLOCK; i < hi; i++) {
+            if (ph->status[i] != UNDER_WAY) {
+                ph->kind[i] = -1;
+                continue;
+            }
+            if (ph->before != NULL) memcpy(ph->before + STATE * i, ph->state + STATE * i, STATE * sizeof(double));
+            advance_one(j->ms, j->fa, ph, i, &ray);
+        }
+    }
+    return 0;
+}
+
+/* ---------------------------------------------------------------- reverse */
+
+/* The gradient w.r.t. the heights (m, m) of g_t t + <g_jet, jet> at a hit on the top of the ray
+ * from p along w (_top_adjoint). */
+static inline SFC_INLINE void top_adjoint(const mesh_scene *ms, const double *d, int64_t m, double *grad, vec3 p, vec3 w,
+                                          double t, const double g[6]) {
+    hit_adjoint_scalar(d, grad, m, p.x + t * w.x, p.y + t * w.y, -ms->hf.half, ms->hf.spacing, w, g);
+}
+
+/* Reverse of photon i's event (_retreat_one): g (its row of g_after) from the gradient w.r.t. the
+ * state after the event to that before it; at the top into grad (m, m) instead (g zeroed). */
+static void retreat_one(const mesh_scene *ms, const mesh_faces *fa, const event_photons *ph, int64_t i, double *g,
+                        double *grad) {
+    const int64_t k = ph->kind[i], which = ph->which[i];
+    const double t = ph->t[i];
+    const double *row = ph->before + STATE * i;
+    const vec3 p = load3(row + P), dpu = load3(row + DPU), dpv = load3(row + DPV);
+    const vec3 w = load3(row + W), dwu = load3(row + DWU), dwv = load3(row + DWV);
+    event_surface s;
+    surface_of(ms, fa, ph->d, ph->m, row, k, which, t, &s);
+    vec3 g_q = load3(g + P), g_dqu = load3(g + DPU), g_dqv = load3(g + DPV);
+    vec3 g_w = ZERO, g_dwu = ZERO, g_dwv = ZERO;
+    double g_flux = g[FLUX];
+    if (k != RECEIVER) {
+        const int64_t solid = k == MESH ? fa->face_element[which] : fa->substrate;
+        const crossing x = interface(w, dwu, dwv, &s, fa->indices[solid * fa->channels + ph->channel[i]]);
+        const vec3 facing = scale3(x.sign, s.outward), dfu = scale3(x.sign, s.dnu), dfv = scale3(x.sign, s.dnv);
+        const vec3 g_r = load3(g + W), g_ru = load3(g + DWU), g_rv = load3(g + DWV);
+        vec3 g_f, g_fu, g_fv;
+        if (x.through) {
+            double g_ci = 0.0, g_ct = 0.0;
+            if (ms->hf.fresnel) {
+                const double kept = fresnel(x.ci, x.ct, x.eta);
+                fresnel_adjoint(x.ci, x.ct, x.eta, g[FLUX] * row[FLUX], &g_ci, &g_ct);
+                g_flux = g[FLUX] * kept;
+            }
+            const refract_grads a = refract_adjoint(w, dwu, dwv, facing, dfu, dfv, x.eta, g_r, g_ru, g_rv, g_ci, g_ct);
+            g_w = a.g_w; g_dwu = a.g_dwu; g_dwv = a.g_dwv; g_f = a.g_n; g_fu = a.g_dnu; g_fv = a.g_dnv;
+        } else {
+            const reflect_grads a = reflect_adjoint(w, dwu, dwv, facing, dfu, dfv, g_r, g_ru, g_rv);
+            g_w = a.g_w; g_dwu = a.g_dwu; g_dwv = a.g_dwv; g_f = a.g_n; g_fu = a.g_dnu; g_fv = a.g_dnv;
+        }
+        const vec3 g_out = scale3(x.sign, g_f), g_dnu = scale3(x.sign, g_fu), g_dnv = scale3(x.sign, g_fv);
+        if (k == MESH) {
+            const shading_frame frame = face_shading(fa, s.q, which);
+            double gl_u, gl_v;
+            vec3 gp_u, gp_v;
+            const vec3 gn_u = shading_differential_adjoint(&frame, s.dqu, s.dnu, g_dnu, &gl_u, &gp_u);
+            const vec3 gn_v = shading_differential_adjoint(&frame, s.dqv, s.dnv, g_dnv, &gl_v, &gp_v);
+            g_dqu = add3(g_dqu, gp_u);
+            g_dqv = add3(g_dqv, gp_v);
+            const vec3 g_normal = add3(g_out, add3(gn_u, gn_v));
+            /* N = raw / |raw|, raw = n0 + b1 e1 + b2 e2, b_k = g_k . (q - v0). */
+            const vec3 g_raw = axpy(gl_u + gl_v - dot(frame.normal, g_normal) / frame.length, frame.normal,
+                                    scale3(1.0 / frame.length, g_normal));
+            g_q = axpy(dot(frame.e1, g_raw), frame.g1, axpy(dot(frame.e2, g_raw), frame.g2, g_q));
+        } else if (k == TOP) {
+            double g_sxx = 0.0, g_sxy = 0.0, g_syy = 0.0;
+            vec3 g_nu, g_dpu_n, g_nv, g_dpv_n;
+            normal_differential_adjoint(s.jet[2], s.jet[3], s.jet[4], s.n_plane, s.dqu, g_dnu, &g_sxx, &g_sxy,
+                                        &g_syy, &g_nu, &g_dpu_n);
+            normal_differential_adjoint(s.jet[2], s.jet[3], s.jet[4], s.n_plane, s.dqv, g_dnv, &g_sxx, &g_sxy,
+                                        &g_syy, &g_nv, &g_dpv_n);
+            g_dqu = add3(g_dqu, g_dpu_n);
+            g_dqv = add3(g_dqv, g_dpv_n);
+            const vec3 g_n_plane = add3(g_out, add3(g_nu, g_nv));
+            const transfer_grads a = transfer_adjoint(&ms->hf, dpu, dpv, w, dwu, dwv, t, s.n_plane, g_q, g_dqu, g_dqv);
+            double hit[6];
+            hit[0] = a.g_dist;
+            height_field_normal_adjoint(s.jet[0], s.jet[1], add3(g_n_plane, a.g_n), &hit[1], &hit[2]);
+            hit[3] = g_sxx;
+            hit[4] = g_sxy;
+            hit[5] = g_syy;
+            top_adjoint(ms, ph->d, ph->m, grad, p, w, t, hit);
+            for (int j = 0; j < STATE; j++) g[j] = 0.0;
+            return;
+        }
+    }
+    const transfer_grads a = transfer_adjoint(&ms->hf, dpu, dpv, w, dwu, dwv, t, s.n_plane, g_q, g_dqu, g_dqv);
+    /* The distance to a fixed plane: t = (c - p . n) / (w . n). */
+    const double wn = dot(w, s.n_plane);
+    store3(g + P, axpy(-a.g_dist / wn, s.n_plane, g_q));
+    store3(g + DPU, a.g_dpu);
+    store3(g + DPV, a.g_dpv);
+    store3(g + W, add3(add3(g_w, a.g_w), scale3(-a.g_dist * t / wn, s.n_plane)));
+    store3(g + DWU, add3(g_dwu, a.g_dwu));
+    store3(g + DWV, add3(g_dwv, a.g_dwv));
+    g[FLUX] = g_flux;
+}
+
+static int retreat_worker(void *context, int64_t thread) {
+    const event_job *j = (const event_job *)context;
+    const event_photons *ph = j->ph;
+    double *grad = j->g_heights + thread * ph->m * ph->m;
+    for (int64_t b = thread; b < j->blocks; b += j->threads) {
+        const int64_t hi = imin(ph->n, (b + 1) * BLOCK);
+        for (int64_t i = b * BLOCK; i < hi; i++) {
+            const int64_t k = ph->kind[i];
+            if (k < 0 || k == ESCAPED || k == INSIDE_TOP || k == AT_TOP) continue;
+            retreat_one(j->ms, j->fa, ph, i, j->g_after + STATE * i, grad);
+        }
+    }
+    return 0;
+}
+
+/* ---------------------------------------------------------------- exported */
+
+/* One event of every photon under way (advance in kernels_native.py), on `threads` threads.
+ * Returns 0, -1 when a thread could not start. */
+int sfc_mesh_advance(const mesh_scene *ms, const mesh_faces *fa, const event_photons *ph, int64_t threads) {
+    event_job j = {ms, fa, ph, NULL, NULL, (ph->n + BLOCK - 1) / BLOCK, threads < 1 ? 1 : threads};
+    return sfc_parallel(j.threads, advance_worker, &j);
+}
+
+/* Reverse of one event (retreat in adjoint_native.py): g_after (N, STATE) in place; the heights'
+ * gradient into g_heights (threads, m, m), one array per thread. Returns 0, -1 on failure. */
+int sfc_mesh_retreat(const mesh_scene *ms, const mesh_faces *fa, const event_photons *ph, double *g_after,
+                     double *g_heights, int64_t threads) {
+    event_job j = {ms, fa, ph, g_after, g_heights, (ph->n + BLOCK - 1) / BLOCK, threads < 1 ? 1 : threads};
+    return sfc_parallel(j.threads, retreat_worker, &j);
+}
+
+/* Pixel positions (2, N), footprint metrics (3, N) and flux (N,) of the landed photons, photon i's
+ * at column where[i]; flux 0 and a unit metric for the others (splat_arguments). */
+void sfc_mesh_splat_arguments(const mesh_scene *ms, const double *state, const int64_t *status, const int64_t *where,
+                              int64_t n, double *pos, double *metric, double *flux) {
+    const sfc_scene *sc = &ms->hf;
+    const double k = sc->to_px;
+    for (int64_t i = 0; i < n; i++) {
+        const int64_t j = where[i];
+        if (status[i] != LANDED) {
+            pos[j] = pos[n + j] = 0.0;
+            metric[j] = 1.0;
+            metric[n + j] = 0.0;
+            metric[2 * n + j] = 1.0;
+            flux[j] = 0.0;
+            continue;
+        }
+        const double *row = state + STATE * i;
+        pos[j] = (row[P] + sc->receiver_half) * k - 0.5;
+        pos[n + j] = (row[P + 1] + sc->receiver_half) * k - 0.5;
+        double q[3];
+        footprint_metric(sc, row[DPU] * k, row[DPU + 1] * k, row[DPV] * k, row[DPV + 1] * k, q);
+        metric[j] = q[0];
+        metric[n + j] = q[1];
+        metric[2 * n + j] = q[2];
+        flux[j] = row[FLUX];
+    }
+}
+
+/* The gradient w.r.t. the photons' states (N, STATE) from those w.r.t. their splat arguments,
+ * photon i's at column i (splat_arguments_adjoint). */
+void sfc_mesh_splat_arguments_adjoint(const mesh_scene *ms, const double *state, const int64_t *status, int64_t n,
+                                      const double *g_pos, const double *g_metric, const double *g_flux,
+                                      double *g_state) {
+    const sfc_scene *sc = &ms->hf;
+    const double k = sc->to_px;
+    for (int64_t i = 0; i < n; i++) {
+        double *g = g_state + STATE * i;
+        for (int j = 0; j < STATE; j++) g[j] = 0.0;
+        if (status[i] != LANDED) continue;
+        const double *row = state + STATE * i;
+        double gf[4];
+        footprint_metric_adjoint(sc, row[DPU] * k, row[DPU + 1] * k, row[DPV] * k, row[DPV + 1] * k, g_metric[i],
+                                 g_metric[n + i], g_metric[2 * n + i], gf);
+        g[P] = g_pos[i] * k;
+        g[P + 1] = g_pos[n + i] * k;
+        g[DPU] = gf[0] * k;
+        g[DPU + 1] = gf[1] * k;
+        g[DPV] = gf[2] * k;
+        g[DPV + 1] = gf[3] * k;
+        g[FLUX] = g_flux[i];
+    }
+}
