@@ -111,10 +111,12 @@ def time_reference(heights: torch.Tensor, target: torch.Tensor, photons: int, fo
             "forward_backward_photons_per_s": op.photons / gradient_s}
 
 
-def mesh_scene_operators(photons: int, footprint_px: float) -> dict[str, object]:
-    """The height-field operator and the mesh-scene operator on the plain scene and through the
-    paper's two lenses (conf/operator/mesh_scene.yaml, two_lenses.yaml; natively, and with the torch
-    tracer that the native path is tested against), at the same photon count."""
+def mesh_scene_operators(photons: int, footprint_px: float, supersample: int) -> dict[str, object]:
+    """The height-field operator (conf/operator/height_field.yaml) and the mesh-scene operator on
+    the plain scene and through the paper's two lenses (conf/operator/mesh_scene.yaml,
+    two_lenses.yaml; with the C event kernels, the numba ones, and the torch tracer that both are
+    tested against), each from its config with the same photons, footprint and receiver
+    (``supersample`` x finer, operators/supersample.py)."""
     from hydra import compose, initialize_config_dir
     from omegaconf import OmegaConf
 
@@ -123,20 +125,22 @@ def mesh_scene_operators(photons: int, footprint_px: float) -> dict[str, object]
     def configured(name: str, *extra: str) -> object:
         with initialize_config_dir(config_dir=str(Path(__file__).resolve().parent.parent / "conf"), version_base=None):
             cfg = OmegaConf.to_container(compose("simulate", overrides=[
-                f"operator={name}", f"photons={photons}", f"operator.footprint_px={footprint_px}", *extra]),
-                resolve=True)
+                f"operator={name}", f"photons={photons}", f"operator.footprint_px={footprint_px}",
+                f"operator.supersample={supersample}", *extra]), resolve=True)
         return build_operator(cfg, build_scene(cfg))
 
-    return {"height_field": make_operator(photons, footprint_px, 1 << 18),
+    return {"height_field": configured("height_field"),
             "mesh_scene_plain": configured("mesh_scene"), "mesh_scene_two_lenses": configured("two_lenses"),
+            "mesh_scene_two_lenses_numba": configured("two_lenses", "operator.kernels=numba"),
             "mesh_scene_two_lenses_torch_tracer": configured("two_lenses", "operator.native=false")}
 
 
-def time_mesh_scenes(heights: torch.Tensor, photons: int, footprint_px: float) -> dict[str, dict[str, float]]:
+def time_mesh_scenes(heights: torch.Tensor, photons: int, footprint_px: float,
+                     supersample: int) -> dict[str, dict[str, float]]:
     """Forward and forward + backward photons/s of :func:`mesh_scene_operators`, side by side
     (the best of two rounds that run them in turn), and the time of an iteration (one render,
-    then one loss and gradient) over the height-field operator's at the same photons."""
-    ops = mesh_scene_operators(photons, footprint_px)
+    then one loss and gradient) over the height-field operator's at the same photons and receiver."""
+    ops = mesh_scene_operators(photons, footprint_px, supersample)
     names = list(ops)
     targets = {name: op.render(torch.zeros_like(heights)) for name, op in ops.items()}
     best = {name: [math.inf, math.inf] for name in names}
@@ -298,6 +302,9 @@ def main(argv: list[str] | None = None) -> None:
                         help="photons of the one-thread per-stage profile (0: leave it out)")
     parser.add_argument("--mesh-photons", type=int, default=1 << 18,
                         help="photons of the mesh-scene comparison (0: leave it out)")
+    parser.add_argument("--mesh-supersample", type=int, default=1,
+                        help="receiver supersampling of every operator in the mesh-scene comparison (the "
+                             "configs' default: 4; 1 weighs the tracing, 4 the splat on the finer receiver)")
     parser.add_argument("--stack-photons", type=int, default=1 << 20,
                         help="photons per shot of the two-screen stack's timing (0: skip)")
     parser.add_argument("--reconstruction-rounds", type=int, default=1,
@@ -375,7 +382,7 @@ def main(argv: list[str] | None = None) -> None:
     if args.stack_photons > 0:
         report["stack"] = time_stack(heights, args.stack_photons, args.footprint_px, args.chunk_size)
     if args.mesh_photons > 0:
-        report["mesh_scene"] = time_mesh_scenes(heights, args.mesh_photons, args.footprint_px)
+        report["mesh_scene"] = time_mesh_scenes(heights, args.mesh_photons, args.footprint_px, args.mesh_supersample)
     if args.fidelity_photons > 0:
         report["fidelity"] = fidelity_report(args.fidelity_photons, args.fidelity_bias_photons,
                                              args.fidelity_reference_photons, args.wavefront_vertices,

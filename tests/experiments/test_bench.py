@@ -43,7 +43,7 @@ def test_bench_prints_the_promised_figures(capsys):
     assert report["gradient_paper_photons"]["photons"] == 30000
     assert "stage_profile" not in report  # --stage-photons 0 leaves it out
     mesh = report["mesh_scene"]
-    assert set(mesh) == {"height_field", "mesh_scene_plain", "mesh_scene_two_lenses",
+    assert set(mesh) == {"height_field", "mesh_scene_plain", "mesh_scene_two_lenses", "mesh_scene_two_lenses_numba",
                          "mesh_scene_two_lenses_torch_tracer"}
     assert mesh["mesh_scene_plain"]["gradient_time_over_plain_mesh_scene"] == 1.0
     assert mesh["height_field"]["gradient_time_over_height_field"] == 1.0
