@@ -1,26 +1,34 @@
-/* The mesh-scene operator's event kernels in C: one event of every photon under way (advance),
- * its reverse (retreat), and the splat arguments of the landed photons with their adjoint. Part of
- * the compiled extension operators.kernels._simd (setup.py): compiled at install, so the first
- * render through lenses traces at once instead of waiting minutes for numba.
+/* The mesh-scene operator's photon kernels in C: every photon of a chunk through all its events at
+ * once (trace), the reverse of each photon's events (reverse), and the splat arguments of the
+ * landed photons with their adjoint. Part of the compiled extension operators.kernels._simd
+ * (setup.py): compiled at install, so the first render through lenses traces at once instead of
+ * waiting minutes for numba.
  *
- * The same arithmetic, step for step, as the numba kernels they stand in for, which stay the
- * fallback (no C compiler at install) and the reference the tests compare these with:
+ * The same arithmetic, event for event, as the numba kernels, which trace one event of all
+ * photons per call from a Python loop (operators/mesh/trace_native.py) and stay the fallback (no
+ * C compiler at install) and the reference the tests compare these with:
  *   events ............. advance, _next_event, event_surface, interface, splat_arguments in
  *                        operators/mesh/kernels_native.py
  *   reverse ............ retreat, _retreat_one, splat_arguments_adjoint in
  *                        operators/mesh/adjoint_native.py
  *   surface, optics .... photon_optics.h (the height-field kernels' own)
+ * Here a photon goes through its events on one thread without a return to Python between them;
+ * the gradient logs each photon's events (kind, face or plane, distance) as it traces, and the
+ * reverse replays them from the photon's start, keeping the states before each event on its
+ * thread, instead of a tape of every photon's states per event.
+ *
  * A photon's state is a row of STATE doubles (position, its two differentials, direction, its two
  * differentials, flux), as in kernels_native.py. Embree finds the faces: the host passes the
  * scene handle and the address of the library's rtcIntersect1 (operators/mesh/embree_native.py),
  * which every thread calls with its own ray.
  *
- * Threads: thread t takes the blocks t, t + threads, ... of BLOCK photons. The events write per
+ * Threads: thread t takes the blocks t, t + threads, ... of BLOCK photons. The trace writes per
  * photon; the reverse sums each thread's gradient w.r.t. the heights in its own array (the host
  * sums those): the same sums in every run.
  */
 #include <math.h>
 #include <stdint.h>
+#include <stdlib.h>
 #include <string.h>
 
 #include "photon_optics.h"
@@ -59,24 +67,26 @@ typedef struct {
     intersect1_fn intersect1;
 } mesh_faces;
 
-/* The photons of one event: state (N, STATE), medium, channel, status (N,), clear (N,) bool; the
- * event's kind, face or plane and distance (N,); the Fresnel losses (N,); before (N, STATE) or
- * NULL. */
+/* A chunk of photons: state (N, STATE), medium, channel, status, counted events (N,), clear (N,)
+ * bool; the flux each one lost (N, LOSS_KINDS); with a log, each photon's events (N, max_depth):
+ * kind (-1 past its last), face or plane, distance. The reverse's start (the chunk's state,
+ * medium and clear before the trace), its gradients g_state (N, STATE) and g_heights (threads, m, m). */
+enum { LOST_ESCAPED = 0, LOST_INSIDE_TOP = 1, LOST_FRESNEL = 2, LOST_MAX_DEPTH = 3, LOSS_KINDS = 4 };
 typedef struct {
     const double *d;
     int64_t m;
     double *state;
     int64_t *medium;
     const int64_t *channel;
-    int64_t *status;
+    int64_t *status, *events;
     uint8_t *clear;
-    int64_t *kind;
-    int64_t *which;
-    double *t;
-    double *lost_fresnel;
-    double *before;
-    int64_t n, released, replay, wait_at_top;
-} event_photons;
+    double *lost;
+    int8_t *log_kind;
+    int32_t *log_which;
+    double *log_t;
+    double *g_state, *g_heights;
+    int64_t n, max_depth, wait_at_top, threads;
+} chunk_job;
 
 /* ---------------------------------------------------------------- small helpers */
 
@@ -244,12 +254,21 @@ static inline SFC_INLINE int over_print(const mesh_scene *ms, vec3 p, vec3 w) {
 
 /* ---------------------------------------------------------------- events */
 
+/* One photon on its way: its state row (STATE), medium, whether it left a clear face, status,
+ * wavelength channel. */
+typedef struct {
+    double *row;
+    int64_t medium, status, channel;
+    int clear;
+} photon;
+
+
 /* The photon's next event (_next_event): kind, face or box plane in *which, distance in *t. */
-static int64_t next_event(const mesh_scene *ms, const mesh_faces *fa, const event_photons *ph, int64_t i, ray_hit *ray,
-                          int64_t *which, double *t_out) {
-    const double *row = ph->state + STATE * i;
+static int64_t next_event(const mesh_scene *ms, const mesh_faces *fa, const double *d, int64_t m, const photon *ph,
+                          int released, int wait_at_top, ray_hit *ray, int64_t *which, double *t_out) {
+    const double *row = ph->row;
     const vec3 p = load3(row + P), w = load3(row + W);
-    const int64_t medium = ph->medium[i];
+    const int64_t medium = ph->medium;
     const int in_air = medium == AIR, in_sub = medium == fa->substrate;
     const double thickness = ms->hf.base;
     double best = INFINITY;
@@ -257,9 +276,9 @@ static int64_t next_event(const mesh_scene *ms, const mesh_faces *fa, const even
     *which = -1;
     const int over = in_air && over_print(ms, p, w);
     double t_top = INFINITY;
-    if (over && !ph->wait_at_top) t_top = solve_hit(ph->d, ph->m, &ms->hf, p, w);
-    const int skip = ph->clear[i] || (in_air && w.z < 0.0 && p.z < ms->lowest)
-                     || (ph->released && t_top < (thickness - p.z) / w.z);
+    if (over && !wait_at_top) t_top = solve_hit(d, m, &ms->hf, p, w);
+    const int skip = ph->clear || (in_air && w.z < 0.0 && p.z < ms->lowest)
+                     || (released && t_top < (thickness - p.z) / w.z);
     int64_t face = -1;
     if (fa->embree != NULL && !in_sub && !skip)
         face = first_face(fa, ray, axpy(ms->start_offset, w, p), w);
@@ -275,7 +294,7 @@ static int64_t next_event(const mesh_scene *ms, const mesh_faces *fa, const even
     if (over) {
         /* Nothing lies between the print and a ray above it, so while waiting the top comes next
          * unless a face comes before z = thickness. */
-        if (ph->wait_at_top && !(best < (thickness - p.z) / w.z)) {
+        if (wait_at_top && !(best < (thickness - p.z) / w.z)) {
             *which = -1;
             *t_out = 0.0;
             return AT_TOP;
@@ -370,79 +389,93 @@ static inline SFC_INLINE crossing interface(vec3 w, vec3 dwu, vec3 dwv, const ev
     return x;
 }
 
-/* One event of photon i (_advance_one). */
-static void advance_one(const mesh_scene *ms, const mesh_faces *fa, const event_photons *ph, int64_t i, ray_hit *ray) {
-    double *row = ph->state + STATE * i;
-    int64_t kind, which;
-    double t;
-    if (ph->replay) {
-        kind = ph->kind[i];
-        which = ph->which[i];
-        t = ph->t[i];
-    } else {
-        kind = next_event(ms, fa, ph, i, ray, &which, &t);
-        ph->kind[i] = kind;
-        ph->which[i] = which;
-        ph->t[i] = t;
-    }
-    ph->clear[i] = 0;
+/* Apply an event (kind, face or plane, distance) to the photon (_advance_one after the search):
+ * moves it onto the surface, refracts or reflects it, ends it; Fresnel losses into *lost_fresnel. */
+static void apply_event(const mesh_scene *ms, const mesh_faces *fa, const double *d, int64_t m, photon *ph,
+                        int64_t kind, int64_t which, double t, double *lost_fresnel) {
+    double *row = ph->row;
+    ph->clear = 0;
     if (kind == AT_TOP) {
-        ph->status[i] = WAITING;
+        ph->status = WAITING;
         return;
     }
     if (kind == ESCAPED || kind == INSIDE_TOP) {
-        ph->status[i] = LOST;
+        ph->status = LOST;
         return;
     }
     event_surface s;
-    surface_of(ms, fa, ph->d, ph->m, row, kind, which, t, &s);
+    surface_of(ms, fa, d, m, row, kind, which, t, &s);
     store3(row + P, s.q);
     store3(row + DPU, s.dqu);
     store3(row + DPV, s.dqv);
     if (kind == RECEIVER) {
-        ph->status[i] = LANDED;
+        ph->status = LANDED;
         return;
     }
     const int64_t solid = kind == MESH ? fa->face_element[which] : fa->substrate;
     const crossing x = interface(load3(row + W), load3(row + DWU), load3(row + DWV), &s,
-                                 fa->indices[solid * fa->channels + ph->channel[i]]);
+                                 fa->indices[solid * fa->channels + ph->channel]);
     store3(row + W, x.r);
     store3(row + DWU, x.ru);
     store3(row + DWV, x.rv);
     if (x.through) {
         if (ms->hf.fresnel) {
             const double kept = fresnel(x.ci, x.ct, x.eta);
-            ph->lost_fresnel[i] += row[FLUX] * (1.0 - kept);
+            *lost_fresnel += row[FLUX] * (1.0 - kept);
             row[FLUX] *= kept;
         }
-        ph->medium[i] = x.entering ? solid : AIR;
-        ph->clear[i] = kind == MESH && !x.entering && fa->face_clear[which] && dot(x.r, s.n_plane) >= ms->clear_cos;
+        ph->medium = x.entering ? solid : AIR;
+        ph->clear = kind == MESH && !x.entering && fa->face_clear[which] && dot(x.r, s.n_plane) >= ms->clear_cos;
     }
 }
 
 typedef struct {
     const mesh_scene *ms;
     const mesh_faces *fa;
-    const event_photons *ph;
-    double *g_after, *g_heights;  /* the reverse's: (N, STATE); (threads, m, m) */
-    int64_t blocks, threads;
-} event_job;
+    const chunk_job *c;
+    int64_t blocks;
+} worker_job;
 
-static int advance_worker(void *context, int64_t thread) {
-    const event_job *j = (const event_job *)context;
-    const event_photons *ph = j->ph;
-    ray_hit ray;
-    for (int64_t b = thread; b < j->blocks; b += j->threads) {
-        const int64_t hi = imin(ph->n, (b + 1) * BLOCK);
-        for (int64_t i = b * BLOCK; i < hi; i++) {
-            if (ph->status[i] != UNDER_WAY) {
-                ph->kind[i] = -1;
-                continue;
-            }
-            if (ph->before != NULL) memcpy(ph->before + STATE * i, ph->state + STATE * i, STATE * sizeof(double));
-            advance_one(j->ms, j->fa, ph, i, &ray);
+/* Photon i of the chunk through its events (advance, _run in operators/mesh/trace_native.py): at
+ * most max_depth of them, until it lands, is lost, waits at the top (wait_at_top) or has had
+ * max_depth counted events in all; its losses into its row of c->lost, its events into the log. */
+static void trace_photon(const mesh_scene *ms, const mesh_faces *fa, const chunk_job *c, int64_t i, ray_hit *ray) {
+    photon ph = {c->state + STATE * i, c->medium[i], c->status[i], c->channel[i], c->clear[i]};
+    double *lost = c->lost + LOSS_KINDS * i;
+    int64_t e = 0;
+    for (; e < c->max_depth && ph.status == UNDER_WAY; e++) {
+        int64_t which;
+        double t;
+        const int64_t kind = next_event(ms, fa, c->d, c->m, &ph, e == 0 && !c->wait_at_top, (int)c->wait_at_top, ray,
+                                        &which, &t);
+        const double flux = ph.row[FLUX];
+        apply_event(ms, fa, c->d, c->m, &ph, kind, which, t, &lost[LOST_FRESNEL]);
+        if (c->log_kind != NULL) {
+            c->log_kind[c->max_depth * i + e] = (int8_t)kind;
+            c->log_which[c->max_depth * i + e] = (int32_t)which;
+            c->log_t[c->max_depth * i + e] = t;
+        }
+        if (kind != AT_TOP) c->events[i]++;
+        if (kind == ESCAPED) lost[LOST_ESCAPED] += flux;
+        if (kind == INSIDE_TOP) lost[LOST_INSIDE_TOP] += flux;
+        if (ph.status == UNDER_WAY && c->events[i] >= c->max_depth) {
+            lost[LOST_MAX_DEPTH] += ph.row[FLUX];
+            ph.status = LOST;
         }
     }
+    if (c->log_kind != NULL)
+        for (; e < c->max_depth; e++) c->log_kind[c->max_depth * i + e] = -1;
+    c->medium[i] = ph.medium;
+    c->status[i] = ph.status;
+    c->clear[i] = (uint8_t)ph.clear;
+}
+
+static int trace_worker(void *context, int64_t thread) {
+    const worker_job *j = (const worker_job *)context;
+    const chunk_job *c = j->c;
+    ray_hit ray;
+    for (int64_t b = thread; b < j->blocks; b += c->threads)
+        for (int64_t i = b * BLOCK; i < imin(c->n, (b + 1) * BLOCK); i++) trace_photon(j->ms, j->fa, c, i, &ray);
     return 0;
 }
 
@@ -455,23 +488,21 @@ static inline SFC_INLINE void top_adjoint(const mesh_scene *ms, const double *d,
     hit_adjoint_scalar(d, grad, m, p.x + t * w.x, p.y + t * w.y, -ms->hf.half, ms->hf.spacing, w, g);
 }
 
-/* Reverse of photon i's event (_retreat_one): g (its row of g_after) from the gradient w.r.t. the
- * state after the event to that before it; at the top into grad (m, m) instead (g zeroed). */
-static void retreat_one(const mesh_scene *ms, const mesh_faces *fa, const event_photons *ph, int64_t i, double *g,
-                        double *grad) {
-    const int64_t k = ph->kind[i], which = ph->which[i];
-    const double t = ph->t[i];
-    const double *row = ph->before + STATE * i;
+/* Reverse of one event (kind k, face or plane, distance t) of a photon of channel `channel` whose
+ * state before it was `row` (_retreat_one): g (STATE) from the gradient w.r.t. the state after
+ * the event to that before it; at the top into grad (m, m) instead (g zeroed). */
+static void retreat_one(const mesh_scene *ms, const mesh_faces *fa, const double *d, int64_t m, const double *row,
+                        int64_t k, int64_t which, double t, int64_t channel, double *g, double *grad) {
     const vec3 p = load3(row + P), dpu = load3(row + DPU), dpv = load3(row + DPV);
     const vec3 w = load3(row + W), dwu = load3(row + DWU), dwv = load3(row + DWV);
     event_surface s;
-    surface_of(ms, fa, ph->d, ph->m, row, k, which, t, &s);
+    surface_of(ms, fa, d, m, row, k, which, t, &s);
     vec3 g_q = load3(g + P), g_dqu = load3(g + DPU), g_dqv = load3(g + DPV);
     vec3 g_w = ZERO, g_dwu = ZERO, g_dwv = ZERO;
     double g_flux = g[FLUX];
     if (k != RECEIVER) {
         const int64_t solid = k == MESH ? fa->face_element[which] : fa->substrate;
-        const crossing x = interface(w, dwu, dwv, &s, fa->indices[solid * fa->channels + ph->channel[i]]);
+        const crossing x = interface(w, dwu, dwv, &s, fa->indices[solid * fa->channels + channel]);
         const vec3 facing = scale3(x.sign, s.outward), dfu = scale3(x.sign, s.dnu), dfv = scale3(x.sign, s.dnv);
         const vec3 g_r = load3(g + W), g_ru = load3(g + DWU), g_rv = load3(g + DWV);
         vec3 g_f, g_fu, g_fv;
@@ -519,7 +550,7 @@ static void retreat_one(const mesh_scene *ms, const mesh_faces *fa, const event_
             hit[3] = g_sxx;
             hit[4] = g_sxy;
             hit[5] = g_syy;
-            top_adjoint(ms, ph->d, ph->m, grad, p, w, t, hit);
+            top_adjoint(ms, d, m, grad, p, w, t, hit);
             for (int j = 0; j < STATE; j++) g[j] = 0.0;
             return;
         }
@@ -536,36 +567,60 @@ static void retreat_one(const mesh_scene *ms, const mesh_faces *fa, const event_
     g[FLUX] = g_flux;
 }
 
-static int retreat_worker(void *context, int64_t thread) {
-    const event_job *j = (const event_job *)context;
-    const event_photons *ph = j->ph;
-    double *grad = j->g_heights + thread * ph->m * ph->m;
-    for (int64_t b = thread; b < j->blocks; b += j->threads) {
-        const int64_t hi = imin(ph->n, (b + 1) * BLOCK);
-        for (int64_t i = b * BLOCK; i < hi; i++) {
-            const int64_t k = ph->kind[i];
-            if (k < 0 || k == ESCAPED || k == INSIDE_TOP || k == AT_TOP) continue;
-            retreat_one(j->ms, j->fa, ph, i, j->g_after + STATE * i, grad);
-        }
+/* The reverse of photon i's logged events (retreat over the events of _run, in
+ * operators/mesh/trace_native.py): its events replayed from its start (the state before the trace
+ * in c->state, its medium and clear), the state before each kept in `before` (max_depth, STATE),
+ * then the gradient g_state[i] taken back through them, into grad (m, m) at the top. */
+static void reverse_photon(const mesh_scene *ms, const mesh_faces *fa, const chunk_job *c, int64_t i, double *before,
+                           double *grad) {
+    double row[STATE];
+    memcpy(row, c->state + STATE * i, sizeof(row));
+    photon ph = {row, c->medium[i], UNDER_WAY, c->channel[i], c->clear[i]};
+    const int8_t *kind = c->log_kind + c->max_depth * i;
+    const int32_t *which = c->log_which + c->max_depth * i;
+    const double *t = c->log_t + c->max_depth * i;
+    double unused = 0.0;
+    int64_t count = 0;
+    for (; count < c->max_depth && kind[count] >= 0; count++) {
+        memcpy(before + STATE * count, row, sizeof(row));
+        apply_event(ms, fa, c->d, c->m, &ph, kind[count], which[count], t[count], &unused);
     }
+    double *g = c->g_state + STATE * i;
+    for (int64_t e = count - 1; e >= 0; e--) {
+        if (kind[e] == ESCAPED || kind[e] == INSIDE_TOP || kind[e] == AT_TOP) continue;
+        retreat_one(ms, fa, c->d, c->m, before + STATE * e, kind[e], which[e], t[e], c->channel[i], g, grad);
+    }
+}
+
+static int reverse_worker(void *context, int64_t thread) {
+    const worker_job *j = (const worker_job *)context;
+    const chunk_job *c = j->c;
+    double *before = (double *)malloc(sizeof(double) * STATE * (size_t)imax(c->max_depth, 1));
+    if (!before) return 1;
+    double *grad = c->g_heights + thread * c->m * c->m;
+    for (int64_t b = thread; b < j->blocks; b += c->threads)
+        for (int64_t i = b * BLOCK; i < imin(c->n, (b + 1) * BLOCK); i++)
+            if (c->status[i] == LANDED) reverse_photon(j->ms, j->fa, c, i, before, grad);
+    free(before);
     return 0;
 }
 
 /* ---------------------------------------------------------------- exported */
 
-/* One event of every photon under way (advance in kernels_native.py), on `threads` threads.
- * Returns 0, -1 when a thread could not start. */
-int sfc_mesh_advance(const mesh_scene *ms, const mesh_faces *fa, const event_photons *ph, int64_t threads) {
-    event_job j = {ms, fa, ph, NULL, NULL, (ph->n + BLOCK - 1) / BLOCK, threads < 1 ? 1 : threads};
-    return sfc_parallel(j.threads, advance_worker, &j);
+/* Trace every photon of the chunk under way through its events, on c->threads threads, in place
+ * (see trace_photon). Returns 0, -1 when a thread could not start. */
+int sfc_mesh_trace(const mesh_scene *ms, const mesh_faces *fa, const chunk_job *c) {
+    worker_job j = {ms, fa, c, (c->n + BLOCK - 1) / BLOCK};
+    return sfc_parallel(c->threads, trace_worker, &j);
 }
 
-/* Reverse of one event (retreat in adjoint_native.py): g_after (N, STATE) in place; the heights'
- * gradient into g_heights (threads, m, m), one array per thread. Returns 0, -1 on failure. */
-int sfc_mesh_retreat(const mesh_scene *ms, const mesh_faces *fa, const event_photons *ph, double *g_after,
-                     double *g_heights, int64_t threads) {
-    event_job j = {ms, fa, ph, g_after, g_heights, (ph->n + BLOCK - 1) / BLOCK, threads < 1 ? 1 : threads};
-    return sfc_parallel(j.threads, retreat_worker, &j);
+/* The gradient w.r.t. the heights, into c->g_heights (threads, m, m), of the photons' final
+ * states' gradient c->g_state (N, STATE; overwritten): c->state, medium and clear hold the chunk
+ * as it was before sfc_mesh_trace logged its events, c->status the status after it (only landed
+ * photons carry a gradient). Returns 0, -1 on failure to allocate or start threads. */
+int sfc_mesh_reverse(const mesh_scene *ms, const mesh_faces *fa, const chunk_job *c) {
+    worker_job j = {ms, fa, c, (c->n + BLOCK - 1) / BLOCK};
+    return sfc_parallel(c->threads, reverse_worker, &j);
 }
 
 /* Pixel positions (2, N), footprint metrics (3, N) and flux (N,) of the landed photons, photon i's

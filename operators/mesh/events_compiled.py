@@ -1,16 +1,19 @@
-"""Host side of the mesh-scene event kernels in C (``operators/kernels/mesh_events.c``).
+"""Host side of the mesh-scene photon kernels in C (``operators/kernels/mesh_events.c``).
 
-:func:`advance`, :func:`retreat`, :func:`splat_arguments` and :func:`splat_arguments_adjoint`
-take the arguments of the numba kernels of the same names (:mod:`operators.mesh.kernels_native`,
-:mod:`operators.mesh.adjoint_native`) and compute the same, photon for photon, but compiled at
-install as part of the extension (:mod:`operators.kernels.extension`): the first render through
-lenses traces at once instead of waiting for numba. ctypes releases the GIL for the call; the C
-code runs as many threads as numba would.
+:func:`trace` takes a chunk of photons through all their events in one call (what
+:func:`operators.mesh.kernels_native.advance` does one event per call), :func:`reverse` takes the
+gradient w.r.t. their final states back to the heights (what
+:func:`operators.mesh.adjoint_native.retreat` does one event per call, from a tape), and
+:func:`splat_arguments` / :func:`splat_arguments_adjoint` are the numba kernels of those names.
+Compiled at install as part of the extension (:mod:`operators.kernels.extension`): the first
+render through lenses traces at once instead of waiting for numba. ctypes releases the GIL for
+the call; the C code runs as many threads as numba would.
 """
 
 from __future__ import annotations
 
 import ctypes
+from dataclasses import dataclass
 
 import numba as nb
 import numpy as np
@@ -22,10 +25,13 @@ from operators.mesh.culling import CLEAR_COS
 from operators.mesh.embree_native import INTERSECT1
 from operators.mesh.intersect_reference import MIN_FACE_DISTANCE, START_OFFSET
 
-__all__ = ["AVAILABLE", "advance", "retreat", "splat_arguments", "splat_arguments_adjoint"]
+__all__ = ["AVAILABLE", "LOSS_KINDS", "EventLog", "Faces", "trace", "reverse", "splat_arguments",
+           "splat_arguments_adjoint"]
 
 _P = ctypes.c_void_p
 _I = ctypes.c_int64
+# The flux a photon lost, per kind (columns of the trace's losses; LOSSES in trace_native.py).
+LOSS_KINDS = ("escaped", "inside_top", "fresnel_reflected", "max_depth")
 
 
 class _MeshScene(ctypes.Structure):
@@ -44,22 +50,22 @@ class _Faces(ctypes.Structure):
                 ("intersect1", _P)]
 
 
-class _Photons(ctypes.Structure):
-    """``event_photons`` of mesh_events.c."""
+class _Chunk(ctypes.Structure):
+    """``chunk_job`` of mesh_events.c."""
 
-    _fields_ = [("d", _P), ("m", _I), ("state", _P), ("medium", _P), ("channel", _P), ("status", _P), ("clear", _P),
-                ("kind", _P), ("which", _P), ("t", _P), ("lost_fresnel", _P), ("before", _P), ("n", _I),
-                ("released", _I), ("replay", _I), ("wait_at_top", _I)]
+    _fields_ = [("d", _P), ("m", _I), ("state", _P), ("medium", _P), ("channel", _P), ("status", _P), ("events", _P),
+                ("clear", _P), ("lost", _P), ("log_kind", _P), ("log_which", _P), ("log_t", _P), ("g_state", _P),
+                ("g_heights", _P), ("n", _I), ("max_depth", _I), ("wait_at_top", _I), ("threads", _I)]
 
 
 def _bind() -> ctypes.CDLL | None:
     library = extension.load()
     if library is None:
         return None
-    scene, faces, photons = (ctypes.POINTER(s) for s in (_MeshScene, _Faces, _Photons))
+    scene, faces, chunk = (ctypes.POINTER(s) for s in (_MeshScene, _Faces, _Chunk))
     for name, argtypes, restype in (
-            ("sfc_mesh_advance", [scene, faces, photons, _I], ctypes.c_int),
-            ("sfc_mesh_retreat", [scene, faces, photons, _P, _P, _I], ctypes.c_int),
+            ("sfc_mesh_trace", [scene, faces, chunk], ctypes.c_int),
+            ("sfc_mesh_reverse", [scene, faces, chunk], ctypes.c_int),
             ("sfc_mesh_splat_arguments", [scene, _P, _P, _P, _I, _P, _P, _P], None),
             ("sfc_mesh_splat_arguments_adjoint", [scene, _P, _P, _I, _P, _P, _P, _P], None)):
         function = getattr(library, name)
@@ -69,7 +75,7 @@ def _bind() -> ctypes.CDLL | None:
 
 
 _LIBRARY = _bind()
-AVAILABLE = _LIBRARY is not None  # whether the C event kernels were built
+AVAILABLE = _LIBRARY is not None  # whether the C photon kernels of mesh scenes were built
 
 
 def _scene(sc: mk.MeshConstants) -> _MeshScene:
@@ -80,94 +86,120 @@ def _scene(sc: mk.MeshConstants) -> _MeshScene:
     return _MeshScene(hf, sc.top_max, sc.lowest, START_OFFSET, MIN_FACE_DISTANCE, CLEAR_COS)
 
 
-def _data(array: np.ndarray, dtype: type, name: str) -> int:
-    """The address of a C-contiguous array of ``dtype``; anything else is refused (the C code
-    addresses raw memory)."""
-    if array.dtype != dtype or not array.flags.c_contiguous:
-        raise ValueError(f"{name} must be a C-contiguous {np.dtype(dtype).name} array, got {array.dtype} "
-                         f"{'contiguous' if array.flags.c_contiguous else 'strided'}")
+def _data(array: np.ndarray, dtype: type, name: str, shape: tuple[int, ...]) -> int:
+    """The address of a C-contiguous array of ``dtype`` and ``shape``; anything else is refused
+    (the C code addresses raw memory)."""
+    if array.dtype != dtype or not array.flags.c_contiguous or array.shape != shape:
+        raise ValueError(f"{name} must be a C-contiguous {np.dtype(dtype).name} array of shape {shape}, got "
+                         f"{array.dtype} {array.shape}{'' if array.flags.c_contiguous else ' (strided)'}")
     return array.ctypes.data
 
 
-def _faces(substrate: int, face_element: np.ndarray, face_clear: np.ndarray, indices: np.ndarray, v0: np.ndarray,
-           plane: np.ndarray, dual: np.ndarray, shading: np.ndarray, neighbour: np.ndarray, handle: int) -> _Faces:
-    return _Faces(_data(face_element, np.int64, "face_element"), _data(face_clear, np.bool_, "face_clear"),
-                  _data(v0, np.float64, "v0"), _data(plane, np.float64, "plane"), _data(dual, np.float64, "dual"),
-                  _data(shading, np.float64, "shading"), _data(neighbour, np.int64, "neighbour"),
-                  _data(indices, np.float64, "indices"), indices.shape[1], substrate, handle or None,
-                  INTERSECT1 if handle else None)
+class Faces:
+    """The elements' faces as the kernels read them (NativeMeshTracer's arrays: face_element (F,),
+    face_clear (F,) bool, v0 and plane (F, 3), dual (F, 2, 3), shading (F, 3, 3), neighbour (F, 3),
+    the refractive indices (K + 1, c), the substrate's row K) and the Embree scene (handle, 0 for
+    none). Keeps the arrays alive while the kernels hold their addresses."""
+
+    def __init__(self, substrate: int, face_element: np.ndarray, face_clear: np.ndarray, indices: np.ndarray,
+                 v0: np.ndarray, plane: np.ndarray, dual: np.ndarray, shading: np.ndarray, neighbour: np.ndarray,
+                 handle: int) -> None:
+        f = len(face_element)
+        self._arrays = (face_element, face_clear, indices, v0, plane, dual, shading, neighbour)
+        self.struct = _Faces(
+            _data(face_element, np.int64, "face_element", (f,)),
+            _data(face_clear, np.bool_, "face_clear", (max(f, 1),)),
+            _data(v0, np.float64, "v0", (f, 3)), _data(plane, np.float64, "plane", (f, 3)),
+            _data(dual, np.float64, "dual", (f, 2, 3)), _data(shading, np.float64, "shading", (f, 3, 3)),
+            _data(neighbour, np.int64, "neighbour", (f, 3)), _data(indices, np.float64, "indices", indices.shape),
+            indices.shape[1], substrate, handle or None, INTERSECT1 if handle else None)
 
 
-def _photons(d: np.ndarray, state: np.ndarray, medium: np.ndarray, channel: np.ndarray, status: np.ndarray,
-             clear: np.ndarray, kind: np.ndarray, which: np.ndarray, t: np.ndarray, lost_fresnel: np.ndarray | None,
-             before: np.ndarray | None, released: bool, replay: bool, wait_at_top: bool) -> _Photons:
+@dataclass
+class EventLog:
+    """Each photon's events in one trace (N, max_depth): kind (-1 past its last), face or box
+    plane, distance."""
+
+    kind: np.ndarray
+    which: np.ndarray
+    t: np.ndarray
+
+    @classmethod
+    def empty(cls, n: int, max_depth: int) -> EventLog:
+        return cls(np.empty((n, max_depth), np.int8), np.empty((n, max_depth), np.int32), np.empty((n, max_depth)))
+
+
+def _chunk(d: np.ndarray, state: np.ndarray, medium: np.ndarray, channel: np.ndarray, status: np.ndarray,
+           events: np.ndarray, clear: np.ndarray, max_depth: int, wait_at_top: bool, log: EventLog | None,
+           lost: np.ndarray | None = None, g_state: np.ndarray | None = None,
+           g_heights: np.ndarray | None = None) -> _Chunk:
     n = state.shape[0]
-    if state.shape != (n, mk.STATE) or any(a.shape != (n,) for a in (medium, channel, status, clear, kind, which, t)):
-        raise ValueError(f"photon arrays must be state (N, {mk.STATE}) and (N,) each, with N = {n}")
     if d.ndim != 2 or d.shape[0] != d.shape[1]:
         raise ValueError(f"heights must be a square array, got {d.shape}")
-    return _Photons(_data(d, np.float64, "d"), d.shape[0], _data(state, np.float64, "state"),
-                    _data(medium, np.int64, "medium"), _data(channel, np.int64, "channel"),
-                    _data(status, np.int64, "status"), _data(clear, np.bool_, "clear"), _data(kind, np.int64, "kind"),
-                    _data(which, np.int64, "which"), _data(t, np.float64, "t"),
-                    None if lost_fresnel is None else _data(lost_fresnel, np.float64, "lost_fresnel"),
-                    None if before is None or before.shape[0] == 0 else _data(before, np.float64, "before"),
-                    n, int(released), int(replay), int(wait_at_top))
+    if log is not None:
+        for name, array, dtype in (("log.kind", log.kind, np.int8), ("log.which", log.which, np.int32),
+                                   ("log.t", log.t, np.float64)):
+            _data(array, dtype, name, (n, max_depth))
+    threads = nb.get_num_threads() if g_heights is None else g_heights.shape[0]
+    return _Chunk(
+        _data(d, np.float64, "d", d.shape), d.shape[0], _data(state, np.float64, "state", (n, mk.STATE)),
+        _data(medium, np.int64, "medium", (n,)), _data(channel, np.int64, "channel", (n,)),
+        _data(status, np.int64, "status", (n,)), _data(events, np.int64, "events", (n,)),
+        _data(clear, np.bool_, "clear", (n,)),
+        None if lost is None else _data(lost, np.float64, "lost", (n, len(LOSS_KINDS))),
+        *((None, None, None) if log is None else (log.kind.ctypes.data, log.which.ctypes.data, log.t.ctypes.data)),
+        None if g_state is None else _data(g_state, np.float64, "g_state", (n, mk.STATE)),
+        None if g_heights is None else _data(g_heights, np.float64, "g_heights", (threads, *d.shape)),
+        n, max_depth, int(wait_at_top), threads)
 
 
 def _check_status(status: int) -> None:
     if status != 0:
-        raise MemoryError("the C mesh kernels could not start their threads")
+        raise MemoryError("the C mesh kernels could not allocate their buffers or start their threads")
 
 
-def advance(d, state, medium, channel, status, clear, released, handle, kind_out, which_out, t_out, replay,
-            lost_fresnel, before, wait_at_top, substrate, face_element, face_clear, indices, v0, plane, dual, shading,
-            neighbour, sc) -> None:
-    """:func:`operators.mesh.kernels_native.advance` in C (same arguments)."""
-    if before.shape[0] not in (0, state.shape[0]) or lost_fresnel.shape != (state.shape[0],):
-        raise ValueError("before must have no rows or one per photon, lost_fresnel one value per photon")
-    photons = _photons(d, state, medium, channel, status, clear, kind_out, which_out, t_out, lost_fresnel, before,
-                       released, replay, wait_at_top)
-    faces = _faces(substrate, face_element, face_clear, indices, v0, plane, dual, shading, neighbour, handle)
-    _check_status(_LIBRARY.sfc_mesh_advance(ctypes.byref(_scene(sc)), ctypes.byref(faces), ctypes.byref(photons),
-                                            nb.get_num_threads()))
+def trace(d: np.ndarray, state: np.ndarray, medium: np.ndarray, channel: np.ndarray, status: np.ndarray,
+          events: np.ndarray, clear: np.ndarray, max_depth: int, wait_at_top: bool, faces: Faces,
+          sc: mk.MeshConstants, log: EventLog | None = None) -> np.ndarray:
+    """Every photon under way through its events (at most ``max_depth``, until it lands, is lost,
+    or with ``wait_at_top`` waits above the print; lost too once ``events`` (N,), counted over its
+    whole path, reaches ``max_depth``), in place: ``state`` (N, STATE), ``medium``, ``status``,
+    ``events``, ``clear`` (N,); heights ``d`` (m, m). Records the events into ``log``. Returns
+    the flux each photon lost (N, len(LOSS_KINDS))."""
+    lost = np.zeros((state.shape[0], len(LOSS_KINDS)))
+    job = _chunk(d, state, medium, channel, status, events, clear, max_depth, wait_at_top, log, lost)
+    _check_status(_LIBRARY.sfc_mesh_trace(ctypes.byref(_scene(sc)), ctypes.byref(faces.struct), ctypes.byref(job)))
+    return lost
 
 
-def retreat(d, before, kind, which, t, channel, substrate, face_element, indices, v0, plane, dual, shading, sc,
-            g_after, g_heights) -> None:
-    """:func:`operators.mesh.adjoint_native.retreat` in C (same arguments); one thread per row of
-    ``g_heights`` (threads, m, m)."""
-    n = before.shape[0]
-    if g_after.shape != (n, mk.STATE) or g_heights.ndim != 3 or g_heights.shape[1:] != d.shape:
-        raise ValueError(f"g_after must be (N, {mk.STATE}) like before, g_heights (threads, *{d.shape})")
-    unused = np.zeros(n, dtype=np.int64)
-    photons = _photons(d, before, unused, channel, unused, np.zeros(n, dtype=np.bool_), kind, which, t, None, before,
-                       False, True, False)
-    no_clear = np.zeros(1, dtype=np.bool_)
-    faces = _faces(substrate, face_element, no_clear, indices, v0, plane, dual, shading, np.zeros((1, 3), np.int64), 0)
-    _check_status(_LIBRARY.sfc_mesh_retreat(ctypes.byref(_scene(sc)), ctypes.byref(faces), ctypes.byref(photons),
-                                            _data(g_after, np.float64, "g_after"),
-                                            _data(g_heights, np.float64, "g_heights"), g_heights.shape[0]))
+def reverse(d: np.ndarray, start: tuple[np.ndarray, np.ndarray, np.ndarray], channel: np.ndarray,
+            status: np.ndarray, log: EventLog, faces: Faces, sc: mk.MeshConstants, g_state: np.ndarray,
+            g_heights: np.ndarray) -> None:
+    """Add to ``g_heights`` (threads, m, m), one thread per row, the gradient w.r.t. the heights
+    ``d`` of the photons' final states' gradient ``g_state`` (N, STATE; overwritten): ``start``
+    (state, medium, clear) as the photons were before the :func:`trace` that filled ``log``,
+    ``status`` (N,) as they were after it."""
+    state, medium, clear = start
+    job = _chunk(d, state, medium, channel, status, np.zeros(len(state), np.int64), clear, log.kind.shape[1], False,
+                 log, g_state=g_state, g_heights=g_heights)
+    _check_status(_LIBRARY.sfc_mesh_reverse(ctypes.byref(_scene(sc)), ctypes.byref(faces.struct), ctypes.byref(job)))
 
 
 def splat_arguments(state, status, where, sc, pos, metric, flux) -> None:
     """:func:`operators.mesh.kernels_native.splat_arguments` in C (same arguments)."""
     n = state.shape[0]
-    if where.shape != (n,) or pos.shape != (2, n) or metric.shape != (3, n) or flux.shape != (n,):
-        raise ValueError(f"where (N,), pos (2, N), metric (3, N), flux (N,) for N = {n} photons")
-    _LIBRARY.sfc_mesh_splat_arguments(ctypes.byref(_scene(sc)), _data(state, np.float64, "state"),
-                                      _data(status, np.int64, "status"), _data(where, np.int64, "where"), n,
-                                      _data(pos, np.float64, "pos"), _data(metric, np.float64, "metric"),
-                                      _data(flux, np.float64, "flux"))
+    _LIBRARY.sfc_mesh_splat_arguments(
+        ctypes.byref(_scene(sc)), _data(state, np.float64, "state", (n, mk.STATE)),
+        _data(status, np.int64, "status", (n,)), _data(where, np.int64, "where", (n,)), n,
+        _data(pos, np.float64, "pos", (2, n)), _data(metric, np.float64, "metric", (3, n)),
+        _data(flux, np.float64, "flux", (n,)))
 
 
 def splat_arguments_adjoint(state, status, sc, g_pos, g_metric, g_flux, g_state) -> None:
     """:func:`operators.mesh.adjoint_native.splat_arguments_adjoint` in C (same arguments)."""
     n = state.shape[0]
-    if g_pos.shape != (2, n) or g_metric.shape != (3, n) or g_flux.shape != (n,) or g_state.shape != state.shape:
-        raise ValueError(f"g_pos (2, N), g_metric (3, N), g_flux (N,), g_state like state for N = {n} photons")
-    _LIBRARY.sfc_mesh_splat_arguments_adjoint(ctypes.byref(_scene(sc)), _data(state, np.float64, "state"),
-                                              _data(status, np.int64, "status"), n,
-                                              _data(g_pos, np.float64, "g_pos"), _data(g_metric, np.float64, "g_metric"),
-                                              _data(g_flux, np.float64, "g_flux"),
-                                              _data(g_state, np.float64, "g_state"))
+    _LIBRARY.sfc_mesh_splat_arguments_adjoint(
+        ctypes.byref(_scene(sc)), _data(state, np.float64, "state", (n, mk.STATE)),
+        _data(status, np.int64, "status", (n,)), n, _data(g_pos, np.float64, "g_pos", (2, n)),
+        _data(g_metric, np.float64, "g_metric", (3, n)), _data(g_flux, np.float64, "g_flux", (n,)),
+        _data(g_state, np.float64, "g_state", (n, mk.STATE)))

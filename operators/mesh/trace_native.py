@@ -14,7 +14,6 @@ the splat's adjoint gather to the heights.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Callable, NamedTuple
 
 import numba as nb
 import numpy as np
@@ -51,20 +50,6 @@ class Prefix:
     losses: dict[str, float]
     place: np.ndarray
 
-
-class EventKernels(NamedTuple):
-    """One event of the photons under way, its reverse, and the splat arguments with their adjoint
-    (the signatures of :func:`operators.mesh.kernels_native.advance` and its siblings)."""
-
-    advance: Callable[..., None]
-    retreat: Callable[..., None]
-    splat_arguments: Callable[..., None]
-    splat_arguments_adjoint: Callable[..., None]
-
-
-NUMBA_KERNELS = EventKernels(mk.advance, ma.retreat, mk.splat_arguments, ma.splat_arguments_adjoint)
-C_KERNELS = EventKernels(events_compiled.advance, events_compiled.retreat, events_compiled.splat_arguments,
-                         events_compiled.splat_arguments_adjoint)
 
 # Event kinds, faces or planes and distances as the kernels take them.
 _EVENT_DTYPES = (np.int64, np.int64, np.float64)
@@ -115,8 +100,10 @@ class NativeMeshTracer:
         (self.face_element, self.v0, self.plane, self.dual, self.shading,
          self.neighbour) = intersector.face_arrays()
         self.indices = np.ascontiguousarray(operator.index_table.double().numpy())
-        use_c = operator.settings.kernels == "c" and events_compiled.AVAILABLE
-        self.kernels = C_KERNELS if use_c else NUMBA_KERNELS
+        # Whether the C kernels trace (a chunk's photons through all their events per call), else numba
+        # (one event of every photon per call).
+        self.compiled = operator.settings.kernels == "c" and events_compiled.AVAILABLE
+        self._splat_arguments = events_compiled.splat_arguments if self.compiled else mk.splat_arguments
         self._prefix: Prefix | None = None
         self._events_seen: tuple[np.ndarray, list[list]] | None = None
         # The same faces, in the same order, in an Embree scene that the kernels query.
@@ -124,6 +111,9 @@ class NativeMeshTracer:
         self.embree = 0 if self._triangles is None else self._triangles.handle
         self.face_clear = (clear_faces(intersector.vertices, self.v0, self.plane) if intersector.count
                            else np.zeros(1, dtype=np.bool_))
+        self._faces = (events_compiled.Faces(self.substrate, self.face_element, self.face_clear, self.indices, self.v0,
+                                             self.plane, self.dual, self.shading, self.neighbour, self.embree)
+                       if self.compiled else None)
 
     # -- scene constants ----------------------------------------------------------------------
     def constants(self, d: np.ndarray | None) -> mk.MeshConstants:
@@ -149,6 +139,19 @@ class NativeMeshTracer:
                                       for name, v in zip(mk.MeshConstants._fields, values))
 
     # -- events -------------------------------------------------------------------------------
+    def _trace(self, d: np.ndarray, chunk: _Chunk, sc: mk.MeshConstants, wait_at_top: bool,
+               losses: dict[str, float], log: events_compiled.EventLog | None = None) -> None:
+        """The chunk's photons through their events, by the C kernels (all events in one call) or
+        by :meth:`_run` (one event per call); lost flux added to ``losses``; with the C kernels,
+        each photon's events recorded into ``log``."""
+        if not self.compiled:
+            self._run(d, chunk, sc, wait_at_top, losses)
+            return
+        lost = events_compiled.trace(d, chunk.state, chunk.medium, chunk.channel, chunk.status, chunk.events,
+                                     chunk.clear, self.operator.settings.max_depth, wait_at_top, self._faces, sc, log)
+        for kind, total in zip(events_compiled.LOSS_KINDS, lost.sum(axis=0)):
+            losses[kind] += float(total)
+
     def _run(self, d: np.ndarray, chunk: _Chunk, sc: mk.MeshConstants, wait_at_top: bool, losses: dict[str, float],
              tape: list | None = None, events_log: list | None = None, events_replay: list | None = None) -> None:
         """Advance the chunk's photons until none is under way (or each has had max_depth
@@ -177,7 +180,7 @@ class NativeMeshTracer:
                 kind, which, t = np.empty(n, np.int64), np.empty(n, np.int64), np.empty(n)
             fresnel = np.zeros(n)
             before = np.empty((n if tape is not None else 0, mk.STATE))
-            self.kernels.advance(d, work.state, work.medium, work.channel, work.status, work.clear,
+            mk.advance(d, work.state, work.medium, work.channel, work.status, work.clear,
                        event == 0 and not wait_at_top, self.embree, kind, which, t, events_replay is not None, fresnel,
                        before, wait_at_top, self.substrate, self.face_element, self.face_clear, self.indices, self.v0,
                        self.plane, self.dual, self.shading, self.neighbour, sc)
@@ -202,7 +205,7 @@ class NativeMeshTracer:
         for index, before, kind, which, t in reversed(tape):
             g = g_state if index is None else g_state[index]
             channel = chunk.channel if index is None else chunk.channel[index]
-            self.kernels.retreat(d, before, kind, which, t, channel, self.substrate, self.face_element, self.indices, self.v0,
+            ma.retreat(d, before, kind, which, t, channel, self.substrate, self.face_element, self.indices, self.v0,
                        self.plane, self.dual, self.shading, sc, g, g_heights)
             if index is not None:
                 g_state[index] = g
@@ -214,7 +217,7 @@ class NativeMeshTracer:
         the receiver is counted as missing it."""
         n = len(chunk.state)
         pos, metric, flux = np.empty((2, n)), np.empty((3, n)), np.empty(n)
-        self.kernels.splat_arguments(chunk.state, chunk.status, np.arange(n) if where is None else where, sc, pos, metric, flux)
+        self._splat_arguments(chunk.state, chunk.status, np.arange(n) if where is None else where, sc, pos, metric, flux)
         landed = chunk.status == mk.LANDED
         outside = landed & (np.abs(chunk.state[:, mk.P:mk.P + 2]) > sc.receiver_half).any(1)
         losses["missed_receiver"] += float(chunk.state[outside, mk.FLUX].sum())
@@ -247,7 +250,7 @@ class NativeMeshTracer:
         waiting = []
         for start, stop in op.chunks():
             chunk = self._emitted(start, stop)
-            self._run(dummy, chunk, sc, True, losses)
+            self._trace(dummy, chunk, sc, True, losses)
             image += self._splat(chunk, sc, losses)
             keep = chunk.status == mk.WAITING
             waiting.append((chunk.state[keep], chunk.channel[keep], chunk.events[keep]))
@@ -283,8 +286,8 @@ class NativeMeshTracer:
 
     # -- render and gradient ------------------------------------------------------------------
     def render(self, d: np.ndarray) -> tuple[torch.Tensor, dict[str, float]]:
-        """Flux per pixel (c, n, n) of heights ``d`` (m, m) float64 and the losses (W); the photons'
-        events are kept for a :meth:`vjp` at the same heights."""
+        """Flux per pixel (c, n, n) of heights ``d`` (m, m) float64 and the losses (W); with the
+        numba kernels the photons' events are kept for a :meth:`vjp` at the same heights."""
         pre = self.prefix()
         sc = self.constants(d)
         self._check_above(sc)
@@ -293,15 +296,20 @@ class NativeMeshTracer:
         seen: list[list] = []
         for start, stop in self._waiting_chunks():
             chunk, where = self._waiting(start, stop)
-            seen.append([])
-            self._run(d, chunk, sc, False, losses, events_log=seen[-1])
+            if self.compiled:
+                self._trace(d, chunk, sc, False, losses)
+            else:
+                seen.append([])
+                self._run(d, chunk, sc, False, losses, events_log=seen[-1])
             image += self._splat(chunk, sc, losses, where)
-        self._events_seen = (d.copy(), seen)
+        self._events_seen = None if self.compiled else (d.copy(), seen)
         return image, losses
 
     def vjp(self, d: np.ndarray, grad_flux: torch.Tensor) -> np.ndarray:
-        """Gradient (m, m) w.r.t. d of <flux per pixel, grad_flux (c, n, n)>; the photons' events
-        are replayed from the last :meth:`render` when it had the same heights."""
+        """Gradient (m, m) w.r.t. d of <flux per pixel, grad_flux (c, n, n)>. The C kernels trace
+        each chunk again, logging each photon's events, and take the gradient back through them
+        photon by photon; the numba kernels replay the events of the last :meth:`render` when it
+        had the same heights, keep a tape of every event's states and run it backwards."""
         sc = self.constants(d)
         self._check_above(sc)
         g_heights = np.zeros((nb.get_num_threads(), *d.shape))
@@ -311,15 +319,24 @@ class NativeMeshTracer:
         for k, (start, stop) in enumerate(self._waiting_chunks()):
             chunk, _ = self._waiting(start, stop)
             tape: list = []
-            self._run(d, chunk, sc, False, not_counted, tape, events_replay=None if seen is None else seen[k])
+            if self.compiled:
+                before = (chunk.state.copy(), chunk.medium.copy(), chunk.clear.copy())
+                log = events_compiled.EventLog.empty(len(chunk.state), self.operator.settings.max_depth)
+                self._trace(d, chunk, sc, False, not_counted, log)
+            else:
+                self._run(d, chunk, sc, False, not_counted, tape, events_replay=None if seen is None else seen[k])
             pos, metric, flux = self._splat_inputs(chunk, sc, not_counted)
             g_pos, g_metric, g_flux = (t.double().numpy() for t in splat_photons_vjp(
                 torch.from_numpy(pos).to(dtype), torch.from_numpy(metric).to(dtype), torch.from_numpy(flux).to(dtype),
                 torch.from_numpy(chunk.channel), grad_flux))
             g_state = np.empty_like(chunk.state)
-            self.kernels.splat_arguments_adjoint(chunk.state, chunk.status, sc, np.ascontiguousarray(g_pos),
-                                       np.ascontiguousarray(g_metric), np.ascontiguousarray(g_flux), g_state)
-            self._reverse(d, chunk, sc, tape, g_state, g_heights)
+            (events_compiled.splat_arguments_adjoint if self.compiled else ma.splat_arguments_adjoint)(
+                chunk.state, chunk.status, sc, np.ascontiguousarray(g_pos), np.ascontiguousarray(g_metric),
+                np.ascontiguousarray(g_flux), g_state)
+            if self.compiled:
+                events_compiled.reverse(d, before, chunk.channel, chunk.status, log, self._faces, sc, g_state, g_heights)
+            else:
+                self._reverse(d, chunk, sc, tape, g_state, g_heights)
         return g_heights.sum(axis=0)
 
     def _check_above(self, sc: mk.MeshConstants) -> None:
