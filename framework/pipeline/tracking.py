@@ -35,6 +35,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from framework.core.solver_loop import Callback
+from framework.pipeline.store_template import create_empty_store
 from framework.pipeline.tracking_dataset import data_dataset
 
 if TYPE_CHECKING:
@@ -161,7 +162,8 @@ def local_store_uri(store_dir: str | os.PathLike[str]) -> str:
 @contextlib.contextmanager
 def _store_lock(store_dir: Path) -> Iterator[None]:
     """An exclusive lock on ``store_dir`` (a file lock, so across processes): the first job that
-    opens a new SQLite store creates its tables while the others wait, instead of racing."""
+    opens a new SQLite store creates it (a copy of the empty store, framework/pipeline/store_template.py)
+    while the others wait, instead of racing."""
     with open(store_dir / ".lock", "w") as handle:
         fcntl.flock(handle, fcntl.LOCK_EX)
         try:
@@ -227,6 +229,8 @@ class MlflowTracker:
         if local:
             self.store_dir.mkdir(parents=True, exist_ok=True)
         with _store_lock(self.store_dir) if local else contextlib.nullcontext():
+            if self._artifact_location is not None and not (self.store_dir / "mlflow.db").exists():
+                create_empty_store(self.store_dir / "mlflow.db", self._artifact_location)
             self._client = MlflowClient(tracking_uri=self.tracking_uri)
             self.experiment_id = self._experiment_id()
         if self.continue_run_id is not None:

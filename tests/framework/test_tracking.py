@@ -175,3 +175,21 @@ def test_an_unreachable_tracking_server_is_refused_in_one_line():
             pass
     assert time.perf_counter() - start < 10 and "\n" not in str(refused.value)
     check_tracking_server("sqlite:///elsewhere.db")  # not a server: nothing to check
+
+
+def test_a_new_store_is_a_copy_of_the_empty_store_and_keeps_defaults_artefacts_inside(tmp_path, monkeypatch):
+    """A new local store is copied from the empty store of this MLflow version in the cache
+    (built there once): MLflow opens it and logs into it as into a store it built, its Default
+    experiment's artefacts lie in the store, and the cached file is left as it was."""
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+    template = tmp_path / "cache" / "shape-from-caustics" / f"mlflow-{mlflow.__version__}-empty.db"
+    for name in ("first", "second"):
+        with MlflowTracker("toy", store_dir=tmp_path / name, params={"a": 1}) as tracker:
+            tracker.log_metrics({"rel_discrepancy": 0.5}, step=1)
+        client = _client(tmp_path / name)
+        assert client.get_run(tracker.run_id).data.metrics["rel_discrepancy"] == 0.5
+        default = client.get_experiment("0")
+        assert default.name == "Default"
+        assert default.artifact_location == f"{(tmp_path / name / 'artifacts').as_uri()}/0"
+        assert template.exists()
+    assert [e.name for e in MlflowClient(tracking_uri=f"sqlite:///{template}").search_experiments()] == ["Default"]
