@@ -69,7 +69,8 @@ typedef struct {
 
 /* A chunk of photons: state (N, STATE), medium, channel, status, counted events (N,), clear (N,)
  * bool; the flux each one lost (N, LOSS_KINDS); with a log, each photon's events (N, max_depth):
- * kind (-1 past its last), face or plane, distance. The reverse's start (the chunk's state,
+ * kind (-1 past its last), face or plane, distance, which the trace records or, with replay,
+ * takes instead of searching (logged at the same heights). The reverse's start (the chunk's state,
  * medium and clear before the trace), its gradients g_state (N, STATE) and g_heights (threads, m, m). */
 enum { LOST_ESCAPED = 0, LOST_INSIDE_TOP = 1, LOST_FRESNEL = 2, LOST_MAX_DEPTH = 3, LOSS_KINDS = 4 };
 typedef struct {
@@ -85,7 +86,7 @@ typedef struct {
     int32_t *log_which;
     double *log_t;
     double *g_state, *g_heights;
-    int64_t n, max_depth, wait_at_top, threads;
+    int64_t n, max_depth, wait_at_top, replay, threads;
 } chunk_job;
 
 /* ---------------------------------------------------------------- small helpers */
@@ -438,19 +439,25 @@ typedef struct {
 
 /* Photon i of the chunk through its events (advance, _run in operators/mesh/trace_native.py): at
  * most max_depth of them, until it lands, is lost, waits at the top (wait_at_top) or has had
- * max_depth counted events in all; its losses into its row of c->lost, its events into the log. */
+ * max_depth counted events in all; its losses into its row of c->lost, its events into the log
+ * (or, with replay, from it). */
 static void trace_photon(const mesh_scene *ms, const mesh_faces *fa, const chunk_job *c, int64_t i, ray_hit *ray) {
     photon ph = {c->state + STATE * i, c->medium[i], c->status[i], c->channel[i], c->clear[i]};
     double *lost = c->lost + LOSS_KINDS * i;
     int64_t e = 0;
     for (; e < c->max_depth && ph.status == UNDER_WAY; e++) {
-        int64_t which;
+        int64_t kind, which;
         double t;
-        const int64_t kind = next_event(ms, fa, c->d, c->m, &ph, e == 0 && !c->wait_at_top, (int)c->wait_at_top, ray,
-                                        &which, &t);
+        if (c->replay) {
+            kind = c->log_kind[c->max_depth * i + e];
+            which = c->log_which[c->max_depth * i + e];
+            t = c->log_t[c->max_depth * i + e];
+        } else {
+            kind = next_event(ms, fa, c->d, c->m, &ph, e == 0 && !c->wait_at_top, (int)c->wait_at_top, ray, &which, &t);
+        }
         const double flux = ph.row[FLUX];
         apply_event(ms, fa, c->d, c->m, &ph, kind, which, t, &lost[LOST_FRESNEL]);
-        if (c->log_kind != NULL) {
+        if (c->log_kind != NULL && !c->replay) {
             c->log_kind[c->max_depth * i + e] = (int8_t)kind;
             c->log_which[c->max_depth * i + e] = (int32_t)which;
             c->log_t[c->max_depth * i + e] = t;
@@ -463,7 +470,7 @@ static void trace_photon(const mesh_scene *ms, const mesh_faces *fa, const chunk
             ph.status = LOST;
         }
     }
-    if (c->log_kind != NULL)
+    if (c->log_kind != NULL && !c->replay)
         for (; e < c->max_depth; e++) c->log_kind[c->max_depth * i + e] = -1;
     c->medium[i] = ph.medium;
     c->status[i] = ph.status;

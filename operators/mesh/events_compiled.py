@@ -55,7 +55,7 @@ class _Chunk(ctypes.Structure):
 
     _fields_ = [("d", _P), ("m", _I), ("state", _P), ("medium", _P), ("channel", _P), ("status", _P), ("events", _P),
                 ("clear", _P), ("lost", _P), ("log_kind", _P), ("log_which", _P), ("log_t", _P), ("g_state", _P),
-                ("g_heights", _P), ("n", _I), ("max_depth", _I), ("wait_at_top", _I), ("threads", _I)]
+                ("g_heights", _P), ("n", _I), ("max_depth", _I), ("wait_at_top", _I), ("replay", _I), ("threads", _I)]
 
 
 def _bind() -> ctypes.CDLL | None:
@@ -131,7 +131,7 @@ class EventLog:
 
 def _chunk(d: np.ndarray, state: np.ndarray, medium: np.ndarray, channel: np.ndarray, status: np.ndarray,
            events: np.ndarray, clear: np.ndarray, max_depth: int, wait_at_top: bool, log: EventLog | None,
-           lost: np.ndarray | None = None, g_state: np.ndarray | None = None,
+           replay: bool = False, lost: np.ndarray | None = None, g_state: np.ndarray | None = None,
            g_heights: np.ndarray | None = None) -> _Chunk:
     n = state.shape[0]
     if d.ndim != 2 or d.shape[0] != d.shape[1]:
@@ -150,7 +150,7 @@ def _chunk(d: np.ndarray, state: np.ndarray, medium: np.ndarray, channel: np.nda
         *((None, None, None) if log is None else (log.kind.ctypes.data, log.which.ctypes.data, log.t.ctypes.data)),
         None if g_state is None else _data(g_state, np.float64, "g_state", (n, mk.STATE)),
         None if g_heights is None else _data(g_heights, np.float64, "g_heights", (threads, *d.shape)),
-        n, max_depth, int(wait_at_top), threads)
+        n, max_depth, int(wait_at_top), int(replay), threads)
 
 
 def _check_status(status: int) -> None:
@@ -160,14 +160,17 @@ def _check_status(status: int) -> None:
 
 def trace(d: np.ndarray, state: np.ndarray, medium: np.ndarray, channel: np.ndarray, status: np.ndarray,
           events: np.ndarray, clear: np.ndarray, max_depth: int, wait_at_top: bool, faces: Faces,
-          sc: mk.MeshConstants, log: EventLog | None = None) -> np.ndarray:
+          sc: mk.MeshConstants, log: EventLog | None = None, replay: bool = False) -> np.ndarray:
     """Every photon under way through its events (at most ``max_depth``, until it lands, is lost,
     or with ``wait_at_top`` waits above the print; lost too once ``events`` (N,), counted over its
     whole path, reaches ``max_depth``), in place: ``state`` (N, STATE), ``medium``, ``status``,
-    ``events``, ``clear`` (N,); heights ``d`` (m, m). Records the events into ``log``. Returns
-    the flux each photon lost (N, len(LOSS_KINDS))."""
+    ``events``, ``clear`` (N,); heights ``d`` (m, m). Records the events into ``log``, or with
+    ``replay`` takes them from it (logged at the same heights: no search). Returns the flux each
+    photon lost (N, len(LOSS_KINDS))."""
+    if replay and log is None:
+        raise ValueError("a replay needs the log of the events")
     lost = np.zeros((state.shape[0], len(LOSS_KINDS)))
-    job = _chunk(d, state, medium, channel, status, events, clear, max_depth, wait_at_top, log, lost)
+    job = _chunk(d, state, medium, channel, status, events, clear, max_depth, wait_at_top, log, replay, lost)
     _check_status(_LIBRARY.sfc_mesh_trace(ctypes.byref(_scene(sc)), ctypes.byref(faces.struct), ctypes.byref(job)))
     return lost
 
@@ -181,7 +184,7 @@ def reverse(d: np.ndarray, start: tuple[np.ndarray, np.ndarray, np.ndarray], cha
     ``status`` (N,) as they were after it."""
     state, medium, clear = start
     job = _chunk(d, state, medium, channel, status, np.zeros(len(state), np.int64), clear, log.kind.shape[1], False,
-                 log, g_state=g_state, g_heights=g_heights)
+                 log, True, g_state=g_state, g_heights=g_heights)
     _check_status(_LIBRARY.sfc_mesh_reverse(ctypes.byref(_scene(sc)), ctypes.byref(faces.struct), ctypes.byref(job)))
 
 

@@ -65,6 +65,9 @@ class MeshSceneSettings:
         extension (operators/kernels/mesh_events.c, compiled at install); ``numba``, the numba
         kernels (compiled into numba's cache on first use, about 2 minutes). Without the
         extension: numba.
+    event_log_mb: memory (MiB) for the events a render with the C kernels records (13 bytes an
+        event, ``max_depth`` events a photon) and a gradient at the same heights replays instead
+        of searching again; 0 turns it off.
     """
 
     photons: int = 1 << 20
@@ -80,6 +83,7 @@ class MeshSceneSettings:
     dtype: str = "float32"
     native: bool = True
     kernels: str = "c"
+    event_log_mb: float = 256.0
 
     def __post_init__(self) -> None:
         for key in ("photons", "chunk_size", "max_depth"):
@@ -102,6 +106,9 @@ class MeshSceneSettings:
             raise ValueError(f"operator.dtype={self.dtype!r}; use float32 or float64")
         if self.kernels not in KERNELS:
             raise ValueError(f"operator.kernels={self.kernels!r} must be one of {', '.join(KERNELS)}")
+        if isinstance(self.event_log_mb, bool) or not isinstance(self.event_log_mb, (int, float)) or not (
+                0 <= self.event_log_mb < math.inf):
+            raise ValueError(f"operator.event_log_mb={self.event_log_mb!r} must be a number of MiB >= 0 (0: off)")
         if self.aperture_half_width is not None and not self.aperture_half_width > 0:
             raise ValueError(f"operator.aperture_half_width={self.aperture_half_width!r} must be positive or null")
 

@@ -140,15 +140,16 @@ class NativeMeshTracer:
 
     # -- events -------------------------------------------------------------------------------
     def _trace(self, d: np.ndarray, chunk: _Chunk, sc: mk.MeshConstants, wait_at_top: bool,
-               losses: dict[str, float], log: events_compiled.EventLog | None = None) -> None:
+               losses: dict[str, float], log: events_compiled.EventLog | None = None, replay: bool = False) -> None:
         """The chunk's photons through their events, by the C kernels (all events in one call) or
         by :meth:`_run` (one event per call); lost flux added to ``losses``; with the C kernels,
-        each photon's events recorded into ``log``."""
+        each photon's events recorded into ``log`` or, with ``replay``, taken from it."""
         if not self.compiled:
             self._run(d, chunk, sc, wait_at_top, losses)
             return
         lost = events_compiled.trace(d, chunk.state, chunk.medium, chunk.channel, chunk.status, chunk.events,
-                                     chunk.clear, self.operator.settings.max_depth, wait_at_top, self._faces, sc, log)
+                                     chunk.clear, self.operator.settings.max_depth, wait_at_top, self._faces, sc, log,
+                                     replay)
         for kind, total in zip(events_compiled.LOSS_KINDS, lost.sum(axis=0)):
             losses[kind] += float(total)
 
@@ -286,30 +287,36 @@ class NativeMeshTracer:
 
     # -- render and gradient ------------------------------------------------------------------
     def render(self, d: np.ndarray) -> tuple[torch.Tensor, dict[str, float]]:
-        """Flux per pixel (c, n, n) of heights ``d`` (m, m) float64 and the losses (W); with the
-        numba kernels the photons' events are kept for a :meth:`vjp` at the same heights."""
+        """Flux per pixel (c, n, n) of heights ``d`` (m, m) float64 and the losses (W); the photons'
+        events are kept for a :meth:`vjp` at the same heights (with the C kernels, within
+        ``event_log_mb``)."""
         pre = self.prefix()
         sc = self.constants(d)
         self._check_above(sc)
         image = pre.image.clone()
         losses = dict(pre.losses)
-        seen: list[list] = []
+        settings = self.operator.settings
+        keep = not self.compiled or len(pre.state) * settings.max_depth * 13 <= settings.event_log_mb * 2 ** 20
+        seen: list = []
         for start, stop in self._waiting_chunks():
             chunk, where = self._waiting(start, stop)
             if self.compiled:
-                self._trace(d, chunk, sc, False, losses)
+                log = events_compiled.EventLog.empty(stop - start, settings.max_depth) if keep else None
+                self._trace(d, chunk, sc, False, losses, log)
+                seen.append(log)
             else:
                 seen.append([])
                 self._run(d, chunk, sc, False, losses, events_log=seen[-1])
             image += self._splat(chunk, sc, losses, where)
-        self._events_seen = None if self.compiled else (d.copy(), seen)
+        self._events_seen = (d.copy(), seen) if keep else None
         return image, losses
 
     def vjp(self, d: np.ndarray, grad_flux: torch.Tensor) -> np.ndarray:
-        """Gradient (m, m) w.r.t. d of <flux per pixel, grad_flux (c, n, n)>. The C kernels trace
-        each chunk again, logging each photon's events, and take the gradient back through them
-        photon by photon; the numba kernels replay the events of the last :meth:`render` when it
-        had the same heights, keep a tape of every event's states and run it backwards."""
+        """Gradient (m, m) w.r.t. d of <flux per pixel, grad_flux (c, n, n)>. The photons' events
+        are replayed from the last :meth:`render` when it had the same heights (and kept them),
+        else searched again. The C kernels take the gradient back through each photon's logged
+        events photon by photon; the numba kernels keep a tape of every event's states and run it
+        backwards."""
         sc = self.constants(d)
         self._check_above(sc)
         g_heights = np.zeros((nb.get_num_threads(), *d.shape))
@@ -321,8 +328,9 @@ class NativeMeshTracer:
             tape: list = []
             if self.compiled:
                 before = (chunk.state.copy(), chunk.medium.copy(), chunk.clear.copy())
-                log = events_compiled.EventLog.empty(len(chunk.state), self.operator.settings.max_depth)
-                self._trace(d, chunk, sc, False, not_counted, log)
+                log = (seen[k] if seen is not None
+                       else events_compiled.EventLog.empty(len(chunk.state), self.operator.settings.max_depth))
+                self._trace(d, chunk, sc, False, not_counted, log, replay=seen is not None)
             else:
                 self._run(d, chunk, sc, False, not_counted, tape, events_replay=None if seen is None else seen[k])
             pos, metric, flux = self._splat_inputs(chunk, sc, not_counted)

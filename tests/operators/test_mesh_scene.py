@@ -160,6 +160,17 @@ def test_the_c_event_kernels_repeat_a_render_and_a_gradient_to_the_last_bit(monk
         assert torch.equal(op.vjp(heights, weights), first_grad)
 
 
+def test_a_gradient_replays_the_renders_events_and_equals_one_that_searches_them_again():
+    """With the C kernels a render keeps each photon's events and a gradient at the same heights
+    replays them; with event_log_mb=0 the gradient searches them again: the same bits."""
+    scene, heights, op = paper_scene("two_lenses")
+    searching = MeshSceneOperator(scene, op.elements, dataclasses.replace(op.settings, event_log_mb=0))
+    weights = torch.randn(op.output_shape, dtype=torch.float64, generator=torch.Generator().manual_seed(7))
+    assert torch.equal(op.render(heights), searching.render(heights))
+    assert op.native._events_seen is not None and searching.native._events_seen is None
+    assert torch.equal(op.vjp(heights, weights), searching.vjp(heights, weights))
+
+
 @pytest.mark.parametrize("elements, message", [
     ([lens_spec(0.05, 0.5, 0.1, 4.0)], "overlaps the substrate"),
     ([lens_spec(-1.2, 0.5, 0.1, 4.0)], "at or below the receiver"),
