@@ -25,13 +25,15 @@ from operators.mesh.culling import CLEAR_COS
 from operators.mesh.embree_native import INTERSECT1
 from operators.mesh.intersect_reference import MIN_FACE_DISTANCE, START_OFFSET
 
-__all__ = ["AVAILABLE", "LOSS_KINDS", "EventLog", "Faces", "trace", "reverse", "splat_arguments",
+__all__ = ["AVAILABLE", "BYTES_PER_EVENT", "LOSS_KINDS", "EventLog", "Faces", "trace", "reverse", "splat_arguments",
            "splat_arguments_adjoint"]
 
 _P = ctypes.c_void_p
 _I = ctypes.c_int64
 # The flux a photon lost, per kind (columns of the trace's losses; LOSSES in trace_native.py).
 LOSS_KINDS = ("escaped", "inside_top", "fresnel_reflected", "max_depth")
+# Memory of one logged event: int8 kind, int32 face or plane, float64 distance.
+BYTES_PER_EVENT = 13
 
 
 class _MeshScene(ctypes.Structure):

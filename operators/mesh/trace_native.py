@@ -104,8 +104,11 @@ class NativeMeshTracer:
         # (one event of every photon per call).
         self.compiled = operator.settings.kernels == "c" and events_compiled.AVAILABLE
         self._splat_arguments = events_compiled.splat_arguments if self.compiled else mk.splat_arguments
+        self._splat_arguments_adjoint = (events_compiled.splat_arguments_adjoint if self.compiled
+                                         else ma.splat_arguments_adjoint)
         self._prefix: Prefix | None = None
-        self._events_seen: tuple[np.ndarray, list[list]] | None = None
+        # The heights of the last render and its events per chunk, for a vjp at the same heights.
+        self._events_seen: tuple[np.ndarray, list] | None = None
         # The same faces, in the same order, in an Embree scene that the kernels query.
         self._triangles = EmbreeTriangles(intersector.vertices, intersector.faces) if intersector.count else None
         self.embree = 0 if self._triangles is None else self._triangles.handle
@@ -296,7 +299,8 @@ class NativeMeshTracer:
         image = pre.image.clone()
         losses = dict(pre.losses)
         settings = self.operator.settings
-        keep = not self.compiled or len(pre.state) * settings.max_depth * 13 <= settings.event_log_mb * 2 ** 20
+        log_bytes = len(pre.state) * settings.max_depth * events_compiled.BYTES_PER_EVENT
+        keep = not self.compiled or log_bytes <= settings.event_log_mb * 2 ** 20
         seen: list = []
         for start, stop in self._waiting_chunks():
             chunk, where = self._waiting(start, stop)
@@ -338,9 +342,8 @@ class NativeMeshTracer:
                 torch.from_numpy(pos).to(dtype), torch.from_numpy(metric).to(dtype), torch.from_numpy(flux).to(dtype),
                 torch.from_numpy(chunk.channel), grad_flux))
             g_state = np.empty_like(chunk.state)
-            (events_compiled.splat_arguments_adjoint if self.compiled else ma.splat_arguments_adjoint)(
-                chunk.state, chunk.status, sc, np.ascontiguousarray(g_pos), np.ascontiguousarray(g_metric),
-                np.ascontiguousarray(g_flux), g_state)
+            self._splat_arguments_adjoint(chunk.state, chunk.status, sc, np.ascontiguousarray(g_pos),
+                                          np.ascontiguousarray(g_metric), np.ascontiguousarray(g_flux), g_state)
             if self.compiled:
                 events_compiled.reverse(d, before, chunk.channel, chunk.status, log, self._faces, sc, g_state, g_heights)
             else:
