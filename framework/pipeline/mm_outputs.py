@@ -186,7 +186,10 @@ def save_deviation_figure(path: str | Path, d: np.ndarray, design: np.ndarray, h
     limit = float(np.abs(error_um).max()) or 1.0
     from matplotlib.figure import Figure  # matplotlib is imported when a figure is drawn
 
-    fig = Figure(figsize=(19.0, 4.2), layout="constrained")
+    # Fixed margins: a constrained layout lays the labels of the four panels out several times
+    # (1.3 s against 0.7 s a figure on 2 cores, in every run with a design).
+    fig = Figure(figsize=(19.0, 4.2))
+    fig.subplots_adjust(left=0.04, right=0.985, bottom=0.13, top=0.9, wspace=0.35)
     axes = fig.subplots(1, 4)
     for ax, (title, field) in zip(axes, (("design", design_mm), ("reconstruction", d_mm))):
         shown = ax.imshow(field, origin="lower", extent=extent, cmap="viridis", vmin=low, vmax=high)

@@ -61,7 +61,10 @@ def save_reconstruction_figures(output_dir: Path, heights: torch.Tensor, problem
             ax.set_title(where + title)
     fig.savefig(output_dir / "caustics.png", dpi=120, bbox_inches="tight")
 
+    # Fixed margins: a tight bounding box lays out the log axes' labels a second time (0.66 s
+    # against 0.23 s for this figure on 2 cores, in every run).
     fig = Figure(figsize=(10, 3.5))
+    fig.subplots_adjust(left=0.07, right=0.98, bottom=0.14, top=0.9, wspace=0.3)
     curves = [("rel_discrepancy", "relative discrepancy")] + [
         (key, label) for key, label in (("rel_error", "relative error (h + d)"), ("rel_error_d", "relative error (d)"))
         if key in history]
@@ -70,4 +73,4 @@ def save_reconstruction_figures(output_dir: Path, heights: torch.Tensor, problem
         ax.semilogy(history.get("iteration", range(1, len(history[key]) + 1)), history[key])
         ax.set_xlabel("iteration")
         ax.set_title(label)
-    fig.savefig(output_dir / "convergence.png", dpi=120, bbox_inches="tight")
+    fig.savefig(output_dir / "convergence.png", dpi=120)
