@@ -138,10 +138,9 @@ def _chunk(d: np.ndarray, state: np.ndarray, medium: np.ndarray, channel: np.nda
     n = state.shape[0]
     if d.ndim != 2 or d.shape[0] != d.shape[1]:
         raise ValueError(f"heights must be a square array, got {d.shape}")
-    if log is not None:
-        for name, array, dtype in (("log.kind", log.kind, np.int8), ("log.which", log.which, np.int32),
-                                   ("log.t", log.t, np.float64)):
-            _data(array, dtype, name, (n, max_depth))
+    logged = (None, None, None) if log is None else (
+        _data(log.kind, np.int8, "log.kind", (n, max_depth)), _data(log.which, np.int32, "log.which", (n, max_depth)),
+        _data(log.t, np.float64, "log.t", (n, max_depth)))
     threads = nb.get_num_threads() if g_heights is None else g_heights.shape[0]
     return _Chunk(
         _data(d, np.float64, "d", d.shape), d.shape[0], _data(state, np.float64, "state", (n, mk.STATE)),
@@ -149,7 +148,7 @@ def _chunk(d: np.ndarray, state: np.ndarray, medium: np.ndarray, channel: np.nda
         _data(status, np.int64, "status", (n,)), _data(events, np.int64, "events", (n,)),
         _data(clear, np.bool_, "clear", (n,)),
         None if lost is None else _data(lost, np.float64, "lost", (n, len(LOSS_KINDS))),
-        *((None, None, None) if log is None else (log.kind.ctypes.data, log.which.ctypes.data, log.t.ctypes.data)),
+        *logged,
         None if g_state is None else _data(g_state, np.float64, "g_state", (n, mk.STATE)),
         None if g_heights is None else _data(g_heights, np.float64, "g_heights", (threads, *d.shape)),
         n, max_depth, int(wait_at_top), int(replay), threads)
