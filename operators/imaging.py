@@ -28,8 +28,8 @@ from contextlib import AbstractContextManager
 from typing import Any
 
 import torch
-import torch.nn.functional as F
 
+from operators.band_filter import separable_correlate
 from operators.photon_operator import ImageOperator
 from operators.scene import Scene
 from operators.supersample import SupersampledOperator, block_mean, block_mean_adjoint
@@ -112,19 +112,10 @@ class ScreenBlur:
         centre = (self.profile.numel() - 1) // 2
         return 1.0 - float(self.profile[centre]) > 4.0 * torch.finfo(torch.float64).eps
 
-    @staticmethod
-    def _separable(image: torch.Tensor, rows: torch.Tensor, cols: torch.Tensor) -> torch.Tensor:
-        """The image (c, n, n) convolved with rows (x) cols, both odd-length and centred, zero padding."""
-        r = (rows.numel() - 1) // 2
-        x = image.unsqueeze(1)  # (c, 1, n, n)
-        x = F.conv2d(x, rows.to(image).view(1, 1, -1, 1), padding=(r, 0))
-        x = F.conv2d(x, cols.to(image).view(1, 1, 1, -1), padding=(0, r))
-        return x.squeeze(1)
-
     def _convolve(self, image: torch.Tensor) -> torch.Tensor:
         if not self.active:
             return image
-        return self._separable(image, self.profile, self.profile)
+        return separable_correlate(image, self.profile, self.profile)
 
     def apply(self, image: torch.Tensor) -> torch.Tensor:
         """K image: the blurred image (c, n, n)."""
@@ -140,7 +131,7 @@ class ScreenBlur:
         if not self.active:
             return torch.zeros_like(image)
         p, dp = self.profile, self.profile_derivative / self.pixel_size
-        return self._separable(image, dp, p) + self._separable(image, p, dp)
+        return separable_correlate(image, dp, p) + separable_correlate(image, p, dp)
 
 
 class ImagingOperator(ImageOperator):
