@@ -66,8 +66,9 @@ class MeshSceneSettings:
         kernels (compiled into numba's cache on first use, about 2 minutes). Without the
         extension: numba.
     event_log_mb: memory (MiB) for the events a render with the C kernels records (13 bytes an
-        event, ``max_depth`` events a photon) and a gradient at the same heights replays instead
-        of searching again; 0 turns it off.
+        event, ``max_depth`` events a photon), which a gradient at the same heights replays instead
+        of searching again, and where they fit beside them the photons' final states (160 bytes a
+        photon), from which that gradient starts; 0 turns it off.
     """
 
     photons: int = 1 << 20
@@ -83,7 +84,7 @@ class MeshSceneSettings:
     dtype: str = "float32"
     native: bool = True
     kernels: str = "c"
-    event_log_mb: float = 256.0
+    event_log_mb: float = 512.0
 
     def __post_init__(self) -> None:
         for key in ("photons", "chunk_size", "max_depth"):

@@ -55,6 +55,8 @@ class Prefix:
 _EVENT_DTYPES = (np.int64, np.int64, np.float64)
 # Work continues on a compact copy of the photons under way once fewer than this share are.
 COMPACT = 0.5
+# A photon's final state and status that a render keeps beside its events (bytes).
+FINAL_BYTES_PER_PHOTON = mk.STATE * 8 + 8
 
 
 @dataclass
@@ -291,34 +293,40 @@ class NativeMeshTracer:
     # -- render and gradient ------------------------------------------------------------------
     def render(self, d: np.ndarray) -> tuple[torch.Tensor, dict[str, float]]:
         """Flux per pixel (c, n, n) of heights ``d`` (m, m) float64 and the losses (W); the photons'
-        events are kept for a :meth:`vjp` at the same heights (with the C kernels, within
-        ``event_log_mb``)."""
+        events (with the C kernels: and their final states) are kept for a :meth:`vjp` at the same
+        heights, with the C kernels within ``event_log_mb``."""
         pre = self.prefix()
         sc = self.constants(d)
         self._check_above(sc)
         image = pre.image.clone()
         losses = dict(pre.losses)
         settings = self.operator.settings
+        budget = settings.event_log_mb * 2 ** 20
         log_bytes = len(pre.state) * settings.max_depth * events_compiled.BYTES_PER_EVENT
-        keep = not self.compiled or log_bytes <= settings.event_log_mb * 2 ** 20
+        keep = not self.compiled or log_bytes <= budget
+        keep_final = self.compiled and log_bytes + len(pre.state) * FINAL_BYTES_PER_PHOTON <= budget
         seen: list = []
+        finals: list = []
         for start, stop in self._waiting_chunks():
             chunk, where = self._waiting(start, stop)
             if self.compiled:
                 log = events_compiled.EventLog.empty(stop - start, settings.max_depth) if keep else None
                 self._trace(d, chunk, sc, False, losses, log)
                 seen.append(log)
+                if keep_final:
+                    finals.append((chunk.state, chunk.status))
             else:
                 seen.append([])
                 self._run(d, chunk, sc, False, losses, events_log=seen[-1])
             image += self._splat(chunk, sc, losses, where)
-        self._events_seen = (d.copy(), seen) if keep else None
+        self._events_seen = (d.copy(), seen, finals if keep_final else None) if keep else None
         return image, losses
 
     def vjp(self, d: np.ndarray, grad_flux: torch.Tensor) -> np.ndarray:
         """Gradient (m, m) w.r.t. d of <flux per pixel, grad_flux (c, n, n)>. The photons' events
         are replayed from the last :meth:`render` when it had the same heights (and kept them),
-        else searched again. The C kernels take the gradient back through each photon's logged
+        else searched again; with the C kernels, the final states that render kept spare the
+        replay up to the splat. The C kernels take the gradient back through each photon's logged
         events photon by photon; the numba kernels keep a tape of every event's states and run it
         backwards."""
         sc = self.constants(d)
@@ -326,11 +334,15 @@ class NativeMeshTracer:
         g_heights = np.zeros((nb.get_num_threads(), *d.shape))
         not_counted: dict[str, float] = dict.fromkeys(self.prefix().losses, 0.0)  # render counts them
         dtype = self.operator.dtype
-        seen = self._events_seen[1] if self._events_seen is not None and np.array_equal(self._events_seen[0], d) else None
+        same = self._events_seen is not None and np.array_equal(self._events_seen[0], d)
+        seen, finals = self._events_seen[1:] if same else (None, None)
         for k, (start, stop) in enumerate(self._waiting_chunks()):
             chunk, _ = self._waiting(start, stop)
             tape: list = []
-            if self.compiled:
+            if self.compiled and finals is not None:
+                before, log = (chunk.state, chunk.medium, chunk.clear), seen[k]
+                chunk.state, chunk.status = finals[k]
+            elif self.compiled:
                 before = (chunk.state.copy(), chunk.medium.copy(), chunk.clear.copy())
                 log = (seen[k] if seen is not None
                        else events_compiled.EventLog.empty(len(chunk.state), self.operator.settings.max_depth))
