@@ -111,7 +111,18 @@ def time_reference(heights: torch.Tensor, target: torch.Tensor, photons: int, fo
             "forward_backward_photons_per_s": op.photons / gradient_s}
 
 
-def mesh_scene_operators(photons: int, footprint_px: float, supersample: int) -> dict[str, object]:
+def mesh_footprint(value: str) -> float | str | None:
+    """--mesh-footprint's value: 'cell' or a number of pixels > 0; None where it is neither."""
+    if value == "cell":
+        return value
+    try:
+        pixels = float(value)
+    except ValueError:
+        return None
+    return pixels if 0 < pixels < math.inf else None
+
+
+def mesh_scene_operators(photons: int, footprint_px: float | str, supersample: int) -> dict[str, object]:
     """The height-field operator (conf/operator/height_field.yaml) and the mesh-scene operator on
     the plain scene and through the paper's two lenses (conf/operator/mesh_scene.yaml,
     two_lenses.yaml; with the C event kernels, the numba ones, and the torch tracer that both are
@@ -135,7 +146,7 @@ def mesh_scene_operators(photons: int, footprint_px: float, supersample: int) ->
             "mesh_scene_two_lenses_torch_tracer": configured("two_lenses", "operator.native=false")}
 
 
-def time_mesh_scenes(heights: torch.Tensor, photons: int, footprint_px: float,
+def time_mesh_scenes(heights: torch.Tensor, photons: int, footprint_px: float | str,
                      supersample: int) -> dict[str, dict[str, float]]:
     """Forward and forward + backward photons/s of :func:`mesh_scene_operators`, side by side
     (the best of two rounds that run them in turn), and the time of an iteration (one render,
@@ -302,6 +313,9 @@ def main(argv: list[str] | None = None) -> None:
                         help="photons of the one-thread per-stage profile (0: leave it out)")
     parser.add_argument("--mesh-photons", type=int, default=1 << 18,
                         help="photons of the mesh-scene comparison (0: leave it out)")
+    parser.add_argument("--mesh-footprint", default=None,
+                        help="footprint of every operator in the mesh-scene comparison: pixels, or 'cell' (the "
+                             "configs' default: each photon's own emission cell); default: --footprint-px")
     parser.add_argument("--mesh-supersample", type=int, default=1,
                         help="receiver supersampling of every operator in the mesh-scene comparison (the "
                              "configs' default: 4; 1 weighs the tracing, 4 the splat on the finer receiver)")
@@ -328,6 +342,9 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--device", choices=("cpu", "cuda"), default="cpu",
                         help="cuda: measure the CUDA kernels (beside this machine's CPU path) instead")
     args = parser.parse_args(argv)
+    mesh_fp = args.footprint_px if args.mesh_footprint is None else mesh_footprint(args.mesh_footprint)
+    if mesh_fp is None:
+        parser.error(f"--mesh-footprint={args.mesh_footprint!r} must be 'cell' or a number of pixels > 0")
 
     heights = heights_print_lines()
     if args.only == "fidelity":
@@ -382,7 +399,7 @@ def main(argv: list[str] | None = None) -> None:
     if args.stack_photons > 0:
         report["stack"] = time_stack(heights, args.stack_photons, args.footprint_px, args.chunk_size)
     if args.mesh_photons > 0:
-        report["mesh_scene"] = time_mesh_scenes(heights, args.mesh_photons, args.footprint_px, args.mesh_supersample)
+        report["mesh_scene"] = time_mesh_scenes(heights, args.mesh_photons, mesh_fp, args.mesh_supersample)
     if args.fidelity_photons > 0:
         report["fidelity"] = fidelity_report(args.fidelity_photons, args.fidelity_bias_photons,
                                              args.fidelity_reference_photons, args.wavefront_vertices,

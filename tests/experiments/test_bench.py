@@ -18,11 +18,18 @@ SMALL_RUN = ["solver.max_iter=3", "initial=zero", "photons=16384", "photon_budge
              "height_field.resolution=32", "checkpoint_every=100"]
 
 
+@pytest.mark.parametrize("value", ["wide", "0", "-2", "nan"])
+def test_a_bad_mesh_footprint_ends_in_one_line_before_any_timing(value, capsys):
+    with pytest.raises(SystemExit):
+        main(["--mesh-footprint", value])
+    assert f"--mesh-footprint={value!r} must be 'cell' or a number of pixels > 0" in capsys.readouterr().err
+
+
 @pytest.mark.slow
 def test_bench_prints_the_promised_figures(capsys):
     main(["--photons", "200000", "--grad-photons", "30000", "--splat-photons", "3000", "--chunk-size", "8192",
           "--reference-photons", "20000", "--stage-photons", "0", "--mesh-photons", "20000",
-          "--stack-photons", "20000", "--fidelity-photons", "20000", "--fidelity-bias-photons", "40000",
+          "--mesh-footprint", "cell", "--stack-photons", "20000", "--fidelity-photons", "20000", "--fidelity-bias-photons", "40000",
           "--fidelity-reference-photons", "40000", "--wavefront-vertices", "257", "--fidelity-resolutions", "48",
           "--reconstruction-overrides", *SMALL_RUN])
     report = json.loads(capsys.readouterr().out)
