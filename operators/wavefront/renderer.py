@@ -103,9 +103,10 @@ def grid_solid_angles(k: int, half: float, base: float, light: tuple[float, floa
     dz = base - light[2]
     omega = np.empty((2, k - 1, k - 1))
     for a in range(0, k - 1, ROW_BLOCK):
-        y0, y1 = y[a:a + ROW_BLOCK], y[a + 1:a + 1 + ROW_BLOCK]
-        omega[0, a:a + ROW_BLOCK] = triangle_solid_angle(x0, y0, x1, y0, x1, y1, dz)
-        omega[1, a:a + ROW_BLOCK] = triangle_solid_angle(x0, y0, x1, y1, x0, y1, dz)
+        b = min(a + ROW_BLOCK, k - 1)
+        y0, y1 = y[a:b], y[a + 1:b + 1]
+        omega[0, a:b] = triangle_solid_angle(x0, y0, x1, y0, x1, y1, dz)
+        omega[1, a:b] = triangle_solid_angle(x0, y0, x1, y1, x0, y1, dz)
     return omega
 
 

@@ -14,7 +14,8 @@ from scipy.optimize import brentq
 from operators.heightfield.operator import CausticOperator, OperatorSettings
 from operators.scene import PointLight, Receiver, Scene, Substrate
 from operators.wavefront.coverage import rasterize_grid, rasterize_triangles
-from operators.wavefront.renderer import WavefrontRenderer, wavefront_vertices
+from operators.wavefront.renderer import (ROW_BLOCK, WavefrontRenderer, grid_flux, grid_solid_angles,
+                                         triangle_solid_angle, wavefront_vertices)
 from tests.operators.conftest import bump
 
 LIGHT_Z, H, S = 10.0, 0.1, -0.05  # the default scene's light height, substrate thickness, receiver plane
@@ -309,3 +310,23 @@ def test_default_grid_and_settings():
         WavefrontRenderer(scene, vertices=9, subdivisions=-1)
     with pytest.raises(ValueError, match="NaN"):
         WavefrontRenderer(scene, vertices=9).render(torch.full((8, 8), float("nan")))
+
+
+@pytest.mark.parametrize("k", [5, ROW_BLOCK, ROW_BLOCK + 1, ROW_BLOCK + 2, 3 * ROW_BLOCK - 7])
+def test_the_grids_solid_angles_and_fluxes_by_row_blocks_equal_the_whole_grid_formulas(k):
+    """grid_solid_angles and grid_flux work ROW_BLOCK rows at a time: the same bits as the formulas
+    over the whole grid at once, for grids around the block size."""
+    light = (0.1, -0.2, 10.0)
+    axis = -1.0 + 2.0 * np.arange(k) / (k - 1)
+    x, y = (axis - light[0])[None, :], (axis - light[1])[:, None]
+    x0, x1, y0, y1 = x[:, :-1], x[:, 1:], y[:-1], y[1:]
+    dz = 0.1 - light[2]
+    omega = np.stack([triangle_solid_angle(x0, y0, x1, y0, x1, y1, dz), triangle_solid_angle(x0, y0, x1, y1, x0, y1, dz)])
+    assert np.array_equal(grid_solid_angles(k, 1.0, 0.1, light), omega)
+    rng = np.random.default_rng(k)
+    ratio = np.where(rng.random((k, k)) < 0.1, 0.0, rng.random((k, k)))
+    r00, r11, third = ratio[:-1, :-1], ratio[1:, 1:], np.stack([ratio[:-1, 1:], ratio[1:, :-1]])
+    lost = (r00 == 0.0).astype(np.int64) + (r11 == 0.0) + (third == 0.0)
+    flux, mixed = grid_flux(omega, ratio, 0.7)
+    assert np.array_equal(flux, np.where(lost == 0, 0.7 * omega * (r00 + r11 + third) / 3.0, 0.0))
+    assert np.array_equal(mixed, (lost > 0) & (lost < 3))
