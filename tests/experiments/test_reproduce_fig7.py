@@ -11,7 +11,8 @@ from experiments.reproduce_fig7 import main
 
 
 @pytest.mark.slow
-def test_both_reconstructions_are_logged_and_tabulated(tmp_path):
+def test_both_reconstructions_are_logged_and_tabulated(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)  # the sweep's Hydra directory (multirun/) goes to the working directory
     main(["--store", str(tmp_path / "mlruns"), "--out", str(tmp_path / "out"), "--overrides", "photons=20000",
           "receiver.resolution=32", "height_field.resolution=16", "data.reference_photons=60000",
           "data.reference_resolution=64", "solver.max_iter=3", "checkpoint_every=10", "initial=zero"])

@@ -14,7 +14,8 @@ SCENES = ("gaussian", "print_lines")
 
 
 @pytest.mark.slow
-def test_both_starts_on_a_strong_and_a_weak_caustic_are_logged_and_tabulated(tmp_path):
+def test_both_starts_on_a_strong_and_a_weak_caustic_are_logged_and_tabulated(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)  # the sweep's Hydra directory (multirun/) goes to the working directory
     main(["--store", str(tmp_path / "mlruns"), "--out", str(tmp_path / "out"), "--part", "scenes",
           "--scenes", ",".join(SCENES),
           "--starts", "zero,transport", "--overrides", "photons=20000", "receiver.resolution=32",
