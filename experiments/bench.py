@@ -37,6 +37,7 @@ from experiments.bench_reconstruction import reconstruction_report
 from experiments.bench_stages import stage_profile
 from experiments.timing import best_seconds
 from framework.core.shapes import make_shape
+from operators.emission import CELL_FOOTPRINT, check_footprint
 from operators.heightfield.operator import CausticOperator, OperatorSettings
 from operators.scene import Scene
 from operators.stack import StackOperator
@@ -112,14 +113,12 @@ def time_reference(heights: torch.Tensor, target: torch.Tensor, photons: int, fo
 
 
 def mesh_footprint(value: str) -> float | str | None:
-    """--mesh-footprint's value: 'cell' or a number of pixels > 0; None where it is neither."""
-    if value == "cell":
-        return value
+    """--mesh-footprint's value as the operators check a footprint (operators/emission.py): 'cell'
+    or a number of pixels > 0; None where it is neither."""
     try:
-        pixels = float(value)
+        return check_footprint(value if value == CELL_FOOTPRINT else float(value))
     except ValueError:
         return None
-    return pixels if 0 < pixels < math.inf else None
 
 
 def mesh_scene_operators(photons: int, footprint_px: float | str, supersample: int) -> dict[str, object]:
