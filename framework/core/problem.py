@@ -16,6 +16,7 @@ from functools import cached_property
 from framework.core.data import ReconstructionData
 from framework.core.contracts.operator import Operator
 from framework.core.objective import DataFidelity
+from framework.core.print_constraints import PrintConstraints
 from operators.scene import Scene
 from regularizers import RegularizerContext
 
@@ -68,12 +69,15 @@ class Problem:
             ground truth.
         grid: Geometry of the heights.
         scene: Light, substrate, receiver, material and wavelengths (operators/scene.py).
+        constraints: A design's printing limits (framework/core/print_constraints.py), which the
+            design solvers keep; None for a reconstruction.
     """
 
     operator: Operator
     data: ReconstructionData
     grid: HeightGrid
     scene: Scene
+    constraints: PrintConstraints | None = None
 
     def __post_init__(self) -> None:
         if tuple(self.data.mask.shape) != self.grid.shape:

@@ -55,3 +55,15 @@ def snell_normals(incident: np.ndarray, transmitted: np.ndarray, index: float) -
     normal = incident - index * transmitted
     normal /= np.linalg.norm(normal, axis=1, keepdims=True)
     return np.where(normal[:, 2:3] < 0.0, -normal, normal)
+
+
+def deflection_angle(tilt: float, index: float) -> float:
+    """Angle (radians) by which glass of refractive ``index`` with a top tilted by ``tilt`` (radians)
+    over a flat bottom turns a ray that meets it vertically: refracted at the top (Snell), then
+    leaving the bottom; 0 for a flat top. Raises for a tilt whose ray is totally reflected."""
+    inside = tilt - np.arcsin(np.sin(tilt) / index)  # the ray's angle to the vertical in the glass
+    sine = index * np.sin(inside)
+    if abs(sine) >= 1.0:
+        raise ValueError(f"a top tilted by {np.degrees(tilt):.1f} degrees reflects the light totally at the bottom; "
+                         "lower constraints.max_slope")
+    return float(np.arcsin(sine))

@@ -1,0 +1,45 @@
+"""sfc-design: a printable piece of glass whose caustic is a target image (Hydra app, conf/design.yaml;
+docs/design.md).
+
+Examples::
+
+    sfc-design                                             # grace_hopper, the default method (sfc), 5 minutes
+    sfc-design target.image=logo.png target.width="60 mm" receiver.z="-200 mm"
+    sfc-design method=schwartzburg                         # a baseline: the transport design alone
+    sfc-design method=adam                                 # a baseline: Adam from flat glass (Mitsuba 3 tutorial)
+
+Writes into the Hydra run directory: height_field.npy (scene units), height_field_mm.npy/.png,
+glass.stl and glass.obj (mm), caustic.npy/target.npy, preview_<f>x.npy/.png, design.png,
+metrics.json, verdict.txt, checkpoint.pt; logs to MLflow.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import hydra
+from hydra.core.hydra_config import HydraConfig
+from hydra.utils import get_original_cwd
+from omegaconf import DictConfig
+
+from experiments.input_errors import one_line_input_errors
+from framework.core.scene_config import to_plain
+from framework.pipeline.design_run import prepare_design, run_design
+
+CONFIG_DIR = str(Path(__file__).resolve().parent.parent / "conf")
+
+
+@hydra.main(version_base=None, config_path=CONFIG_DIR, config_name="design")
+@one_line_input_errors
+def main(cfg: DictConfig) -> None:
+    """Hydra entry point: check everything, design, print the verdict and where the files went."""
+    output_dir = Path(HydraConfig.get().runtime.output_dir)
+    plain = to_plain(cfg)
+    setup = prepare_design(plain, Path(get_original_cwd()))
+    result = run_design(plain, output_dir, setup=setup)
+    print("\n".join(result.verdict))
+    print(f"wrote height_field.npy, glass.stl, glass.obj, design.png, previews and metrics.json to {output_dir}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,332 @@
+"""One caustic design, end to end (docs/design.md): target and limits checked -> the method's start
+-> its solver within the time budget -> the nearest printable design -> its caustic rendered
+independently at the design distance and the preview distances -> files, verdict, MLflow.
+
+Used by ``sfc-design`` (experiments/design.py). The methods (config group ``method``): ``sfc``
+(the transport design, then L-BFGS on the differentiable operator), ``schwartzburg`` (the
+transport design alone) and ``adam`` (Adam from flat glass, the Mitsuba 3 tutorial's method).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from collections.abc import Mapping
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from framework.core.data import ReconstructionData
+from framework.core.design_target import DesignTarget, load_target
+from framework.core.image_io import load_mask
+from framework.core.image_metrics import relative_l2, ssim
+from framework.core.plugin_config import build_plugin, split_name
+from framework.core.print_constraints import PrintConstraints
+from framework.core.problem import HeightGrid, Problem
+from framework.core.scene_config import build_operator, build_scene, to_plain
+from framework.core.solver_loop import Callback
+from framework.core.units import mm_per_unit, scene_length, scene_volume
+from framework.pipeline.callbacks import Checkpointer, MetricsHistory, ProgressBar
+from framework.pipeline.checkpoint import restore
+from framework.pipeline.design_report import save_design_figure, save_previews
+from framework.pipeline.mm_outputs import export_outputs
+from framework.pipeline.tracking import MlflowTracker
+from framework.plugins.solvers.schwartzburg import SchwartzburgDesign, flat_magnification
+from operators.optics.inverse_refraction import deflection_angle
+from operators.scene import Scene
+
+__all__ = ["DesignSetup", "DesignResult", "prepare_design", "run_design"]
+
+CHECKPOINT = "checkpoint.pt"
+STARTS = ("transport", "flat")
+POWER_TOLERANCE = 0.01  # an absolute target within 1% of the power that reaches the screen is taken as is
+
+
+@dataclass
+class DesignSetup:
+    """Everything a design run needs, checked before any run opens.
+
+    Attributes:
+        scene: The scene, its receiver the target's square on the screen.
+        operator: The forward operator of the design (the configured plugin).
+        target: The target image (1, n, n) scaled to the power that reaches the screen (W per scene unit^2).
+        source: Where the target came from.
+        constraints: The printing limits.
+        grid: The height grid.
+        notes: What the setup changed and why (e.g. an energy normalisation), one line each.
+        mm: Millimetres per scene unit.
+    """
+
+    scene: Scene
+    operator: Any
+    target: torch.Tensor
+    source: str
+    constraints: PrintConstraints
+    grid: HeightGrid
+    notes: list[str]
+    mm: float
+
+    @property
+    def problem(self) -> Problem:
+        """The design as a :class:`Problem` (no noise level: a target is not a measurement)."""
+        data = ReconstructionData(target=self.target, mask=torch.ones(self.grid.shape, dtype=torch.bool),
+                                  volume=self.constraints.volume, delta=math.nan, source=self.source)
+        return Problem(self.operator, data, self.grid, self.scene, self.constraints)
+
+
+@dataclass
+class DesignResult:
+    """The end of a design: the printable heights (m, m), scene units, and the run's figures."""
+
+    heights: np.ndarray
+    metrics: dict[str, float]
+    verdict: list[str]
+
+
+def _length(value: Any, mm: float, where: str) -> float | None:
+    return None if value is None else scene_length(value, mm, where)
+
+
+def screen_reach(scene: Scene, max_slope: float) -> float:
+    """Half width of the square the glass can light on the screen (scene units): flat glass's
+    shadow plus the largest deflection a surface of slope ``max_slope`` gives, over the distance
+    from the top to the screen."""
+    index = float(max(scene.indices))
+    shadow = scene.substrate.half_width * flat_magnification(scene.light.position[2], scene.substrate.thickness,
+                                                             index, scene.receiver.z)
+    distance = scene.substrate.thickness - scene.receiver.z
+    return shadow + distance * math.tan(deflection_angle(math.atan(max_slope), index))
+
+
+def _constraints(cfg: Mapping[str, Any], m: int, half_width: float, mm: float, base_dir: Path | None
+                 ) -> PrintConstraints:
+    spec = dict(to_plain(cfg.get("constraints")) or {})
+    allowed = ("max_height", "max_slope", "min_feature", "volume", "mask")
+    unknown = [k for k in spec if k not in allowed]
+    if unknown:
+        raise ValueError(f"unknown key constraints.{unknown[0]}; allowed: {', '.join(allowed)}")
+    mask = None
+    if spec.get("mask") is not None:
+        path = Path(str(spec["mask"])).expanduser()
+        mask = load_mask(path if path.is_absolute() or base_dir is None else base_dir / path, m).numpy()
+    volume = spec.get("volume")
+    constraints = PrintConstraints(
+        max_height=_length(spec.get("max_height", "10 mm"), mm, "constraints.max_height"),
+        max_slope=spec.get("max_slope", 0.5), min_feature=_length(spec.get("min_feature"), mm, "constraints.min_feature"),
+        volume=None if volume is None else scene_volume(volume, mm, "constraints.volume"), mask=mask,
+        spacing=2.0 * half_width / (m - 1))
+    constraints.check_grid(m)
+    return constraints
+
+
+def prepare_design(cfg: Mapping[str, Any], base_dir: Path | None = None) -> DesignSetup:
+    """Read and check the target, the scene, the limits and the method's settings; render flat
+    glass to scale the target to the power that reaches the screen."""
+    mm = mm_per_unit(cfg)
+    spec = dict(to_plain(cfg.get("target")) or {})
+    resolution = spec.get("resolution", 256)
+    target = load_target(spec.get("image", "grace_hopper"), resolution, base_dir, spec.get("channel", "luminance"),
+                         spec.get("text", "SfC"))
+    scene = build_scene(cfg, mm)
+    if scene.receiver.resolution != resolution:
+        raise ValueError(f"receiver.resolution={scene.receiver.resolution} differs from target.resolution={resolution}; "
+                         "set only target.resolution")
+    index = float(max(scene.indices))
+    shadow = scene.substrate.half_width * flat_magnification(scene.light.position[2], scene.substrate.thickness,
+                                                             index, scene.receiver.z)
+    width = _length(spec.get("width"), mm, "target.width")
+    half = shadow if width is None else 0.5 * width
+    if not half > 0:
+        raise ValueError(f"target.width={spec.get('width')!r} must be a length > 0, e.g. '60 mm'")
+    scene = replace(scene, receiver=replace(scene.receiver, half_width=half))
+    m = int(to_plain(cfg.get("height_field") or {}).get("resolution", resolution))
+    grid = HeightGrid(m, scene.substrate.half_width, scene.substrate.thickness)
+    constraints = _constraints(cfg, m, grid.half_width, mm, base_dir)
+    _check_reach(target, scene, constraints.max_slope)
+    _check_method(cfg)
+    operator = build_operator(cfg, scene, mm=mm)
+    flat = operator.render(torch.zeros(grid.shape, dtype=operator.dtype)).detach().double()
+    power = float(flat.sum())
+    if not power > 0:
+        raise ValueError("no light of flat glass reaches the target's square on the screen; check light, "
+                         "receiver.z and target.width")
+    image = torch.from_numpy(target.image)[None].double()
+    notes = []
+    ratio = float(image.sum()) / power
+    if target.absolute and abs(ratio - 1.0) > POWER_TOLERANCE:
+        notes.append(f"the target carries {ratio:.1%} of the power that reaches the screen through flat glass; "
+                     "scaled to it (a refractive design only moves light)")
+    elif not target.absolute:
+        notes.append("the target's brightness is relative: scaled to the power that reaches the screen through "
+                     f"flat glass ({power * operator.pixel_area:.4g} W)")
+    return DesignSetup(scene, operator, image / ratio, target.source, constraints, grid, notes, mm)
+
+
+def _check_reach(target: DesignTarget, scene: Scene, max_slope: float) -> None:
+    """Refuse a target whose light lies beyond what the glass can light under the slope limit."""
+    image, half = target.image, scene.receiver.half_width
+    n = image.shape[0]
+    lit = np.argwhere(image > 1e-3 * image.max())
+    centres = (np.arange(n) + 0.5) / n * 2 * half - half
+    extent = float(max(np.abs(centres[lit[:, 0]]).max(), np.abs(centres[lit[:, 1]]).max()))
+    reach = screen_reach(scene, max_slope)
+    if extent > reach:
+        raise ValueError(f"the target's light reaches {extent:.3g} scene units from the axis but the glass can light "
+                         f"only {reach:.3g} (flat glass's shadow plus the deflection of slope {max_slope:g}); lower "
+                         "target.width, move the screen (receiver.z) or raise constraints.max_slope")
+
+
+def _method(cfg: Mapping[str, Any]) -> dict[str, Any]:
+    method = dict(to_plain(cfg.get("method")) or {})
+    for key in ("name", "start", "solver"):
+        if key not in method:
+            raise ValueError(f"method.{key} is missing; choose a method with method=sfc|schwartzburg|adam")
+    return method
+
+
+def _check_method(cfg: Mapping[str, Any]) -> None:
+    method = _method(cfg)
+    if method["start"] not in STARTS:
+        raise ValueError(f"method.start={method['start']!r} must be one of {', '.join(STARTS)}")
+    name, params = split_name(method["solver"], "method.solver")
+    build_plugin("solver", name, params, "method.solver")
+    seconds = cfg.get("seconds")
+    if isinstance(seconds, bool) or not isinstance(seconds, (int, float)) or not seconds > 0:
+        raise ValueError(f"seconds={seconds!r} must be the design's time budget in seconds > 0, e.g. 300")
+
+
+class TimeBudget(Callback):
+    """Stops the run when the method (its start included) has used ``seconds``; the design then is
+    the last iterate (a design has no noise level to stop at)."""
+
+    stop_accepts_iterate = True
+
+    def __init__(self, seconds: float, spent_before: float) -> None:
+        self.seconds, self.spent_before = seconds, spent_before
+
+    def on_iteration(self, solver, record) -> bool:  # noqa: D102
+        if self.spent_before + record.elapsed_s >= self.seconds:
+            self.stop_reason = f"the time budget of {self.seconds:g} s is spent"
+            return True
+        return False
+
+
+def _start(setup: DesignSetup, method: Mapping[str, Any]) -> tuple[torch.Tensor, dict[str, float]]:
+    """The method's start heights: flat glass, or the transport design (Schwartzburg's outer
+    iterations on a receiver of ``method.transport_resolution`` pixels, heights on the design grid)."""
+    zeros = torch.zeros(setup.grid.shape, dtype=setup.operator.dtype)
+    if method["start"] == "flat":
+        return zeros, {}
+    coarse = int(method.get("transport_resolution", setup.scene.receiver.resolution))
+    operator = setup.operator
+    target = setup.target
+    if coarse != setup.scene.receiver.resolution:
+        operator = setup.operator.variant(setup.operator.photons, 0, coarse)
+        target = torch.nn.functional.adaptive_avg_pool2d(target[None], coarse)[0]  # irradiance: averaged
+    data = ReconstructionData(target=target, mask=torch.ones(setup.grid.shape, dtype=torch.bool), volume=None,
+                              delta=math.nan)
+    problem = Problem(operator, data, setup.grid, operator.scene, setup.constraints)
+    transport = SchwartzburgDesign(problem, zeros, **dict(method.get("transport") or {}))
+    result = transport.run(int(method.get("transport_iterations", 3)))
+    first = result.history[0].extras
+    return result.d.to(setup.operator.dtype), {"transport_sites": first["transport_sites"],
+                                               "transport_seconds": first["transport_seconds"]}
+
+
+def _rendered_figures(setup: DesignSetup, d: np.ndarray, exact: Any) -> tuple[np.ndarray, dict[str, float]]:
+    image = exact.render(torch.from_numpy(d).to(torch.float64)).detach().double().cpu().numpy()
+    target = setup.target.numpy()
+    return image, {"relative_l2": relative_l2(image, target), "ssim": ssim(image, target)}
+
+
+def run_design(cfg: Mapping[str, Any], output_dir: Path, base_dir: Path | None = None,
+               setup: DesignSetup | None = None) -> DesignResult:
+    """Design the glass for ``cfg`` into ``output_dir`` (module docstring); resumes from the run
+    directory's checkpoint if one is there."""
+    setup = setup or prepare_design(cfg, base_dir)
+    method = _method(cfg)
+    seconds, seed = float(cfg["seconds"]), int(cfg.get("seed", 0))
+    output_dir.mkdir(parents=True, exist_ok=True)
+    tracking = dict(to_plain(cfg.get("tracking")) or {})
+    problem = setup.problem
+    name, params = split_name(method["solver"], "method.solver")
+    checkpoint = output_dir / CHECKPOINT
+    with MlflowTracker(experiment=tracking.get("experiment", "caustic-design"), run_name=method["name"],
+                       store_dir=tracking.get("store_dir", "mlruns"), tracking_uri=tracking.get("uri"),
+                       params=to_plain(cfg), tags={"method": method["name"], "target": setup.source}) as tracker:
+        began = time.perf_counter()
+        start_metrics: dict[str, float] = {}
+        if checkpoint.is_file():
+            d0 = torch.zeros(setup.grid.shape, dtype=setup.operator.dtype)
+        else:
+            d0, start_metrics = _start(setup, method)
+        start_seconds = time.perf_counter() - began
+        solver = build_plugin("solver", name, params, "method.solver")(problem, d0)
+        if checkpoint.is_file():
+            restore(solver, checkpoint)
+            start_seconds = float(json.loads((output_dir / "start.json").read_text())["seconds"])
+        else:
+            (output_dir / "start.json").write_text(json.dumps({"seconds": start_seconds, **start_metrics}))
+        tracker.log_metrics({f"start_{k}": v for k, v in start_metrics.items()} | {"start_seconds": start_seconds})
+        history = MetricsHistory()
+        callbacks = [history, ProgressBar(desc=f"design ({method['name']})"), TimeBudget(seconds, start_seconds),
+                     tracker.metrics_callback(), Checkpointer(checkpoint, every=int(cfg.get("checkpoint_every", 10)))]
+        result = solver.run(int(method.get("max_iter", 100000)), callbacks)
+        design_seconds = start_seconds + result.elapsed_s
+        raw = result.d.detach().double().cpu().numpy()
+        heights = setup.constraints.project(raw)
+        holds = setup.constraints.holds(heights)
+        photons = int(cfg.get("evaluation", {}).get("photons", 4 * setup.operator.photons))
+        exact = setup.operator.exact_variant(photons, seed + 1000, setup.scene.receiver.resolution)
+        caustic, figures = _rendered_figures(setup, heights, exact)
+        model = problem.fidelity.evaluate(torch.from_numpy(heights).to(setup.operator.dtype), with_grad=False)
+        measured = setup.constraints.measure(heights)
+        metrics = {**figures, "model_relative_l2": relative_l2(model.image.double().numpy(), setup.target.numpy()),
+                   "unprojected_relative_l2": relative_l2(problem.fidelity.evaluate(
+                       torch.from_numpy(raw).to(setup.operator.dtype), with_grad=False).image.double().numpy(),
+                       setup.target.numpy()),
+                   "design_seconds": design_seconds, "start_seconds": start_seconds, "iterations": result.iterations,
+                   **{f"printed_{k}": v for k, v in measured.items()},
+                   **{f"holds_{k}": float(v) for k, v in holds.items()}}
+        previews = save_previews(cfg, setup, heights, photons, seed, output_dir)
+        metrics.update(previews)
+        verdict = design_verdict(metrics, setup, result.stop_reason)
+        _save(output_dir, setup, heights, caustic, metrics, verdict, history)
+        tracker.log_metrics(metrics)
+        tracker.log_artifacts(output_dir, "design")
+    return DesignResult(heights, metrics, verdict)
+
+
+def design_verdict(metrics: Mapping[str, float], setup: DesignSetup, stop_reason: str) -> list[str]:
+    """The run's verdict, one line each: the match, the printing limits, how the run ended."""
+    c, mm = setup.constraints, setup.mm
+    lines = [f"matches the target to {metrics['relative_l2']:.1%} (relative L2 after energy normalisation), "
+             f"SSIM {metrics['ssim']:.2f}, rendered independently (exact wavefront renderer or fresh photons)",
+             f"max slope {metrics['printed_max_slope']:.3f} within {c.max_slope:g}; heights 0 to "
+             f"{metrics['printed_max_height'] * mm:.3f} mm within {c.max_height * mm:.3g} mm"]
+    if c.min_feature is not None:
+        lines.append(f"smallest crest or valley radius {0.5 * mm / max(metrics['printed_max_curvature'], 1e-300):.3g} mm "
+                     f"within {0.5 * c.min_feature * mm:.3g} mm")
+    if c.volume is not None:
+        lines.append(f"volume {metrics['printed_volume'] * mm ** 3:.4g} mm3 (asked {c.volume * mm ** 3:.4g} mm3)")
+    broken = [k[len("holds_"):] for k, v in metrics.items() if k.startswith("holds_") and not v]
+    if broken:
+        lines.append(f"NOT printable as asked: {', '.join(broken)} exceed their limits")
+    lines += setup.notes
+    lines.append(f"designed in {metrics['design_seconds']:.0f} s ({stop_reason})")
+    return lines
+
+
+def _save(output_dir: Path, setup: DesignSetup, heights: np.ndarray, caustic: np.ndarray, metrics: Mapping[str, float],
+          verdict: list[str], history: MetricsHistory) -> None:
+    np.save(output_dir / "height_field.npy", heights)
+    np.save(output_dir / "caustic.npy", caustic.astype(np.float32))
+    np.save(output_dir / "target.npy", setup.target.numpy().astype(np.float32))
+    export_outputs(output_dir, heights, setup.grid.half_width, setup.grid.base, setup.mm, formats=("stl", "obj"))
+    save_design_figure(output_dir / "design.png", setup, heights, caustic, metrics, history)
+    (output_dir / "metrics.json").write_text(json.dumps(dict(metrics), indent=2))
+    (output_dir / "verdict.txt").write_text("\n".join(verdict) + "\n")

@@ -1,0 +1,221 @@
+"""Caustic-design solvers on the differentiable operator (docs/design.md): the plugins
+``solver/design_lbfgs`` (the refinement of ``sfc-design``) and ``solver/design_adam`` (the baseline
+of the Mitsuba 3 caustics tutorial: Adam on the heights from flat glass).
+
+Both minimise the design objective
+
+    J(d) = f(d) + weight * P(d),
+
+f the problem's data term (1/2 ||F(d) - b||^2 / (||b||^2 a), framework/core/objective.py) against
+the energy-normalised target, P the printing limits' squared relative violations
+(:meth:`framework.core.print_constraints.PrintConstraints.penalty`). The limits hold exactly only
+after the design pipeline's final projection (framework/pipeline/design_run.py); the penalty keeps
+that projection small.
+
+``design_lbfgs`` is limited-memory BFGS (Nocedal and Wright, Algorithm 7.4) with a backtracking
+Armijo line search: one operator render and gradient per trial, the accepted trial's evaluation
+reused by the next iteration. The first step moves the heights by at most ``first_step`` (scene
+units). ``design_adam`` is Adam (Kingma and Ba 2015) with learning rate ``lr`` (scene units per
+step), the heights clipped to [0, max_height] after every step as in the tutorial.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from typing import TYPE_CHECKING, Any
+
+import torch
+from torch import Tensor
+
+from framework.core.solver_loop import IterationFailed, IterationRecord, IterativeSolver
+from framework.core.values import positive_int
+
+if TYPE_CHECKING:
+    from framework.core.problem import Problem
+
+__all__ = ["DesignAdam", "DesignLBFGS"]
+
+ARMIJO_C1 = 1e-4
+MAX_BACKTRACKS = 10
+
+
+def _positive(name: str, value: Any) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not (math.isfinite(value) and value > 0):
+        raise ValueError(f"solver.{name}={value!r} must be a number > 0")
+    return float(value)
+
+
+class _DesignObjective:
+    """J(d) = f(d) + weight P(d) with its gradient, the rendered image and the data term apart."""
+
+    def __init__(self, problem: Problem, weight: float) -> None:
+        if problem.constraints is None:
+            raise ValueError("a design solver needs the design's printing limits (problem.constraints); "
+                             "run it through sfc-design")
+        self.problem, self.weight = problem, weight
+
+    def __call__(self, d: Tensor) -> tuple[float, Tensor, float, float]:
+        """(J, grad J, f, relative discrepancy) at d."""
+        evaluation = self.problem.fidelity.evaluate(d, with_grad=True)
+        x = d.detach().double().requires_grad_(True)
+        penalty = self.problem.constraints.penalty(x)
+        (grad_penalty,) = torch.autograd.grad(penalty, x)
+        value = evaluation.value + self.weight * float(penalty.detach())
+        grad = evaluation.grad.double() + self.weight * grad_penalty
+        return value, grad, evaluation.value, evaluation.rel_discrepancy
+
+
+class DesignLBFGS(IterativeSolver):
+    """L-BFGS on the design objective (module docstring).
+
+    Args:
+        problem: The design problem (its constraints set).
+        d0: Start heights (m, m), e.g. the transport design.
+        memory: Curvature pairs kept.
+        penalty_weight: ``weight`` of the printing limits' penalty.
+        first_step: Largest height change of the first step, scene units.
+    """
+
+    name = "design_lbfgs"
+
+    def __init__(self, problem: Problem, d0: Tensor, memory: int = 12, penalty_weight: float = 10.0,
+                 first_step: float = 2e-3) -> None:
+        super().__init__(d0)
+        self.objective = _DesignObjective(problem, penalty_weight)
+        self.memory, self.first_step = memory, first_step
+        self._pairs: list[tuple[Tensor, Tensor]] = []
+        self._current: tuple[float, Tensor, float, float] | None = None
+
+    @classmethod
+    def from_config(cls, memory: int = 12, penalty_weight: float = 10.0, first_step: float = 2e-3) -> Any:
+        """The plugin ``solver/design_lbfgs``: checks the settings, returns the builder."""
+        memory = positive_int(memory, "solver.memory")
+        weight, step = _positive("penalty_weight", penalty_weight), _positive("first_step", first_step)
+        return lambda problem, d0: cls(problem, d0, memory, weight, step)
+
+    def _direction(self, grad: Tensor) -> Tensor:
+        """-H grad by the two-loop recursion over the kept pairs (s, y)."""
+        q = grad.clone()
+        alphas = []
+        for s, y in reversed(self._pairs):
+            alpha = float((s * q).sum()) / float((y * s).sum())
+            alphas.append(alpha)
+            q -= alpha * y
+        if self._pairs:
+            s, y = self._pairs[-1]
+            q *= float((s * y).sum()) / float((y * y).sum())
+        for (s, y), alpha in zip(self._pairs, reversed(alphas)):
+            beta = float((y * q).sum()) / float((y * s).sum())
+            q += (alpha - beta) * s
+        return -q
+
+    def step(self) -> IterationRecord:
+        """One L-BFGS iteration: direction, backtracking until Armijo holds, pair update."""
+        t0 = time.perf_counter()
+        d = self.state.d.double()
+        if self._current is None:
+            self._current = self.objective(self.state.d)
+        value, grad, _, _ = self._current
+        direction = self._direction(grad)
+        slope = float((grad * direction).sum())
+        if not slope < 0.0:  # not a descent direction: forget the curvature and go down the gradient
+            self._pairs.clear()
+            direction, slope = -grad, -float((grad * grad).sum())
+        tau = 1.0 if self._pairs else self.first_step / max(float(direction.abs().max()), 1e-300)
+        trials = 0
+        for trials in range(1, MAX_BACKTRACKS + 1):
+            candidate = (d + tau * direction).to(self.state.d.dtype)
+            trial = self.objective(candidate)
+            if math.isfinite(trial[0]) and trial[0] <= value + ARMIJO_C1 * tau * slope:
+                break
+            tau *= 0.5
+        else:
+            raise IterationFailed(f"no decrease along the L-BFGS direction after {MAX_BACKTRACKS} halvings")
+        s, y = candidate.double() - d, trial[1] - grad
+        if float((s * y).sum()) > 1e-12 * float((y * y).sum()) ** 0.5 * float((s * s).sum()) ** 0.5:
+            self._pairs = (self._pairs + [(s, y)])[-self.memory:]
+        self.state.d, self._current = candidate, trial
+        return self._record(trial, tau, trials, t0)
+
+    def _record(self, evaluation: tuple[float, Tensor, float, float], tau: float, trials: int, t0: float
+                ) -> IterationRecord:
+        value, _, data_term, rel = evaluation
+        self.state.iteration += 1
+        self.state.elapsed_s += time.perf_counter() - t0
+        record = IterationRecord(self.state.iteration, value, data_term, rel, tau, self.state.elapsed_s,
+                                 {"evaluations": float(trials), "penalty": (value - data_term) / self.objective.weight})
+        self.history.append(record)
+        return record
+
+    def setup_changed(self) -> None:  # noqa: D102
+        self._pairs.clear()
+        self._current = None
+
+    def state_dict(self) -> dict[str, Any]:
+        """Adds the curvature pairs."""
+        return {**super().state_dict(), "pairs": [(s.clone(), y.clone()) for s, y in self._pairs]}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:  # noqa: D102
+        super().load_state_dict(state)
+        self._pairs = [(s.double(), y.double()) for s, y in state.get("pairs", [])]
+        self._current = None
+
+
+class DesignAdam(IterativeSolver):
+    """Adam on the heights, clipped to [0, max_height] after every step (module docstring). An
+    iteration's record holds the figures of the heights its step started from (one evaluation a step).
+
+    Args:
+        problem: The design problem (its constraints set).
+        d0: Start heights (m, m) (the baseline starts from flat glass, zeros).
+        lr: Adam's learning rate, scene units per step.
+        penalty_weight: ``weight`` of the printing limits' penalty.
+    """
+
+    name = "design_adam"
+
+    def __init__(self, problem: Problem, d0: Tensor, lr: float = 2e-4, penalty_weight: float = 10.0) -> None:
+        super().__init__(d0)
+        self.objective = _DesignObjective(problem, penalty_weight)
+        self.lr = lr
+        self._heights = torch.nn.Parameter(self.state.d.detach().double().clone())
+        self._adam = torch.optim.Adam([self._heights], lr=lr)
+
+    @classmethod
+    def from_config(cls, lr: float = 2e-4, penalty_weight: float = 10.0) -> Any:
+        """The plugin ``solver/design_adam``: checks the settings, returns the builder."""
+        lr, weight = _positive("lr", lr), _positive("penalty_weight", penalty_weight)
+        return lambda problem, d0: cls(problem, d0, lr, weight)
+
+    def step(self) -> IterationRecord:
+        """One Adam step from the gradient at the current heights."""
+        t0 = time.perf_counter()
+        value, grad, data_term, rel = self.objective(self.state.d)
+        self._heights.grad = grad
+        self._adam.step()
+        with torch.no_grad():
+            self._heights.clamp_(0.0, self.objective.problem.constraints.max_height)
+        self.state.d = self._heights.detach().to(self.state.d.dtype).clone()
+        self.state.iteration += 1
+        self.state.elapsed_s += time.perf_counter() - t0
+        record = IterationRecord(self.state.iteration, value, data_term, rel, self.lr, self.state.elapsed_s,
+                                 {"penalty": (value - data_term) / self.objective.weight})
+        self.history.append(record)
+        return record
+
+    def set_heights(self, d: Tensor) -> None:  # noqa: D102
+        super().set_heights(d)
+        with torch.no_grad():
+            self._heights.copy_(self.state.d.double())
+
+    def state_dict(self) -> dict[str, Any]:
+        """Adds Adam's moments."""
+        return {**super().state_dict(), "adam": self._adam.state_dict()}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:  # noqa: D102
+        super().load_state_dict(state)
+        with torch.no_grad():
+            self._heights.copy_(self.state.d.double())
+        if "adam" in state:
+            self._adam.load_state_dict(state["adam"])
