@@ -44,12 +44,12 @@ def tracking_store(args: argparse.Namespace) -> TrackingStore:
 
 
 def run_sweep(store: TrackingStore, experiment: str, sweep: Sequence[str], extra: Sequence[str],
-              launcher: str | None = None) -> None:
-    """One ``sfc-reconstruct -m`` over the ``sweep`` overrides (e.g. ``experiment=m1,m2v1``), every job
-    an MLflow run of ``experiment`` in ``store``, launched by the Hydra ``launcher`` (a name in
-    conf/hydra/launcher/, e.g. slurm; None: one job after the other here); a failed job is
-    reported, the others are kept."""
-    cmd = [sys.executable, "-m", "experiments.reconstruct", "-m", *sweep, f"tracking.experiment={experiment}",
+              launcher: str | None = None, app: str = "experiments.reconstruct") -> None:
+    """One multirun of the Hydra ``app`` (default ``sfc-reconstruct``) over the ``sweep`` overrides
+    (e.g. ``experiment=m1,m2v1``), every job an MLflow run of ``experiment`` in ``store``, launched by
+    the Hydra ``launcher`` (a name in conf/hydra/launcher/, e.g. slurm; None: one job after the other
+    here); a failed job is reported, the others are kept."""
+    cmd = [sys.executable, "-m", app, "-m", *sweep, f"tracking.experiment={experiment}",
            *store.overrides(), *([f"hydra/launcher={launcher}"] if launcher else []), *extra]
     done = subprocess.run(cmd, check=False)
     if done.returncode != 0:

@@ -74,8 +74,10 @@ def test_the_test_suites_operator_keeps_the_contract() -> None:
 
 @pytest.mark.parametrize("name", available("solver"))
 def test_every_solver_solves_a_known_problem(name, known_problem) -> None:
-    settings = example_settings(lookup("solver", name))
-    check_solver(lambda: build_plugin("solver", name, settings, "solver"), known_problem, who=f"solver/{name}")
+    plugin = lookup("solver", name)
+    settings = example_settings(plugin)
+    check_solver(lambda: build_plugin("solver", name, settings, "solver"), known_problem, who=f"solver/{name}",
+                 iterations=getattr(plugin, "contract_iterations", 40))
 
 
 def test_the_test_suites_solver_keeps_the_contract(known_problem) -> None:

@@ -74,6 +74,7 @@ MINIMAL = {
     ("solver", "landweber_wavelet"): ({"step_size": STEP, "wavelet_regularizer": {"name": "l1_wavelet", "levels": 1},
                                        "preconditioner": {"name": "sobolev"}}, {}),
     ("solver", "schwartzburg"): ({"outer_tolerance": 0.5}, {}),
+    ("solver", "design_lbfgs"): ({}, {}), ("solver", "design_adam"): ({"lr": 1e-3}, {}),
     ("solver", "gauss_newton"): ({"step_size": STEP, "regularizers": {"l1_bounds": {}},
                                   "post_steps": {"volume_hold": {}}, "gauss_newton": {"cg_iterations": 2}}, {}),
     ("regularizer", "bounds"): ({}, {}), ("regularizer", "l1_bounds"): ({}, {}), ("regularizer", "l1_pixel"): ({}, {}),

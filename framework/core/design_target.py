@@ -13,6 +13,7 @@ channel (``channel``: luminance, r, g or b). Built-in targets, for tests and com
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -21,8 +22,10 @@ from PIL import Image, UnidentifiedImageError
 
 from framework.core.height_field_io import load_npy
 from framework.core.image_io import existing_file
+from operators.optics.inverse_refraction import deflection_angle, flat_magnification
+from operators.scene import Scene
 
-__all__ = ["BUILT_IN_TARGETS", "CHANNELS", "DesignTarget", "built_in_target", "load_target"]
+__all__ = ["BUILT_IN_TARGETS", "CHANNELS", "DesignTarget", "built_in_target", "load_target", "screen_reach"]
 
 BUILT_IN_TARGETS = ("grace_hopper", "logo", "ring", "text")
 CHANNELS = ("luminance", "r", "g", "b")
@@ -61,16 +64,15 @@ def _sample_data(name: str) -> Image.Image:
 
 def _text_image(text: str, resolution: int) -> np.ndarray:
     """``text`` in bold white on black (H, W) in [0, 1], first row on top, rendered by matplotlib."""
-    import matplotlib
-
-    matplotlib.use("Agg")
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
     figure = Figure(figsize=(4, 4), dpi=max(resolution // 4, 16), facecolor="black")
     figure.text(0.5, 0.5, text, color="white", ha="center", va="center", fontsize=200 / max(len(text), 1) ** 0.5,
                 fontweight="bold", family="DejaVu Sans")
-    figure.canvas.draw()
-    rgba = np.asarray(figure.canvas.buffer_rgba(), dtype=np.float64) / 255.0
+    canvas = FigureCanvasAgg(figure)
+    canvas.draw()
+    rgba = np.asarray(canvas.buffer_rgba(), dtype=np.float64) / 255.0
     return rgba[..., :3] @ np.asarray(LUMINANCE)
 
 
@@ -162,3 +164,14 @@ def load_target(image: str, resolution: int, base_dir: str | Path | None = None,
     if array.max() <= 0.0:
         raise ValueError(f"target {source} is all black; a design needs some light in the target")
     return DesignTarget(array, source, absolute)
+
+
+def screen_reach(scene: Scene, max_slope: float) -> float:
+    """Half width of the square the glass can light on the screen (scene units): flat glass's
+    shadow plus the largest deflection a surface of slope ``max_slope`` gives, over the distance
+    from the top to the screen."""
+    index = float(max(scene.indices))
+    shadow = scene.substrate.half_width * flat_magnification(scene.light.position[2], scene.substrate.thickness,
+                                                             index, scene.receiver.z)
+    distance = scene.substrate.thickness - scene.receiver.z
+    return shadow + distance * math.tan(deflection_angle(math.atan(max_slope), index))

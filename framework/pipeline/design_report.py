@@ -12,11 +12,11 @@ import numpy as np
 import torch
 
 from framework.core.plotting import label_xy_axes, save_caustic_png, save_figure
+from framework.core.design_target import screen_reach
 from framework.core.scene_config import build_operator, to_plain
 
 if TYPE_CHECKING:
     from framework.pipeline.callbacks import MetricsHistory
-    from framework.pipeline.design_run import DesignSetup
 
 __all__ = ["preview_factors", "save_previews", "save_design_figure"]
 
@@ -30,14 +30,12 @@ def preview_factors(cfg: Mapping[str, Any]) -> list[float]:
     return [float(f) for f in factors]
 
 
-def save_previews(cfg: Mapping[str, Any], setup: DesignSetup, heights: np.ndarray, photons: int, seed: int,
+def save_previews(cfg: Mapping[str, Any], setup: Any, heights: np.ndarray, photons: int, seed: int,
                   output_dir: Path) -> dict[str, float]:
     """Render the design's caustic on screens at each preview factor times the design distance,
     each over the square the glass can light there (the screen reach under the slope limit), by
     the operator's independent renderer; writes preview_<f>x.npy/.png. Returns the share of the
     flat glass's power on each screen (``preview_<f>x_power_share``)."""
-    from framework.pipeline.design_run import screen_reach
-
     out: dict[str, float] = {}
     distance = -setup.scene.receiver.z
     for factor in preview_factors(cfg):
@@ -54,7 +52,7 @@ def save_previews(cfg: Mapping[str, Any], setup: DesignSetup, heights: np.ndarra
     return out
 
 
-def save_design_figure(path: Path, setup: DesignSetup, heights: np.ndarray, caustic: np.ndarray,
+def save_design_figure(path: Path, setup: Any, heights: np.ndarray, caustic: np.ndarray,
                        metrics: Mapping[str, float], history: MetricsHistory) -> Path:
     """Target | designed caustic | difference | heights (mm), and the relative discrepancy per
     iteration below."""

@@ -2,7 +2,7 @@
 -> its solver within the time budget -> the nearest printable design -> its caustic rendered
 independently at the design distance and the preview distances -> files, verdict, MLflow.
 
-Used by ``sfc-design`` (experiments/design.py). The methods (config group ``method``): ``sfc``
+Used by ``sfc-design`` (experiments/design.py). The methods (config group ``design_method``): ``sfc``
 (the transport design, then L-BFGS on the differentiable operator), ``schwartzburg`` (the
 transport design alone) and ``adam`` (Adam from flat glass, the Mitsuba 3 tutorial's method).
 """
@@ -21,7 +21,7 @@ import numpy as np
 import torch
 
 from framework.core.data import ReconstructionData
-from framework.core.design_target import DesignTarget, load_target
+from framework.core.design_target import DesignTarget, load_target, screen_reach
 from framework.core.image_io import load_mask
 from framework.core.image_metrics import relative_l2, ssim
 from framework.core.plugin_config import build_plugin, split_name
@@ -35,8 +35,9 @@ from framework.pipeline.checkpoint import restore
 from framework.pipeline.design_report import save_design_figure, save_previews
 from framework.pipeline.mm_outputs import export_outputs
 from framework.pipeline.tracking import MlflowTracker
-from framework.plugins.solvers.schwartzburg import SchwartzburgDesign, flat_magnification
-from operators.optics.inverse_refraction import deflection_angle
+from framework.plugins.stopping import MorozovStopping
+from framework.plugins.solvers.schwartzburg import SchwartzburgDesign
+from operators.optics.inverse_refraction import flat_magnification
 from operators.scene import Scene
 
 __all__ = ["DesignSetup", "DesignResult", "prepare_design", "run_design"]
@@ -59,6 +60,8 @@ class DesignSetup:
         grid: The height grid.
         notes: What the setup changed and why (e.g. an energy normalisation), one line each.
         mm: Millimetres per scene unit.
+        model_noise: The relative discrepancy that the operator's own render noise explains: two
+            renders of flat glass with photon seeds seed and seed + 1 differ by sqrt(2) times it.
     """
 
     scene: Scene
@@ -69,12 +72,13 @@ class DesignSetup:
     grid: HeightGrid
     notes: list[str]
     mm: float
+    model_noise: float
 
     @property
     def problem(self) -> Problem:
-        """The design as a :class:`Problem` (no noise level: a target is not a measurement)."""
+        """The design as a :class:`Problem`; its noise level is the model's own render noise."""
         data = ReconstructionData(target=self.target, mask=torch.ones(self.grid.shape, dtype=torch.bool),
-                                  volume=self.constraints.volume, delta=math.nan, source=self.source)
+                                  volume=self.constraints.volume, delta=self.model_noise, source=self.source)
         return Problem(self.operator, data, self.grid, self.scene, self.constraints)
 
 
@@ -89,17 +93,6 @@ class DesignResult:
 
 def _length(value: Any, mm: float, where: str) -> float | None:
     return None if value is None else scene_length(value, mm, where)
-
-
-def screen_reach(scene: Scene, max_slope: float) -> float:
-    """Half width of the square the glass can light on the screen (scene units): flat glass's
-    shadow plus the largest deflection a surface of slope ``max_slope`` gives, over the distance
-    from the top to the screen."""
-    index = float(max(scene.indices))
-    shadow = scene.substrate.half_width * flat_magnification(scene.light.position[2], scene.substrate.thickness,
-                                                             index, scene.receiver.z)
-    distance = scene.substrate.thickness - scene.receiver.z
-    return shadow + distance * math.tan(deflection_angle(math.atan(max_slope), index))
 
 
 def _constraints(cfg: Mapping[str, Any], m: int, half_width: float, mm: float, base_dir: Path | None
@@ -148,22 +141,42 @@ def prepare_design(cfg: Mapping[str, Any], base_dir: Path | None = None) -> Desi
     constraints = _constraints(cfg, m, grid.half_width, mm, base_dir)
     _check_reach(target, scene, constraints.max_slope)
     _check_method(cfg)
+    image, scene = _padded_to_shadow(target.image, scene, shadow)
     operator = build_operator(cfg, scene, mm=mm)
-    flat = operator.render(torch.zeros(grid.shape, dtype=operator.dtype)).detach().double()
+    zeros = torch.zeros(grid.shape, dtype=operator.dtype)
+    flat = operator.render(zeros).detach().double()
     power = float(flat.sum())
     if not power > 0:
-        raise ValueError("no light of flat glass reaches the target's square on the screen; check light, "
-                         "receiver.z and target.width")
-    image = torch.from_numpy(target.image)[None].double()
+        raise ValueError("no light of flat glass reaches the screen; check light and receiver.z")
     notes = []
+    if scene.receiver.resolution != resolution:
+        notes.append(f"the screen is widened to {scene.receiver.resolution} x {scene.receiver.resolution} pixels "
+                     f"({2 * scene.receiver.half_width * mm:.4g} mm) around the target to catch all the light "
+                     "through the glass; outside the target it should be dark")
     ratio = float(image.sum()) / power
     if target.absolute and abs(ratio - 1.0) > POWER_TOLERANCE:
-        notes.append(f"the target carries {ratio:.1%} of the power that reaches the screen through flat glass; "
+        notes.append(f"the target carries {ratio:.1%} of the power that reaches the screen through the glass; "
                      "scaled to it (a refractive design only moves light)")
     elif not target.absolute:
         notes.append("the target's brightness is relative: scaled to the power that reaches the screen through "
-                     f"flat glass ({power * operator.pixel_area:.4g} W)")
-    return DesignSetup(scene, operator, image / ratio, target.source, constraints, grid, notes, mm)
+                     f"the glass ({power * operator.pixel_area:.4g} W)")
+    image = image / ratio
+    second = operator.variant(operator.photons, int(cfg.get("seed", 0)) + 1, scene.receiver.resolution)
+    noise = float(torch.linalg.vector_norm(flat - second.render(zeros).double())) / (
+        math.sqrt(2.0) * float(torch.linalg.vector_norm(image)))
+    return DesignSetup(scene, operator, image, target.source, constraints, grid, notes, mm, noise)
+
+
+def _padded_to_shadow(image: np.ndarray, scene: Scene, shadow: float) -> tuple[torch.Tensor, Scene]:
+    """The target (1, N, N) and the scene with the screen widened by whole pixels, black, until it
+    holds flat glass's shadow: all the light through the glass then lands on it, and a design can
+    gather all of it into a target smaller than the glass's shadow."""
+    n, half = image.shape[0], scene.receiver.half_width
+    pixel = 2.0 * half / n
+    pad = max(0, math.ceil((shadow - half) / pixel - 1e-9))
+    padded = np.pad(image, pad)
+    receiver = replace(scene.receiver, resolution=n + 2 * pad, half_width=half + pad * pixel)
+    return torch.from_numpy(padded)[None].double(), replace(scene, receiver=receiver)
 
 
 def _check_reach(target: DesignTarget, scene: Scene, max_slope: float) -> None:
@@ -181,19 +194,19 @@ def _check_reach(target: DesignTarget, scene: Scene, max_slope: float) -> None:
 
 
 def _method(cfg: Mapping[str, Any]) -> dict[str, Any]:
-    method = dict(to_plain(cfg.get("method")) or {})
+    method = dict(to_plain(cfg.get("design_method")) or {})
     for key in ("name", "start", "solver"):
         if key not in method:
-            raise ValueError(f"method.{key} is missing; choose a method with method=sfc|schwartzburg|adam")
+            raise ValueError(f"design_method.{key} is missing; choose one with design_method=sfc|schwartzburg|adam")
     return method
 
 
 def _check_method(cfg: Mapping[str, Any]) -> None:
     method = _method(cfg)
     if method["start"] not in STARTS:
-        raise ValueError(f"method.start={method['start']!r} must be one of {', '.join(STARTS)}")
-    name, params = split_name(method["solver"], "method.solver")
-    build_plugin("solver", name, params, "method.solver")
+        raise ValueError(f"design_method.start={method['start']!r} must be one of {', '.join(STARTS)}")
+    name, params = split_name(method["solver"], "design_method.solver")
+    build_plugin("solver", name, params, "design_method.solver")
     seconds = cfg.get("seconds")
     if isinstance(seconds, bool) or not isinstance(seconds, (int, float)) or not seconds > 0:
         raise ValueError(f"seconds={seconds!r} must be the design's time budget in seconds > 0, e.g. 300")
@@ -217,7 +230,7 @@ class TimeBudget(Callback):
 
 def _start(setup: DesignSetup, method: Mapping[str, Any]) -> tuple[torch.Tensor, dict[str, float]]:
     """The method's start heights: flat glass, or the transport design (Schwartzburg's outer
-    iterations on a receiver of ``method.transport_resolution`` pixels, heights on the design grid)."""
+    iterations on a receiver of ``design_method.transport_resolution`` pixels, heights on the design grid)."""
     zeros = torch.zeros(setup.grid.shape, dtype=setup.operator.dtype)
     if method["start"] == "flat":
         return zeros, {}
@@ -226,7 +239,9 @@ def _start(setup: DesignSetup, method: Mapping[str, Any]) -> tuple[torch.Tensor,
     target = setup.target
     if coarse != setup.scene.receiver.resolution:
         operator = setup.operator.variant(setup.operator.photons, 0, coarse)
-        target = torch.nn.functional.adaptive_avg_pool2d(target[None], coarse)[0]  # irradiance: averaged
+        flat = operator.render(torch.zeros(setup.grid.shape, dtype=operator.dtype)).double()
+        target = torch.nn.functional.adaptive_avg_pool2d(target[None], coarse)[0]
+        target = target * (float(flat.sum()) / float(target.sum()))  # the same power on the coarse screen
     data = ReconstructionData(target=target, mask=torch.ones(setup.grid.shape, dtype=torch.bool), volume=None,
                               delta=math.nan)
     problem = Problem(operator, data, setup.grid, operator.scene, setup.constraints)
@@ -235,6 +250,12 @@ def _start(setup: DesignSetup, method: Mapping[str, Any]) -> tuple[torch.Tensor,
     first = result.history[0].extras
     return result.d.to(setup.operator.dtype), {"transport_sites": first["transport_sites"],
                                                "transport_seconds": first["transport_seconds"]}
+
+
+def flat_within_noise(problem: Problem, threshold: float) -> bool:
+    """Whether flat glass already casts the target to within ``threshold`` (relative discrepancy)."""
+    zeros = torch.zeros(problem.grid.shape, dtype=problem.operator.dtype)
+    return problem.fidelity.evaluate(zeros, with_grad=False).rel_discrepancy <= threshold
 
 
 def _rendered_figures(setup: DesignSetup, d: np.ndarray, exact: Any) -> tuple[np.ndarray, dict[str, float]]:
@@ -253,19 +274,21 @@ def run_design(cfg: Mapping[str, Any], output_dir: Path, base_dir: Path | None =
     output_dir.mkdir(parents=True, exist_ok=True)
     tracking = dict(to_plain(cfg.get("tracking")) or {})
     problem = setup.problem
-    name, params = split_name(method["solver"], "method.solver")
+    name, params = split_name(method["solver"], "design_method.solver")
     checkpoint = output_dir / CHECKPOINT
     with MlflowTracker(experiment=tracking.get("experiment", "caustic-design"), run_name=method["name"],
                        store_dir=tracking.get("store_dir", "mlruns"), tracking_uri=tracking.get("uri"),
                        params=to_plain(cfg), tags={"method": method["name"], "target": setup.source}) as tracker:
         began = time.perf_counter()
         start_metrics: dict[str, float] = {}
-        if checkpoint.is_file():
+        factor = float(cfg.get("model_noise_factor", 1.25))
+        flat_fits = not checkpoint.is_file() and flat_within_noise(problem, factor * setup.model_noise)
+        if checkpoint.is_file() or flat_fits:
             d0 = torch.zeros(setup.grid.shape, dtype=setup.operator.dtype)
         else:
             d0, start_metrics = _start(setup, method)
         start_seconds = time.perf_counter() - began
-        solver = build_plugin("solver", name, params, "method.solver")(problem, d0)
+        solver = build_plugin("solver", name, params, "design_method.solver")(problem, d0)
         if checkpoint.is_file():
             restore(solver, checkpoint)
             start_seconds = float(json.loads((output_dir / "start.json").read_text())["seconds"])
@@ -273,9 +296,13 @@ def run_design(cfg: Mapping[str, Any], output_dir: Path, base_dir: Path | None =
             (output_dir / "start.json").write_text(json.dumps({"seconds": start_seconds, **start_metrics}))
         tracker.log_metrics({f"start_{k}": v for k, v in start_metrics.items()} | {"start_seconds": start_seconds})
         history = MetricsHistory()
+        at_noise = MorozovStopping(min(max(setup.model_noise, 1e-9), 0.5), factor)
         callbacks = [history, ProgressBar(desc=f"design ({method['name']})"), TimeBudget(seconds, start_seconds),
-                     tracker.metrics_callback(), Checkpointer(checkpoint, every=int(cfg.get("checkpoint_every", 10)))]
-        result = solver.run(int(method.get("max_iter", 100000)), callbacks)
+                     at_noise, tracker.metrics_callback(),
+                     Checkpointer(checkpoint, every=int(cfg.get("checkpoint_every", 10)))]
+        result = solver.run(0 if flat_fits else int(method.get("max_iter", 100000)), callbacks)
+        if flat_fits:
+            result.stop_reason = "flat glass casts the target to within the operator's own render noise"
         design_seconds = start_seconds + result.elapsed_s
         raw = result.d.detach().double().cpu().numpy()
         heights = setup.constraints.project(raw)
@@ -309,8 +336,8 @@ def design_verdict(metrics: Mapping[str, float], setup: DesignSetup, stop_reason
              f"max slope {metrics['printed_max_slope']:.3f} within {c.max_slope:g}; heights 0 to "
              f"{metrics['printed_max_height'] * mm:.3f} mm within {c.max_height * mm:.3g} mm"]
     if c.min_feature is not None:
-        lines.append(f"smallest crest or valley radius {0.5 * mm / max(metrics['printed_max_curvature'], 1e-300):.3g} mm "
-                     f"within {0.5 * c.min_feature * mm:.3g} mm")
+        lines.append(f"smallest crest or valley radius {mm / max(metrics['printed_max_curvature'], 1e-300):.3g} mm, "
+                     f"at least {0.5 * c.min_feature * mm:.3g} mm asked")
     if c.volume is not None:
         lines.append(f"volume {metrics['printed_volume'] * mm ** 3:.4g} mm3 (asked {c.volume * mm ** 3:.4g} mm3)")
     broken = [k[len("holds_"):] for k, v in metrics.items() if k.startswith("holds_") and not v]

@@ -67,3 +67,9 @@ def deflection_angle(tilt: float, index: float) -> float:
         raise ValueError(f"a top tilted by {np.degrees(tilt):.1f} degrees reflects the light totally at the bottom; "
                          "lower constraints.max_slope")
     return float(np.arcsin(sine))
+
+
+def flat_magnification(light_height: float, thickness: float, index: float, receiver_z: float) -> float:
+    """Paraxial scale k from the substrate top to the receiver for flat glass: a point at distance r
+    from the axis on the top lands at k r (ray slope r / (z_L - h) in air, / n in the glass)."""
+    return 1.0 + (thickness / index - receiver_z) / (light_height - thickness)

@@ -47,7 +47,7 @@ from scipy.interpolate import griddata
 from scipy.sparse.linalg import factorized
 from torch import Tensor
 
-from operators.optics.inverse_refraction import glass_directions, snell_normals
+from operators.optics.inverse_refraction import flat_magnification, glass_directions, snell_normals
 
 from framework.core.solver_loop import IterationFailed, IterationRecord, IterativeSolver
 from framework.plugins.solvers.semi_discrete_transport import TransportPlan, semi_discrete_transport
@@ -58,12 +58,6 @@ if TYPE_CHECKING:
 __all__ = ["SchwartzburgDesign", "SOURCES", "flat_magnification", "light_on_glass", "slope_fit_system"]
 
 SOURCES = ("flat_caustic", "light_on_glass")
-
-
-def flat_magnification(light_height: float, thickness: float, index: float, receiver_z: float) -> float:
-    """Paraxial scale k from the substrate top to the receiver for flat glass: a point at distance r
-    from the axis on the top lands at k r (ray slope r / (z_L - h) in air, / n in the glass)."""
-    return 1.0 + (thickness / index - receiver_z) / (light_height - thickness)
 
 
 def light_on_glass(light: tuple[float, float, float], thickness: float, half_width: float, resolution: int
@@ -107,14 +101,19 @@ class SchwartzburgDesign(IterativeSolver):
         power_tolerance: Refuse a target whose power differs from what flat glass puts on the
             receiver by more than this fraction (a refractive surface only moves light).
         source: ``flat_caustic`` or ``light_on_glass``, the transport's source (module docstring).
+        outside_hull: Where samples outside the hull of the cells' centroids send their light:
+            ``flat`` (where flat glass does) or ``cell`` (their Laguerre cell's pixel).
     """
 
     name = "schwartzburg"
 
     def __init__(self, problem: Problem, d0: Tensor, mass_tolerance: float = 1e-3, black_level: float = 1e-3,
                  smoothness: float = 0.1, outer_tolerance: float = 1e-2, power_tolerance: float = 0.1,
-                 source: str = "flat_caustic") -> None:
+                 source: str = "flat_caustic", outside_hull: str = "flat") -> None:
         super().__init__(d0)
+        if outside_hull not in ("flat", "cell"):
+            raise ValueError(f"outside_hull={outside_hull!r} must be flat or cell")
+        self.outside_hull = outside_hull
         self.problem = problem
         self.settings = self.checked_settings(mass_tolerance, black_level, smoothness, outer_tolerance, power_tolerance,
                                               source)
@@ -183,11 +182,17 @@ class SchwartzburgDesign(IterativeSolver):
 
     def _target_points(self, plan: TransportPlan) -> np.ndarray:
         """Every height sample's receiver point (m, m, 2): the map centroid -> pixel at the sample's
-        flat-glass landing point, linear between centroids; outside their hull flat glass's."""
+        flat-glass landing point, linear between centroids; outside their hull flat glass's landing
+        point, or with ``outside_hull="cell"`` on the receiver the pixel of the Laguerre cell that
+        holds it (the transport map itself: a focus of few pixels gathers all the light)."""
         landing = np.stack([self._x, self._y], axis=-1) * self._scale
-        out = np.stack([griddata(plan.centroids, plan.sites[:, k], (landing[..., 0], landing[..., 1]),
-                                 method="linear") for k in range(2)], axis=-1)
-        return np.where(np.isfinite(out), out, landing)
+        points = (landing[..., 0], landing[..., 1])
+        out = np.stack([griddata(plan.centroids, plan.sites[:, k], points, method="linear") for k in range(2)], axis=-1)
+        if self.outside_hull == "flat":
+            return np.where(np.isfinite(out), out, landing)
+        cell = plan.site_of(landing.reshape(-1, 2)).reshape(landing.shape)
+        on_receiver = (np.abs(landing) <= self.problem.scene.receiver.half_width).all(axis=-1, keepdims=True)
+        return np.where(np.isfinite(out), out, np.where(on_receiver, cell, landing))
 
     def required_normals(self, d: np.ndarray) -> np.ndarray:
         """Stage 2: unit normals (m, m, 3) that send the light through each sample of the surface

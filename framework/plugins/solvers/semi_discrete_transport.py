@@ -25,6 +25,7 @@ class TransportPlan:
         centroids: (K, 2) barycentres of the sites' Laguerre cells in the source square.
         cell_masses: (K,) source mass of each cell.
         newton_steps: Newton iterations taken.
+        weights: (K,) the Laguerre weights w_i.
     """
 
     sites: np.ndarray
@@ -32,6 +33,17 @@ class TransportPlan:
     centroids: np.ndarray
     cell_masses: np.ndarray
     newton_steps: int
+    weights: np.ndarray
+
+    def site_of(self, points: np.ndarray, chunk: int = 4096) -> np.ndarray:
+        """The site (N, 2) whose Laguerre cell holds each of ``points`` (N, 2): the semi-discrete
+        map itself, argmin_i |x - y_i|^2 - w_i."""
+        out = np.empty_like(points, dtype=np.float64)
+        lifted = (self.sites ** 2).sum(axis=1) - self.weights
+        for start in range(0, len(points), chunk):
+            block = points[start:start + chunk]
+            out[start:start + chunk] = self.sites[np.argmin(lifted[None, :] - 2.0 * block @ self.sites.T, axis=1)]
+        return out
 
     @property
     def max_relative_mass_error(self) -> float:
@@ -60,6 +72,9 @@ def semi_discrete_transport(density: np.ndarray, lo: float, hi: float, sites: np
         raise ValueError("site masses must be finite and positive (leave black pixels out)")
     if np.any(sites < lo) or np.any(sites > hi):
         raise ValueError(f"sites must lie in the source square [{lo}, {hi}]^2")
+    # A floor of 1e-6 of the mean light: a site over a dark part of the source (the unlit rim of a
+    # flat caustic) then starts with a tiny but non-empty Voronoi cell instead of stopping Newton.
+    density = density + 1e-6 * density.mean()
     domain = ScaledImage([lo, lo], [hi, hi], density)
     masses = masses * (domain.measure() / masses.sum())
     transport = OptimalTransport(sites, domain=domain, masses=masses, obj_max_dm=tolerance * float(masses.min()),
@@ -67,4 +82,4 @@ def semi_discrete_transport(density: np.ndarray, lo: float, hi: float, sites: np
     transport.adjust_weights(initial_weights=np.zeros(len(sites)))  # Voronoi cells: none is empty
     cell_masses = np.asarray(transport.pd.integrals(), dtype=np.float64)
     return TransportPlan(sites, masses, np.asarray(transport.get_centroids(), dtype=np.float64), cell_masses,
-                         len(transport.delta_m))
+                         len(transport.delta_m), np.asarray(transport.get_weights(), dtype=np.float64))
