@@ -18,7 +18,7 @@ def existing_file(path: str | Path, what: str) -> Path:
         raise ValueError(f"{what} {str(p)!r} is a directory; give the file itself")
     if not p.is_file():
         raise FileNotFoundError(f"{what} file {str(p)!r} does not exist; check the path (relative paths are "
-                                "resolved against the directory sfc-reconstruct was started in)")
+                                "resolved against the directory the command was started in)")
     return p
 
 

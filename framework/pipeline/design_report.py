@@ -34,8 +34,9 @@ def save_previews(cfg: Mapping[str, Any], setup: Any, heights: np.ndarray, photo
                   output_dir: Path) -> dict[str, float]:
     """Render the design's caustic on screens at each preview factor times the design distance,
     each over the square the glass can light there (the screen reach under the slope limit), by
-    the operator's independent renderer; writes preview_<f>x.npy/.png. Returns the share of the
-    flat glass's power on each screen (``preview_<f>x_power_share``)."""
+    the operator's independent renderer; writes preview_<f>x.npy/.png. ``setup`` is the run's
+    :class:`framework.pipeline.design_run.DesignSetup`. Returns the power on each screen over flat
+    glass's on it (``preview_<f>x_power_share``)."""
     out: dict[str, float] = {}
     distance = -setup.scene.receiver.z
     for factor in preview_factors(cfg):
@@ -55,7 +56,7 @@ def save_previews(cfg: Mapping[str, Any], setup: Any, heights: np.ndarray, photo
 def save_design_figure(path: Path, setup: Any, heights: np.ndarray, caustic: np.ndarray,
                        metrics: Mapping[str, float], history: MetricsHistory) -> Path:
     """Target | designed caustic | difference | heights (mm), and the relative discrepancy per
-    iteration below."""
+    iteration below; ``setup`` is the run's :class:`framework.pipeline.design_run.DesignSetup`."""
     from matplotlib.figure import Figure
 
     target = setup.target.numpy().sum(axis=0)

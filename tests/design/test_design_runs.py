@@ -116,13 +116,21 @@ def test_the_baselines_design_printable_glass(tmp_path, method):
     ("constraints.max_slope=-1", "constraints.max_slope"),
     ("seconds=0", "time budget"),
 ])
-def test_bad_input_gets_one_line_before_any_run_opens(tmp_path, override, message):
+def test_bad_input_is_refused_in_one_line_before_any_run_opens(tmp_path, override, message):
     _png(tmp_path / "black.png", np.zeros((16, 16)))
-    proc = subprocess.run([sys.executable, "-m", "experiments.design", *SMALL, override,
+    cfg = compose_design([*SMALL, override], tmp_path)
+    with pytest.raises((ValueError, FileNotFoundError), match=message) as error:
+        prepare_design(cfg, tmp_path)
+    assert "\n" not in str(error.value)
+    assert not (tmp_path / "mlruns").exists()
+
+
+def test_the_command_line_says_it_in_one_line_and_opens_no_run(tmp_path):
+    proc = subprocess.run([sys.executable, "-m", "experiments.design", *SMALL, "target.image=missing.png",
                            f"tracking.store_dir={tmp_path / 'mlruns'}", f"hydra.run.dir={tmp_path / 'run'}"],
                           cwd=tmp_path, env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin"},
                           capture_output=True, text=True, timeout=300)
     assert proc.returncode == 1, proc.stderr[-2000:]
     lines = proc.stderr.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith("error:") and message in lines[0], proc.stderr[-2000:]
+    assert len(lines) == 1 and lines[0].startswith("error:") and "does not exist" in lines[0], proc.stderr[-2000:]
     assert not (tmp_path / "mlruns").exists() and not (tmp_path / "run" / "metrics.json").exists()
