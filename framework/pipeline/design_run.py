@@ -62,6 +62,7 @@ class DesignSetup:
         mm: Millimetres per scene unit.
         model_noise: The relative discrepancy that the operator's own render noise explains: two
             renders of flat glass with photon seeds seed and seed + 1 differ by sqrt(2) times it.
+        flat_discrepancy: ||F(0) - target|| / ||target||, flat glass's relative discrepancy.
     """
 
     scene: Scene
@@ -73,6 +74,7 @@ class DesignSetup:
     notes: list[str]
     mm: float
     model_noise: float
+    flat_discrepancy: float
 
     @property
     def problem(self) -> Problem:
@@ -164,7 +166,8 @@ def prepare_design(cfg: Mapping[str, Any], base_dir: Path | None = None) -> Desi
     second = operator.variant(operator.photons, int(cfg.get("seed", 0)) + 1, scene.receiver.resolution)
     noise = float(torch.linalg.vector_norm(flat - second.render(zeros).double())) / (
         math.sqrt(2.0) * float(torch.linalg.vector_norm(image)))
-    return DesignSetup(scene, operator, image, target.source, constraints, grid, notes, mm, noise)
+    flat_discrepancy = float(torch.linalg.vector_norm(flat - image)) / float(torch.linalg.vector_norm(image))
+    return DesignSetup(scene, operator, image, target.source, constraints, grid, notes, mm, noise, flat_discrepancy)
 
 
 def _padded_to_shadow(image: np.ndarray, scene: Scene, shadow: float) -> tuple[torch.Tensor, Scene]:
@@ -252,12 +255,6 @@ def _start(setup: DesignSetup, method: Mapping[str, Any]) -> tuple[torch.Tensor,
                                                "transport_seconds": first["transport_seconds"]}
 
 
-def flat_within_noise(problem: Problem, threshold: float) -> bool:
-    """Whether flat glass already casts the target to within ``threshold`` (relative discrepancy)."""
-    zeros = torch.zeros(problem.grid.shape, dtype=problem.operator.dtype)
-    return problem.fidelity.evaluate(zeros, with_grad=False).rel_discrepancy <= threshold
-
-
 def _rendered_figures(setup: DesignSetup, d: np.ndarray, exact: Any) -> tuple[np.ndarray, dict[str, float]]:
     image = exact.render(torch.from_numpy(d).to(torch.float64)).detach().double().cpu().numpy()
     target = setup.target.numpy()
@@ -282,7 +279,7 @@ def run_design(cfg: Mapping[str, Any], output_dir: Path, base_dir: Path | None =
         began = time.perf_counter()
         start_metrics: dict[str, float] = {}
         factor = float(cfg.get("model_noise_factor", 1.25))
-        flat_fits = not checkpoint.is_file() and flat_within_noise(problem, factor * setup.model_noise)
+        flat_fits = not checkpoint.is_file() and setup.flat_discrepancy <= factor * setup.model_noise
         if checkpoint.is_file() or flat_fits:
             d0 = torch.zeros(setup.grid.shape, dtype=setup.operator.dtype)
         else:
