@@ -14,6 +14,7 @@ import torch
 from framework.core.plotting import label_xy_axes, save_caustic_png, save_figure
 from framework.core.design_target import screen_reach
 from framework.core.scene_config import build_operator, to_plain
+from framework.pipeline.design_screen import has_elements, lit_half_width
 
 if TYPE_CHECKING:
     from framework.pipeline.callbacks import MetricsHistory
@@ -33,7 +34,8 @@ def preview_factors(cfg: Mapping[str, Any]) -> list[float]:
 def save_previews(cfg: Mapping[str, Any], setup: Any, heights: np.ndarray, photons: int, seed: int,
                   output_dir: Path) -> dict[str, float]:
     """Render the design's caustic on screens at each preview factor times the design distance,
-    each over the square the glass can light there (the screen reach under the slope limit), by
+    each over the square the glass can light there (the screen reach under the slope limit; through
+    optical elements the square the design's light covers there), by
     the operator's independent renderer; writes preview_<f>x.npy/.png. ``setup`` is the run's
     :class:`framework.pipeline.design_run.DesignSetup`. Returns the power on each screen over flat
     glass's on it (``preview_<f>x_power_share``)."""
@@ -42,7 +44,9 @@ def save_previews(cfg: Mapping[str, Any], setup: Any, heights: np.ndarray, photo
     for factor in preview_factors(cfg):
         receiver = replace(setup.scene.receiver, z=-factor * distance)
         scene = replace(setup.scene, receiver=receiver)
-        scene = replace(scene, receiver=replace(receiver, half_width=screen_reach(scene, setup.constraints.max_slope)))
+        half = (lit_half_width(cfg, scene, setup.mm, heights, seed + 2000) if has_elements(setup.operator)
+                else screen_reach(scene, setup.constraints.max_slope))
+        scene = replace(scene, receiver=replace(receiver, half_width=half))
         renderer = build_operator(cfg, scene, mm=setup.mm).exact_variant(photons, seed + 2000, receiver.resolution)
         image = renderer.render(torch.from_numpy(heights)).detach().double().cpu().numpy()
         flat = renderer.render(torch.zeros_like(torch.from_numpy(heights))).detach().double().cpu().numpy()

@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from framework.core.contracts.start import StartRequest
 from framework.core.data import ReconstructionData
 from framework.core.design_target import DesignTarget, load_target, screen_reach
 from framework.core.image_io import load_mask
@@ -33,17 +34,19 @@ from framework.core.units import mm_per_unit, scene_length, scene_volume
 from framework.pipeline.callbacks import Checkpointer, MetricsHistory, ProgressBar
 from framework.pipeline.checkpoint import restore
 from framework.pipeline.design_report import save_design_figure, save_previews
+from framework.pipeline.design_screen import has_elements, lit_half_width, paraxial_shadow
 from framework.pipeline.mm_outputs import export_outputs
 from framework.pipeline.tracking import MlflowTracker
 from framework.plugins.stopping import MorozovStopping
 from framework.plugins.solvers.schwartzburg import SchwartzburgDesign
-from operators.optics.inverse_refraction import flat_magnification
+from framework.plugins.starts.transport import TransportStart
 from operators.scene import Scene
 
 __all__ = ["DesignSetup", "DesignResult", "prepare_design", "run_design"]
 
 CHECKPOINT = "checkpoint.pt"
 STARTS = ("transport", "flat")
+THROUGH_OPTICS_REACH = 0.999  # through optical elements the transport may send light anywhere on the screen
 POWER_TOLERANCE = 0.01  # an absolute target within 1% of the power that reaches the screen is taken as is
 
 
@@ -130,18 +133,19 @@ def prepare_design(cfg: Mapping[str, Any], base_dir: Path | None = None) -> Desi
     if scene.receiver.resolution != resolution:
         raise ValueError(f"receiver.resolution={scene.receiver.resolution} differs from target.resolution={resolution}; "
                          "set only target.resolution")
-    index = float(max(scene.indices))
-    shadow = scene.substrate.half_width * flat_magnification(scene.light.position[2], scene.substrate.thickness,
-                                                             index, scene.receiver.z)
+    m = int(to_plain(cfg.get("height_field") or {}).get("resolution", resolution))
+    through_optics = has_elements(build_operator(cfg, scene, mm=mm))
+    shadow = (lit_half_width(cfg, scene, mm, np.zeros((m, m)), int(cfg.get("seed", 0))) if through_optics
+              else paraxial_shadow(scene))
     width = _length(spec.get("width"), mm, "target.width")
     half = shadow if width is None else 0.5 * width
     if not half > 0:
         raise ValueError(f"target.width={spec.get('width')!r} must be a length > 0, e.g. '60 mm'")
     scene = replace(scene, receiver=replace(scene.receiver, half_width=half))
-    m = int(to_plain(cfg.get("height_field") or {}).get("resolution", resolution))
     grid = HeightGrid(m, scene.substrate.half_width, scene.substrate.thickness)
     constraints = _constraints(cfg, m, grid.half_width, mm, base_dir)
-    _check_reach(target, scene, constraints.max_slope)
+    if not through_optics:  # through lenses the deflection's reach has no closed form: not checked
+        _check_reach(target, scene, constraints.max_slope)
     _check_method(cfg)
     image, scene = _padded_to_shadow(target.image, scene, shadow)
     operator = build_operator(cfg, scene, mm=mm)
@@ -151,6 +155,9 @@ def prepare_design(cfg: Mapping[str, Any], base_dir: Path | None = None) -> Desi
     if not power > 0:
         raise ValueError("no light of flat glass reaches the screen; check light and receiver.z")
     notes = []
+    if through_optics:
+        notes.append("through the scene's optical elements the target's reach on the screen is not checked: light "
+                     "the glass cannot send there shows as a misfit")
     if scene.receiver.resolution != resolution:
         notes.append(f"the screen is widened to {scene.receiver.resolution} x {scene.receiver.resolution} pixels "
                      f"({2 * scene.receiver.half_width * mm:.4g} mm) around the target to catch all the light "
@@ -232,8 +239,11 @@ class TimeBudget(Callback):
 
 
 def _start(setup: DesignSetup, method: Mapping[str, Any]) -> tuple[torch.Tensor, dict[str, float]]:
-    """The method's start heights: flat glass, or the transport design (Schwartzburg's outer
-    iterations on a receiver of ``design_method.transport_resolution`` pixels, heights on the design grid)."""
+    """The method's start heights: flat glass, or the transport design on a receiver of
+    ``design_method.transport_resolution`` pixels (heights on the design grid), projected onto the
+    printing limits where it breaks one. The transport design is Schwartzburg's outer iterations
+    where the light goes from the flat bottom straight to the screen, and the masked transport
+    start (framework/plugins/starts/transport.py, the whole glass masked) through optical elements."""
     zeros = torch.zeros(setup.grid.shape, dtype=setup.operator.dtype)
     if method["start"] == "flat":
         return zeros, {}
@@ -246,13 +256,24 @@ def _start(setup: DesignSetup, method: Mapping[str, Any]) -> tuple[torch.Tensor,
         target = torch.nn.functional.adaptive_avg_pool2d(target[None], coarse)[0]
         target = target * (float(flat.sum()) / float(target.sum()))  # the same power on the coarse screen
     data = ReconstructionData(target=target, mask=torch.ones(setup.grid.shape, dtype=torch.bool), volume=None,
-                              delta=math.nan)
+                              delta=0.0)
     problem = Problem(operator, data, setup.grid, operator.scene, setup.constraints)
-    transport = SchwartzburgDesign(problem, zeros, **dict(method.get("transport") or {}))
-    result = transport.run(int(method.get("transport_iterations", 3)))
-    first = result.history[0].extras
-    return result.d.to(setup.operator.dtype), {"transport_sites": first["transport_sites"],
-                                               "transport_seconds": first["transport_seconds"]}
+    if has_elements(operator):  # the light's own path through the elements (the reconstructions' start)
+        start = TransportStart(reach=THROUGH_OPTICS_REACH, p1=0.0, p2=setup.constraints.max_height)
+        began = time.perf_counter()
+        found = start(StartRequest(problem, lambda: zeros, Path.cwd()))
+        d, first = found.d.detach().double().cpu().numpy(), {**found.metrics,
+                                                             "transport_seconds": time.perf_counter() - began}
+    else:  # flat bottom to screen: Schwartzburg's transport design
+        transport = SchwartzburgDesign(problem, zeros, **dict(method.get("transport") or {}))
+        result = transport.run(int(method.get("transport_iterations", 3)))
+        d, first = result.d.detach().double().cpu().numpy(), result.history[0].extras
+    printable = all(setup.constraints.holds(d).values())
+    if not printable:  # the refinement starts printable: its penalty then keeps it near the limits
+        d = setup.constraints.project(d)
+    return torch.from_numpy(d).to(setup.operator.dtype), {"transport_sites": first["transport_sites"],
+                                                          "transport_seconds": first["transport_seconds"],
+                                                          "transport_printable": float(printable)}
 
 
 def _rendered_figures(setup: DesignSetup, d: np.ndarray, exact: Any) -> tuple[np.ndarray, dict[str, float]]:
