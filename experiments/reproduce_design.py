@@ -7,6 +7,7 @@ figure from the store.
     python -m experiments.reproduce_design                      # 4 targets x 3 methods, 300 s each
     python -m experiments.reproduce_design --seconds 120        # a shorter budget for every method
     python -m experiments.reproduce_design --table-only         # the table and figure from the latest runs
+    python -m experiments.reproduce_design --targets ring text --overrides operator=two_lenses receiver.z=-1.0
 
 Writes design.md, design.csv and design.png into --out (default docs/results).
 """
@@ -81,10 +82,11 @@ def write_figure(cases: dict[tuple[str, str], dict], out: Path) -> None:
 def main(argv: list[str] | None = None) -> None:
     parser = reproduction_parser(__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=300.0, help="every method's time budget (s)")
+    parser.add_argument("--targets", nargs="+", choices=TARGETS, default=list(TARGETS), help="the targets to design")
     args = parser.parse_args(argv)
     store = tracking_store(args)
     if not args.table_only:
-        run_sweep(store, EXPERIMENT, [f"design_method={','.join(METHODS)}", f"target.image={','.join(TARGETS)}",
+        run_sweep(store, EXPERIMENT, [f"design_method={','.join(METHODS)}", f"target.image={','.join(args.targets)}",
                                       f"seconds={args.seconds:g}"], args.overrides, args.launcher, app="experiments.design")
     cases = collect(store)
     if not cases:

@@ -37,11 +37,17 @@ def save_previews(cfg: Mapping[str, Any], setup: Any, heights: np.ndarray, photo
     each over the square the glass can light there (the screen reach under the slope limit; through
     optical elements the square the design's light covers there), by
     the operator's independent renderer; writes preview_<f>x.npy/.png. ``setup`` is the run's
-    :class:`framework.pipeline.design_run.DesignSetup`. Returns the power on each screen over flat
+    :class:`framework.pipeline.design_run.DesignSetup`. A screen at or above the lowest optical
+    element is skipped, with a note in ``setup.notes``. Returns the power on each screen over flat
     glass's on it (``preview_<f>x_power_share``)."""
     out: dict[str, float] = {}
     distance = -setup.scene.receiver.z
+    lowest = min((e.z_range[0] for e in getattr(setup.operator, "elements", None) or ()), default=np.inf)
     for factor in preview_factors(cfg):
+        if -factor * distance >= lowest:
+            setup.notes.append(f"no preview at {factor:g}x: that screen (z={-factor * distance:.4g}) would lie at or "
+                               f"above the lowest optical element (z={lowest:.4g})")
+            continue
         receiver = replace(setup.scene.receiver, z=-factor * distance)
         scene = replace(setup.scene, receiver=receiver)
         half = (lit_half_width(cfg, scene, setup.mm, heights, seed + 2000) if has_elements(setup.operator)

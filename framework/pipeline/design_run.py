@@ -260,10 +260,8 @@ def _start(setup: DesignSetup, method: Mapping[str, Any]) -> tuple[torch.Tensor,
     problem = Problem(operator, data, setup.grid, operator.scene, setup.constraints)
     if has_elements(operator):  # the light's own path through the elements (the reconstructions' start)
         start = TransportStart(reach=THROUGH_OPTICS_REACH, p1=0.0, p2=setup.constraints.max_height)
-        began = time.perf_counter()
         found = start(StartRequest(problem, lambda: zeros, Path.cwd()))
-        d, first = found.d.detach().double().cpu().numpy(), {**found.metrics,
-                                                             "transport_seconds": time.perf_counter() - began}
+        d, first = found.d.detach().double().cpu().numpy(), found.metrics
     else:  # flat bottom to screen: Schwartzburg's transport design
         transport = SchwartzburgDesign(problem, zeros, **dict(method.get("transport") or {}))
         result = transport.run(int(method.get("transport_iterations", 3)))

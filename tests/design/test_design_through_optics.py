@@ -1,6 +1,7 @@
-"""Designs through optical elements (the two lenses of conf/operator/two_lenses.yaml) and the
-printable start: the measured shadow against the paraxial one, a caustic of a known print through
-the lenses designed back, a transport start that breaks the limits projected onto them."""
+"""Designs through optical elements (the two lenses of conf/operator/two_lenses.yaml), the printable
+start and the Hellinger data term: the measured shadow against the paraxial one, a caustic of a
+known print through the lenses designed back, a transport start that breaks the limits projected
+onto them, the Hellinger term's gradient."""
 
 from __future__ import annotations
 
@@ -13,9 +14,10 @@ import torch
 from framework.core.image_metrics import relative_l2
 from framework.pipeline.design_run import _method, _start, prepare_design, run_design
 from framework.pipeline.design_screen import WIDE, lit_half_width, paraxial_shadow
+from framework.plugins.solvers.design_refinement import _hellinger
 from tests.design.conftest import SMALL, compose_design
 
-LENSES = ["operator=two_lenses", "receiver.z=-4.0"]  # the screen 80 mm below the lower lens
+LENSES = ["operator=two_lenses", "receiver.z=-1.0"]  # the paper's screen, 5 mm below the lower lens
 
 
 def test_the_measured_shadow_of_flat_glass_is_the_paraxial_one(tmp_path):
@@ -41,12 +43,15 @@ def test_a_caustic_through_two_lenses_is_designed_back(tmp_path):
     exact = setup.operator.exact_variant(1 << 20, 77, setup.scene.receiver.resolution)
     caustic = exact.render(torch.from_numpy(bump)).detach().double().numpy()[0]
     np.save(tmp_path / "bump_caustic.npy", caustic)
-    cfg = compose_design([*SMALL, *LENSES, "seconds=10", "previews=[]", "constraints.min_feature=null",
+    cfg = compose_design([*SMALL, *LENSES, "seconds=10", "previews=[0.5,2.0]", "constraints.min_feature=null",
                           f"target.image={tmp_path / 'bump_caustic.npy'}"], tmp_path)
     setup = prepare_design(cfg)
     assert any("optical elements" in note for note in setup.notes)
     result = run_design(cfg, tmp_path / "run", setup=setup)
     assert all(v == 1.0 for k, v in result.metrics.items() if k.startswith("holds_"))
+    # The screen at half the distance (z = -0.5) would cut the meniscus (down to z = -0.8): skipped, said.
+    assert (tmp_path / "run" / "preview_2x.npy").is_file() and not (tmp_path / "run" / "preview_0.5x.npy").exists()
+    assert any(line.startswith("no preview at 0.5x") for line in result.verdict)
     # Flat glass misses the bump's caustic by its whole structure; the design finds most of it.
     assert setup.flat_discrepancy > 0.3, setup.flat_discrepancy
     assert result.metrics["relative_l2"] < 0.5 * setup.flat_discrepancy, (result.metrics, setup.flat_discrepancy)
@@ -62,3 +67,16 @@ def test_a_transport_start_beyond_the_limits_is_projected_onto_them(tmp_path):
     start = setup.operator.render(d0).double().numpy()
     target = setup.target.numpy()
     assert relative_l2(start, target) < relative_l2(flat, target)  # still a start toward the target
+
+
+def test_the_hellinger_term_has_its_finite_difference_gradient(tmp_path):
+    cfg = compose_design([*SMALL, "target.image=ring", "operator.dtype=float64"], tmp_path)
+    problem = prepare_design(cfg).problem
+    x = np.linspace(-1.0, 1.0, 32)
+    xx, yy = np.meshgrid(x, x)
+    d = torch.from_numpy(0.05 * np.exp(-(xx ** 2 + yy ** 2) / 0.3))
+    direction = torch.from_numpy(np.cos(3 * xx) * np.exp(-(xx ** 2 + yy ** 2) / 0.5))
+    _, grad, _ = _hellinger(problem, d)
+    step = 1e-5
+    difference = (_hellinger(problem, d + step * direction)[0] - _hellinger(problem, d - step * direction)[0]) / (2 * step)
+    assert difference == pytest.approx(float((grad * direction).sum()), rel=1e-4)

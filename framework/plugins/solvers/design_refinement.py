@@ -39,6 +39,8 @@ __all__ = ["DesignAdam", "DesignLBFGS"]
 
 ARMIJO_C1 = 1e-4
 MAX_BACKTRACKS = 10
+LOSSES = ("l2", "hellinger")
+HELLINGER_FLOOR = 1e-3  # added to both images under the square roots, as a fraction of the target's peak
 
 
 def _positive(name: str, value: Any) -> float:
@@ -47,24 +49,45 @@ def _positive(name: str, value: Any) -> float:
     return float(value)
 
 
-class _DesignObjective:
-    """J(d) = f(d) + weight P(d) with its gradient, the rendered image and the data term apart."""
+def _hellinger(problem: Problem, d: Tensor) -> tuple[float, Tensor, float]:
+    """(h, grad h, relative discrepancy) at d: h = 1/2 sum (sqrt(F + e) - sqrt(b + e))^2 / (sum b a),
+    e = HELLINGER_FLOOR max b, a the cell area (the Hellinger distance of the two light
+    distributions: light astray costs its power however thinly it is spread)."""
+    operator, target = problem.operator, problem.fidelity.target
+    image = operator.render(d).detach()
+    b = target.to(image)
+    floor = HELLINGER_FLOOR * float(b.max())
+    root_f, root_b = torch.sqrt(image.clamp(min=0.0) + floor), torch.sqrt(b.clamp(min=0.0) + floor)
+    scale = 1.0 / (float(b.clamp(min=0.0).sum()) * problem.fidelity.cell_area)
+    value = 0.5 * float(((root_f - root_b) ** 2).sum()) * scale
+    grad = operator.vjp(d, (0.5 * scale * (root_f - root_b) / root_f).to(image.dtype))
+    relative = float(torch.linalg.vector_norm(image - b) / torch.linalg.vector_norm(b))
+    return value, grad.double(), relative
 
-    def __init__(self, problem: Problem, weight: float) -> None:
-        self.problem, self.weight = problem, weight
+
+class _DesignObjective:
+    """J(d) = f(d) + weight P(d) with its gradient, the rendered image and the data term apart; f
+    the problem's data term (``loss="l2"``) or the Hellinger term :func:`_hellinger`."""
+
+    def __init__(self, problem: Problem, weight: float, loss: str = "l2") -> None:
+        self.problem, self.weight, self.loss = problem, weight, loss
 
     def __call__(self, d: Tensor) -> tuple[float, Tensor, float, float]:
         """(J, grad J, f, relative discrepancy) at d."""
-        evaluation = self.problem.fidelity.evaluate(d, with_grad=True)
+        if self.loss == "hellinger":
+            data_value, data_grad, relative = _hellinger(self.problem, d)
+        else:
+            evaluation = self.problem.fidelity.evaluate(d, with_grad=True)
+            data_value, data_grad, relative = evaluation.value, evaluation.grad.double(), evaluation.rel_discrepancy
         limits = self.problem.constraints
         if limits is None:  # a problem without printing limits (a reconstruction): the data term alone
-            return evaluation.value, evaluation.grad.double(), evaluation.value, evaluation.rel_discrepancy
+            return data_value, data_grad, data_value, relative
         x = d.detach().double().requires_grad_(True)
         penalty = limits.penalty(x)
         (grad_penalty,) = torch.autograd.grad(penalty, x)
-        value = evaluation.value + self.weight * float(penalty.detach())
-        grad = evaluation.grad.double() + self.weight * grad_penalty
-        return value, grad, evaluation.value, evaluation.rel_discrepancy
+        value = data_value + self.weight * float(penalty.detach())
+        grad = data_grad + self.weight * grad_penalty
+        return value, grad, data_value, relative
 
 
 class DesignLBFGS(IterativeSolver):
@@ -79,14 +102,16 @@ class DesignLBFGS(IterativeSolver):
         smoothing_length: With a length (scene units), the initial inverse Hessian is the Sobolev
             smoothing (I - l^2 Laplace)^-2 (framework/plugins/solvers/preconditioner.py) instead of
             the identity: broad corrections first, as for a start far from the design.
+        loss: The data term: ``l2`` (the problem's, 1/2 ||F(d) - b||^2 / (||b||^2 a)) or
+            ``hellinger`` (:func:`_hellinger`).
     """
 
     name = "design_lbfgs"
 
     def __init__(self, problem: Problem, d0: Tensor, memory: int = 12, penalty_weight: float = 10.0,
-                 first_step: float = 2e-3, smoothing_length: float | None = None) -> None:
+                 first_step: float = 2e-3, smoothing_length: float | None = None, loss: str = "l2") -> None:
         super().__init__(d0)
-        self.objective = _DesignObjective(problem, penalty_weight)
+        self.objective = _DesignObjective(problem, penalty_weight, loss)
         self._smooth = None
         if smoothing_length is not None:
             self._smooth = SobolevPreconditioner(smoothing_length)
@@ -103,12 +128,14 @@ class DesignLBFGS(IterativeSolver):
 
     @classmethod
     def from_config(cls, memory: int = 12, penalty_weight: float = 10.0, first_step: float = 2e-3,
-                    smoothing_length: float | None = None) -> Any:
+                    smoothing_length: float | None = None, loss: str = "l2") -> Any:
         """The plugin ``solver/design_lbfgs``: checks the settings, returns the builder."""
         memory = positive_int(memory, "solver.memory")
         weight, step = _positive("penalty_weight", penalty_weight), _positive("first_step", first_step)
         length = None if smoothing_length is None else _positive("smoothing_length", smoothing_length)
-        return lambda problem, d0: cls(problem, d0, memory, weight, step, length)
+        if loss not in LOSSES:
+            raise ValueError(f"solver.loss={loss!r} must be one of {', '.join(LOSSES)}")
+        return lambda problem, d0: cls(problem, d0, memory, weight, step, length, loss)
 
     def _direction(self, grad: Tensor) -> Tensor:
         """-H grad by the two-loop recursion over the kept pairs (s, y)."""
