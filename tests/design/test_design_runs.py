@@ -36,6 +36,7 @@ def test_a_uniform_target_under_a_distant_light_gives_flat_glass(tmp_path):
     assert result.metrics["relative_l2"] < 0.02
 
 
+@pytest.mark.slow
 def test_a_single_spot_gives_a_lens_whose_focus_lies_on_the_screen(tmp_path):
     picture = np.zeros((32, 32))
     picture[15:17, 15:17] = 255  # the four centre pixels
@@ -73,6 +74,7 @@ def test_a_target_asking_more_light_than_reaches_the_screen_is_normalised_and_sa
     assert ratio == pytest.approx(50.0 * 32 * 32 / float(flat.sum()), rel=1e-3)
 
 
+@pytest.mark.slow
 def test_a_design_writes_printable_files_logs_to_mlflow_and_resumes(tmp_path):
     cfg = compose_design([*SMALL, "target.image=ring", "seconds=5"], tmp_path)
     run = tmp_path / "run"
@@ -100,6 +102,7 @@ def test_a_design_writes_printable_files_logs_to_mlflow_and_resumes(tmp_path):
     assert again.metrics["start_seconds"] == pytest.approx(first.metrics["start_seconds"])
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("method", ["adam", "schwartzburg"])
 def test_the_baselines_design_printable_glass(tmp_path, method):
     cfg = compose_design([*[o for o in SMALL if not o.startswith("design_method.")], f"design_method={method}",

@@ -31,6 +31,7 @@ def test_the_measured_shadow_of_flat_glass_is_the_paraxial_one(tmp_path):
     assert abs(measured - paraxial_shadow(scene)) < 1.5 * wide_pixel, (measured, paraxial_shadow(scene))
 
 
+@pytest.mark.slow
 def test_a_caustic_through_two_lenses_is_designed_back(tmp_path):
     # The target: the caustic of a smooth bump through the lenses, by the operator's exact references
     # (its own tracer, 4x finer receiver, cell footprints, other photons): not the design's model.
