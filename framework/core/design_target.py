@@ -25,7 +25,8 @@ from framework.core.image_io import existing_file
 from operators.optics.inverse_refraction import deflection_angle, flat_magnification
 from operators.scene import Scene
 
-__all__ = ["BUILT_IN_TARGETS", "CHANNELS", "DesignTarget", "built_in_target", "load_target", "screen_reach"]
+__all__ = ["BUILT_IN_TARGETS", "CHANNELS", "DesignTarget", "built_in_target", "load_target", "paraxial_shadow",
+           "screen_reach"]
 
 BUILT_IN_TARGETS = ("grace_hopper", "logo", "ring", "text")
 CHANNELS = ("luminance", "r", "g", "b")
@@ -166,12 +167,16 @@ def load_target(image: str, resolution: int, base_dir: str | Path | None = None,
     return DesignTarget(array, source, absolute)
 
 
+def paraxial_shadow(scene: Scene) -> float:
+    """Half width of flat glass's shadow on ``scene``'s receiver with no optical elements (scene units)."""
+    return scene.substrate.half_width * flat_magnification(scene.light.position[2], scene.substrate.thickness,
+                                                           float(max(scene.indices)), scene.receiver.z)
+
+
 def screen_reach(scene: Scene, max_slope: float) -> float:
     """Half width of the square the glass can light on the screen (scene units): flat glass's
     shadow plus the largest deflection a surface of slope ``max_slope`` gives, over the distance
     from the top to the screen."""
-    index = float(max(scene.indices))
-    shadow = scene.substrate.half_width * flat_magnification(scene.light.position[2], scene.substrate.thickness,
-                                                             index, scene.receiver.z)
     distance = scene.substrate.thickness - scene.receiver.z
-    return shadow + distance * math.tan(deflection_angle(math.atan(max_slope), index))
+    deflection = deflection_angle(math.atan(max_slope), float(max(scene.indices)))
+    return paraxial_shadow(scene) + distance * math.tan(deflection)

@@ -27,9 +27,9 @@ from scipy.sparse.linalg import factorized
 
 __all__ = ["PrintConstraints"]
 
-ADMM_RHO = 16.0  # penalty of the ADMM splitting: on a 256 x 256 transport design 2x faster than 1.0 and nearer (rho 1 stopped at 400 iterations 12% farther)
+ADMM_RHO = 16.0  # the splitting's penalty (docs/design.md, "Printability": nearer and faster than 1 at 256 x 256)
 ADMM_ITERATIONS = 400
-ADMM_TOLERANCE = 1e-6  # relative primal residual at which ADMM stops; the pull inside makes the limits exact
+ADMM_TOLERANCE = 1e-6  # primal and dual residuals over |x| at which ADMM stops; the pull inside makes limits exact
 
 
 def _difference(m: int) -> sp.csr_matrix:

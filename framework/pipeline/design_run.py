@@ -22,7 +22,7 @@ import torch
 
 from framework.core.contracts.start import StartRequest
 from framework.core.data import ReconstructionData
-from framework.core.design_target import DesignTarget, load_target, screen_reach
+from framework.core.design_target import DesignTarget, load_target, paraxial_shadow, screen_reach
 from framework.core.image_io import load_mask
 from framework.core.image_metrics import relative_l2, ssim
 from framework.core.plugin_config import build_plugin, split_name
@@ -34,7 +34,7 @@ from framework.core.units import mm_per_unit, scene_length, scene_volume
 from framework.pipeline.callbacks import Checkpointer, MetricsHistory, ProgressBar
 from framework.pipeline.checkpoint import restore
 from framework.pipeline.design_report import save_design_figure, save_previews
-from framework.pipeline.design_screen import has_elements, lit_half_width, paraxial_shadow
+from framework.pipeline.design_screen import has_elements, lit_half_width
 from framework.pipeline.mm_outputs import export_outputs
 from framework.pipeline.tracking import MlflowTracker
 from framework.plugins.stopping import MorozovStopping

@@ -2,7 +2,7 @@
 screen must hold, and the lit square of a preview.
 
 Without optical elements the paraxial shadow is exact enough and needs no render
-(operators/optics/inverse_refraction.py, ``flat_magnification``). Through lenses, prisms or
+(framework/core/design_target.py, ``paraxial_shadow``). Through lenses, prisms or
 meshes (an operator with ``elements``) the light's extent is measured instead: the heights
 rendered on a screen :data:`WIDE` times wider than the paraxial shadow, and the farthest pixel
 with light from the axis.
@@ -17,11 +17,11 @@ from typing import Any
 import numpy as np
 import torch
 
+from framework.core.design_target import paraxial_shadow
 from framework.core.scene_config import build_operator
-from operators.optics.inverse_refraction import flat_magnification
 from operators.scene import Scene
 
-__all__ = ["has_elements", "lit_half_width", "paraxial_shadow"]
+__all__ = ["has_elements", "lit_half_width"]
 
 MEASURING_PHOTONS = 262144
 WIDE = 4.0   # the measuring screen's half width over the paraxial shadow
@@ -31,13 +31,6 @@ LIT = 1e-4   # a pixel has light above this fraction of the brightest
 def has_elements(operator: Any) -> bool:
     """Whether ``operator`` traces optical elements besides the print and the substrate."""
     return bool(getattr(operator, "elements", None))
-
-
-def paraxial_shadow(scene: Scene) -> float:
-    """Half width of flat glass's shadow on ``scene``'s receiver with no elements (scene units)."""
-    index = float(max(scene.indices))
-    return scene.substrate.half_width * flat_magnification(scene.light.position[2], scene.substrate.thickness,
-                                                           index, scene.receiver.z)
 
 
 def lit_half_width(cfg: Mapping[str, Any], scene: Scene, mm: float, heights: np.ndarray, seed: int) -> float:

@@ -11,9 +11,10 @@ import numpy as np
 import pytest
 import torch
 
+from framework.core.design_target import paraxial_shadow
 from framework.core.image_metrics import relative_l2
 from framework.pipeline.design_run import _method, _start, prepare_design, run_design
-from framework.pipeline.design_screen import WIDE, lit_half_width, paraxial_shadow
+from framework.pipeline.design_screen import WIDE, lit_half_width
 from framework.plugins.solvers.design_refinement import _hellinger
 from tests.design.conftest import SMALL, compose_design
 
