@@ -12,7 +12,7 @@ import numpy as np
 
 from operators.heightfield.catmull_rom import axis_weights, load_patch, scatter_patch
 from operators.heightfield.intersect_native import hit_adjoint_patch
-from operators.kernels.numba_settings import jit_call, jit_inline, jit_parallel
+from operators.kernels.numba_settings import jit_call, jit_parallel
 from operators.mesh.kernels_native import (AT_TOP, BLOCK, DPU, DPV, DWU, DWV, ESCAPED, FLUX, INSIDE_TOP, LANDED, MESH,
                                            P, RECEIVER, STATE, TOP, W, event_surface, face_shading, interface, put,
                                            vec)
@@ -23,7 +23,7 @@ from operators.optics.native import (ZERO, add, axpy, dot, footprint_metric_adjo
 __all__ = ["retreat", "splat_arguments_adjoint"]
 
 
-@jit_inline
+@jit_call
 def _shading_differential_adjoint(normal, length, e1, e2, g1, g2, dp, dn, g_dn):
     """Adjoint of :func:`shading_differential`: (g_normal, g_length, g_dp)."""
     m = axpy(dot(g1, dp), e1, scale(dot(g2, dp), e2))
@@ -35,7 +35,7 @@ def _shading_differential_adjoint(normal, length, e1, e2, g1, g2, dp, dn, g_dn):
     return g_normal, g_length, axpy(dot(e1, g_m), g1, scale(dot(e2, g_m), g2))
 
 
-@jit_inline
+@jit_call
 def _reflect_adjoint(w, dwu, dwv, n, dnu, dnv, g_r, g_ru, g_rv):
     """Adjoint of :func:`reflect`: (g_w, g_dwu, g_dwv, g_n, g_dnu, g_dnv)."""
     c = dot(w, n)
@@ -50,7 +50,7 @@ def _reflect_adjoint(w, dwu, dwv, n, dnu, dnv, g_r, g_ru, g_rv):
             axpy(g_cv, w, scale(-2.0 * c, g_rv)))
 
 
-@jit_inline
+@jit_call
 def _retreat_one(d, i, before, kind, which, t, channel, substrate, face_element, indices, v0, plane, dual, shading, sc,
                  g_after, g_heights, wx, wy, patch) -> None:
     """Reverse of photon i's event (see :func:`retreat`); wx, wy, patch: (4, 4) scratch."""
@@ -143,7 +143,7 @@ def _retreat_block(lo, hi, d, before, kind, which, t, channel, substrate, face_e
                      sc, g_after, g_heights, wx, wy, patch)
 
 
-@jit_inline
+@jit_call
 def _top_adjoint(d, p, w, t, g_t, g_sx, g_sy, g_sxx, g_sxy, g_syy, sc, grad, wx, wy, patch) -> None:
     """Add to grad (m, m) the gradient w.r.t. the heights of g_t t + <g_jet, jet> at a hit on the
     top; wx, wy, patch: (4, 4) scratch."""
