@@ -334,8 +334,8 @@ def main(argv: list[str] | None = None) -> None:
                         help="receiver pixels per side of the fidelity section's renders")
     parser.add_argument("--wavefront-vertices", type=int, default=4097,
                         help="aim points per side of the height field's exact (wavefront-triangle) reference")
-    parser.add_argument("--only", choices=("fidelity",), default=None,
-                        help="fidelity: print only the fidelity section")
+    parser.add_argument("--only", choices=("fidelity", "mesh_scene"), default=None,
+                        help="print only that section (mesh_scene: at --mesh-photons, e.g. 262144 and 1048576)")
     parser.add_argument("--footprint-px", type=float, default=3.0)
     parser.add_argument("--chunk-size", type=int, default=1 << 18)
     parser.add_argument("--device", choices=("cpu", "cuda"), default="cpu",
@@ -350,6 +350,10 @@ def main(argv: list[str] | None = None) -> None:
         print(json.dumps({"fidelity": fidelity_report(
             args.fidelity_photons, args.fidelity_bias_photons, args.fidelity_reference_photons,
             args.wavefront_vertices, tuple(args.fidelity_resolutions))}, indent=2))
+        return
+    if args.only == "mesh_scene":
+        print(json.dumps({"mesh_scene": time_mesh_scenes(heights, args.mesh_photons, mesh_fp, args.mesh_supersample)},
+                         indent=2))
         return
     if args.device == "cuda":
         if not torch.cuda.is_available():

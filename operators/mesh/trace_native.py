@@ -27,7 +27,8 @@ from operators.mesh.embree_native import EmbreeTriangles
 from operators.mesh.locality import crossing_order
 from operators.heightfield.surface import HeightFieldGrid
 from operators.photon_operator import filter_radius_px
-from operators.splat.splat import splat_photons, splat_photons_vjp
+from operators.kernels.numba_settings import to_numpy
+from operators.splat.splat import ImageAccumulator, PaddedAdjoint
 
 __all__ = ["LOSSES", "NativeMeshTracer", "Prefix"]
 
@@ -216,32 +217,36 @@ class NativeMeshTracer:
             if index is not None:
                 g_state[index] = g
 
-    def _splat_inputs(self, chunk: _Chunk, sc: mk.MeshConstants, losses: dict[str, float],
+    def _splat_inputs(self, chunk: _Chunk, sc: mk.MeshConstants, losses: dict[str, float] | None,
                       where: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Pixel positions (2, N), metrics (3, N) and flux (N,) of the chunk's landed photons
         (flux 0 for the others), photon i at place ``where[i]`` (None: i); the flux landing beside
-        the receiver is counted as missing it."""
+        the receiver is counted as missing it in ``losses`` (None: not counted)."""
         n = len(chunk.state)
         pos, metric, flux = np.empty((2, n)), np.empty((3, n)), np.empty(n)
         self._splat_arguments(chunk.state, chunk.status, np.arange(n) if where is None else where, sc, pos, metric, flux)
-        landed = chunk.status == mk.LANDED
-        outside = landed & (np.abs(chunk.state[:, mk.P:mk.P + 2]) > sc.receiver_half).any(1)
-        losses["missed_receiver"] += float(chunk.state[outside, mk.FLUX].sum())
+        if losses is not None:
+            landed = chunk.status == mk.LANDED
+            outside = landed & (np.abs(chunk.state[:, mk.P:mk.P + 2]) > sc.receiver_half).any(1)
+            losses["missed_receiver"] += float(chunk.state[outside, mk.FLUX].sum())
         return pos, metric, flux
 
-    def _splat(self, chunk: _Chunk, sc: mk.MeshConstants, losses: dict[str, float], where: np.ndarray | None = None
-               ) -> torch.Tensor:
-        """The chunk's image (c, n, n); ``where`` (N,): each photon's place in the order it is
+    def _image(self) -> ImageAccumulator:
+        """An empty image (c, n, n) of the operator's dtype that chunks are splatted into."""
+        op = self.operator
+        return ImageAccumulator(op.scene.channels, op.scene.receiver.resolution,
+                                torch.empty(0, dtype=op.dtype).numpy().dtype)
+
+    def _splat(self, chunk: _Chunk, sc: mk.MeshConstants, losses: dict[str, float], image: ImageAccumulator,
+               where: np.ndarray | None = None) -> None:
+        """Splat the chunk into ``image``; ``where`` (N,): each photon's place in the order it is
         splatted in (the emission order, which fixes the rounding of the sums; None: as traced)."""
-        scene, dtype = self.operator.scene, self.operator.dtype
         pos, metric, flux = self._splat_inputs(chunk, sc, losses, where)
         channel = chunk.channel
         if where is not None:
             channel = np.empty_like(channel)
             channel[where] = chunk.channel
-        return splat_photons(torch.from_numpy(pos).to(dtype), torch.from_numpy(metric).to(dtype),
-                             torch.from_numpy(flux).to(dtype), torch.from_numpy(channel),
-                             scene.channels, scene.receiver.resolution)
+        image.add(pos, metric, flux, channel)
 
     # -- the height-independent prefix --------------------------------------------------------
     def prefix(self) -> Prefix:
@@ -251,20 +256,21 @@ class NativeMeshTracer:
         op = self.operator
         sc = self.constants(None)
         dummy = np.zeros((4, 4))
-        image = torch.zeros(op.output_shape, dtype=op.dtype)
+        image = self._image()
         losses = dict.fromkeys(LOSSES, 0.0)
         waiting = []
         for start, stop in op.chunks():
             chunk = self._emitted(start, stop)
             self._trace(dummy, chunk, sc, True, losses)
-            image += self._splat(chunk, sc, losses)
+            self._splat(chunk, sc, losses, image)
             keep = chunk.status == mk.WAITING
             waiting.append((chunk.state[keep], chunk.channel[keep], chunk.events[keep]))
         state, channel, events = (np.concatenate(parts) for parts in zip(*waiting))
         size = op.settings.chunk_size
         order = crossing_order(state[:, mk.P:mk.P + 3], state[:, mk.W:mk.W + 3], op.scene.substrate.thickness, size)
         place = order - np.arange(len(order)) // size * size
-        self._prefix = Prefix(np.ascontiguousarray(state[order]), channel[order], events[order], image, losses, place)
+        self._prefix = Prefix(np.ascontiguousarray(state[order]), channel[order], events[order], image.image(), losses,
+                              place)
         return self._prefix
 
     def _emitted(self, start: int, stop: int) -> _Chunk:
@@ -298,7 +304,7 @@ class NativeMeshTracer:
         pre = self.prefix()
         sc = self.constants(d)
         self._check_above(sc)
-        image = pre.image.clone()
+        image = self._image()
         losses = dict(pre.losses)
         settings = self.operator.settings
         budget = settings.event_log_mb * 2 ** 20
@@ -318,9 +324,9 @@ class NativeMeshTracer:
             else:
                 seen.append([])
                 self._run(d, chunk, sc, False, losses, events_log=seen[-1])
-            image += self._splat(chunk, sc, losses, where)
+            self._splat(chunk, sc, losses, image, where)
         self._events_seen = (d.copy(), seen, finals if keep_final else None) if keep else None
-        return image, losses
+        return pre.image + image.image(), losses
 
     def vjp(self, d: np.ndarray, grad_flux: torch.Tensor) -> np.ndarray:
         """Gradient (m, m) w.r.t. d of <flux per pixel, grad_flux (c, n, n)>. The photons' events
@@ -333,7 +339,8 @@ class NativeMeshTracer:
         self._check_above(sc)
         g_heights = np.zeros((nb.get_num_threads(), *d.shape))
         not_counted: dict[str, float] = dict.fromkeys(self.prefix().losses, 0.0)  # render counts them
-        dtype = self.operator.dtype
+        dtype = torch.empty(0, dtype=self.operator.dtype).numpy().dtype
+        adjoint = PaddedAdjoint(to_numpy(grad_flux))  # padded once for every chunk's gather
         same = self._events_seen is not None and np.array_equal(self._events_seen[0], d)
         seen, finals = self._events_seen[1:] if same else (None, None)
         for k, (start, stop) in enumerate(self._waiting_chunks()):
@@ -349,13 +356,11 @@ class NativeMeshTracer:
                 self._trace(d, chunk, sc, False, not_counted, log, replay=seen is not None)
             else:
                 self._run(d, chunk, sc, False, not_counted, tape, events_replay=None if seen is None else seen[k])
-            pos, metric, flux = self._splat_inputs(chunk, sc, not_counted)
-            g_pos, g_metric, g_flux = (t.double().numpy() for t in splat_photons_vjp(
-                torch.from_numpy(pos).to(dtype), torch.from_numpy(metric).to(dtype), torch.from_numpy(flux).to(dtype),
-                torch.from_numpy(chunk.channel), grad_flux))
+            pos, metric, flux = self._splat_inputs(chunk, sc, None)
+            g_pos, g_metric, g_flux = (np.ascontiguousarray(g, dtype=np.float64) for g in adjoint.gather(
+                *(a.astype(dtype, copy=False) for a in (pos, metric, flux)), chunk.channel))
             g_state = np.empty_like(chunk.state)
-            self._splat_arguments_adjoint(chunk.state, chunk.status, sc, np.ascontiguousarray(g_pos),
-                                          np.ascontiguousarray(g_metric), np.ascontiguousarray(g_flux), g_state)
+            self._splat_arguments_adjoint(chunk.state, chunk.status, sc, g_pos, g_metric, g_flux, g_state)
             if self.compiled:
                 events_compiled.reverse(d, before, chunk.channel, chunk.status, log, self._faces, sc, g_state, g_heights)
             else:

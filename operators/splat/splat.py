@@ -60,12 +60,10 @@ class _Splat(torch.autograd.Function):
     @staticmethod
     def forward(ctx, pos: torch.Tensor, metric: torch.Tensor, flux: torch.Tensor,
                 channel: torch.Tensor, channels: int, resolution: int) -> torch.Tensor:
-        f = to_numpy(flux)
-        out = np.zeros((nb.get_num_threads(), channels, resolution, resolution), dtype=f.dtype)
-        splat_forward(to_numpy(pos).astype(f.dtype), to_numpy(metric).astype(f.dtype), f, to_numpy(channel), out,
-                      footprint_capacity(to_numpy(metric)), SIMD_AVAILABLE)
+        image = ImageAccumulator(channels, resolution, to_numpy(flux).dtype)
+        image.add(to_numpy(pos), to_numpy(metric), to_numpy(flux), to_numpy(channel))
         ctx.save_for_backward(pos, metric, flux, channel)
-        return torch.from_numpy(out.sum(axis=0)).to(flux.device)
+        return image.image().to(flux.device)
 
     @staticmethod
     def backward(ctx, grad_image: torch.Tensor):
@@ -78,18 +76,54 @@ def splat_photons_vjp(pos: torch.Tensor, metric: torch.Tensor, flux: torch.Tenso
     """Adjoint of :func:`splat_photons` at these photons: gradients of <image, grad_image> w.r.t.
     pos (2, N), metric (3, N) and flux (N,), by the native gather (no forward splat needed)."""
     f = to_numpy(flux)
-    g_pos = np.empty((2, f.shape[0]), dtype=f.dtype)
-    g_metric = np.empty((3, f.shape[0]), dtype=f.dtype)
-    g_flux = np.empty(f.shape[0], dtype=f.dtype)
-    q = to_numpy(metric).astype(f.dtype)
-    pad = gather_padding(footprint_half_extent(q))
-    splat_backward(to_numpy(pos).astype(f.dtype), q, f, to_numpy(channel), pad_for_gather(to_numpy(grad_image), pad),
-                   pad, g_pos, g_metric, g_flux, SIMD_AVAILABLE)
+    g_pos, g_metric, g_flux = PaddedAdjoint(to_numpy(grad_image)).gather(
+        to_numpy(pos).astype(f.dtype), to_numpy(metric).astype(f.dtype), f, to_numpy(channel))
 
     def back(a: np.ndarray, like: torch.Tensor) -> torch.Tensor:
         return torch.from_numpy(a).to(dtype=like.dtype, device=like.device)
 
     return back(g_pos, pos), back(g_metric, metric), back(g_flux, flux)
+
+
+class ImageAccumulator:
+    """Photons of several chunks splatted into one image (c, n, n): each thread's share into a
+    buffer of its own (threads, c, n, n) of ``dtype``, summed once in :meth:`image`, instead of
+    a buffer and a sum over the threads per chunk."""
+
+    def __init__(self, channels: int, resolution: int, dtype: np.dtype) -> None:
+        self.out = np.zeros((nb.get_num_threads(), channels, resolution, resolution), dtype=dtype)
+
+    def add(self, pos: np.ndarray, metric: np.ndarray, flux: np.ndarray, channel: np.ndarray) -> None:
+        """Splat photons at ``pos`` (2, N) with metrics (3, N), ``flux`` (N,), ``channel`` (N,) int64."""
+        dtype = self.out.dtype
+        metric = metric.astype(dtype)
+        splat_forward(pos.astype(dtype), metric, flux.astype(dtype), channel, self.out, footprint_capacity(metric),
+                      SIMD_AVAILABLE)
+
+    def image(self) -> torch.Tensor:
+        """Flux per pixel (c, n, n) of every photon added."""
+        return torch.from_numpy(self.out.sum(axis=0))
+
+
+class PaddedAdjoint:
+    """The adjoint image G (c, n, n) with the zero border the gather needs, padded once for the
+    photons of several chunks (again only where a chunk's footprints need a wider border)."""
+
+    def __init__(self, grad_image: np.ndarray) -> None:
+        self.grad_image, self.pad, self.padded = grad_image, -1, None
+
+    def gather(self, pos: np.ndarray, metric: np.ndarray, flux: np.ndarray, channel: np.ndarray
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Gradients of <splat(...), G> w.r.t. pos (2, N), metric (3, N) and flux (N,) (all of
+        flux's dtype), as numpy arrays of that dtype."""
+        pad = gather_padding(footprint_half_extent(metric))
+        if pad > self.pad:
+            self.pad, self.padded = pad, pad_for_gather(self.grad_image, pad)
+        g_pos = np.empty((2, flux.shape[0]), dtype=flux.dtype)
+        g_metric = np.empty((3, flux.shape[0]), dtype=flux.dtype)
+        g_flux = np.empty(flux.shape[0], dtype=flux.dtype)
+        splat_backward(pos, metric, flux, channel, self.padded, self.pad, g_pos, g_metric, g_flux, SIMD_AVAILABLE)
+        return g_pos, g_metric, g_flux
 
 
 def splat_photons(pos: torch.Tensor, metric: torch.Tensor, flux: torch.Tensor, channel: torch.Tensor,

@@ -81,6 +81,16 @@ def test_bench_prints_the_promised_figures(capsys):
     assert runs["speedup"]["photon_traces"] > 1.0
 
 
+@pytest.mark.slow
+def test_the_mesh_section_alone_compares_every_operator_at_the_same_photons(capsys):
+    main(["--only", "mesh_scene", "--mesh-photons", "6000", "--mesh-footprint", "cell"])
+    mesh = json.loads(capsys.readouterr().out)["mesh_scene"]
+    assert set(mesh) == {"height_field", "mesh_scene_plain", "mesh_scene_two_lenses", "mesh_scene_two_lenses_numba",
+                         "mesh_scene_two_lenses_torch_tracer"}
+    assert mesh["height_field"]["iteration_time_over_height_field"] == 1.0
+    assert all(m["forward_photons_per_s"] > 0 and m["iteration_time_over_height_field"] > 0 for m in mesh.values())
+
+
 # The stage kernels cost 1.5 min of compiling on a cold cache; as plain Python (JIT off) the
 # profile's bookkeeping runs in seconds, and every stage still does real, measurable work.
 PROFILE = """
