@@ -630,32 +630,63 @@ int sfc_mesh_reverse(const mesh_scene *ms, const mesh_faces *fa, const chunk_job
     return sfc_parallel(c->threads, reverse_worker, &j);
 }
 
-/* Pixel positions (2, N), footprint metrics (3, N) and flux (N,) of the landed photons, photon i's
- * at column where[i]; flux 0 and a unit metric for the others (splat_arguments). */
-void sfc_mesh_splat_arguments(const mesh_scene *ms, const double *state, const int64_t *status, const int64_t *where,
-                              int64_t n, double *pos, double *metric, double *flux) {
-    const sfc_scene *sc = &ms->hf;
+typedef struct {
+    const mesh_scene *ms;
+    const double *state;
+    const int64_t *status, *where;
+    int64_t n, threads;
+    double *pos, *metric, *flux, *missed;
+} splat_job;
+
+/* Thread t's share of sfc_mesh_splat_arguments: photons t * per .. (t + 1) * per - 1. */
+static int splat_arguments_worker(void *context, int64_t thread) {
+    const splat_job *j = (const splat_job *)context;
+    const sfc_scene *sc = &j->ms->hf;
     const double k = sc->to_px;
-    for (int64_t i = 0; i < n; i++) {
-        const int64_t j = where[i];
-        if (status[i] != LANDED) {
-            pos[j] = pos[n + j] = 0.0;
-            metric[j] = 1.0;
-            metric[n + j] = 0.0;
-            metric[2 * n + j] = 1.0;
-            flux[j] = 0.0;
+    const int64_t n = j->n, per = (n + j->threads - 1) / j->threads;
+    double missed = 0.0;
+    for (int64_t i = thread * per; i < imin(n, (thread + 1) * per); i++) {
+        const int64_t c = j->where[i];
+        double *pos = j->pos, *metric = j->metric;
+        if (j->status[i] != LANDED) {
+            pos[c] = pos[n + c] = 0.0;
+            metric[c] = 1.0;
+            metric[n + c] = 0.0;
+            metric[2 * n + c] = 1.0;
+            j->flux[c] = 0.0;
             continue;
         }
-        const double *row = state + STATE * i;
-        pos[j] = (row[P] + sc->receiver_half) * k - 0.5;
-        pos[n + j] = (row[P + 1] + sc->receiver_half) * k - 0.5;
+        const double *row = j->state + STATE * i;
+        if (fabs(row[P]) > sc->receiver_half || fabs(row[P + 1]) > sc->receiver_half) missed += row[FLUX];
+        pos[c] = (row[P] + sc->receiver_half) * k - 0.5;
+        pos[n + c] = (row[P + 1] + sc->receiver_half) * k - 0.5;
         double q[3];
         footprint_metric(sc, row[DPU] * k, row[DPU + 1] * k, row[DPV] * k, row[DPV + 1] * k, q);
-        metric[j] = q[0];
-        metric[n + j] = q[1];
-        metric[2 * n + j] = q[2];
-        flux[j] = row[FLUX];
+        metric[c] = q[0];
+        metric[n + c] = q[1];
+        metric[2 * n + c] = q[2];
+        j->flux[c] = row[FLUX];
     }
+    j->missed[thread] = missed;
+    return 0;
+}
+
+/* Pixel positions (2, N), footprint metrics (3, N) and flux (N,) of the landed photons, photon i's
+ * at column where[i]; flux 0 and a unit metric for the others (splat_arguments), on `threads`
+ * threads (thread t: a contiguous share). The flux (W) of the landed photons beside the receiver
+ * into *missed (summed per thread, then in thread order). Returns 0, -1 on failure to allocate or
+ * start threads. */
+int sfc_mesh_splat_arguments(const mesh_scene *ms, const double *state, const int64_t *status, const int64_t *where,
+                             int64_t n, int64_t threads, double *pos, double *metric, double *flux, double *missed) {
+    if (threads < 1) threads = 1;
+    double *shares = (double *)calloc((size_t)threads, sizeof(double));
+    if (!shares) return -1;
+    splat_job j = {ms, state, status, where, n, threads, pos, metric, flux, shares};
+    const int status_ = sfc_parallel(threads, splat_arguments_worker, &j);
+    *missed = 0.0;
+    for (int64_t t = 0; t < threads; t++) *missed += shares[t];
+    free(shares);
+    return status_;
 }
 
 /* The gradient w.r.t. the photons' states (N, STATE) from those w.r.t. their splat arguments,

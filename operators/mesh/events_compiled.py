@@ -68,7 +68,7 @@ def _bind() -> ctypes.CDLL | None:
     for name, argtypes, restype in (
             ("sfc_mesh_trace", [scene, faces, chunk], ctypes.c_int),
             ("sfc_mesh_reverse", [scene, faces, chunk], ctypes.c_int),
-            ("sfc_mesh_splat_arguments", [scene, _P, _P, _P, _I, _P, _P, _P], None),
+            ("sfc_mesh_splat_arguments", [scene, _P, _P, _P, _I, _I, _P, _P, _P, _P], ctypes.c_int),
             ("sfc_mesh_splat_arguments_adjoint", [scene, _P, _P, _I, _P, _P, _P, _P], None)):
         function = getattr(library, name)
         function.argtypes = argtypes
@@ -189,14 +189,17 @@ def reverse(d: np.ndarray, start: tuple[np.ndarray, np.ndarray, np.ndarray], cha
     _check_status(_LIBRARY.sfc_mesh_reverse(ctypes.byref(_scene(sc)), ctypes.byref(faces.struct), ctypes.byref(job)))
 
 
-def splat_arguments(state, status, where, sc, pos, metric, flux) -> None:
-    """:func:`operators.mesh.kernels_native.splat_arguments` in C (same arguments)."""
+def splat_arguments(state, status, where, sc, pos, metric, flux) -> float:
+    """:func:`operators.mesh.kernels_native.splat_arguments` in C (same arguments), on numba's
+    thread count; returns the flux (W) of the landed photons beside the receiver."""
     n = state.shape[0]
-    _LIBRARY.sfc_mesh_splat_arguments(
+    missed = ctypes.c_double(0.0)
+    _check_status(_LIBRARY.sfc_mesh_splat_arguments(
         ctypes.byref(_scene(sc)), _data(state, np.float64, "state", (n, mk.STATE)),
-        _data(status, np.int64, "status", (n,)), _data(where, np.int64, "where", (n,)), n,
+        _data(status, np.int64, "status", (n,)), _data(where, np.int64, "where", (n,)), n, nb.get_num_threads(),
         _data(pos, np.float64, "pos", (2, n)), _data(metric, np.float64, "metric", (3, n)),
-        _data(flux, np.float64, "flux", (n,)))
+        _data(flux, np.float64, "flux", (n,)), ctypes.byref(missed)))
+    return missed.value
 
 
 def splat_arguments_adjoint(state, status, sc, g_pos, g_metric, g_flux, g_state) -> None:

@@ -93,6 +93,14 @@ def _write_back(chunk: _Chunk, index: np.ndarray | None, work: _Chunk) -> None:
         work.state, work.medium, work.status, work.events, work.clear)
 
 
+def _numba_splat_arguments(state, status, where, sc, pos, metric, flux) -> float:
+    """:func:`operators.mesh.kernels_native.splat_arguments`, returning the flux (W) of the landed
+    photons beside the receiver as the C kernel does."""
+    mk.splat_arguments(state, status, where, sc, pos, metric, flux)
+    outside = (status == mk.LANDED) & (np.abs(state[:, mk.P:mk.P + 2]) > sc.receiver_half).any(1)
+    return float(state[outside, mk.FLUX].sum())
+
+
 class NativeMeshTracer:
     """Traces a :class:`operators.mesh.operator.MeshSceneOperator`'s photons natively."""
 
@@ -106,7 +114,7 @@ class NativeMeshTracer:
         # Whether the C kernels trace (a chunk's photons through all their events per call), else numba
         # (one event of every photon per call).
         self.compiled = operator.settings.kernels == "c" and events_compiled.AVAILABLE
-        self._splat_arguments = events_compiled.splat_arguments if self.compiled else mk.splat_arguments
+        self._splat_arguments = events_compiled.splat_arguments if self.compiled else _numba_splat_arguments
         self._splat_arguments_adjoint = (events_compiled.splat_arguments_adjoint if self.compiled
                                          else ma.splat_arguments_adjoint)
         self._prefix: Prefix | None = None
@@ -224,11 +232,10 @@ class NativeMeshTracer:
         the receiver is counted as missing it in ``losses`` (None: not counted)."""
         n = len(chunk.state)
         pos, metric, flux = np.empty((2, n)), np.empty((3, n)), np.empty(n)
-        self._splat_arguments(chunk.state, chunk.status, np.arange(n) if where is None else where, sc, pos, metric, flux)
+        missed = self._splat_arguments(chunk.state, chunk.status, np.arange(n) if where is None else where, sc, pos,
+                                       metric, flux)
         if losses is not None:
-            landed = chunk.status == mk.LANDED
-            outside = landed & (np.abs(chunk.state[:, mk.P:mk.P + 2]) > sc.receiver_half).any(1)
-            losses["missed_receiver"] += float(chunk.state[outside, mk.FLUX].sum())
+            losses["missed_receiver"] += missed
         return pos, metric, flux
 
     def _image(self) -> ImageAccumulator:
