@@ -292,12 +292,15 @@ class NativeMeshTracer:
         state[:, mk.FLUX] = batch.flux.double().numpy()
         return _Chunk.starting(state, batch.channel.numpy().astype(np.int64), np.zeros(n, dtype=np.int64))
 
-    def _waiting(self, start: int, stop: int) -> tuple[_Chunk, np.ndarray]:
+    def _waiting(self, start: int, stop: int, writable: bool = True) -> tuple[_Chunk, np.ndarray]:
         """Prefix photons start .. stop-1, about to meet the print, in the order they are traced
-        in, and each one's place (N,) among them in emission order."""
+        in, and each one's place (N,) among them in emission order; their states and event counts
+        are copies to trace in place, or with ``writable=False`` views of the prefix (read only)."""
         pre = self.prefix()
-        return (_Chunk.starting(pre.state[start:stop].copy(), pre.channel[start:stop], pre.events[start:stop].copy()),
-                pre.place[start:stop])
+        state, events = pre.state[start:stop], pre.events[start:stop]
+        if writable:
+            state, events = state.copy(), events.copy()
+        return _Chunk.starting(state, pre.channel[start:stop], events), pre.place[start:stop]
 
     def _waiting_chunks(self) -> list[tuple[int, int]]:
         size, total = self.operator.settings.chunk_size, len(self.prefix().state)
@@ -351,9 +354,10 @@ class NativeMeshTracer:
         same = self._events_seen is not None and np.array_equal(self._events_seen[0], d)
         seen, finals = self._events_seen[1:] if same else (None, None)
         for k, (start, stop) in enumerate(self._waiting_chunks()):
-            chunk, _ = self._waiting(start, stop)
+            from_finals = self.compiled and finals is not None  # the reverse only reads the start states
+            chunk, _ = self._waiting(start, stop, writable=not from_finals)
             tape: list = []
-            if self.compiled and finals is not None:
+            if from_finals:
                 before, log = (chunk.state, chunk.medium, chunk.clear), seen[k]
                 chunk.state, chunk.status = finals[k]
             elif self.compiled:
