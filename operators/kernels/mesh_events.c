@@ -390,10 +390,17 @@ static inline SFC_INLINE crossing interface(vec3 w, vec3 dwu, vec3 dwv, const ev
     return x;
 }
 
+/* What an event computed: the surface met and how the photon crossed it (the reverse's inputs). */
+typedef struct {
+    event_surface s;
+    crossing x;
+} event_record;
+
 /* Apply an event (kind, face or plane, distance) to the photon (_advance_one after the search):
- * moves it onto the surface, refracts or reflects it, ends it; Fresnel losses into *lost_fresnel. */
+ * moves it onto the surface, refracts or reflects it, ends it; Fresnel losses into *lost_fresnel;
+ * the surface and the crossing into *record where it is not NULL. */
 static void apply_event(const mesh_scene *ms, const mesh_faces *fa, const double *d, int64_t m, photon *ph,
-                        int64_t kind, int64_t which, double t, double *lost_fresnel) {
+                        int64_t kind, int64_t which, double t, double *lost_fresnel, event_record *record) {
     double *row = ph->row;
     ph->clear = 0;
     if (kind == AT_TOP) {
@@ -404,18 +411,21 @@ static void apply_event(const mesh_scene *ms, const mesh_faces *fa, const double
         ph->status = LOST;
         return;
     }
-    event_surface s;
-    surface_of(ms, fa, d, m, row, kind, which, t, &s);
-    store3(row + P, s.q);
-    store3(row + DPU, s.dqu);
-    store3(row + DPV, s.dqv);
+    event_record local;
+    event_record *r = record != NULL ? record : &local;
+    const event_surface *sp = &r->s;
+    surface_of(ms, fa, d, m, row, kind, which, t, &r->s);
+    store3(row + P, sp->q);
+    store3(row + DPU, sp->dqu);
+    store3(row + DPV, sp->dqv);
     if (kind == RECEIVER) {
         ph->status = LANDED;
         return;
     }
     const int64_t solid = kind == MESH ? fa->face_element[which] : fa->substrate;
-    const crossing x = interface(load3(row + W), load3(row + DWU), load3(row + DWV), &s,
-                                 fa->indices[solid * fa->channels + ph->channel]);
+    r->x = interface(load3(row + W), load3(row + DWU), load3(row + DWV), sp,
+                     fa->indices[solid * fa->channels + ph->channel]);
+    const crossing x = r->x;
     store3(row + W, x.r);
     store3(row + DWU, x.ru);
     store3(row + DWV, x.rv);
@@ -426,7 +436,7 @@ static void apply_event(const mesh_scene *ms, const mesh_faces *fa, const double
             row[FLUX] *= kept;
         }
         ph->medium = x.entering ? solid : AIR;
-        ph->clear = kind == MESH && !x.entering && fa->face_clear[which] && dot(x.r, s.n_plane) >= ms->clear_cos;
+        ph->clear = kind == MESH && !x.entering && fa->face_clear[which] && dot(x.r, sp->n_plane) >= ms->clear_cos;
     }
 }
 
@@ -456,7 +466,7 @@ static void trace_photon(const mesh_scene *ms, const mesh_faces *fa, const chunk
             kind = next_event(ms, fa, c->d, c->m, &ph, e == 0 && !c->wait_at_top, (int)c->wait_at_top, ray, &which, &t);
         }
         const double flux = ph.row[FLUX];
-        apply_event(ms, fa, c->d, c->m, &ph, kind, which, t, &lost[LOST_FRESNEL]);
+        apply_event(ms, fa, c->d, c->m, &ph, kind, which, t, &lost[LOST_FRESNEL], NULL);
         if (c->log_kind != NULL && !c->replay) {
             c->log_kind[c->max_depth * i + e] = (int8_t)kind;
             c->log_which[c->max_depth * i + e] = (int32_t)which;
@@ -495,21 +505,20 @@ static inline SFC_INLINE void top_adjoint(const mesh_scene *ms, const double *d,
     hit_adjoint_scalar(d, grad, m, p.x + t * w.x, p.y + t * w.y, -ms->hf.half, ms->hf.spacing, w, g);
 }
 
-/* Reverse of one event (kind k, face or plane, distance t) of a photon of channel `channel` whose
- * state before it was `row` (_retreat_one): g (STATE) from the gradient w.r.t. the state after
- * the event to that before it; at the top into grad (m, m) instead (g zeroed). */
+/* Reverse of one event (kind k, face or plane, distance t) of a photon whose state before it was
+ * `row` and which met the surface and crossed it as `record` says (apply_event's, _retreat_one):
+ * g (STATE) from the gradient w.r.t. the state after the event to that before it; at the top into
+ * grad (m, m) instead (g zeroed). */
 static void retreat_one(const mesh_scene *ms, const mesh_faces *fa, const double *d, int64_t m, const double *row,
-                        int64_t k, int64_t which, double t, int64_t channel, double *g, double *grad) {
+                        int64_t k, int64_t which, double t, const event_record *record, double *g, double *grad) {
     const vec3 p = load3(row + P), dpu = load3(row + DPU), dpv = load3(row + DPV);
     const vec3 w = load3(row + W), dwu = load3(row + DWU), dwv = load3(row + DWV);
-    event_surface s;
-    surface_of(ms, fa, d, m, row, k, which, t, &s);
+    const event_surface s = record->s;
     vec3 g_q = load3(g + P), g_dqu = load3(g + DPU), g_dqv = load3(g + DPV);
     vec3 g_w = ZERO, g_dwu = ZERO, g_dwv = ZERO;
     double g_flux = g[FLUX];
     if (k != RECEIVER) {
-        const int64_t solid = k == MESH ? fa->face_element[which] : fa->substrate;
-        const crossing x = interface(w, dwu, dwv, &s, fa->indices[solid * fa->channels + channel]);
+        const crossing x = record->x;
         const vec3 facing = scale3(x.sign, s.outward), dfu = scale3(x.sign, s.dnu), dfv = scale3(x.sign, s.dnv);
         const vec3 g_r = load3(g + W), g_ru = load3(g + DWU), g_rv = load3(g + DWV);
         vec3 g_f, g_fu, g_fv;
@@ -576,10 +585,11 @@ static void retreat_one(const mesh_scene *ms, const mesh_faces *fa, const double
 
 /* The reverse of photon i's logged events (retreat over the events of _run, in
  * operators/mesh/trace_native.py): its events replayed from its start (the state before the trace
- * in c->state, its medium and clear), the state before each kept in `before` (max_depth, STATE),
- * then the gradient g_state[i] taken back through them, into grad (m, m) at the top. */
+ * in c->state, its medium and clear), the state before each kept in `before` (max_depth, STATE)
+ * and the surface and crossing each computed in `records` (max_depth), then the gradient
+ * g_state[i] taken back through them, into grad (m, m) at the top. */
 static void reverse_photon(const mesh_scene *ms, const mesh_faces *fa, const chunk_job *c, int64_t i, double *before,
-                           double *grad) {
+                           event_record *records, double *grad) {
     double row[STATE];
     memcpy(row, c->state + STATE * i, sizeof(row));
     photon ph = {row, c->medium[i], UNDER_WAY, c->channel[i], c->clear[i]};
@@ -590,12 +600,12 @@ static void reverse_photon(const mesh_scene *ms, const mesh_faces *fa, const chu
     int64_t count = 0;
     for (; count < c->max_depth && kind[count] >= 0; count++) {
         memcpy(before + STATE * count, row, sizeof(row));
-        apply_event(ms, fa, c->d, c->m, &ph, kind[count], which[count], t[count], &unused);
+        apply_event(ms, fa, c->d, c->m, &ph, kind[count], which[count], t[count], &unused, records + count);
     }
     double *g = c->g_state + STATE * i;
     for (int64_t e = count - 1; e >= 0; e--) {
         if (kind[e] == ESCAPED || kind[e] == INSIDE_TOP || kind[e] == AT_TOP) continue;
-        retreat_one(ms, fa, c->d, c->m, before + STATE * e, kind[e], which[e], t[e], c->channel[i], g, grad);
+        retreat_one(ms, fa, c->d, c->m, before + STATE * e, kind[e], which[e], t[e], records + e, g, grad);
     }
 }
 
@@ -603,12 +613,18 @@ static int reverse_worker(void *context, int64_t thread) {
     const worker_job *j = (const worker_job *)context;
     const chunk_job *c = j->c;
     double *before = (double *)malloc(sizeof(double) * STATE * (size_t)imax(c->max_depth, 1));
-    if (!before) return 1;
+    event_record *records = (event_record *)malloc(sizeof(event_record) * (size_t)imax(c->max_depth, 1));
+    if (!before || !records) {
+        free(before);
+        free(records);
+        return 1;
+    }
     double *grad = c->g_heights + thread * c->m * c->m;
     for (int64_t b = thread; b < j->blocks; b += c->threads)
         for (int64_t i = b * BLOCK; i < imin(c->n, (b + 1) * BLOCK); i++)
-            if (c->status[i] == LANDED) reverse_photon(j->ms, j->fa, c, i, before, grad);
+            if (c->status[i] == LANDED) reverse_photon(j->ms, j->fa, c, i, before, records, grad);
     free(before);
+    free(records);
     return 0;
 }
 
