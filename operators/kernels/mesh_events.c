@@ -698,11 +698,11 @@ int sfc_mesh_splat_arguments(const mesh_scene *ms, const double *state, const in
     double *shares = (double *)calloc((size_t)threads, sizeof(double));
     if (!shares) return -1;
     splat_job j = {ms, state, status, where, n, threads, pos, metric, flux, shares};
-    const int status_ = sfc_parallel(threads, splat_arguments_worker, &j);
+    const int result = sfc_parallel(threads, splat_arguments_worker, &j);
     *missed = 0.0;
     for (int64_t t = 0; t < threads; t++) *missed += shares[t];
     free(shares);
-    return status_;
+    return result;
 }
 
 /* The gradient w.r.t. the photons' states (N, STATE) from those w.r.t. their splat arguments,
