@@ -114,6 +114,7 @@ class NativeMeshTracer:
         # Whether the C kernels trace (a chunk's photons through all their events per call), else numba
         # (one event of every photon per call).
         self.compiled = operator.settings.kernels == "c" and events_compiled.AVAILABLE
+        self._dtype = torch.empty(0, dtype=operator.dtype).numpy().dtype  # the operator's dtype in numpy
         self._splat_arguments = events_compiled.splat_arguments if self.compiled else _numba_splat_arguments
         self._splat_arguments_adjoint = (events_compiled.splat_arguments_adjoint if self.compiled
                                          else ma.splat_arguments_adjoint)
@@ -240,9 +241,8 @@ class NativeMeshTracer:
 
     def _image(self) -> ImageAccumulator:
         """An empty image (c, n, n) of the operator's dtype that chunks are splatted into."""
-        op = self.operator
-        return ImageAccumulator(op.scene.channels, op.scene.receiver.resolution,
-                                torch.empty(0, dtype=op.dtype).numpy().dtype)
+        scene = self.operator.scene
+        return ImageAccumulator(scene.channels, scene.receiver.resolution, self._dtype)
 
     def _splat(self, chunk: _Chunk, sc: mk.MeshConstants, losses: dict[str, float], image: ImageAccumulator,
                where: np.ndarray | None = None) -> None:
@@ -349,12 +349,11 @@ class NativeMeshTracer:
         self._check_above(sc)
         g_heights = np.zeros((nb.get_num_threads(), *d.shape))
         not_counted: dict[str, float] = dict.fromkeys(self.prefix().losses, 0.0)  # render counts them
-        dtype = torch.empty(0, dtype=self.operator.dtype).numpy().dtype
         adjoint = PaddedAdjoint(to_numpy(grad_flux))  # padded once for every chunk's gather
         same = self._events_seen is not None and np.array_equal(self._events_seen[0], d)
         seen, finals = self._events_seen[1:] if same else (None, None)
+        from_finals = self.compiled and finals is not None  # the reverse only reads the start states
         for k, (start, stop) in enumerate(self._waiting_chunks()):
-            from_finals = self.compiled and finals is not None  # the reverse only reads the start states
             chunk, _ = self._waiting(start, stop, writable=not from_finals)
             tape: list = []
             if from_finals:
@@ -369,7 +368,7 @@ class NativeMeshTracer:
                 self._run(d, chunk, sc, False, not_counted, tape, events_replay=None if seen is None else seen[k])
             pos, metric, flux = self._splat_inputs(chunk, sc, None)
             g_pos, g_metric, g_flux = (np.ascontiguousarray(g, dtype=np.float64) for g in adjoint.gather(
-                *(a.astype(dtype, copy=False) for a in (pos, metric, flux)), chunk.channel))
+                *(a.astype(self._dtype, copy=False) for a in (pos, metric, flux)), chunk.channel))
             g_state = np.empty_like(chunk.state)
             self._splat_arguments_adjoint(chunk.state, chunk.status, sc, g_pos, g_metric, g_flux, g_state)
             if self.compiled:

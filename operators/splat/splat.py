@@ -77,7 +77,7 @@ def splat_photons_vjp(pos: torch.Tensor, metric: torch.Tensor, flux: torch.Tenso
     pos (2, N), metric (3, N) and flux (N,), by the native gather (no forward splat needed)."""
     f = to_numpy(flux)
     g_pos, g_metric, g_flux = PaddedAdjoint(to_numpy(grad_image)).gather(
-        to_numpy(pos).astype(f.dtype), to_numpy(metric).astype(f.dtype), f, to_numpy(channel))
+        to_numpy(pos).astype(f.dtype, copy=False), to_numpy(metric).astype(f.dtype, copy=False), f, to_numpy(channel))
 
     def back(a: np.ndarray, like: torch.Tensor) -> torch.Tensor:
         return torch.from_numpy(a).to(dtype=like.dtype, device=like.device)
@@ -96,9 +96,9 @@ class ImageAccumulator:
     def add(self, pos: np.ndarray, metric: np.ndarray, flux: np.ndarray, channel: np.ndarray) -> None:
         """Splat photons at ``pos`` (2, N) with metrics (3, N), ``flux`` (N,), ``channel`` (N,) int64."""
         dtype = self.out.dtype
-        metric = metric.astype(dtype)
-        splat_forward(pos.astype(dtype), metric, flux.astype(dtype), channel, self.out, footprint_capacity(metric),
-                      SIMD_AVAILABLE)
+        metric = metric.astype(dtype, copy=False)
+        splat_forward(pos.astype(dtype, copy=False), metric, flux.astype(dtype, copy=False), channel, self.out,
+                      footprint_capacity(metric), SIMD_AVAILABLE)
 
     def image(self) -> torch.Tensor:
         """Flux per pixel (c, n, n) of every photon added."""
