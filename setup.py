@@ -17,7 +17,9 @@ FAST_MATH = ["-fno-math-errno", "-fno-trapping-math", "-fno-signed-zeros", "-fre
 setup(ext_modules=[Extension("operators.kernels._simd",
                              sources=["operators/kernels/simd_kernels.c", "operators/kernels/heightfield_photons.c",
                                       "operators/kernels/heightfield_photons_avx2.c",
-                                      "operators/kernels/coverage_kernels.c", "operators/kernels/mesh_events.c"],
-                             depends=["operators/kernels/sfc_threads.h", "operators/kernels/photon_optics.h"],
+                                      "operators/kernels/coverage_kernels.c", "operators/kernels/mesh_events.c",
+                                      "operators/kernels/mesh_events_avx2.c"],
+                             depends=["operators/kernels/sfc_threads.h", "operators/kernels/photon_optics.h",
+                                      "operators/kernels/heightfield_photons.c", "operators/kernels/mesh_events.c"],
                              extra_compile_args=["-O3", "-pthread", *FAST_MATH], extra_link_args=["-pthread"],
                              optional=True)])

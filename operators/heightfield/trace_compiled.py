@@ -38,27 +38,17 @@ class SceneStruct(ctypes.Structure):
 
 _P = ctypes.c_void_p
 _I = ctypes.c_int64
-BUILDS = ("", "_avx2")  # suffixes of the extension's two builds of the kernels: baseline, AVX2 + FMA
 
 
 def _bind() -> tuple[ctypes.CDLL | None, str]:
-    """The extension, its functions' signatures declared (both builds), and the suffix of the
-    build that traces: ``_avx2`` (AVX2 and FMA) where the CPU has them, else the baseline build."""
-    library = extension.load()
-    if library is None:
-        return None, ""
+    """The extension with the height-field kernels' signatures declared, and the suffix of the
+    build that traces (:func:`operators.kernels.extension.bind`)."""
     scene = ctypes.POINTER(SceneStruct)
-    for suffix in BUILDS:
-        for name, argtypes in (
-                ("sfc_hf_render", [_P, _I, scene, _P, _P, _I, _I, _P, _I, _I, _I, _I, _I, _I, _P, _I, _I,
-                                   ctypes.POINTER(ctypes.c_double)]),
-                ("sfc_hf_vjp", [_P, _I, scene, _P, _P, _I, _I, _P, _I, _I, _P, _I, _P, _I]),
-                ("sfc_hf_trace_aimed", [_P, _I, scene, ctypes.c_double, _P, _I, _P, _P, _I])):
-            function = getattr(library, name + suffix, None)
-            if function is not None:
-                function.argtypes = argtypes
-                function.restype = ctypes.c_int
-    return library, "_avx2" if library.sfc_simd_supported() else ""
+    return extension.bind((
+        ("sfc_hf_render", [_P, _I, scene, _P, _P, _I, _I, _P, _I, _I, _I, _I, _I, _I, _P, _I, _I,
+                           ctypes.POINTER(ctypes.c_double)], ctypes.c_int),
+        ("sfc_hf_vjp", [_P, _I, scene, _P, _P, _I, _I, _P, _I, _I, _P, _I, _P, _I], ctypes.c_int),
+        ("sfc_hf_trace_aimed", [_P, _I, scene, ctypes.c_double, _P, _I, _P, _P, _I], ctypes.c_int)))
 
 
 _LIBRARY, _SUFFIX = _bind()

@@ -2,8 +2,9 @@
 
 It holds the AVX2 splat, gather, jet and hit-adjoint kernels (``simd_kernels.c``, called from
 numba: :mod:`operators.kernels.simd`) and the whole height-field photon kernels in C
-(``heightfield_photons.c``, called from the host: :mod:`operators.heightfield.trace_compiled`), both
-compiled at install, so neither waits for a JIT. Where it was not built (no C compiler at
+(``heightfield_photons.c``, called from the host: :mod:`operators.heightfield.trace_compiled`) and
+the mesh-scene event kernels (``mesh_events.c``: :mod:`operators.mesh.events_compiled`), all
+compiled at install; the photon kernels twice, for any x86-64 CPU and for AVX2 + FMA, so neither waits for a JIT. Where it was not built (no C compiler at
 install) or was built from other sources (its ``sfc_abi_version`` differs from
 :data:`ABI_VERSION`), :func:`load` returns None and the numba kernels do its work.
 """
@@ -14,9 +15,12 @@ import ctypes
 import functools
 import importlib.util
 import warnings
+from collections.abc import Sequence
 
 # Version of the C functions' signatures that the declarations in Python match (sfc_abi_version).
-ABI_VERSION = 4
+ABI_VERSION = 5
+# Suffixes of the two builds of the photon kernels (heightfield_photons.c, mesh_events.c): baseline, AVX2 + FMA.
+BUILDS = ("", "_avx2")
 
 
 @functools.cache
@@ -35,6 +39,22 @@ def load() -> ctypes.CDLL | None:
                       "numba kernels. Rebuild it: pip install -e .", stacklevel=2)
         return None
     return library
+
+
+def bind(signatures: Sequence[tuple[str, list, type | None]]) -> tuple[ctypes.CDLL | None, str]:
+    """The extension with each (name, argtypes, restype) declared for both builds (BUILDS), and
+    the suffix of the build to call: ``_avx2`` where the CPU has AVX2 and FMA, else the baseline's
+    (the AVX2 build is empty off x86-64)."""
+    library = load()
+    if library is None:
+        return None, ""
+    for suffix in BUILDS:
+        for name, argtypes, restype in signatures:
+            function = getattr(library, name + suffix, None)
+            if function is not None:
+                function.argtypes = argtypes
+                function.restype = restype
+    return library, "_avx2" if library.sfc_simd_supported() else ""
 
 
 def origin() -> str:

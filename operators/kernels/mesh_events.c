@@ -2,7 +2,8 @@
  * once (trace), the reverse of each photon's events (reverse), and the splat arguments of the
  * landed photons with their adjoint. Part of the compiled extension operators.kernels._simd
  * (setup.py): compiled at install, so the first render through lenses traces at once instead of
- * waiting minutes for numba.
+ * waiting minutes for numba. Built twice, for any x86-64 CPU and for AVX2 + FMA (mesh_events_avx2.c;
+ * the host calls that build where the CPU has both).
  *
  * The same arithmetic, event for event, as the numba kernels, which trace one event of all
  * photons per call from a Python loop (operators/mesh/trace_native.py) and stay the fallback (no
@@ -33,6 +34,12 @@
 
 #include "photon_optics.h"
 #include "sfc_threads.h"
+
+/* The exported functions' names: mesh_events_avx2.c compiles this file again for AVX2 and FMA, with
+ * the suffix _avx2 (the host picks that build where the CPU has both, as for the height field). */
+#ifndef SFC_EXPORT
+#define SFC_EXPORT(name) name
+#endif
 
 enum { STATE = 19, P = 0, DPU = 3, DPV = 6, W = 9, DWU = 12, DWV = 15, FLUX = 18, BLOCK = 4096, REFINEMENTS = 2 };
 /* Event kinds, photon status and the medium of a photon in air (kernels_native.py). */
@@ -632,7 +639,7 @@ static int reverse_worker(void *context, int64_t thread) {
 
 /* Trace every photon of the chunk under way through its events, on c->threads threads, in place
  * (see trace_photon). Returns 0, -1 when a thread could not start. */
-int sfc_mesh_trace(const mesh_scene *ms, const mesh_faces *fa, const chunk_job *c) {
+int SFC_EXPORT(sfc_mesh_trace)(const mesh_scene *ms, const mesh_faces *fa, const chunk_job *c) {
     worker_job j = {ms, fa, c, (c->n + BLOCK - 1) / BLOCK};
     return sfc_parallel(c->threads, trace_worker, &j);
 }
@@ -641,7 +648,7 @@ int sfc_mesh_trace(const mesh_scene *ms, const mesh_faces *fa, const chunk_job *
  * states' gradient c->g_state (N, STATE; overwritten): c->state, medium and clear hold the chunk
  * as it was before sfc_mesh_trace logged its events, c->status the status after it (only landed
  * photons carry a gradient). Returns 0, -1 on failure to allocate or start threads. */
-int sfc_mesh_reverse(const mesh_scene *ms, const mesh_faces *fa, const chunk_job *c) {
+int SFC_EXPORT(sfc_mesh_reverse)(const mesh_scene *ms, const mesh_faces *fa, const chunk_job *c) {
     worker_job j = {ms, fa, c, (c->n + BLOCK - 1) / BLOCK};
     return sfc_parallel(c->threads, reverse_worker, &j);
 }
@@ -692,7 +699,7 @@ static int splat_arguments_worker(void *context, int64_t thread) {
  * threads (thread t: a contiguous share). The flux (W) of the landed photons beside the receiver
  * into *missed (summed per thread, then in thread order). Returns 0, -1 on failure to allocate or
  * start threads. */
-int sfc_mesh_splat_arguments(const mesh_scene *ms, const double *state, const int64_t *status, const int64_t *where,
+int SFC_EXPORT(sfc_mesh_splat_arguments)(const mesh_scene *ms, const double *state, const int64_t *status, const int64_t *where,
                              int64_t n, int64_t threads, double *pos, double *metric, double *flux, double *missed) {
     if (threads < 1) threads = 1;
     double *shares = (double *)calloc((size_t)threads, sizeof(double));
@@ -707,7 +714,7 @@ int sfc_mesh_splat_arguments(const mesh_scene *ms, const double *state, const in
 
 /* The gradient w.r.t. the photons' states (N, STATE) from those w.r.t. their splat arguments,
  * photon i's at column i (splat_arguments_adjoint). */
-void sfc_mesh_splat_arguments_adjoint(const mesh_scene *ms, const double *state, const int64_t *status, int64_t n,
+void SFC_EXPORT(sfc_mesh_splat_arguments_adjoint)(const mesh_scene *ms, const double *state, const int64_t *status, int64_t n,
                                       const double *g_pos, const double *g_metric, const double *g_flux,
                                       double *g_state) {
     const sfc_scene *sc = &ms->hf;

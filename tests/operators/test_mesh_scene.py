@@ -147,6 +147,23 @@ def test_the_native_path_equals_the_torch_tracer(operator_config, kernels):
     assert float((grad - grad_reference).norm() / grad_reference.norm()) < 1e-8
 
 
+def test_the_baseline_build_of_the_c_event_kernels_equals_the_build_that_runs(monkeypatch):
+    """The C event kernels are built twice, for any x86-64 CPU and for AVX2 + FMA (run where the
+    CPU has them, tested against the torch tracer above); the baseline build traces the same
+    paths: images and gradients equal to rounding (fused multiply-adds)."""
+    if not events_compiled.AVAILABLE:
+        pytest.fail("the compiled extension is missing: pip install -e . builds it")
+    _, heights, op = paper_scene("two_lenses")
+    weights = torch.randn(op.output_shape, dtype=torch.float64, generator=torch.Generator().manual_seed(4))
+    image, grad = op.render(heights), op.vjp(heights, weights)
+    monkeypatch.setattr(events_compiled, "_SUFFIX", "")
+    _, _, baseline = paper_scene("two_lenses")
+    baseline_image, baseline_grad = baseline.render(heights), baseline.vjp(heights, weights)
+    assert float(image.sum()) > 0 and float(grad.abs().max()) > 0
+    assert float((baseline_image - image).norm() / image.norm()) < 1e-12
+    assert float((baseline_grad - grad).norm() / grad.norm()) < 1e-9
+
+
 def test_the_c_event_kernels_repeat_a_render_and_a_gradient_to_the_last_bit(monkeypatch):
     """Each thread of the C kernels takes a fixed share of the photons and sums the heights'
     gradient in its own array, so repeats agree bit for bit, whatever the threads' timing (four
