@@ -56,6 +56,11 @@ LARGE_MESH_FACES = 1_000_000
 BYTES_PER_FACE = 1_000
 # Mesh files from this size on report that they are being read.
 LARGE_MESH_FILE_BYTES = 16 << 20
+# Generated elements (shape, params, placement, crease angle) kept built in this process, so that
+# operators built again from the same config skip the checks and the shading normals; each build
+# gets its own copy. Files are read again every time (they may change).
+GENERATED_KEPT = 4
+_GENERATED: dict[tuple, tuple[trimesh.Trimesh, np.ndarray]] = {}  # oldest first
 
 
 class MeshProgress:
@@ -222,12 +227,25 @@ def make_element(spec: Mapping[str, Any], base_dir: str | Path | None = None,
         full = Path(path) if base_dir is None or Path(path).is_absolute() else Path(base_dir) / path
         mesh = load_mesh(full, what)
         what = f"{what} ({full})"
-    else:
-        params = _generator_params(shape, spec.get("params"), f"{key}.params", mm_per_unit)
+        mesh, normals = _placed(mesh, position, rotation, crease, what)
+        return OpticalElement(name, mesh, normals, material)
+    params = _generator_params(shape, spec.get("params"), f"{key}.params", mm_per_unit)
+    built = (shape, repr(sorted(params.items())), tuple(position), tuple(rotation), crease)
+    if built not in _GENERATED:
         try:
             mesh = GENERATORS[shape](**params)
         except ValueError as error:
             raise ValueError(f"{key}.params: {error}") from None
+        _GENERATED[built] = _placed(mesh, position, rotation, crease, what)
+        while len(_GENERATED) > GENERATED_KEPT:
+            _GENERATED.pop(next(iter(_GENERATED)))
+    mesh, normals = _GENERATED[built]
+    return OpticalElement(name, mesh.copy(), normals.copy(), material)
+
+
+def _placed(mesh: trimesh.Trimesh, position: Sequence[float], rotation: Sequence[float], crease: float,
+            what: str) -> tuple[trimesh.Trimesh, np.ndarray]:
+    """The mesh checked (closed, not crossing itself) and placed, with its shading normals (F, 3, 3)."""
     progress = MeshProgress(what, len(mesh.faces))
     with progress.step("checking that it is closed"):
         _check_closed(mesh, what)
@@ -239,7 +257,7 @@ def make_element(spec: Mapping[str, Any], base_dir: str | Path | None = None,
         mesh = mesh.copy()
         mesh.apply_transform(placement)
         normals = crease_normals(mesh, crease) if exact is None else exact @ placement[:3, :3].T
-    return OpticalElement(name, mesh, normals, material)
+    return mesh, normals
 
 
 def make_elements(specs: Any, base_dir: str | Path | None = None, mm_per_unit: float = DEFAULT_MM_PER_UNIT,

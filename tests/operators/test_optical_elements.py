@@ -68,6 +68,34 @@ def test_elements_are_placed_and_written(tmp_path):
     assert again.mesh.volume == pytest.approx(element.mesh.volume, rel=1e-6)
 
 
+def test_a_generated_element_built_again_is_a_fresh_copy_of_the_same_element(monkeypatch):
+    """Generated elements are kept built per process: a second build from the same config equals
+    a build from scratch bit for bit, is its own copy (changing it changes no later build), and
+    other parameters or placements build other elements."""
+    from operators.mesh import elements
+
+    monkeypatch.setattr(elements, "_GENERATED", {})
+    spec = {"name": "top", "shape": "lens", "position": [0.1, 0.0, 1.15], "rotation_deg": [0, 0, 45],
+            "params": {"radius": 1.0, "thickness": 0.3, "front_radius": 4.0, "back_radius": 4.0}}
+    first = make_element(spec)
+    first.mesh.vertices += 1.0  # the caller's copy; later builds must not see this
+    first.normals[:] = 0.0
+    second = make_element(spec)
+    assert len(elements._GENERATED) == 1
+    monkeypatch.setattr(elements, "_GENERATED", {})
+    scratch = make_element(spec)
+    assert np.array_equal(second.mesh.vertices, scratch.mesh.vertices)
+    assert np.array_equal(second.mesh.faces, scratch.mesh.faces)
+    assert np.array_equal(second.normals, scratch.normals)
+    moved = make_element({**spec, "position": [0.1, 0.0, 1.25]})
+    assert moved.z_range == pytest.approx((1.1, 1.4)) and scratch.z_range == pytest.approx((1.0, 1.3))
+    thicker = make_element({**spec, "params": {**spec["params"], "thickness": 0.4}})
+    assert thicker.z_range[1] - thicker.z_range[0] == pytest.approx(0.4)
+    for k in range(elements.GENERATED_KEPT + 2):  # the kept elements stay few
+        make_element({**spec, "position": [0.0, 0.0, 2.0 + k]})
+    assert len(elements._GENERATED) == elements.GENERATED_KEPT
+
+
 def _write(mesh: trimesh.Trimesh, path) -> str:
     mesh.export(path)
     return str(path)
