@@ -5,20 +5,17 @@ scaled to the target's total (a refractive design only moves light, so its brigh
 light's, not the target's); the relative L2 is then ||x - t|| / ||t||. SSIM is the structural
 similarity of Wang et al. 2004 ("Image quality assessment: from error visibility to structural
 similarity"): Gaussian window of standard deviation 1.5 pixels, K1 = 0.01, K2 = 0.03, dynamic
-range L = the target's maximum, averaged over the pixels and the channels. :func:`ssim_torch` is
-the same index in torch, differentiable w.r.t. the image (a design's data term).
+range L = the target's maximum, averaged over the pixels and the channels.
 """
 
 from __future__ import annotations
 
 import numpy as np
-import torch
 from scipy.ndimage import gaussian_filter
 
-__all__ = ["energy_normalised", "relative_l2", "ssim", "ssim_torch"]
+__all__ = ["energy_normalised", "relative_l2", "ssim"]
 
 SSIM_SIGMA_PX = 1.5
-SSIM_TRUNCATE = 3.5  # the window's radius in standard deviations (scipy's gaussian_filter truncate)
 SSIM_K1, SSIM_K2 = 0.01, 0.03
 
 
@@ -57,7 +54,7 @@ def ssim(image: np.ndarray, target: np.ndarray) -> float:
         c1, c2 = (SSIM_K1 * dynamic_range) ** 2, (SSIM_K2 * dynamic_range) ** 2
 
         def blur(v: np.ndarray) -> np.ndarray:
-            return gaussian_filter(v, SSIM_SIGMA_PX, truncate=SSIM_TRUNCATE, mode="reflect")
+            return gaussian_filter(v, SSIM_SIGMA_PX, truncate=3.5, mode="reflect")
 
         mu_a, mu_b = blur(a), blur(b)
         var_a, var_b = blur(a * a) - mu_a ** 2, blur(b * b) - mu_b ** 2
@@ -65,38 +62,3 @@ def ssim(image: np.ndarray, target: np.ndarray) -> float:
         index = (2 * mu_a * mu_b + c1) * (2 * cov + c2) / ((mu_a ** 2 + mu_b ** 2 + c1) * (var_a + var_b + c2))
         values.append(float(index.mean()))
     return float(np.mean(values))
-
-
-def _window_blur(v: torch.Tensor) -> torch.Tensor:
-    """v (c, n, n) filtered by the SSIM window along both axes, the border mirrored about the
-    pixel edges (scipy's mode "reflect")."""
-    radius = int(SSIM_TRUNCATE * SSIM_SIGMA_PX + 0.5)
-    x = torch.arange(-radius, radius + 1, dtype=v.dtype, device=v.device)
-    kernel = torch.exp(-0.5 * (x / SSIM_SIGMA_PX) ** 2)
-    kernel = kernel / kernel.sum()
-    for axis in (1, 2):
-        n = v.shape[axis]
-        index = torch.arange(-radius, n + radius, device=v.device)
-        index = torch.where(index < 0, -index - 1, torch.where(index >= n, 2 * n - 1 - index, index))
-        padded = v.index_select(axis, index)
-        v = sum(kernel[k] * padded.narrow(axis, k, n) for k in range(2 * radius + 1))
-    return v
-
-
-def ssim_torch(image: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
-    """:func:`ssim` of ``image`` and ``target`` ((c, n, n) or (n, n), windows wider than the image
-    not supported: n > 10) as a differentiable torch scalar."""
-    x = image[None] if image.dim() == 2 else image
-    t = (target[None] if target.dim() == 2 else target).to(x)
-    if x.shape != t.shape or x.dim() != 3:
-        raise ValueError(f"image {tuple(image.shape)} and target {tuple(target.shape)} must be one (c, n, n) shape")
-    total = x.sum()
-    x = x * (t.sum() / total) if float(total) > 0.0 else x
-    dynamic_range = t.flatten(1).amax(dim=1).clamp(min=0.0)
-    dynamic_range = torch.where(dynamic_range > 0, dynamic_range, torch.ones_like(dynamic_range))[:, None, None]
-    c1, c2 = (SSIM_K1 * dynamic_range) ** 2, (SSIM_K2 * dynamic_range) ** 2
-    mu_a, mu_b = _window_blur(x), _window_blur(t)
-    var_a, var_b = _window_blur(x * x) - mu_a ** 2, _window_blur(t * t) - mu_b ** 2
-    cov = _window_blur(x * t) - mu_a * mu_b
-    index = (2 * mu_a * mu_b + c1) * (2 * cov + c2) / ((mu_a ** 2 + mu_b ** 2 + c1) * (var_a + var_b + c2))
-    return index.flatten(1).mean(dim=1).mean()

@@ -28,7 +28,6 @@ from typing import TYPE_CHECKING, Any
 import torch
 from torch import Tensor
 
-from framework.core.image_metrics import ssim_torch
 from framework.core.solver_loop import IterationFailed, IterationRecord, IterativeSolver
 from framework.core.values import positive_int
 from framework.plugins.solvers.preconditioner import SobolevPreconditioner
@@ -40,7 +39,7 @@ __all__ = ["DesignAdam", "DesignLBFGS"]
 
 ARMIJO_C1 = 1e-4
 MAX_BACKTRACKS = 10
-LOSSES = ("l2", "hellinger", "l2_ssim")
+LOSSES = ("l2", "hellinger")
 HELLINGER_FLOOR = 1e-3  # added to both images under the square roots, as a fraction of the target's peak
 
 
@@ -66,37 +65,17 @@ def _hellinger(problem: Problem, d: Tensor) -> tuple[float, Tensor, float]:
     return value, grad.double(), relative
 
 
-def _l2_ssim(problem: Problem, d: Tensor, ssim_weight: float) -> tuple[float, Tensor, float]:
-    """(f, grad f, relative discrepancy) at d: f = 1/(2a) (||F - b||^2 / ||b||^2 + w (1 - SSIM(F, b))),
-    a the cell area, w = ``ssim_weight``, SSIM the structural similarity of the energy-normalised
-    image that the design's verdict reports (framework/core/image_metrics.py): the problem's L2
-    term plus a term that counts faint light on black and lost edges as the verdict does."""
-    operator, target = problem.operator, problem.fidelity.target
-    image = operator.render(d).detach()
-    x = image.double().requires_grad_(True)
-    b = target.to(x)
-    value = ((x - b) ** 2).sum() / (b ** 2).sum() + ssim_weight * (1.0 - ssim_torch(x, b))
-    value = value / (2.0 * problem.fidelity.cell_area)
-    (grad_image,) = torch.autograd.grad(value, x)
-    grad = operator.vjp(d, grad_image.to(image.dtype))
-    relative = float(torch.linalg.vector_norm(image - b.to(image)) / torch.linalg.vector_norm(b))
-    return float(value.detach()), grad.double(), relative
-
-
 class _DesignObjective:
     """J(d) = f(d) + weight P(d) with its gradient, the rendered image and the data term apart; f
-    the problem's data term (``loss="l2"``), the Hellinger term :func:`_hellinger` or the L2 term
-    with SSIM's (:func:`_l2_ssim`)."""
+    the problem's data term (``loss="l2"``) or the Hellinger term :func:`_hellinger`."""
 
-    def __init__(self, problem: Problem, weight: float, loss: str = "l2", ssim_weight: float = 0.1) -> None:
-        self.problem, self.weight, self.loss, self.ssim_weight = problem, weight, loss, ssim_weight
+    def __init__(self, problem: Problem, weight: float, loss: str = "l2") -> None:
+        self.problem, self.weight, self.loss = problem, weight, loss
 
     def __call__(self, d: Tensor) -> tuple[float, Tensor, float, float]:
         """(J, grad J, f, relative discrepancy) at d."""
         if self.loss == "hellinger":
             data_value, data_grad, relative = _hellinger(self.problem, d)
-        elif self.loss == "l2_ssim":
-            data_value, data_grad, relative = _l2_ssim(self.problem, d, self.ssim_weight)
         else:
             evaluation = self.problem.fidelity.evaluate(d, with_grad=True)
             data_value, data_grad, relative = evaluation.value, evaluation.grad.double(), evaluation.rel_discrepancy
@@ -123,18 +102,16 @@ class DesignLBFGS(IterativeSolver):
         smoothing_length: With a length (scene units), the initial inverse Hessian is the Sobolev
             smoothing (I - l^2 Laplace)^-2 (framework/plugins/solvers/preconditioner.py) instead of
             the identity: broad corrections first, as for a start far from the design.
-        loss: The data term: ``l2`` (the problem's, 1/2 ||F(d) - b||^2 / (||b||^2 a)),
-            ``hellinger`` (:func:`_hellinger`) or ``l2_ssim`` (:func:`_l2_ssim`).
-        ssim_weight: w of ``l2_ssim``.
+        loss: The data term: ``l2`` (the problem's, 1/2 ||F(d) - b||^2 / (||b||^2 a)) or
+            ``hellinger`` (:func:`_hellinger`).
     """
 
     name = "design_lbfgs"
 
     def __init__(self, problem: Problem, d0: Tensor, memory: int = 12, penalty_weight: float = 10.0,
-                 first_step: float = 2e-3, smoothing_length: float | None = None, loss: str = "l2",
-                 ssim_weight: float = 0.1) -> None:
+                 first_step: float = 2e-3, smoothing_length: float | None = None, loss: str = "l2") -> None:
         super().__init__(d0)
-        self.objective = _DesignObjective(problem, penalty_weight, loss, ssim_weight)
+        self.objective = _DesignObjective(problem, penalty_weight, loss)
         self._smooth = None
         if smoothing_length is not None:
             self._smooth = SobolevPreconditioner(smoothing_length)
@@ -151,15 +128,14 @@ class DesignLBFGS(IterativeSolver):
 
     @classmethod
     def from_config(cls, memory: int = 12, penalty_weight: float = 10.0, first_step: float = 2e-3,
-                    smoothing_length: float | None = None, loss: str = "l2", ssim_weight: float = 0.1) -> Any:
+                    smoothing_length: float | None = None, loss: str = "l2") -> Any:
         """The plugin ``solver/design_lbfgs``: checks the settings, returns the builder."""
         memory = positive_int(memory, "solver.memory")
         weight, step = _positive("penalty_weight", penalty_weight), _positive("first_step", first_step)
         length = None if smoothing_length is None else _positive("smoothing_length", smoothing_length)
         if loss not in LOSSES:
             raise ValueError(f"solver.loss={loss!r} must be one of {', '.join(LOSSES)}")
-        w = _positive("ssim_weight", ssim_weight)
-        return lambda problem, d0: cls(problem, d0, memory, weight, step, length, loss, w)
+        return lambda problem, d0: cls(problem, d0, memory, weight, step, length, loss)
 
     def _direction(self, grad: Tensor) -> Tensor:
         """-H grad by the two-loop recursion over the kept pairs (s, y)."""
