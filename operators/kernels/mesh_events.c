@@ -712,27 +712,47 @@ int SFC_EXPORT(sfc_mesh_splat_arguments)(const mesh_scene *ms, const double *sta
     return result;
 }
 
-/* The gradient w.r.t. the photons' states (N, STATE) from those w.r.t. their splat arguments,
- * photon i's at column i (splat_arguments_adjoint). */
-void SFC_EXPORT(sfc_mesh_splat_arguments_adjoint)(const mesh_scene *ms, const double *state, const int64_t *status, int64_t n,
-                                      const double *g_pos, const double *g_metric, const double *g_flux,
-                                      double *g_state) {
-    const sfc_scene *sc = &ms->hf;
+typedef struct {
+    const mesh_scene *ms;
+    const double *state;
+    const int64_t *status;
+    int64_t n, threads;
+    const double *g_pos, *g_metric, *g_flux;
+    double *g_state;
+} splat_adjoint_job;
+
+/* Thread t's share of sfc_mesh_splat_arguments_adjoint: photons t * per .. (t + 1) * per - 1. */
+static int splat_adjoint_worker(void *context, int64_t thread) {
+    const splat_adjoint_job *j = (const splat_adjoint_job *)context;
+    const sfc_scene *sc = &j->ms->hf;
     const double k = sc->to_px;
-    for (int64_t i = 0; i < n; i++) {
-        double *g = g_state + STATE * i;
-        for (int j = 0; j < STATE; j++) g[j] = 0.0;
-        if (status[i] != LANDED) continue;
-        const double *row = state + STATE * i;
+    const int64_t n = j->n, per = (n + j->threads - 1) / j->threads;
+    for (int64_t i = thread * per; i < imin(n, (thread + 1) * per); i++) {
+        double *g = j->g_state + STATE * i;
+        for (int c = 0; c < STATE; c++) g[c] = 0.0;
+        if (j->status[i] != LANDED) continue;
+        const double *row = j->state + STATE * i;
         double gf[4];
-        footprint_metric_adjoint(sc, row[DPU] * k, row[DPU + 1] * k, row[DPV] * k, row[DPV + 1] * k, g_metric[i],
-                                 g_metric[n + i], g_metric[2 * n + i], gf);
-        g[P] = g_pos[i] * k;
-        g[P + 1] = g_pos[n + i] * k;
+        footprint_metric_adjoint(sc, row[DPU] * k, row[DPU + 1] * k, row[DPV] * k, row[DPV + 1] * k, j->g_metric[i],
+                                 j->g_metric[n + i], j->g_metric[2 * n + i], gf);
+        g[P] = j->g_pos[i] * k;
+        g[P + 1] = j->g_pos[n + i] * k;
         g[DPU] = gf[0] * k;
         g[DPU + 1] = gf[1] * k;
         g[DPV] = gf[2] * k;
         g[DPV + 1] = gf[3] * k;
-        g[FLUX] = g_flux[i];
+        g[FLUX] = j->g_flux[i];
     }
+    return 0;
+}
+
+/* The gradient w.r.t. the photons' states (N, STATE) from those w.r.t. their splat arguments,
+ * photon i's at column i (splat_arguments_adjoint), on `threads` threads (thread t: a contiguous
+ * share; every photon's row is its own, so the result does not depend on the threads). Returns 0,
+ * -1 on failure to start threads. */
+int SFC_EXPORT(sfc_mesh_splat_arguments_adjoint)(const mesh_scene *ms, const double *state, const int64_t *status,
+                                                 int64_t n, int64_t threads, const double *g_pos,
+                                                 const double *g_metric, const double *g_flux, double *g_state) {
+    splat_adjoint_job j = {ms, state, status, n, threads < 1 ? 1 : threads, g_pos, g_metric, g_flux, g_state};
+    return sfc_parallel(j.threads, splat_adjoint_worker, &j);
 }

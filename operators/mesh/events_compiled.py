@@ -68,7 +68,7 @@ def _bind() -> tuple[ctypes.CDLL | None, str]:
         ("sfc_mesh_trace", [scene, faces, chunk], ctypes.c_int),
         ("sfc_mesh_reverse", [scene, faces, chunk], ctypes.c_int),
         ("sfc_mesh_splat_arguments", [scene, _P, _P, _P, _I, _I, _P, _P, _P, _P], ctypes.c_int),
-        ("sfc_mesh_splat_arguments_adjoint", [scene, _P, _P, _I, _P, _P, _P, _P], None)))
+        ("sfc_mesh_splat_arguments_adjoint", [scene, _P, _P, _I, _I, _P, _P, _P, _P], ctypes.c_int)))
 
 
 _LIBRARY, _SUFFIX = _bind()
@@ -204,10 +204,11 @@ def splat_arguments(state, status, where, sc, pos, metric, flux) -> float:
 
 
 def splat_arguments_adjoint(state, status, sc, g_pos, g_metric, g_flux, g_state) -> None:
-    """:func:`operators.mesh.adjoint_native.splat_arguments_adjoint` in C (same arguments)."""
+    """:func:`operators.mesh.adjoint_native.splat_arguments_adjoint` in C (same arguments), on
+    numba's thread count."""
     n = state.shape[0]
-    _function("sfc_mesh_splat_arguments_adjoint")(
+    _check_status(_function("sfc_mesh_splat_arguments_adjoint")(
         ctypes.byref(_scene(sc)), _data(state, np.float64, "state", (n, mk.STATE)),
-        _data(status, np.int64, "status", (n,)), n, _data(g_pos, np.float64, "g_pos", (2, n)),
+        _data(status, np.int64, "status", (n,)), n, nb.get_num_threads(), _data(g_pos, np.float64, "g_pos", (2, n)),
         _data(g_metric, np.float64, "g_metric", (3, n)), _data(g_flux, np.float64, "g_flux", (n,)),
-        _data(g_state, np.float64, "g_state", (n, mk.STATE)))
+        _data(g_state, np.float64, "g_state", (n, mk.STATE))))

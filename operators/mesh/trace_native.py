@@ -353,7 +353,9 @@ class NativeMeshTracer:
         same = self._events_seen is not None and np.array_equal(self._events_seen[0], d)
         seen, finals = self._events_seen[1:] if same else (None, None)
         from_finals = self.compiled and finals is not None  # the reverse only reads the start states
-        for k, (start, stop) in enumerate(self._waiting_chunks()):
+        chunks = self._waiting_chunks()
+        g_rows = np.empty((max((b - a for a, b in chunks), default=0), mk.STATE))  # every chunk's g_state
+        for k, (start, stop) in enumerate(chunks):
             chunk, _ = self._waiting(start, stop, writable=not from_finals)
             tape: list = []
             if from_finals:
@@ -369,7 +371,7 @@ class NativeMeshTracer:
             pos, metric, flux = self._splat_inputs(chunk, sc, None)
             g_pos, g_metric, g_flux = (np.ascontiguousarray(g, dtype=np.float64) for g in adjoint.gather(
                 *(a.astype(self._dtype, copy=False) for a in (pos, metric, flux)), chunk.channel))
-            g_state = np.empty_like(chunk.state)
+            g_state = g_rows[:len(chunk.state)]
             self._splat_arguments_adjoint(chunk.state, chunk.status, sc, g_pos, g_metric, g_flux, g_state)
             if self.compiled:
                 events_compiled.reverse(d, before, chunk.channel, chunk.status, log, self._faces, sc, g_state, g_heights)
