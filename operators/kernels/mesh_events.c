@@ -699,8 +699,9 @@ static int splat_arguments_worker(void *context, int64_t thread) {
  * threads (thread t: a contiguous share). The flux (W) of the landed photons beside the receiver
  * into *missed (summed per thread, then in thread order). Returns 0, -1 on failure to allocate or
  * start threads. */
-int SFC_EXPORT(sfc_mesh_splat_arguments)(const mesh_scene *ms, const double *state, const int64_t *status, const int64_t *where,
-                             int64_t n, int64_t threads, double *pos, double *metric, double *flux, double *missed) {
+int SFC_EXPORT(sfc_mesh_splat_arguments)(const mesh_scene *ms, const double *state, const int64_t *status,
+                                         const int64_t *where, int64_t n, int64_t threads, double *pos,
+                                         double *metric, double *flux, double *missed) {
     if (threads < 1) threads = 1;
     double *shares = (double *)calloc((size_t)threads, sizeof(double));
     if (!shares) return -1;

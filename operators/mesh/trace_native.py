@@ -349,7 +349,7 @@ class NativeMeshTracer:
         self._check_above(sc)
         g_heights = np.zeros((nb.get_num_threads(), *d.shape))
         not_counted: dict[str, float] = dict.fromkeys(self.prefix().losses, 0.0)  # render counts them
-        adjoint = PaddedAdjoint(to_numpy(grad_flux))  # padded once for every chunk's gather
+        adjoint = PaddedAdjoint(to_numpy(grad_flux), self._dtype)  # padded once for every chunk's gather
         same = self._events_seen is not None and np.array_equal(self._events_seen[0], d)
         seen, finals = self._events_seen[1:] if same else (None, None)
         from_finals = self.compiled and finals is not None  # the reverse only reads the start states
@@ -369,8 +369,8 @@ class NativeMeshTracer:
             else:
                 self._run(d, chunk, sc, False, not_counted, tape, events_replay=None if seen is None else seen[k])
             pos, metric, flux = self._splat_inputs(chunk, sc, None)
-            g_pos, g_metric, g_flux = (np.ascontiguousarray(g, dtype=np.float64) for g in adjoint.gather(
-                *(a.astype(self._dtype, copy=False) for a in (pos, metric, flux)), chunk.channel))
+            g_pos, g_metric, g_flux = (np.ascontiguousarray(g, dtype=np.float64)
+                                       for g in adjoint.gather(pos, metric, flux, chunk.channel))
             g_state = g_rows[:len(chunk.state)]
             self._splat_arguments_adjoint(chunk.state, chunk.status, sc, g_pos, g_metric, g_flux, g_state)
             if self.compiled:

@@ -76,8 +76,8 @@ def splat_photons_vjp(pos: torch.Tensor, metric: torch.Tensor, flux: torch.Tenso
     """Adjoint of :func:`splat_photons` at these photons: gradients of <image, grad_image> w.r.t.
     pos (2, N), metric (3, N) and flux (N,), by the native gather (no forward splat needed)."""
     f = to_numpy(flux)
-    g_pos, g_metric, g_flux = PaddedAdjoint(to_numpy(grad_image)).gather(
-        to_numpy(pos).astype(f.dtype, copy=False), to_numpy(metric).astype(f.dtype, copy=False), f, to_numpy(channel))
+    g_pos, g_metric, g_flux = PaddedAdjoint(to_numpy(grad_image), f.dtype).gather(to_numpy(pos), to_numpy(metric), f,
+                                                                                 to_numpy(channel))
 
     def back(a: np.ndarray, like: torch.Tensor) -> torch.Tensor:
         return torch.from_numpy(a).to(dtype=like.dtype, device=like.device)
@@ -107,21 +107,23 @@ class ImageAccumulator:
 
 class PaddedAdjoint:
     """The adjoint image G (c, n, n) with the zero border the gather needs, padded once for the
-    photons of several chunks (again only where a chunk's footprints need a wider border)."""
+    photons of several chunks (again only where a chunk's footprints need a wider border); the
+    photons are gathered in ``dtype``."""
 
-    def __init__(self, grad_image: np.ndarray) -> None:
-        self.grad_image, self.pad, self.padded = grad_image, -1, None
+    def __init__(self, grad_image: np.ndarray, dtype: np.dtype) -> None:
+        self.grad_image, self.dtype, self.pad, self.padded = grad_image, dtype, -1, None
 
     def gather(self, pos: np.ndarray, metric: np.ndarray, flux: np.ndarray, channel: np.ndarray
                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Gradients of <splat(...), G> w.r.t. pos (2, N), metric (3, N) and flux (N,) (all of
-        flux's dtype), as numpy arrays of that dtype."""
+        """Gradients of <splat(...), G> w.r.t. pos (2, N), metric (3, N) and flux (N,), as numpy
+        arrays of the dtype."""
+        pos, metric, flux = (a.astype(self.dtype, copy=False) for a in (pos, metric, flux))
         pad = gather_padding(footprint_half_extent(metric))
         if pad > self.pad:
             self.pad, self.padded = pad, pad_for_gather(self.grad_image, pad)
-        g_pos = np.empty((2, flux.shape[0]), dtype=flux.dtype)
-        g_metric = np.empty((3, flux.shape[0]), dtype=flux.dtype)
-        g_flux = np.empty(flux.shape[0], dtype=flux.dtype)
+        g_pos = np.empty((2, flux.shape[0]), dtype=self.dtype)
+        g_metric = np.empty((3, flux.shape[0]), dtype=self.dtype)
+        g_flux = np.empty(flux.shape[0], dtype=self.dtype)
         splat_backward(pos, metric, flux, channel, self.padded, self.pad, g_pos, g_metric, g_flux, SIMD_AVAILABLE)
         return g_pos, g_metric, g_flux
 
