@@ -18,7 +18,7 @@ import warnings
 from collections.abc import Sequence
 
 # Version of the C functions' signatures that the declarations in Python match (sfc_abi_version).
-ABI_VERSION = 6
+ABI_VERSION = 7
 # Suffixes of the two builds of the photon kernels (heightfield_photons.c, mesh_events.c): baseline, AVX2 + FMA.
 BUILDS = ("", "_avx2")
 

@@ -13,7 +13,8 @@
  *   splat, gather ....... splat_photon, gather_photon_simd in operators/splat/native.py
  *   adjoint ............. optics_adjoint, vjp_range in operators/heightfield/adjoint_native.py
  * With `simd` set (only where sfc_simd_supported()), the AVX2 functions of simd_kernels.c do the
- * fixed 8 x 8 splat box, its gather, the surface jets and the hit adjoint, as in the numba kernels.
+ * fixed 8 x 8 splat box, its gather, both over each row's chord for larger footprints, the surface
+ * jets and the hit adjoint, as in the numba kernels.
  * The numba kernels stay the fallback (no C compiler at install) and the reference the tests
  * compare these with.
  *
@@ -50,6 +51,12 @@ void sfc_splat_box8_f32(float *img, int64_t offset, int64_t stride, int64_t rows
                         double q00, double q01, double q11, double f);
 void sfc_gather_box8(const double *g, int64_t offset, int64_t stride, int64_t rows, double rx0, double ry0,
                      double q00, double q01, double q11, double *sums);
+void sfc_splat_spans_f64(double *img, int64_t offset, int64_t stride, int64_t rows, int64_t width, double rx0,
+                         double ry0, double q00, double q01, double q11, double f);
+void sfc_splat_spans_f32(float *img, int64_t offset, int64_t stride, int64_t rows, int64_t width, double rx0,
+                         double ry0, double q00, double q01, double q11, double f);
+void sfc_gather_spans(const double *g, int64_t offset, int64_t stride, int64_t rows, int64_t width, double rx0,
+                      double ry0, double q00, double q01, double q11, double *sums);
 void sfc_surface_jets(const double *d, int64_t m, double origin, double inv_spacing, double ox, double oy,
                       const double *dirs, int64_t stride, const double *t, int64_t count, double *jets);
 void sfc_hit_adjoint(const double *d, double *grad, int64_t m, double x, double y, double origin, double inv_spacing,
@@ -58,7 +65,7 @@ void sfc_hit_adjoint(const double *d, double *grad, int64_t m, double x, double 
 
 #include "photon_optics.h"
 
-enum { PACKET = 128, BLOCK = 4096, LANES = 8 };
+enum { PACKET = 128, BLOCK = 4096, LANES = 8, SPAN_TAIL = 3 };
 
 /* ---------------------------------------------------------------- emission */
 
@@ -256,6 +263,11 @@ static inline SFC_INLINE int fits_fixed_box(int64_t x0, int64_t x1, int64_t y0, 
     return x1 - x0 < LANES && y1 - y0 < LANES && x0 >= lo && y0 >= lo && x0 + LANES - 1 <= hi && y0 + LANES - 1 <= hi;
 }
 
+/* Whether the bounding box and SPAN_TAIL columns past it lie in columns and rows lo .. hi (_fits_spans). */
+static inline SFC_INLINE int fits_spans(int64_t x0, int64_t x1, int64_t y0, int64_t y1, int64_t lo, int64_t hi) {
+    return x0 >= lo && y0 >= lo && y1 <= hi && x1 + SPAN_TAIL <= hi;
+}
+
 /* Silverman weights of the rows x width pixels from (x0, y0) into buf; returns their sum. */
 static inline SFC_INLINE double box_weights(double *buf, int64_t x0, int64_t y0, int64_t width, int64_t rows, double px,
                                  double py, double q00, double q01, double q11) {
@@ -298,7 +310,17 @@ static void splat_photon(const sfc_scene *sc, void *img, int f32, int64_t n, int
     } else {
         width = x1 - x0 + 1;
         rows = y1 - y0 + 1;
-        if (width <= 0 || rows <= 0 || width * rows > capacity) return;
+        if (width <= 0 || rows <= 0) return;
+        if (sc->simd && fits_spans(x0, x1, y0, y1, 0, n - 1)) {
+            if (f32)
+                sfc_splat_spans_f32((float *)img, plane + y0 * n + x0, n, rows, width, (double)x0 - px,
+                                    (double)y0 - py, q00, q01, q11, f);
+            else
+                sfc_splat_spans_f64((double *)img, plane + y0 * n + x0, n, rows, width, (double)x0 - px,
+                                    (double)y0 - py, q00, q01, q11, f);
+            return;
+        }
+        if (width * rows > capacity) return;
         lo = imax(x0, 0); hi = imin(x1, n - 1); ylo = imax(y0, 0); yhi = imin(y1, n - 1);
     }
     const double s = box_weights(buf, x0, y0, width, rows, px, py, q00, q01, q11);
@@ -382,7 +404,11 @@ static void gather_photon(const sfc_scene *sc, const double *padded, int64_t n, 
     } else {
         x0 = imax(x0, -pad); x1 = imin(x1, n - 1 + pad);
         y0 = imax(y0, -pad); y1 = imin(y1, n - 1 + pad);
-        gather_box(plane, stride, pad, x0, y0, x1 - x0 + 1, y1 - y0 + 1, px, py, q00, q01, q11, sums);
+        if (sc->simd && fits_spans(x0, x1, y0, y1, -pad, n - 1 + pad))
+            sfc_gather_spans(plane, (y0 + pad) * stride + x0 + pad, stride, y1 - y0 + 1, x1 - x0 + 1,
+                             (double)x0 - px, (double)y0 - py, q00, q01, q11, sums);
+        else
+            gather_box(plane, stride, pad, x0, y0, x1 - x0 + 1, y1 - y0 + 1, px, py, q00, q01, q11, sums);
     }
     if (!(sums[0] > 0.0)) return;
     const double mean = sums[1] / sums[0], scale = -2.0 * f / sums[0];

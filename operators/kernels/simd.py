@@ -1,6 +1,6 @@
 """The AVX2 kernels of ``operators/kernels/simd_kernels.c`` for numba: the splat and gather of the fixed
-8 x 8 pixel box, the surface jets at the hits of a packet, and the adjoint of a surface hit into
-the 4 x 4 heights around it.
+8 x 8 pixel box and of larger footprints (over each row's chord of the ellipse), the surface jets at
+the hits of a packet, and the adjoint of a surface hit into the 4 x 4 heights around it.
 
 numba calls the C functions by symbol name (``ExternalFunction``), so kernels that call them can
 still be cached on disk: the symbols are resolved again in every process. Where the extension
@@ -52,6 +52,13 @@ splat_box8_f32 = types.ExternalFunction("sfc_splat_box8_f32", types.void(types.C
 # (G, first pixel's element offset, row stride, rows, rx0, ry0, q00, q01, q11, sums (12,))
 gather_box8 = types.ExternalFunction(
     "sfc_gather_box8", types.void(_F64P, types.int64, types.int64, types.int64, *[types.float64] * 5, _F64P))
+# (image, first pixel's element offset, row stride, rows, columns, rx0, ry0, q00, q01, q11, flux)
+_SPANS_ARGS = (types.int64, types.int64, types.int64, types.int64, *[types.float64] * 6)
+splat_spans_f64 = types.ExternalFunction("sfc_splat_spans_f64", types.void(_F64P, *_SPANS_ARGS))
+splat_spans_f32 = types.ExternalFunction("sfc_splat_spans_f32", types.void(types.CPointer(types.float32), *_SPANS_ARGS))
+# (G, first pixel's element offset, row stride, rows, columns, rx0, ry0, q00, q01, q11, sums (12,))
+gather_spans = types.ExternalFunction(
+    "sfc_gather_spans", types.void(_F64P, *[types.int64] * 4, *[types.float64] * 5, _F64P))
 # (d, grad, m, x, y, origin, 1 / spacing, w_x, w_y, w_z, g_t, g_sx, g_sy, g_sxx, g_sxy, g_syy)
 hit_adjoint = types.ExternalFunction("sfc_hit_adjoint", types.void(_F64P, _F64P, types.int64, *[types.float64] * 13))
 # (d, m, origin, 1 / spacing, ox, oy, dirs, row stride, t, count, jets)
@@ -61,7 +68,8 @@ surface_jets = types.ExternalFunction(
 
 if not AVAILABLE:
     _NEVER_CALLED = ctypes.CFUNCTYPE(None)(lambda: None)
-    for _kernel in (splat_box8_f64, splat_box8_f32, gather_box8, hit_adjoint, surface_jets):
+    for _kernel in (splat_box8_f64, splat_box8_f32, gather_box8, splat_spans_f64, splat_spans_f32,
+                    gather_spans, hit_adjoint, surface_jets):
         if not llvm.address_of_symbol(_kernel.symbol):
             llvm.add_symbol(_kernel.symbol, ctypes.cast(_NEVER_CALLED, ctypes.c_void_p).value)
 

@@ -1,6 +1,6 @@
-/* AVX2 kernels for the fixed 8 x 8 pixel box of the splat and of its adjoint gather, for the
- * surface jets at a packet's hits, and for the adjoint of a photon's surface hit w.r.t. the 4 x 4
- * heights around it.
+/* AVX2 kernels for the splat and its adjoint gather (the fixed 8 x 8 pixel box, and larger
+ * footprints over each row's chord of the ellipse), for the surface jets at a packet's hits, and
+ * for the adjoint of a photon's surface hit w.r.t. the 4 x 4 heights around it.
  *
  * Built as the extension module operators.kernels._simd (setup.py; optional: without a C compiler the
  * package installs and the numba kernels do this work). The numba kernels call these functions
@@ -25,7 +25,7 @@
 /* Version of the signatures of this file's, heightfield_photons.c's and mesh_events.c's functions;
  * operators/kernels/extension.py refuses a build whose version differs
  * from its own (a stale build after the sources changed: pip install -e . rebuilds it). */
-int sfc_abi_version(void) { return 6; }
+int sfc_abi_version(void) { return 7; }
 
 /* 1 when the CPU runs the AVX2 / FMA kernels below, else 0 (they must not be called). */
 int sfc_simd_supported(void) {
@@ -103,12 +103,14 @@ SFC_AVX2 void sfc_splat_box8_f32(float *img, int64_t offset, int64_t stride, int
     }
 }
 
-/* The gather's sums over the box of `rows` (at most 8) rows of 8 pixels of G whose first pixel
- * is g[offset] (rows `stride` apart): sums[0 .. 11] = (s, sum G w, v0 .. v4, u0 .. u4) exactly
- * as _gather_box in operators/splat/native.py defines them (v_i = sum dw / dtheta_i, u_i = sum G dw / dtheta_i
- * over -2, theta = (px, py, q00, q01, q11)). */
-SFC_AVX2 void sfc_gather_box8(const double *g, int64_t offset, int64_t stride, int64_t rows, double rx0,
-                              double ry0, double q00, double q01, double q11, double *sums) {
+/* Adds to m[0 .. 11] the raw sums of the splat adjoint over the first `rows` rows of 8 pixels of G
+ * whose first pixel is g[offset] (rows `stride` apart), rx0 / ry0 the column / row offsets of that
+ * pixel from the photon: m = (sum w, sum G w, and the moments sum rx^i ry^j u for (i, j) = (1, 0),
+ * (2, 0), (0, 1), (1, 1), (0, 2), then the same with G u). Per-lane accumulators over the rows (rx
+ * is fixed per lane, ry per row), the moments in rx formed at the end instead of reducing every
+ * row. */
+static inline SFC_AVX2 void box8_moments(const double *g, int64_t offset, int64_t stride, int64_t rows, double rx0,
+                                         double ry0, double q00, double q01, double q11, double m[12]) {
     const __m256d rx_lo = _mm256_add_pd(_mm256_setr_pd(0.0, 1.0, 2.0, 3.0), _mm256_set1_pd(rx0));
     const __m256d rx_hi = _mm256_add_pd(rx_lo, _mm256_set1_pd(4.0));
     const __m256d a = _mm256_set1_pd(q00), zero = _mm256_setzero_pd();
@@ -116,8 +118,8 @@ SFC_AVX2 void sfc_gather_box8(const double *g, int64_t offset, int64_t stride, i
     __m256d s = zero, gs = zero;
     __m256d a0l = zero, a1l = zero, a2l = zero, a0h = zero, a1h = zero, a2h = zero;
     __m256d g0l = zero, g1l = zero, g2l = zero, g0h = zero, g1h = zero, g2h = zero;
-    for (int r = 0; r < rows; r++) {
-        const double ry = ry0 + r;
+    for (int64_t r = 0; r < rows; r++) {
+        const double ry = ry0 + (double)r;
         const __m256d vry = _mm256_set1_pd(ry), vry2 = _mm256_set1_pd(ry * ry);
         const double *row = g + offset + r * stride;
         __m256d ul, uh;
@@ -141,26 +143,177 @@ SFC_AVX2 void sfc_gather_box8(const double *g, int64_t offset, int64_t stride, i
     }
     const __m256d rx2_lo = _mm256_mul_pd(rx_lo, rx_lo), rx2_hi = _mm256_mul_pd(rx_hi, rx_hi);
 #define SFC_MOMENT(lo, hi, wlo, whi) sum4(_mm256_fmadd_pd(wlo, lo, _mm256_mul_pd(whi, hi)))
-    /* Moments sum rx^i ry^j u (m..) and sum rx^i ry^j G u (n..). */
-    const double mx = SFC_MOMENT(a0l, a0h, rx_lo, rx_hi), mxx = SFC_MOMENT(a0l, a0h, rx2_lo, rx2_hi);
-    const double my = sum4(_mm256_add_pd(a1l, a1h)), mxy = SFC_MOMENT(a1l, a1h, rx_lo, rx_hi);
-    const double myy = sum4(_mm256_add_pd(a2l, a2h));
-    const double nx = SFC_MOMENT(g0l, g0h, rx_lo, rx_hi), nxx = SFC_MOMENT(g0l, g0h, rx2_lo, rx2_hi);
-    const double ny = sum4(_mm256_add_pd(g1l, g1h)), nxy = SFC_MOMENT(g1l, g1h, rx_lo, rx_hi);
-    const double nyy = sum4(_mm256_add_pd(g2l, g2h));
+    m[0] = sum4(s);
+    m[1] = sum4(gs);
+    m[2] = SFC_MOMENT(a0l, a0h, rx_lo, rx_hi);
+    m[3] = SFC_MOMENT(a0l, a0h, rx2_lo, rx2_hi);
+    m[4] = sum4(_mm256_add_pd(a1l, a1h));
+    m[5] = SFC_MOMENT(a1l, a1h, rx_lo, rx_hi);
+    m[6] = sum4(_mm256_add_pd(a2l, a2h));
+    m[7] = SFC_MOMENT(g0l, g0h, rx_lo, rx_hi);
+    m[8] = SFC_MOMENT(g0l, g0h, rx2_lo, rx2_hi);
+    m[9] = sum4(_mm256_add_pd(g1l, g1h));
+    m[10] = SFC_MOMENT(g1l, g1h, rx_lo, rx_hi);
+    m[11] = sum4(_mm256_add_pd(g2l, g2h));
 #undef SFC_MOMENT
-    sums[0] = sum4(s);
-    sums[1] = sum4(gs);
-    sums[2] = -2.0 * (q00 * mx + q01 * my);
-    sums[3] = -2.0 * (q01 * mx + q11 * my);
-    sums[4] = mxx;
-    sums[5] = 2.0 * mxy;
-    sums[6] = myy;
-    sums[7] = -2.0 * (q00 * nx + q01 * ny);
-    sums[8] = -2.0 * (q01 * nx + q11 * ny);
-    sums[9] = nxx;
-    sums[10] = 2.0 * nxy;
-    sums[11] = nyy;
+}
+
+/* The gather's sums (s, sum G w, v0 .. v4, u0 .. u4), exactly as _gather_box in
+ * operators/splat/native.py defines them (v_i = sum dw / dtheta_i, u_i = sum G dw / dtheta_i over
+ * -2, theta = (px, py, q00, q01, q11)), from the raw sums m (box8_moments). */
+static inline SFC_AVX2 void gather_sums(const double m[12], double q00, double q01, double q11, double *sums) {
+    sums[0] = m[0];
+    sums[1] = m[1];
+    sums[2] = -2.0 * (q00 * m[2] + q01 * m[4]);
+    sums[3] = -2.0 * (q01 * m[2] + q11 * m[4]);
+    sums[4] = m[3];
+    sums[5] = 2.0 * m[5];
+    sums[6] = m[6];
+    sums[7] = -2.0 * (q00 * m[7] + q01 * m[9]);
+    sums[8] = -2.0 * (q01 * m[7] + q11 * m[9]);
+    sums[9] = m[8];
+    sums[10] = 2.0 * m[10];
+    sums[11] = m[11];
+}
+
+/* The gather's sums (gather_sums) over the box of `rows` (at most 8) rows of 8 pixels of G whose
+ * first pixel is g[offset] (rows `stride` apart). */
+SFC_AVX2 void sfc_gather_box8(const double *g, int64_t offset, int64_t stride, int64_t rows, double rx0,
+                              double ry0, double q00, double q01, double q11, double *sums) {
+    double m[12];
+    box8_moments(g, offset, stride, rows, rx0, ry0, q00, q01, q11, m);
+    gather_sums(m, q00, q01, q11, sums);
+}
+
+/* Rows of a bounding box whose chords row_spans finds at once. */
+enum { SPAN_ROWS = 64 };
+
+/* The columns lo[i] .. hi[i] (within 0 .. width - 1, as doubles) of the bounding box's rows r0 + i,
+ * i < count <= SPAN_ROWS, whose pixels can hold weight, column j at offset rx0 + j and row r at
+ * ry0 + r from the photon: the ellipse's chord on each row, rx = cx -+ sqrt(q00 - det Q ry^2) / q00
+ * with cx = -q01 ry / q00, widened by one column on each side for rounding (four rows a vector).
+ * Every pixel left out has t > 1, weight 0, and adds nothing to any sum. */
+static inline SFC_AVX2 void row_spans(double rx0, double ry0, int64_t r0, int64_t count, int64_t width, double q00,
+                                      double q01, double det, double lo[SPAN_ROWS], double hi[SPAN_ROWS]) {
+    const __m256d lane = _mm256_setr_pd(0.0, 1.0, 2.0, 3.0), one = _mm256_set1_pd(1.0), zero = _mm256_setzero_pd();
+    const __m256d slope = _mm256_set1_pd(-q01 / q00), inv = _mm256_set1_pd(1.0 / q00), a = _mm256_set1_pd(q00);
+    const __m256d d = _mm256_set1_pd(det), x0 = _mm256_set1_pd(rx0), last = _mm256_set1_pd((double)(width - 1));
+    for (int64_t i = 0; i < count; i += 4) {
+        const __m256d ry = _mm256_add_pd(lane, _mm256_set1_pd(ry0 + (double)(r0 + i)));
+        const __m256d half = _mm256_mul_pd(_mm256_sqrt_pd(_mm256_max_pd(_mm256_fnmadd_pd(d, _mm256_mul_pd(ry, ry), a),
+                                                                       zero)), inv);
+        const __m256d cx = _mm256_sub_pd(_mm256_mul_pd(slope, ry), x0);
+        const __m256d first = _mm256_sub_pd(_mm256_floor_pd(_mm256_sub_pd(cx, half)), one);
+        const __m256d end = _mm256_add_pd(_mm256_ceil_pd(_mm256_add_pd(cx, half)), one);
+        _mm256_storeu_pd(lo + i, _mm256_max_pd(first, zero));
+        _mm256_storeu_pd(hi + i, _mm256_min_pd(end, last));
+    }
+}
+
+/* Falloffs max(1 - t, 0) of 4 pixels of a row with terms b = 2 q01 ry, e = q11 ry^2 at column
+ * offsets rx. */
+static inline SFC_AVX2 __m256d falloff4(__m256d q00, __m256d rx, __m256d b, __m256d e) {
+    return _mm256_max_pd(_mm256_sub_pd(_mm256_set1_pd(1.0), _mm256_fmadd_pd(_mm256_fmadd_pd(q00, rx, b), rx, e)),
+                         _mm256_setzero_pd());
+}
+
+/* The gather's sums (gather_sums) over a bounding box of `rows` rows and `width` columns of G (a
+ * footprint larger than the fixed box) whose first pixel is g[offset] (rows `stride` apart), rx0
+ * / ry0 the offsets of that pixel from the photon: each row over its chord (row_spans) in vectors
+ * of 4 pixels, so G must hold 3 columns past the box. */
+SFC_AVX2 void sfc_gather_spans(const double *g, int64_t offset, int64_t stride, int64_t rows, int64_t width,
+                               double rx0, double ry0, double q00, double q01, double q11, double *sums) {
+    const double det = q00 * q11 - q01 * q01;
+    const __m256d a = _mm256_set1_pd(q00), zero = _mm256_setzero_pd(), lane = _mm256_setr_pd(0.0, 1.0, 2.0, 3.0);
+    /* Per lane: sum w, sum G w; sum u rx, u rx^2, u ry, u rx ry, u ry^2; the same times G. */
+    __m256d s = zero, gs = zero, ax = zero, axx = zero, ay = zero, axy = zero, ayy = zero;
+    __m256d gx = zero, gxx = zero, gy = zero, gxy = zero, gyy = zero;
+    double lo[SPAN_ROWS + 3], hi[SPAN_ROWS + 3];
+    for (int64_t r = 0; r < rows; r++) {
+        if (r % SPAN_ROWS == 0) row_spans(rx0, ry0, r, rows - r < SPAN_ROWS ? rows - r : SPAN_ROWS, width, q00, q01, det, lo, hi);
+        const double ry = ry0 + (double)r;
+        const __m256d b = _mm256_set1_pd(2.0 * q01 * ry), e = _mm256_set1_pd(q11 * ry * ry);
+        const double *row = g + offset + r * stride;
+        __m256d a0 = zero, a1 = zero, g0 = zero, g1 = zero; /* this row's sum u, u rx, G u, G u rx */
+        for (int64_t j = (int64_t)lo[r % SPAN_ROWS]; j <= (int64_t)hi[r % SPAN_ROWS]; j += 4) {
+            const __m256d rx = _mm256_add_pd(lane, _mm256_set1_pd(rx0 + (double)j));
+            const __m256d u = falloff4(a, rx, b, e);
+            const __m256d gu = _mm256_mul_pd(_mm256_loadu_pd(row + j), u);
+            const __m256d ux = _mm256_mul_pd(u, rx), gux = _mm256_mul_pd(gu, rx);
+            s = _mm256_fmadd_pd(u, u, s);
+            gs = _mm256_fmadd_pd(gu, u, gs);
+            a0 = _mm256_add_pd(a0, u);
+            a1 = _mm256_add_pd(a1, ux);
+            axx = _mm256_fmadd_pd(ux, rx, axx);
+            g0 = _mm256_add_pd(g0, gu);
+            g1 = _mm256_add_pd(g1, gux);
+            gxx = _mm256_fmadd_pd(gux, rx, gxx);
+        }
+        const __m256d vry = _mm256_set1_pd(ry), vry2 = _mm256_set1_pd(ry * ry);
+        ax = _mm256_add_pd(ax, a1);
+        ay = _mm256_fmadd_pd(vry, a0, ay);
+        axy = _mm256_fmadd_pd(vry, a1, axy);
+        ayy = _mm256_fmadd_pd(vry2, a0, ayy);
+        gx = _mm256_add_pd(gx, g1);
+        gy = _mm256_fmadd_pd(vry, g0, gy);
+        gxy = _mm256_fmadd_pd(vry, g1, gxy);
+        gyy = _mm256_fmadd_pd(vry2, g0, gyy);
+    }
+    const double m[12] = {sum4(s),  sum4(gs),  sum4(ax),  sum4(axx), sum4(ay),  sum4(axy),
+                          sum4(ayy), sum4(gx), sum4(gxx), sum4(gy),  sum4(gxy), sum4(gyy)};
+    gather_sums(m, q00, q01, q11, sums);
+}
+
+/* The splat of one photon of flux f over a bounding box of `rows` rows and `width` columns (a
+ * footprint larger than the fixed box) into a float64 (f32 = 0) or float32 image whose first
+ * pixel is img[offset] (rows `stride` apart), rx0 / ry0 the offsets of that pixel from the photon:
+ * the weights' sum over each row's chord (row_spans), then f w / sum(w) onto those pixels, in
+ * vectors of 4 pixels (the image must hold 3 columns past the box; they get 0). */
+static SFC_AVX2 void splat_spans(void *img, int f32, int64_t offset, int64_t stride, int64_t rows, int64_t width,
+                                 double rx0, double ry0, double q00, double q01, double q11, double f) {
+    const double det = q00 * q11 - q01 * q01;
+    const __m256d a = _mm256_set1_pd(q00), lane = _mm256_setr_pd(0.0, 1.0, 2.0, 3.0);
+    __m256d s = _mm256_setzero_pd();
+    double lo[SPAN_ROWS + 3], hi[SPAN_ROWS + 3];
+    for (int64_t r = 0; r < rows; r++) {
+        if (r % SPAN_ROWS == 0) row_spans(rx0, ry0, r, rows - r < SPAN_ROWS ? rows - r : SPAN_ROWS, width, q00, q01, det, lo, hi);
+        const double ry = ry0 + (double)r;
+        const __m256d b = _mm256_set1_pd(2.0 * q01 * ry), e = _mm256_set1_pd(q11 * ry * ry);
+        for (int64_t j = (int64_t)lo[r % SPAN_ROWS]; j <= (int64_t)hi[r % SPAN_ROWS]; j += 4) {
+            const __m256d u = falloff4(a, _mm256_add_pd(lane, _mm256_set1_pd(rx0 + (double)j)), b, e);
+            s = _mm256_fmadd_pd(u, u, s);
+        }
+    }
+    const double total = sum4(s);
+    if (!(total > 0.0)) return;
+    const __m256d scale = _mm256_set1_pd(f / total);
+    for (int64_t r = 0; r < rows; r++) {
+        if (r % SPAN_ROWS == 0) row_spans(rx0, ry0, r, rows - r < SPAN_ROWS ? rows - r : SPAN_ROWS, width, q00, q01, det, lo, hi);
+        const double ry = ry0 + (double)r;
+        const __m256d b = _mm256_set1_pd(2.0 * q01 * ry), e = _mm256_set1_pd(q11 * ry * ry);
+        for (int64_t j = (int64_t)lo[r % SPAN_ROWS]; j <= (int64_t)hi[r % SPAN_ROWS]; j += 4) {
+            const __m256d u = falloff4(a, _mm256_add_pd(lane, _mm256_set1_pd(rx0 + (double)j)), b, e);
+            const __m256d w = _mm256_mul_pd(u, u);
+            const int64_t at = offset + r * stride + j;
+            if (f32) { /* as sfc_splat_box8_f32 */
+                float *px = (float *)img + at;
+                _mm_storeu_ps(px, _mm_add_ps(_mm_loadu_ps(px), _mm256_cvtpd_ps(_mm256_mul_pd(scale, w))));
+            } else { /* as sfc_splat_box8_f64 */
+                double *px = (double *)img + at;
+                _mm256_storeu_pd(px, _mm256_fmadd_pd(scale, w, _mm256_loadu_pd(px)));
+            }
+        }
+    }
+}
+
+SFC_AVX2 void sfc_splat_spans_f64(double *img, int64_t offset, int64_t stride, int64_t rows, int64_t width,
+                                  double rx0, double ry0, double q00, double q01, double q11, double f) {
+    splat_spans(img, 0, offset, stride, rows, width, rx0, ry0, q00, q01, q11, f);
+}
+
+SFC_AVX2 void sfc_splat_spans_f32(float *img, int64_t offset, int64_t stride, int64_t rows, int64_t width,
+                                  double rx0, double ry0, double q00, double q01, double q11, double f) {
+    splat_spans(img, 1, offset, stride, rows, width, rx0, ry0, q00, q01, q11, f);
 }
 
 
@@ -286,6 +439,12 @@ void sfc_splat_box8_f32(float *img, int64_t offset, int64_t stride, int64_t rows
                         double q00, double q01, double q11, double f) {}
 void sfc_gather_box8(const double *g, int64_t offset, int64_t stride, int64_t rows, double rx0, double ry0,
                      double q00, double q01, double q11, double *sums) {}
+void sfc_gather_spans(const double *g, int64_t offset, int64_t stride, int64_t rows, int64_t width, double rx0,
+                       double ry0, double q00, double q01, double q11, double *sums) {}
+void sfc_splat_spans_f64(double *img, int64_t offset, int64_t stride, int64_t rows, int64_t width, double rx0,
+                          double ry0, double q00, double q01, double q11, double f) {}
+void sfc_splat_spans_f32(float *img, int64_t offset, int64_t stride, int64_t rows, int64_t width, double rx0,
+                          double ry0, double q00, double q01, double q11, double f) {}
 void sfc_surface_jets(const double *d, int64_t m, double origin, double inv_spacing, double ox, double oy,
                       const double *dirs, int64_t stride, const double *t, int64_t count, double *jets) {}
 void sfc_hit_adjoint(const double *d, double *grad, int64_t m, double x, double y, double origin, double inv_spacing,

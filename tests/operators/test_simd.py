@@ -14,6 +14,7 @@ from operators.kernels import simd
 from operators.heightfield.operator import CausticOperator, OperatorSettings
 from operators.scene import Receiver, Scene
 from operators.splat.native import gather_padding, pad_for_gather, splat_backward, splat_forward
+from operators.splat.splat import footprint_capacity, footprint_half_extent
 from framework.core.shapes import make_shape
 from tests.python_subprocess import run_json_script
 
@@ -31,12 +32,30 @@ def test_extension_is_built_and_used_where_the_cpu_has_avx2():
     assert simd.AVAILABLE
 
 
-def _photons(count: int, resolution: int, seed: int):
-    """Footprints of 1.5-6 px semi-axes at random angles: most fit the 8 x 8 box, some do not,
-    some hang over the image border."""
+# Semi-axes (px) of the test footprints and the image side: most fit the 8 x 8 box, some do not;
+# or long thin footprints at any angle, which the AVX2 kernels take row by row over the ellipse's
+# chords where the box lies on the image.
+SMALL, LARGE = ((1.5, 3.6), (1.5, 6.0), 64), ((0.6, 4.0), (4.0, 40.0), 256)
+
+
+def _in_spans(pos: np.ndarray, metric: np.ndarray, resolution: int) -> int:
+    """Photons whose bounding box exceeds the 8 x 8 box and lies on the image with 3 columns to
+    spare: those the AVX2 kernels take over the chords."""
+    det = metric[0] * metric[2] - metric[1] ** 2
+    hx, hy = np.sqrt(metric[2] / det), np.sqrt(metric[0] / det)
+    x0, x1 = np.ceil(pos[0] - hx), np.floor(pos[0] + hx)
+    y0, y1 = np.ceil(pos[1] - hy), np.floor(pos[1] + hy)
+    large = (x1 - x0 >= 8) | (y1 - y0 >= 8)
+    return int(np.count_nonzero(large & (x0 >= 0) & (y0 >= 0) & (y1 <= resolution - 1) & (x1 + 3 <= resolution - 1)))
+
+
+def _photons(count: int, resolution: int, seed: int, axes=SMALL):
+    """Footprints of the semi-axis ranges of ``axes`` at random angles, some hanging over the
+    image border."""
     rng = np.random.default_rng(seed)
     pos = rng.uniform(-4.0, resolution + 4.0, (2, count))
-    a, b, angle = rng.uniform(1.5, 3.6, count), rng.uniform(1.5, 6.0, count), rng.uniform(0, np.pi, count)
+    (a_lo, a_hi), (b_lo, b_hi), _ = axes
+    a, b, angle = rng.uniform(a_lo, a_hi, count), rng.uniform(b_lo, b_hi, count), rng.uniform(0, np.pi, count)
     c, s = np.cos(angle), np.sin(angle)
     metric = np.stack([c * c / a ** 2 + s * s / b ** 2, c * s * (1 / a ** 2 - 1 / b ** 2), s * s / a ** 2 + c * c / b ** 2])
     flux = rng.uniform(0.1, 1.0, count)
@@ -46,25 +65,31 @@ def _photons(count: int, resolution: int, seed: int):
 
 def _splat(pos, metric, flux, channel, resolution, dtype, use_simd):
     out = np.zeros((nb.get_num_threads(), 2, resolution, resolution), dtype=dtype)
-    splat_forward(pos, metric, flux, channel, out, 400, use_simd)
+    splat_forward(pos, metric, flux, channel, out, footprint_capacity(metric), use_simd)
     return out.sum(axis=0, dtype=np.float64)
 
 
 @needs_simd
+@pytest.mark.parametrize("axes", [SMALL, LARGE], ids=["small", "large"])
 @pytest.mark.parametrize("dtype, rtol", [(np.float64, 1e-13), (np.float32, 1e-6)])
-def test_avx2_splat_equals_numba_splat(dtype, rtol):
-    pos, metric, flux, channel = _photons(20000, 64, seed=1)
-    fast = _splat(pos, metric, flux, channel, 64, dtype, True)
-    plain = _splat(pos, metric, flux, channel, 64, dtype, False)
+def test_avx2_splat_equals_numba_splat(dtype, rtol, axes):
+    side = axes[2]
+    pos, metric, flux, channel = _photons(20000, side, seed=1, axes=axes)
+    assert _in_spans(pos, metric, side) > (2000 if axes is SMALL else 10000)
+    fast = _splat(pos, metric, flux, channel, side, dtype, True)
+    plain = _splat(pos, metric, flux, channel, side, dtype, False)
     assert np.abs(fast - plain).max() <= rtol * np.abs(plain).max()
     assert abs(fast.sum() - plain.sum()) <= rtol * plain.sum()
 
 
 @needs_simd
-def test_avx2_gather_equals_numba_gather():
-    pos, metric, flux, channel = _photons(20000, 64, seed=2)
-    grad_image = np.random.default_rng(3).standard_normal((2, 64, 64)) + 5.0  # a large mean: cancellation
-    pad = gather_padding(7.0)
+@pytest.mark.parametrize("axes", [SMALL, LARGE], ids=["small", "large"])
+def test_avx2_gather_equals_numba_gather(axes):
+    side = axes[2]
+    pos, metric, flux, channel = _photons(20000, side, seed=2, axes=axes)
+    assert _in_spans(pos, metric, side) > (2000 if axes is SMALL else 10000)
+    grad_image = np.random.default_rng(3).standard_normal((2, side, side)) + 5.0  # a large mean: cancellation
+    pad = gather_padding(footprint_half_extent(metric))
     results = []
     for use_simd in (True, False):
         g_pos, g_metric, g_flux = np.empty((2, 20000)), np.empty((3, 20000)), np.empty(20000)
