@@ -351,10 +351,16 @@ def splat_backward(pos, metric, flux, channel, padded, pad, g_pos, g_metric, g_f
     is G with ``pad`` zero pixels on every side (:func:`pad_for_gather`); ``simd``: see
     :func:`gather_photon_simd`."""
     count = flux.shape[0]
-    for b in nb.prange((count + GATHER_BLOCK - 1) // GATHER_BLOCK):
+    blocks, threads = (count + GATHER_BLOCK - 1) // GATHER_BLOCK, nb.get_num_threads()
+    # Thread t takes the blocks t, t + threads, ...: photons with large footprints come in runs
+    # (neighbours on the print land near each other), which a split into contiguous shares leaves
+    # to one thread (a two-lens gradient's gather 17% slower that way). Every photon's gradients
+    # are its own, so the split does not change them.
+    for t in nb.prange(threads):
         sums = np.empty(12)
-        for p in range(b * GATHER_BLOCK, min(count, (b + 1) * GATHER_BLOCK)):
-            _gather_into(padded, pad, pos, metric, flux, channel, p, g_pos, g_metric, g_flux, simd, sums)
+        for b in range(t, blocks, threads):
+            for p in range(b * GATHER_BLOCK, min(count, (b + 1) * GATHER_BLOCK)):
+                _gather_into(padded, pad, pos, metric, flux, channel, p, g_pos, g_metric, g_flux, simd, sums)
 
 
 @nb.njit(cache=True, inline="always", fastmath=FAST_MATH, error_model="numpy")
