@@ -345,13 +345,14 @@ GATHER_BLOCK = 4096  # photons per task of splat_backward's threads
 
 
 @nb.njit(parallel=True, cache=True, fastmath=FAST_MATH, error_model="numpy")
-def splat_backward(pos, metric, flux, channel, padded, pad, g_pos, g_metric, g_flux, simd):
+def splat_backward(pos, metric, flux, channel, padded, pad, g_pos, g_metric, g_flux, simd, threads):
     """Gather the adjoint (see :func:`gather_photon`): gradients of <G, splat(...)> w.r.t.
     pos (2, N), metric (3, N) and flux (N,), written into g_pos, g_metric and g_flux; ``padded``
     is G with ``pad`` zero pixels on every side (:func:`pad_for_gather`); ``simd``: see
-    :func:`gather_photon_simd`."""
+    :func:`gather_photon_simd`; ``threads``: numba's thread count (an argument: a kernel that asks
+    numba for it cannot be cached)."""
     count = flux.shape[0]
-    blocks, threads = (count + GATHER_BLOCK - 1) // GATHER_BLOCK, nb.get_num_threads()
+    blocks = (count + GATHER_BLOCK - 1) // GATHER_BLOCK
     # Thread t takes the blocks t, t + threads, ...: photons with large footprints come in runs
     # (neighbours on the print land near each other), which a split into contiguous shares leaves
     # to one thread (a two-lens gradient's gather 17% slower that way). Every photon's gradients

@@ -124,7 +124,8 @@ class PaddedAdjoint:
         g_pos = np.empty((2, flux.shape[0]), dtype=self.dtype)
         g_metric = np.empty((3, flux.shape[0]), dtype=self.dtype)
         g_flux = np.empty(flux.shape[0], dtype=self.dtype)
-        splat_backward(pos, metric, flux, channel, self.padded, self.pad, g_pos, g_metric, g_flux, SIMD_AVAILABLE)
+        splat_backward(pos, metric, flux, channel, self.padded, self.pad, g_pos, g_metric, g_flux, SIMD_AVAILABLE,
+                       nb.get_num_threads())
         return g_pos, g_metric, g_flux
 
 

@@ -13,7 +13,10 @@ from PIL import Image
 from framework.core.design_target import BUILT_IN_TARGETS, load_target
 from framework.core.image_metrics import relative_l2, ssim
 from framework.core.print_constraints import PrintConstraints
+from framework.pipeline.design_run import prepare_design
+from framework.plugins.solvers.design_refinement import DesignAdam, DesignLBFGS
 from operators.optics.inverse_refraction import deflection_angle
+from tests.design.conftest import SMALL, compose_design
 
 
 def test_the_metrics_ignore_brightness_and_see_structure():
@@ -151,3 +154,22 @@ def test_bad_targets_get_one_line(tmp_path, make, message):
     with pytest.raises((ValueError, FileNotFoundError), match=message) as error:
         load_target(str(make(tmp_path)), 16)
     assert "\n" not in str(error.value)
+
+
+def test_lbfgs_after_adam_steps_takes_adams_steps_then_descends(tmp_path):
+    problem = prepare_design(compose_design([*SMALL, "target.image=ring"], tmp_path)).problem
+    d0 = torch.zeros(problem.grid.shape, dtype=problem.operator.dtype)
+    adam = DesignAdam(problem, d0, lr=1e-3, penalty_weight=300.0)
+    hybrid = DesignLBFGS(problem, d0, penalty_weight=300.0, adam_steps=3, adam_lr=1e-3)
+    for _ in range(3):
+        adam.step()
+        hybrid.step()
+    assert torch.equal(hybrid.state.d, adam.state.d) and float(hybrid.state.d.abs().max()) > 1e-3
+    before = hybrid.objective(hybrid.state.d)[0]
+    values = [hybrid.step().objective for _ in range(3)]  # L-BFGS: Armijo's decrease at every step
+    assert before > values[0] >= values[1] >= values[2]
+
+
+def test_a_negative_count_of_adam_steps_is_refused_by_name():
+    with pytest.raises(ValueError, match="solver.adam_steps"):
+        DesignLBFGS.from_config(adam_steps=-1)

@@ -94,7 +94,7 @@ def test_avx2_gather_equals_numba_gather(axes):
     for use_simd in (True, False):
         g_pos, g_metric, g_flux = np.empty((2, 20000)), np.empty((3, 20000)), np.empty(20000)
         splat_backward(pos, metric, flux, channel, pad_for_gather(grad_image, pad), pad, g_pos, g_metric, g_flux,
-                       use_simd)
+                       use_simd, nb.get_num_threads())
         results.append((g_pos, g_metric, g_flux))
     for fast, plain in zip(*results):
         assert np.abs(fast - plain).max() <= 1e-11 * np.abs(plain).max()

@@ -15,7 +15,9 @@ that projection small.
 ``design_lbfgs`` is limited-memory BFGS (Nocedal and Wright, Algorithm 7.4) with a backtracking
 Armijo line search: one operator render and gradient per trial, the accepted trial's evaluation
 reused by the next iteration. The first step moves the heights by at most ``first_step`` (scene
-units). ``design_adam`` is Adam (Kingma and Ba 2015) with learning rate ``lr`` (scene units per
+units). With ``adam_steps`` > 0 its first iterations are that many Adam steps of ``adam_lr``
+(as ``design_adam``'s): fixed steps move light across a stiff objective where the line search
+from flat glass creeps. ``design_adam`` is Adam (Kingma and Ba 2015) with learning rate ``lr`` (scene units per
 step), the heights clipped to [0, max_height] after every step as in the tutorial.
 """
 
@@ -65,6 +67,19 @@ def _hellinger(problem: Problem, d: Tensor) -> tuple[float, Tensor, float]:
     return value, grad.double(), relative
 
 
+def _adam_step(objective: _DesignObjective, adam: torch.optim.Adam, heights: torch.nn.Parameter, d: Tensor
+               ) -> tuple[tuple[float, Tensor, float, float], Tensor]:
+    """One Adam step on ``heights`` (the optimiser's parameter, holding d): the evaluation
+    (J, grad J, f, relative discrepancy) at d and the new heights, clipped to [0, max_height]."""
+    evaluation = objective(d)
+    heights.grad = evaluation[1]
+    adam.step()
+    with torch.no_grad():
+        limits = objective.problem.constraints
+        heights.clamp_(min=0.0, max=None if limits is None else limits.max_height)
+    return evaluation, heights.detach().to(d.dtype).clone()
+
+
 class _DesignObjective:
     """J(d) = f(d) + weight P(d) with its gradient, the rendered image and the data term apart; f
     the problem's data term (``loss="l2"``) or the Hellinger term :func:`_hellinger`."""
@@ -104,14 +119,20 @@ class DesignLBFGS(IterativeSolver):
             the identity: broad corrections first, as for a start far from the design.
         loss: The data term: ``l2`` (the problem's, 1/2 ||F(d) - b||^2 / (||b||^2 a)) or
             ``hellinger`` (:func:`_hellinger`).
+        adam_steps: Adam steps before the first L-BFGS iteration (0: none).
+        adam_lr: Their learning rate, scene units per step.
     """
 
     name = "design_lbfgs"
 
     def __init__(self, problem: Problem, d0: Tensor, memory: int = 12, penalty_weight: float = 10.0,
-                 first_step: float = 2e-3, smoothing_length: float | None = None, loss: str = "l2") -> None:
+                 first_step: float = 2e-3, smoothing_length: float | None = None, loss: str = "l2",
+                 adam_steps: int = 0, adam_lr: float = 2e-4) -> None:
         super().__init__(d0)
         self.objective = _DesignObjective(problem, penalty_weight, loss)
+        self.adam_steps, self.adam_lr = adam_steps, adam_lr
+        self._heights = torch.nn.Parameter(self.state.d.detach().double().clone())
+        self._adam = torch.optim.Adam([self._heights], lr=adam_lr)
         self._smooth = None
         if smoothing_length is not None:
             self._smooth = SobolevPreconditioner(smoothing_length)
@@ -128,14 +149,18 @@ class DesignLBFGS(IterativeSolver):
 
     @classmethod
     def from_config(cls, memory: int = 12, penalty_weight: float = 10.0, first_step: float = 2e-3,
-                    smoothing_length: float | None = None, loss: str = "l2") -> Any:
+                    smoothing_length: float | None = None, loss: str = "l2", adam_steps: int = 0,
+                    adam_lr: float = 2e-4) -> Any:
         """The plugin ``solver/design_lbfgs``: checks the settings, returns the builder."""
         memory = positive_int(memory, "solver.memory")
         weight, step = _positive("penalty_weight", penalty_weight), _positive("first_step", first_step)
         length = None if smoothing_length is None else _positive("smoothing_length", smoothing_length)
         if loss not in LOSSES:
             raise ValueError(f"solver.loss={loss!r} must be one of {', '.join(LOSSES)}")
-        return lambda problem, d0: cls(problem, d0, memory, weight, step, length, loss)
+        if isinstance(adam_steps, bool) or not isinstance(adam_steps, int) or adam_steps < 0:
+            raise ValueError(f"solver.adam_steps={adam_steps!r} must be a whole number >= 0 (0: L-BFGS from the start)")
+        lr = _positive("adam_lr", adam_lr)
+        return lambda problem, d0: cls(problem, d0, memory, weight, step, length, loss, adam_steps, lr)
 
     def _direction(self, grad: Tensor) -> Tensor:
         """-H grad by the two-loop recursion over the kept pairs (s, y)."""
@@ -157,8 +182,12 @@ class DesignLBFGS(IterativeSolver):
         return -q
 
     def step(self) -> IterationRecord:
-        """One L-BFGS iteration: direction, backtracking until Armijo holds, pair update."""
+        """One L-BFGS iteration: direction, backtracking until Armijo holds, pair update (an Adam
+        step while fewer than ``adam_steps`` iterations are done)."""
         t0 = time.perf_counter()
+        if self.state.iteration < self.adam_steps:
+            evaluation, self.state.d = _adam_step(self.objective, self._adam, self._heights, self.state.d)
+            return self._record(evaluation, self.adam_lr, 1, t0)
         d = self.state.d.double()
         if self._current is None:
             self._current = self.objective(self.state.d)
@@ -199,14 +228,24 @@ class DesignLBFGS(IterativeSolver):
         self._pairs.clear()
         self._current = None
 
+    def set_heights(self, d: Tensor) -> None:  # noqa: D102
+        super().set_heights(d)
+        with torch.no_grad():
+            self._heights.copy_(self.state.d.double())
+
     def state_dict(self) -> dict[str, Any]:
-        """Adds the curvature pairs."""
-        return {**super().state_dict(), "pairs": [(s.clone(), y.clone()) for s, y in self._pairs]}
+        """Adds the curvature pairs and the Adam steps' moments."""
+        return {**super().state_dict(), "pairs": [(s.clone(), y.clone()) for s, y in self._pairs],
+                "adam": self._adam.state_dict()}
 
     def load_state_dict(self, state: dict[str, Any]) -> None:  # noqa: D102
         super().load_state_dict(state)
         self._pairs = [(s.double(), y.double()) for s, y in state.get("pairs", [])]
         self._current = None
+        with torch.no_grad():
+            self._heights.copy_(self.state.d.double())
+        if "adam" in state:
+            self._adam.load_state_dict(state["adam"])
 
 
 class DesignAdam(IterativeSolver):
@@ -245,13 +284,7 @@ class DesignAdam(IterativeSolver):
     def step(self) -> IterationRecord:
         """One Adam step from the gradient at the current heights."""
         t0 = time.perf_counter()
-        value, grad, data_term, rel = self.objective(self.state.d)
-        self._heights.grad = grad
-        self._adam.step()
-        with torch.no_grad():
-            limits = self.objective.problem.constraints
-            self._heights.clamp_(min=0.0, max=None if limits is None else limits.max_height)
-        self.state.d = self._heights.detach().to(self.state.d.dtype).clone()
+        (value, _, data_term, rel), self.state.d = _adam_step(self.objective, self._adam, self._heights, self.state.d)
         self.state.iteration += 1
         self.state.elapsed_s += time.perf_counter() - t0
         record = IterationRecord(self.state.iteration, value, data_term, rel, self.lr, self.state.elapsed_s,
