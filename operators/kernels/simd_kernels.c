@@ -185,7 +185,7 @@ SFC_AVX2 void sfc_gather_box8(const double *g, int64_t offset, int64_t stride, i
     gather_sums(m, q00, q01, q11, sums);
 }
 
-/* Rows of a bounding box whose chords row_spans finds at once. */
+/* Rows of a bounding box whose chords row_spans finds at once (a multiple of its 4 rows a vector). */
 enum { SPAN_ROWS = 64 };
 
 /* The columns lo[i] .. hi[i] (within 0 .. width - 1, as doubles) of the bounding box's rows r0 + i,
@@ -228,7 +228,7 @@ SFC_AVX2 void sfc_gather_spans(const double *g, int64_t offset, int64_t stride, 
     /* Per lane: sum w, sum G w; sum u rx, u rx^2, u ry, u rx ry, u ry^2; the same times G. */
     __m256d s = zero, gs = zero, ax = zero, axx = zero, ay = zero, axy = zero, ayy = zero;
     __m256d gx = zero, gxx = zero, gy = zero, gxy = zero, gyy = zero;
-    double lo[SPAN_ROWS + 3], hi[SPAN_ROWS + 3];
+    double lo[SPAN_ROWS], hi[SPAN_ROWS];
     for (int64_t r = 0; r < rows; r++) {
         if (r % SPAN_ROWS == 0) row_spans(rx0, ry0, r, rows - r < SPAN_ROWS ? rows - r : SPAN_ROWS, width, q00, q01, det, lo, hi);
         const double ry = ry0 + (double)r;
@@ -264,17 +264,16 @@ SFC_AVX2 void sfc_gather_spans(const double *g, int64_t offset, int64_t stride, 
     gather_sums(m, q00, q01, q11, sums);
 }
 
-/* The splat of one photon of flux f over a bounding box of `rows` rows and `width` columns (a
- * footprint larger than the fixed box) into a float64 (f32 = 0) or float32 image whose first
- * pixel is img[offset] (rows `stride` apart), rx0 / ry0 the offsets of that pixel from the photon:
- * the weights' sum over each row's chord (row_spans), then f w / sum(w) onto those pixels, in
- * vectors of 4 pixels (the image must hold 3 columns past the box; they get 0). */
-static SFC_AVX2 void splat_spans(void *img, int f32, int64_t offset, int64_t stride, int64_t rows, int64_t width,
-                                 double rx0, double ry0, double q00, double q01, double q11, double f) {
+/* One pass of splat_spans over each row's chord (row_spans) in vectors of 4 pixels: the sum of
+ * the weights w, and with an image (img not NULL; float64, or float32 with f32) scale w added to
+ * each of those pixels. */
+static inline SFC_AVX2 double spans_pass(void *img, int f32, int64_t offset, int64_t stride, int64_t rows,
+                                         int64_t width, double rx0, double ry0, double q00, double q01, double q11,
+                                         double scale) {
     const double det = q00 * q11 - q01 * q01;
-    const __m256d a = _mm256_set1_pd(q00), lane = _mm256_setr_pd(0.0, 1.0, 2.0, 3.0);
+    const __m256d a = _mm256_set1_pd(q00), lane = _mm256_setr_pd(0.0, 1.0, 2.0, 3.0), k = _mm256_set1_pd(scale);
     __m256d s = _mm256_setzero_pd();
-    double lo[SPAN_ROWS + 3], hi[SPAN_ROWS + 3];
+    double lo[SPAN_ROWS], hi[SPAN_ROWS];
     for (int64_t r = 0; r < rows; r++) {
         if (r % SPAN_ROWS == 0) row_spans(rx0, ry0, r, rows - r < SPAN_ROWS ? rows - r : SPAN_ROWS, width, q00, q01, det, lo, hi);
         const double ry = ry0 + (double)r;
@@ -282,28 +281,30 @@ static SFC_AVX2 void splat_spans(void *img, int f32, int64_t offset, int64_t str
         for (int64_t j = (int64_t)lo[r % SPAN_ROWS]; j <= (int64_t)hi[r % SPAN_ROWS]; j += 4) {
             const __m256d u = falloff4(a, _mm256_add_pd(lane, _mm256_set1_pd(rx0 + (double)j)), b, e);
             s = _mm256_fmadd_pd(u, u, s);
-        }
-    }
-    const double total = sum4(s);
-    if (!(total > 0.0)) return;
-    const __m256d scale = _mm256_set1_pd(f / total);
-    for (int64_t r = 0; r < rows; r++) {
-        if (r % SPAN_ROWS == 0) row_spans(rx0, ry0, r, rows - r < SPAN_ROWS ? rows - r : SPAN_ROWS, width, q00, q01, det, lo, hi);
-        const double ry = ry0 + (double)r;
-        const __m256d b = _mm256_set1_pd(2.0 * q01 * ry), e = _mm256_set1_pd(q11 * ry * ry);
-        for (int64_t j = (int64_t)lo[r % SPAN_ROWS]; j <= (int64_t)hi[r % SPAN_ROWS]; j += 4) {
-            const __m256d u = falloff4(a, _mm256_add_pd(lane, _mm256_set1_pd(rx0 + (double)j)), b, e);
+            if (img == NULL) continue;
             const __m256d w = _mm256_mul_pd(u, u);
             const int64_t at = offset + r * stride + j;
             if (f32) { /* as sfc_splat_box8_f32 */
                 float *px = (float *)img + at;
-                _mm_storeu_ps(px, _mm_add_ps(_mm_loadu_ps(px), _mm256_cvtpd_ps(_mm256_mul_pd(scale, w))));
+                _mm_storeu_ps(px, _mm_add_ps(_mm_loadu_ps(px), _mm256_cvtpd_ps(_mm256_mul_pd(k, w))));
             } else { /* as sfc_splat_box8_f64 */
                 double *px = (double *)img + at;
-                _mm256_storeu_pd(px, _mm256_fmadd_pd(scale, w, _mm256_loadu_pd(px)));
+                _mm256_storeu_pd(px, _mm256_fmadd_pd(k, w, _mm256_loadu_pd(px)));
             }
         }
     }
+    return sum4(s);
+}
+
+/* The splat of one photon of flux f over a bounding box of `rows` rows and `width` columns (a
+ * footprint larger than the fixed box) into a float64 (f32 = 0) or float32 image whose first
+ * pixel is img[offset] (rows `stride` apart), rx0 / ry0 the offsets of that pixel from the photon:
+ * the weights' sum over each row's chord (row_spans), then f w / sum(w) onto those pixels, in
+ * vectors of 4 pixels (the image must hold 3 columns past the box; they get 0). */
+static SFC_AVX2 void splat_spans(void *img, int f32, int64_t offset, int64_t stride, int64_t rows, int64_t width,
+                                 double rx0, double ry0, double q00, double q01, double q11, double f) {
+    const double total = spans_pass(NULL, f32, offset, stride, rows, width, rx0, ry0, q00, q01, q11, 0.0);
+    if (total > 0.0) spans_pass(img, f32, offset, stride, rows, width, rx0, ry0, q00, q01, q11, f / total);
 }
 
 SFC_AVX2 void sfc_splat_spans_f64(double *img, int64_t offset, int64_t stride, int64_t rows, int64_t width,
