@@ -2,7 +2,8 @@
 
 It holds the AVX2 splat, gather, jet and hit-adjoint kernels (``simd_kernels.c``, called from
 numba: :mod:`operators.kernels.simd`) and the whole height-field photon kernels in C
-(``heightfield_photons.c``, called from the host: :mod:`operators.heightfield.trace_compiled`) and
+(``heightfield_photons.c``, called from the host: :mod:`operators.heightfield.trace_compiled`; its
+splat and gather also for photons that other tracers computed: :mod:`operators.splat.compiled`) and
 the mesh-scene event kernels (``mesh_events.c``: :mod:`operators.mesh.events_compiled`), all
 compiled at install; the photon kernels twice, for any x86-64 CPU and for AVX2 + FMA, so neither waits for a JIT. Where it was not built (no C compiler at
 install) or was built from other sources (its ``sfc_abi_version`` differs from
@@ -18,7 +19,7 @@ import warnings
 from collections.abc import Sequence
 
 # Version of the C functions' signatures that the declarations in Python match (sfc_abi_version).
-ABI_VERSION = 7
+ABI_VERSION = 8
 # Suffixes of the two builds of the photon kernels (heightfield_photons.c, mesh_events.c): baseline, AVX2 + FMA.
 BUILDS = ("", "_avx2")
 

@@ -35,6 +35,7 @@
 #include <stdatomic.h>
 #include <stdint.h>
 #include <stdlib.h>
+#include <string.h>
 
 #include "sfc_threads.h"
 
@@ -701,4 +702,106 @@ int SFC_EXPORT(sfc_hf_trace_aimed)(const double *d, int64_t m, const sfc_scene *
     j.blocks = (count + BLOCK - 1) / BLOCK;
     atomic_init(&j.next_block, 0);
     return sfc_parallel(threads, aimed_worker, &j);
+}
+
+/* ---------------------------------------------------------------- photons given by their splat arguments */
+
+/* The splat and its adjoint gather for photons that another tracer computed (the mesh scenes, the
+ * torch reference path): photon p at pixel (pos[p], pos[count + p]) with metric (metric[p],
+ * metric[count + p], metric[2 count + p]), flux[p] and channel[p]; splat_forward and
+ * splat_backward in operators/splat/native.py, whose thread shares these keep. */
+enum { GATHER_BLOCK = 4096 };
+
+typedef struct {
+    sfc_scene sc; /* only simd and far_px are read */
+    const double *pos, *metric, *flux;
+    const int64_t *channel;
+    int64_t count, threads, n;
+    void *out; /* splat: (threads, channels, n, n) */
+    int f32;
+    int64_t channels, capacity;
+    const double *padded; /* gather: G padded by pad on every side */
+    int64_t pad;
+    double *g_pos, *g_metric, *g_flux;
+} spots_job;
+
+static inline SFC_INLINE void spot_of(const spots_job *j, int64_t p, double spot[6]) {
+    spot[0] = j->pos[p];
+    spot[1] = j->pos[j->count + p];
+    spot[2] = j->metric[p];
+    spot[3] = j->metric[j->count + p];
+    spot[4] = j->metric[2 * j->count + p];
+    spot[5] = j->flux[p];
+}
+
+/* Thread t splats photons t * per .. (t + 1) * per - 1 into its own image (splat_forward). */
+static int spots_splat_worker(void *context, int64_t thread) {
+    const spots_job *j = (const spots_job *)context;
+    double *buf = (double *)malloc(sizeof(double) * (size_t)imax(j->capacity, 1));
+    if (!buf) return 1;
+    const size_t elem = j->f32 ? sizeof(float) : sizeof(double);
+    void *img = (char *)j->out + (size_t)thread * (size_t)(j->channels * j->n * j->n) * elem;
+    const int64_t per = (j->count + j->threads - 1) / j->threads;
+    for (int64_t p = thread * per; p < imin(j->count, (thread + 1) * per); p++) {
+        double spot[6];
+        spot_of(j, p, spot);
+        splat_photon(&j->sc, img, j->f32, j->n, j->channel[p], spot, buf, j->capacity);
+    }
+    free(buf);
+    return 0;
+}
+
+/* Thread t gathers the blocks t, t + threads, ... of GATHER_BLOCK photons (splat_backward):
+ * photons with large footprints come in runs, which contiguous shares would leave to one thread. */
+static int spots_gather_worker(void *context, int64_t thread) {
+    const spots_job *j = (const spots_job *)context;
+    const int64_t blocks = (j->count + GATHER_BLOCK - 1) / GATHER_BLOCK;
+    for (int64_t b = thread; b < blocks; b += j->threads)
+        for (int64_t p = b * GATHER_BLOCK; p < imin(j->count, (b + 1) * GATHER_BLOCK); p++) {
+            double spot[6], g[6];
+            spot_of(j, p, spot);
+            gather_photon(&j->sc, j->padded, j->n, j->pad, j->channel[p], spot, g);
+            j->g_flux[p] = g[0];
+            j->g_pos[p] = g[1];
+            j->g_pos[j->count + p] = g[2];
+            j->g_metric[p] = g[3];
+            j->g_metric[j->count + p] = g[4];
+            j->g_metric[2 * j->count + p] = g[5];
+        }
+    return 0;
+}
+
+static spots_job spots(const double *pos, const double *metric, const double *flux, const int64_t *channel,
+                       int64_t count, int64_t threads, int64_t n, int64_t simd, double far_px) {
+    spots_job j;
+    memset(&j, 0, sizeof(j));
+    j.sc.simd = simd;
+    j.sc.far_px = far_px;
+    j.pos = pos; j.metric = metric; j.flux = flux; j.channel = channel;
+    j.count = count; j.threads = threads < 1 ? 1 : threads; j.n = n;
+    return j;
+}
+
+/* Splat `count` photons (float64 arguments, see spots_job) into out (threads, channels, n, n),
+ * float32 if f32, each thread into its own image (the host sums them); footprints of more than
+ * `capacity` pixels are left out; `simd` only where sfc_simd_supported(); photons beyond far_px
+ * pixels are left out. Returns 0, -1 on failure to allocate or start threads. */
+int SFC_EXPORT(sfc_splat_spots)(const double *pos, const double *metric, const double *flux, const int64_t *channel,
+                                int64_t count, void *out, int64_t f32, int64_t threads, int64_t channels, int64_t n,
+                                int64_t capacity, int64_t simd, double far_px) {
+    spots_job j = spots(pos, metric, flux, channel, count, threads, n, simd, far_px);
+    j.out = out; j.f32 = (int)f32; j.channels = channels; j.capacity = capacity;
+    return sfc_parallel(j.threads, spots_splat_worker, &j);
+}
+
+/* The gradients of <G, splat> w.r.t. pos (2, count), metric (3, count) and flux (count,) of the
+ * photons, float64, into g_pos, g_metric, g_flux; G (channels, n, n) given as `padded` with `pad`
+ * zero pixels on every side (more than any footprint's half extent, plus SPAN_TAIL). Returns 0,
+ * -1 on failure to start threads. */
+int SFC_EXPORT(sfc_gather_spots)(const double *pos, const double *metric, const double *flux, const int64_t *channel,
+                                 int64_t count, const double *padded, int64_t n, int64_t pad, int64_t threads,
+                                 int64_t simd, double far_px, double *g_pos, double *g_metric, double *g_flux) {
+    spots_job j = spots(pos, metric, flux, channel, count, threads, n, simd, far_px);
+    j.padded = padded; j.pad = pad; j.g_pos = g_pos; j.g_metric = g_metric; j.g_flux = g_flux;
+    return sfc_parallel(j.threads, spots_gather_worker, &j);
 }

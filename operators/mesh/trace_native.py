@@ -242,7 +242,7 @@ class NativeMeshTracer:
     def _image(self) -> ImageAccumulator:
         """An empty image (c, n, n) of the operator's dtype that chunks are splatted into."""
         scene = self.operator.scene
-        return ImageAccumulator(scene.channels, scene.receiver.resolution, self._dtype)
+        return ImageAccumulator(scene.channels, scene.receiver.resolution, self._dtype, c_kernels=self.compiled)
 
     def _splat(self, chunk: _Chunk, sc: mk.MeshConstants, losses: dict[str, float], image: ImageAccumulator,
                where: np.ndarray | None = None) -> None:
@@ -349,7 +349,7 @@ class NativeMeshTracer:
         self._check_above(sc)
         g_heights = np.zeros((nb.get_num_threads(), *d.shape))
         not_counted: dict[str, float] = dict.fromkeys(self.prefix().losses, 0.0)  # render counts them
-        adjoint = PaddedAdjoint(to_numpy(grad_flux), self._dtype)  # padded once for every chunk's gather
+        adjoint = PaddedAdjoint(to_numpy(grad_flux), self._dtype, c_kernels=self.compiled)  # padded once for all chunks
         same = self._events_seen is not None and np.array_equal(self._events_seen[0], d)
         seen, finals = self._events_seen[1:] if same else (None, None)
         from_finals = self.compiled and finals is not None  # the reverse only reads the start states

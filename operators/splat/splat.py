@@ -10,6 +10,7 @@ import torch
 
 from operators.kernels.numba_settings import to_numpy
 from operators.kernels.simd import AVAILABLE as SIMD_AVAILABLE
+from operators.splat import compiled
 from operators.splat.native import gather_padding, pad_for_gather, splat_backward, splat_forward
 
 
@@ -88,13 +89,19 @@ def splat_photons_vjp(pos: torch.Tensor, metric: torch.Tensor, flux: torch.Tenso
 class ImageAccumulator:
     """Photons of several chunks splatted into one image (c, n, n): each thread's share into a
     buffer of its own (threads, c, n, n) of ``dtype``, summed once in :meth:`image`, instead of
-    a buffer and a sum over the threads per chunk."""
+    a buffer and a sum over the threads per chunk. ``c_kernels``: splat with the C kernels
+    (:mod:`operators.splat.compiled`, from float64 arguments) where the extension was built, else
+    with numba's (:func:`operators.splat.native.splat_forward`, from arguments of ``dtype``)."""
 
-    def __init__(self, channels: int, resolution: int, dtype: np.dtype) -> None:
+    def __init__(self, channels: int, resolution: int, dtype: np.dtype, c_kernels: bool = True) -> None:
         self.out = np.zeros((nb.get_num_threads(), channels, resolution, resolution), dtype=dtype)
+        self.c_kernels = c_kernels and compiled.AVAILABLE
 
     def add(self, pos: np.ndarray, metric: np.ndarray, flux: np.ndarray, channel: np.ndarray) -> None:
         """Splat photons at ``pos`` (2, N) with metrics (3, N), ``flux`` (N,), ``channel`` (N,) int64."""
+        if self.c_kernels:
+            compiled.splat_spots(pos, metric, flux, channel, self.out, footprint_capacity(metric))
+            return
         dtype = self.out.dtype
         metric = metric.astype(dtype, copy=False)
         splat_forward(pos.astype(dtype, copy=False), metric, flux.astype(dtype, copy=False), channel, self.out,
@@ -107,20 +114,25 @@ class ImageAccumulator:
 
 class PaddedAdjoint:
     """The adjoint image G (c, n, n) with the zero border the gather needs, padded once for the
-    photons of several chunks (again only where a chunk's footprints need a wider border); the
-    photons are gathered in ``dtype``."""
+    photons of several chunks (again only where a chunk's footprints need a wider border).
+    ``c_kernels``: gather with the C kernels (:mod:`operators.splat.compiled`, float64) where the
+    extension was built, else with numba's in ``dtype``."""
 
-    def __init__(self, grad_image: np.ndarray, dtype: np.dtype) -> None:
+    def __init__(self, grad_image: np.ndarray, dtype: np.dtype, c_kernels: bool = True) -> None:
         self.grad_image, self.dtype, self.pad, self.padded = grad_image, dtype, -1, None
+        self.c_kernels = c_kernels and compiled.AVAILABLE
 
     def gather(self, pos: np.ndarray, metric: np.ndarray, flux: np.ndarray, channel: np.ndarray
                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Gradients of <splat(...), G> w.r.t. pos (2, N), metric (3, N) and flux (N,), as numpy
-        arrays of the dtype."""
-        pos, metric, flux = (a.astype(self.dtype, copy=False) for a in (pos, metric, flux))
+        arrays: float64 from the C kernels, else of the dtype."""
+        if not self.c_kernels:
+            pos, metric, flux = (a.astype(self.dtype, copy=False) for a in (pos, metric, flux))
         pad = gather_padding(footprint_half_extent(metric))
         if pad > self.pad:
             self.pad, self.padded = pad, pad_for_gather(self.grad_image, pad)
+        if self.c_kernels:
+            return compiled.gather_spots(pos, metric, flux, channel, self.padded, self.pad, nb.get_num_threads())
         g_pos = np.empty((2, flux.shape[0]), dtype=self.dtype)
         g_metric = np.empty((3, flux.shape[0]), dtype=self.dtype)
         g_flux = np.empty(flux.shape[0], dtype=self.dtype)

@@ -13,6 +13,7 @@ import torch
 from operators.kernels import simd
 from operators.heightfield.operator import CausticOperator, OperatorSettings
 from operators.scene import Receiver, Scene
+from operators.splat import compiled
 from operators.splat.native import gather_padding, pad_for_gather, splat_backward, splat_forward
 from operators.splat.splat import footprint_capacity, footprint_half_extent
 from framework.core.shapes import make_shape
@@ -99,6 +100,46 @@ def test_avx2_gather_equals_numba_gather(axes):
     for fast, plain in zip(*results):
         assert np.abs(fast - plain).max() <= 1e-11 * np.abs(plain).max()
     assert np.count_nonzero(results[0][2]) > 15000  # photons on the image did contribute
+
+
+needs_c_splat = pytest.mark.skipif(not compiled.AVAILABLE, reason="compiled extension not built")
+
+
+@needs_c_splat
+@pytest.mark.parametrize("axes", [SMALL, LARGE], ids=["small", "large"])
+@pytest.mark.parametrize("dtype, rtol", [(np.float64, 1e-13), (np.float32, 1e-6)])
+def test_c_splat_equals_numba_splat(dtype, rtol, axes):
+    # The C splat of given photons (the mesh scenes' and the torch path's) against numba's, the
+    # same float64 photons, each thread the same share: equal to rounding, every photon's flux kept.
+    side = axes[2]
+    pos, metric, flux, channel = _photons(20000, side, seed=4, axes=axes)
+    out = np.zeros((nb.get_num_threads(), 2, side, side), dtype=dtype)
+    compiled.splat_spots(pos, metric, flux, channel, out, footprint_capacity(metric))
+    c_image = out.sum(axis=0, dtype=np.float64)
+    numba_image = _splat(pos, metric, flux, channel, side, dtype, simd.AVAILABLE)
+    assert np.abs(c_image - numba_image).max() <= rtol * np.abs(numba_image).max()
+    assert abs(c_image.sum() - numba_image.sum()) <= rtol * numba_image.sum()
+    with pytest.raises(ValueError, match=r"metric \(2, 20000\)"):
+        compiled.splat_spots(pos, metric[:2], flux, channel, out, footprint_capacity(metric))
+
+
+@needs_c_splat
+@pytest.mark.parametrize("axes", [SMALL, LARGE], ids=["small", "large"])
+def test_c_gather_equals_numba_gather(axes):
+    side = axes[2]
+    pos, metric, flux, channel = _photons(20000, side, seed=5, axes=axes)
+    grad_image = np.random.default_rng(6).standard_normal((2, side, side)) + 5.0
+    pad = gather_padding(footprint_half_extent(metric))
+    padded = pad_for_gather(grad_image, pad)
+    numba_grads = np.empty((2, 20000)), np.empty((3, 20000)), np.empty(20000)
+    splat_backward(pos, metric, flux, channel, padded, pad, *numba_grads, simd.AVAILABLE, nb.get_num_threads())
+    c_grads = compiled.gather_spots(pos, metric, flux, channel, padded, pad, nb.get_num_threads())
+    for c, plain in zip(c_grads, numba_grads):
+        assert c.dtype == np.float64
+        assert np.abs(c - plain).max() <= 1e-12 * np.abs(plain).max()
+    assert np.count_nonzero(c_grads[2]) > 15000
+    with pytest.raises(ValueError, match="pad = 200"):
+        compiled.gather_spots(pos, metric, flux, channel, padded, 200, 1)
 
 
 @needs_simd
