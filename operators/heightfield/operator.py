@@ -244,7 +244,7 @@ class CausticOperator(PhotonOperator):
         d = to_numpy(heights).astype(np.float64)
         if self.gpu is not None:
             return self._vjp_gpu(d, grad_image).to(self.dtype).to(dtype=heights.dtype, device=heights.device)
-        padded = self.fused.pad_gradient(to_numpy(grad_image).astype(np.float64) / self.pixel_area)
+        padded = self.fused.pad_gradient(to_numpy(grad_image), self.pixel_area)
         out = np.zeros((nb.get_num_threads(), *d.shape))
         for start, stop in self.chunks():
             self.fused.vjp(d, start, stop, padded, out, hit_t=self.hit_cache.hits(d, start, stop))

@@ -41,6 +41,7 @@ class FusedTracer:
         self.capacity = (2 * math.ceil(max_pixel_radius) + 3) ** 2
         # Footprints' major semi-axes are capped at max_pixel_radius, so are their boxes' half extents.
         self.gather_pad = gather_padding(max_pixel_radius)
+        self._padded: np.ndarray | None = None  # the adjoint image buffer that pad_gradient fills
         light, sub, rec = scene.light, scene.substrate, scene.receiver
         self._constants = dict(
             light_x=float(light.position[0]), light_y=float(light.position[1]), light_z=float(light.position[2]),
@@ -80,10 +81,12 @@ class FusedTracer:
             return render_photons(d, self.constants(d), self.shifts, self.indices, start, stop, out,
                                   self.capacity, splat, NO_HITS if hit_t is None else hit_t, replay)
 
-    def pad_gradient(self, grad_image: np.ndarray) -> np.ndarray:
-        """The adjoint image G (c, n, n) as :meth:`vjp` takes it: float64 with a zero border wide
-        enough for every footprint (pad it once per gradient, not per chunk)."""
-        return pad_for_gather(grad_image, self.gather_pad)
+    def pad_gradient(self, grad_image: np.ndarray, divisor: float = 1.0) -> np.ndarray:
+        """The adjoint image G / divisor (c, n, n) as :meth:`vjp` takes it: float64 with a zero
+        border wide enough for every footprint (pad it once per gradient, not per chunk). The
+        buffer is this object's and the next call overwrites it."""
+        self._padded = pad_for_gather(grad_image, self.gather_pad, divisor, reuse=self._padded)
+        return self._padded
 
     def vjp(self, d: np.ndarray, start: int, stop: int, padded: np.ndarray, out: np.ndarray,
             hit_t: np.ndarray | None = None) -> None:

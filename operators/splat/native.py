@@ -332,12 +332,19 @@ def gather_padding(max_half_extent_px: float) -> int:
     return int(math.ceil(max_half_extent_px)) + 2 + SPAN_TAIL
 
 
-def pad_for_gather(grad_image: np.ndarray, pad: int) -> np.ndarray:
-    """G (c, n, n) float64 with ``pad`` zero pixels on every side, for :func:`gather_photon`."""
+def pad_for_gather(grad_image: np.ndarray, pad: int, divisor: float = 1.0, reuse: np.ndarray | None = None
+                   ) -> np.ndarray:
+    """G / divisor (c, n, n) float64 with ``pad`` zero pixels on every side, for
+    :func:`gather_photon`, written in one pass (no float64 or quotient temporaries). ``reuse``:
+    what an earlier call returned for the same shape and pad, whose border is still zero (the
+    gathers only read it): its interior is overwritten instead of new memory zeroed, which on a
+    2048 x 2048 receiver costs more in page faults than the copy."""
     grad_image = np.asarray(grad_image)
     c, rows, cols = grad_image.shape
-    padded = np.zeros((c, rows + 2 * pad, cols + 2 * pad))
-    padded[:, pad:pad + rows, pad:pad + cols] = grad_image  # 2-3x faster than np.pad
+    shape = (c, rows + 2 * pad, cols + 2 * pad)
+    fits = reuse is not None and reuse.shape == shape and reuse.dtype == np.float64 and reuse.flags.c_contiguous
+    padded = reuse if fits else np.zeros(shape)
+    np.divide(grad_image, divisor, out=padded[:, pad:pad + rows, pad:pad + cols], dtype=np.float64)
     return padded
 
 

@@ -116,10 +116,12 @@ class PaddedAdjoint:
     """The adjoint image G (c, n, n) with the zero border the gather needs, padded once for the
     photons of several chunks (again only where a chunk's footprints need a wider border).
     ``c_kernels``: gather with the C kernels (:mod:`operators.splat.compiled`, float64) where the
-    extension was built, else with numba's in ``dtype``."""
+    extension was built, else with numba's in ``dtype``. ``reuse``: an earlier :attr:`padded`
+    that may be overwritten (:func:`operators.splat.native.pad_for_gather`)."""
 
-    def __init__(self, grad_image: np.ndarray, dtype: np.dtype, c_kernels: bool = True) -> None:
-        self.grad_image, self.dtype, self.pad, self.padded = grad_image, dtype, -1, None
+    def __init__(self, grad_image: np.ndarray, dtype: np.dtype, c_kernels: bool = True,
+                 reuse: np.ndarray | None = None) -> None:
+        self.grad_image, self.dtype, self.pad, self.padded = grad_image, dtype, -1, reuse
         self.c_kernels = c_kernels and compiled.AVAILABLE
 
     def gather(self, pos: np.ndarray, metric: np.ndarray, flux: np.ndarray, channel: np.ndarray
@@ -130,7 +132,7 @@ class PaddedAdjoint:
             pos, metric, flux = (a.astype(self.dtype, copy=False) for a in (pos, metric, flux))
         pad = gather_padding(footprint_half_extent(metric))
         if pad > self.pad:
-            self.pad, self.padded = pad, pad_for_gather(self.grad_image, pad)
+            self.pad, self.padded = pad, pad_for_gather(self.grad_image, pad, reuse=self.padded)
         if self.c_kernels:
             return compiled.gather_spots(pos, metric, flux, channel, self.padded, self.pad, nb.get_num_threads())
         g_pos = np.empty((2, flux.shape[0]), dtype=self.dtype)

@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import numpy as np
 import torch
 
 from operators.splat.splat import footprint_metric, splat_photons
 from operators.splat.reference import splat_photons_reference
+from operators.splat.native import pad_for_gather
 
 
 def random_photons(count: int = 300, resolution: int = 24, seed: int = 0):
@@ -139,3 +141,17 @@ def test_fixed_box_and_general_paths_agree_with_the_reference():
     image_grad = torch.randn(1, n, n, dtype=torch.float64, generator=g)
     for native_grad, reference_grad in zip(*native_and_reference_gradients(pos, metric, flux, channel, image_grad)):
         assert torch.allclose(native_grad, reference_grad, rtol=1e-8, atol=1e-10)
+
+
+def test_a_reused_padded_adjoint_equals_a_fresh_one():
+    # The gradients pad the adjoint image into the buffer of the last gradient: the same values
+    # as a new zero-bordered array, G / divisor computed as float64 from float32 pixels.
+    rng = np.random.default_rng(0)
+    first, second = (rng.standard_normal((2, 40, 40)).astype(np.float32) for _ in range(2))
+    buffer = pad_for_gather(first, 7, 3.0)
+    reused = pad_for_gather(second, 7, 3.0, reuse=buffer)
+    assert reused is buffer
+    expected = np.zeros((2, 54, 54))
+    expected[:, 7:47, 7:47] = second.astype(np.float64) / 3.0
+    assert np.array_equal(reused, expected)
+    assert pad_for_gather(second, 9, reuse=buffer) is not buffer  # another pad: a new array
