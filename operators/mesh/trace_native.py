@@ -351,7 +351,7 @@ class NativeMeshTracer:
         g_heights = np.zeros((nb.get_num_threads(), *d.shape))
         not_counted: dict[str, float] = dict.fromkeys(self.prefix().losses, 0.0)  # render counts them
         # Padded once for all chunks, into the buffer of the last gradient where it fits.
-        adjoint = PaddedAdjoint(to_numpy(grad_flux), self._dtype, c_kernels=self.compiled, reuse=self._padded)
+        adjoint = PaddedAdjoint(to_numpy(grad_flux), c_kernels=self.compiled, reuse=self._padded)
         same = self._events_seen is not None and np.array_equal(self._events_seen[0], d)
         seen, finals = self._events_seen[1:] if same else (None, None)
         from_finals = self.compiled and finals is not None  # the reverse only reads the start states
@@ -371,8 +371,7 @@ class NativeMeshTracer:
             else:
                 self._run(d, chunk, sc, False, not_counted, tape, events_replay=None if seen is None else seen[k])
             pos, metric, flux = self._splat_inputs(chunk, sc, None)
-            g_pos, g_metric, g_flux = (np.ascontiguousarray(g, dtype=np.float64)
-                                       for g in adjoint.gather(pos, metric, flux, chunk.channel))
+            g_pos, g_metric, g_flux = adjoint.gather(pos, metric, flux, chunk.channel)
             g_state = g_rows[:len(chunk.state)]
             self._splat_arguments_adjoint(chunk.state, chunk.status, sc, g_pos, g_metric, g_flux, g_state)
             if self.compiled:

@@ -76,9 +76,8 @@ def splat_photons_vjp(pos: torch.Tensor, metric: torch.Tensor, flux: torch.Tenso
                       grad_image: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Adjoint of :func:`splat_photons` at these photons: gradients of <image, grad_image> w.r.t.
     pos (2, N), metric (3, N) and flux (N,), by the native gather (no forward splat needed)."""
-    f = to_numpy(flux)
-    g_pos, g_metric, g_flux = PaddedAdjoint(to_numpy(grad_image), f.dtype).gather(to_numpy(pos), to_numpy(metric), f,
-                                                                                 to_numpy(channel))
+    g_pos, g_metric, g_flux = PaddedAdjoint(to_numpy(grad_image)).gather(to_numpy(pos), to_numpy(metric),
+                                                                         to_numpy(flux), to_numpy(channel))
 
     def back(a: np.ndarray, like: torch.Tensor) -> torch.Tensor:
         return torch.from_numpy(a).to(dtype=like.dtype, device=like.device)
@@ -89,9 +88,9 @@ def splat_photons_vjp(pos: torch.Tensor, metric: torch.Tensor, flux: torch.Tenso
 class ImageAccumulator:
     """Photons of several chunks splatted into one image (c, n, n): each thread's share into a
     buffer of its own (threads, c, n, n) of ``dtype``, summed once in :meth:`image`, instead of
-    a buffer and a sum over the threads per chunk. ``c_kernels``: splat with the C kernels
-    (:mod:`operators.splat.compiled`, from float64 arguments) where the extension was built, else
-    with numba's (:func:`operators.splat.native.splat_forward`, from arguments of ``dtype``)."""
+    a buffer and a sum over the threads per chunk. The photons' arguments are taken in float64.
+    ``c_kernels``: splat with the C kernels (:mod:`operators.splat.compiled`) where the extension
+    was built, else with numba's (:func:`operators.splat.native.splat_forward`)."""
 
     def __init__(self, channels: int, resolution: int, dtype: np.dtype, c_kernels: bool = True) -> None:
         self.out = np.zeros((nb.get_num_threads(), channels, resolution, resolution), dtype=dtype)
@@ -102,10 +101,8 @@ class ImageAccumulator:
         if self.c_kernels:
             compiled.splat_spots(pos, metric, flux, channel, self.out, footprint_capacity(metric))
             return
-        dtype = self.out.dtype
-        metric = metric.astype(dtype, copy=False)
-        splat_forward(pos.astype(dtype, copy=False), metric, flux.astype(dtype, copy=False), channel, self.out,
-                      footprint_capacity(metric), SIMD_AVAILABLE)
+        pos, metric, flux = (a.astype(np.float64, copy=False) for a in (pos, metric, flux))
+        splat_forward(pos, metric, flux, channel, self.out, footprint_capacity(metric), SIMD_AVAILABLE)
 
     def image(self) -> torch.Tensor:
         """Flux per pixel (c, n, n) of every photon added."""
@@ -114,30 +111,26 @@ class ImageAccumulator:
 
 class PaddedAdjoint:
     """The adjoint image G (c, n, n) with the zero border the gather needs, padded once for the
-    photons of several chunks (again only where a chunk's footprints need a wider border).
-    ``c_kernels``: gather with the C kernels (:mod:`operators.splat.compiled`, float64) where the
-    extension was built, else with numba's in ``dtype``. ``reuse``: an earlier :attr:`padded`
-    that may be overwritten (:func:`operators.splat.native.pad_for_gather`)."""
+    photons of several chunks (again only where a chunk's footprints need a wider border); the
+    photons are gathered in float64. ``c_kernels``: gather with the C kernels
+    (:mod:`operators.splat.compiled`) where the extension was built, else with numba's.
+    ``reuse``: an earlier :attr:`padded` that may be overwritten
+    (:func:`operators.splat.native.pad_for_gather`)."""
 
-    def __init__(self, grad_image: np.ndarray, dtype: np.dtype, c_kernels: bool = True,
-                 reuse: np.ndarray | None = None) -> None:
-        self.grad_image, self.dtype, self.pad, self.padded = grad_image, dtype, -1, reuse
+    def __init__(self, grad_image: np.ndarray, c_kernels: bool = True, reuse: np.ndarray | None = None) -> None:
+        self.grad_image, self.pad, self.padded = grad_image, -1, reuse
         self.c_kernels = c_kernels and compiled.AVAILABLE
 
     def gather(self, pos: np.ndarray, metric: np.ndarray, flux: np.ndarray, channel: np.ndarray
                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Gradients of <splat(...), G> w.r.t. pos (2, N), metric (3, N) and flux (N,), as numpy
-        arrays: float64 from the C kernels, else of the dtype."""
-        if not self.c_kernels:
-            pos, metric, flux = (a.astype(self.dtype, copy=False) for a in (pos, metric, flux))
+        """Gradients of <splat(...), G> w.r.t. pos (2, N), metric (3, N) and flux (N,), float64."""
+        pos, metric, flux = (np.ascontiguousarray(a, dtype=np.float64) for a in (pos, metric, flux))
         pad = gather_padding(footprint_half_extent(metric))
         if pad > self.pad:
             self.pad, self.padded = pad, pad_for_gather(self.grad_image, pad, reuse=self.padded)
         if self.c_kernels:
             return compiled.gather_spots(pos, metric, flux, channel, self.padded, self.pad, nb.get_num_threads())
-        g_pos = np.empty((2, flux.shape[0]), dtype=self.dtype)
-        g_metric = np.empty((3, flux.shape[0]), dtype=self.dtype)
-        g_flux = np.empty(flux.shape[0], dtype=self.dtype)
+        g_pos, g_metric, g_flux = np.empty_like(pos), np.empty_like(metric), np.empty_like(flux)
         splat_backward(pos, metric, flux, channel, self.padded, self.pad, g_pos, g_metric, g_flux, SIMD_AVAILABLE,
                        nb.get_num_threads())
         return g_pos, g_metric, g_flux
