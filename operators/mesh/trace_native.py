@@ -121,7 +121,8 @@ class NativeMeshTracer:
         self._prefix: Prefix | None = None
         # The heights of the last render and its events per chunk, for a vjp at the same heights.
         self._events_seen: tuple[np.ndarray, list] | None = None
-        self._padded: np.ndarray | None = None  # the last gradient's padded adjoint image, overwritten by the next
+        # The last gradient's padded adjoint image and its border, overwritten by the next.
+        self._padded: tuple[np.ndarray | None, int] | None = None
         # The same faces, in the same order, in an Embree scene that the kernels query.
         self._triangles = EmbreeTriangles(intersector.vertices, intersector.faces) if intersector.count else None
         self.embree = 0 if self._triangles is None else self._triangles.handle
@@ -351,7 +352,7 @@ class NativeMeshTracer:
         g_heights = np.zeros((nb.get_num_threads(), *d.shape))
         not_counted: dict[str, float] = dict.fromkeys(self.prefix().losses, 0.0)  # render counts them
         # Padded once for all chunks, into the buffer of the last gradient where it fits.
-        adjoint = PaddedAdjoint(to_numpy(grad_flux), c_kernels=self.compiled, reuse=self._padded)
+        adjoint = PaddedAdjoint(to_numpy(grad_flux), c_kernels=self.compiled, spare=self._padded)
         same = self._events_seen is not None and np.array_equal(self._events_seen[0], d)
         seen, finals = self._events_seen[1:] if same else (None, None)
         from_finals = self.compiled and finals is not None  # the reverse only reads the start states
@@ -378,7 +379,7 @@ class NativeMeshTracer:
                 events_compiled.reverse(d, before, chunk.channel, chunk.status, log, self._faces, sc, g_state, g_heights)
             else:
                 self._reverse(d, chunk, sc, tape, g_state, g_heights)
-        self._padded = adjoint.padded
+        self._padded = (adjoint.padded, adjoint.pad)
         return g_heights.sum(axis=0)
 
     def _check_above(self, sc: mk.MeshConstants) -> None:

@@ -344,7 +344,11 @@ def pad_for_gather(grad_image: np.ndarray, pad: int, divisor: float = 1.0, reuse
     shape = (c, rows + 2 * pad, cols + 2 * pad)
     fits = reuse is not None and reuse.shape == shape and reuse.dtype == np.float64 and reuse.flags.c_contiguous
     padded = reuse if fits else np.zeros(shape)
-    np.divide(grad_image, divisor, out=padded[:, pad:pad + rows, pad:pad + cols], dtype=np.float64)
+    interior = padded[:, pad:pad + rows, pad:pad + cols]
+    if divisor == 1.0:
+        interior[...] = grad_image  # a plain copy is twice as fast as the division's loop
+    else:
+        np.divide(grad_image, divisor, out=interior, dtype=np.float64)
     return padded
 
 

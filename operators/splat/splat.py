@@ -109,25 +109,36 @@ class ImageAccumulator:
         return torch.from_numpy(self.out.sum(axis=0))
 
 
+PAD_STEP = 8  # pixels: PaddedAdjoint's borders are multiples of this
+
+
 class PaddedAdjoint:
     """The adjoint image G (c, n, n) with the zero border the gather needs, padded once for the
     photons of several chunks (again only where a chunk's footprints need a wider border); the
     photons are gathered in float64. ``c_kernels``: gather with the C kernels
     (:mod:`operators.splat.compiled`) where the extension was built, else with numba's.
-    ``reuse``: an earlier :attr:`padded` that may be overwritten
-    (:func:`operators.splat.native.pad_for_gather`)."""
+    The border is rounded up to a multiple of PAD_STEP pixels, so that the gradients of nearby
+    heights pad alike: ``spare``, an earlier gradient's (:attr:`padded`, :attr:`pad`), is
+    overwritten where its border is the same (:func:`operators.splat.native.pad_for_gather`).
+    The border decides which of the gather's paths a photon at the edge takes (the sums' order),
+    so it depends only on these photons, never on the spare."""
 
-    def __init__(self, grad_image: np.ndarray, c_kernels: bool = True, reuse: np.ndarray | None = None) -> None:
-        self.grad_image, self.pad, self.padded = grad_image, -1, reuse
+    def __init__(self, grad_image: np.ndarray, c_kernels: bool = True,
+                 spare: tuple[np.ndarray | None, int] | None = None) -> None:
+        self.grad_image, self.pad, self.padded = grad_image, -1, None
         self.c_kernels = c_kernels and compiled.AVAILABLE
+        self._spare = spare
 
     def gather(self, pos: np.ndarray, metric: np.ndarray, flux: np.ndarray, channel: np.ndarray
                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Gradients of <splat(...), G> w.r.t. pos (2, N), metric (3, N) and flux (N,), float64."""
         pos, metric, flux = (np.ascontiguousarray(a, dtype=np.float64) for a in (pos, metric, flux))
         pad = gather_padding(footprint_half_extent(metric))
+        pad = -(-pad // PAD_STEP) * PAD_STEP
         if pad > self.pad:
-            self.pad, self.padded = pad, pad_for_gather(self.grad_image, pad, reuse=self.padded)
+            spare, spare_pad = self._spare if self._spare is not None else (None, -1)
+            reuse = spare if spare_pad == pad else None
+            self.pad, self.padded, self._spare = pad, pad_for_gather(self.grad_image, pad, reuse=reuse), None
         if self.c_kernels:
             return compiled.gather_spots(pos, metric, flux, channel, self.padded, self.pad, nb.get_num_threads())
         g_pos, g_metric, g_flux = np.empty_like(pos), np.empty_like(metric), np.empty_like(flux)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from operators.splat.splat import footprint_metric, splat_photons
+from operators.splat.splat import PAD_STEP, PaddedAdjoint, footprint_metric, splat_photons
 from operators.splat.reference import splat_photons_reference
 from operators.splat.native import pad_for_gather
 
@@ -155,3 +155,22 @@ def test_a_reused_padded_adjoint_equals_a_fresh_one():
     expected[:, 7:47, 7:47] = second.astype(np.float64) / 3.0
     assert np.array_equal(reused, expected)
     assert pad_for_gather(second, 9, reuse=buffer) is not buffer  # another pad: a new array
+
+
+def test_a_gradient_gathers_through_a_spare_buffer_as_through_its_own():
+    pos, metric, flux, channel = (t.numpy() for t in random_photons(count=400))
+    grad_image = np.random.default_rng(1).standard_normal((2, 24, 24))
+    own = PaddedAdjoint(grad_image)
+    expected = own.gather(pos, metric, flux, channel)
+    assert own.pad % PAD_STEP == 0
+    spare = np.full_like(own.padded, 0.0)
+    reused = PaddedAdjoint(grad_image, spare=(spare, own.pad))
+    for got, want in zip(reused.gather(pos, metric, flux, channel), expected):
+        assert np.array_equal(got, want)
+    assert reused.padded is spare
+    # A spare of another border is left alone: the border follows from these photons only.
+    wider = np.zeros((2, 24 + 2 * (own.pad + PAD_STEP), 24 + 2 * (own.pad + PAD_STEP)))
+    other = PaddedAdjoint(grad_image, spare=(wider, own.pad + PAD_STEP))
+    for got, want in zip(other.gather(pos, metric, flux, channel), expected):
+        assert np.array_equal(got, want)
+    assert other.padded is not wider and other.pad == own.pad
