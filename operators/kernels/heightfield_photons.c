@@ -771,6 +771,7 @@ static int spots_gather_worker(void *context, int64_t thread) {
     return 0;
 }
 
+/* A job over `count` photons, its scene holding only what the splat and gather read. */
 static spots_job spots(const double *pos, const double *metric, const double *flux, const int64_t *channel,
                        int64_t count, int64_t threads, int64_t n, int64_t simd, double far_px) {
     spots_job j;

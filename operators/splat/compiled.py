@@ -33,14 +33,18 @@ def _function(name: str):
     return getattr(_LIBRARY, name + _SUFFIX)
 
 
-def _inputs(pos: np.ndarray, metric: np.ndarray, flux: np.ndarray, channel: np.ndarray
+def _inputs(pos: np.ndarray, metric: np.ndarray, flux: np.ndarray, channel: np.ndarray, channels: int
             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The photons' arguments as the C kernels read them: float64 (and int64 channels),
-    C-contiguous, pos (2, N), metric (3, N), flux and channel (N,); other shapes refused."""
+    C-contiguous, pos (2, N), metric (3, N), flux and channel (N,); other shapes, and channels
+    outside 0 .. channels - 1 (the kernels address the image by them), refused."""
     count = flux.shape[0]
     if pos.shape != (2, count) or metric.shape != (3, count) or channel.shape != (count,):
         raise ValueError(f"pos {pos.shape}, metric {metric.shape} and channel {channel.shape} must be (2, N), (3, N) "
                          f"and (N,) for flux {flux.shape}")
+    if count and (channel.min() < 0 or channel.max() >= channels):
+        raise ValueError(f"photon channels {channel.min()} .. {channel.max()} must lie in 0 .. {channels - 1}, "
+                         f"the image's channels")
     return (np.ascontiguousarray(pos, dtype=np.float64), np.ascontiguousarray(metric, dtype=np.float64),
             np.ascontiguousarray(flux, dtype=np.float64), np.ascontiguousarray(channel, dtype=np.int64))
 
@@ -54,7 +58,7 @@ def splat_spots(pos: np.ndarray, metric: np.ndarray, flux: np.ndarray, channel: 
             or not out.flags.c_contiguous:
         raise ValueError(f"the images must be a C-contiguous float32/float64 (threads, c, n, n) array, got "
                          f"{out.dtype} {out.shape}")
-    pos, metric, flux, channel = _inputs(pos, metric, flux, channel)
+    pos, metric, flux, channel = _inputs(pos, metric, flux, channel, out.shape[1])
     status = _function("sfc_splat_spots")(
         pos.ctypes.data, metric.ctypes.data, flux.ctypes.data, channel.ctypes.data, flux.shape[0], out.ctypes.data,
         int(out.dtype == np.float32), out.shape[0], out.shape[1], out.shape[2], int(capacity), int(SIMD_AVAILABLE),
@@ -72,7 +76,7 @@ def gather_spots(pos: np.ndarray, metric: np.ndarray, flux: np.ndarray, channel:
             or padded.dtype != np.float64 or not padded.flags.c_contiguous:
         raise ValueError(f"the padded adjoint image must be a C-contiguous float64 (c, n + 2 pad, n + 2 pad) array "
                          f"with pad = {pad}, got {padded.dtype} {padded.shape}")
-    pos, metric, flux, channel = _inputs(pos, metric, flux, channel)
+    pos, metric, flux, channel = _inputs(pos, metric, flux, channel, padded.shape[0])
     g_pos, g_metric, g_flux = np.empty_like(pos), np.empty_like(metric), np.empty_like(flux)
     status = _function("sfc_gather_spots")(
         pos.ctypes.data, metric.ctypes.data, flux.ctypes.data, channel.ctypes.data, flux.shape[0], padded.ctypes.data,

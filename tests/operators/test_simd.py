@@ -121,6 +121,8 @@ def test_c_splat_equals_numba_splat(dtype, rtol, axes):
     assert abs(c_image.sum() - numba_image.sum()) <= rtol * numba_image.sum()
     with pytest.raises(ValueError, match=r"metric \(2, 20000\)"):
         compiled.splat_spots(pos, metric[:2], flux, channel, out, footprint_capacity(metric))
+    with pytest.raises(ValueError, match=r"channels 0 \.\. 2 must lie in 0 \.\. 1"):
+        compiled.splat_spots(pos, metric, flux, channel * 2, out, footprint_capacity(metric))
 
 
 @needs_c_splat
