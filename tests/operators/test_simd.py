@@ -64,10 +64,21 @@ def _photons(count: int, resolution: int, seed: int, axes=SMALL):
     return pos, metric, flux, channel
 
 
-def _splat(pos, metric, flux, channel, resolution, dtype, use_simd):
+def _splat(pos, metric, flux, channel, resolution, dtype, use_simd, c_kernels=False):
+    """The image (2, n, n) summed over the threads' images: numba's splat (with or without the
+    AVX2 kernels) or, with ``c_kernels``, the C splat of given photons."""
     out = np.zeros((nb.get_num_threads(), 2, resolution, resolution), dtype=dtype)
-    splat_forward(pos, metric, flux, channel, out, footprint_capacity(metric), use_simd)
+    if c_kernels:
+        compiled.splat_spots(pos, metric, flux, channel, out, footprint_capacity(metric))
+    else:
+        splat_forward(pos, metric, flux, channel, out, footprint_capacity(metric), use_simd)
     return out.sum(axis=0, dtype=np.float64)
+
+
+def _assert_same_image(image, reference, rtol):
+    """Equal to rtol of the reference's largest pixel, pixel for pixel, and of its total in all."""
+    assert np.abs(image - reference).max() <= rtol * np.abs(reference).max()
+    assert abs(image.sum() - reference.sum()) <= rtol * reference.sum()
 
 
 @needs_simd
@@ -77,10 +88,8 @@ def test_avx2_splat_equals_numba_splat(dtype, rtol, axes):
     side = axes[2]
     pos, metric, flux, channel = _photons(20000, side, seed=1, axes=axes)
     assert _in_spans(pos, metric, side) > (2000 if axes is SMALL else 10000)
-    fast = _splat(pos, metric, flux, channel, side, dtype, True)
-    plain = _splat(pos, metric, flux, channel, side, dtype, False)
-    assert np.abs(fast - plain).max() <= rtol * np.abs(plain).max()
-    assert abs(fast.sum() - plain.sum()) <= rtol * plain.sum()
+    _assert_same_image(_splat(pos, metric, flux, channel, side, dtype, True),
+                       _splat(pos, metric, flux, channel, side, dtype, False), rtol)
 
 
 @needs_simd
@@ -113,12 +122,9 @@ def test_c_splat_equals_numba_splat(dtype, rtol, axes):
     # same float64 photons, each thread the same share: equal to rounding, every photon's flux kept.
     side = axes[2]
     pos, metric, flux, channel = _photons(20000, side, seed=4, axes=axes)
-    out = np.zeros((nb.get_num_threads(), 2, side, side), dtype=dtype)
-    compiled.splat_spots(pos, metric, flux, channel, out, footprint_capacity(metric))
-    c_image = out.sum(axis=0, dtype=np.float64)
-    numba_image = _splat(pos, metric, flux, channel, side, dtype, simd.AVAILABLE)
-    assert np.abs(c_image - numba_image).max() <= rtol * np.abs(numba_image).max()
-    assert abs(c_image.sum() - numba_image.sum()) <= rtol * numba_image.sum()
+    _assert_same_image(_splat(pos, metric, flux, channel, side, dtype, None, c_kernels=True),
+                       _splat(pos, metric, flux, channel, side, dtype, simd.AVAILABLE), rtol)
+    out = np.zeros((1, 2, side, side), dtype=dtype)
     with pytest.raises(ValueError, match=r"metric \(2, 20000\)"):
         compiled.splat_spots(pos, metric[:2], flux, channel, out, footprint_capacity(metric))
     with pytest.raises(ValueError, match=r"channels 0 \.\. 2 must lie in 0 \.\. 1"):
