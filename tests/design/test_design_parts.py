@@ -11,10 +11,13 @@ import torch
 from PIL import Image
 
 from framework.core.design_target import BUILT_IN_TARGETS, load_target
-from framework.core.image_metrics import relative_l2, ssim
+from scipy.ndimage import gaussian_filter
+
+from framework.core.image_metrics import relative_l2, ssim, ssim_tensor
 from framework.core.print_constraints import PrintConstraints
 from framework.pipeline.design_run import prepare_design
 from framework.plugins.solvers.design_refinement import DesignAdam, DesignLBFGS
+from framework.plugins.solvers.schwartzburg import SchwartzburgDesign
 from operators.optics.inverse_refraction import deflection_angle
 from tests.design.conftest import SMALL, compose_design
 
@@ -30,6 +33,58 @@ def test_the_metrics_ignore_brightness_and_see_structure():
     assert relative_l2(noisy, target) == pytest.approx(np.linalg.norm(scaled - target) / np.linalg.norm(target))
     assert 0.3 < ssim(noisy, target) < 0.99
     assert ssim(np.roll(target, 5, axis=1), target) < 0.2  # uncorrelated structure
+
+
+def _ssim_by_scipy(image: np.ndarray, target: np.ndarray) -> float:
+    """Wang et al.'s SSIM written out with scipy's Gaussian filter (sigma 1.5, 3.5 sigma, mirrored
+    edges), the image scaled to the target's total: the independent reference of ssim_tensor."""
+    x = image * target.sum() / image.sum()
+    values = []
+    for a, b in zip(x, target):
+        c1, c2 = (0.01 * b.max()) ** 2, (0.03 * b.max()) ** 2
+
+        def blur(v):
+            return gaussian_filter(v, 1.5, truncate=3.5, mode="reflect")
+
+        mu_a, mu_b = blur(a), blur(b)
+        var_a, var_b, cov = blur(a * a) - mu_a ** 2, blur(b * b) - mu_b ** 2, blur(a * b) - mu_a * mu_b
+        values.append(np.mean((2 * mu_a * mu_b + c1) * (2 * cov + c2) / ((mu_a ** 2 + mu_b ** 2 + c1) * (var_a + var_b + c2))))
+    return float(np.mean(values))
+
+
+@pytest.mark.parametrize("n", [3, 7, 40])  # smaller than the 11-pixel window too: mirrored more than once
+def test_ssim_is_wang_et_als_and_its_gradient_is_the_finite_difference(n):
+    rng = np.random.default_rng(n)
+    target = rng.uniform(0.0, 1.0, (2, n, n))
+    image = np.clip(target + rng.normal(0.0, 0.2, target.shape), 0.01, None)
+    assert ssim(image, target) == pytest.approx(_ssim_by_scipy(image, target), abs=1e-14)
+    x = torch.from_numpy(image).requires_grad_(True)
+    (grad,) = torch.autograd.grad(ssim_tensor(x, torch.from_numpy(target)), x)
+    direction = torch.from_numpy(rng.normal(0.0, 1.0, image.shape))
+    step = 1e-6
+    difference = (ssim(image + step * direction.numpy(), target) - ssim(image - step * direction.numpy(), target)) / (2 * step)
+    assert difference == pytest.approx(float((grad * direction).sum()), rel=1e-6)
+
+
+@pytest.mark.parametrize("image, rule", [("spot", "cell"), ("ring", "flat")])
+def test_the_automatic_rim_rule_gathers_a_few_pixels_light_and_leaves_a_wide_targets_rim_where_flat_glass_sends_it(
+        image, rule, tmp_path):
+    if image == "spot":  # the four centre pixels: the centroids' hull holds a quarter of the samples
+        picture = np.zeros((32, 32), dtype=np.uint8)
+        picture[15:17, 15:17] = 255
+        Image.fromarray(picture).save(tmp_path / "spot.png")
+        image = str(tmp_path / "spot.png")
+    problem = prepare_design(compose_design([*SMALL, f"target.image={image}"], tmp_path)).problem
+    zeros = torch.zeros(problem.grid.shape, dtype=problem.operator.dtype)
+    targets = {}
+    for choice in ("auto", rule, "flat" if rule == "cell" else "cell"):
+        design = SchwartzburgDesign(problem, zeros, smoothness=0.01, outside_hull=choice)
+        design.step()
+        targets[choice] = design.targets
+    assert np.array_equal(targets["auto"], targets[rule])
+    assert not np.array_equal(targets["cell"], targets["flat"])  # the rule decides something here
+    with pytest.raises(ValueError, match=r"outside_hull='edge' must be one of flat, cell, auto"):
+        SchwartzburgDesign(problem, zeros, outside_hull="edge")
 
 
 def _limits(m: int = 48, **changes) -> PrintConstraints:
@@ -170,6 +225,8 @@ def test_lbfgs_after_adam_steps_takes_adams_steps_then_descends(tmp_path):
     assert before > values[0] >= values[1] >= values[2]
 
 
-def test_a_negative_count_of_adam_steps_is_refused_by_name():
+def test_a_negative_count_of_adam_steps_or_ssim_weight_is_refused_by_name():
     with pytest.raises(ValueError, match="solver.adam_steps"):
         DesignLBFGS.from_config(adam_steps=-1)
+    with pytest.raises(ValueError, match=r"solver.ssim_weight=-0.1 must be a number > 0"):
+        DesignLBFGS.from_config(loss="l2_ssim", ssim_weight=-0.1)

@@ -15,7 +15,7 @@ from framework.core.design_target import paraxial_shadow
 from framework.core.image_metrics import relative_l2
 from framework.pipeline.design_run import _method, _start, prepare_design, run_design
 from framework.pipeline.design_screen import WIDE, lit_half_width
-from framework.plugins.solvers.design_refinement import _hellinger
+from framework.plugins.solvers.design_refinement import _hellinger, _l2_ssim
 from tests.design.conftest import SMALL, compose_design
 
 LENSES = ["operator=two_lenses", "receiver.z=-1.0"]  # the paper's screen, 5 mm below the lower lens
@@ -71,14 +71,22 @@ def test_a_transport_start_beyond_the_limits_is_projected_onto_them(tmp_path):
     assert relative_l2(start, target) < relative_l2(flat, target)  # still a start toward the target
 
 
-def test_the_hellinger_term_has_its_finite_difference_gradient(tmp_path):
+@pytest.mark.parametrize("term", ["hellinger", "l2_ssim"])
+def test_the_other_data_terms_have_their_finite_difference_gradients(term, tmp_path):
     cfg = compose_design([*SMALL, "target.image=ring", "operator.dtype=float64"], tmp_path)
     problem = prepare_design(cfg).problem
     x = np.linspace(-1.0, 1.0, 32)
     xx, yy = np.meshgrid(x, x)
     d = torch.from_numpy(0.05 * np.exp(-(xx ** 2 + yy ** 2) / 0.3))
     direction = torch.from_numpy(np.cos(3 * xx) * np.exp(-(xx ** 2 + yy ** 2) / 0.5))
-    _, grad, _ = _hellinger(problem, d)
+
+    def data_term(h):
+        return _hellinger(problem, h) if term == "hellinger" else _l2_ssim(problem, h, 0.05)
+
+    _, grad, _ = data_term(d)
     step = 1e-5
-    difference = (_hellinger(problem, d + step * direction)[0] - _hellinger(problem, d - step * direction)[0]) / (2 * step)
+    difference = (data_term(d + step * direction)[0] - data_term(d - step * direction)[0]) / (2 * step)
     assert difference == pytest.approx(float((grad * direction).sum()), rel=1e-4)
+    if term == "l2_ssim":  # the L2 part is the problem's own data term
+        assert _l2_ssim(problem, d, 1e-300)[0] == pytest.approx(problem.fidelity.evaluate(d, with_grad=False).value,
+                                                                rel=1e-12)

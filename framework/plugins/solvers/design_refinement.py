@@ -30,6 +30,7 @@ from typing import TYPE_CHECKING, Any
 import torch
 from torch import Tensor
 
+from framework.core.image_metrics import ssim_tensor
 from framework.core.solver_loop import IterationFailed, IterationRecord, IterativeSolver
 from framework.core.values import positive_int
 from framework.plugins.solvers.preconditioner import SobolevPreconditioner
@@ -41,7 +42,8 @@ __all__ = ["DesignAdam", "DesignLBFGS"]
 
 ARMIJO_C1 = 1e-4
 MAX_BACKTRACKS = 10
-LOSSES = ("l2", "hellinger")
+LOSSES = ("l2", "hellinger", "l2_ssim")
+SSIM_WEIGHT = 0.05  # w of the l2_ssim data term
 HELLINGER_FLOOR = 1e-3  # added to both images under the square roots, as a fraction of the target's peak
 
 
@@ -67,6 +69,23 @@ def _hellinger(problem: Problem, d: Tensor) -> tuple[float, Tensor, float]:
     return value, grad.double(), relative
 
 
+def _l2_ssim(problem: Problem, d: Tensor, ssim_weight: float) -> tuple[float, Tensor, float]:
+    """(f, grad f, relative discrepancy) at d: f = [1/2 ||F - b||^2 / ||b||^2 + w (1 - SSIM(F, b))] / a,
+    w = ``ssim_weight``, SSIM the measure a design is scored by (framework/core/image_metrics.py), a
+    the cell area: the L2 term with the structure's similarity beside it, which counts faint light
+    on black as the score does."""
+    operator, target = problem.operator, problem.fidelity.target
+    image = operator.render(d).detach()
+    b = target.to(torch.float64)
+    x = image.to(torch.float64, copy=True).requires_grad_(True)
+    scale = 1.0 / problem.fidelity.cell_area
+    value = scale * (0.5 * ((x - b) ** 2).sum() / (b * b).sum() + ssim_weight * (1.0 - ssim_tensor(x, b)))
+    (grad_image,) = torch.autograd.grad(value, x)
+    grad = operator.vjp(d, grad_image.to(image.dtype))
+    relative = float(torch.linalg.vector_norm(image.double() - b) / torch.linalg.vector_norm(b))
+    return float(value.detach()), grad.double(), relative
+
+
 def _adam_step(objective: _DesignObjective, adam: torch.optim.Adam, heights: torch.nn.Parameter, d: Tensor
                ) -> tuple[tuple[float, Tensor, float, float], Tensor]:
     """One Adam step on ``heights`` (the optimiser's parameter, holding d): the evaluation
@@ -82,15 +101,18 @@ def _adam_step(objective: _DesignObjective, adam: torch.optim.Adam, heights: tor
 
 class _DesignObjective:
     """J(d) = f(d) + weight P(d) with its gradient, the rendered image and the data term apart; f
-    the problem's data term (``loss="l2"``) or the Hellinger term :func:`_hellinger`."""
+    the problem's data term (``loss="l2"``), the Hellinger term :func:`_hellinger` or the L2 and
+    SSIM term :func:`_l2_ssim` (``ssim_weight``)."""
 
-    def __init__(self, problem: Problem, weight: float, loss: str = "l2") -> None:
-        self.problem, self.weight, self.loss = problem, weight, loss
+    def __init__(self, problem: Problem, weight: float, loss: str = "l2", ssim_weight: float = 0.0) -> None:
+        self.problem, self.weight, self.loss, self.ssim_weight = problem, weight, loss, ssim_weight
 
     def __call__(self, d: Tensor) -> tuple[float, Tensor, float, float]:
         """(J, grad J, f, relative discrepancy) at d."""
         if self.loss == "hellinger":
             data_value, data_grad, relative = _hellinger(self.problem, d)
+        elif self.loss == "l2_ssim":
+            data_value, data_grad, relative = _l2_ssim(self.problem, d, self.ssim_weight)
         else:
             evaluation = self.problem.fidelity.evaluate(d, with_grad=True)
             data_value, data_grad, relative = evaluation.value, evaluation.grad.double(), evaluation.rel_discrepancy
@@ -117,8 +139,9 @@ class DesignLBFGS(IterativeSolver):
         smoothing_length: With a length (scene units), the initial inverse Hessian is the Sobolev
             smoothing (I - l^2 Laplace)^-2 (framework/plugins/solvers/preconditioner.py) instead of
             the identity: broad corrections first, as for a start far from the design.
-        loss: The data term: ``l2`` (the problem's, 1/2 ||F(d) - b||^2 / (||b||^2 a)) or
-            ``hellinger`` (:func:`_hellinger`).
+        loss: The data term: ``l2`` (the problem's, 1/2 ||F(d) - b||^2 / (||b||^2 a)),
+            ``hellinger`` (:func:`_hellinger`) or ``l2_ssim`` (:func:`_l2_ssim`).
+        ssim_weight: The SSIM term's weight w of ``l2_ssim``.
         adam_steps: Adam steps before the first L-BFGS iteration (0: none).
         adam_lr: Their learning rate, scene units per step.
     """
@@ -127,9 +150,9 @@ class DesignLBFGS(IterativeSolver):
 
     def __init__(self, problem: Problem, d0: Tensor, memory: int = 12, penalty_weight: float = 10.0,
                  first_step: float = 2e-3, smoothing_length: float | None = None, loss: str = "l2",
-                 adam_steps: int = 0, adam_lr: float = 2e-4) -> None:
+                 adam_steps: int = 0, adam_lr: float = 2e-4, ssim_weight: float = SSIM_WEIGHT) -> None:
         super().__init__(d0)
-        self.objective = _DesignObjective(problem, penalty_weight, loss)
+        self.objective = _DesignObjective(problem, penalty_weight, loss, ssim_weight)
         self.adam_steps, self.adam_lr = adam_steps, adam_lr
         self._heights = torch.nn.Parameter(self.state.d.detach().double().clone())
         self._adam = torch.optim.Adam([self._heights], lr=adam_lr)
@@ -150,7 +173,7 @@ class DesignLBFGS(IterativeSolver):
     @classmethod
     def from_config(cls, memory: int = 12, penalty_weight: float = 10.0, first_step: float = 2e-3,
                     smoothing_length: float | None = None, loss: str = "l2", adam_steps: int = 0,
-                    adam_lr: float = 2e-4) -> Any:
+                    adam_lr: float = 2e-4, ssim_weight: float = SSIM_WEIGHT) -> Any:
         """The plugin ``solver/design_lbfgs``: checks the settings, returns the builder."""
         memory = positive_int(memory, "solver.memory")
         weight, step = _positive("penalty_weight", penalty_weight), _positive("first_step", first_step)
@@ -159,8 +182,8 @@ class DesignLBFGS(IterativeSolver):
             raise ValueError(f"solver.loss={loss!r} must be one of {', '.join(LOSSES)}")
         if isinstance(adam_steps, bool) or not isinstance(adam_steps, int) or adam_steps < 0:
             raise ValueError(f"solver.adam_steps={adam_steps!r} must be a whole number >= 0 (0: L-BFGS from the start)")
-        lr = _positive("adam_lr", adam_lr)
-        return lambda problem, d0: cls(problem, d0, memory, weight, step, length, loss, adam_steps, lr)
+        lr, similarity = _positive("adam_lr", adam_lr), _positive("ssim_weight", ssim_weight)
+        return lambda problem, d0: cls(problem, d0, memory, weight, step, length, loss, adam_steps, lr, similarity)
 
     def _direction(self, grad: Tensor) -> Tensor:
         """-H grad by the two-loop recursion over the kept pairs (s, y)."""
