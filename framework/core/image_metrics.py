@@ -86,4 +86,4 @@ def ssim(image: np.ndarray, target: np.ndarray) -> float:
     x, t = _as_channels(image, "image"), _as_channels(target, "target")
     if x.shape != t.shape:
         raise ValueError(f"image {x.shape} and target {t.shape} differ in shape")
-    return float(ssim_tensor(torch.from_numpy(x), torch.from_numpy(t)))
+    return float(ssim_tensor(torch.tensor(x), torch.tensor(t)))  # copies: the arrays may be read-only
