@@ -40,9 +40,9 @@ _P = ctypes.c_void_p
 _I = ctypes.c_int64
 
 
-def _bind() -> tuple[ctypes.CDLL | None, str]:
-    """The extension with the height-field kernels' signatures declared, and the suffix of the
-    build that traces (:func:`operators.kernels.extension.bind`)."""
+def _bind() -> extension.Kernels:
+    """The extension with the height-field kernels' signatures declared, as the build that
+    traces (:func:`operators.kernels.extension.bind`)."""
     scene = ctypes.POINTER(SceneStruct)
     return extension.bind((
         ("sfc_hf_render", [_P, _I, scene, _P, _P, _I, _I, _P, _I, _I, _I, _I, _I, _I, _P, _I, _I,
@@ -51,13 +51,8 @@ def _bind() -> tuple[ctypes.CDLL | None, str]:
         ("sfc_hf_trace_aimed", [_P, _I, scene, ctypes.c_double, _P, _I, _P, _P, _I], ctypes.c_int)))
 
 
-_LIBRARY, _SUFFIX = _bind()
-AVAILABLE = _LIBRARY is not None  # whether the C photon kernels were built (they run on any CPU)
-
-
-def _function(name: str):
-    assert _LIBRARY is not None
-    return getattr(_LIBRARY, name + _SUFFIX)
+_KERNELS = _bind()
+AVAILABLE = _KERNELS.available  # whether the C photon kernels were built (they run on any CPU)
 
 
 def _pointer(array: np.ndarray | None) -> int | None:
@@ -100,7 +95,7 @@ def render(d: np.ndarray, sc: FusedScene, shifts: np.ndarray, indices: np.ndarra
         raise ValueError(f"images {out.shape} must be square, one channel per emission shift ({shifts.shape[0]}); hit_t "
                          f"{hit_t.shape} must be empty or hold stop - start = {stop - start} photons")
     reached = ctypes.c_double(0.0)
-    status = _function("sfc_hf_render")(
+    status = _KERNELS.function("sfc_hf_render")(
         d.ctypes.data, d.shape[0], ctypes.byref(_scene(sc)), shifts.ctypes.data, indices.ctypes.data, start, stop,
         out.ctypes.data, int(out.dtype == np.float32), out.shape[0], out.shape[1], out.shape[2], capacity, int(splat),
         _pointer(hit_t), hit_t.shape[0], int(replay), ctypes.byref(reached))
@@ -118,7 +113,7 @@ def vjp(d: np.ndarray, sc: FusedScene, shifts: np.ndarray, indices: np.ndarray, 
     if out.dtype != np.float64 or out.shape[1:] != d.shape or padded.shape[0] != shifts.shape[0] or hit_t.size not in (0, stop - start):
         raise ValueError(f"gradients {out.dtype} {out.shape} must be float64 (threads, *{d.shape}), the padded image {padded.shape} "
                          f"one channel per emission shift ({shifts.shape[0]}), hit_t empty or stop - start long")
-    status = _function("sfc_hf_vjp")(
+    status = _KERNELS.function("sfc_hf_vjp")(
         d.ctypes.data, d.shape[0], ctypes.byref(_scene(sc)), shifts.ctypes.data, indices.ctypes.data, start, stop,
         padded.ctypes.data, padded.shape[1] - 2 * pad, pad, out.ctypes.data, out.shape[0], _pointer(hit_t),
         hit_t.shape[0])
@@ -136,6 +131,7 @@ def trace_aimed(d: np.ndarray, sc: FusedScene, eta: float, aim: np.ndarray, pos:
                                ("ratio", ratio, (aim.shape[0],))):
         if array.shape != shape or array.dtype != np.float64 or not array.flags.c_contiguous:
             raise ValueError(f"{name} must be a C-contiguous float64 array of shape {shape}")
-    if _function("sfc_hf_trace_aimed")(d.ctypes.data, d.shape[0], ctypes.byref(_scene(sc)), float(eta), aim.ctypes.data,
-                                   aim.shape[0], pos.ctypes.data, ratio.ctypes.data, nb.get_num_threads()) != 0:
+    trace_aimed = _KERNELS.function("sfc_hf_trace_aimed")
+    if trace_aimed(d.ctypes.data, d.shape[0], ctypes.byref(_scene(sc)), float(eta), aim.ctypes.data, aim.shape[0],
+                   pos.ctypes.data, ratio.ctypes.data, nb.get_num_threads()) != 0:
         raise MemoryError("the C photon kernels could not start their threads")

@@ -17,6 +17,7 @@ import functools
 import importlib.util
 import warnings
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 # Version of the C functions' signatures that the declarations in Python match (sfc_abi_version).
 ABI_VERSION = 8
@@ -42,20 +43,39 @@ def load() -> ctypes.CDLL | None:
     return library
 
 
-def bind(signatures: Sequence[tuple[str, list, type | None]]) -> tuple[ctypes.CDLL | None, str]:
-    """The extension with each (name, argtypes, restype) declared for both builds (BUILDS), and
-    the suffix of the build to call: ``_avx2`` where the CPU has AVX2 and FMA, else the baseline's
-    (the AVX2 build is empty off x86-64)."""
+@dataclass
+class Kernels:
+    """The extension's functions of one build: ``suffix`` is that build's (BUILDS); ``library``
+    None where the extension is missing or stale."""
+
+    library: ctypes.CDLL | None
+    suffix: str
+
+    @property
+    def available(self) -> bool:
+        """Whether the extension was built (and matches these sources)."""
+        return self.library is not None
+
+    def function(self, name: str):
+        """The extension's function ``name`` of this build."""
+        assert self.library is not None, "the compiled extension is not built"
+        return getattr(self.library, name + self.suffix)
+
+
+def bind(signatures: Sequence[tuple[str, list, type | None]]) -> Kernels:
+    """The extension with each (name, argtypes, restype) declared for both builds (BUILDS), as
+    the build to call: ``_avx2`` where the CPU has AVX2 and FMA, else the baseline (the AVX2 build
+    is empty off x86-64)."""
     library = load()
     if library is None:
-        return None, ""
+        return Kernels(None, "")
     for suffix in BUILDS:
         for name, argtypes, restype in signatures:
             function = getattr(library, name + suffix, None)
             if function is not None:
                 function.argtypes = argtypes
                 function.restype = restype
-    return library, "_avx2" if library.sfc_simd_supported() else ""
+    return Kernels(library, "_avx2" if library.sfc_simd_supported() else "")
 
 
 def origin() -> str:

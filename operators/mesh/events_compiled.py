@@ -60,9 +60,9 @@ class _Chunk(ctypes.Structure):
                 ("g_heights", _P), ("n", _I), ("max_depth", _I), ("wait_at_top", _I), ("replay", _I), ("threads", _I)]
 
 
-def _bind() -> tuple[ctypes.CDLL | None, str]:
-    """The extension with the mesh kernels' signatures declared, and the suffix of the build that
-    traces (:func:`operators.kernels.extension.bind`)."""
+def _bind() -> extension.Kernels:
+    """The extension with the mesh kernels' signatures declared, as the build that traces
+    (:func:`operators.kernels.extension.bind`)."""
     scene, faces, chunk = (ctypes.POINTER(s) for s in (_MeshScene, _Faces, _Chunk))
     return extension.bind((
         ("sfc_mesh_trace", [scene, faces, chunk], ctypes.c_int),
@@ -71,14 +71,8 @@ def _bind() -> tuple[ctypes.CDLL | None, str]:
         ("sfc_mesh_splat_arguments_adjoint", [scene, _P, _P, _I, _I, _P, _P, _P, _P], ctypes.c_int)))
 
 
-_LIBRARY, _SUFFIX = _bind()
-AVAILABLE = _LIBRARY is not None  # whether the C photon kernels of mesh scenes were built
-
-
-def _function(name: str):
-    """The extension's function ``name`` of the build that traces."""
-    assert _LIBRARY is not None
-    return getattr(_LIBRARY, name + _SUFFIX)
+_KERNELS = _bind()
+AVAILABLE = _KERNELS.available  # whether the C photon kernels of mesh scenes were built
 
 
 def _scene(sc: mk.MeshConstants) -> _MeshScene:
@@ -173,7 +167,8 @@ def trace(d: np.ndarray, state: np.ndarray, medium: np.ndarray, channel: np.ndar
         raise ValueError("a replay needs the log of the events")
     lost = np.zeros((state.shape[0], len(LOSS_KINDS)))
     job = _chunk(d, state, medium, channel, status, events, clear, max_depth, wait_at_top, log, replay, lost)
-    _check_status(_function("sfc_mesh_trace")(ctypes.byref(_scene(sc)), ctypes.byref(faces.struct), ctypes.byref(job)))
+    trace_chunk = _KERNELS.function("sfc_mesh_trace")
+    _check_status(trace_chunk(ctypes.byref(_scene(sc)), ctypes.byref(faces.struct), ctypes.byref(job)))
     return lost
 
 
@@ -187,7 +182,8 @@ def reverse(d: np.ndarray, start: tuple[np.ndarray, np.ndarray, np.ndarray], cha
     state, medium, clear = start
     job = _chunk(d, state, medium, channel, status, np.zeros(len(state), np.int64), clear, log.kind.shape[1], False,
                  log, True, g_state=g_state, g_heights=g_heights)
-    _check_status(_function("sfc_mesh_reverse")(ctypes.byref(_scene(sc)), ctypes.byref(faces.struct), ctypes.byref(job)))
+    reverse_chunk = _KERNELS.function("sfc_mesh_reverse")
+    _check_status(reverse_chunk(ctypes.byref(_scene(sc)), ctypes.byref(faces.struct), ctypes.byref(job)))
 
 
 def splat_arguments(state, status, where, sc, pos, metric, flux) -> float:
@@ -195,7 +191,7 @@ def splat_arguments(state, status, where, sc, pos, metric, flux) -> float:
     thread count; returns the flux (W) of the landed photons beside the receiver."""
     n = state.shape[0]
     missed = ctypes.c_double(0.0)
-    _check_status(_function("sfc_mesh_splat_arguments")(
+    _check_status(_KERNELS.function("sfc_mesh_splat_arguments")(
         ctypes.byref(_scene(sc)), _data(state, np.float64, "state", (n, mk.STATE)),
         _data(status, np.int64, "status", (n,)), _data(where, np.int64, "where", (n,)), n, nb.get_num_threads(),
         _data(pos, np.float64, "pos", (2, n)), _data(metric, np.float64, "metric", (3, n)),
@@ -207,7 +203,7 @@ def splat_arguments_adjoint(state, status, sc, g_pos, g_metric, g_flux, g_state)
     """:func:`operators.mesh.adjoint_native.splat_arguments_adjoint` in C (same arguments), on
     numba's thread count."""
     n = state.shape[0]
-    _check_status(_function("sfc_mesh_splat_arguments_adjoint")(
+    _check_status(_KERNELS.function("sfc_mesh_splat_arguments_adjoint")(
         ctypes.byref(_scene(sc)), _data(state, np.float64, "state", (n, mk.STATE)),
         _data(status, np.int64, "status", (n,)), n, nb.get_num_threads(), _data(g_pos, np.float64, "g_pos", (2, n)),
         _data(g_metric, np.float64, "g_metric", (3, n)), _data(g_flux, np.float64, "g_flux", (n,)),

@@ -22,15 +22,10 @@ _P = ctypes.c_void_p
 _I = ctypes.c_int64
 _D = ctypes.c_double
 
-_LIBRARY, _SUFFIX = extension.bind((
+_KERNELS = extension.bind((
     ("sfc_splat_spots", [_P, _P, _P, _P, _I, _P, _I, _I, _I, _I, _I, _I, _D], ctypes.c_int),
     ("sfc_gather_spots", [_P, _P, _P, _P, _I, _P, _I, _I, _I, _I, _D, _P, _P, _P], ctypes.c_int)))
-AVAILABLE = _LIBRARY is not None  # whether the extension holds the C splat and gather
-
-
-def _function(name: str):
-    assert _LIBRARY is not None
-    return getattr(_LIBRARY, name + _SUFFIX)
+AVAILABLE = _KERNELS.available  # whether the extension holds the C splat and gather
 
 
 def _inputs(pos: np.ndarray, metric: np.ndarray, flux: np.ndarray, channel: np.ndarray, channels: int
@@ -59,7 +54,7 @@ def splat_spots(pos: np.ndarray, metric: np.ndarray, flux: np.ndarray, channel: 
         raise ValueError(f"the images must be a C-contiguous float32/float64 (threads, c, n, n) array, got "
                          f"{out.dtype} {out.shape}")
     pos, metric, flux, channel = _inputs(pos, metric, flux, channel, out.shape[1])
-    status = _function("sfc_splat_spots")(
+    status = _KERNELS.function("sfc_splat_spots")(
         pos.ctypes.data, metric.ctypes.data, flux.ctypes.data, channel.ctypes.data, flux.shape[0], out.ctypes.data,
         int(out.dtype == np.float32), out.shape[0], out.shape[1], out.shape[2], int(capacity), int(SIMD_AVAILABLE),
         FAR_PX)
@@ -78,7 +73,7 @@ def gather_spots(pos: np.ndarray, metric: np.ndarray, flux: np.ndarray, channel:
                          f"with pad = {pad}, got {padded.dtype} {padded.shape}")
     pos, metric, flux, channel = _inputs(pos, metric, flux, channel, padded.shape[0])
     g_pos, g_metric, g_flux = np.empty_like(pos), np.empty_like(metric), np.empty_like(flux)
-    status = _function("sfc_gather_spots")(
+    status = _KERNELS.function("sfc_gather_spots")(
         pos.ctypes.data, metric.ctypes.data, flux.ctypes.data, channel.ctypes.data, flux.shape[0], padded.ctypes.data,
         padded.shape[1] - 2 * pad, int(pad), max(1, int(threads)), int(SIMD_AVAILABLE), FAR_PX, g_pos.ctypes.data,
         g_metric.ctypes.data, g_flux.ctypes.data)

@@ -52,7 +52,7 @@ def test_compiled_render_and_gradient_equal_the_numba_kernels(use_simd, fresnel,
 @needs_compiled
 def test_baseline_build_of_the_compiled_kernels_equals_the_numba_kernels(monkeypatch):
     # The build for CPUs without AVX2 (its loops vectorise two photons wide, or not at all).
-    monkeypatch.setattr(trace_compiled, "_SUFFIX", "")
+    monkeypatch.setattr(trace_compiled._KERNELS, "suffix", "")
     c_op, nb_op = _pair(photons=30_000, resolution=48, wavelengths=(0.45, 0.65), fresnel=True, simd=False,
                         footprint_px="cell", min_footprint_px=0.3)
     heights = smooth_random_heights(seed=19)
