@@ -162,6 +162,9 @@ class IterativeSolver(ABC):
         self.state = SolverState(d=d0.detach().clone())
         self.history: list[IterationRecord] = []
         self.max_iter: int | None = None  # the cap of the current run (for progress bars)
+        # A time.perf_counter() value by which a step that can stop early (a transport's Newton) ends
+        # and says so; set by a time budget (framework/pipeline/design_run.py, TimeBudget), None: none.
+        self.deadline: float | None = None
 
     @property
     def d(self) -> Tensor:

@@ -47,6 +47,7 @@ __all__ = ["DesignSetup", "DesignResult", "prepare_design", "run_design"]
 CHECKPOINT = "checkpoint.pt"
 STARTS = ("transport", "flat")
 THROUGH_OPTICS_REACH = 0.999  # through optical elements the transport may send light anywhere on the screen
+START_SHARE = 0.5  # the transport start's Newton stops after this share of the time budget
 POWER_TOLERANCE = 0.01  # an absolute target within 1% of the power that reaches the screen is taken as is
 
 
@@ -231,6 +232,9 @@ class TimeBudget(Callback):
     def __init__(self, seconds: float, spent_before: float) -> None:
         self.seconds, self.spent_before = seconds, spent_before
 
+    def on_start(self, solver) -> None:  # noqa: D102  (a step that can stop early ends with the budget)
+        solver.deadline = time.perf_counter() + self.seconds - self.spent_before - solver.state.elapsed_s
+
     def on_iteration(self, solver, record) -> bool:  # noqa: D102
         if self.spent_before + record.elapsed_s >= self.seconds:
             self.stop_reason = f"the time budget of {self.seconds:g} s is spent"
@@ -238,12 +242,14 @@ class TimeBudget(Callback):
         return False
 
 
-def _start(setup: DesignSetup, method: Mapping[str, Any]) -> tuple[torch.Tensor, dict[str, float]]:
+def _start(setup: DesignSetup, method: Mapping[str, Any], deadline: float | None = None
+           ) -> tuple[torch.Tensor, dict[str, float]]:
     """The method's start heights: flat glass, or the transport design on a receiver of
     ``design_method.transport_resolution`` pixels (heights on the design grid), projected onto the
     printing limits where it breaks one. The transport design is Schwartzburg's outer iterations
     where the light goes from the flat bottom straight to the screen, and the masked transport
-    start (framework/plugins/starts/transport.py, the whole glass masked) through optical elements."""
+    start (framework/plugins/starts/transport.py, the whole glass masked) through optical elements.
+    The transport's Newton stops at ``deadline`` (a ``time.perf_counter()`` value) if it comes first."""
     zeros = torch.zeros(setup.grid.shape, dtype=setup.operator.dtype)
     if method["start"] == "flat":
         return zeros, {}
@@ -260,10 +266,11 @@ def _start(setup: DesignSetup, method: Mapping[str, Any]) -> tuple[torch.Tensor,
     problem = Problem(operator, data, setup.grid, operator.scene, setup.constraints)
     if has_elements(operator):  # the light's own path through the elements (the reconstructions' start)
         start = TransportStart(reach=THROUGH_OPTICS_REACH, p1=0.0, p2=setup.constraints.max_height)
-        found = start(StartRequest(problem, lambda: zeros, Path.cwd()))
+        found = start(StartRequest(problem, lambda: zeros, Path.cwd(), deadline))
         d, first = found.d.detach().double().cpu().numpy(), found.metrics
     else:  # flat bottom to screen: Schwartzburg's transport design
         transport = SchwartzburgDesign(problem, zeros, **dict(method.get("transport") or {}))
+        transport.deadline = deadline
         result = transport.run(int(method.get("transport_iterations", 3)))
         d, first = result.d.detach().double().cpu().numpy(), result.history[0].extras
     printable = all(setup.constraints.holds(d).values())
@@ -271,6 +278,9 @@ def _start(setup: DesignSetup, method: Mapping[str, Any]) -> tuple[torch.Tensor,
         d = setup.constraints.project(d)
     return torch.from_numpy(d).to(setup.operator.dtype), {"transport_sites": first["transport_sites"],
                                                           "transport_seconds": first["transport_seconds"],
+                                                          "transport_converged": first["transport_converged"],
+                                                          "transport_max_relative_mass_error":
+                                                              first["transport_max_relative_mass_error"],
                                                           "transport_printable": float(printable)}
 
 
@@ -302,12 +312,13 @@ def run_design(cfg: Mapping[str, Any], output_dir: Path, base_dir: Path | None =
         if checkpoint.is_file() or flat_fits:
             d0 = torch.zeros(setup.grid.shape, dtype=setup.operator.dtype)
         else:
-            d0, start_metrics = _start(setup, method)
+            d0, start_metrics = _start(setup, method, began + START_SHARE * seconds)
         start_seconds = time.perf_counter() - began
         solver = build_plugin("solver", name, params, "design_method.solver")(problem, d0)
         if checkpoint.is_file():
             restore(solver, checkpoint)
-            start_seconds = float(json.loads((output_dir / "start.json").read_text())["seconds"])
+            start_metrics = json.loads((output_dir / "start.json").read_text())
+            start_seconds = float(start_metrics.pop("seconds"))
         else:
             (output_dir / "start.json").write_text(json.dumps({"seconds": start_seconds, **start_metrics}))
         tracker.log_metrics({f"start_{k}": v for k, v in start_metrics.items()} | {"start_seconds": start_seconds})
@@ -335,6 +346,10 @@ def run_design(cfg: Mapping[str, Any], output_dir: Path, base_dir: Path | None =
                    "design_seconds": design_seconds, "start_seconds": start_seconds, "iterations": result.iterations,
                    **{f"printed_{k}": v for k, v in measured.items()},
                    **{f"holds_{k}": float(v) for k, v in holds.items()}}
+        transport = start_metrics or (result.history[0].extras if result.history else {})
+        if "transport_converged" in transport:
+            metrics["transport_converged"] = transport["transport_converged"]
+            metrics["transport_max_relative_mass_error"] = transport["transport_max_relative_mass_error"]
         previews = save_previews(cfg, setup, heights, photons, seed, output_dir)
         metrics.update(previews)
         verdict = design_verdict(metrics, setup, result.stop_reason)
@@ -360,6 +375,9 @@ def design_verdict(metrics: Mapping[str, float], setup: DesignSetup, stop_reason
     if broken:
         lines.append(f"NOT printable as asked: {', '.join(broken)} exceed their limits")
     lines += setup.notes
+    if metrics.get("transport_converged") == 0.0:
+        lines.append("the transport's Newton stopped at its time or round limit (half the budget, 1000 rounds) with "
+                     f"a cell's mass off by up to {metrics['transport_max_relative_mass_error']:.3g} of its own")
     lines.append(f"designed in {metrics['design_seconds']:.0f} s ({stop_reason})")
     return lines
 

@@ -112,6 +112,19 @@ def test_the_baselines_design_printable_glass(tmp_path, method):
     assert result.metrics["relative_l2"] < 1.0 and result.metrics["iterations"] >= 1
 
 
+@pytest.mark.parametrize("method", ["sfc", "schwartzburg"])
+def test_a_transport_cut_short_by_the_time_budget_says_so(tmp_path, method):
+    # A budget of 1 ms ends the transport's Newton before its first step, in the start (sfc) or in
+    # the first outer iteration (schwartzburg); the run still writes a printable design.
+    small = [o for o in SMALL if method == "sfc" or not o.startswith("design_method.")]
+    cfg = compose_design([f"design_method={method}", *small, "target.image=ring", "seconds=0.001", "previews=[]"],
+                         tmp_path)
+    result = run_design(cfg, tmp_path / "run")
+    assert result.metrics["transport_converged"] == 0.0 and result.metrics["transport_max_relative_mass_error"] > 1e-3
+    assert any(line.startswith("the transport's Newton stopped at its time or round limit") for line in result.verdict)
+    assert all(v == 1.0 for k, v in result.metrics.items() if k.startswith("holds_"))
+
+
 @pytest.mark.parametrize("override, message", [
     ("target.image=missing.png", "does not exist"),
     ("target.image=black.png", "all black"),

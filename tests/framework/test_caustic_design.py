@@ -4,6 +4,8 @@ own optics, and a designed surface renders back to its target."""
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 import pytest
 import torch
@@ -37,11 +39,24 @@ def test_a_shifted_blob_is_moved_by_the_shift_and_every_cell_gets_its_mass():
 
     shift, start = np.array([0.25, -0.15]), np.array([-0.1, 0.05])
     plan = semi_discrete_transport(blob(*start), -1.0, 1.0, PIXELS, blob(*(start + shift)).ravel(), tolerance=1e-4)
-    assert plan.max_relative_mass_error < 1e-4
+    assert plan.converged and plan.max_relative_mass_error < 1e-4
     moved = plan.sites - plan.centroids
     core = np.linalg.norm(plan.sites - (start + shift), axis=1) < 0.15  # the blob, away from the 2% floor
     np.testing.assert_allclose(moved[core].mean(axis=0), shift, rtol=0.1)
     assert np.abs(moved[core] - shift).max() < 2.0 / N  # within a pixel
+
+
+def test_a_transport_past_its_deadline_stops_at_the_voronoi_cells_and_says_so():
+    blob = 0.02 + np.exp(-((X - 0.3) ** 2 + Y ** 2) / (2 * 0.15 ** 2))
+    plan = semi_discrete_transport(np.ones((N, N)), -1.0, 1.0, PIXELS, blob.ravel(), tolerance=1e-4,
+                                   deadline=time.perf_counter())
+    assert not plan.converged and plan.newton_steps == 0 and np.all(plan.weights == 0.0)
+    # Zero weights: each pixel's Voronoi cell is its own pixel, of mass 1 / N^2 of the uniform source.
+    np.testing.assert_allclose(plan.cell_masses / plan.cell_masses.sum(), 1.0 / N ** 2, rtol=1e-6)
+    assert plan.max_relative_mass_error > 0.5  # the blob's pixels ask for far more than 1 / N^2
+    # Without a deadline the same transport converges.
+    plan = semi_discrete_transport(np.ones((N, N)), -1.0, 1.0, PIXELS, blob.ravel(), tolerance=1e-4)
+    assert plan.converged and plan.max_relative_mass_error < 1e-4
 
 
 def test_snell_normals_send_the_light_to_the_targets_through_our_optics():

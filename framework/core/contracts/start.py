@@ -29,11 +29,14 @@ class StartRequest:
         problem: The operator, data (target, mask, volume, noise level), grid and scene.
         design: Builds the configured height field (m, m) (with synthetic data the ground truth).
         base_dir: Directory relative paths are resolved against.
+        deadline: A ``time.perf_counter()`` value by which a start that can stop early (a
+            transport's Newton) ends and says so; None: none.
     """
 
     problem: Problem
     design: Callable[[], Tensor]
     base_dir: Path
+    deadline: float | None = None
 
 
 @dataclass

@@ -161,7 +161,9 @@ class SchwartzburgDesign(IterativeSolver):
     # -- the three stages ----------------------------------------------------------------------
     def transport(self) -> TransportPlan:
         """Stage 1: the transport of the source (the flat-glass caustic, or the light on the glass
-        scaled onto the receiver) onto the target's lit pixels, in receiver coordinates."""
+        scaled onto the receiver) onto the target's lit pixels, in receiver coordinates; its Newton
+        stops at the solver's ``deadline`` if that comes first (the plan then says
+        ``converged=False``)."""
         scene, grid, operator = self.problem.scene, self.problem.grid, self.problem.operator
         image = self.problem.data.target.detach().double().sum(dim=0).cpu().numpy()
         if not np.isfinite(image).all() or image.max() <= 0.0:
@@ -179,13 +181,14 @@ class SchwartzburgDesign(IterativeSolver):
         sites = np.stack([rx[lit], ry[lit]], axis=1)
         if self.settings["source"] == "flat_caustic":
             return semi_discrete_transport(np.clip(flat, 0.0, None), -half, half, sites, image[lit],
-                                           self.settings["mass_tolerance"])
+                                           self.settings["mass_tolerance"], self.deadline)
         light = light_on_glass(scene.light.position, grid.base, grid.half_width, 2 * n)
         reach = grid.half_width * self._scale
         if reach < half:
             raise ValueError(f"the substrate's shadow (half width {reach:.3g}) does not cover the receiver "
                              f"({half:.3g}); use solver.source=flat_caustic")
-        return semi_discrete_transport(light, -reach, reach, sites, image[lit], self.settings["mass_tolerance"])
+        return semi_discrete_transport(light, -reach, reach, sites, image[lit], self.settings["mass_tolerance"],
+                                       self.deadline)
 
     def _target_points(self, plan: TransportPlan) -> np.ndarray:
         """Every height sample's receiver point (m, m, 2): the map centroid -> pixel at the sample's
@@ -240,6 +243,7 @@ class SchwartzburgDesign(IterativeSolver):
             self.targets = self._target_points(plan)
             extras = {"transport_sites": float(len(plan.sites)), "transport_newton_steps": float(plan.newton_steps),
                       "transport_max_relative_mass_error": plan.max_relative_mass_error,
+                      "transport_converged": float(plan.converged),
                       "transport_seconds": time.perf_counter() - t0}
         d_old = self.state.d.detach().cpu().double().numpy()
         normals = self.required_normals(d_old)

@@ -3,16 +3,20 @@
 The source is a piecewise-constant density on [lo, hi]^2 (an image, rows along y); the target is
 a set of Dirac sites with masses. The optimal map for the quadratic cost sends the Laguerre
 (power) cell of site i, {x : |x - y_i|^2 - w_i <= |x - y_j|^2 - w_j for all j}, to y_i; Newton's
-method on the weights w (pysdot) makes every cell's source mass equal the site's mass.
+method on the weights w (pysdot's power diagrams) makes every cell's source mass equal the site's
+mass.
 """
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 
 import numpy as np
 
 __all__ = ["TransportPlan", "semi_discrete_transport"]
+
+MAX_NEWTON_ROUNDS = 1000  # evaluations of the cells (steps and halvings) before Newton gives up (pysdot's cap)
 
 
 @dataclass(frozen=True)
@@ -26,6 +30,7 @@ class TransportPlan:
         cell_masses: (K,) source mass of each cell.
         newton_steps: Newton iterations taken.
         weights: (K,) the Laguerre weights w_i.
+        converged: whether every cell's mass reached its tolerance (False: stopped at the deadline).
     """
 
     sites: np.ndarray
@@ -34,6 +39,7 @@ class TransportPlan:
     cell_masses: np.ndarray
     newton_steps: int
     weights: np.ndarray
+    converged: bool = True
 
     def site_of(self, points: np.ndarray, chunk: int = 4096) -> np.ndarray:
         """The site (N, 2) whose Laguerre cell holds each of ``points`` (N, 2): the semi-discrete
@@ -52,11 +58,13 @@ class TransportPlan:
 
 
 def semi_discrete_transport(density: np.ndarray, lo: float, hi: float, sites: np.ndarray, masses: np.ndarray,
-                            tolerance: float = 1e-3) -> TransportPlan:
+                            tolerance: float = 1e-3, deadline: float | None = None) -> TransportPlan:
     """Transport ``density`` (H, W) >= 0 on [lo, hi]^2 onto ``sites`` (K, 2) with ``masses`` (K,) > 0.
 
     The masses are scaled to the density's total. Newton stops when every cell's mass is within
-    ``tolerance`` times the smallest site mass of its target.
+    ``tolerance`` times the smallest site mass of its target, or at ``deadline`` (a
+    ``time.perf_counter()`` value; None: none) with the weights of its last step
+    (``converged=False``).
     """
     from pysdot import OptimalTransport
     from pysdot.domain_types import ScaledImage
@@ -77,9 +85,42 @@ def semi_discrete_transport(density: np.ndarray, lo: float, hi: float, sites: np
     density = density + 1e-6 * density.mean()
     domain = ScaledImage([lo, lo], [hi, hi], density)
     masses = masses * (domain.measure() / masses.sum())
-    transport = OptimalTransport(sites, domain=domain, masses=masses, obj_max_dm=tolerance * float(masses.min()),
-                                 linear_solver="Scipy")
-    transport.adjust_weights(initial_weights=np.zeros(len(sites)))  # Voronoi cells: none is empty
+    transport = OptimalTransport(sites, domain=domain, masses=masses, linear_solver="Scipy")
+    transport.set_weights(np.zeros(len(sites)))  # Voronoi cells: none is empty
+    steps, converged = _newton(transport, masses, tolerance * float(masses.min()), deadline)
     cell_masses = np.asarray(transport.pd.integrals(), dtype=np.float64)
     return TransportPlan(sites, masses, np.asarray(transport.get_centroids(), dtype=np.float64), cell_masses,
-                         len(transport.delta_m), np.asarray(transport.get_weights(), dtype=np.float64))
+                         steps, np.asarray(transport.get_weights(), dtype=np.float64), converged)
+
+
+def _newton(transport: object, masses: np.ndarray, max_mass_error: float, deadline: float | None) -> tuple[int, bool]:
+    """Newton on ``transport``'s Laguerre weights until every cell's mass is within
+    ``max_mass_error`` of ``masses``, the clock passes ``deadline`` or :data:`MAX_NEWTON_ROUNDS`
+    evaluations are spent. A step that empties a cell is halved back toward the last weights
+    without one (pysdot's rule). Returns (steps taken, converged)."""
+    diagram = transport.pd  # type: ignore[attr-defined]
+    solver = transport._get_linear_solver()  # type: ignore[attr-defined]  # pysdot's own (scipy) sparse solver
+    good = diagram.get_weights().copy()
+    steps = 0
+    for rounds in range(MAX_NEWTON_ROUNDS):
+        derivatives = diagram.der_integrals_wrt_weights(stop_if_void=True)
+        late = rounds == MAX_NEWTON_ROUNDS - 1 or (deadline is not None and time.perf_counter() >= deadline)
+        if derivatives.error:  # an empty cell
+            if steps == 0:
+                raise ValueError("a Laguerre cell is empty at zero weights: a site lies outside the source's light")
+            diagram.set_weights(good if late else 0.5 * (good + diagram.get_weights()))
+            if late:
+                return steps, False
+            continue
+        good = diagram.get_weights().copy()
+        residual = derivatives.v_values - masses
+        if float(np.max(np.abs(residual))) < max_mass_error:
+            return steps, True
+        if late:
+            return steps, False
+        values = derivatives.m_values
+        values[0] *= 2.0  # the weights are free up to a constant: a stiffer first cell fixes it (as pysdot does)
+        matrix = solver.create_matrix(len(masses), derivatives.m_offsets, derivatives.m_columns, values)
+        diagram.set_weights(good - solver.solve(matrix, solver.create_vector(residual)))
+        steps += 1
+    raise AssertionError("unreachable: the last round returns")

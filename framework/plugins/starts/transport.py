@@ -225,11 +225,12 @@ class TransportStart(Start):
                              "give a mask with the printed area (or use initial=zero)")
         bounds = self._bounds(problem, mask)
         arrivals = path.arrivals(self.photons)
-        plan = self._plan(problem, path, arrivals, mask)
+        plan = self._plan(problem, path, arrivals, mask, request.deadline)
         d, error = self._heights(problem, path, arrivals, mask, plan, bounds)
         pixel = problem.scene.receiver.pixel_size
         metrics = {"transport_sites": float(len(plan.sites)), "transport_newton_steps": float(plan.newton_steps),
                    "transport_max_relative_mass_error": plan.max_relative_mass_error,
+                   "transport_converged": float(plan.converged),
                    "transport_landing_error_px": float(np.median(error[np.isfinite(error)]) / pixel),
                    "transport_unreached_samples": float(np.sum(~(error <= LANDING_TOLERANCE_PX * pixel))),
                    "transport_seconds": time.perf_counter() - started}
@@ -237,8 +238,9 @@ class TransportStart(Start):
             metrics["transport_volume_ratio"] = float(d.sum() * problem.grid.cell_area / problem.data.volume)
         return StartResult(torch.from_numpy(d).to(problem.operator.dtype), metrics, self.name, shaped=True)
 
-    def _plan(self, problem: Any, path: LightPath, arrivals: Any, mask: np.ndarray) -> Any:
-        """Steps 1-3: the masked region's flat-glass light, the goal, and the transport between them."""
+    def _plan(self, problem: Any, path: LightPath, arrivals: Any, mask: np.ndarray, deadline: float | None) -> Any:
+        """Steps 1-3: the masked region's flat-glass light, the goal, and the transport between them
+        (its Newton stopped at ``deadline``, a ``time.perf_counter()`` value, if it comes first)."""
         operator, grid, scene, data = problem.operator, problem.grid, problem.scene, problem.data
         half, index = scene.receiver.half_width, float(np.mean(scene.indices))
         flat = operator.render(torch.zeros(grid.shape, dtype=operator.dtype)).double().sum(dim=0).cpu().numpy()
@@ -269,7 +271,7 @@ class TransportStart(Start):
         # zero, which the transport's Newton iteration needs from its Voronoi start.
         floor = 1e-3 * float(source[support].mean())
         return semi_discrete_transport(source + floor, -half, half, np.stack([rx[lit], ry[lit]], axis=1), goal[lit],
-                                       self.mass_tolerance)
+                                       self.mass_tolerance, deadline)
 
     def _heights(self, problem: Any, path: LightPath, arrivals: Any, mask: np.ndarray, plan: Any,
                  bounds: Any) -> tuple[np.ndarray, np.ndarray]:
