@@ -1,0 +1,104 @@
+"""``sfc-compile-kernels`` (``python -m operators.kernels.warm``): compile the numba kernels into
+numba's on-disk cache ahead of their first use.
+
+The operators trace with the compiled extension's C kernels (operators/kernels/, built at
+install); numba's kernels trace where it is missing or where ``operator.kernels: numba`` asks for
+them, the exact wavefront renderer (operators/wavefront/renderer.py) traces with numba always, and
+the test suite compares every numba kernel with its C twin. Each compiles on its first call in a
+fresh environment, one function at a time (about 2.5 minutes on one core for all of them): this
+command makes those calls once on tiny problems, each group in its own process on its own core,
+and every later process loads the kernels from the cache. Run it after the install (README.md).
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import time
+from collections.abc import Callable
+
+import torch
+
+__all__ = ["GROUPS", "main"]
+
+
+def _heightfield() -> None:
+    """The height-field operator's fused numba kernels (render and gradient, both dtypes)."""
+    from operators.heightfield.operator import CausticOperator, OperatorSettings
+    from operators.scene import Receiver, Scene
+
+    for dtype in ("float32", "float64"):
+        op = CausticOperator(Scene(receiver=Receiver(resolution=8)),
+                             OperatorSettings(photons=64, chunk_size=64, kernels="numba", dtype=dtype))
+        d = torch.zeros(4, 4, dtype=op.dtype)
+        op.render(d)
+        op.vjp(d, torch.ones(op.output_shape, dtype=op.dtype))
+
+
+def _mesh() -> None:
+    """The mesh-scene operator's numba event kernels (render and gradient through the paper's lenses)."""
+    from hydra import compose, initialize_config_dir
+    from omegaconf import OmegaConf
+
+    from framework.core.scene_config import build_heights, build_operator, build_scene
+
+    conf = os.path.join(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))), "conf")
+    with initialize_config_dir(config_dir=conf, version_base=None):
+        cfg = OmegaConf.to_container(compose("simulate", overrides=[
+            "operator=two_lenses", "operator.kernels=numba", "photons=256", "receiver.resolution=8",
+            "height_field.resolution=8", "operator.dtype=float64"]), resolve=True)
+    scene = build_scene(cfg)
+    op = build_operator(cfg, scene)
+    d = build_heights(cfg).double()
+    op.render(d)
+    op.vjp(d, torch.ones(op.output_shape, dtype=torch.float64))
+
+
+def _wavefront() -> None:
+    """The exact wavefront renderer's numba tracer (the independent renders of every design and study)."""
+    from operators.heightfield.operator import CausticOperator, OperatorSettings
+    from operators.scene import Receiver, Scene
+
+    op = CausticOperator(Scene(receiver=Receiver(resolution=8)), OperatorSettings(photons=64, dtype="float64"))
+    bump = 0.01 * torch.exp(-torch.linspace(-1.0, 1.0, 4, dtype=torch.float64) ** 2)  # not flat glass's shortcut
+    op.exact_variant(256, 0, 8).render(bump[:, None] * bump[None, :])
+
+
+GROUPS: dict[str, Callable[[], None]] = {"heightfield": _heightfield, "mesh": _mesh, "wavefront": _wavefront}
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Without arguments: every group in its own process, as many at once as there are cores,
+    printing each group's seconds; with group names: those groups in this process."""
+    names = sys.argv[1:] if argv is None else argv
+    unknown = [name for name in names if name not in GROUPS]
+    if unknown:
+        print(f"unknown kernel group(s) {', '.join(unknown)}: choose from {', '.join(GROUPS)}", file=sys.stderr)
+        return 2
+    if names:
+        for name in names:
+            GROUPS[name]()
+        return 0
+    began = time.perf_counter()
+    pending, running, failed = list(GROUPS), {}, []
+    while pending or running:
+        while pending and len(running) < max(1, os.cpu_count() or 1):
+            name = pending.pop(0)
+            running[name] = (subprocess.Popen([sys.executable, "-m", "operators.kernels.warm", name]),
+                             time.perf_counter())
+        for name, (process, started) in list(running.items()):
+            if process.poll() is not None:
+                del running[name]
+                print(f"{name}: {'compiled' if process.returncode == 0 else 'FAILED'} in "
+                      f"{time.perf_counter() - started:.0f} s", flush=True)
+                if process.returncode != 0:
+                    failed.append(name)
+        time.sleep(0.2)
+    print(f"numba kernels compiled into numba's cache in {time.perf_counter() - began:.0f} s"
+          + (f"; failed: {', '.join(failed)}" if failed else ""))
+    return 1 if failed else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
