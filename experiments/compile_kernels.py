@@ -1,10 +1,10 @@
-"""``sfc-compile-kernels`` (``python -m operators.kernels.warm``): compile the numba kernels into
+"""``sfc-compile-kernels`` (``python -m experiments.compile_kernels``): compile the numba kernels into
 numba's on-disk cache ahead of their first use.
 
 The operators trace with the compiled extension's C kernels (operators/kernels/, built at
 install); numba's kernels trace where it is missing or where ``operator.kernels: numba`` asks for
-them, the exact wavefront renderer (operators/wavefront/renderer.py) traces with numba always, and
-the test suite compares every numba kernel with its C twin. Each compiles on its first call in a
+them (the exact wavefront renderer's tracer too, operators/wavefront/renderer.py), and the test
+suite compares every numba kernel with its C twin. Each compiles on its first call in a
 fresh environment, one function at a time (about 2.5 minutes on one core for all of them): this
 command makes those calls once on tiny problems, each group in its own process on its own core,
 and every later process loads the kernels from the cache. Run it after the install (README.md).
@@ -17,6 +17,7 @@ import subprocess
 import sys
 import time
 from collections.abc import Callable
+from pathlib import Path
 
 import torch
 
@@ -43,8 +44,7 @@ def _mesh() -> None:
 
     from framework.core.scene_config import build_heights, build_operator, build_scene
 
-    conf = os.path.join(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))), "conf")
-    with initialize_config_dir(config_dir=conf, version_base=None):
+    with initialize_config_dir(config_dir=str(Path(__file__).resolve().parent.parent / "conf"), version_base=None):
         cfg = OmegaConf.to_container(compose("simulate", overrides=[
             "operator=two_lenses", "operator.kernels=numba", "photons=256", "receiver.resolution=8",
             "height_field.resolution=8", "operator.dtype=float64"]), resolve=True)
@@ -85,7 +85,7 @@ def main(argv: list[str] | None = None) -> int:
     while pending or running:
         while pending and len(running) < max(1, os.cpu_count() or 1):
             name = pending.pop(0)
-            running[name] = (subprocess.Popen([sys.executable, "-m", "operators.kernels.warm", name]),
+            running[name] = (subprocess.Popen([sys.executable, "-m", "experiments.compile_kernels", name]),
                              time.perf_counter())
         for name, (process, started) in list(running.items()):
             if process.poll() is not None:

@@ -1,4 +1,4 @@
-"""``sfc-compile-kernels`` (operators/kernels/warm.py): its groups run, and a wrong group name is
+"""``sfc-compile-kernels`` (experiments/compile_kernels.py): its groups run, and a wrong group name is
 refused in one line."""
 
 from __future__ import annotations
@@ -7,7 +7,7 @@ import subprocess
 import sys
 
 from operators.heightfield.precompile import gradient_kernel_cached
-from operators.kernels import warm
+from experiments import compile_kernels as warm
 from tests.python_subprocess import ROOT
 
 
@@ -19,7 +19,7 @@ def test_a_group_compiles_into_numbas_cache_and_exits_zero():
 
 
 def test_an_unknown_group_is_refused_in_one_line():
-    done = subprocess.run([sys.executable, "-m", "operators.kernels.warm", "lenses"], cwd=ROOT, capture_output=True,
+    done = subprocess.run([sys.executable, "-m", "experiments.compile_kernels", "lenses"], cwd=ROOT, capture_output=True,
                           text=True, timeout=120)
     assert done.returncode == 2
     assert done.stderr.strip().splitlines() == [
