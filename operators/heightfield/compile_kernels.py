@@ -15,11 +15,17 @@ from operators.heightfield.precompile import gradient_kernel_cached
 from operators.scene import Receiver, Scene
 
 
+def small_numba_operator(dtype: str = "float32") -> CausticOperator:
+    """An operator of 64 photons on an 8 x 8 receiver that traces with the numba kernels in
+    ``dtype``: its calls compile the kernels with the argument types every operator of that
+    precision passes them (the types do not depend on sizes or settings)."""
+    return CausticOperator(Scene(receiver=Receiver(resolution=8)),
+                           OperatorSettings(photons=64, chunk_size=64, kernels="numba", dtype=dtype))
+
+
 def compile_gradient_kernel() -> None:
-    """Compile (or load) the gradient kernel with the argument types every operator passes it:
-    one vjp of a small operator (the kernel's types do not depend on sizes or settings)."""
-    op = CausticOperator(Scene(receiver=Receiver(resolution=8)),
-                         OperatorSettings(photons=64, chunk_size=64, kernels="numba"))
+    """Compile (or load) the gradient kernel: one vjp of :func:`small_numba_operator`."""
+    op = small_numba_operator()
     op.vjp(torch.zeros(4, 4, dtype=op.dtype), torch.zeros(op.output_shape, dtype=op.dtype))
 
 

@@ -6,15 +6,15 @@ from __future__ import annotations
 import subprocess
 import sys
 
+from experiments import compile_kernels
 from operators.heightfield.precompile import gradient_kernel_cached
-from experiments import compile_kernels as warm
 from tests.python_subprocess import ROOT
 
 
 def test_a_group_compiles_into_numbas_cache_and_exits_zero():
     # The height-field group leaves the gradient kernel in numba's cache (loaded at once where an
     # earlier process compiled it).
-    assert warm.main(["heightfield", "wavefront"]) == 0
+    assert compile_kernels.main(["heightfield", "wavefront"]) == 0
     assert gradient_kernel_cached()
 
 

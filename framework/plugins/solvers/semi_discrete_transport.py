@@ -108,9 +108,10 @@ def _newton(transport: object, masses: np.ndarray, max_mass_error: float, deadli
         if derivatives.error:  # an empty cell
             if steps == 0:
                 raise ValueError("a Laguerre cell is empty at zero weights: a site lies outside the source's light")
-            diagram.set_weights(good if late else 0.5 * (good + diagram.get_weights()))
             if late:
+                diagram.set_weights(good)
                 return steps, False
+            diagram.set_weights(0.5 * (good + diagram.get_weights()))
             continue
         good = diagram.get_weights().copy()
         residual = derivatives.v_values - masses
