@@ -15,7 +15,8 @@ from scipy.ndimage import gaussian_filter
 
 from framework.core.image_metrics import relative_l2, ssim, ssim_tensor
 from framework.core.print_constraints import PrintConstraints
-from framework.pipeline.design_run import prepare_design
+from framework.core.plugin_config import build_plugin, split_name
+from framework.pipeline.design_run import _method, prepare_design
 from framework.plugins.solvers.design_refinement import DesignAdam, DesignLBFGS
 from framework.plugins.solvers.schwartzburg import SchwartzburgDesign
 from operators.optics.inverse_refraction import deflection_angle
@@ -223,6 +224,28 @@ def test_lbfgs_after_adam_steps_takes_adams_steps_then_descends(tmp_path):
     before = hybrid.objective(hybrid.state.d)[0]
     values = [hybrid.step().objective for _ in range(3)]  # L-BFGS: Armijo's decrease at every step
     assert before > values[0] >= values[1] >= values[2]
+
+
+def test_sfcs_lbfgs_turns_a_one_pixel_gradient_into_a_broad_first_step(tmp_path):
+    # sfc's method (conf/design_method/sfc.yaml) starts L-BFGS from the Sobolev smoothing
+    # (I - l^2 Laplace)^-2, l = 0.3 scene units, as its inverse Hessian: a gradient on one height sample
+    # becomes a step spread over about l, not a spike (docs/design.md, "Why the smoothing").
+    cfg = compose_design([*SMALL, "height_field.resolution=64"], tmp_path)
+    problem = prepare_design(cfg).problem
+    name, params = split_name(_method(cfg)["solver"], "design_method.solver")
+    solver = build_plugin("solver", name, params, "design_method.solver")(problem, torch.zeros(64, 64))
+    spike = torch.zeros(64, 64, dtype=torch.float64)
+    spike[32, 32] = 1.0
+    step = -solver._direction(spike)
+    assert float(step.sum()) == pytest.approx(1.0, rel=1e-6)  # the smoothing keeps a constant's share
+    spacing = 2.0 / 64  # the glass spans [-1, 1] scene units
+    y, x = torch.meshgrid(torch.arange(64.0), torch.arange(64.0), indexing="ij")
+    radius = spacing * float(((((x - 32) ** 2 + (y - 32) ** 2) * step).sum() / step.sum()).sqrt())
+    # The RMS radius of the Green's function of (I - l^2 Laplace)^-2 in the plane is 2 sqrt(2) l = 0.85;
+    # the glass's edges at 1 from the spike fold its tail back (measured: 0.66). The step of the identity
+    # would be the spike itself, radius 0.
+    assert 0.5 < radius < 2.0 * math.sqrt(2.0) * 0.3, radius
+    assert float(step.max()) < 0.05  # the spike's sample keeps under 5% of the step
 
 
 def test_a_negative_count_of_adam_steps_or_ssim_weight_is_refused_by_name():

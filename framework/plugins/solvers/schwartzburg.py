@@ -30,7 +30,9 @@ bounds or volume):
 The heights are fixed up to a constant by the slopes; the design is taken to sit on the substrate:
 its lowest sample at d = 0. Each outer iteration is one iteration of the solver loop (the first
 also solves the transport), with the discrepancy of the design rendered through the problem's
-operator and the residual normal error (RMS angle between the fitted surface's normals and the
+operator (where the problem has printing limits, of the design clipped to its height limits: a fit
+taller than them may reach into an optical element above the glass, which no operator renders)
+and the residual normal error (RMS angle between the fitted surface's normals and the
 required ones) among its metrics.
 """
 
@@ -255,7 +257,9 @@ class SchwartzburgDesign(IterativeSolver):
         self._change = float(np.linalg.norm(d_new - d_old) / max(np.linalg.norm(d_new), 1e-300))
         extras["relative_change"] = self._change
         self.state.d = torch.from_numpy(d_new).to(self.state.d)
-        evaluation = self.problem.fidelity.evaluate(self.state.d, with_grad=False)
+        limits = self.problem.constraints
+        printed = self.state.d if limits is None else self.state.d.clamp(0.0, limits.max_height)
+        evaluation = self.problem.fidelity.evaluate(printed, with_grad=False)
         self.state.iteration += 1
         self.state.elapsed_s += time.perf_counter() - t0
         record = IterationRecord(self.state.iteration, evaluation.value, evaluation.value, evaluation.rel_discrepancy,
