@@ -40,6 +40,7 @@ from framework.pipeline.tracking import MlflowTracker
 from framework.plugins.stopping import MorozovStopping
 from framework.plugins.solvers.schwartzburg import SchwartzburgDesign
 from framework.plugins.starts.transport import TransportStart
+from operators.mesh.elements import PrintReachesElement
 from operators.scene import Scene
 
 __all__ = ["DesignSetup", "DesignResult", "prepare_design", "run_design"]
@@ -286,13 +287,11 @@ def _start(setup: DesignSetup, method: Mapping[str, Any], deadline: float | None
 
 def _unprojected_relative_l2(problem: Problem, raw: np.ndarray, target: np.ndarray) -> float:
     """The relative L2 of the method's last iterate before the projection onto the limits, by the
-    design's operator; NaN where that iterate reaches into an optical element above the glass (the
-    transport design alone fits heights beyond the limits, which no operator renders there)."""
+    design's operator; NaN where that iterate's print reaches into the optical elements above the
+    glass (the transport design alone fits heights beyond the limits, which no operator renders there)."""
     try:
         image = problem.fidelity.evaluate(torch.from_numpy(raw).to(problem.operator.dtype), with_grad=False).image
-    except ValueError as refused:
-        if "into element" not in str(refused):
-            raise
+    except PrintReachesElement:
         return math.nan
     return relative_l2(image.double().numpy(), target)
 

@@ -41,7 +41,12 @@ from operators.mesh.shapes import crease_normals, lens, lens_array, prism
 from operators.units import DEFAULT_MM_PER_UNIT, scene_length
 
 __all__ = ["OpticalElement", "GENERATORS", "ELEMENT_KEYS", "LARGE_MESH_FACES", "MeshProgress", "load_mesh",
-           "make_element", "make_elements", "check_layout"]
+           "make_element", "make_elements", "check_layout", "PrintReachesElement"]
+
+
+class PrintReachesElement(ValueError):
+    """Heights whose print reaches into an optical element above the glass, or above where the
+    light through the elements meets it: no mesh-scene operator renders them."""
 
 GENERATORS: dict[str, Callable[..., trimesh.Trimesh]] = {"lens": lens, "prism": prism, "lens_array": lens_array}
 ELEMENT_KEYS = ("name", "shape", "params", "path", "position", "rotation_deg", "material", "crease_angle_deg")

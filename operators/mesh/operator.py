@@ -40,7 +40,7 @@ from operators.light_paths import Arrivals
 from operators.materials import refractive_indices
 from operators.mesh.intersect_reference import MIN_FACE_DISTANCE, MeshIntersector
 from operators.mesh.trace_native import LOSSES, NativeMeshTracer
-from operators.mesh.elements import MeshProgress, OpticalElement, check_layout, make_elements
+from operators.mesh.elements import MeshProgress, OpticalElement, PrintReachesElement, check_layout, make_elements
 from operators.mesh.rays import AIR, Rays, Surface, box_planes, reflect
 from operators.optics.reference import fresnel_transmittance, height_field_normal, height_field_normal_differential, refract, transfer
 from operators.photon_operator import PIXEL_SETTINGS, PhotonOperator, backward_through_splat, check_setting_keys
@@ -205,7 +205,7 @@ class MeshSceneOperator(PhotonOperator):
         top = self.scene.substrate.thickness + float(heights.max())
         inside = self._element_within(top)
         if inside is not None:
-            raise ValueError(f"the print reaches z={top:.4g}, into element {inside.name} (from z={inside.z_range[0]:.4g})")
+            raise PrintReachesElement(f"the print reaches z={top:.4g}, into element {inside.name} (from z={inside.z_range[0]:.4g})")
 
     def render(self, heights: torch.Tensor, progress: bool = False) -> torch.Tensor:
         """Irradiance (c, n, n), W per scene unit^2, without a graph; :attr:`losses` holds the

@@ -23,6 +23,7 @@ from operators.mesh import adjoint_native as ma
 from operators.mesh import events_compiled
 from operators.mesh import kernels_native as mk
 from operators.mesh.culling import clear_faces
+from operators.mesh.elements import PrintReachesElement
 from operators.mesh.embree_native import EmbreeTriangles
 from operators.mesh.locality import crossing_order
 from operators.heightfield.surface import HeightFieldGrid
@@ -386,5 +387,5 @@ class NativeMeshTracer:
         """Refuse a print that reaches photons waiting above it."""
         state = self.prefix().state
         if len(state) and float(state[:, mk.P + 2].min()) <= sc.top_max:
-            raise ValueError(f"the print reaches z={sc.top_max:.4g}, above where light meets it "
+            raise PrintReachesElement(f"the print reaches z={sc.top_max:.4g}, above where light meets it "
                              f"(z={float(state[:, mk.P + 2].min()):.4g}); lower the print or move the elements up")

@@ -238,7 +238,7 @@ def test_sfcs_lbfgs_turns_a_one_pixel_gradient_into_a_broad_first_step(tmp_path)
     spike[32, 32] = 1.0
     step = -solver._direction(spike)
     assert float(step.sum()) == pytest.approx(1.0, rel=1e-6)  # the smoothing keeps a constant's share
-    spacing = 2.0 / 64  # the glass spans [-1, 1] scene units
+    spacing = problem.grid.cell_area ** 0.5  # scene units between samples
     y, x = torch.meshgrid(torch.arange(64.0), torch.arange(64.0), indexing="ij")
     radius = spacing * float(((((x - 32) ** 2 + (y - 32) ** 2) * step).sum() / step.sum()).sqrt())
     # The RMS radius of the Green's function of (I - l^2 Laplace)^-2 in the plane is 2 sqrt(2) l = 0.85;
