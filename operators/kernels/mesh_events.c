@@ -32,8 +32,17 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "photon_optics.h"
 #include "sfc_threads.h"
+
+/* The AVX2 surface jets and hit adjoint of simd_kernels.c (called only where the scene's `simd` is
+ * set), as in the height-field kernels. */
+void sfc_surface_jets(const double *d, int64_t m, double origin, double inv_spacing, double ox, double oy,
+                      const double *dirs, int64_t stride, const double *t, int64_t count, double *jets);
+void sfc_hit_adjoint(const double *d, double *grad, int64_t m, double x, double y, double origin, double inv_spacing,
+                     double wx, double wy, double wz, double g_t, double g_sx, double g_sy, double g_sxx,
+                     double g_sxy, double g_syy);
+
+#include "photon_optics.h"
 
 /* The exported functions' names: mesh_events_avx2.c compiles this file again for AVX2 and FMA, with
  * the suffix _avx2 (the host picks that build where the CPU has both, as for the height field). */
@@ -151,25 +160,10 @@ static int64_t face_hit(const mesh_faces *fa, vec3 p, vec3 w, int64_t f, double 
     return f;
 }
 
-/* The interpolated shading normal of face f at the point q on its plane (face_shading, _shading):
- * N = raw / |raw|, raw = n0 + b1 e1 + b2 e2, e_k = n_k - n0, g_k the face's dual basis. */
+/* A face's interpolated shading normal at a point q on its plane (_shading): N = raw / |raw|,
+ * raw = n0 + b1 e1 + b2 e2, b_k = g_k . (q - v0), e_k = n_k - n0 the corner normals' differences,
+ * g_k the face's dual basis (apply_columns computes it across a packet). */
 typedef struct { vec3 normal; double length; vec3 e1, e2, g1, g2; } shading_frame;
-
-static inline SFC_INLINE shading_frame face_shading(const mesh_faces *fa, vec3 q, int64_t f) {
-    shading_frame s;
-    const vec3 rel = sub3(q, load3(fa->v0 + 3 * f));
-    s.g1 = dual_row(fa, f, 0);
-    s.g2 = dual_row(fa, f, 1);
-    const double b1 = dot(rel, s.g1), b2 = dot(rel, s.g2);
-    const double *corners = fa->shading + 9 * f;
-    const vec3 n0 = load3(corners);
-    s.e1 = sub3(load3(corners + 3), n0);
-    s.e2 = sub3(load3(corners + 6), n0);
-    const vec3 raw = axpy(b1, s.e1, axpy(b2, s.e2, n0));
-    s.length = sqrt(dot(raw, raw));
-    s.normal = scale3(1.0 / s.length, raw);
-    return s;
-}
 
 /* D N = (I - N N^T) (e1 g1^T + e2 g2^T) D p / |raw| (shading_differential). */
 static inline SFC_INLINE vec3 shading_differential(const shading_frame *s, vec3 dp) {
@@ -262,21 +256,11 @@ static inline SFC_INLINE int over_print(const mesh_scene *ms, vec3 p, vec3 w) {
 
 /* ---------------------------------------------------------------- events */
 
-/* One photon on its way: its state row (STATE), medium, whether it left a clear face, status,
- * wavelength channel. */
-typedef struct {
-    double *row;
-    int64_t medium, status, channel;
-    int clear;
-} photon;
-
-
-/* The photon's next event (_next_event): kind, face or box plane in *which, distance in *t. */
-static int64_t next_event(const mesh_scene *ms, const mesh_faces *fa, const double *d, int64_t m, const photon *ph,
-                          int released, int wait_at_top, ray_hit *ray, int64_t *which, double *t_out) {
-    const double *row = ph->row;
-    const vec3 p = load3(row + P), w = load3(row + W);
-    const int64_t medium = ph->medium;
+/* The photon's next event (_next_event), from p along w in `medium`, `clear` if it left a clear
+ * face: kind, face or box plane in *which, distance in *t. */
+static int64_t next_event(const mesh_scene *ms, const mesh_faces *fa, const double *d, int64_t m, vec3 p, vec3 w,
+                          int64_t medium, int clear, int released, int wait_at_top, ray_hit *ray, int64_t *which,
+                          double *t_out) {
     const int in_air = medium == AIR, in_sub = medium == fa->substrate;
     const double thickness = ms->hf.base;
     double best = INFINITY;
@@ -285,7 +269,7 @@ static int64_t next_event(const mesh_scene *ms, const mesh_faces *fa, const doub
     const int over = in_air && over_print(ms, p, w);
     double t_top = INFINITY;
     if (over && !wait_at_top) t_top = solve_hit(d, m, &ms->hf, p, w);
-    const int skip = ph->clear || (in_air && w.z < 0.0 && p.z < ms->lowest)
+    const int skip = clear || (in_air && w.z < 0.0 && p.z < ms->lowest)
                      || (released && t_top < (thickness - p.z) / w.z);
     int64_t face = -1;
     if (fa->embree != NULL && !in_sub && !skip)
@@ -340,110 +324,254 @@ static int64_t next_event(const mesh_scene *ms, const mesh_faces *fa, const doub
     return kind;
 }
 
-/* The surface of an event at distance t and the photon moved onto it (event_surface). */
-typedef struct {
-    vec3 n_plane, outward, dnu, dnv;
-    double jet[5];
-    vec3 q, dqu, dqv;
-} event_surface;
+/* ---------------------------------------------------------------- packets */
 
-static void surface_of(const mesh_scene *ms, const mesh_faces *fa, const double *d, int64_t m, const double *row,
-                       int64_t kind, int64_t which, double t, event_surface *s) {
-    const vec3 p = load3(row + P), dpu = load3(row + DPU), dpv = load3(row + DPV);
-    const vec3 w = load3(row + W), dwu = load3(row + DWU), dwv = load3(row + DWV);
-    for (int j = 0; j < 5; j++) s->jet[j] = 0.0;
-    if (kind == MESH) {
-        s->n_plane = load3(fa->plane + 3 * which);
-    } else if (kind == TOP) {
-        surface_jet_at(d, m, p.x + t * w.x, p.y + t * w.y, -ms->hf.half, ms->hf.spacing, s->jet);
-        s->n_plane = height_field_normal(s->jet[0], s->jet[1]);
-    } else if (kind == BOX) {
-        s->n_plane = box_normal(which);
-    } else {
-        s->n_plane = UP;
-    }
-    transfer(&ms->hf, p, dpu, dpv, w, dwu, dwv, t, s->n_plane, &s->q, &s->dqu, &s->dqv);
-    s->outward = s->n_plane;
-    s->dnu = ZERO;
-    s->dnv = ZERO;
-    if (kind == MESH) {
-        const shading_frame frame = face_shading(fa, s->q, which);
-        s->outward = frame.normal;
-        s->dnu = shading_differential(&frame, s->dqu);
-        s->dnv = shading_differential(&frame, s->dqv);
-    } else if (kind == TOP) {
-        s->dnu = normal_differential(s->jet[2], s->jet[3], s->jet[4], s->n_plane, s->dqu);
-        s->dnv = normal_differential(s->jet[2], s->jet[3], s->jet[4], s->n_plane, s->dqv);
-    }
+/* The photons of a block go through their events PACKET at a time and in step: each photon's
+ * next event is found (or read from the log) and its surface looked up one photon at a time
+ * (look_up), then one loop over the packet moves every photon onto its surface and refracts or
+ * reflects it (apply_columns); the reverse takes the events back the same way (retreat_columns).
+ * Those two loops are written branch-free (every lane computes every kind's arithmetic and keeps
+ * its own), so that GCC vectorises them across photons; each lane keeps exactly the arithmetic of
+ * its own kind. A packet holds its photons in columns: state[j][k] is entry j of lane k's row. */
+enum { PACKET = 32 };
+
+typedef struct {
+    int64_t count;         /* lanes in use */
+    int64_t index[PACKET]; /* the chunk's row of each lane */
+    double state[STATE][PACKET];
+    int64_t medium[PACKET], status[PACKET], clear[PACKET];
+} packet;
+
+/* One event of a packet's photons. Looked up: kind (-1: none), face or plane, distance, whether it
+ * moves the photon (applied: MESH, TOP, BOX or RECEIVER), the solid's refractive index, the plane
+ * normal, a face's shading corners n0, e_k = n_k - n0 with v0 and the dual basis g_k (flat for
+ * other kinds: n0 the plane normal, the rest zero) and the print's jet (zero off the print).
+ * Computed (apply_columns, the reverse's inputs): the point met with its differentials, the
+ * shading normal with its differentials and |raw|, the crossing (sign, eta, cosines, refracted or
+ * reflected), the flux lost to Fresnel and the cosine of the way out with the plane normal. */
+typedef struct {
+    int64_t kind[PACKET], which[PACKET], applied[PACKET];
+    double moves[PACKET], crosses[PACKET], on_mesh[PACKET], on_top[PACKET]; /* 1.0 or 0.0: the masks of the
+                                                                                 packet loops, in doubles so that
+                                                                                 they vectorise with the rest */
+    double t[PACKET], n_solid[PACKET];
+    double n_plane[3][PACKET], n0[3][PACKET], e1[3][PACKET], e2[3][PACKET], v0[3][PACKET], g1[3][PACKET],
+        g2[3][PACKET], jet[5][PACKET];
+    double q[3][PACKET], dqu[3][PACKET], dqv[3][PACKET], outward[3][PACKET], dnu[3][PACKET], dnv[3][PACKET];
+    double length[PACKET], sign[PACKET], eta[PACKET], ci[PACKET], ct[PACKET], lost[PACKET], leave_cos[PACKET];
+    double through[PACKET]; /* 1.0 refracted, 0.0 reflected */
+} event_columns;
+
+static inline SFC_INLINE vec3 col3(const double c[][PACKET], int j, int64_t k) {
+    return v3(c[j][k], c[j + 1][k], c[j + 2][k]);
+}
+static inline SFC_INLINE void put3(double c[][PACKET], int j, int64_t k, vec3 v) {
+    c[j][k] = v.x; c[j + 1][k] = v.y; c[j + 2][k] = v.z;
+}
+static inline SFC_INLINE vec3 pick3(int which, vec3 a, vec3 b) {
+    return v3(which ? a.x : b.x, which ? a.y : b.y, which ? a.z : b.z);
 }
 
-/* Which side the photon comes from and how it leaves (interface): refracted, or reflected under
- * total internal reflection (through = 0). */
-typedef struct {
-    int entering, through;
-    double sign, eta, ci, ct;
-    vec3 r, ru, rv;
-} crossing;
-
-static inline SFC_INLINE crossing interface(vec3 w, vec3 dwu, vec3 dwv, const event_surface *s, double n_solid) {
-    crossing x;
-    x.entering = dot(w, s->n_plane) < 0.0;
-    x.sign = x.entering ? 1.0 : -1.0;
-    x.eta = x.entering ? 1.0 / n_solid : n_solid;
-    const vec3 facing = scale3(x.sign, s->outward), dfu = scale3(x.sign, s->dnu), dfv = scale3(x.sign, s->dnv);
-    const double k = refract(w, dwu, dwv, facing, dfu, dfv, x.eta, &x.r, &x.ru, &x.rv, &x.ci, &x.ct);
-    if (k <= 0.0) reflect(w, dwu, dwv, facing, dfu, dfv, &x.r, &x.ru, &x.rv);
-    x.through = k > 0.0;
-    return x;
-}
-
-/* What an event computed: the surface met and how the photon crossed it (the reverse's inputs). */
-typedef struct {
-    event_surface s;
-    crossing x;
-} event_record;
-
-/* Apply an event (kind, face or plane, distance) to the photon (_advance_one after the search):
- * moves it onto the surface, refracts or reflects it, ends it; Fresnel losses into *lost_fresnel;
- * the surface and the crossing into *record where it is not NULL. */
-static void apply_event(const mesh_scene *ms, const mesh_faces *fa, const double *d, int64_t m, photon *ph,
-                        int64_t kind, int64_t which, double t, double *lost_fresnel, event_record *record) {
-    double *row = ph->row;
-    ph->clear = 0;
-    if (kind == AT_TOP) {
-        ph->status = WAITING;
-        return;
-    }
-    if (kind == ESCAPED || kind == INSIDE_TOP) {
-        ph->status = LOST;
-        return;
-    }
-    event_record local;
-    event_record *r = record != NULL ? record : &local;
-    const event_surface *sp = &r->s;
-    surface_of(ms, fa, d, m, row, kind, which, t, &r->s);
-    store3(row + P, sp->q);
-    store3(row + DPU, sp->dqu);
-    store3(row + DPV, sp->dqv);
-    if (kind == RECEIVER) {
-        ph->status = LANDED;
-        return;
-    }
-    const int64_t solid = kind == MESH ? fa->face_element[which] : fa->substrate;
-    r->x = interface(load3(row + W), load3(row + DWU), load3(row + DWV), sp,
-                     fa->indices[solid * fa->channels + ph->channel]);
-    const crossing x = r->x;
-    store3(row + W, x.r);
-    store3(row + DWU, x.ru);
-    store3(row + DWV, x.rv);
-    if (x.through) {
-        if (ms->hf.fresnel) {
-            const double kept = fresnel(x.ci, x.ct, x.eta);
-            *lost_fresnel += row[FLUX] * (1.0 - kept);
-            row[FLUX] *= kept;
+/* Lane k's event (ev->kind, which, t set) looked up for a photon at p going along w in wavelength
+ * channel `channel` (surface_of's lookups). */
+static void look_up(const mesh_scene *ms, const mesh_faces *fa, const double *d, int64_t m, int64_t channel, vec3 p,
+                    vec3 w, event_columns *ev, int64_t k) {
+    const int64_t kind = ev->kind[k], f = ev->which[k];
+    vec3 n_plane = UP, e1 = ZERO, e2 = ZERO, v0 = ZERO, g1 = ZERO, g2 = ZERO;
+    double jet[5] = {0.0, 0.0, 0.0, 0.0, 0.0};
+    int64_t solid = fa->substrate;
+    if (kind == MESH) {
+        n_plane = load3(fa->plane + 3 * f);
+        v0 = load3(fa->v0 + 3 * f);
+        g1 = dual_row(fa, f, 0);
+        g2 = dual_row(fa, f, 1);
+        const double *corners = fa->shading + 9 * f;
+        const vec3 n0 = load3(corners);
+        e1 = sub3(load3(corners + 3), n0);
+        e2 = sub3(load3(corners + 6), n0);
+        put3(ev->n0, 0, k, n0);
+        solid = fa->face_element[f];
+    } else if (kind == TOP) {
+        const double x = p.x + ev->t[k] * w.x, y = p.y + ev->t[k] * w.y;
+        if (ms->hf.simd) {
+            static const double along[2] = {0.0, 0.0}, at = 0.0;
+            sfc_surface_jets(d, m, -ms->hf.half, 1.0 / ms->hf.spacing, x, y, along, 1, &at, 1, jet);
+        } else {
+            surface_jet_at(d, m, x, y, -ms->hf.half, ms->hf.spacing, jet);
         }
-        ph->medium = x.entering ? solid : AIR;
-        ph->clear = kind == MESH && !x.entering && fa->face_clear[which] && dot(x.r, sp->n_plane) >= ms->clear_cos;
+        n_plane = height_field_normal(jet[0], jet[1]);
+    } else if (kind == BOX) {
+        n_plane = box_normal(f);
+    }
+    if (kind != MESH) put3(ev->n0, 0, k, n_plane);
+    ev->applied[k] = kind == MESH || kind == TOP || kind == BOX || kind == RECEIVER;
+    ev->moves[k] = ev->applied[k] ? 1.0 : 0.0;
+    ev->crosses[k] = ev->applied[k] && kind != RECEIVER ? 1.0 : 0.0;
+    ev->on_mesh[k] = kind == MESH ? 1.0 : 0.0;
+    ev->on_top[k] = kind == TOP ? 1.0 : 0.0;
+    ev->n_solid[k] = kind == RECEIVER ? 1.0 : fa->indices[solid * fa->channels + channel];
+    put3(ev->n_plane, 0, k, n_plane);
+    put3(ev->e1, 0, k, e1);
+    put3(ev->e2, 0, k, e2);
+    put3(ev->v0, 0, k, v0);
+    put3(ev->g1, 0, k, g1);
+    put3(ev->g2, 0, k, g2);
+    for (int j = 0; j < 5; j++) ev->jet[j][k] = jet[j];
+}
+
+/* Every applied event of the packet at once (surface_of, interface and apply_event's arithmetic):
+ * each photon moved onto its surface, refracted or reflected (not at the receiver), its flux less
+ * the Fresnel loss (fresnel on); the surface and crossing into ev. */
+static void apply_columns(const mesh_scene *ms, packet *restrict pk, event_columns *restrict ev) {
+    const int64_t fres = ms->hf.fresnel, count = pk->count;
+#pragma GCC ivdep
+    for (int64_t k = 0; k < count; k++) {
+        const int applied = ev->moves[k] != 0.0, crosses = ev->crosses[k] != 0.0;
+        const int mesh = ev->on_mesh[k] != 0.0, top = ev->on_top[k] != 0.0;
+        const vec3 p = col3(pk->state, P, k), dpu = col3(pk->state, DPU, k), dpv = col3(pk->state, DPV, k);
+        const vec3 w = col3(pk->state, W, k), dwu = col3(pk->state, DWU, k), dwv = col3(pk->state, DWV, k);
+        const double flux = pk->state[FLUX][k];
+        const vec3 n_plane = col3(ev->n_plane, 0, k);
+        vec3 q, dqu, dqv;
+        transfer(&ms->hf, p, dpu, dpv, w, dwu, dwv, ev->t[k], n_plane, &q, &dqu, &dqv);
+        /* A face's interpolated normal (face_shading); the plane normal on the other kinds. */
+        shading_frame frame;
+        frame.e1 = col3(ev->e1, 0, k);
+        frame.e2 = col3(ev->e2, 0, k);
+        frame.g1 = col3(ev->g1, 0, k);
+        frame.g2 = col3(ev->g2, 0, k);
+        const vec3 rel = sub3(q, col3(ev->v0, 0, k));
+        const vec3 raw = axpy(dot(rel, frame.g1), frame.e1, axpy(dot(rel, frame.g2), frame.e2, col3(ev->n0, 0, k)));
+        frame.length = sqrt(dot(raw, raw));
+        frame.normal = scale3(1.0 / frame.length, raw);
+        const double sxx = ev->jet[2][k], sxy = ev->jet[3][k], syy = ev->jet[4][k];
+        const vec3 outward = pick3(mesh, frame.normal, n_plane);
+        const vec3 dnu = pick3(mesh, shading_differential(&frame, dqu),
+                               pick3(top, normal_differential(sxx, sxy, syy, n_plane, dqu), ZERO));
+        const vec3 dnv = pick3(mesh, shading_differential(&frame, dqv),
+                               pick3(top, normal_differential(sxx, sxy, syy, n_plane, dqv), ZERO));
+        /* The crossing (interface). */
+        const int entering = dot(w, n_plane) < 0.0;
+        const double sign = entering ? 1.0 : -1.0, n_solid = ev->n_solid[k];
+        const double eta = entering ? 1.0 / n_solid : n_solid;
+        const vec3 facing = scale3(sign, outward), dfu = scale3(sign, dnu), dfv = scale3(sign, dnv);
+        vec3 r, ru, rv, m, mu, mv;
+        double ci, ct;
+        const int through = refract(w, dwu, dwv, facing, dfu, dfv, eta, &r, &ru, &rv, &ci, &ct) > 0.0;
+        reflect(w, dwu, dwv, facing, dfu, dfv, &m, &mu, &mv);
+        const vec3 out = pick3(through, r, m), out_u = pick3(through, ru, mu), out_v = pick3(through, rv, mv);
+        const double kept = fres && through ? fresnel(ci, ct, eta) : 1.0;
+        put3(pk->state, P, k, pick3(applied, q, p));
+        put3(pk->state, DPU, k, pick3(applied, dqu, dpu));
+        put3(pk->state, DPV, k, pick3(applied, dqv, dpv));
+        put3(pk->state, W, k, pick3(crosses, out, w));
+        put3(pk->state, DWU, k, pick3(crosses, out_u, dwu));
+        put3(pk->state, DWV, k, pick3(crosses, out_v, dwv));
+        pk->state[FLUX][k] = crosses ? flux * kept : flux;
+        ev->lost[k] = flux * (1.0 - kept);
+        ev->leave_cos[k] = dot(out, n_plane);
+        put3(ev->q, 0, k, q);
+        put3(ev->dqu, 0, k, dqu);
+        put3(ev->dqv, 0, k, dqv);
+        put3(ev->outward, 0, k, outward);
+        put3(ev->dnu, 0, k, dnu);
+        put3(ev->dnv, 0, k, dnv);
+        ev->length[k] = frame.length;
+        ev->sign[k] = sign;
+        ev->eta[k] = eta;
+        ev->ci[k] = ci;
+        ev->ct[k] = ct;
+        ev->through[k] = through ? 1.0 : 0.0;
+    }
+}
+
+/* The packet's lanes k = 0 .. count - 1 as chunk rows index[k]: their state into columns. */
+static void load_packet(const chunk_job *c, packet *pk) {
+    for (int64_t k = 0; k < pk->count; k++) {
+        const int64_t i = pk->index[k];
+        for (int j = 0; j < STATE; j++) pk->state[j][k] = c->state[STATE * i + j];
+        pk->medium[k] = c->medium[i];
+        pk->status[k] = c->status[i];
+        pk->clear[k] = c->clear[i];
+    }
+}
+
+/* The packet's photons through their events (advance, _run in operators/mesh/trace_native.py):
+ * each at most max_depth of them, until it lands, is lost, waits at the top (wait_at_top) or has
+ * had max_depth counted events in all; its losses into its row of c->lost, its events into the
+ * log (or, with replay, from it); its state, medium, status and clear back into the chunk. */
+static void trace_packet(const mesh_scene *ms, const mesh_faces *fa, const chunk_job *c, packet *pk,
+                         event_columns *ev, ray_hit *ray) {
+    const int64_t depth = c->max_depth, logging = c->log_kind != NULL && !c->replay;
+    load_packet(c, pk);
+    if (logging)
+        for (int64_t k = 0; k < pk->count; k++) memset(c->log_kind + depth * pk->index[k], -1, (size_t)depth);
+    for (int64_t e = 0; e < depth; e++) {
+        double flux[PACKET];
+        int any = 0;
+        for (int64_t k = 0; k < pk->count; k++) {
+            ev->kind[k] = -1;
+            ev->which[k] = -1;
+            ev->t[k] = 0.0;
+            if (pk->status[k] != UNDER_WAY) {
+                look_up(ms, fa, c->d, c->m, 0, ZERO, ZERO, ev, k);
+                continue;
+            }
+            any = 1;
+            const int64_t i = pk->index[k];
+            const vec3 p = col3(pk->state, P, k), w = col3(pk->state, W, k);
+            if (c->replay) {
+                ev->kind[k] = c->log_kind[depth * i + e];
+                ev->which[k] = c->log_which[depth * i + e];
+                ev->t[k] = c->log_t[depth * i + e];
+            } else {
+                ev->kind[k] = next_event(ms, fa, c->d, c->m, p, w, pk->medium[k], (int)pk->clear[k],
+                                         e == 0 && !c->wait_at_top, (int)c->wait_at_top, ray, &ev->which[k], &ev->t[k]);
+            }
+            flux[k] = pk->state[FLUX][k];
+            look_up(ms, fa, c->d, c->m, c->channel[i], p, w, ev, k);
+        }
+        if (!any) break;
+        apply_columns(ms, pk, ev);
+        for (int64_t k = 0; k < pk->count; k++) {
+            const int64_t kind = ev->kind[k], i = pk->index[k];
+            if (pk->status[k] != UNDER_WAY) continue;
+            double *lost = c->lost + LOSS_KINDS * i;
+            pk->clear[k] = 0;
+            if (kind == AT_TOP) {
+                pk->status[k] = WAITING;
+            } else if (kind == ESCAPED || kind == INSIDE_TOP) {
+                pk->status[k] = LOST;
+            } else if (kind == RECEIVER) {
+                pk->status[k] = LANDED;
+            } else if (ev->through[k] != 0.0) {
+                const int64_t solid = kind == MESH ? fa->face_element[ev->which[k]] : fa->substrate;
+                const int entering = ev->sign[k] > 0.0;
+                if (ms->hf.fresnel) lost[LOST_FRESNEL] += ev->lost[k];
+                pk->medium[k] = entering ? solid : AIR;
+                pk->clear[k] = kind == MESH && !entering && fa->face_clear[ev->which[k]]
+                               && ev->leave_cos[k] >= ms->clear_cos;
+            }
+            if (logging) {
+                c->log_kind[depth * i + e] = (int8_t)kind;
+                c->log_which[depth * i + e] = (int32_t)ev->which[k];
+                c->log_t[depth * i + e] = ev->t[k];
+            }
+            if (kind != AT_TOP) c->events[i]++;
+            if (kind == ESCAPED) lost[LOST_ESCAPED] += flux[k];
+            if (kind == INSIDE_TOP) lost[LOST_INSIDE_TOP] += flux[k];
+            if (pk->status[k] == UNDER_WAY && c->events[i] >= depth) {
+                lost[LOST_MAX_DEPTH] += pk->state[FLUX][k];
+                pk->status[k] = LOST;
+            }
+        }
+    }
+    for (int64_t k = 0; k < pk->count; k++) {
+        const int64_t i = pk->index[k];
+        for (int j = 0; j < STATE; j++) c->state[STATE * i + j] = pk->state[j][k];
+        c->medium[i] = pk->medium[k];
+        c->status[i] = pk->status[k];
+        c->clear[i] = (uint8_t)pk->clear[k];
     }
 }
 
@@ -454,184 +582,221 @@ typedef struct {
     int64_t blocks;
 } worker_job;
 
-/* Photon i of the chunk through its events (advance, _run in operators/mesh/trace_native.py): at
- * most max_depth of them, until it lands, is lost, waits at the top (wait_at_top) or has had
- * max_depth counted events in all; its losses into its row of c->lost, its events into the log
- * (or, with replay, from it). */
-static void trace_photon(const mesh_scene *ms, const mesh_faces *fa, const chunk_job *c, int64_t i, ray_hit *ray) {
-    photon ph = {c->state + STATE * i, c->medium[i], c->status[i], c->channel[i], c->clear[i]};
-    double *lost = c->lost + LOSS_KINDS * i;
-    int64_t e = 0;
-    for (; e < c->max_depth && ph.status == UNDER_WAY; e++) {
-        int64_t kind, which;
-        double t;
-        if (c->replay) {
-            kind = c->log_kind[c->max_depth * i + e];
-            which = c->log_which[c->max_depth * i + e];
-            t = c->log_t[c->max_depth * i + e];
-        } else {
-            kind = next_event(ms, fa, c->d, c->m, &ph, e == 0 && !c->wait_at_top, (int)c->wait_at_top, ray, &which, &t);
-        }
-        const double flux = ph.row[FLUX];
-        apply_event(ms, fa, c->d, c->m, &ph, kind, which, t, &lost[LOST_FRESNEL], NULL);
-        if (c->log_kind != NULL && !c->replay) {
-            c->log_kind[c->max_depth * i + e] = (int8_t)kind;
-            c->log_which[c->max_depth * i + e] = (int32_t)which;
-            c->log_t[c->max_depth * i + e] = t;
-        }
-        if (kind != AT_TOP) c->events[i]++;
-        if (kind == ESCAPED) lost[LOST_ESCAPED] += flux;
-        if (kind == INSIDE_TOP) lost[LOST_INSIDE_TOP] += flux;
-        if (ph.status == UNDER_WAY && c->events[i] >= c->max_depth) {
-            lost[LOST_MAX_DEPTH] += ph.row[FLUX];
-            ph.status = LOST;
-        }
-    }
-    if (c->log_kind != NULL && !c->replay)
-        for (; e < c->max_depth; e++) c->log_kind[c->max_depth * i + e] = -1;
-    c->medium[i] = ph.medium;
-    c->status[i] = ph.status;
-    c->clear[i] = (uint8_t)ph.clear;
-}
-
 static int trace_worker(void *context, int64_t thread) {
     const worker_job *j = (const worker_job *)context;
     const chunk_job *c = j->c;
+    packet *pk = (packet *)malloc(sizeof(packet));
+    event_columns *ev = (event_columns *)malloc(sizeof(event_columns));
+    if (!pk || !ev) {
+        free(pk);
+        free(ev);
+        return 1;
+    }
     ray_hit ray;
-    for (int64_t b = thread; b < j->blocks; b += c->threads)
-        for (int64_t i = b * BLOCK; i < imin(c->n, (b + 1) * BLOCK); i++) trace_photon(j->ms, j->fa, c, i, &ray);
+    for (int64_t b = thread; b < j->blocks; b += c->threads) {
+        pk->count = 0;
+        for (int64_t i = b * BLOCK; i < imin(c->n, (b + 1) * BLOCK); i++) {
+            if (c->status[i] != UNDER_WAY) {
+                if (c->log_kind != NULL && !c->replay) memset(c->log_kind + c->max_depth * i, -1, (size_t)c->max_depth);
+                continue;
+            }
+            pk->index[pk->count++] = i;
+            if (pk->count == PACKET) {
+                trace_packet(j->ms, j->fa, c, pk, ev, &ray);
+                pk->count = 0;
+            }
+        }
+        if (pk->count > 0) trace_packet(j->ms, j->fa, c, pk, ev, &ray);
+    }
+    free(pk);
+    free(ev);
     return 0;
 }
 
 /* ---------------------------------------------------------------- reverse */
 
+/* The reverse of every applied event of the packet at once (_retreat_one): g (STATE columns) from
+ * the gradient w.r.t. the states after the event to that before it (`before`, the states
+ * apply_columns started from; ev, what it computed); at the top the gradient w.r.t. the hit's
+ * distance and jet into hit (6 columns) and g zeroed (the host of the loop adds hit into the
+ * heights' gradient). */
+static void retreat_columns(const mesh_scene *ms, int64_t count, const event_columns *restrict ev,
+                            const double (*restrict before)[PACKET], double (*restrict g)[PACKET],
+                            double (*restrict hit)[PACKET]) {
+    const int64_t fres = ms->hf.fresnel;
+#pragma GCC ivdep
+    for (int64_t k = 0; k < count; k++) {
+        const int applied = ev->moves[k] != 0.0, crosses = ev->crosses[k] != 0.0;
+        const int mesh = ev->on_mesh[k] != 0.0, top = ev->on_top[k] != 0.0;
+        const vec3 dpu = col3(before, DPU, k), dpv = col3(before, DPV, k);
+        const vec3 w = col3(before, W, k), dwu = col3(before, DWU, k), dwv = col3(before, DWV, k);
+        const double flux = before[FLUX][k], t = ev->t[k];
+        const vec3 n_plane = col3(ev->n_plane, 0, k), outward = col3(ev->outward, 0, k);
+        const vec3 dnu = col3(ev->dnu, 0, k), dnv = col3(ev->dnv, 0, k);
+        const vec3 dqu = col3(ev->dqu, 0, k), dqv = col3(ev->dqv, 0, k);
+        const vec3 g_q = col3(g, P, k), g_dqu = col3(g, DPU, k), g_dqv = col3(g, DPV, k);
+        const vec3 g_r = col3(g, W, k), g_ru = col3(g, DWU, k), g_rv = col3(g, DWV, k);
+        const double g_flux = g[FLUX][k], sign = ev->sign[k], eta = ev->eta[k], ci = ev->ci[k], ct = ev->ct[k];
+        const int through = ev->through[k] != 0.0;
+        /* The crossing, refracted or reflected. */
+        const vec3 facing = scale3(sign, outward), dfu = scale3(sign, dnu), dfv = scale3(sign, dnv);
+        double g_ci = 0.0, g_ct = 0.0, kept = 1.0;
+        if (fres) {
+            kept = fresnel(ci, ct, eta);
+            fresnel_adjoint(ci, ct, eta, g_flux * flux, &g_ci, &g_ct);
+        }
+        const refract_grads a_t = refract_adjoint(w, dwu, dwv, facing, dfu, dfv, eta, g_r, g_ru, g_rv, g_ci, g_ct);
+        const reflect_grads a_r = reflect_adjoint(w, dwu, dwv, facing, dfu, dfv, g_r, g_ru, g_rv);
+        const vec3 g_w = pick3(crosses, pick3(through, a_t.g_w, a_r.g_w), ZERO);
+        const vec3 g_dwu = pick3(crosses, pick3(through, a_t.g_dwu, a_r.g_dwu), ZERO);
+        const vec3 g_dwv = pick3(crosses, pick3(through, a_t.g_dwv, a_r.g_dwv), ZERO);
+        const vec3 g_out = scale3(sign, pick3(through, a_t.g_n, a_r.g_n));
+        const vec3 g_dnu = scale3(sign, pick3(through, a_t.g_dnu, a_r.g_dnu));
+        const vec3 g_dnv = scale3(sign, pick3(through, a_t.g_dnv, a_r.g_dnv));
+        const double g_flux_before = crosses && through && fres ? g_flux * kept : g_flux;
+        /* A face's shading: N = raw / |raw|, raw = n0 + b1 e1 + b2 e2, b_k = g_k . (q - v0). */
+        shading_frame frame;
+        frame.normal = outward;
+        frame.length = ev->length[k];
+        frame.e1 = col3(ev->e1, 0, k);
+        frame.e2 = col3(ev->e2, 0, k);
+        frame.g1 = col3(ev->g1, 0, k);
+        frame.g2 = col3(ev->g2, 0, k);
+        double gl_u, gl_v;
+        vec3 gp_u, gp_v;
+        const vec3 gn_u = shading_differential_adjoint(&frame, dqu, dnu, g_dnu, &gl_u, &gp_u);
+        const vec3 gn_v = shading_differential_adjoint(&frame, dqv, dnv, g_dnv, &gl_v, &gp_v);
+        const vec3 g_normal = add3(g_out, add3(gn_u, gn_v));
+        const vec3 g_raw = axpy(gl_u + gl_v - dot(frame.normal, g_normal) / frame.length, frame.normal,
+                                scale3(1.0 / frame.length, g_normal));
+        const vec3 g_q_mesh = axpy(dot(frame.e1, g_raw), frame.g1, axpy(dot(frame.e2, g_raw), frame.g2, g_q));
+        /* The print's normal and its differentials. */
+        const double sxx = ev->jet[2][k], sxy = ev->jet[3][k], syy = ev->jet[4][k];
+        double g_sxx = 0.0, g_sxy = 0.0, g_syy = 0.0;
+        vec3 g_nu, g_dpu_n, g_nv, g_dpv_n;
+        normal_differential_adjoint(sxx, sxy, syy, n_plane, dqu, g_dnu, &g_sxx, &g_sxy, &g_syy, &g_nu, &g_dpu_n);
+        normal_differential_adjoint(sxx, sxy, syy, n_plane, dqv, g_dnv, &g_sxx, &g_sxy, &g_syy, &g_nv, &g_dpv_n);
+        const vec3 g_q_at = pick3(mesh, g_q_mesh, g_q);
+        const vec3 g_dqu_at = pick3(mesh, add3(g_dqu, gp_u), pick3(top, add3(g_dqu, g_dpu_n), g_dqu));
+        const vec3 g_dqv_at = pick3(mesh, add3(g_dqv, gp_v), pick3(top, add3(g_dqv, g_dpv_n), g_dqv));
+        const transfer_grads a = transfer_adjoint(&ms->hf, dpu, dpv, w, dwu, dwv, t, n_plane, g_q_at, g_dqu_at, g_dqv_at);
+        /* At the top: the hit's distance and jet. */
+        double g_sx, g_sy;
+        height_field_normal_adjoint(ev->jet[0][k], ev->jet[1][k], add3(add3(g_out, add3(g_nu, g_nv)), a.g_n), &g_sx,
+                                    &g_sy);
+        hit[0][k] = a.g_dist;
+        hit[1][k] = g_sx;
+        hit[2][k] = g_sy;
+        hit[3][k] = g_sxx;
+        hit[4][k] = g_sxy;
+        hit[5][k] = g_syy;
+        /* Elsewhere the distance to a fixed plane: t = (c - p . n) / (w . n). */
+        const double wn = dot(w, n_plane);
+        const int keep = !applied, zero = top;
+        put3(g, P, k, pick3(keep, g_q, pick3(zero, ZERO, axpy(-a.g_dist / wn, n_plane, g_q_at))));
+        put3(g, DPU, k, pick3(keep, g_dqu, pick3(zero, ZERO, a.g_dpu)));
+        put3(g, DPV, k, pick3(keep, g_dqv, pick3(zero, ZERO, a.g_dpv)));
+        put3(g, W, k, pick3(keep, g_r, pick3(zero, ZERO, add3(add3(g_w, a.g_w), scale3(-a.g_dist * t / wn, n_plane)))));
+        put3(g, DWU, k, pick3(keep, g_ru, pick3(zero, ZERO, add3(g_dwu, a.g_dwu))));
+        put3(g, DWV, k, pick3(keep, g_rv, pick3(zero, ZERO, add3(g_dwv, a.g_dwv))));
+        g[FLUX][k] = keep ? g_flux : (zero ? 0.0 : g_flux_before);
+    }
+}
+
 /* The gradient w.r.t. the heights (m, m) of g_t t + <g_jet, jet> at a hit on the top of the ray
  * from p along w (_top_adjoint). */
 static inline SFC_INLINE void top_adjoint(const mesh_scene *ms, const double *d, int64_t m, double *grad, vec3 p, vec3 w,
                                           double t, const double g[6]) {
-    hit_adjoint_scalar(d, grad, m, p.x + t * w.x, p.y + t * w.y, -ms->hf.half, ms->hf.spacing, w, g);
+    const double x = p.x + t * w.x, y = p.y + t * w.y;
+    if (ms->hf.simd)
+        sfc_hit_adjoint(d, grad, m, x, y, -ms->hf.half, 1.0 / ms->hf.spacing, w.x, w.y, w.z, g[0], g[1], g[2], g[3],
+                        g[4], g[5]);
+    else
+        hit_adjoint_scalar(d, grad, m, x, y, -ms->hf.half, ms->hf.spacing, w, g);
 }
 
-/* Reverse of one event (kind k, face or plane, distance t) of a photon whose state before it was
- * `row` and which met the surface and crossed it as `record` says (apply_event's, _retreat_one):
- * g (STATE) from the gradient w.r.t. the state after the event to that before it; at the top into
- * grad (m, m) instead (g zeroed). */
-static void retreat_one(const mesh_scene *ms, const mesh_faces *fa, const double *d, int64_t m, const double *row,
-                        int64_t k, int64_t which, double t, const event_record *record, double *g, double *grad) {
-    const vec3 p = load3(row + P), dpu = load3(row + DPU), dpv = load3(row + DPV);
-    const vec3 w = load3(row + W), dwu = load3(row + DWU), dwv = load3(row + DWV);
-    const event_surface s = record->s;
-    vec3 g_q = load3(g + P), g_dqu = load3(g + DPU), g_dqv = load3(g + DPV);
-    vec3 g_w = ZERO, g_dwu = ZERO, g_dwv = ZERO;
-    double g_flux = g[FLUX];
-    if (k != RECEIVER) {
-        const crossing x = record->x;
-        const vec3 facing = scale3(x.sign, s.outward), dfu = scale3(x.sign, s.dnu), dfv = scale3(x.sign, s.dnv);
-        const vec3 g_r = load3(g + W), g_ru = load3(g + DWU), g_rv = load3(g + DWV);
-        vec3 g_f, g_fu, g_fv;
-        if (x.through) {
-            double g_ci = 0.0, g_ct = 0.0;
-            if (ms->hf.fresnel) {
-                const double kept = fresnel(x.ci, x.ct, x.eta);
-                fresnel_adjoint(x.ci, x.ct, x.eta, g[FLUX] * row[FLUX], &g_ci, &g_ct);
-                g_flux = g[FLUX] * kept;
-            }
-            const refract_grads a = refract_adjoint(w, dwu, dwv, facing, dfu, dfv, x.eta, g_r, g_ru, g_rv, g_ci, g_ct);
-            g_w = a.g_w; g_dwu = a.g_dwu; g_dwv = a.g_dwv; g_f = a.g_n; g_fu = a.g_dnu; g_fv = a.g_dnv;
-        } else {
-            const reflect_grads a = reflect_adjoint(w, dwu, dwv, facing, dfu, dfv, g_r, g_ru, g_rv);
-            g_w = a.g_w; g_dwu = a.g_dwu; g_dwv = a.g_dwv; g_f = a.g_n; g_fu = a.g_dnu; g_fv = a.g_dnv;
-        }
-        const vec3 g_out = scale3(x.sign, g_f), g_dnu = scale3(x.sign, g_fu), g_dnv = scale3(x.sign, g_fv);
-        if (k == MESH) {
-            const shading_frame frame = face_shading(fa, s.q, which);
-            double gl_u, gl_v;
-            vec3 gp_u, gp_v;
-            const vec3 gn_u = shading_differential_adjoint(&frame, s.dqu, s.dnu, g_dnu, &gl_u, &gp_u);
-            const vec3 gn_v = shading_differential_adjoint(&frame, s.dqv, s.dnv, g_dnv, &gl_v, &gp_v);
-            g_dqu = add3(g_dqu, gp_u);
-            g_dqv = add3(g_dqv, gp_v);
-            const vec3 g_normal = add3(g_out, add3(gn_u, gn_v));
-            /* N = raw / |raw|, raw = n0 + b1 e1 + b2 e2, b_k = g_k . (q - v0). */
-            const vec3 g_raw = axpy(gl_u + gl_v - dot(frame.normal, g_normal) / frame.length, frame.normal,
-                                    scale3(1.0 / frame.length, g_normal));
-            g_q = axpy(dot(frame.e1, g_raw), frame.g1, axpy(dot(frame.e2, g_raw), frame.g2, g_q));
-        } else if (k == TOP) {
-            double g_sxx = 0.0, g_sxy = 0.0, g_syy = 0.0;
-            vec3 g_nu, g_dpu_n, g_nv, g_dpv_n;
-            normal_differential_adjoint(s.jet[2], s.jet[3], s.jet[4], s.n_plane, s.dqu, g_dnu, &g_sxx, &g_sxy,
-                                        &g_syy, &g_nu, &g_dpu_n);
-            normal_differential_adjoint(s.jet[2], s.jet[3], s.jet[4], s.n_plane, s.dqv, g_dnv, &g_sxx, &g_sxy,
-                                        &g_syy, &g_nv, &g_dpv_n);
-            g_dqu = add3(g_dqu, g_dpu_n);
-            g_dqv = add3(g_dqv, g_dpv_n);
-            const vec3 g_n_plane = add3(g_out, add3(g_nu, g_nv));
-            const transfer_grads a = transfer_adjoint(&ms->hf, dpu, dpv, w, dwu, dwv, t, s.n_plane, g_q, g_dqu, g_dqv);
-            double hit[6];
-            hit[0] = a.g_dist;
-            height_field_normal_adjoint(s.jet[0], s.jet[1], add3(g_n_plane, a.g_n), &hit[1], &hit[2]);
-            hit[3] = g_sxx;
-            hit[4] = g_sxy;
-            hit[5] = g_syy;
-            top_adjoint(ms, d, m, grad, p, w, t, hit);
-            for (int j = 0; j < STATE; j++) g[j] = 0.0;
-            return;
-        }
-    }
-    const transfer_grads a = transfer_adjoint(&ms->hf, dpu, dpv, w, dwu, dwv, t, s.n_plane, g_q, g_dqu, g_dqv);
-    /* The distance to a fixed plane: t = (c - p . n) / (w . n). */
-    const double wn = dot(w, s.n_plane);
-    store3(g + P, axpy(-a.g_dist / wn, s.n_plane, g_q));
-    store3(g + DPU, a.g_dpu);
-    store3(g + DPV, a.g_dpv);
-    store3(g + W, add3(add3(g_w, a.g_w), scale3(-a.g_dist * t / wn, s.n_plane)));
-    store3(g + DWU, add3(g_dwu, a.g_dwu));
-    store3(g + DWV, add3(g_dwv, a.g_dwv));
-    g[FLUX] = g_flux;
-}
+/* A reverse packet's work space: the states before each event and what each event computed. */
+typedef struct {
+    double (*before)[STATE][PACKET]; /* (max_depth) */
+    event_columns *events;           /* (max_depth) */
+    double g[STATE][PACKET], hit[6][PACKET];
+} reverse_space;
 
-/* The reverse of photon i's logged events (retreat over the events of _run, in
- * operators/mesh/trace_native.py): its events replayed from its start (the state before the trace
- * in c->state, its medium and clear), the state before each kept in `before` (max_depth, STATE)
- * and the surface and crossing each computed in `records` (max_depth), then the gradient
- * g_state[i] taken back through them, into grad (m, m) at the top. */
-static void reverse_photon(const mesh_scene *ms, const mesh_faces *fa, const chunk_job *c, int64_t i, double *before,
-                           event_record *records, double *grad) {
-    double row[STATE];
-    memcpy(row, c->state + STATE * i, sizeof(row));
-    photon ph = {row, c->medium[i], UNDER_WAY, c->channel[i], c->clear[i]};
-    const int8_t *kind = c->log_kind + c->max_depth * i;
-    const int32_t *which = c->log_which + c->max_depth * i;
-    const double *t = c->log_t + c->max_depth * i;
-    double unused = 0.0;
-    int64_t count = 0;
-    for (; count < c->max_depth && kind[count] >= 0; count++) {
-        memcpy(before + STATE * count, row, sizeof(row));
-        apply_event(ms, fa, c->d, c->m, &ph, kind[count], which[count], t[count], &unused, records + count);
+/* The reverse of the packet's logged events (retreat over the events of _run, in
+ * operators/mesh/trace_native.py): the events replayed from the photons' start (the states before
+ * the trace in c->state), the states before each and what each computed kept, then the gradient
+ * c->g_state of the photons' final states taken back through them event by event, into grad (m,
+ * m) at the top; c->g_state receives the gradient w.r.t. the start. */
+static void reverse_packet(const mesh_scene *ms, const mesh_faces *fa, const chunk_job *c, packet *pk,
+                           reverse_space *rs, double *grad) {
+    const int64_t depth = c->max_depth;
+    load_packet(c, pk);
+    int64_t events = 0;
+    for (; events < depth; events++) {
+        event_columns *ev = rs->events + events;
+        int any = 0;
+        for (int64_t k = 0; k < pk->count; k++) {
+            const int64_t i = pk->index[k], at = depth * i + events;
+            ev->kind[k] = c->log_kind[at];
+            ev->which[k] = c->log_which[at];
+            ev->t[k] = ev->kind[k] >= 0 ? c->log_t[at] : 0.0;
+            any |= ev->kind[k] >= 0;
+            look_up(ms, fa, c->d, c->m, c->channel[i], col3(pk->state, P, k), col3(pk->state, W, k), ev, k);
+        }
+        if (!any) break;
+        memcpy(rs->before[events], pk->state, sizeof(pk->state));
+        apply_columns(ms, pk, ev);
     }
-    double *g = c->g_state + STATE * i;
-    for (int64_t e = count - 1; e >= 0; e--) {
-        if (kind[e] == ESCAPED || kind[e] == INSIDE_TOP || kind[e] == AT_TOP) continue;
-        retreat_one(ms, fa, c->d, c->m, before + STATE * e, kind[e], which[e], t[e], records + e, g, grad);
+    for (int64_t k = 0; k < pk->count; k++)
+        for (int j = 0; j < STATE; j++) rs->g[j][k] = c->g_state[STATE * pk->index[k] + j];
+    for (int64_t e = events - 1; e >= 0; e--) {
+        const event_columns *ev = rs->events + e;
+        retreat_columns(ms, pk->count, ev, rs->before[e], rs->g, rs->hit);
+        for (int64_t k = 0; k < pk->count; k++) {
+            if (ev->kind[k] != TOP) continue;
+            const double hit[6] = {rs->hit[0][k], rs->hit[1][k], rs->hit[2][k], rs->hit[3][k], rs->hit[4][k],
+                                   rs->hit[5][k]};
+            top_adjoint(ms, c->d, c->m, grad, col3(rs->before[e], P, k), col3(rs->before[e], W, k), ev->t[k], hit);
+        }
     }
+    for (int64_t k = 0; k < pk->count; k++)
+        for (int j = 0; j < STATE; j++) c->g_state[STATE * pk->index[k] + j] = rs->g[j][k];
 }
 
 static int reverse_worker(void *context, int64_t thread) {
     const worker_job *j = (const worker_job *)context;
     const chunk_job *c = j->c;
-    double *before = (double *)malloc(sizeof(double) * STATE * (size_t)imax(c->max_depth, 1));
-    event_record *records = (event_record *)malloc(sizeof(event_record) * (size_t)imax(c->max_depth, 1));
-    if (!before || !records) {
+    const size_t depth = (size_t)imax(c->max_depth, 1);
+    packet *pk = (packet *)malloc(sizeof(packet));
+    reverse_space *rs = (reverse_space *)malloc(sizeof(reverse_space));
+    double (*before)[STATE][PACKET] = malloc(sizeof(*before) * depth);
+    event_columns *events = (event_columns *)malloc(sizeof(event_columns) * depth);
+    if (!pk || !rs || !before || !events) {
+        free(pk);
+        free(rs);
         free(before);
-        free(records);
+        free(events);
         return 1;
     }
+    rs->before = before;
+    rs->events = events;
     double *grad = c->g_heights + thread * c->m * c->m;
-    for (int64_t b = thread; b < j->blocks; b += c->threads)
-        for (int64_t i = b * BLOCK; i < imin(c->n, (b + 1) * BLOCK); i++)
-            if (c->status[i] == LANDED) reverse_photon(j->ms, j->fa, c, i, before, records, grad);
+    for (int64_t b = thread; b < j->blocks; b += c->threads) {
+        pk->count = 0;
+        for (int64_t i = b * BLOCK; i < imin(c->n, (b + 1) * BLOCK); i++) {
+            if (c->status[i] != LANDED) continue;
+            pk->index[pk->count++] = i;
+            if (pk->count == PACKET) {
+                reverse_packet(j->ms, j->fa, c, pk, rs, grad);
+                pk->count = 0;
+            }
+        }
+        if (pk->count > 0) reverse_packet(j->ms, j->fa, c, pk, rs, grad);
+    }
+    free(pk);
+    free(rs);
     free(before);
-    free(records);
+    free(events);
     return 0;
 }
 

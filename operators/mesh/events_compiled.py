@@ -20,6 +20,7 @@ import numpy as np
 
 from operators.heightfield.trace_compiled import SceneStruct, scene_struct
 from operators.kernels import extension
+from operators.kernels.simd import AVAILABLE as SIMD_AVAILABLE
 from operators.mesh import kernels_native as mk
 from operators.mesh.culling import CLEAR_COS
 from operators.mesh.embree_native import INTERSECT1
@@ -79,7 +80,7 @@ def _scene(sc: mk.MeshConstants) -> _MeshScene:
     hf = scene_struct(dict(half=sc.half, base=sc.thickness, spacing=sc.spacing, zlo=sc.zlo, zstart=sc.zstart,
                            zhi=sc.zhi, slope_x=sc.slope_x, slope_y=sc.slope_y, receiver_z=sc.receiver_z,
                            receiver_half=sc.receiver_half, to_px=sc.to_px, min_px=sc.min_px, max_px=sc.max_px,
-                           fresnel=sc.fresnel))
+                           fresnel=sc.fresnel, simd=SIMD_AVAILABLE))
     return _MeshScene(hf, sc.top_max, sc.lowest, START_OFFSET, MIN_FACE_DISTANCE, CLEAR_COS)
 
 
