@@ -13,19 +13,26 @@
  *   reverse ............ retreat, _retreat_one, splat_arguments_adjoint in
  *                        operators/mesh/adjoint_native.py
  *   surface, optics .... photon_optics.h (the height-field kernels' own)
- * Here a photon goes through its events on one thread without a return to Python between them;
- * the gradient logs each photon's events (kind, face or plane, distance) as it traces, and the
- * reverse replays them from the photon's start, keeping the states before each event on its
- * thread, instead of a tape of every photon's states per event.
+ * Here the photons go through all their events on one thread without a return to Python, in
+ * packets of PACKET photons that take their events in step (see "packets" below): the search for
+ * each photon's next event and the lookup of its surface one photon at a time, the arithmetic of
+ * the event (transfer, shading normal, refraction or reflection, Fresnel) and of its reverse in
+ * one branch-free loop over the packet, which GCC vectorises across photons. The print's jets and
+ * hit adjoint come from the AVX2 kernels of simd_kernels.c where the scene's `simd` is set (as in
+ * the height-field kernels; the scalar ones of photon_optics.h elsewhere). The gradient logs
+ * each photon's events (kind, face or plane, distance) as it traces, and the reverse replays them
+ * from the photons' start, keeping the states before each event and what each computed for the
+ * packet on its thread, instead of a tape of every photon's states per event.
  *
  * A photon's state is a row of STATE doubles (position, its two differentials, direction, its two
  * differentials, flux), as in kernels_native.py. Embree finds the faces: the host passes the
  * scene handle and the address of the library's rtcIntersect1 (operators/mesh/embree_native.py),
  * which every thread calls with its own ray.
  *
- * Threads: thread t takes the blocks t, t + threads, ... of BLOCK photons. The trace writes per
- * photon; the reverse sums each thread's gradient w.r.t. the heights in its own array (the host
- * sums those): the same sums in every run.
+ * Threads: thread t takes the blocks t, t + threads, ... of BLOCK photons, and packets of a block's
+ * photons in order. The trace writes per photon; the reverse sums each thread's gradient w.r.t.
+ * the heights in its own array (the host sums those), a packet's event by event: the same sums in
+ * every run.
  */
 #include <math.h>
 #include <stdint.h>

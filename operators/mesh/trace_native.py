@@ -345,8 +345,8 @@ class NativeMeshTracer:
         """Gradient (m, m) w.r.t. d of <flux per pixel, grad_flux (c, n, n)>. The photons' events
         are replayed from the last :meth:`render` when it had the same heights (and kept them),
         else searched again; with the C kernels, the final states that render kept spare the
-        replay up to the splat. The C kernels take the gradient back through each photon's logged
-        events photon by photon; the numba kernels keep a tape of every event's states and run it
+        replay up to the splat. The C kernels take the gradient back through the logged events of
+        packets of photons, event by event; the numba kernels keep a tape of every event's states and run it
         backwards."""
         sc = self.constants(d)
         self._check_above(sc)
