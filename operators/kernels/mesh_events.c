@@ -350,14 +350,15 @@ typedef struct {
 } packet;
 
 /* One event of a packet's photons. Looked up: kind (-1: none), face or plane, distance, whether it
- * moves the photon (applied: MESH, TOP, BOX or RECEIVER), the solid's refractive index, the plane
+ * moves the photon (MESH, TOP, BOX or RECEIVER) and whether it crosses a surface (not RECEIVER),
+ * whether it is a face's or the print's, the solid's refractive index, the plane
  * normal, a face's shading corners n0, e_k = n_k - n0 with v0 and the dual basis g_k (flat for
  * other kinds: n0 the plane normal, the rest zero) and the print's jet (zero off the print).
  * Computed (apply_columns, the reverse's inputs): the point met with its differentials, the
  * shading normal with its differentials and |raw|, the crossing (sign, eta, cosines, refracted or
  * reflected), the flux lost to Fresnel and the cosine of the way out with the plane normal. */
 typedef struct {
-    int64_t kind[PACKET], which[PACKET], applied[PACKET];
+    int64_t kind[PACKET], which[PACKET];
     double moves[PACKET], crosses[PACKET], on_mesh[PACKET], on_top[PACKET]; /* 1.0 or 0.0: the masks of the
                                                                                  packet loops, in doubles so that
                                                                                  they vectorise with the rest */
@@ -411,9 +412,9 @@ static void look_up(const mesh_scene *ms, const mesh_faces *fa, const double *d,
         n_plane = box_normal(f);
     }
     if (kind != MESH) put3(ev->n0, 0, k, n_plane);
-    ev->applied[k] = kind == MESH || kind == TOP || kind == BOX || kind == RECEIVER;
-    ev->moves[k] = ev->applied[k] ? 1.0 : 0.0;
-    ev->crosses[k] = ev->applied[k] && kind != RECEIVER ? 1.0 : 0.0;
+    const int applied = kind == MESH || kind == TOP || kind == BOX || kind == RECEIVER;
+    ev->moves[k] = applied ? 1.0 : 0.0;
+    ev->crosses[k] = applied && kind != RECEIVER ? 1.0 : 0.0;
     ev->on_mesh[k] = kind == MESH ? 1.0 : 0.0;
     ev->on_top[k] = kind == TOP ? 1.0 : 0.0;
     ev->n_solid[k] = kind == RECEIVER ? 1.0 : fa->indices[solid * fa->channels + channel];
