@@ -45,7 +45,8 @@
 #define SFC_EXPORT(name) name
 #endif
 
-/* The AVX2 kernels of simd_kernels.c (called only when the scene's `simd` is set). */
+/* The AVX2 splat and gather kernels of simd_kernels.c (called only when the scene's `simd` is set;
+ * the jets' and hit adjoint's are declared in photon_optics.h). */
 void sfc_splat_box8_f64(double *img, int64_t offset, int64_t stride, int64_t rows, double rx0, double ry0,
                         double q00, double q01, double q11, double f);
 void sfc_splat_box8_f32(float *img, int64_t offset, int64_t stride, int64_t rows, double rx0, double ry0,
@@ -58,11 +59,6 @@ void sfc_splat_spans_f32(float *img, int64_t offset, int64_t stride, int64_t row
                          double ry0, double q00, double q01, double q11, double f);
 void sfc_gather_spans(const double *g, int64_t offset, int64_t stride, int64_t rows, int64_t width, double rx0,
                       double ry0, double q00, double q01, double q11, double *sums);
-void sfc_surface_jets(const double *d, int64_t m, double origin, double inv_spacing, double ox, double oy,
-                      const double *dirs, int64_t stride, const double *t, int64_t count, double *jets);
-void sfc_hit_adjoint(const double *d, double *grad, int64_t m, double x, double y, double origin, double inv_spacing,
-                     double wx, double wy, double wz, double g_t, double g_sx, double g_sy, double g_sxx,
-                     double g_sxy, double g_syy);
 
 #include "photon_optics.h"
 
@@ -592,11 +588,7 @@ static int vjp_worker(void *context, int64_t thread) {
                 const double g_hit[6] = {p->g_hit[0][k], p->g_hit[1][k], p->g_hit[2][k], p->g_hit[3][k],
                                          p->g_hit[4][k], p->g_hit[5][k]};
                 const double x = sc->light_x + p->t[k] * w.x, y = sc->light_y + p->t[k] * w.y;
-                if (sc->simd)
-                    sfc_hit_adjoint(j->in.d, grad, m, x, y, -sc->half, 1.0 / sc->spacing, w.x, w.y, w.z, g_hit[0],
-                                    g_hit[1], g_hit[2], g_hit[3], g_hit[4], g_hit[5]);
-                else
-                    hit_adjoint_scalar(j->in.d, grad, m, x, y, -sc->half, sc->spacing, w, g_hit);
+                hit_adjoint(sc, j->in.d, grad, m, x, y, w, g_hit);
             }
         }
     }

@@ -39,17 +39,8 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "sfc_threads.h"
-
-/* The AVX2 surface jets and hit adjoint of simd_kernels.c (called only where the scene's `simd` is
- * set), as in the height-field kernels. */
-void sfc_surface_jets(const double *d, int64_t m, double origin, double inv_spacing, double ox, double oy,
-                      const double *dirs, int64_t stride, const double *t, int64_t count, double *jets);
-void sfc_hit_adjoint(const double *d, double *grad, int64_t m, double x, double y, double origin, double inv_spacing,
-                     double wx, double wy, double wz, double g_t, double g_sx, double g_sy, double g_sxx,
-                     double g_sxy, double g_syy);
-
 #include "photon_optics.h"
+#include "sfc_threads.h"
 
 /* The exported functions' names: mesh_events_avx2.c compiles this file again for AVX2 and FMA, with
  * the suffix _avx2 (the host picks that build where the CPU has both, as for the height field). */
@@ -381,7 +372,7 @@ static inline SFC_INLINE vec3 pick3(int which, vec3 a, vec3 b) {
 }
 
 /* Lane k's event (ev->kind, which, t set) looked up for a photon at p going along w in wavelength
- * channel `channel` (surface_of's lookups). */
+ * channel `channel` (event_surface's lookups). */
 static void look_up(const mesh_scene *ms, const mesh_faces *fa, const double *d, int64_t m, int64_t channel, vec3 p,
                     vec3 w, event_columns *ev, int64_t k) {
     const int64_t kind = ev->kind[k], f = ev->which[k];
@@ -400,13 +391,7 @@ static void look_up(const mesh_scene *ms, const mesh_faces *fa, const double *d,
         put3(ev->n0, 0, k, n0);
         solid = fa->face_element[f];
     } else if (kind == TOP) {
-        const double x = p.x + ev->t[k] * w.x, y = p.y + ev->t[k] * w.y;
-        if (ms->hf.simd) {
-            static const double along[2] = {0.0, 0.0}, at = 0.0;
-            sfc_surface_jets(d, m, -ms->hf.half, 1.0 / ms->hf.spacing, x, y, along, 1, &at, 1, jet);
-        } else {
-            surface_jet_at(d, m, x, y, -ms->hf.half, ms->hf.spacing, jet);
-        }
+        surface_jet(&ms->hf, d, m, p.x + ev->t[k] * w.x, p.y + ev->t[k] * w.y, jet);
         n_plane = height_field_normal(jet[0], jet[1]);
     } else if (kind == BOX) {
         n_plane = box_normal(f);
@@ -427,7 +412,7 @@ static void look_up(const mesh_scene *ms, const mesh_faces *fa, const double *d,
     for (int j = 0; j < 5; j++) ev->jet[j][k] = jet[j];
 }
 
-/* Every applied event of the packet at once (surface_of, interface and apply_event's arithmetic):
+/* Every applied event of the packet at once (event_surface, interface and _advance_one's arithmetic):
  * each photon moved onto its surface, refracted or reflected (not at the receiver), its flux less
  * the Fresnel loss (fresnel on); the surface and crossing into ev. */
 static void apply_columns(const mesh_scene *ms, packet *restrict pk, event_columns *restrict ev) {
@@ -442,7 +427,7 @@ static void apply_columns(const mesh_scene *ms, packet *restrict pk, event_colum
         const vec3 n_plane = col3(ev->n_plane, 0, k);
         vec3 q, dqu, dqv;
         transfer(&ms->hf, p, dpu, dpv, w, dwu, dwv, ev->t[k], n_plane, &q, &dqu, &dqv);
-        /* A face's interpolated normal (face_shading); the plane normal on the other kinds. */
+        /* A face's interpolated normal (_shading); the plane normal on the other kinds. */
         shading_frame frame;
         frame.e1 = col3(ev->e1, 0, k);
         frame.e2 = col3(ev->e2, 0, k);
@@ -711,18 +696,6 @@ static void retreat_columns(const mesh_scene *ms, int64_t count, const event_col
     }
 }
 
-/* The gradient w.r.t. the heights (m, m) of g_t t + <g_jet, jet> at a hit on the top of the ray
- * from p along w (_top_adjoint). */
-static inline SFC_INLINE void top_adjoint(const mesh_scene *ms, const double *d, int64_t m, double *grad, vec3 p, vec3 w,
-                                          double t, const double g[6]) {
-    const double x = p.x + t * w.x, y = p.y + t * w.y;
-    if (ms->hf.simd)
-        sfc_hit_adjoint(d, grad, m, x, y, -ms->hf.half, 1.0 / ms->hf.spacing, w.x, w.y, w.z, g[0], g[1], g[2], g[3],
-                        g[4], g[5]);
-    else
-        hit_adjoint_scalar(d, grad, m, x, y, -ms->hf.half, ms->hf.spacing, w, g);
-}
-
 /* A reverse packet's work space: the states before each event and what each event computed. */
 typedef struct {
     double (*before)[STATE][PACKET]; /* (max_depth) */
@@ -764,7 +737,8 @@ static void reverse_packet(const mesh_scene *ms, const mesh_faces *fa, const chu
             if (ev->kind[k] != TOP) continue;
             const double hit[6] = {rs->hit[0][k], rs->hit[1][k], rs->hit[2][k], rs->hit[3][k], rs->hit[4][k],
                                    rs->hit[5][k]};
-            top_adjoint(ms, c->d, c->m, grad, col3(rs->before[e], P, k), col3(rs->before[e], W, k), ev->t[k], hit);
+            const vec3 p = col3(rs->before[e], P, k), w = col3(rs->before[e], W, k);
+            hit_adjoint(&ms->hf, c->d, grad, c->m, p.x + ev->t[k] * w.x, p.y + ev->t[k] * w.y, w, hit);
         }
     }
     for (int64_t k = 0; k < pk->count; k++)
@@ -811,7 +785,7 @@ static int reverse_worker(void *context, int64_t thread) {
 /* ---------------------------------------------------------------- exported */
 
 /* Trace every photon of the chunk under way through its events, on c->threads threads, in place
- * (see trace_photon). Returns 0, -1 when a thread could not start. */
+ * (see trace_packet). Returns 0, -1 when a thread could not start. */
 int SFC_EXPORT(sfc_mesh_trace)(const mesh_scene *ms, const mesh_faces *fa, const chunk_job *c) {
     worker_job j = {ms, fa, c, (c->n + BLOCK - 1) / BLOCK};
     return sfc_parallel(c->threads, trace_worker, &j);

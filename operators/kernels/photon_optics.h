@@ -218,6 +218,36 @@ static void hit_adjoint_scalar(const double *d, double *grad, int64_t m, double 
     }
 }
 
+/* The AVX2 surface jets and hit adjoint of simd_kernels.c: the kernels here call them only where
+ * the scene's `simd` is set (the CPU has AVX2 and FMA). */
+void sfc_surface_jets(const double *d, int64_t m, double origin, double inv_spacing, double ox, double oy,
+                      const double *dirs, int64_t stride, const double *t, int64_t count, double *jets);
+void sfc_hit_adjoint(const double *d, double *grad, int64_t m, double x, double y, double origin, double inv_spacing,
+                     double wx, double wy, double wz, double g_t, double g_sx, double g_sy, double g_sxx,
+                     double g_sxy, double g_syy);
+
+/* hit_adjoint_scalar's sum into grad, by the AVX2 kernel where sc->simd. */
+static inline SFC_INLINE void hit_adjoint(const sfc_scene *sc, const double *d, double *grad, int64_t m, double x,
+                                          double y, vec3 w, const double g[6]) {
+    if (sc->simd)
+        sfc_hit_adjoint(d, grad, m, x, y, -sc->half, 1.0 / sc->spacing, w.x, w.y, w.z, g[0], g[1], g[2], g[3], g[4],
+                        g[5]);
+    else
+        hit_adjoint_scalar(d, grad, m, x, y, -sc->half, sc->spacing, w, g);
+}
+
+/* The surface's jet at the point (x, y) (surface_jet_at), by the AVX2 kernel where sc->simd (its
+ * ray from (x, y) with no length lands on the point itself). */
+static inline SFC_INLINE void surface_jet(const sfc_scene *sc, const double *d, int64_t m, double x, double y,
+                                          double jet[5]) {
+    if (sc->simd) {
+        static const double along[2] = {0.0, 0.0}, at = 0.0;
+        sfc_surface_jets(d, m, -sc->half, 1.0 / sc->spacing, x, y, along, 1, &at, 1, jet);
+    } else {
+        surface_jet_at(d, m, x, y, -sc->half, sc->spacing, jet);
+    }
+}
+
 /* ---------------------------------------------------------------- hit search */
 
 static inline SFC_INLINE int needs_march(vec3 w, double slope_x, double slope_y) {
