@@ -62,7 +62,7 @@ void sfc_gather_spans(const double *g, int64_t offset, int64_t stride, int64_t r
 
 #include "photon_optics.h"
 
-enum { PACKET = 128, BLOCK = 4096, LANES = 8, SPAN_TAIL = 3 };
+enum { PACKET = SEARCH_LANES, BLOCK = 4096, LANES = 8, SPAN_TAIL = 3 };
 
 /* ---------------------------------------------------------------- emission */
 
@@ -85,54 +85,6 @@ static inline SFC_INLINE emitted emit(const sfc_scene *sc, const double *shifts,
     e.dwv = v3(-e.w.x * e.w.y * s, s - e.w.y * e.w.y * s, -e.w.z * e.w.y * s);
     e.flux = sc->flux_scale * inv_r * inv_r * inv_r;
     return e;
-}
-
-/* ---------------------------------------------------------------- hit search of a packet */
-
-/* The packet's hit search state (solve_hits): per ray the bracket, whether it still iterates,
- * and its gap and slope at t. */
-typedef struct { double lo[PACKET], hi[PACKET], active[PACKET], gap[PACKET], slope[PACKET]; } search_state;
-
-/* Gap and slope of every ray k < count at t[k], converged or not (packet_gaps): a branch-free
- * loop over independent surface evaluations, which GCC vectorises with gathers (restrict: the
- * heights and the scene are not written here). */
-static void packet_gaps(const double *restrict d, int64_t m, const sfc_scene *restrict sc,
-                        const double (*restrict w)[PACKET], const double *restrict t, int64_t count,
-                        double *restrict gap, double *restrict slope) {
-    const vec3 light = v3(sc->light_x, sc->light_y, sc->light_z);
-    for (int64_t k = 0; k < count; k++)
-        gap_at(d, m, sc, light, v3(w[0][k], w[1][k], w[2][k]), t[k], &gap[k], &slope[k]);
-}
-
-/* Hits of the rays k < count along w[k] into t[k]; the rays that need no march iterate Newton in
- * lockstep, so that the core overlaps their surface evaluations (solve_hits). */
-static void solve_hits(const double *d, int64_t m, const sfc_scene *sc, const double w_rows[3][PACKET],
-                       int64_t count, double *t, search_state *st) {
-    const double z_scale = fabs(sc->light_z) + fabs(sc->zhi) + 1.0;
-    const double tol = 1e-12 * z_scale, settle = sc->settle * z_scale;
-    for (int64_t k = 0; k < count; k++) {
-        const vec3 w = v3(w_rows[0][k], w_rows[1][k], w_rows[2][k]);
-        if (needs_march(w, sc->slope_x, sc->slope_y)) {
-            t[k] = solve_hit(d, m, sc, v3(sc->light_x, sc->light_y, sc->light_z), w);
-            st->active[k] = 0.0;
-        } else {
-            st->lo[k] = (sc->zhi - sc->light_z) / w.z;
-            st->hi[k] = (sc->zlo - sc->light_z) / w.z;
-            st->active[k] = 1.0;
-            t[k] = dmin(dmax((sc->zstart - sc->light_z) / w.z, st->lo[k]), st->hi[k]);
-        }
-    }
-    for (int64_t it = 0; it < sc->newton_iterations; it++) {
-        packet_gaps(d, m, sc, w_rows, t, count, st->gap, st->slope);
-        int64_t iterating = 0;
-        for (int64_t k = 0; k < count; k++) {
-            if (st->active[k] == 0.0) continue;
-            int settled = fabs(st->gap[k]) <= tol;
-            if (!settled) settled = newton_update(&t[k], st->gap[k], st->slope[k], &st->lo[k], &st->hi[k], settle);
-            if (settled) st->active[k] = 0.0; else iterating++;
-        }
-        if (iterating == 0) break;
-    }
 }
 
 /* Every intermediate of a photon's optics from its hit to the receiver (optics_state). */
@@ -459,7 +411,11 @@ static void trace_hits(const photons_in *in, int64_t first, int64_t count, packe
     if (in->replay) {
         for (int64_t k = 0; k < count; k++) p->t[k] = in->hit_t[offset + k];
     } else {
-        solve_hits(in->d, in->m, sc, p->w, count, p->t, &p->search);
+        for (int64_t k = 0; k < count; k++) {
+            p->search.o[0][k] = sc->light_x; p->search.o[1][k] = sc->light_y; p->search.o[2][k] = sc->light_z;
+            for (int j = 0; j < 3; j++) p->search.w[j][k] = p->w[j][k];
+        }
+        solve_hits(in->d, in->m, sc, count, p->t, &p->search);
         if (in->hit_len > 0)
             for (int64_t k = 0; k < count; k++) in->hit_t[offset + k] = p->t[k];
     }

@@ -14,10 +14,12 @@
  *                        operators/mesh/adjoint_native.py
  *   surface, optics .... photon_optics.h (the height-field kernels' own)
  * Here the photons go through all their events on one thread without a return to Python, in
- * packets of PACKET photons that take their events in step (see "packets" below): the search for
- * each photon's next event and the lookup of its surface one photon at a time, the arithmetic of
- * the event (transfer, shading normal, refraction or reflection, Fresnel) and of its reverse in
- * one branch-free loop over the packet, which GCC vectorises across photons. The print's jets and
+ * packets of PACKET photons that take their events in step (see "packets" below): the print's hit
+ * search for the packet's photons over it in lockstep (solve_hits, as in the height-field
+ * kernels), the rest of the search for each photon's next event and the lookup of its surface one
+ * photon at a time, the arithmetic of the event (transfer, shading normal, refraction or
+ * reflection, Fresnel) and of its reverse in one branch-free loop over the packet, which GCC
+ * vectorises across photons. The print's jets and
  * hit adjoint come from the AVX2 kernels of simd_kernels.c where the scene's `simd` is set (as in
  * the height-field kernels; the scalar ones of photon_optics.h elsewhere). The gradient logs
  * each photon's events (kind, face or plane, distance) as it traces, and the reverse replays them
@@ -255,18 +257,16 @@ static inline SFC_INLINE int over_print(const mesh_scene *ms, vec3 p, vec3 w) {
 /* ---------------------------------------------------------------- events */
 
 /* The photon's next event (_next_event), from p along w in `medium`, `clear` if it left a clear
- * face: kind, face or box plane in *which, distance in *t. */
-static int64_t next_event(const mesh_scene *ms, const mesh_faces *fa, const double *d, int64_t m, vec3 p, vec3 w,
-                          int64_t medium, int clear, int released, int wait_at_top, ray_hit *ray, int64_t *which,
-                          double *t_out) {
+ * face, t_top its hit on the print where it comes down onto it (over_print; searched beforehand
+ * for the packet, print_hits): kind, face or box plane in *which, distance in *t. */
+static int64_t next_event(const mesh_scene *ms, const mesh_faces *fa, vec3 p, vec3 w, int64_t medium, int clear,
+                          int released, int wait_at_top, double t_top, ray_hit *ray, int64_t *which, double *t_out) {
     const int in_air = medium == AIR, in_sub = medium == fa->substrate;
     const double thickness = ms->hf.base;
     double best = INFINITY;
     int64_t kind = ESCAPED;
     *which = -1;
     const int over = in_air && over_print(ms, p, w);
-    double t_top = INFINITY;
-    if (over && !wait_at_top) t_top = solve_hit(d, m, &ms->hf, p, w);
     const int skip = clear || (in_air && w.z < 0.0 && p.z < ms->lowest)
                      || (released && t_top < (thickness - p.z) / w.z);
     int64_t face = -1;
@@ -332,12 +332,15 @@ static int64_t next_event(const mesh_scene *ms, const mesh_faces *fa, const doub
  * its own), so that GCC vectorises them across photons; each lane keeps exactly the arithmetic of
  * its own kind. A packet holds its photons in columns: state[j][k] is entry j of lane k's row. */
 enum { PACKET = 32 };
+_Static_assert((int)PACKET <= (int)SEARCH_LANES, "a packet must fit one lockstep hit search");
 
 typedef struct {
     int64_t count;         /* lanes in use */
     int64_t index[PACKET]; /* the chunk's row of each lane */
     double state[STATE][PACKET];
     int64_t medium[PACKET], status[PACKET], clear[PACKET];
+    double t_top[PACKET];  /* each lane's hit on the print where it comes down onto it, else inf */
+    search_state search;   /* the print's hit search for the lanes over it */
 } packet;
 
 /* One event of a packet's photons. Looked up: kind (-1: none), face or plane, distance, whether it
@@ -369,6 +372,26 @@ static inline SFC_INLINE void put3(double c[][PACKET], int j, int64_t k, vec3 v)
 }
 static inline SFC_INLINE vec3 pick3(int which, vec3 a, vec3 b) {
     return v3(which ? a.x : b.x, which ? a.y : b.y, which ? a.z : b.z);
+}
+
+/* pk->t_top: the print's hits of the lanes under way that come down onto it from above
+ * (over_print), searched in lockstep (solve_hits); inf for the others. */
+static void print_hits(const mesh_scene *ms, const chunk_job *c, packet *pk) {
+    int64_t lane[PACKET], count = 0;
+    search_state *st = &pk->search;
+    for (int64_t k = 0; k < pk->count; k++) {
+        pk->t_top[k] = INFINITY;
+        const vec3 p = col3(pk->state, P, k), w = col3(pk->state, W, k);
+        if (pk->status[k] != UNDER_WAY || pk->medium[k] != AIR || !over_print(ms, p, w)) continue;
+        for (int j = 0; j < 3; j++) {
+            st->o[j][count] = pk->state[P + j][k];
+            st->w[j][count] = pk->state[W + j][k];
+        }
+        lane[count++] = k;
+    }
+    double t[PACKET];
+    if (count > 0) solve_hits(c->d, c->m, &ms->hf, count, t, st);
+    for (int64_t j = 0; j < count; j++) pk->t_top[lane[j]] = t[j];
 }
 
 /* Lane k's event (ev->kind, which, t set) looked up for a photon at p going along w in wavelength
@@ -502,6 +525,7 @@ static void trace_packet(const mesh_scene *ms, const mesh_faces *fa, const chunk
     for (int64_t e = 0; e < depth; e++) {
         double flux[PACKET];
         int any = 0;
+        if (!c->replay && !c->wait_at_top) print_hits(ms, c, pk);
         for (int64_t k = 0; k < pk->count; k++) {
             ev->kind[k] = -1;
             ev->which[k] = -1;
@@ -518,8 +542,9 @@ static void trace_packet(const mesh_scene *ms, const mesh_faces *fa, const chunk
                 ev->which[k] = c->log_which[depth * i + e];
                 ev->t[k] = c->log_t[depth * i + e];
             } else {
-                ev->kind[k] = next_event(ms, fa, c->d, c->m, p, w, pk->medium[k], (int)pk->clear[k],
-                                         e == 0 && !c->wait_at_top, (int)c->wait_at_top, ray, &ev->which[k], &ev->t[k]);
+                ev->kind[k] = next_event(ms, fa, p, w, pk->medium[k], (int)pk->clear[k], e == 0 && !c->wait_at_top,
+                                         (int)c->wait_at_top, c->wait_at_top ? INFINITY : pk->t_top[k], ray,
+                                         &ev->which[k], &ev->t[k]);
             }
             flux[k] = pk->state[FLUX][k];
             look_up(ms, fa, c->d, c->m, c->channel[i], p, w, ev, k);

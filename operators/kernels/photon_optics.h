@@ -307,6 +307,60 @@ static double solve_hit(const double *d, int64_t m, const sfc_scene *sc, vec3 o,
     return t;
 }
 
+/* ---------------------------------------------------------------- hit search of a packet */
+
+enum { SEARCH_LANES = 128 }; /* the most rays one lockstep search takes */
+
+/* A lockstep hit search (solve_hits): per ray its origin and direction (rows x, y, z), the
+ * bracket, whether it still iterates, its gap and slope at t and its tolerances. */
+typedef struct {
+    double o[3][SEARCH_LANES], w[3][SEARCH_LANES];
+    double lo[SEARCH_LANES], hi[SEARCH_LANES], active[SEARCH_LANES], gap[SEARCH_LANES], slope[SEARCH_LANES];
+    double tol[SEARCH_LANES], settle[SEARCH_LANES];
+} search_state;
+
+/* Gap and slope of every ray k < count at t[k], converged or not (packet_gaps): a branch-free
+ * loop over independent surface evaluations, which GCC vectorises with gathers (restrict: the
+ * heights and the scene are not written here). */
+static void packet_gaps(const double *restrict d, int64_t m, const sfc_scene *restrict sc,
+                        const double (*restrict o)[SEARCH_LANES], const double (*restrict w)[SEARCH_LANES],
+                        const double *restrict t, int64_t count, double *restrict gap, double *restrict slope) {
+    for (int64_t k = 0; k < count; k++)
+        gap_at(d, m, sc, v3(o[0][k], o[1][k], o[2][k]), v3(w[0][k], w[1][k], w[2][k]), t[k], &gap[k], &slope[k]);
+}
+
+/* Hits t[k] of the rays k < count from st->o[.][k] along st->w[.][k]: each ray that needs a march
+ * is searched on its own (solve_hit), the others iterate Newton in lockstep, so that the core
+ * overlaps their surface evaluations; every ray takes solve_hit's steps. */
+static void solve_hits(const double *d, int64_t m, const sfc_scene *sc, int64_t count, double *t, search_state *st) {
+    for (int64_t k = 0; k < count; k++) {
+        const vec3 o = v3(st->o[0][k], st->o[1][k], st->o[2][k]), w = v3(st->w[0][k], st->w[1][k], st->w[2][k]);
+        const double z_scale = fabs(o.z) + fabs(sc->zhi) + 1.0;
+        st->tol[k] = 1e-12 * z_scale;
+        st->settle[k] = sc->settle * z_scale;
+        if (needs_march(w, sc->slope_x, sc->slope_y)) {
+            t[k] = solve_hit(d, m, sc, o, w);
+            st->active[k] = 0.0;
+        } else {
+            st->lo[k] = (sc->zhi - o.z) / w.z;
+            st->hi[k] = (sc->zlo - o.z) / w.z;
+            st->active[k] = 1.0;
+            t[k] = dmin(dmax((sc->zstart - o.z) / w.z, st->lo[k]), st->hi[k]);
+        }
+    }
+    for (int64_t it = 0; it < sc->newton_iterations; it++) {
+        packet_gaps(d, m, sc, st->o, st->w, t, count, st->gap, st->slope);
+        int64_t iterating = 0;
+        for (int64_t k = 0; k < count; k++) {
+            if (st->active[k] == 0.0) continue;
+            int settled = fabs(st->gap[k]) <= st->tol[k];
+            if (!settled) settled = newton_update(&t[k], st->gap[k], st->slope[k], &st->lo[k], &st->hi[k], st->settle[k]);
+            if (settled) st->active[k] = 0.0; else iterating++;
+        }
+        if (iterating == 0) break;
+    }
+}
+
 /* ---------------------------------------------------------------- optics */
 
 /* Move a photon dist along w onto a surface with normal n (transfer). */
