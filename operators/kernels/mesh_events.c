@@ -84,7 +84,7 @@ typedef struct {
 } mesh_faces;
 
 /* A chunk of photons: state (N, STATE), medium, channel, status, counted events (N,), clear (N,)
- * bool; the flux each one lost (N, LOSS_KINDS); with a log, each photon's events (N, max_depth):
+ * bool; the flux each one lost (LOSS_KINDS, N); with a log, each photon's events (N, max_depth):
  * kind (-1 past its last), face or plane, distance, which the trace records or, with replay,
  * takes instead of searching (logged at the same heights). The reverse's start (the chunk's state,
  * medium and clear before the trace), its gradients g_state (N, STATE) and g_heights (threads, m, m). */
@@ -93,6 +93,7 @@ typedef struct {
     const double *d;
     int64_t m;
     double *state;
+    const double *start; /* the trace's photons as they start (N, STATE), NULL: state itself */
     int64_t *medium;
     const int64_t *channel;
     int64_t *status, *events;
@@ -501,11 +502,12 @@ static void apply_columns(const mesh_scene *ms, packet *restrict pk, event_colum
     }
 }
 
-/* The packet's lanes k = 0 .. count - 1 as chunk rows index[k]: their state into columns. */
-static void load_packet(const chunk_job *c, packet *pk) {
+/* The packet's lanes k = 0 .. count - 1 as chunk rows index[k]: their state (from `rows`) into
+ * columns. */
+static void load_packet(const chunk_job *c, const double *rows, packet *pk) {
     for (int64_t k = 0; k < pk->count; k++) {
         const int64_t i = pk->index[k];
-        for (int j = 0; j < STATE; j++) pk->state[j][k] = c->state[STATE * i + j];
+        for (int j = 0; j < STATE; j++) pk->state[j][k] = rows[STATE * i + j];
         pk->medium[k] = c->medium[i];
         pk->status[k] = c->status[i];
         pk->clear[k] = c->clear[i];
@@ -514,12 +516,12 @@ static void load_packet(const chunk_job *c, packet *pk) {
 
 /* The packet's photons through their events (advance, _run in operators/mesh/trace_native.py):
  * each at most max_depth of them, until it lands, is lost, waits at the top (wait_at_top) or has
- * had max_depth counted events in all; its losses into its row of c->lost, its events into the
+ * had max_depth counted events in all, from c->start (or c->state); its losses into its column of c->lost, its events into the
  * log (or, with replay, from it); its state, medium, status and clear back into the chunk. */
 static void trace_packet(const mesh_scene *ms, const mesh_faces *fa, const chunk_job *c, packet *pk,
                          event_columns *ev, ray_hit *ray) {
     const int64_t depth = c->max_depth, logging = c->log_kind != NULL && !c->replay;
-    load_packet(c, pk);
+    load_packet(c, c->start != NULL ? c->start : c->state, pk);
     if (logging)
         for (int64_t k = 0; k < pk->count; k++) memset(c->log_kind + depth * pk->index[k], -1, (size_t)depth);
     for (int64_t e = 0; e < depth; e++) {
@@ -554,7 +556,7 @@ static void trace_packet(const mesh_scene *ms, const mesh_faces *fa, const chunk
         for (int64_t k = 0; k < pk->count; k++) {
             const int64_t kind = ev->kind[k], i = pk->index[k];
             if (pk->status[k] != UNDER_WAY) continue;
-            double *lost = c->lost + LOSS_KINDS * i;
+            double *lost = c->lost + i;
             pk->clear[k] = 0;
             if (kind == AT_TOP) {
                 pk->status[k] = WAITING;
@@ -565,7 +567,7 @@ static void trace_packet(const mesh_scene *ms, const mesh_faces *fa, const chunk
             } else if (ev->through[k] != 0.0) {
                 const int64_t solid = kind == MESH ? fa->face_element[ev->which[k]] : fa->substrate;
                 const int entering = ev->sign[k] > 0.0;
-                if (ms->hf.fresnel) lost[LOST_FRESNEL] += ev->lost[k];
+                if (ms->hf.fresnel) lost[LOST_FRESNEL * c->n] += ev->lost[k];
                 pk->medium[k] = entering ? solid : AIR;
                 pk->clear[k] = kind == MESH && !entering && fa->face_clear[ev->which[k]]
                                && ev->leave_cos[k] >= ms->clear_cos;
@@ -576,10 +578,10 @@ static void trace_packet(const mesh_scene *ms, const mesh_faces *fa, const chunk
                 c->log_t[depth * i + e] = ev->t[k];
             }
             if (kind != AT_TOP) c->events[i]++;
-            if (kind == ESCAPED) lost[LOST_ESCAPED] += flux[k];
-            if (kind == INSIDE_TOP) lost[LOST_INSIDE_TOP] += flux[k];
+            if (kind == ESCAPED) lost[LOST_ESCAPED * c->n] += flux[k];
+            if (kind == INSIDE_TOP) lost[LOST_INSIDE_TOP * c->n] += flux[k];
             if (pk->status[k] == UNDER_WAY && c->events[i] >= depth) {
-                lost[LOST_MAX_DEPTH] += pk->state[FLUX][k];
+                lost[LOST_MAX_DEPTH * c->n] += pk->state[FLUX][k];
                 pk->status[k] = LOST;
             }
         }
@@ -616,6 +618,7 @@ static int trace_worker(void *context, int64_t thread) {
         for (int64_t i = b * BLOCK; i < imin(c->n, (b + 1) * BLOCK); i++) {
             if (c->status[i] != UNDER_WAY) {
                 if (c->log_kind != NULL && !c->replay) memset(c->log_kind + c->max_depth * i, -1, (size_t)c->max_depth);
+                if (c->start != NULL) memcpy(c->state + STATE * i, c->start + STATE * i, STATE * sizeof(double));
                 continue;
             }
             pk->index[pk->count++] = i;
@@ -736,7 +739,7 @@ typedef struct {
 static void reverse_packet(const mesh_scene *ms, const mesh_faces *fa, const chunk_job *c, packet *pk,
                            reverse_space *rs, double *grad) {
     const int64_t depth = c->max_depth;
-    load_packet(c, pk);
+    load_packet(c, c->state, pk);
     int64_t events = 0;
     for (; events < depth; events++) {
         event_columns *ev = rs->events + events;
@@ -809,8 +812,9 @@ static int reverse_worker(void *context, int64_t thread) {
 
 /* ---------------------------------------------------------------- exported */
 
-/* Trace every photon of the chunk under way through its events, on c->threads threads, in place
- * (see trace_packet). Returns 0, -1 when a thread could not start. */
+/* Trace every photon of the chunk under way through its events, on c->threads threads, into
+ * c->state from c->start (NULL: in place; see trace_packet). Returns 0, -1 when a thread could
+ * not start. */
 int SFC_EXPORT(sfc_mesh_trace)(const mesh_scene *ms, const mesh_faces *fa, const chunk_job *c) {
     worker_job j = {ms, fa, c, (c->n + BLOCK - 1) / BLOCK};
     return sfc_parallel(c->threads, trace_worker, &j);

@@ -56,7 +56,7 @@ class _Faces(ctypes.Structure):
 class _Chunk(ctypes.Structure):
     """``chunk_job`` of mesh_events.c."""
 
-    _fields_ = [("d", _P), ("m", _I), ("state", _P), ("medium", _P), ("channel", _P), ("status", _P), ("events", _P),
+    _fields_ = [("d", _P), ("m", _I), ("state", _P), ("start", _P), ("medium", _P), ("channel", _P), ("status", _P), ("events", _P),
                 ("clear", _P), ("lost", _P), ("log_kind", _P), ("log_which", _P), ("log_t", _P), ("g_state", _P),
                 ("g_heights", _P), ("n", _I), ("max_depth", _I), ("wait_at_top", _I), ("replay", _I), ("threads", _I)]
 
@@ -130,7 +130,7 @@ class EventLog:
 def _chunk(d: np.ndarray, state: np.ndarray, medium: np.ndarray, channel: np.ndarray, status: np.ndarray,
            events: np.ndarray, clear: np.ndarray, max_depth: int, wait_at_top: bool, log: EventLog | None,
            replay: bool = False, lost: np.ndarray | None = None, g_state: np.ndarray | None = None,
-           g_heights: np.ndarray | None = None) -> _Chunk:
+           g_heights: np.ndarray | None = None, start: np.ndarray | None = None) -> _Chunk:
     n = state.shape[0]
     if d.ndim != 2 or d.shape[0] != d.shape[1]:
         raise ValueError(f"heights must be a square array, got {d.shape}")
@@ -140,10 +140,10 @@ def _chunk(d: np.ndarray, state: np.ndarray, medium: np.ndarray, channel: np.nda
     threads = nb.get_num_threads() if g_heights is None else g_heights.shape[0]
     return _Chunk(
         _data(d, np.float64, "d", d.shape), d.shape[0], _data(state, np.float64, "state", (n, mk.STATE)),
-        _data(medium, np.int64, "medium", (n,)), _data(channel, np.int64, "channel", (n,)),
+        None if start is None else _data(start, np.float64, "start", (n, mk.STATE)), _data(medium, np.int64, "medium", (n,)), _data(channel, np.int64, "channel", (n,)),
         _data(status, np.int64, "status", (n,)), _data(events, np.int64, "events", (n,)),
         _data(clear, np.bool_, "clear", (n,)),
-        None if lost is None else _data(lost, np.float64, "lost", (n, len(LOSS_KINDS))),
+        None if lost is None else _data(lost, np.float64, "lost", (len(LOSS_KINDS), n)),
         *logged,
         None if g_state is None else _data(g_state, np.float64, "g_state", (n, mk.STATE)),
         None if g_heights is None else _data(g_heights, np.float64, "g_heights", (threads, *d.shape)),
@@ -157,17 +157,20 @@ def _check_status(status: int) -> None:
 
 def trace(d: np.ndarray, state: np.ndarray, medium: np.ndarray, channel: np.ndarray, status: np.ndarray,
           events: np.ndarray, clear: np.ndarray, max_depth: int, wait_at_top: bool, faces: Faces,
-          sc: mk.MeshConstants, log: EventLog | None = None, replay: bool = False) -> np.ndarray:
+          sc: mk.MeshConstants, log: EventLog | None = None, replay: bool = False,
+          start: np.ndarray | None = None) -> np.ndarray:
     """Every photon under way through its events (at most ``max_depth``, until it lands, is lost,
     or with ``wait_at_top`` waits above the print; lost too once ``events`` (N,), counted over its
     whole path, reaches ``max_depth``), in place: ``state`` (N, STATE), ``medium``, ``status``,
-    ``events``, ``clear`` (N,); heights ``d`` (m, m). Records the events into ``log``, or with
-    ``replay`` takes them from it (logged at the same heights: no search). Returns the flux each
-    photon lost (N, len(LOSS_KINDS))."""
+    ``events``, ``clear`` (N,); heights ``d`` (m, m). With ``start`` (N, STATE) the photons start
+    from there and ``state`` only receives them (``start`` is not written). Records the events
+    into ``log``, or with ``replay`` takes them from it (logged at the same heights: no search).
+    Returns the flux each photon lost (len(LOSS_KINDS), N)."""
     if replay and log is None:
         raise ValueError("a replay needs the log of the events")
-    lost = np.zeros((state.shape[0], len(LOSS_KINDS)))
-    job = _chunk(d, state, medium, channel, status, events, clear, max_depth, wait_at_top, log, replay, lost)
+    lost = np.zeros((len(LOSS_KINDS), state.shape[0]))
+    job = _chunk(d, state, medium, channel, status, events, clear, max_depth, wait_at_top, log, replay, lost,
+                 start=start)
     trace_chunk = _KERNELS.function("sfc_mesh_trace")
     _check_status(trace_chunk(ctypes.byref(_scene(sc)), ctypes.byref(faces.struct), ctypes.byref(job)))
     return lost

@@ -13,6 +13,7 @@ the splat's adjoint gather to the heights.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numba as nb
@@ -43,7 +44,8 @@ class Prefix:
     used so far (N,); the fixed image (c, n, n, flux per pixel) and losses (W) of all others.
     Within each chunk the photons are in the order they are traced in, by where they cross the
     plane z = thickness (:func:`operators.mesh.locality.crossing_order`); ``place`` (N,) is
-    each one's place in its chunk in emission order, the order they are splatted in."""
+    each one's place in its chunk in emission order, the order they are splatted in; ``lowest``
+    the lowest z at which one waits (inf for none)."""
 
     state: np.ndarray
     channel: np.ndarray
@@ -51,6 +53,7 @@ class Prefix:
     image: torch.Tensor
     losses: dict[str, float]
     place: np.ndarray
+    lowest: float
 
 
 # Event kinds, faces or planes and distances as the kernels take them.
@@ -102,6 +105,28 @@ def _numba_splat_arguments(state, status, where, sc, pos, metric, flux) -> float
     return float(state[outside, mk.FLUX].sum())
 
 
+class _RenderBuffers:
+    """Arrays each render fills again, per chunk: its photons' final states (n, STATE) and event
+    logs. The last render's are those its gradient reads; refilling them spares a render the page
+    faults of new arrays."""
+
+    def __init__(self) -> None:
+        self._states: dict[int, np.ndarray] = {}
+        self._logs: dict[int, events_compiled.EventLog] = {}
+
+    def state(self, k: int, n: int) -> np.ndarray:
+        """Chunk ``k``'s state buffer for ``n`` photons."""
+        if k not in self._states or len(self._states[k]) != n:
+            self._states[k] = np.empty((n, mk.STATE))
+        return self._states[k]
+
+    def log(self, k: int, n: int, max_depth: int) -> events_compiled.EventLog:
+        """Chunk ``k``'s event log for ``n`` photons of ``max_depth`` events."""
+        if k not in self._logs or self._logs[k].kind.shape != (n, max_depth):
+            self._logs[k] = events_compiled.EventLog.empty(n, max_depth)
+        return self._logs[k]
+
+
 class NativeMeshTracer:
     """Traces a :class:`operators.mesh.operator.MeshSceneOperator`'s photons natively."""
 
@@ -120,6 +145,7 @@ class NativeMeshTracer:
         self._splat_arguments_adjoint = (events_compiled.splat_arguments_adjoint if self.compiled
                                          else ma.splat_arguments_adjoint)
         self._prefix: Prefix | None = None
+        self._buffers = _RenderBuffers()
         # The heights of the last render and its events per chunk, for a vjp at the same heights.
         self._events_seen: tuple[np.ndarray, list] | None = None
         # The last gradient's padded adjoint image and its border, overwritten by the next.
@@ -158,17 +184,21 @@ class NativeMeshTracer:
 
     # -- events -------------------------------------------------------------------------------
     def _trace(self, d: np.ndarray, chunk: _Chunk, sc: mk.MeshConstants, wait_at_top: bool,
-               losses: dict[str, float], log: events_compiled.EventLog | None = None, replay: bool = False) -> None:
+               losses: dict[str, float], log: events_compiled.EventLog | None = None, replay: bool = False,
+               start: np.ndarray | None = None) -> None:
         """The chunk's photons through their events, by the C kernels (all events in one call) or
         by :meth:`_run` (one event per call); lost flux added to ``losses``; with the C kernels,
-        each photon's events recorded into ``log`` or, with ``replay``, taken from it."""
+        each photon's events recorded into ``log`` or, with ``replay``, taken from it, and with
+        ``start`` (N, STATE) the photons taken from there into ``chunk.state``."""
         if not self.compiled:
+            if start is not None:
+                chunk.state[:] = start
             self._run(d, chunk, sc, wait_at_top, losses)
             return
         lost = events_compiled.trace(d, chunk.state, chunk.medium, chunk.channel, chunk.status, chunk.events,
                                      chunk.clear, self.operator.settings.max_depth, wait_at_top, self._faces, sc, log,
-                                     replay)
-        for kind, total in zip(events_compiled.LOSS_KINDS, lost.sum(axis=0)):
+                                     replay, start)
+        for kind, total in zip(events_compiled.LOSS_KINDS, lost.sum(axis=1)):
             losses[kind] += float(total)
 
     def _run(self, d: np.ndarray, chunk: _Chunk, sc: mk.MeshConstants, wait_at_top: bool, losses: dict[str, float],
@@ -279,8 +309,9 @@ class NativeMeshTracer:
         size = op.settings.chunk_size
         order = crossing_order(state[:, mk.P:mk.P + 3], state[:, mk.W:mk.W + 3], op.scene.substrate.thickness, size)
         place = order - np.arange(len(order)) // size * size
+        lowest = float(state[:, mk.P + 2].min()) if len(state) else math.inf
         self._prefix = Prefix(np.ascontiguousarray(state[order]), channel[order], events[order], image.image(), losses,
-                              place)
+                              place, lowest)
         return self._prefix
 
     def _emitted(self, start: int, stop: int) -> _Chunk:
@@ -326,11 +357,15 @@ class NativeMeshTracer:
         keep_final = self.compiled and log_bytes + len(pre.state) * FINAL_BYTES_PER_PHOTON <= budget
         seen: list = []
         finals: list = []
-        for start, stop in self._waiting_chunks():
-            chunk, where = self._waiting(start, stop)
+        self._events_seen = None  # its arrays are the buffers this render refills
+        for k, (start, stop) in enumerate(self._waiting_chunks()):
+            chunk, where = self._waiting(start, stop, writable=not self.compiled)
             if self.compiled:
-                log = events_compiled.EventLog.empty(stop - start, settings.max_depth) if keep else None
-                self._trace(d, chunk, sc, False, losses, log)
+                chunk.events = chunk.events.copy()
+                # The photons traced from the prefix into a buffer of this chunk (or, if not kept, of all).
+                begin, chunk.state = chunk.state, self._buffers.state(k if keep_final else 0, stop - start)
+                log = self._buffers.log(k, stop - start, settings.max_depth) if keep else None
+                self._trace(d, chunk, sc, False, losses, log, start=begin)
                 seen.append(log)
                 if keep_final:
                     finals.append((chunk.state, chunk.status))
@@ -385,7 +420,7 @@ class NativeMeshTracer:
 
     def _check_above(self, sc: mk.MeshConstants) -> None:
         """Refuse a print that reaches photons waiting above it."""
-        state = self.prefix().state
-        if len(state) and float(state[:, mk.P + 2].min()) <= sc.top_max:
+        lowest = self.prefix().lowest
+        if lowest <= sc.top_max:
             raise PrintReachesElement(f"the print reaches z={sc.top_max:.4g}, above where light meets it "
-                             f"(z={float(state[:, mk.P + 2].min()):.4g}); lower the print or move the elements up")
+                             f"(z={lowest:.4g}); lower the print or move the elements up")
