@@ -1,6 +1,6 @@
 /* The mesh-scene operator's photon kernels in C: every photon of a chunk through all its events at
- * once (trace), the reverse of each photon's events (reverse), and the splat arguments of the
- * landed photons with their adjoint. Part of the compiled extension operators.kernels._simd
+ * once (trace), the splat arguments of the landed photons, and the reverse of both, from the
+ * gradient w.r.t. the splat arguments to the heights (reverse). Part of the compiled extension operators.kernels._simd
  * (setup.py): compiled at install, so the first render through lenses traces at once instead of
  * waiting minutes for numba. Built twice, for any x86-64 CPU and for AVX2 + FMA (mesh_events_avx2.c;
  * the host calls that build where the CPU has both).
@@ -87,7 +87,9 @@ typedef struct {
  * bool; the flux each one lost (LOSS_KINDS, N); with a log, each photon's events (N, max_depth):
  * kind (-1 past its last), face or plane, distance, which the trace records or, with replay,
  * takes instead of searching (logged at the same heights). The reverse's start (the chunk's state,
- * medium and clear before the trace), its gradients g_state (N, STATE) and g_heights (threads, m, m). */
+ * medium and clear before the trace), the gradient w.r.t. the landed photons' splat arguments g_pos
+ * (2, N), g_metric (3, N), g_flux (N,) (splat_arguments' columns) and its output g_heights (threads,
+ * m, m). */
 enum { LOST_ESCAPED = 0, LOST_INSIDE_TOP = 1, LOST_FRESNEL = 2, LOST_MAX_DEPTH = 3, LOSS_KINDS = 4 };
 typedef struct {
     const double *d;
@@ -102,7 +104,8 @@ typedef struct {
     int8_t *log_kind;
     int32_t *log_which;
     double *log_t;
-    double *g_state, *g_heights;
+    const double *g_pos, *g_metric, *g_flux;
+    double *g_heights;
     int64_t n, max_depth, wait_at_top, replay, threads;
 } chunk_job;
 
@@ -734,8 +737,8 @@ typedef struct {
 /* The reverse of the packet's logged events (retreat over the events of _run, in
  * operators/mesh/trace_native.py): the events replayed from the photons' start (the states before
  * the trace in c->state), the states before each and what each computed kept, then the gradient
- * c->g_state of the photons' final states taken back through them event by event, into grad (m,
- * m) at the top; c->g_state receives the gradient w.r.t. the start. */
+ * w.r.t. the final states (splat_arguments_adjoint, from the replayed final states and the gradient
+ * w.r.t. the splat arguments) taken back through them event by event, into grad (m, m) at the top. */
 static void reverse_packet(const mesh_scene *ms, const mesh_faces *fa, const chunk_job *c, packet *pk,
                            reverse_space *rs, double *grad) {
     const int64_t depth = c->max_depth;
@@ -756,8 +759,23 @@ static void reverse_packet(const mesh_scene *ms, const mesh_faces *fa, const chu
         memcpy(rs->before[events], pk->state, sizeof(pk->state));
         apply_columns(ms, pk, ev);
     }
-    for (int64_t k = 0; k < pk->count; k++)
-        for (int j = 0; j < STATE; j++) rs->g[j][k] = c->g_state[STATE * pk->index[k] + j];
+    const sfc_scene *sc = &ms->hf;
+    const double to_px = sc->to_px;
+    for (int64_t k = 0; k < pk->count; k++) {
+        const int64_t i = pk->index[k], n = c->n;
+        for (int j = 0; j < STATE; j++) rs->g[j][k] = 0.0;
+        double gf[4];
+        footprint_metric_adjoint(sc, pk->state[DPU][k] * to_px, pk->state[DPU + 1][k] * to_px,
+                                 pk->state[DPV][k] * to_px, pk->state[DPV + 1][k] * to_px, c->g_metric[i],
+                                 c->g_metric[n + i], c->g_metric[2 * n + i], gf);
+        rs->g[P][k] = c->g_pos[i] * to_px;
+        rs->g[P + 1][k] = c->g_pos[n + i] * to_px;
+        rs->g[DPU][k] = gf[0] * to_px;
+        rs->g[DPU + 1][k] = gf[1] * to_px;
+        rs->g[DPV][k] = gf[2] * to_px;
+        rs->g[DPV + 1][k] = gf[3] * to_px;
+        rs->g[FLUX][k] = c->g_flux[i];
+    }
     for (int64_t e = events - 1; e >= 0; e--) {
         const event_columns *ev = rs->events + e;
         retreat_columns(ms, pk->count, ev, rs->before[e], rs->g, rs->hit);
@@ -769,8 +787,6 @@ static void reverse_packet(const mesh_scene *ms, const mesh_faces *fa, const chu
             hit_adjoint(&ms->hf, c->d, grad, c->m, p.x + ev->t[k] * w.x, p.y + ev->t[k] * w.y, w, hit);
         }
     }
-    for (int64_t k = 0; k < pk->count; k++)
-        for (int j = 0; j < STATE; j++) c->g_state[STATE * pk->index[k] + j] = rs->g[j][k];
 }
 
 static int reverse_worker(void *context, int64_t thread) {
@@ -820,10 +836,10 @@ int SFC_EXPORT(sfc_mesh_trace)(const mesh_scene *ms, const mesh_faces *fa, const
     return sfc_parallel(c->threads, trace_worker, &j);
 }
 
-/* The gradient w.r.t. the heights, into c->g_heights (threads, m, m), of the photons' final
- * states' gradient c->g_state (N, STATE; overwritten): c->state, medium and clear hold the chunk
- * as it was before sfc_mesh_trace logged its events, c->status the status after it (only landed
- * photons carry a gradient). Returns 0, -1 on failure to allocate or start threads. */
+/* The gradient w.r.t. the heights, into c->g_heights (threads, m, m), of the gradient w.r.t. the
+ * landed photons' splat arguments (c->g_pos, g_metric, g_flux): c->state, medium and clear hold the
+ * chunk as it was before sfc_mesh_trace logged its events, c->status the status after it (only
+ * landed photons carry a gradient). Returns 0, -1 on failure to allocate or start threads. */
 int SFC_EXPORT(sfc_mesh_reverse)(const mesh_scene *ms, const mesh_faces *fa, const chunk_job *c) {
     worker_job j = {ms, fa, c, (c->n + BLOCK - 1) / BLOCK};
     return sfc_parallel(c->threads, reverse_worker, &j);
@@ -887,49 +903,4 @@ int SFC_EXPORT(sfc_mesh_splat_arguments)(const mesh_scene *ms, const double *sta
     for (int64_t t = 0; t < threads; t++) *missed += shares[t];
     free(shares);
     return result;
-}
-
-typedef struct {
-    const mesh_scene *ms;
-    const double *state;
-    const int64_t *status;
-    int64_t n, threads;
-    const double *g_pos, *g_metric, *g_flux;
-    double *g_state;
-} splat_adjoint_job;
-
-/* Thread t's share of sfc_mesh_splat_arguments_adjoint: photons t * per .. (t + 1) * per - 1. */
-static int splat_adjoint_worker(void *context, int64_t thread) {
-    const splat_adjoint_job *j = (const splat_adjoint_job *)context;
-    const sfc_scene *sc = &j->ms->hf;
-    const double k = sc->to_px;
-    const int64_t n = j->n, per = (n + j->threads - 1) / j->threads;
-    for (int64_t i = thread * per; i < imin(n, (thread + 1) * per); i++) {
-        double *g = j->g_state + STATE * i;
-        for (int c = 0; c < STATE; c++) g[c] = 0.0;
-        if (j->status[i] != LANDED) continue;
-        const double *row = j->state + STATE * i;
-        double gf[4];
-        footprint_metric_adjoint(sc, row[DPU] * k, row[DPU + 1] * k, row[DPV] * k, row[DPV + 1] * k, j->g_metric[i],
-                                 j->g_metric[n + i], j->g_metric[2 * n + i], gf);
-        g[P] = j->g_pos[i] * k;
-        g[P + 1] = j->g_pos[n + i] * k;
-        g[DPU] = gf[0] * k;
-        g[DPU + 1] = gf[1] * k;
-        g[DPV] = gf[2] * k;
-        g[DPV + 1] = gf[3] * k;
-        g[FLUX] = j->g_flux[i];
-    }
-    return 0;
-}
-
-/* The gradient w.r.t. the photons' states (N, STATE) from those w.r.t. their splat arguments,
- * photon i's at column i (splat_arguments_adjoint), on `threads` threads (thread t: a contiguous
- * share; every photon's row is its own, so the result does not depend on the threads). Returns 0,
- * -1 on failure to start threads. */
-int SFC_EXPORT(sfc_mesh_splat_arguments_adjoint)(const mesh_scene *ms, const double *state, const int64_t *status,
-                                                 int64_t n, int64_t threads, const double *g_pos,
-                                                 const double *g_metric, const double *g_flux, double *g_state) {
-    splat_adjoint_job j = {ms, state, status, n, threads < 1 ? 1 : threads, g_pos, g_metric, g_flux, g_state};
-    return sfc_parallel(j.threads, splat_adjoint_worker, &j);
 }

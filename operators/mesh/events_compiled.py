@@ -1,10 +1,10 @@
 """Host side of the mesh-scene photon kernels in C (``operators/kernels/mesh_events.c``).
 
 :func:`trace` takes a chunk of photons through all their events in one call (what
-:func:`operators.mesh.kernels_native.advance` does one event per call), :func:`reverse` takes the
-gradient w.r.t. their final states back to the heights (what
-:func:`operators.mesh.adjoint_native.retreat` does one event per call, from a tape), and
-:func:`splat_arguments` / :func:`splat_arguments_adjoint` are the numba kernels of those names.
+:func:`operators.mesh.kernels_native.advance` does one event per call), :func:`splat_arguments` is
+the numba kernel of that name, and :func:`reverse` takes the gradient w.r.t. the landed photons'
+splat arguments back to the heights (what :func:`operators.mesh.adjoint_native.splat_arguments_adjoint`
+and :func:`operators.mesh.adjoint_native.retreat`, one event per call from a tape, do).
 Compiled at install as part of the extension (:mod:`operators.kernels.extension`): the first
 render through lenses traces at once instead of waiting for numba. ctypes releases the GIL for
 the call; the C code runs as many threads as numba would.
@@ -26,8 +26,7 @@ from operators.mesh.culling import CLEAR_COS
 from operators.mesh.embree_native import INTERSECT1
 from operators.mesh.intersect_reference import MIN_FACE_DISTANCE, START_OFFSET
 
-__all__ = ["AVAILABLE", "BYTES_PER_EVENT", "LOSS_KINDS", "EventLog", "Faces", "trace", "reverse", "splat_arguments",
-           "splat_arguments_adjoint"]
+__all__ = ["AVAILABLE", "BYTES_PER_EVENT", "LOSS_KINDS", "EventLog", "Faces", "trace", "reverse", "splat_arguments"]
 
 _P = ctypes.c_void_p
 _I = ctypes.c_int64
@@ -57,7 +56,7 @@ class _Chunk(ctypes.Structure):
     """``chunk_job`` of mesh_events.c."""
 
     _fields_ = [("d", _P), ("m", _I), ("state", _P), ("start", _P), ("medium", _P), ("channel", _P), ("status", _P), ("events", _P),
-                ("clear", _P), ("lost", _P), ("log_kind", _P), ("log_which", _P), ("log_t", _P), ("g_state", _P),
+                ("clear", _P), ("lost", _P), ("log_kind", _P), ("log_which", _P), ("log_t", _P), ("g_pos", _P), ("g_metric", _P), ("g_flux", _P),
                 ("g_heights", _P), ("n", _I), ("max_depth", _I), ("wait_at_top", _I), ("replay", _I), ("threads", _I)]
 
 
@@ -68,8 +67,7 @@ def _bind() -> extension.Kernels:
     return extension.bind((
         ("sfc_mesh_trace", [scene, faces, chunk], ctypes.c_int),
         ("sfc_mesh_reverse", [scene, faces, chunk], ctypes.c_int),
-        ("sfc_mesh_splat_arguments", [scene, _P, _P, _P, _I, _I, _P, _P, _P, _P], ctypes.c_int),
-        ("sfc_mesh_splat_arguments_adjoint", [scene, _P, _P, _I, _I, _P, _P, _P, _P], ctypes.c_int)))
+        ("sfc_mesh_splat_arguments", [scene, _P, _P, _P, _I, _I, _P, _P, _P, _P], ctypes.c_int)))
 
 
 _KERNELS = _bind()
@@ -129,8 +127,9 @@ class EventLog:
 
 def _chunk(d: np.ndarray, state: np.ndarray, medium: np.ndarray, channel: np.ndarray, status: np.ndarray,
            events: np.ndarray, clear: np.ndarray, max_depth: int, wait_at_top: bool, log: EventLog | None,
-           replay: bool = False, lost: np.ndarray | None = None, g_state: np.ndarray | None = None,
-           g_heights: np.ndarray | None = None, start: np.ndarray | None = None) -> _Chunk:
+           replay: bool = False, lost: np.ndarray | None = None,
+           g_splat: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None, g_heights: np.ndarray | None = None,
+           start: np.ndarray | None = None) -> _Chunk:
     n = state.shape[0]
     if d.ndim != 2 or d.shape[0] != d.shape[1]:
         raise ValueError(f"heights must be a square array, got {d.shape}")
@@ -145,7 +144,9 @@ def _chunk(d: np.ndarray, state: np.ndarray, medium: np.ndarray, channel: np.nda
         _data(clear, np.bool_, "clear", (n,)),
         None if lost is None else _data(lost, np.float64, "lost", (len(LOSS_KINDS), n)),
         *logged,
-        None if g_state is None else _data(g_state, np.float64, "g_state", (n, mk.STATE)),
+        *((None, None, None) if g_splat is None else (
+            _data(g_splat[0], np.float64, "g_pos", (2, n)), _data(g_splat[1], np.float64, "g_metric", (3, n)),
+            _data(g_splat[2], np.float64, "g_flux", (n,)))),
         None if g_heights is None else _data(g_heights, np.float64, "g_heights", (threads, *d.shape)),
         n, max_depth, int(wait_at_top), int(replay), threads)
 
@@ -177,15 +178,16 @@ def trace(d: np.ndarray, state: np.ndarray, medium: np.ndarray, channel: np.ndar
 
 
 def reverse(d: np.ndarray, start: tuple[np.ndarray, np.ndarray, np.ndarray], channel: np.ndarray,
-            status: np.ndarray, log: EventLog, faces: Faces, sc: mk.MeshConstants, g_state: np.ndarray,
-            g_heights: np.ndarray) -> None:
+            status: np.ndarray, log: EventLog, faces: Faces, sc: mk.MeshConstants,
+            g_splat: tuple[np.ndarray, np.ndarray, np.ndarray], g_heights: np.ndarray) -> None:
     """Add to ``g_heights`` (threads, m, m), one thread per row, the gradient w.r.t. the heights
-    ``d`` of the photons' final states' gradient ``g_state`` (N, STATE; overwritten): ``start``
+    ``d`` of the gradient ``g_splat`` w.r.t. the landed photons' splat arguments (pos (2, N),
+    metric (3, N), flux (N,), as :func:`splat_arguments` gives them in chunk order): ``start``
     (state, medium, clear) as the photons were before the :func:`trace` that filled ``log``,
     ``status`` (N,) as they were after it."""
     state, medium, clear = start
     job = _chunk(d, state, medium, channel, status, np.zeros(len(state), np.int64), clear, log.kind.shape[1], False,
-                 log, True, g_state=g_state, g_heights=g_heights)
+                 log, True, g_splat=g_splat, g_heights=g_heights)
     reverse_chunk = _KERNELS.function("sfc_mesh_reverse")
     _check_status(reverse_chunk(ctypes.byref(_scene(sc)), ctypes.byref(faces.struct), ctypes.byref(job)))
 
@@ -201,14 +203,3 @@ def splat_arguments(state, status, where, sc, pos, metric, flux) -> float:
         _data(pos, np.float64, "pos", (2, n)), _data(metric, np.float64, "metric", (3, n)),
         _data(flux, np.float64, "flux", (n,)), ctypes.byref(missed)))
     return missed.value
-
-
-def splat_arguments_adjoint(state, status, sc, g_pos, g_metric, g_flux, g_state) -> None:
-    """:func:`operators.mesh.adjoint_native.splat_arguments_adjoint` in C (same arguments), on
-    numba's thread count."""
-    n = state.shape[0]
-    _check_status(_KERNELS.function("sfc_mesh_splat_arguments_adjoint")(
-        ctypes.byref(_scene(sc)), _data(state, np.float64, "state", (n, mk.STATE)),
-        _data(status, np.int64, "status", (n,)), n, nb.get_num_threads(), _data(g_pos, np.float64, "g_pos", (2, n)),
-        _data(g_metric, np.float64, "g_metric", (3, n)), _data(g_flux, np.float64, "g_flux", (n,)),
-        _data(g_state, np.float64, "g_state", (n, mk.STATE))))

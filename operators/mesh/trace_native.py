@@ -142,8 +142,6 @@ class NativeMeshTracer:
         self.compiled = operator.settings.kernels == "c" and events_compiled.AVAILABLE
         self._dtype = torch.empty(0, dtype=operator.dtype).numpy().dtype  # the operator's dtype in numpy
         self._splat_arguments = events_compiled.splat_arguments if self.compiled else _numba_splat_arguments
-        self._splat_arguments_adjoint = (events_compiled.splat_arguments_adjoint if self.compiled
-                                         else ma.splat_arguments_adjoint)
         self._prefix: Prefix | None = None
         self._buffers = _RenderBuffers()
         # The heights of the last render and its events per chunk, for a vjp at the same heights.
@@ -393,7 +391,7 @@ class NativeMeshTracer:
         seen, finals = self._events_seen[1:] if same else (None, None)
         from_finals = self.compiled and finals is not None  # the reverse only reads the start states
         chunks = self._waiting_chunks()
-        g_rows = np.empty((max((b - a for a, b in chunks), default=0), mk.STATE))  # every chunk's g_state
+        g_rows = None if self.compiled else np.empty((max((b - a for a, b in chunks), default=0), mk.STATE))
         for k, (start, stop) in enumerate(chunks):
             chunk, _ = self._waiting(start, stop, writable=not from_finals)
             tape: list = []
@@ -408,12 +406,12 @@ class NativeMeshTracer:
             else:
                 self._run(d, chunk, sc, False, not_counted, tape, events_replay=None if seen is None else seen[k])
             pos, metric, flux = self._splat_inputs(chunk, sc, None)
-            g_pos, g_metric, g_flux = adjoint.gather(pos, metric, flux, chunk.channel)
-            g_state = g_rows[:len(chunk.state)]
-            self._splat_arguments_adjoint(chunk.state, chunk.status, sc, g_pos, g_metric, g_flux, g_state)
+            g_splat = adjoint.gather(pos, metric, flux, chunk.channel)
             if self.compiled:
-                events_compiled.reverse(d, before, chunk.channel, chunk.status, log, self._faces, sc, g_state, g_heights)
+                events_compiled.reverse(d, before, chunk.channel, chunk.status, log, self._faces, sc, g_splat, g_heights)
             else:
+                g_state = g_rows[:len(chunk.state)]
+                ma.splat_arguments_adjoint(chunk.state, chunk.status, sc, *g_splat, g_state)
                 self._reverse(d, chunk, sc, tape, g_state, g_heights)
         self._padded = (adjoint.padded, adjoint.pad)
         return g_heights.sum(axis=0)
