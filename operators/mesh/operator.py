@@ -213,7 +213,7 @@ class MeshSceneOperator(PhotonOperator):
         self._check(heights)
         if self.native is not None:
             image, self.losses = self.native.render(heights.detach().double().cpu().numpy())
-            return (image / self.pixel_area).to(self.dtype).to(heights.device)
+            return image.div_(self.pixel_area).to(self.dtype).to(heights.device)  # a new image: divided in place
         image = torch.zeros(self.output_shape, dtype=self.dtype)
         self.losses = dict.fromkeys(LOSSES, 0.0)
         with torch.no_grad():

@@ -372,7 +372,7 @@ class NativeMeshTracer:
                 self._run(d, chunk, sc, False, losses, events_log=seen[-1])
             self._splat(chunk, sc, losses, image, where)
         self._events_seen = (d.copy(), seen, finals if keep_final else None) if keep else None
-        return pre.image + image.image(), losses
+        return image.image().add_(pre.image), losses
 
     def vjp(self, d: np.ndarray, grad_flux: torch.Tensor) -> np.ndarray:
         """Gradient (m, m) w.r.t. d of <flux per pixel, grad_flux (c, n, n)>. The photons' events
