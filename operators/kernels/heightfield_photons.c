@@ -376,8 +376,21 @@ typedef struct {
     double jets[5][PACKET];   /* S_x, S_y, S_xx, S_xy, S_yy */
     double spots[6][PACKET];  /* splat arguments (px, py, q00, q01, q11, flux), then their gradients */
     double g_hit[6][PACKET];  /* gradients w.r.t. (t, jet) */
+    double light[3][PACKET];  /* the light's position in every lane: the hit search's origins */
     search_state search;
 } packet;
+
+/* A packet for the scene's photons (free it), NULL where memory ran out. */
+static packet *new_packet(const sfc_scene *sc) {
+    packet *p = (packet *)malloc(sizeof(packet));
+    if (!p) return NULL;
+    for (int64_t k = 0; k < PACKET; k++) {
+        p->light[0][k] = sc->light_x;
+        p->light[1][k] = sc->light_y;
+        p->light[2][k] = sc->light_z;
+    }
+    return p;
+}
 
 typedef struct {
     const double *d;
@@ -411,11 +424,7 @@ static void trace_hits(const photons_in *in, int64_t first, int64_t count, packe
     if (in->replay) {
         for (int64_t k = 0; k < count; k++) p->t[k] = in->hit_t[offset + k];
     } else {
-        for (int64_t k = 0; k < count; k++) {
-            p->search.o[0][k] = sc->light_x; p->search.o[1][k] = sc->light_y; p->search.o[2][k] = sc->light_z;
-            for (int j = 0; j < 3; j++) p->search.w[j][k] = p->w[j][k];
-        }
-        solve_hits(in->d, in->m, sc, count, p->t, &p->search);
+        solve_hits(in->d, in->m, sc, p->light, p->w, count, p->t, &p->search);
         if (in->hit_len > 0)
             for (int64_t k = 0; k < count; k++) in->hit_t[offset + k] = p->t[k];
     }
@@ -478,7 +487,7 @@ typedef struct {
 
 static int render_worker(void *context, int64_t thread) {
     job *j = (job *)context;
-    packet *p = (packet *)malloc(sizeof(packet));
+    packet *p = new_packet(j->in.sc);
     double *buf = (double *)malloc(sizeof(double) * (size_t)imax(j->capacity, 1));
     if (!p || !buf) {
         free(p);
@@ -514,7 +523,7 @@ static int vjp_worker(void *context, int64_t thread) {
     job *j = (job *)context;
     const sfc_scene *sc = j->in.sc;
     const int64_t m = j->in.m;
-    packet *p = (packet *)malloc(sizeof(packet));
+    packet *p = new_packet(sc);
     char *contributes = (char *)malloc(PACKET);
     if (!p || !contributes) {
         free(p);

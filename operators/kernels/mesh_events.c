@@ -1,9 +1,9 @@
 /* The mesh-scene operator's photon kernels in C: every photon of a chunk through all its events at
  * once (trace), the splat arguments of the landed photons, and the reverse of both, from the
- * gradient w.r.t. the splat arguments to the heights (reverse). Part of the compiled extension operators.kernels._simd
- * (setup.py): compiled at install, so the first render through lenses traces at once instead of
- * waiting minutes for numba. Built twice, for any x86-64 CPU and for AVX2 + FMA (mesh_events_avx2.c;
- * the host calls that build where the CPU has both).
+ * gradient w.r.t. the splat arguments to the heights (reverse). Part of the compiled extension
+ * operators.kernels._simd (setup.py): compiled at install, so the first render through lenses
+ * traces at once instead of waiting minutes for numba. Built twice, for any x86-64 CPU and for
+ * AVX2 + FMA (mesh_events_avx2.c; the host calls that build where the CPU has both).
  *
  * The same arithmetic, event for event, as the numba kernels, which trace one event of all
  * photons per call from a Python loop (operators/mesh/trace_native.py) and stay the fallback (no
@@ -19,12 +19,12 @@
  * kernels), the rest of the search for each photon's next event and the lookup of its surface one
  * photon at a time, the arithmetic of the event (transfer, shading normal, refraction or
  * reflection, Fresnel) and of its reverse in one branch-free loop over the packet, which GCC
- * vectorises across photons. The print's jets and
- * hit adjoint come from the AVX2 kernels of simd_kernels.c where the scene's `simd` is set (as in
- * the height-field kernels; the scalar ones of photon_optics.h elsewhere). The gradient logs
- * each photon's events (kind, face or plane, distance) as it traces, and the reverse replays them
- * from the photons' start, keeping the states before each event and what each computed for the
- * packet on its thread, instead of a tape of every photon's states per event.
+ * vectorises across photons. The print's jets and hit adjoint come from the AVX2 kernels of
+ * simd_kernels.c where the scene's `simd` is set (as in the height-field kernels; the scalar ones
+ * of photon_optics.h elsewhere). The gradient logs each photon's events (kind, face or plane,
+ * distance) as it traces, and the reverse replays them from the photons' start, keeping the states
+ * before each event and what each computed for the packet on its thread, instead of a tape of
+ * every photon's states per event.
  *
  * A photon's state is a row of STATE doubles (position, its two differentials, direction, its two
  * differentials, flux), as in kernels_native.py. Embree finds the faces: the host passes the
@@ -344,7 +344,8 @@ typedef struct {
     double state[STATE][PACKET];
     int64_t medium[PACKET], status[PACKET], clear[PACKET];
     double t_top[PACKET];  /* each lane's hit on the print where it comes down onto it, else inf */
-    search_state search;   /* the print's hit search for the lanes over it */
+    double search_o[3][SEARCH_LANES], search_w[3][SEARCH_LANES]; /* the rays of the lanes over the print */
+    search_state search;   /* the print's hit search for them */
 } packet;
 
 /* One event of a packet's photons. Looked up: kind (-1: none), face or plane, distance, whether it
@@ -382,19 +383,18 @@ static inline SFC_INLINE vec3 pick3(int which, vec3 a, vec3 b) {
  * (over_print), searched in lockstep (solve_hits); inf for the others. */
 static void print_hits(const mesh_scene *ms, const chunk_job *c, packet *pk) {
     int64_t lane[PACKET], count = 0;
-    search_state *st = &pk->search;
     for (int64_t k = 0; k < pk->count; k++) {
         pk->t_top[k] = INFINITY;
         const vec3 p = col3(pk->state, P, k), w = col3(pk->state, W, k);
         if (pk->status[k] != UNDER_WAY || pk->medium[k] != AIR || !over_print(ms, p, w)) continue;
         for (int j = 0; j < 3; j++) {
-            st->o[j][count] = pk->state[P + j][k];
-            st->w[j][count] = pk->state[W + j][k];
+            pk->search_o[j][count] = pk->state[P + j][k];
+            pk->search_w[j][count] = pk->state[W + j][k];
         }
         lane[count++] = k;
     }
     double t[PACKET];
-    if (count > 0) solve_hits(c->d, c->m, &ms->hf, count, t, st);
+    if (count > 0) solve_hits(c->d, c->m, &ms->hf, pk->search_o, pk->search_w, count, t, &pk->search);
     for (int64_t j = 0; j < count; j++) pk->t_top[lane[j]] = t[j];
 }
 
@@ -519,8 +519,9 @@ static void load_packet(const chunk_job *c, const double *rows, packet *pk) {
 
 /* The packet's photons through their events (advance, _run in operators/mesh/trace_native.py):
  * each at most max_depth of them, until it lands, is lost, waits at the top (wait_at_top) or has
- * had max_depth counted events in all, from c->start (or c->state); its losses into its column of c->lost, its events into the
- * log (or, with replay, from it); its state, medium, status and clear back into the chunk. */
+ * had max_depth counted events in all, from c->start (or c->state); its losses into its column of
+ * c->lost, its events into the log (or, with replay, from it); its state, medium, status and clear
+ * back into the chunk. */
 static void trace_packet(const mesh_scene *ms, const mesh_faces *fa, const chunk_job *c, packet *pk,
                          event_columns *ev, ray_hit *ray) {
     const int64_t depth = c->max_depth, logging = c->log_kind != NULL && !c->replay;

@@ -311,10 +311,9 @@ static double solve_hit(const double *d, int64_t m, const sfc_scene *sc, vec3 o,
 
 enum { SEARCH_LANES = 128 }; /* the most rays one lockstep search takes */
 
-/* A lockstep hit search (solve_hits): per ray its origin and direction (rows x, y, z), the
- * bracket, whether it still iterates, its gap and slope at t and its tolerances. */
+/* A lockstep hit search's work space (solve_hits): per ray the bracket, whether it still iterates,
+ * its gap and slope at t and its tolerances. */
 typedef struct {
-    double o[3][SEARCH_LANES], w[3][SEARCH_LANES];
     double lo[SEARCH_LANES], hi[SEARCH_LANES], active[SEARCH_LANES], gap[SEARCH_LANES], slope[SEARCH_LANES];
     double tol[SEARCH_LANES], settle[SEARCH_LANES];
 } search_state;
@@ -329,12 +328,13 @@ static void packet_gaps(const double *restrict d, int64_t m, const sfc_scene *re
         gap_at(d, m, sc, v3(o[0][k], o[1][k], o[2][k]), v3(w[0][k], w[1][k], w[2][k]), t[k], &gap[k], &slope[k]);
 }
 
-/* Hits t[k] of the rays k < count from st->o[.][k] along st->w[.][k]: each ray that needs a march
- * is searched on its own (solve_hit), the others iterate Newton in lockstep, so that the core
- * overlaps their surface evaluations; every ray takes solve_hit's steps. */
-static void solve_hits(const double *d, int64_t m, const sfc_scene *sc, int64_t count, double *t, search_state *st) {
+/* Hits t[k] of the rays k < count from o[.][k] along w[.][k] (rows x, y, z): each ray that needs
+ * a march is searched on its own (solve_hit), the others iterate Newton in lockstep, so that the
+ * core overlaps their surface evaluations; every ray takes solve_hit's steps. */
+static void solve_hits(const double *d, int64_t m, const sfc_scene *sc, const double (*o_rows)[SEARCH_LANES],
+                       const double (*w_rows)[SEARCH_LANES], int64_t count, double *t, search_state *st) {
     for (int64_t k = 0; k < count; k++) {
-        const vec3 o = v3(st->o[0][k], st->o[1][k], st->o[2][k]), w = v3(st->w[0][k], st->w[1][k], st->w[2][k]);
+        const vec3 o = v3(o_rows[0][k], o_rows[1][k], o_rows[2][k]), w = v3(w_rows[0][k], w_rows[1][k], w_rows[2][k]);
         const double z_scale = fabs(o.z) + fabs(sc->zhi) + 1.0;
         st->tol[k] = 1e-12 * z_scale;
         st->settle[k] = sc->settle * z_scale;
@@ -349,12 +349,13 @@ static void solve_hits(const double *d, int64_t m, const sfc_scene *sc, int64_t 
         }
     }
     for (int64_t it = 0; it < sc->newton_iterations; it++) {
-        packet_gaps(d, m, sc, st->o, st->w, t, count, st->gap, st->slope);
+        packet_gaps(d, m, sc, o_rows, w_rows, t, count, st->gap, st->slope);
         int64_t iterating = 0;
         for (int64_t k = 0; k < count; k++) {
             if (st->active[k] == 0.0) continue;
             int settled = fabs(st->gap[k]) <= st->tol[k];
-            if (!settled) settled = newton_update(&t[k], st->gap[k], st->slope[k], &st->lo[k], &st->hi[k], st->settle[k]);
+            if (!settled)
+                settled = newton_update(&t[k], st->gap[k], st->slope[k], &st->lo[k], &st->hi[k], st->settle[k]);
             if (settled) st->active[k] = 0.0; else iterating++;
         }
         if (iterating == 0) break;

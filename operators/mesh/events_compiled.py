@@ -55,9 +55,10 @@ class _Faces(ctypes.Structure):
 class _Chunk(ctypes.Structure):
     """``chunk_job`` of mesh_events.c."""
 
-    _fields_ = [("d", _P), ("m", _I), ("state", _P), ("start", _P), ("medium", _P), ("channel", _P), ("status", _P), ("events", _P),
-                ("clear", _P), ("lost", _P), ("log_kind", _P), ("log_which", _P), ("log_t", _P), ("g_pos", _P), ("g_metric", _P), ("g_flux", _P),
-                ("g_heights", _P), ("n", _I), ("max_depth", _I), ("wait_at_top", _I), ("replay", _I), ("threads", _I)]
+    _fields_ = [("d", _P), ("m", _I), ("state", _P), ("start", _P), ("medium", _P), ("channel", _P), ("status", _P),
+                ("events", _P), ("clear", _P), ("lost", _P), ("log_kind", _P), ("log_which", _P), ("log_t", _P),
+                ("g_pos", _P), ("g_metric", _P), ("g_flux", _P), ("g_heights", _P), ("n", _I), ("max_depth", _I),
+                ("wait_at_top", _I), ("replay", _I), ("threads", _I)]
 
 
 def _bind() -> extension.Kernels:
@@ -139,7 +140,8 @@ def _chunk(d: np.ndarray, state: np.ndarray, medium: np.ndarray, channel: np.nda
     threads = nb.get_num_threads() if g_heights is None else g_heights.shape[0]
     return _Chunk(
         _data(d, np.float64, "d", d.shape), d.shape[0], _data(state, np.float64, "state", (n, mk.STATE)),
-        None if start is None else _data(start, np.float64, "start", (n, mk.STATE)), _data(medium, np.int64, "medium", (n,)), _data(channel, np.int64, "channel", (n,)),
+        None if start is None else _data(start, np.float64, "start", (n, mk.STATE)),
+        _data(medium, np.int64, "medium", (n,)), _data(channel, np.int64, "channel", (n,)),
         _data(status, np.int64, "status", (n,)), _data(events, np.int64, "events", (n,)),
         _data(clear, np.bool_, "clear", (n,)),
         None if lost is None else _data(lost, np.float64, "lost", (len(LOSS_KINDS), n)),

@@ -408,7 +408,8 @@ class NativeMeshTracer:
             pos, metric, flux = self._splat_inputs(chunk, sc, None)
             g_splat = adjoint.gather(pos, metric, flux, chunk.channel)
             if self.compiled:
-                events_compiled.reverse(d, before, chunk.channel, chunk.status, log, self._faces, sc, g_splat, g_heights)
+                events_compiled.reverse(d, before, chunk.channel, chunk.status, log, self._faces, sc, g_splat,
+                                        g_heights)
             else:
                 g_state = g_rows[:len(chunk.state)]
                 ma.splat_arguments_adjoint(chunk.state, chunk.status, sc, *g_splat, g_state)
