@@ -16,10 +16,10 @@
  * Here the photons go through all their events on one thread without a return to Python, in
  * packets of PACKET photons that take their events in step (see "packets" below): the print's hit
  * search for the packet's photons over it in lockstep (solve_hits, as in the height-field
- * kernels), the rest of the search for each photon's next event and the lookup of its surface one
- * photon at a time, the arithmetic of the event (transfer, shading normal, refraction or
- * reflection, Fresnel) and of its reverse in one branch-free loop over the packet, which GCC
- * vectorises across photons. The print's jets and hit adjoint come from the AVX2 kernels of
+ * kernels), the rest of the search for each photon's next event one photon at a time, the lookup
+ * of the surfaces for the packet, the arithmetic of the event (transfer, shading normal, refraction
+ * or reflection, Fresnel) and of its reverse in one branch-free loop over the packet, which GCC
+ * vectorises across photons (compiled once per kind of surface: faces, print, planes, a mix). The print's jets and hit adjoint come from the AVX2 kernels of
  * simd_kernels.c where the scene's `simd` is set (as in the height-field kernels; the scalar ones
  * of photon_optics.h elsewhere). The gradient logs each photon's events (kind, face or plane,
  * distance) as it traces, and the reverse replays them from the photons' start, keeping the states
@@ -329,12 +329,13 @@ static int64_t next_event(const mesh_scene *ms, const mesh_faces *fa, vec3 p, ve
 /* ---------------------------------------------------------------- packets */
 
 /* The photons of a block go through their events PACKET at a time and in step: each photon's
- * next event is found (or read from the log) and its surface looked up one photon at a time
- * (look_up), then one loop over the packet moves every photon onto its surface and refracts or
- * reflects it (apply_columns); the reverse takes the events back the same way (retreat_columns).
- * Those two loops are written branch-free (every lane computes every kind's arithmetic and keeps
- * its own), so that GCC vectorises them across photons; each lane keeps exactly the arithmetic of
- * its own kind. A packet holds its photons in columns: state[j][k] is entry j of lane k's row. */
+ * next event is found (or read from the log) one photon at a time, the surfaces looked up for the
+ * packet (look_up), then one loop over the packet moves every photon onto its surface and refracts
+ * or reflects it (apply_columns); the reverse takes the events back the same way
+ * (retreat_columns). Those two loops are written branch-free (where the packet meets several kinds
+ * of surface, every lane computes each kind's arithmetic and keeps its own), so that GCC vectorises
+ * them across photons; each lane keeps exactly the arithmetic of its own kind. A packet holds its
+ * photons in columns: state[j][k] is entry j of lane k's row. */
 enum { PACKET = 32 };
 _Static_assert((int)PACKET <= (int)SEARCH_LANES, "a packet must fit one lockstep hit search");
 
@@ -351,13 +352,15 @@ typedef struct {
 /* One event of a packet's photons. Looked up: kind (-1: none), face or plane, distance, whether it
  * moves the photon (MESH, TOP, BOX or RECEIVER) and whether it crosses a surface (not RECEIVER),
  * whether it is a face's or the print's, the solid's refractive index, the plane
- * normal, a face's shading corners n0, e_k = n_k - n0 with v0 and the dual basis g_k (flat for
- * other kinds: n0 the plane normal, the rest zero) and the print's jet (zero off the print).
+ * normal, a face's shading corners n0, e_k = n_k - n0 with v0 and the dual basis g_k (where the
+ * packet meets faces; flat for other kinds: n0 the plane normal, the rest zero) and the print's
+ * jet (where the packet meets the print; zero off it).
  * Computed (apply_columns, the reverse's inputs): the point met with its differentials, the
  * shading normal with its differentials and |raw|, the crossing (sign, eta, cosines, refracted or
  * reflected), the flux lost to Fresnel and the cosine of the way out with the plane normal. */
 typedef struct {
     int64_t kind[PACKET], which[PACKET];
+    int surfaces; /* the kinds of surface the applied events meet (surfaces_met) */
     double moves[PACKET], crosses[PACKET], on_mesh[PACKET], on_top[PACKET]; /* 1.0 or 0.0: the masks of the
                                                                                  packet loops, in doubles so that
                                                                                  they vectorise with the rest */
@@ -398,110 +401,164 @@ static void print_hits(const mesh_scene *ms, const chunk_job *c, packet *pk) {
     for (int64_t j = 0; j < count; j++) pk->t_top[lane[j]] = t[j];
 }
 
-/* Lane k's event (ev->kind, which, t set) looked up for a photon at p going along w in wavelength
- * channel `channel` (event_surface's lookups). */
-static void look_up(const mesh_scene *ms, const mesh_faces *fa, const double *d, int64_t m, int64_t channel, vec3 p,
-                    vec3 w, event_columns *ev, int64_t k) {
-    const int64_t kind = ev->kind[k], f = ev->which[k];
-    vec3 n_plane = UP, e1 = ZERO, e2 = ZERO, v0 = ZERO, g1 = ZERO, g2 = ZERO;
-    double jet[5] = {0.0, 0.0, 0.0, 0.0, 0.0};
-    int64_t solid = fa->substrate;
-    if (kind == MESH) {
-        n_plane = load3(fa->plane + 3 * f);
-        v0 = load3(fa->v0 + 3 * f);
-        g1 = dual_row(fa, f, 0);
-        g2 = dual_row(fa, f, 1);
-        const double *corners = fa->shading + 9 * f;
-        const vec3 n0 = load3(corners);
-        e1 = sub3(load3(corners + 3), n0);
-        e2 = sub3(load3(corners + 6), n0);
-        put3(ev->n0, 0, k, n0);
-        solid = fa->face_element[f];
-    } else if (kind == TOP) {
-        surface_jet(&ms->hf, d, m, p.x + ev->t[k] * w.x, p.y + ev->t[k] * w.y, jet);
-        n_plane = height_field_normal(jet[0], jet[1]);
-    } else if (kind == BOX) {
-        n_plane = box_normal(f);
+/* The surfaces a packet's applied events meet: all faces, all the print, all planes (walls, bottom,
+ * receiver), or a mix. The packet loops below keep one lane's arithmetic of its own kind either
+ * way; for one kind they are compiled without the others' (the flags are constants there), and
+ * the look-up fills only the columns those read. The photons of a packet nearly always meet the
+ * same kind of surface at the same event. */
+enum { ON_FACES = 0, ON_PRINT = 1, ON_PLANES = 2, ON_MIX = 3 };
+
+static int surfaces_met(int64_t count, const int64_t *kind) {
+    int faces = 0, print = 0, planes = 0;
+    for (int64_t k = 0; k < count; k++) {
+        faces |= kind[k] == MESH;
+        print |= kind[k] == TOP;
+        planes |= kind[k] == BOX || kind[k] == RECEIVER;
     }
-    if (kind != MESH) put3(ev->n0, 0, k, n_plane);
-    const int applied = kind == MESH || kind == TOP || kind == BOX || kind == RECEIVER;
-    ev->moves[k] = applied ? 1.0 : 0.0;
-    ev->crosses[k] = applied && kind != RECEIVER ? 1.0 : 0.0;
-    ev->on_mesh[k] = kind == MESH ? 1.0 : 0.0;
-    ev->on_top[k] = kind == TOP ? 1.0 : 0.0;
-    ev->n_solid[k] = kind == RECEIVER ? 1.0 : fa->indices[solid * fa->channels + channel];
-    put3(ev->n_plane, 0, k, n_plane);
-    put3(ev->e1, 0, k, e1);
-    put3(ev->e2, 0, k, e2);
-    put3(ev->v0, 0, k, v0);
-    put3(ev->g1, 0, k, g1);
-    put3(ev->g2, 0, k, g2);
-    for (int j = 0; j < 5; j++) ev->jet[j][k] = jet[j];
+    if (faces + print + planes > 1) return ON_MIX;
+    return faces ? ON_FACES : (print ? ON_PRINT : ON_PLANES);
 }
 
-/* Every applied event of the packet at once (event_surface, interface and _advance_one's arithmetic):
- * each photon moved onto its surface, refracted or reflected (not at the receiver), its flux less
- * the Fresnel loss (fresnel on); the surface and crossing into ev. */
-static void apply_columns(const mesh_scene *ms, packet *restrict pk, event_columns *restrict ev) {
-    const int64_t fres = ms->hf.fresnel, count = pk->count;
-#pragma GCC ivdep
+/* The surfaces of the packet's events (ev->kind, which, t set; kind -1 for a lane without one), as
+ * event_surface looks them up, photon i in its wavelength channel: ev->surfaces and the columns
+ * the packet loops read for those surfaces. */
+static void look_up(const mesh_scene *ms, const mesh_faces *fa, const chunk_job *c, const packet *pk,
+                    event_columns *ev) {
+    const int64_t count = pk->count;
+    const int surfaces = surfaces_met(count, ev->kind);
+    const int faces = surfaces == ON_FACES || surfaces == ON_MIX, print = surfaces == ON_PRINT || surfaces == ON_MIX;
+    ev->surfaces = surfaces;
     for (int64_t k = 0; k < count; k++) {
-        const int applied = ev->moves[k] != 0.0, crosses = ev->crosses[k] != 0.0;
-        const int mesh = ev->on_mesh[k] != 0.0, top = ev->on_top[k] != 0.0;
-        const vec3 p = col3(pk->state, P, k), dpu = col3(pk->state, DPU, k), dpv = col3(pk->state, DPV, k);
-        const vec3 w = col3(pk->state, W, k), dwu = col3(pk->state, DWU, k), dwv = col3(pk->state, DWV, k);
-        const double flux = pk->state[FLUX][k];
-        const vec3 n_plane = col3(ev->n_plane, 0, k);
-        vec3 q, dqu, dqv;
-        transfer(&ms->hf, p, dpu, dpv, w, dwu, dwv, ev->t[k], n_plane, &q, &dqu, &dqv);
-        /* A face's interpolated normal (_shading); the plane normal on the other kinds. */
-        shading_frame frame;
-        frame.e1 = col3(ev->e1, 0, k);
-        frame.e2 = col3(ev->e2, 0, k);
-        frame.g1 = col3(ev->g1, 0, k);
-        frame.g2 = col3(ev->g2, 0, k);
-        const vec3 rel = sub3(q, col3(ev->v0, 0, k));
-        const vec3 raw = axpy(dot(rel, frame.g1), frame.e1, axpy(dot(rel, frame.g2), frame.e2, col3(ev->n0, 0, k)));
-        frame.length = sqrt(dot(raw, raw));
-        frame.normal = scale3(1.0 / frame.length, raw);
-        const double sxx = ev->jet[2][k], sxy = ev->jet[3][k], syy = ev->jet[4][k];
-        const vec3 outward = pick3(mesh, frame.normal, n_plane);
-        const vec3 dnu = pick3(mesh, shading_differential(&frame, dqu),
-                               pick3(top, normal_differential(sxx, sxy, syy, n_plane, dqu), ZERO));
-        const vec3 dnv = pick3(mesh, shading_differential(&frame, dqv),
-                               pick3(top, normal_differential(sxx, sxy, syy, n_plane, dqv), ZERO));
-        /* The crossing (interface). */
-        const int entering = dot(w, n_plane) < 0.0;
-        const double sign = entering ? 1.0 : -1.0, n_solid = ev->n_solid[k];
-        const double eta = entering ? 1.0 / n_solid : n_solid;
-        const vec3 facing = scale3(sign, outward), dfu = scale3(sign, dnu), dfv = scale3(sign, dnv);
-        vec3 r, ru, rv, m, mu, mv;
-        double ci, ct;
-        const int through = refract(w, dwu, dwv, facing, dfu, dfv, eta, &r, &ru, &rv, &ci, &ct) > 0.0;
-        reflect(w, dwu, dwv, facing, dfu, dfv, &m, &mu, &mv);
-        const vec3 out = pick3(through, r, m), out_u = pick3(through, ru, mu), out_v = pick3(through, rv, mv);
-        const double kept = fres && through ? fresnel(ci, ct, eta) : 1.0;
-        put3(pk->state, P, k, pick3(applied, q, p));
-        put3(pk->state, DPU, k, pick3(applied, dqu, dpu));
-        put3(pk->state, DPV, k, pick3(applied, dqv, dpv));
-        put3(pk->state, W, k, pick3(crosses, out, w));
-        put3(pk->state, DWU, k, pick3(crosses, out_u, dwu));
-        put3(pk->state, DWV, k, pick3(crosses, out_v, dwv));
-        pk->state[FLUX][k] = crosses ? flux * kept : flux;
-        ev->lost[k] = flux * (1.0 - kept);
-        ev->leave_cos[k] = dot(out, n_plane);
-        put3(ev->q, 0, k, q);
-        put3(ev->dqu, 0, k, dqu);
-        put3(ev->dqv, 0, k, dqv);
-        put3(ev->outward, 0, k, outward);
-        put3(ev->dnu, 0, k, dnu);
-        put3(ev->dnv, 0, k, dnv);
-        ev->length[k] = frame.length;
-        ev->sign[k] = sign;
-        ev->eta[k] = eta;
-        ev->ci[k] = ci;
-        ev->ct[k] = ct;
-        ev->through[k] = through ? 1.0 : 0.0;
+        const int64_t kind = ev->kind[k], f = ev->which[k];
+        vec3 n_plane = UP;
+        int64_t solid = fa->substrate;
+        if (kind == MESH) {
+            n_plane = load3(fa->plane + 3 * f);
+            solid = fa->face_element[f];
+        } else if (kind == BOX) {
+            n_plane = box_normal(f);
+        }
+        if (faces) {
+            vec3 n0 = n_plane, e1 = ZERO, e2 = ZERO, v0 = ZERO, g1 = ZERO, g2 = ZERO;
+            if (kind == MESH) {
+                const double *corners = fa->shading + 9 * f;
+                n0 = load3(corners);
+                e1 = sub3(load3(corners + 3), n0);
+                e2 = sub3(load3(corners + 6), n0);
+                v0 = load3(fa->v0 + 3 * f);
+                g1 = dual_row(fa, f, 0);
+                g2 = dual_row(fa, f, 1);
+            }
+            put3(ev->n0, 0, k, n0);
+            put3(ev->e1, 0, k, e1);
+            put3(ev->e2, 0, k, e2);
+            put3(ev->v0, 0, k, v0);
+            put3(ev->g1, 0, k, g1);
+            put3(ev->g2, 0, k, g2);
+        }
+        if (print) {
+            double jet[5] = {0.0, 0.0, 0.0, 0.0, 0.0};
+            if (kind == TOP) {
+                const double t = ev->t[k];
+                surface_jet(&ms->hf, c->d, c->m, pk->state[P][k] + t * pk->state[W][k],
+                            pk->state[P + 1][k] + t * pk->state[W + 1][k], jet);
+                n_plane = height_field_normal(jet[0], jet[1]);
+            }
+            for (int j = 0; j < 5; j++) ev->jet[j][k] = jet[j];
+        }
+        const int applied = kind == MESH || kind == TOP || kind == BOX || kind == RECEIVER;
+        ev->moves[k] = applied ? 1.0 : 0.0;
+        ev->crosses[k] = applied && kind != RECEIVER ? 1.0 : 0.0;
+        ev->on_mesh[k] = kind == MESH ? 1.0 : 0.0;
+        ev->on_top[k] = kind == TOP ? 1.0 : 0.0;
+        ev->n_solid[k] = kind == RECEIVER ? 1.0 : fa->indices[solid * fa->channels + c->channel[pk->index[k]]];
+        put3(ev->n_plane, 0, k, n_plane);
+    }
+}
+
+/* Lane k's applied event (event_surface, interface and _advance_one's arithmetic): the photon moved
+ * onto its surface, refracted or reflected (not at the receiver), its flux less the Fresnel loss
+ * (fresnel on); the surface and crossing into ev. `mesh`, `top`: whether the surface is a face,
+ * the print (constants in the loops for one kind). */
+static inline SFC_INLINE void apply_lane(const mesh_scene *ms, packet *restrict pk, event_columns *restrict ev,
+                                         int64_t k, int mesh, int top) {
+    const int64_t fres = ms->hf.fresnel;
+    const int applied = ev->moves[k] != 0.0, crosses = ev->crosses[k] != 0.0;
+    const vec3 p = col3(pk->state, P, k), dpu = col3(pk->state, DPU, k), dpv = col3(pk->state, DPV, k);
+    const vec3 w = col3(pk->state, W, k), dwu = col3(pk->state, DWU, k), dwv = col3(pk->state, DWV, k);
+    const double flux = pk->state[FLUX][k];
+    const vec3 n_plane = col3(ev->n_plane, 0, k);
+    vec3 q, dqu, dqv;
+    transfer(&ms->hf, p, dpu, dpv, w, dwu, dwv, ev->t[k], n_plane, &q, &dqu, &dqv);
+    /* A face's interpolated normal (_shading); the plane normal on the other kinds. */
+    shading_frame frame;
+    frame.e1 = col3(ev->e1, 0, k);
+    frame.e2 = col3(ev->e2, 0, k);
+    frame.g1 = col3(ev->g1, 0, k);
+    frame.g2 = col3(ev->g2, 0, k);
+    const vec3 rel = sub3(q, col3(ev->v0, 0, k));
+    const vec3 raw = axpy(dot(rel, frame.g1), frame.e1, axpy(dot(rel, frame.g2), frame.e2, col3(ev->n0, 0, k)));
+    frame.length = sqrt(dot(raw, raw));
+    frame.normal = scale3(1.0 / frame.length, raw);
+    const double sxx = ev->jet[2][k], sxy = ev->jet[3][k], syy = ev->jet[4][k];
+    const vec3 outward = pick3(mesh, frame.normal, n_plane);
+    const vec3 dnu = pick3(mesh, shading_differential(&frame, dqu),
+                           pick3(top, normal_differential(sxx, sxy, syy, n_plane, dqu), ZERO));
+    const vec3 dnv = pick3(mesh, shading_differential(&frame, dqv),
+                           pick3(top, normal_differential(sxx, sxy, syy, n_plane, dqv), ZERO));
+    /* The crossing (interface). */
+    const int entering = dot(w, n_plane) < 0.0;
+    const double sign = entering ? 1.0 : -1.0, n_solid = ev->n_solid[k];
+    const double eta = entering ? 1.0 / n_solid : n_solid;
+    const vec3 facing = scale3(sign, outward), dfu = scale3(sign, dnu), dfv = scale3(sign, dnv);
+    vec3 r, ru, rv, m, mu, mv;
+    double ci, ct;
+    const int through = refract(w, dwu, dwv, facing, dfu, dfv, eta, &r, &ru, &rv, &ci, &ct) > 0.0;
+    reflect(w, dwu, dwv, facing, dfu, dfv, &m, &mu, &mv);
+    const vec3 out = pick3(through, r, m), out_u = pick3(through, ru, mu), out_v = pick3(through, rv, mv);
+    const double kept = fres && through ? fresnel(ci, ct, eta) : 1.0;
+    put3(pk->state, P, k, pick3(applied, q, p));
+    put3(pk->state, DPU, k, pick3(applied, dqu, dpu));
+    put3(pk->state, DPV, k, pick3(applied, dqv, dpv));
+    put3(pk->state, W, k, pick3(crosses, out, w));
+    put3(pk->state, DWU, k, pick3(crosses, out_u, dwu));
+    put3(pk->state, DWV, k, pick3(crosses, out_v, dwv));
+    pk->state[FLUX][k] = crosses ? flux * kept : flux;
+    ev->lost[k] = flux * (1.0 - kept);
+    ev->leave_cos[k] = dot(out, n_plane);
+    put3(ev->q, 0, k, q);
+    put3(ev->dqu, 0, k, dqu);
+    put3(ev->dqv, 0, k, dqv);
+    put3(ev->outward, 0, k, outward);
+    put3(ev->dnu, 0, k, dnu);
+    put3(ev->dnv, 0, k, dnv);
+    ev->length[k] = mesh ? frame.length : 1.0;
+    ev->sign[k] = sign;
+    ev->eta[k] = eta;
+    ev->ci[k] = ci;
+    ev->ct[k] = ct;
+    ev->through[k] = through ? 1.0 : 0.0;
+}
+
+/* Every applied event of the packet at once (apply_lane), in one loop that GCC vectorises. */
+static void apply_columns(const mesh_scene *ms, packet *restrict pk, event_columns *restrict ev) {
+    const int64_t count = pk->count;
+    switch (ev->surfaces) {
+    case ON_FACES:
+#pragma GCC ivdep
+        for (int64_t k = 0; k < count; k++) apply_lane(ms, pk, ev, k, 1, 0);
+        break;
+    case ON_PRINT:
+#pragma GCC ivdep
+        for (int64_t k = 0; k < count; k++) apply_lane(ms, pk, ev, k, 0, 1);
+        break;
+    case ON_PLANES:
+#pragma GCC ivdep
+        for (int64_t k = 0; k < count; k++) apply_lane(ms, pk, ev, k, 0, 0);
+        break;
+    default:
+#pragma GCC ivdep
+        for (int64_t k = 0; k < count; k++) apply_lane(ms, pk, ev, k, ev->on_mesh[k] != 0.0, ev->on_top[k] != 0.0);
     }
 }
 
@@ -536,10 +593,7 @@ static void trace_packet(const mesh_scene *ms, const mesh_faces *fa, const chunk
             ev->kind[k] = -1;
             ev->which[k] = -1;
             ev->t[k] = 0.0;
-            if (pk->status[k] != UNDER_WAY) {
-                look_up(ms, fa, c->d, c->m, 0, ZERO, ZERO, ev, k);
-                continue;
-            }
+            if (pk->status[k] != UNDER_WAY) continue;
             any = 1;
             const int64_t i = pk->index[k];
             const vec3 p = col3(pk->state, P, k), w = col3(pk->state, W, k);
@@ -553,9 +607,9 @@ static void trace_packet(const mesh_scene *ms, const mesh_faces *fa, const chunk
                                          &ev->which[k], &ev->t[k]);
             }
             flux[k] = pk->state[FLUX][k];
-            look_up(ms, fa, c->d, c->m, c->channel[i], p, w, ev, k);
         }
         if (!any) break;
+        look_up(ms, fa, c, pk, ev);
         apply_columns(ms, pk, ev);
         for (int64_t k = 0; k < pk->count; k++) {
             const int64_t kind = ev->kind[k], i = pk->index[k];
@@ -640,91 +694,112 @@ static int trace_worker(void *context, int64_t thread) {
 
 /* ---------------------------------------------------------------- reverse */
 
-/* The reverse of every applied event of the packet at once (_retreat_one): g (STATE columns) from
- * the gradient w.r.t. the states after the event to that before it (`before`, the states
- * apply_columns started from; ev, what it computed); at the top the gradient w.r.t. the hit's
- * distance and jet into hit (6 columns) and g zeroed (the host of the loop adds hit into the
- * heights' gradient). */
+/* The reverse of lane k's applied event (_retreat_one): column k of g (STATE columns) from the
+ * gradient w.r.t. the state after the event to that before it (`before`, the states apply_columns
+ * started from; ev, what it computed); at the top the gradient w.r.t. the hit's distance and jet
+ * into column k of hit (6 columns, zero elsewhere) and g zeroed (the host of the loop adds hit into
+ * the heights' gradient). `mesh`, `top` as in apply_lane. */
+static inline SFC_INLINE void retreat_lane(const mesh_scene *ms, int64_t k, const event_columns *restrict ev,
+                                           const double (*restrict before)[PACKET], double (*restrict g)[PACKET],
+                                           double (*restrict hit)[PACKET], int mesh, int top) {
+    const int64_t fres = ms->hf.fresnel;
+    const int applied = ev->moves[k] != 0.0, crosses = ev->crosses[k] != 0.0;
+    const vec3 dpu = col3(before, DPU, k), dpv = col3(before, DPV, k);
+    const vec3 w = col3(before, W, k), dwu = col3(before, DWU, k), dwv = col3(before, DWV, k);
+    const double flux = before[FLUX][k], t = ev->t[k];
+    const vec3 n_plane = col3(ev->n_plane, 0, k), outward = col3(ev->outward, 0, k);
+    const vec3 dnu = col3(ev->dnu, 0, k), dnv = col3(ev->dnv, 0, k);
+    const vec3 dqu = col3(ev->dqu, 0, k), dqv = col3(ev->dqv, 0, k);
+    const vec3 g_q = col3(g, P, k), g_dqu = col3(g, DPU, k), g_dqv = col3(g, DPV, k);
+    const vec3 g_r = col3(g, W, k), g_ru = col3(g, DWU, k), g_rv = col3(g, DWV, k);
+    const double g_flux = g[FLUX][k], sign = ev->sign[k], eta = ev->eta[k], ci = ev->ci[k], ct = ev->ct[k];
+    const int through = ev->through[k] != 0.0;
+    /* The crossing, refracted or reflected. */
+    const vec3 facing = scale3(sign, outward), dfu = scale3(sign, dnu), dfv = scale3(sign, dnv);
+    double g_ci = 0.0, g_ct = 0.0, kept = 1.0;
+    if (fres) {
+        kept = fresnel(ci, ct, eta);
+        fresnel_adjoint(ci, ct, eta, g_flux * flux, &g_ci, &g_ct);
+    }
+    const refract_grads a_t = refract_adjoint(w, dwu, dwv, facing, dfu, dfv, eta, g_r, g_ru, g_rv, g_ci, g_ct);
+    const reflect_grads a_r = reflect_adjoint(w, dwu, dwv, facing, dfu, dfv, g_r, g_ru, g_rv);
+    const vec3 g_w = pick3(crosses, pick3(through, a_t.g_w, a_r.g_w), ZERO);
+    const vec3 g_dwu = pick3(crosses, pick3(through, a_t.g_dwu, a_r.g_dwu), ZERO);
+    const vec3 g_dwv = pick3(crosses, pick3(through, a_t.g_dwv, a_r.g_dwv), ZERO);
+    const vec3 g_out = scale3(sign, pick3(through, a_t.g_n, a_r.g_n));
+    const vec3 g_dnu = scale3(sign, pick3(through, a_t.g_dnu, a_r.g_dnu));
+    const vec3 g_dnv = scale3(sign, pick3(through, a_t.g_dnv, a_r.g_dnv));
+    const double g_flux_before = crosses && through && fres ? g_flux * kept : g_flux;
+    /* A face's shading: N = raw / |raw|, raw = n0 + b1 e1 + b2 e2, b_k = g_k . (q - v0). */
+    shading_frame frame;
+    frame.normal = outward;
+    frame.length = ev->length[k];
+    frame.e1 = col3(ev->e1, 0, k);
+    frame.e2 = col3(ev->e2, 0, k);
+    frame.g1 = col3(ev->g1, 0, k);
+    frame.g2 = col3(ev->g2, 0, k);
+    double gl_u, gl_v;
+    vec3 gp_u, gp_v;
+    const vec3 gn_u = shading_differential_adjoint(&frame, dqu, dnu, g_dnu, &gl_u, &gp_u);
+    const vec3 gn_v = shading_differential_adjoint(&frame, dqv, dnv, g_dnv, &gl_v, &gp_v);
+    const vec3 g_normal = add3(g_out, add3(gn_u, gn_v));
+    const vec3 g_raw = axpy(gl_u + gl_v - dot(frame.normal, g_normal) / frame.length, frame.normal,
+                            scale3(1.0 / frame.length, g_normal));
+    const vec3 g_q_mesh = axpy(dot(frame.e1, g_raw), frame.g1, axpy(dot(frame.e2, g_raw), frame.g2, g_q));
+    /* The print's normal and its differentials. */
+    const double sxx = ev->jet[2][k], sxy = ev->jet[3][k], syy = ev->jet[4][k];
+    double g_sxx = 0.0, g_sxy = 0.0, g_syy = 0.0;
+    vec3 g_nu, g_dpu_n, g_nv, g_dpv_n;
+    normal_differential_adjoint(sxx, sxy, syy, n_plane, dqu, g_dnu, &g_sxx, &g_sxy, &g_syy, &g_nu, &g_dpu_n);
+    normal_differential_adjoint(sxx, sxy, syy, n_plane, dqv, g_dnv, &g_sxx, &g_sxy, &g_syy, &g_nv, &g_dpv_n);
+    const vec3 g_q_at = pick3(mesh, g_q_mesh, g_q);
+    const vec3 g_dqu_at = pick3(mesh, add3(g_dqu, gp_u), pick3(top, add3(g_dqu, g_dpu_n), g_dqu));
+    const vec3 g_dqv_at = pick3(mesh, add3(g_dqv, gp_v), pick3(top, add3(g_dqv, g_dpv_n), g_dqv));
+    const transfer_grads a = transfer_adjoint(&ms->hf, dpu, dpv, w, dwu, dwv, t, n_plane, g_q_at, g_dqu_at, g_dqv_at);
+    /* At the top: the hit's distance and jet. */
+    double g_sx, g_sy;
+    height_field_normal_adjoint(ev->jet[0][k], ev->jet[1][k], add3(add3(g_out, add3(g_nu, g_nv)), a.g_n), &g_sx,
+                                &g_sy);
+    hit[0][k] = top ? a.g_dist : 0.0;
+    hit[1][k] = top ? g_sx : 0.0;
+    hit[2][k] = top ? g_sy : 0.0;
+    hit[3][k] = top ? g_sxx : 0.0;
+    hit[4][k] = top ? g_sxy : 0.0;
+    hit[5][k] = top ? g_syy : 0.0;
+    /* Elsewhere the distance to a fixed plane: t = (c - p . n) / (w . n). */
+    const double wn = dot(w, n_plane);
+    const int keep = !applied, zero = top;
+    put3(g, P, k, pick3(keep, g_q, pick3(zero, ZERO, axpy(-a.g_dist / wn, n_plane, g_q_at))));
+    put3(g, DPU, k, pick3(keep, g_dqu, pick3(zero, ZERO, a.g_dpu)));
+    put3(g, DPV, k, pick3(keep, g_dqv, pick3(zero, ZERO, a.g_dpv)));
+    put3(g, W, k, pick3(keep, g_r, pick3(zero, ZERO, add3(add3(g_w, a.g_w), scale3(-a.g_dist * t / wn, n_plane)))));
+    put3(g, DWU, k, pick3(keep, g_ru, pick3(zero, ZERO, add3(g_dwu, a.g_dwu))));
+    put3(g, DWV, k, pick3(keep, g_rv, pick3(zero, ZERO, add3(g_dwv, a.g_dwv))));
+    g[FLUX][k] = keep ? g_flux : (zero ? 0.0 : g_flux_before);
+}
+
+/* The reverse of every applied event of the packet at once (retreat_lane), in one loop that GCC
+ * vectorises. */
 static void retreat_columns(const mesh_scene *ms, int64_t count, const event_columns *restrict ev,
                             const double (*restrict before)[PACKET], double (*restrict g)[PACKET],
                             double (*restrict hit)[PACKET]) {
-    const int64_t fres = ms->hf.fresnel;
+    switch (ev->surfaces) {
+    case ON_FACES:
 #pragma GCC ivdep
-    for (int64_t k = 0; k < count; k++) {
-        const int applied = ev->moves[k] != 0.0, crosses = ev->crosses[k] != 0.0;
-        const int mesh = ev->on_mesh[k] != 0.0, top = ev->on_top[k] != 0.0;
-        const vec3 dpu = col3(before, DPU, k), dpv = col3(before, DPV, k);
-        const vec3 w = col3(before, W, k), dwu = col3(before, DWU, k), dwv = col3(before, DWV, k);
-        const double flux = before[FLUX][k], t = ev->t[k];
-        const vec3 n_plane = col3(ev->n_plane, 0, k), outward = col3(ev->outward, 0, k);
-        const vec3 dnu = col3(ev->dnu, 0, k), dnv = col3(ev->dnv, 0, k);
-        const vec3 dqu = col3(ev->dqu, 0, k), dqv = col3(ev->dqv, 0, k);
-        const vec3 g_q = col3(g, P, k), g_dqu = col3(g, DPU, k), g_dqv = col3(g, DPV, k);
-        const vec3 g_r = col3(g, W, k), g_ru = col3(g, DWU, k), g_rv = col3(g, DWV, k);
-        const double g_flux = g[FLUX][k], sign = ev->sign[k], eta = ev->eta[k], ci = ev->ci[k], ct = ev->ct[k];
-        const int through = ev->through[k] != 0.0;
-        /* The crossing, refracted or reflected. */
-        const vec3 facing = scale3(sign, outward), dfu = scale3(sign, dnu), dfv = scale3(sign, dnv);
-        double g_ci = 0.0, g_ct = 0.0, kept = 1.0;
-        if (fres) {
-            kept = fresnel(ci, ct, eta);
-            fresnel_adjoint(ci, ct, eta, g_flux * flux, &g_ci, &g_ct);
-        }
-        const refract_grads a_t = refract_adjoint(w, dwu, dwv, facing, dfu, dfv, eta, g_r, g_ru, g_rv, g_ci, g_ct);
-        const reflect_grads a_r = reflect_adjoint(w, dwu, dwv, facing, dfu, dfv, g_r, g_ru, g_rv);
-        const vec3 g_w = pick3(crosses, pick3(through, a_t.g_w, a_r.g_w), ZERO);
-        const vec3 g_dwu = pick3(crosses, pick3(through, a_t.g_dwu, a_r.g_dwu), ZERO);
-        const vec3 g_dwv = pick3(crosses, pick3(through, a_t.g_dwv, a_r.g_dwv), ZERO);
-        const vec3 g_out = scale3(sign, pick3(through, a_t.g_n, a_r.g_n));
-        const vec3 g_dnu = scale3(sign, pick3(through, a_t.g_dnu, a_r.g_dnu));
-        const vec3 g_dnv = scale3(sign, pick3(through, a_t.g_dnv, a_r.g_dnv));
-        const double g_flux_before = crosses && through && fres ? g_flux * kept : g_flux;
-        /* A face's shading: N = raw / |raw|, raw = n0 + b1 e1 + b2 e2, b_k = g_k . (q - v0). */
-        shading_frame frame;
-        frame.normal = outward;
-        frame.length = ev->length[k];
-        frame.e1 = col3(ev->e1, 0, k);
-        frame.e2 = col3(ev->e2, 0, k);
-        frame.g1 = col3(ev->g1, 0, k);
-        frame.g2 = col3(ev->g2, 0, k);
-        double gl_u, gl_v;
-        vec3 gp_u, gp_v;
-        const vec3 gn_u = shading_differential_adjoint(&frame, dqu, dnu, g_dnu, &gl_u, &gp_u);
-        const vec3 gn_v = shading_differential_adjoint(&frame, dqv, dnv, g_dnv, &gl_v, &gp_v);
-        const vec3 g_normal = add3(g_out, add3(gn_u, gn_v));
-        const vec3 g_raw = axpy(gl_u + gl_v - dot(frame.normal, g_normal) / frame.length, frame.normal,
-                                scale3(1.0 / frame.length, g_normal));
-        const vec3 g_q_mesh = axpy(dot(frame.e1, g_raw), frame.g1, axpy(dot(frame.e2, g_raw), frame.g2, g_q));
-        /* The print's normal and its differentials. */
-        const double sxx = ev->jet[2][k], sxy = ev->jet[3][k], syy = ev->jet[4][k];
-        double g_sxx = 0.0, g_sxy = 0.0, g_syy = 0.0;
-        vec3 g_nu, g_dpu_n, g_nv, g_dpv_n;
-        normal_differential_adjoint(sxx, sxy, syy, n_plane, dqu, g_dnu, &g_sxx, &g_sxy, &g_syy, &g_nu, &g_dpu_n);
-        normal_differential_adjoint(sxx, sxy, syy, n_plane, dqv, g_dnv, &g_sxx, &g_sxy, &g_syy, &g_nv, &g_dpv_n);
-        const vec3 g_q_at = pick3(mesh, g_q_mesh, g_q);
-        const vec3 g_dqu_at = pick3(mesh, add3(g_dqu, gp_u), pick3(top, add3(g_dqu, g_dpu_n), g_dqu));
-        const vec3 g_dqv_at = pick3(mesh, add3(g_dqv, gp_v), pick3(top, add3(g_dqv, g_dpv_n), g_dqv));
-        const transfer_grads a = transfer_adjoint(&ms->hf, dpu, dpv, w, dwu, dwv, t, n_plane, g_q_at, g_dqu_at, g_dqv_at);
-        /* At the top: the hit's distance and jet. */
-        double g_sx, g_sy;
-        height_field_normal_adjoint(ev->jet[0][k], ev->jet[1][k], add3(add3(g_out, add3(g_nu, g_nv)), a.g_n), &g_sx,
-                                    &g_sy);
-        hit[0][k] = a.g_dist;
-        hit[1][k] = g_sx;
-        hit[2][k] = g_sy;
-        hit[3][k] = g_sxx;
-        hit[4][k] = g_sxy;
-        hit[5][k] = g_syy;
-        /* Elsewhere the distance to a fixed plane: t = (c - p . n) / (w . n). */
-        const double wn = dot(w, n_plane);
-        const int keep = !applied, zero = top;
-        put3(g, P, k, pick3(keep, g_q, pick3(zero, ZERO, axpy(-a.g_dist / wn, n_plane, g_q_at))));
-        put3(g, DPU, k, pick3(keep, g_dqu, pick3(zero, ZERO, a.g_dpu)));
-        put3(g, DPV, k, pick3(keep, g_dqv, pick3(zero, ZERO, a.g_dpv)));
-        put3(g, W, k, pick3(keep, g_r, pick3(zero, ZERO, add3(add3(g_w, a.g_w), scale3(-a.g_dist * t / wn, n_plane)))));
-        put3(g, DWU, k, pick3(keep, g_ru, pick3(zero, ZERO, add3(g_dwu, a.g_dwu))));
-        put3(g, DWV, k, pick3(keep, g_rv, pick3(zero, ZERO, add3(g_dwv, a.g_dwv))));
-        g[FLUX][k] = keep ? g_flux : (zero ? 0.0 : g_flux_before);
+        for (int64_t k = 0; k < count; k++) retreat_lane(ms, k, ev, before, g, hit, 1, 0);
+        break;
+    case ON_PRINT:
+#pragma GCC ivdep
+        for (int64_t k = 0; k < count; k++) retreat_lane(ms, k, ev, before, g, hit, 0, 1);
+        break;
+    case ON_PLANES:
+#pragma GCC ivdep
+        for (int64_t k = 0; k < count; k++) retreat_lane(ms, k, ev, before, g, hit, 0, 0);
+        break;
+    default:
+#pragma GCC ivdep
+        for (int64_t k = 0; k < count; k++)
+            retreat_lane(ms, k, ev, before, g, hit, ev->on_mesh[k] != 0.0, ev->on_top[k] != 0.0);
     }
 }
 
@@ -754,9 +829,9 @@ static void reverse_packet(const mesh_scene *ms, const mesh_faces *fa, const chu
             ev->which[k] = c->log_which[at];
             ev->t[k] = ev->kind[k] >= 0 ? c->log_t[at] : 0.0;
             any |= ev->kind[k] >= 0;
-            look_up(ms, fa, c->d, c->m, c->channel[i], col3(pk->state, P, k), col3(pk->state, W, k), ev, k);
         }
         if (!any) break;
+        look_up(ms, fa, c, pk, ev);
         memcpy(rs->before[events], pk->state, sizeof(pk->state));
         apply_columns(ms, pk, ev);
     }
