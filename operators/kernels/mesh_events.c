@@ -28,8 +28,9 @@
  *
  * A photon's state is a row of STATE doubles (position, its two differentials, direction, its two
  * differentials, flux), as in kernels_native.py. Embree finds the faces: the host passes the
- * scene handle and the address of the library's rtcIntersect1 (operators/mesh/embree_native.py),
- * which every thread calls with its own ray.
+ * scene handle and the address of the library's rtcIntersect8 (operators/mesh/embree_native.py),
+ * which every thread calls with the rays of its packet's photons that search the faces, eight at
+ * a time.
  *
  * Threads: thread t takes the blocks t, t + threads, ... of BLOCK photons, and packets of a block's
  * photons in order. The trace writes per photon; the reverse sums each thread's gradient w.r.t.
@@ -69,7 +70,7 @@ typedef struct {
 } mesh_scene;
 
 /* The elements' faces (NativeMeshTracer's arrays) and the Embree scene that holds them. */
-typedef void (*intersect1_fn)(void *scene, void *ray_hit, void *arguments);
+typedef void (*intersect8_fn)(const int *valid, void *scene, void *ray_hits, void *arguments);
 typedef struct {
     const int64_t *face_element; /* (F,) element of each face */
     const uint8_t *face_clear;   /* (F,) bool: no element in front (culling.py) */
@@ -80,7 +81,7 @@ typedef struct {
     const double *indices;       /* (K + 1, channels) refractive index of each element and the substrate */
     int64_t channels, substrate;
     void *embree;                /* RTCScene, NULL for no elements */
-    intersect1_fn intersect1;
+    intersect8_fn intersect8;    /* rtcIntersect8 */
 } mesh_faces;
 
 /* A chunk of photons: state (N, STATE), medium, channel, status, counted events (N,), clear (N,)
@@ -118,20 +119,30 @@ static inline SFC_INLINE double component(vec3 a, int k) { return k == 0 ? a.x :
 
 /* ---------------------------------------------------------------- faces */
 
-/* Embree's first face along the ray (float32) from o along w, -1 for none (first_face). RTCRayHit
- * as 32 four-byte slots: origin 0-2, tnear 3, direction 4-6, time 7, tfar 8, mask 9, id 10, flags
- * 11; hit: normal 12-14, u 15, v 16, primID 17, geomID 18. */
-typedef union { float f[32]; uint32_t u[32]; } __attribute__((aligned(16))) ray_hit;
+/* Eight rays for Embree (RTCRayHit8): field j of ray r at slot 8 j + r, four bytes each. Ray:
+ * origin 0-2, tnear 3, direction 4-6, time 7, tfar 8, mask 9, id 10, flags 11; hit: normal 12-14,
+ * u 15, v 16, primID 17, geomID 18, then the instance ids (room for two fields). */
+enum { RAYS = 8, RAY_FIELDS = 22 };
+typedef union { float f[RAY_FIELDS * RAYS]; uint32_t u[RAY_FIELDS * RAYS]; } __attribute__((aligned(32))) ray_hit8;
 
-static int64_t first_face(const mesh_faces *fa, ray_hit *r, vec3 o, vec3 w) {
-    r->f[0] = (float)o.x; r->f[1] = (float)o.y; r->f[2] = (float)o.z; r->f[3] = 0.0f;
-    r->f[4] = (float)w.x; r->f[5] = (float)w.y; r->f[6] = (float)w.z; r->f[7] = 0.0f;
-    r->f[8] = INFINITY;
-    r->u[9] = 0xFFFFFFFFu; r->u[10] = 0; r->u[11] = 0;
-    r->u[18] = 0xFFFFFFFFu;
-    r->u[17] = 0xFFFFFFFFu;
-    fa->intersect1(fa->embree, r, NULL);
-    return r->u[18] == 0xFFFFFFFFu ? -1 : (int64_t)r->u[17];
+/* Ray r of the eight: from o along w (float32), any distance, no hit yet. */
+static inline SFC_INLINE void set_ray(ray_hit8 *rays, int r, vec3 o, vec3 w) {
+    rays->f[r] = (float)o.x; rays->f[8 + r] = (float)o.y; rays->f[16 + r] = (float)o.z;
+    rays->f[24 + r] = 0.0f;
+    rays->f[32 + r] = (float)w.x; rays->f[40 + r] = (float)w.y; rays->f[48 + r] = (float)w.z;
+    rays->f[56 + r] = 0.0f;
+    rays->f[64 + r] = INFINITY;
+    rays->u[72 + r] = 0xFFFFFFFFu; rays->u[80 + r] = 0; rays->u[88 + r] = 0;
+    rays->u[136 + r] = 0xFFFFFFFFu; rays->u[144 + r] = 0xFFFFFFFFu;
+}
+
+/* Embree's first faces along the first `count` of the eight rays (first_face, a packet at a time):
+ * face[lane[r]] the face of ray r, -1 for none. */
+static void first_faces(const mesh_faces *fa, ray_hit8 *rays, int count, const int64_t *lane, int64_t *face) {
+    int valid[RAYS];
+    for (int r = 0; r < RAYS; r++) valid[r] = r < count ? -1 : 0;
+    fa->intersect8(valid, fa->embree, rays, NULL);
+    for (int r = 0; r < count; r++) face[lane[r]] = rays->u[144 + r] == 0xFFFFFFFFu ? -1 : (int64_t)rays->u[136 + r];
 }
 
 static inline SFC_INLINE vec3 dual_row(const mesh_faces *fa, int64_t f, int k) { return load3(fa->dual + 6 * f + 3 * k); }
@@ -260,22 +271,28 @@ static inline SFC_INLINE int over_print(const mesh_scene *ms, vec3 p, vec3 w) {
 
 /* ---------------------------------------------------------------- events */
 
-/* The photon's next event (_next_event), from p along w in `medium`, `clear` if it left a clear
- * face, t_top its hit on the print where it comes down onto it (over_print; searched beforehand
- * for the packet, print_hits): kind, face or box plane in *which, distance in *t. */
-static int64_t next_event(const mesh_scene *ms, const mesh_faces *fa, vec3 p, vec3 w, int64_t medium, int clear,
-                          int released, int wait_at_top, double t_top, ray_hit *ray, int64_t *which, double *t_out) {
+/* Whether the photon's next event may be on a face (_next_event's search of the faces), from p
+ * along w in `medium`, `clear` if it left a clear face, t_top as in next_event. */
+static inline SFC_INLINE int searches_faces(const mesh_scene *ms, const mesh_faces *fa, vec3 p, vec3 w,
+                                            int64_t medium, int clear, int released, double t_top) {
+    const int in_air = medium == AIR;
+    const int skip = clear || (in_air && w.z < 0.0 && p.z < ms->lowest)
+                     || (released && t_top < (ms->hf.base - p.z) / w.z);
+    return fa->embree != NULL && medium != fa->substrate && !skip;
+}
+
+/* The photon's next event (_next_event), from p along w in `medium`, t_top its hit on the print
+ * where it comes down onto it (over_print; searched beforehand for the packet, print_hits), face
+ * the first face along its ray where searches_faces (searched beforehand, packet_faces), else -1:
+ * kind, face or box plane in *which, distance in *t. */
+static int64_t next_event(const mesh_scene *ms, const mesh_faces *fa, vec3 p, vec3 w, int64_t medium,
+                          int wait_at_top, double t_top, int64_t face, int64_t *which, double *t_out) {
     const int in_air = medium == AIR, in_sub = medium == fa->substrate;
     const double thickness = ms->hf.base;
     double best = INFINITY;
     int64_t kind = ESCAPED;
     *which = -1;
     const int over = in_air && over_print(ms, p, w);
-    const int skip = clear || (in_air && w.z < 0.0 && p.z < ms->lowest)
-                     || (released && t_top < (thickness - p.z) / w.z);
-    int64_t face = -1;
-    if (fa->embree != NULL && !in_sub && !skip)
-        face = first_face(fa, ray, axpy(ms->start_offset, w, p), w);
     if (face >= 0) {
         double t;
         const int64_t f = face_hit(fa, p, w, face, &t);
@@ -345,6 +362,8 @@ typedef struct {
     double state[STATE][PACKET];
     int64_t medium[PACKET], status[PACKET], clear[PACKET];
     double t_top[PACKET];  /* each lane's hit on the print where it comes down onto it, else inf */
+    int64_t face[PACKET];  /* each lane's first face along its ray where searches_faces, else -1 */
+    ray_hit8 rays;         /* Embree's rays for them */
     double search_o[3][SEARCH_LANES], search_w[3][SEARCH_LANES]; /* the rays of the lanes over the print */
     search_state search;   /* the print's hit search for them */
 } packet;
@@ -382,6 +401,12 @@ static inline SFC_INLINE vec3 pick3(int which, vec3 a, vec3 b) {
     return v3(which ? a.x : b.x, which ? a.y : b.y, which ? a.z : b.z);
 }
 
+/* A packet's work space, aligned for Embree's rays (free with free). */
+static packet *new_packet(void) {
+    const size_t align = 64, size = (sizeof(packet) + align - 1) / align * align;
+    return (packet *)aligned_alloc(align, size);
+}
+
 /* pk->t_top: the print's hits of the lanes under way that come down onto it from above
  * (over_print), searched in lockstep (solve_hits); inf for the others. */
 static void print_hits(const mesh_scene *ms, const chunk_job *c, packet *pk) {
@@ -399,6 +424,27 @@ static void print_hits(const mesh_scene *ms, const chunk_job *c, packet *pk) {
     double t[PACKET];
     if (count > 0) solve_hits(c->d, c->m, &ms->hf, pk->search_o, pk->search_w, count, t, &pk->search);
     for (int64_t j = 0; j < count; j++) pk->t_top[lane[j]] = t[j];
+}
+
+/* pk->face: the first face along the ray of each lane under way where searches_faces, by Embree
+ * RAYS rays at a time; -1 for the others. `released`: the packet's first event of a render. */
+static void packet_faces(const mesh_scene *ms, const mesh_faces *fa, packet *pk, int released) {
+    int64_t lane[RAYS];
+    int count = 0;
+    for (int64_t k = 0; k < pk->count; k++) {
+        pk->face[k] = -1;
+        const vec3 p = col3(pk->state, P, k), w = col3(pk->state, W, k);
+        if (pk->status[k] != UNDER_WAY
+            || !searches_faces(ms, fa, p, w, pk->medium[k], (int)pk->clear[k], released, pk->t_top[k]))
+            continue;
+        set_ray(&pk->rays, count, axpy(ms->start_offset, w, p), w);
+        lane[count++] = k;
+        if (count == RAYS) {
+            first_faces(fa, &pk->rays, count, lane, pk->face);
+            count = 0;
+        }
+    }
+    if (count > 0) first_faces(fa, &pk->rays, count, lane, pk->face);
 }
 
 /* The surfaces a packet's applied events meet: all faces, all the print, all planes (walls, bottom,
@@ -580,7 +626,7 @@ static void load_packet(const chunk_job *c, const double *rows, packet *pk) {
  * c->lost, its events into the log (or, with replay, from it); its state, medium, status and clear
  * back into the chunk. */
 static void trace_packet(const mesh_scene *ms, const mesh_faces *fa, const chunk_job *c, packet *pk,
-                         event_columns *ev, ray_hit *ray) {
+                         event_columns *ev) {
     const int64_t depth = c->max_depth, logging = c->log_kind != NULL && !c->replay;
     load_packet(c, c->start != NULL ? c->start : c->state, pk);
     if (logging)
@@ -588,7 +634,11 @@ static void trace_packet(const mesh_scene *ms, const mesh_faces *fa, const chunk
     for (int64_t e = 0; e < depth; e++) {
         double flux[PACKET];
         int any = 0;
-        if (!c->replay && !c->wait_at_top) print_hits(ms, c, pk);
+        const int released = e == 0 && !c->wait_at_top;
+        if (!c->replay) {
+            if (!c->wait_at_top) print_hits(ms, c, pk);
+            packet_faces(ms, fa, pk, released);
+        }
         for (int64_t k = 0; k < pk->count; k++) {
             ev->kind[k] = -1;
             ev->which[k] = -1;
@@ -602,9 +652,9 @@ static void trace_packet(const mesh_scene *ms, const mesh_faces *fa, const chunk
                 ev->which[k] = c->log_which[depth * i + e];
                 ev->t[k] = c->log_t[depth * i + e];
             } else {
-                ev->kind[k] = next_event(ms, fa, p, w, pk->medium[k], (int)pk->clear[k], e == 0 && !c->wait_at_top,
-                                         (int)c->wait_at_top, c->wait_at_top ? INFINITY : pk->t_top[k], ray,
-                                         &ev->which[k], &ev->t[k]);
+                ev->kind[k] = next_event(ms, fa, p, w, pk->medium[k], (int)c->wait_at_top,
+                                         c->wait_at_top ? INFINITY : pk->t_top[k], pk->face[k], &ev->which[k],
+                                         &ev->t[k]);
             }
             flux[k] = pk->state[FLUX][k];
         }
@@ -663,14 +713,13 @@ typedef struct {
 static int trace_worker(void *context, int64_t thread) {
     const worker_job *j = (const worker_job *)context;
     const chunk_job *c = j->c;
-    packet *pk = (packet *)malloc(sizeof(packet));
+    packet *pk = new_packet();
     event_columns *ev = (event_columns *)malloc(sizeof(event_columns));
     if (!pk || !ev) {
         free(pk);
         free(ev);
         return 1;
     }
-    ray_hit ray;
     for (int64_t b = thread; b < j->blocks; b += c->threads) {
         pk->count = 0;
         for (int64_t i = b * BLOCK; i < imin(c->n, (b + 1) * BLOCK); i++) {
@@ -681,11 +730,11 @@ static int trace_worker(void *context, int64_t thread) {
             }
             pk->index[pk->count++] = i;
             if (pk->count == PACKET) {
-                trace_packet(j->ms, j->fa, c, pk, ev, &ray);
+                trace_packet(j->ms, j->fa, c, pk, ev);
                 pk->count = 0;
             }
         }
-        if (pk->count > 0) trace_packet(j->ms, j->fa, c, pk, ev, &ray);
+        if (pk->count > 0) trace_packet(j->ms, j->fa, c, pk, ev);
     }
     free(pk);
     free(ev);
@@ -869,7 +918,7 @@ static int reverse_worker(void *context, int64_t thread) {
     const worker_job *j = (const worker_job *)context;
     const chunk_job *c = j->c;
     const size_t depth = (size_t)imax(c->max_depth, 1);
-    packet *pk = (packet *)malloc(sizeof(packet));
+    packet *pk = new_packet();
     reverse_space *rs = (reverse_space *)malloc(sizeof(reverse_space));
     double (*before)[STATE][PACKET] = malloc(sizeof(*before) * depth);
     event_columns *events = (event_columns *)malloc(sizeof(event_columns) * depth);

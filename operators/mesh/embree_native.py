@@ -24,7 +24,7 @@ from numba.extending import intrinsic
 from operators.kernels.numba_settings import FAST_MATH
 from operators.kernels.simd import data_pointer
 
-__all__ = ["EmbreeTriangles", "INTERSECT1", "first_face", "ray_buffer", "RAY_FLOATS"]
+__all__ = ["EmbreeTriangles", "INTERSECT8", "first_face", "ray_buffer", "RAY_FLOATS"]
 
 # Embree 4 enums (rtcore_common.h, rtcore_buffer.h, rtcore_geometry.h).
 _GEOMETRY_TRIANGLE = 0
@@ -64,9 +64,10 @@ for _name, _res, _args in (("rtcNewDevice", ctypes.c_void_p, [ctypes.c_char_p]),
     getattr(_LIB, _name).restype = _res
     getattr(_LIB, _name).argtypes = _args
 
-# The address of rtcIntersect1(scene handle, RTCRayHit*, RTCIntersectArguments* = NULL), for the C
-# kernels (operators/kernels/mesh_events.c); numba calls it by name.
-INTERSECT1 = ctypes.cast(_LIB.rtcIntersect1, ctypes.c_void_p).value
+# The address of rtcIntersect8(valid int[8], scene handle, RTCRayHit8*, RTCIntersectArguments* = NULL),
+# for the C kernels (operators/kernels/mesh_events.c), which trace eight rays at a time; numba calls
+# rtcIntersect1 by name.
+INTERSECT8 = ctypes.cast(_LIB.rtcIntersect8, ctypes.c_void_p).value
 _intersect1 = types.ExternalFunction("rtcIntersect1", types.void(types.int64, types.CPointer(types.float32),
                                                                  types.int64))
 

@@ -23,7 +23,7 @@ from operators.kernels import extension
 from operators.kernels.simd import AVAILABLE as SIMD_AVAILABLE
 from operators.mesh import kernels_native as mk
 from operators.mesh.culling import CLEAR_COS
-from operators.mesh.embree_native import INTERSECT1
+from operators.mesh.embree_native import INTERSECT8
 from operators.mesh.intersect_reference import MIN_FACE_DISTANCE, START_OFFSET
 
 __all__ = ["AVAILABLE", "BYTES_PER_EVENT", "LOSS_KINDS", "EventLog", "Faces", "trace", "reverse", "splat_arguments"]
@@ -49,7 +49,7 @@ class _Faces(ctypes.Structure):
 
     _fields_ = [("face_element", _P), ("face_clear", _P), ("v0", _P), ("plane", _P), ("dual", _P), ("shading", _P),
                 ("neighbour", _P), ("indices", _P), ("channels", _I), ("substrate", _I), ("embree", _P),
-                ("intersect1", _P)]
+                ("intersect8", _P)]
 
 
 class _Chunk(ctypes.Structure):
@@ -109,7 +109,7 @@ class Faces:
             _data(v0, np.float64, "v0", (f, 3)), _data(plane, np.float64, "plane", (f, 3)),
             _data(dual, np.float64, "dual", (f, 2, 3)), _data(shading, np.float64, "shading", (f, 3, 3)),
             _data(neighbour, np.int64, "neighbour", (f, 3)), _data(indices, np.float64, "indices", indices.shape),
-            indices.shape[1], substrate, handle or None, INTERSECT1 if handle else None)
+            indices.shape[1], substrate, handle or None, INTERSECT8 if handle else None)
 
 
 @dataclass
