@@ -447,22 +447,23 @@ static void packet_faces(const mesh_scene *ms, const mesh_faces *fa, packet *pk,
     if (count > 0) first_faces(fa, &pk->rays, count, lane, pk->face);
 }
 
-/* The surfaces a packet's applied events meet: all faces, all the print, all planes (walls, bottom,
- * receiver), or a mix. The packet loops below keep one lane's arithmetic of its own kind either
- * way; for one kind they are compiled without the others' (the flags are constants there), and
- * the look-up fills only the columns those read. The photons of a packet nearly always meet the
- * same kind of surface at the same event. */
-enum { ON_FACES = 0, ON_PRINT = 1, ON_PLANES = 2, ON_MIX = 3 };
+/* The surfaces a packet's applied events meet: all faces, all the print, all the substrate's walls
+ * and bottom, all the receiver, or a mix. The packet loops below keep one lane's arithmetic of its
+ * own kind either way; for one kind they are compiled without the others' (the flags are constants
+ * there), and the look-up fills only the columns those read. The photons of a packet nearly always
+ * meet the same kind of surface at the same event. */
+enum { ON_FACES = 0, ON_PRINT = 1, ON_WALLS = 2, ON_RECEIVER = 3, ON_MIX = 4 };
 
 static int surfaces_met(int64_t count, const int64_t *kind) {
-    int faces = 0, print = 0, planes = 0;
+    int faces = 0, print = 0, walls = 0, receiver = 0;
     for (int64_t k = 0; k < count; k++) {
         faces |= kind[k] == MESH;
         print |= kind[k] == TOP;
-        planes |= kind[k] == BOX || kind[k] == RECEIVER;
+        walls |= kind[k] == BOX;
+        receiver |= kind[k] == RECEIVER;
     }
-    if (faces + print + planes > 1) return ON_MIX;
-    return faces ? ON_FACES : (print ? ON_PRINT : ON_PLANES);
+    if (faces + print + walls + receiver > 1) return ON_MIX;
+    return faces ? ON_FACES : (print ? ON_PRINT : (walls ? ON_WALLS : ON_RECEIVER));
 }
 
 /* The surfaces of the packet's events (ev->kind, which, t set; kind -1 for a lane without one), as
@@ -525,11 +526,11 @@ static void look_up(const mesh_scene *ms, const mesh_faces *fa, const chunk_job 
 /* Lane k's applied event (event_surface, interface and _advance_one's arithmetic): the photon moved
  * onto its surface, refracted or reflected (not at the receiver), its flux less the Fresnel loss
  * (fresnel on); the surface and crossing into ev. `mesh`, `top`: whether the surface is a face,
- * the print (constants in the loops for one kind). */
+ * the print; `crossing` 0 where no lane crosses its surface (constants in the loops for one kind). */
 static inline SFC_INLINE void apply_lane(const mesh_scene *ms, packet *restrict pk, event_columns *restrict ev,
-                                         int64_t k, int mesh, int top) {
+                                         int64_t k, int mesh, int top, int crossing) {
     const int64_t fres = ms->hf.fresnel;
-    const int applied = ev->moves[k] != 0.0, crosses = ev->crosses[k] != 0.0;
+    const int applied = ev->moves[k] != 0.0, crosses = crossing && ev->crosses[k] != 0.0;
     const vec3 p = col3(pk->state, P, k), dpu = col3(pk->state, DPU, k), dpv = col3(pk->state, DPV, k);
     const vec3 w = col3(pk->state, W, k), dwu = col3(pk->state, DWU, k), dwv = col3(pk->state, DWV, k);
     const double flux = pk->state[FLUX][k];
@@ -570,8 +571,6 @@ static inline SFC_INLINE void apply_lane(const mesh_scene *ms, packet *restrict 
     put3(pk->state, DWU, k, pick3(crosses, out_u, dwu));
     put3(pk->state, DWV, k, pick3(crosses, out_v, dwv));
     pk->state[FLUX][k] = crosses ? flux * kept : flux;
-    ev->lost[k] = flux * (1.0 - kept);
-    ev->leave_cos[k] = dot(out, n_plane);
     put3(ev->q, 0, k, q);
     put3(ev->dqu, 0, k, dqu);
     put3(ev->dqv, 0, k, dqv);
@@ -579,33 +578,30 @@ static inline SFC_INLINE void apply_lane(const mesh_scene *ms, packet *restrict 
     put3(ev->dnu, 0, k, dnu);
     put3(ev->dnv, 0, k, dnv);
     ev->length[k] = mesh ? frame.length : 1.0;
-    ev->sign[k] = sign;
-    ev->eta[k] = eta;
-    ev->ci[k] = ci;
-    ev->ct[k] = ct;
-    ev->through[k] = through ? 1.0 : 0.0;
+    /* The crossing's columns, read only where the lane crosses its surface (zero in a packet whose
+     * lanes do not, so that its loop leaves the crossing out). */
+    ev->lost[k] = crossing ? flux * (1.0 - kept) : 0.0;
+    ev->leave_cos[k] = crossing ? dot(out, n_plane) : 0.0;
+    ev->sign[k] = crossing ? sign : 0.0;
+    ev->eta[k] = crossing ? eta : 0.0;
+    ev->ci[k] = crossing ? ci : 0.0;
+    ev->ct[k] = crossing ? ct : 0.0;
+    ev->through[k] = crossing && through ? 1.0 : 0.0;
 }
 
 /* Every applied event of the packet at once (apply_lane), in one loop that GCC vectorises. */
 static void apply_columns(const mesh_scene *ms, packet *restrict pk, event_columns *restrict ev) {
     const int64_t count = pk->count;
+#define APPLY(mesh, top, crossing)                                                                            \
+    _Pragma("GCC ivdep") for (int64_t k = 0; k < count; k++) apply_lane(ms, pk, ev, k, mesh, top, crossing)
     switch (ev->surfaces) {
-    case ON_FACES:
-#pragma GCC ivdep
-        for (int64_t k = 0; k < count; k++) apply_lane(ms, pk, ev, k, 1, 0);
-        break;
-    case ON_PRINT:
-#pragma GCC ivdep
-        for (int64_t k = 0; k < count; k++) apply_lane(ms, pk, ev, k, 0, 1);
-        break;
-    case ON_PLANES:
-#pragma GCC ivdep
-        for (int64_t k = 0; k < count; k++) apply_lane(ms, pk, ev, k, 0, 0);
-        break;
-    default:
-#pragma GCC ivdep
-        for (int64_t k = 0; k < count; k++) apply_lane(ms, pk, ev, k, ev->on_mesh[k] != 0.0, ev->on_top[k] != 0.0);
+    case ON_FACES: APPLY(1, 0, 1); break;
+    case ON_PRINT: APPLY(0, 1, 1); break;
+    case ON_WALLS: APPLY(0, 0, 1); break;
+    case ON_RECEIVER: APPLY(0, 0, 0); break;
+    default: APPLY(ev->on_mesh[k] != 0.0, ev->on_top[k] != 0.0, 1);
     }
+#undef APPLY
 }
 
 /* The packet's lanes k = 0 .. count - 1 as chunk rows index[k]: their state (from `rows`) into
@@ -747,12 +743,14 @@ static int trace_worker(void *context, int64_t thread) {
  * gradient w.r.t. the state after the event to that before it (`before`, the states apply_columns
  * started from; ev, what it computed); at the top the gradient w.r.t. the hit's distance and jet
  * into column k of hit (6 columns, zero elsewhere) and g zeroed (the host of the loop adds hit into
- * the heights' gradient). `mesh`, `top` as in apply_lane. */
+ * the heights' gradient). `mesh`, `top`, `crossing` as in apply_lane; `reflecting` 0 where no lane
+ * was reflected. */
 static inline SFC_INLINE void retreat_lane(const mesh_scene *ms, int64_t k, const event_columns *restrict ev,
                                            const double (*restrict before)[PACKET], double (*restrict g)[PACKET],
-                                           double (*restrict hit)[PACKET], int mesh, int top) {
+                                           double (*restrict hit)[PACKET], int mesh, int top, int crossing,
+                                           int reflecting) {
     const int64_t fres = ms->hf.fresnel;
-    const int applied = ev->moves[k] != 0.0, crosses = ev->crosses[k] != 0.0;
+    const int applied = ev->moves[k] != 0.0, crosses = crossing && ev->crosses[k] != 0.0;
     const vec3 dpu = col3(before, DPU, k), dpv = col3(before, DPV, k);
     const vec3 w = col3(before, W, k), dwu = col3(before, DWU, k), dwv = col3(before, DWV, k);
     const double flux = before[FLUX][k], t = ev->t[k];
@@ -762,7 +760,7 @@ static inline SFC_INLINE void retreat_lane(const mesh_scene *ms, int64_t k, cons
     const vec3 g_q = col3(g, P, k), g_dqu = col3(g, DPU, k), g_dqv = col3(g, DPV, k);
     const vec3 g_r = col3(g, W, k), g_ru = col3(g, DWU, k), g_rv = col3(g, DWV, k);
     const double g_flux = g[FLUX][k], sign = ev->sign[k], eta = ev->eta[k], ci = ev->ci[k], ct = ev->ct[k];
-    const int through = ev->through[k] != 0.0;
+    const int through = !reflecting || ev->through[k] != 0.0;
     /* The crossing, refracted or reflected. */
     const vec3 facing = scale3(sign, outward), dfu = scale3(sign, dnu), dfv = scale3(sign, dnv);
     double g_ci = 0.0, g_ct = 0.0, kept = 1.0;
@@ -832,24 +830,19 @@ static inline SFC_INLINE void retreat_lane(const mesh_scene *ms, int64_t k, cons
 static void retreat_columns(const mesh_scene *ms, int64_t count, const event_columns *restrict ev,
                             const double (*restrict before)[PACKET], double (*restrict g)[PACKET],
                             double (*restrict hit)[PACKET]) {
-    switch (ev->surfaces) {
-    case ON_FACES:
-#pragma GCC ivdep
-        for (int64_t k = 0; k < count; k++) retreat_lane(ms, k, ev, before, g, hit, 1, 0);
-        break;
-    case ON_PRINT:
-#pragma GCC ivdep
-        for (int64_t k = 0; k < count; k++) retreat_lane(ms, k, ev, before, g, hit, 0, 1);
-        break;
-    case ON_PLANES:
-#pragma GCC ivdep
-        for (int64_t k = 0; k < count; k++) retreat_lane(ms, k, ev, before, g, hit, 0, 0);
-        break;
-    default:
-#pragma GCC ivdep
-        for (int64_t k = 0; k < count; k++)
-            retreat_lane(ms, k, ev, before, g, hit, ev->on_mesh[k] != 0.0, ev->on_top[k] != 0.0);
+    int reflected = 0;
+    for (int64_t k = 0; k < count; k++) reflected |= ev->crosses[k] != 0.0 && ev->through[k] == 0.0;
+#define RETREAT(mesh, top, crossing, reflecting)                                                              \
+    _Pragma("GCC ivdep") for (int64_t k = 0; k < count; k++)                                                \
+        retreat_lane(ms, k, ev, before, g, hit, mesh, top, crossing, reflecting)
+    switch (reflected ? ON_MIX : ev->surfaces) {
+    case ON_FACES: RETREAT(1, 0, 1, 0); break;
+    case ON_PRINT: RETREAT(0, 1, 1, 0); break;
+    case ON_WALLS: RETREAT(0, 0, 1, 0); break;
+    case ON_RECEIVER: RETREAT(0, 0, 0, 0); break;
+    default: RETREAT(ev->on_mesh[k] != 0.0, ev->on_top[k] != 0.0, 1, 1);
     }
+#undef RETREAT
 }
 
 /* A reverse packet's work space: the states before each event and what each event computed. */
