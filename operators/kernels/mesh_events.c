@@ -231,15 +231,21 @@ static const double BOX_SIGN[5] = {1.0, -1.0, 1.0, -1.0, 0.0};
 static const double BOX_OUTWARD[5] = {1.0, -1.0, 1.0, -1.0, -1.0};
 
 /* The nearest wall or bottom the ray meets, leaving from inside or entering from air (_box):
- * returns t (inf for none), plane in *which (-1 for none). */
+ * returns t (inf for none), plane in *which (-1 for none). Along each axis the ray can cross only
+ * one of the planes, the one its direction leaves through (from inside) or enters by (from air). */
 static double box_hit(const mesh_scene *ms, vec3 p, vec3 w, int64_t medium, int64_t substrate, int64_t *which) {
+    const int leaving = medium == substrate;
     double best = INFINITY;
     *which = -1;
-    for (int k = 0; k < 5; k++) {
-        const int axis = BOX_AXIS[k];
-        const double wa = component(w, axis), outward = BOX_OUTWARD[k];
+    if (!leaving && medium != AIR) return best;
+    for (int axis = 0; axis < 3; axis++) {
+        const double wa = component(w, axis);
         if (fabs(wa) <= 1e-12) continue;
-        if (!((medium == substrate && wa * outward > 0.0) || (medium == AIR && wa * outward < 0.0))) continue;
+        int k = 4; /* the bottom: left going down, entered going up */
+        if (axis < 2)
+            k = 2 * axis + ((wa > 0.0) == leaving ? 0 : 1);
+        else if ((wa < 0.0) != leaving)
+            continue;
         const double t = (BOX_SIGN[k] * ms->hf.half - component(p, axis)) / wa;
         if (!(t > 1e-9 && t < best)) continue;
         int inside = 1;
