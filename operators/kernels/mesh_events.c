@@ -529,17 +529,14 @@ static void look_up(const mesh_scene *ms, const mesh_faces *fa, const chunk_job 
     }
 }
 
-/* Lane k's applied event (event_surface, interface and _advance_one's arithmetic): the photon moved
- * onto its surface, refracted or reflected (not at the receiver), its flux less the Fresnel loss
- * (fresnel on); the surface and crossing into ev. `mesh`, `top`: whether the surface is a face,
- * the print; `crossing` 0 where no lane crosses its surface (constants in the loops for one kind). */
-static inline SFC_INLINE void apply_lane(const mesh_scene *ms, packet *restrict pk, event_columns *restrict ev,
-                                         int64_t k, int mesh, int top, int crossing) {
-    const int64_t fres = ms->hf.fresnel;
-    const int applied = ev->moves[k] != 0.0, crosses = crossing && ev->crosses[k] != 0.0;
+/* Lane k's applied event, first half (event_surface and _advance_one's transfer): the point met
+ * with its differentials, the surface normal there with its differentials (a face's interpolated
+ * shading normal, the print's or a plane's normal) into ev. `mesh`, `top`: whether the surface is
+ * a face, the print (constants in the loops for one kind). */
+static inline SFC_INLINE void meet_lane(const mesh_scene *ms, const packet *restrict pk, event_columns *restrict ev,
+                                        int64_t k, int mesh, int top) {
     const vec3 p = col3(pk->state, P, k), dpu = col3(pk->state, DPU, k), dpv = col3(pk->state, DPV, k);
     const vec3 w = col3(pk->state, W, k), dwu = col3(pk->state, DWU, k), dwv = col3(pk->state, DWV, k);
-    const double flux = pk->state[FLUX][k];
     const vec3 n_plane = col3(ev->n_plane, 0, k);
     vec3 q, dqu, dqv;
     transfer(&ms->hf, p, dpu, dpv, w, dwu, dwv, ev->t[k], n_plane, &q, &dqu, &dqv);
@@ -554,36 +551,46 @@ static inline SFC_INLINE void apply_lane(const mesh_scene *ms, packet *restrict 
     frame.length = sqrt(dot(raw, raw));
     frame.normal = scale3(1.0 / frame.length, raw);
     const double sxx = ev->jet[2][k], sxy = ev->jet[3][k], syy = ev->jet[4][k];
-    const vec3 outward = pick3(mesh, frame.normal, n_plane);
-    const vec3 dnu = pick3(mesh, shading_differential(&frame, dqu),
-                           pick3(top, normal_differential(sxx, sxy, syy, n_plane, dqu), ZERO));
-    const vec3 dnv = pick3(mesh, shading_differential(&frame, dqv),
-                           pick3(top, normal_differential(sxx, sxy, syy, n_plane, dqv), ZERO));
-    /* The crossing (interface). */
+    put3(ev->q, 0, k, q);
+    put3(ev->dqu, 0, k, dqu);
+    put3(ev->dqv, 0, k, dqv);
+    put3(ev->outward, 0, k, pick3(mesh, frame.normal, n_plane));
+    put3(ev->dnu, 0, k, pick3(mesh, shading_differential(&frame, dqu),
+                              pick3(top, normal_differential(sxx, sxy, syy, n_plane, dqu), ZERO)));
+    put3(ev->dnv, 0, k, pick3(mesh, shading_differential(&frame, dqv),
+                              pick3(top, normal_differential(sxx, sxy, syy, n_plane, dqv), ZERO)));
+    ev->length[k] = mesh ? frame.length : 1.0;
+}
+
+/* Lane k's applied event, second half (interface and the rest of _advance_one): the photon moved
+ * onto the point meet_lane found, refracted or reflected (not at the receiver), its flux less the
+ * Fresnel loss (fresnel on); the crossing into ev. `crossing` 0 where no lane crosses its surface
+ * (a constant in the receiver's loop). */
+static inline SFC_INLINE void cross_lane(const mesh_scene *ms, packet *restrict pk, event_columns *restrict ev,
+                                         int64_t k, int crossing) {
+    const int64_t fres = ms->hf.fresnel;
+    const int applied = ev->moves[k] != 0.0, crosses = crossing && ev->crosses[k] != 0.0;
+    const vec3 w = col3(pk->state, W, k), dwu = col3(pk->state, DWU, k), dwv = col3(pk->state, DWV, k);
+    const double flux = pk->state[FLUX][k];
+    const vec3 n_plane = col3(ev->n_plane, 0, k);
     const int entering = dot(w, n_plane) < 0.0;
     const double sign = entering ? 1.0 : -1.0, n_solid = ev->n_solid[k];
     const double eta = entering ? 1.0 / n_solid : n_solid;
-    const vec3 facing = scale3(sign, outward), dfu = scale3(sign, dnu), dfv = scale3(sign, dnv);
+    const vec3 facing = scale3(sign, col3(ev->outward, 0, k));
+    const vec3 dfu = scale3(sign, col3(ev->dnu, 0, k)), dfv = scale3(sign, col3(ev->dnv, 0, k));
     vec3 r, ru, rv, m, mu, mv;
     double ci, ct;
     const int through = refract(w, dwu, dwv, facing, dfu, dfv, eta, &r, &ru, &rv, &ci, &ct) > 0.0;
     reflect(w, dwu, dwv, facing, dfu, dfv, &m, &mu, &mv);
     const vec3 out = pick3(through, r, m), out_u = pick3(through, ru, mu), out_v = pick3(through, rv, mv);
     const double kept = fres && through ? fresnel(ci, ct, eta) : 1.0;
-    put3(pk->state, P, k, pick3(applied, q, p));
-    put3(pk->state, DPU, k, pick3(applied, dqu, dpu));
-    put3(pk->state, DPV, k, pick3(applied, dqv, dpv));
+    put3(pk->state, P, k, pick3(applied, col3(ev->q, 0, k), col3(pk->state, P, k)));
+    put3(pk->state, DPU, k, pick3(applied, col3(ev->dqu, 0, k), col3(pk->state, DPU, k)));
+    put3(pk->state, DPV, k, pick3(applied, col3(ev->dqv, 0, k), col3(pk->state, DPV, k)));
     put3(pk->state, W, k, pick3(crosses, out, w));
     put3(pk->state, DWU, k, pick3(crosses, out_u, dwu));
     put3(pk->state, DWV, k, pick3(crosses, out_v, dwv));
     pk->state[FLUX][k] = crosses ? flux * kept : flux;
-    put3(ev->q, 0, k, q);
-    put3(ev->dqu, 0, k, dqu);
-    put3(ev->dqv, 0, k, dqv);
-    put3(ev->outward, 0, k, outward);
-    put3(ev->dnu, 0, k, dnu);
-    put3(ev->dnv, 0, k, dnv);
-    ev->length[k] = mesh ? frame.length : 1.0;
     /* The crossing's columns, read only where the lane crosses its surface (zero in a packet whose
      * lanes do not, so that its loop leaves the crossing out). */
     ev->lost[k] = crossing ? flux * (1.0 - kept) : 0.0;
@@ -595,19 +602,25 @@ static inline SFC_INLINE void apply_lane(const mesh_scene *ms, packet *restrict 
     ev->through[k] = crossing && through ? 1.0 : 0.0;
 }
 
-/* Every applied event of the packet at once (apply_lane), in one loop that GCC vectorises. */
+/* Every applied event of the packet at once (meet_lane, then cross_lane), in two loops that GCC
+ * vectorises (two, so that each keeps its values in registers). */
 static void apply_columns(const mesh_scene *ms, packet *restrict pk, event_columns *restrict ev) {
     const int64_t count = pk->count;
-#define APPLY(mesh, top, crossing)                                                                            \
-    _Pragma("GCC ivdep") for (int64_t k = 0; k < count; k++) apply_lane(ms, pk, ev, k, mesh, top, crossing)
+#define MEET(mesh, top) _Pragma("GCC ivdep") for (int64_t k = 0; k < count; k++) meet_lane(ms, pk, ev, k, mesh, top)
     switch (ev->surfaces) {
-    case ON_FACES: APPLY(1, 0, 1); break;
-    case ON_PRINT: APPLY(0, 1, 1); break;
-    case ON_WALLS: APPLY(0, 0, 1); break;
-    case ON_RECEIVER: APPLY(0, 0, 0); break;
-    default: APPLY(ev->on_mesh[k] != 0.0, ev->on_top[k] != 0.0, 1);
+    case ON_FACES: MEET(1, 0); break;
+    case ON_PRINT: MEET(0, 1); break;
+    case ON_WALLS: case ON_RECEIVER: MEET(0, 0); break;
+    default: MEET(ev->on_mesh[k] != 0.0, ev->on_top[k] != 0.0);
     }
-#undef APPLY
+#undef MEET
+    if (ev->surfaces == ON_RECEIVER) {
+#pragma GCC ivdep
+        for (int64_t k = 0; k < count; k++) cross_lane(ms, pk, ev, k, 0);
+    } else {
+#pragma GCC ivdep
+        for (int64_t k = 0; k < count; k++) cross_lane(ms, pk, ev, k, 1);
+    }
 }
 
 /* The packet's lanes k = 0 .. count - 1 as chunk rows index[k]: their state (from `rows`) into
@@ -749,7 +762,7 @@ static int trace_worker(void *context, int64_t thread) {
  * gradient w.r.t. the state after the event to that before it (`before`, the states apply_columns
  * started from; ev, what it computed); at the top the gradient w.r.t. the hit's distance and jet
  * into column k of hit (6 columns, zero elsewhere) and g zeroed (the host of the loop adds hit into
- * the heights' gradient). `mesh`, `top`, `crossing` as in apply_lane; `reflecting` 0 where no lane
+ * the heights' gradient). `mesh`, `top` as in meet_lane, `crossing` as in cross_lane; `reflecting` 0 where no lane
  * was reflected. */
 static inline SFC_INLINE void retreat_lane(const mesh_scene *ms, int64_t k, const event_columns *restrict ev,
                                            const double (*restrict before)[PACKET], double (*restrict g)[PACKET],
