@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import math
 
+import numpy as np
 import pytest
 import torch
 
@@ -89,10 +90,11 @@ def test_the_mesh_section_alone_compares_every_operator_at_the_same_photons(caps
                          "mesh_scene_two_lenses_torch_tracer"}
     assert mesh["height_field"]["iteration_time_over_height_field"] == 1.0
     assert all(m["forward_photons_per_s"] > 0 and m["iteration_time_over_height_field"] > 0 for m in mesh.values())
-    # a solver's iteration: a render and the gradient from its image, over the height field's
-    hf_iteration = mesh["height_field"]["iteration_seconds"]
+    # a solver's iteration: a render and the gradient from its image, over the height field's run just before it
     for m in mesh.values():
-        assert m["iteration_time_over_height_field"] == pytest.approx(m["iteration_seconds"] / hf_iteration)
+        assert len(m["iteration_ratios"]) == 5 and min(m["iteration_ratios"]) > 0
+        assert m["iteration_time_over_height_field"] == pytest.approx(float(np.median(m["iteration_ratios"])))
+        assert m["iteration_seconds"] > 0
 
 
 # The stage kernels cost 1.5 min of compiling on a cold cache; as plain Python (JIT off) the
