@@ -85,8 +85,9 @@ typedef struct {
 } mesh_faces;
 
 /* A chunk of photons: state (N, STATE), medium, channel, status, counted events (N,), clear (N,)
- * bool; the flux each one lost (LOSS_KINDS, N); with a log, each photon's events (N, max_depth):
- * kind (-1 past its last), face or plane, distance, which the trace records or, with replay,
+ * bool; the flux each one lost (LOSS_KINDS, N); with a log, the photons' events (max_depth, N:
+ * event e of photon i at e N + i, so that a packet's photons' event is contiguous): kind (-1 past
+ * its last), face or plane, distance, which the trace records or, with replay,
  * takes instead of searching (logged at the same heights). The reverse's start (the chunk's state,
  * medium and clear before the trace), the gradient w.r.t. the landed photons' splat arguments g_pos
  * (2, N), g_metric (3, N), g_flux (N,) (splat_arguments' columns) and its output g_heights (threads,
@@ -644,8 +645,6 @@ static void trace_packet(const mesh_scene *ms, const mesh_faces *fa, const chunk
                          event_columns *ev) {
     const int64_t depth = c->max_depth, logging = c->log_kind != NULL && !c->replay;
     load_packet(c, c->start != NULL ? c->start : c->state, pk);
-    if (logging)
-        for (int64_t k = 0; k < pk->count; k++) memset(c->log_kind + depth * pk->index[k], -1, (size_t)depth);
     for (int64_t e = 0; e < depth; e++) {
         double flux[PACKET];
         int any = 0;
@@ -663,9 +662,9 @@ static void trace_packet(const mesh_scene *ms, const mesh_faces *fa, const chunk
             const int64_t i = pk->index[k];
             const vec3 p = col3(pk->state, P, k), w = col3(pk->state, W, k);
             if (c->replay) {
-                ev->kind[k] = c->log_kind[depth * i + e];
-                ev->which[k] = c->log_which[depth * i + e];
-                ev->t[k] = c->log_t[depth * i + e];
+                ev->kind[k] = c->log_kind[e * c->n + i];
+                ev->which[k] = c->log_which[e * c->n + i];
+                ev->t[k] = c->log_t[e * c->n + i];
             } else {
                 ev->kind[k] = next_event(ms, fa, p, w, pk->medium[k], (int)c->wait_at_top,
                                          c->wait_at_top ? INFINITY : pk->t_top[k], pk->face[k], &ev->which[k],
@@ -696,9 +695,9 @@ static void trace_packet(const mesh_scene *ms, const mesh_faces *fa, const chunk
                                && ev->leave_cos[k] >= ms->clear_cos;
             }
             if (logging) {
-                c->log_kind[depth * i + e] = (int8_t)kind;
-                c->log_which[depth * i + e] = (int32_t)ev->which[k];
-                c->log_t[depth * i + e] = ev->t[k];
+                c->log_kind[e * c->n + i] = (int8_t)kind;
+                c->log_which[e * c->n + i] = (int32_t)ev->which[k];
+                c->log_t[e * c->n + i] = ev->t[k];
             }
             if (kind != AT_TOP) c->events[i]++;
             if (kind == ESCAPED) lost[LOST_ESCAPED * c->n] += flux[k];
@@ -736,10 +735,12 @@ static int trace_worker(void *context, int64_t thread) {
         return 1;
     }
     for (int64_t b = thread; b < j->blocks; b += c->threads) {
+        const int64_t first = b * BLOCK, end = imin(c->n, (b + 1) * BLOCK);
+        if (c->log_kind != NULL && !c->replay) /* no event yet: kind -1 in every slot of the block's photons */
+            for (int64_t e = 0; e < c->max_depth; e++) memset(c->log_kind + e * c->n + first, -1, (size_t)(end - first));
         pk->count = 0;
-        for (int64_t i = b * BLOCK; i < imin(c->n, (b + 1) * BLOCK); i++) {
+        for (int64_t i = first; i < end; i++) {
             if (c->status[i] != UNDER_WAY) {
-                if (c->log_kind != NULL && !c->replay) memset(c->log_kind + c->max_depth * i, -1, (size_t)c->max_depth);
                 if (c->start != NULL) memcpy(c->state + STATE * i, c->start + STATE * i, STATE * sizeof(double));
                 continue;
             }
@@ -885,7 +886,7 @@ static void reverse_packet(const mesh_scene *ms, const mesh_faces *fa, const chu
         event_columns *ev = rs->events + events;
         int any = 0;
         for (int64_t k = 0; k < pk->count; k++) {
-            const int64_t i = pk->index[k], at = depth * i + events;
+            const int64_t i = pk->index[k], at = events * c->n + i;
             ev->kind[k] = c->log_kind[at];
             ev->which[k] = c->log_which[at];
             ev->t[k] = ev->kind[k] >= 0 ? c->log_t[at] : 0.0;

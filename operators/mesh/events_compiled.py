@@ -114,7 +114,8 @@ class Faces:
 
 @dataclass
 class EventLog:
-    """Each photon's events in one trace (N, max_depth): kind (-1 past its last), face or box
+    """The photons' events in one trace (max_depth, N), event by event so that the kernels read
+    and write consecutive photons' event together: kind (-1 past a photon's last), face or box
     plane, distance."""
 
     kind: np.ndarray
@@ -123,7 +124,7 @@ class EventLog:
 
     @classmethod
     def empty(cls, n: int, max_depth: int) -> EventLog:
-        return cls(np.empty((n, max_depth), np.int8), np.empty((n, max_depth), np.int32), np.empty((n, max_depth)))
+        return cls(np.empty((max_depth, n), np.int8), np.empty((max_depth, n), np.int32), np.empty((max_depth, n)))
 
 
 def _chunk(d: np.ndarray, state: np.ndarray, medium: np.ndarray, channel: np.ndarray, status: np.ndarray,
@@ -135,8 +136,8 @@ def _chunk(d: np.ndarray, state: np.ndarray, medium: np.ndarray, channel: np.nda
     if d.ndim != 2 or d.shape[0] != d.shape[1]:
         raise ValueError(f"heights must be a square array, got {d.shape}")
     logged = (None, None, None) if log is None else (
-        _data(log.kind, np.int8, "log.kind", (n, max_depth)), _data(log.which, np.int32, "log.which", (n, max_depth)),
-        _data(log.t, np.float64, "log.t", (n, max_depth)))
+        _data(log.kind, np.int8, "log.kind", (max_depth, n)), _data(log.which, np.int32, "log.which", (max_depth, n)),
+        _data(log.t, np.float64, "log.t", (max_depth, n)))
     threads = nb.get_num_threads() if g_heights is None else g_heights.shape[0]
     return _Chunk(
         _data(d, np.float64, "d", d.shape), d.shape[0], _data(state, np.float64, "state", (n, mk.STATE)),
@@ -188,7 +189,7 @@ def reverse(d: np.ndarray, start: tuple[np.ndarray, np.ndarray, np.ndarray], cha
     (state, medium, clear) as the photons were before the :func:`trace` that filled ``log``,
     ``status`` (N,) as they were after it."""
     state, medium, clear = start
-    job = _chunk(d, state, medium, channel, status, np.zeros(len(state), np.int64), clear, log.kind.shape[1], False,
+    job = _chunk(d, state, medium, channel, status, np.zeros(len(state), np.int64), clear, log.kind.shape[0], False,
                  log, True, g_splat=g_splat, g_heights=g_heights)
     reverse_chunk = _KERNELS.function("sfc_mesh_reverse")
     _check_status(reverse_chunk(ctypes.byref(_scene(sc)), ctypes.byref(faces.struct), ctypes.byref(job)))

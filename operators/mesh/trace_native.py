@@ -122,7 +122,7 @@ class _RenderBuffers:
 
     def log(self, k: int, n: int, max_depth: int) -> events_compiled.EventLog:
         """Chunk ``k``'s event log for ``n`` photons of ``max_depth`` events."""
-        if k not in self._logs or self._logs[k].kind.shape != (n, max_depth):
+        if k not in self._logs or self._logs[k].kind.shape != (max_depth, n):
             self._logs[k] = events_compiled.EventLog.empty(n, max_depth)
         return self._logs[k]
 
