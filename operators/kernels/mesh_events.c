@@ -16,12 +16,14 @@
  * Here the photons go through all their events on one thread without a return to Python, in
  * packets of PACKET photons that take their events in step (see "packets" below): the print's hit
  * search for the packet's photons over it in lockstep (solve_hits, as in the height-field
- * kernels), the rest of the search for each photon's next event one photon at a time, the lookup
- * of the surfaces for the packet, the arithmetic of the event (transfer, shading normal, refraction
- * or reflection, Fresnel) and of its reverse in one branch-free loop over the packet, which GCC
- * vectorises across photons (compiled once per kind of surface: faces, print, planes, a mix). The print's jets and hit adjoint come from the AVX2 kernels of
- * simd_kernels.c where the scene's `simd` is set (as in the height-field kernels; the scalar ones
- * of photon_optics.h elsewhere). The gradient logs each photon's events (kind, face or plane,
+ * kernels), Embree's faces for the packet's rays eight at a time, the rest of the search for each
+ * photon's next event one photon at a time, the lookup of the surfaces for the packet, the
+ * arithmetic of the event (transfer, shading normal, refraction or reflection, Fresnel) in two
+ * branch-free loops over the packet and that of its reverse in one, which GCC vectorises across
+ * photons (compiled once per kind of surface: faces, the print, the walls and bottom, the
+ * receiver, a mix). The print's jets and hit adjoint come from the AVX2 kernels of simd_kernels.c
+ * where the scene's `simd` is set (as in the height-field kernels; the scalar ones of
+ * photon_optics.h elsewhere). The gradient logs each photon's events (kind, face or plane,
  * distance) as it traces, and the reverse replays them from the photons' start, keeping the states
  * before each event and what each computed for the packet on its thread, instead of a tape of
  * every photon's states per event.
@@ -737,7 +739,8 @@ static int trace_worker(void *context, int64_t thread) {
     for (int64_t b = thread; b < j->blocks; b += c->threads) {
         const int64_t first = b * BLOCK, end = imin(c->n, (b + 1) * BLOCK);
         if (c->log_kind != NULL && !c->replay) /* no event yet: kind -1 in every slot of the block's photons */
-            for (int64_t e = 0; e < c->max_depth; e++) memset(c->log_kind + e * c->n + first, -1, (size_t)(end - first));
+            for (int64_t e = 0; e < c->max_depth; e++)
+                memset(c->log_kind + e * c->n + first, -1, (size_t)(end - first));
         pk->count = 0;
         for (int64_t i = first; i < end; i++) {
             if (c->status[i] != UNDER_WAY) {
