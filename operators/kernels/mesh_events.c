@@ -115,9 +115,12 @@ typedef struct {
 
 /* ---------------------------------------------------------------- small helpers */
 
+/* Event e of photon i in the chunk's log (max_depth, N): event by event, so that a packet's
+ * photons' event lies together. */
+static inline SFC_INLINE int64_t log_slot(const chunk_job *c, int64_t e, int64_t i) { return e * c->n + i; }
+
 static inline SFC_INLINE vec3 sub3(vec3 a, vec3 b) { return v3(a.x - b.x, a.y - b.y, a.z - b.z); }
 static inline SFC_INLINE vec3 load3(const double *a) { return v3(a[0], a[1], a[2]); }
-static inline SFC_INLINE void store3(double *a, vec3 v) { a[0] = v.x; a[1] = v.y; a[2] = v.z; }
 static inline SFC_INLINE double component(vec3 a, int k) { return k == 0 ? a.x : (k == 1 ? a.y : a.z); }
 
 /* ---------------------------------------------------------------- faces */
@@ -664,9 +667,10 @@ static void trace_packet(const mesh_scene *ms, const mesh_faces *fa, const chunk
             const int64_t i = pk->index[k];
             const vec3 p = col3(pk->state, P, k), w = col3(pk->state, W, k);
             if (c->replay) {
-                ev->kind[k] = c->log_kind[e * c->n + i];
-                ev->which[k] = c->log_which[e * c->n + i];
-                ev->t[k] = c->log_t[e * c->n + i];
+                const int64_t at = log_slot(c, e, i);
+                ev->kind[k] = c->log_kind[at];
+                ev->which[k] = c->log_which[at];
+                ev->t[k] = c->log_t[at];
             } else {
                 ev->kind[k] = next_event(ms, fa, p, w, pk->medium[k], (int)c->wait_at_top,
                                          c->wait_at_top ? INFINITY : pk->t_top[k], pk->face[k], &ev->which[k],
@@ -697,9 +701,10 @@ static void trace_packet(const mesh_scene *ms, const mesh_faces *fa, const chunk
                                && ev->leave_cos[k] >= ms->clear_cos;
             }
             if (logging) {
-                c->log_kind[e * c->n + i] = (int8_t)kind;
-                c->log_which[e * c->n + i] = (int32_t)ev->which[k];
-                c->log_t[e * c->n + i] = ev->t[k];
+                const int64_t at = log_slot(c, e, i);
+                c->log_kind[at] = (int8_t)kind;
+                c->log_which[at] = (int32_t)ev->which[k];
+                c->log_t[at] = ev->t[k];
             }
             if (kind != AT_TOP) c->events[i]++;
             if (kind == ESCAPED) lost[LOST_ESCAPED * c->n] += flux[k];
@@ -740,7 +745,7 @@ static int trace_worker(void *context, int64_t thread) {
         const int64_t first = b * BLOCK, end = imin(c->n, (b + 1) * BLOCK);
         if (c->log_kind != NULL && !c->replay) /* no event yet: kind -1 in every slot of the block's photons */
             for (int64_t e = 0; e < c->max_depth; e++)
-                memset(c->log_kind + e * c->n + first, -1, (size_t)(end - first));
+                memset(c->log_kind + log_slot(c, e, first), -1, (size_t)(end - first));
         pk->count = 0;
         for (int64_t i = first; i < end; i++) {
             if (c->status[i] != UNDER_WAY) {
@@ -889,7 +894,7 @@ static void reverse_packet(const mesh_scene *ms, const mesh_faces *fa, const chu
         event_columns *ev = rs->events + events;
         int any = 0;
         for (int64_t k = 0; k < pk->count; k++) {
-            const int64_t i = pk->index[k], at = events * c->n + i;
+            const int64_t at = log_slot(c, events, pk->index[k]);
             ev->kind[k] = c->log_kind[at];
             ev->which[k] = c->log_which[at];
             ev->t[k] = ev->kind[k] >= 0 ? c->log_t[at] : 0.0;
