@@ -1,6 +1,6 @@
 /* The mesh-scene operator's photon kernels in C: every photon of a chunk through all its events at
- * once (trace), the splat arguments of the landed photons, and the reverse of both, from the
- * gradient w.r.t. the splat arguments to the heights (reverse). Part of the compiled extension
+ * once, ending in the splat arguments of the landed photons (trace), and the reverse of both, from
+ * the gradient w.r.t. the splat arguments to the heights (reverse). Part of the compiled extension
  * operators.kernels._simd (setup.py): compiled at install, so the first render through lenses
  * traces at once instead of waiting minutes for numba. Built twice, for any x86-64 CPU and for
  * AVX2 + FMA (mesh_events_avx2.c; the host calls that build where the CPU has both).
@@ -87,18 +87,20 @@ typedef struct {
 } mesh_faces;
 
 /* A chunk of photons: state (N, STATE), medium, channel, status, counted events (N,), clear (N,)
- * bool; the flux each one lost (LOSS_KINDS, N); with a log, the photons' events (max_depth, N:
- * event e of photon i at e N + i, so that a packet's photons' event is contiguous): kind (-1 past
- * its last), face or plane, distance, which the trace records or, with replay,
- * takes instead of searching (logged at the same heights). The reverse's start (the chunk's state,
- * medium and clear before the trace), the gradient w.r.t. the landed photons' splat arguments g_pos
- * (2, N), g_metric (3, N), g_flux (N,) (splat_arguments' columns) and its output g_heights (threads,
- * m, m). */
-enum { LOST_ESCAPED = 0, LOST_INSIDE_TOP = 1, LOST_FRESNEL = 2, LOST_MAX_DEPTH = 3, LOSS_KINDS = 4 };
+ * bool; the flux lost in each block of BLOCK photons per kind (LOSS_KINDS, blocks; LOST_MISSED:
+ * landed beside the receiver); with a log, the photons' events (max_depth, N: event e of photon i
+ * at e N + i, so that a packet's photons' event is contiguous): kind (-1 past its last), face or
+ * plane, distance, which the trace records or, with replay, takes instead of searching (logged at
+ * the same heights). The trace's output for the splat: each photon's pixel position (2, N),
+ * footprint metric (3, N) and flux (N,) at column where[i] (where NULL: i; flux 0 and a unit
+ * metric unless it landed). The reverse's start (the chunk's state, medium and clear before the
+ * trace), the gradient w.r.t. the splat arguments g_pos (2, N), g_metric (3, N), g_flux (N,) (the
+ * same columns) and its output g_heights (threads, m, m). */
+enum { LOST_ESCAPED = 0, LOST_INSIDE_TOP = 1, LOST_FRESNEL = 2, LOST_MAX_DEPTH = 3, LOST_MISSED = 4, LOSS_KINDS = 5 };
 typedef struct {
     const double *d;
     int64_t m;
-    double *state;
+    double *state;       /* the trace's photons as they end (N, STATE); NULL with start: not kept */
     const double *start; /* the trace's photons as they start (N, STATE), NULL: state itself */
     int64_t *medium;
     const int64_t *channel;
@@ -108,6 +110,8 @@ typedef struct {
     int8_t *log_kind;
     int32_t *log_which;
     double *log_t;
+    const int64_t *where;
+    double *pos, *metric, *flux;
     const double *g_pos, *g_metric, *g_flux;
     double *g_heights;
     int64_t n, max_depth, wait_at_top, replay, threads;
@@ -118,6 +122,43 @@ typedef struct {
 /* Event e of photon i in the chunk's log (max_depth, N): event by event, so that a packet's
  * photons' event lies together. */
 static inline SFC_INLINE int64_t log_slot(const chunk_job *c, int64_t e, int64_t i) { return e * c->n + i; }
+
+/* Photon i's column among the splat's arguments and their gradients. */
+static inline SFC_INLINE int64_t splat_column(const chunk_job *c, int64_t i) { return c->where != NULL ? c->where[i] : i; }
+
+/* The flux of kind `kind` lost in block b (c->lost is (LOSS_KINDS, blocks)). */
+static inline SFC_INLINE double *lost_in(const chunk_job *c, int kind, int64_t b) {
+    return c->lost + kind * ((c->n + BLOCK - 1) / BLOCK) + b;
+}
+
+/* Photon i's splat arguments (splat_arguments in kernels_native.py) into its column: pixel
+ * position, footprint metric and flux where it landed (position p, position differentials dpu,
+ * dpv in mm), else flux 0 and a unit metric. Returns the flux of a landed photon beside the
+ * receiver (W), else 0. */
+static inline SFC_INLINE double splat_photon(const mesh_scene *ms, const chunk_job *c, int64_t i, int landed,
+                                             double px, double py, double dpux, double dpuy, double dpvx,
+                                             double dpvy, double flux) {
+    const sfc_scene *sc = &ms->hf;
+    const double k = sc->to_px;
+    const int64_t n = c->n, col = splat_column(c, i);
+    if (!landed) {
+        c->pos[col] = c->pos[n + col] = 0.0;
+        c->metric[col] = 1.0;
+        c->metric[n + col] = 0.0;
+        c->metric[2 * n + col] = 1.0;
+        c->flux[col] = 0.0;
+        return 0.0;
+    }
+    c->pos[col] = (px + sc->receiver_half) * k - 0.5;
+    c->pos[n + col] = (py + sc->receiver_half) * k - 0.5;
+    double q[3];
+    footprint_metric(sc, dpux * k, dpuy * k, dpvx * k, dpvy * k, q);
+    c->metric[col] = q[0];
+    c->metric[n + col] = q[1];
+    c->metric[2 * n + col] = q[2];
+    c->flux[col] = flux;
+    return fabs(px) > sc->receiver_half || fabs(py) > sc->receiver_half ? flux : 0.0;
+}
 
 static inline SFC_INLINE vec3 sub3(vec3 a, vec3 b) { return v3(a.x - b.x, a.y - b.y, a.z - b.z); }
 static inline SFC_INLINE vec3 load3(const double *a) { return v3(a[0], a[1], a[2]); }
@@ -643,12 +684,13 @@ static void load_packet(const chunk_job *c, const double *rows, packet *pk) {
 
 /* The packet's photons through their events (advance, _run in operators/mesh/trace_native.py):
  * each at most max_depth of them, until it lands, is lost, waits at the top (wait_at_top) or has
- * had max_depth counted events in all, from c->start (or c->state); its losses into its column of
- * c->lost, its events into the log (or, with replay, from it); its state, medium, status and clear
- * back into the chunk. */
+ * had max_depth counted events in all, from c->start (or c->state); their losses added to block
+ * `block`'s, their events into the log (or, with replay, from it); their state, medium, status and
+ * clear back into the chunk, their splat arguments into their columns. */
 static void trace_packet(const mesh_scene *ms, const mesh_faces *fa, const chunk_job *c, packet *pk,
-                         event_columns *ev) {
+                         event_columns *ev, int64_t block) {
     const int64_t depth = c->max_depth, logging = c->log_kind != NULL && !c->replay;
+    double lost[LOSS_KINDS] = {0.0};
     load_packet(c, c->start != NULL ? c->start : c->state, pk);
     for (int64_t e = 0; e < depth; e++) {
         double flux[PACKET];
@@ -684,7 +726,6 @@ static void trace_packet(const mesh_scene *ms, const mesh_faces *fa, const chunk
         for (int64_t k = 0; k < pk->count; k++) {
             const int64_t kind = ev->kind[k], i = pk->index[k];
             if (pk->status[k] != UNDER_WAY) continue;
-            double *lost = c->lost + i;
             pk->clear[k] = 0;
             if (kind == AT_TOP) {
                 pk->status[k] = WAITING;
@@ -695,7 +736,7 @@ static void trace_packet(const mesh_scene *ms, const mesh_faces *fa, const chunk
             } else if (ev->through[k] != 0.0) {
                 const int64_t solid = kind == MESH ? fa->face_element[ev->which[k]] : fa->substrate;
                 const int entering = ev->sign[k] > 0.0;
-                if (ms->hf.fresnel) lost[LOST_FRESNEL * c->n] += ev->lost[k];
+                if (ms->hf.fresnel) lost[LOST_FRESNEL] += ev->lost[k];
                 pk->medium[k] = entering ? solid : AIR;
                 pk->clear[k] = kind == MESH && !entering && fa->face_clear[ev->which[k]]
                                && ev->leave_cos[k] >= ms->clear_cos;
@@ -707,21 +748,26 @@ static void trace_packet(const mesh_scene *ms, const mesh_faces *fa, const chunk
                 c->log_t[at] = ev->t[k];
             }
             if (kind != AT_TOP) c->events[i]++;
-            if (kind == ESCAPED) lost[LOST_ESCAPED * c->n] += flux[k];
-            if (kind == INSIDE_TOP) lost[LOST_INSIDE_TOP * c->n] += flux[k];
+            if (kind == ESCAPED) lost[LOST_ESCAPED] += flux[k];
+            if (kind == INSIDE_TOP) lost[LOST_INSIDE_TOP] += flux[k];
             if (pk->status[k] == UNDER_WAY && c->events[i] >= depth) {
-                lost[LOST_MAX_DEPTH * c->n] += pk->state[FLUX][k];
+                lost[LOST_MAX_DEPTH] += pk->state[FLUX][k];
                 pk->status[k] = LOST;
             }
         }
     }
     for (int64_t k = 0; k < pk->count; k++) {
         const int64_t i = pk->index[k];
-        for (int j = 0; j < STATE; j++) c->state[STATE * i + j] = pk->state[j][k];
+        if (c->state != NULL)
+            for (int j = 0; j < STATE; j++) c->state[STATE * i + j] = pk->state[j][k];
         c->medium[i] = pk->medium[k];
         c->status[i] = pk->status[k];
         c->clear[i] = (uint8_t)pk->clear[k];
+        lost[LOST_MISSED] += splat_photon(ms, c, i, pk->status[k] == LANDED, pk->state[P][k], pk->state[P + 1][k],
+                                          pk->state[DPU][k], pk->state[DPU + 1][k], pk->state[DPV][k],
+                                          pk->state[DPV + 1][k], pk->state[FLUX][k]);
     }
+    for (int kind = 0; kind < LOSS_KINDS; kind++) *lost_in(c, kind, block) += lost[kind];
 }
 
 typedef struct {
@@ -746,19 +792,23 @@ static int trace_worker(void *context, int64_t thread) {
         if (c->log_kind != NULL && !c->replay) /* no event yet: kind -1 in every slot of the block's photons */
             for (int64_t e = 0; e < c->max_depth; e++)
                 memset(c->log_kind + log_slot(c, e, first), -1, (size_t)(end - first));
+        for (int kind = 0; kind < LOSS_KINDS; kind++) *lost_in(c, kind, b) = 0.0;
         pk->count = 0;
         for (int64_t i = first; i < end; i++) {
-            if (c->status[i] != UNDER_WAY) {
-                if (c->start != NULL) memcpy(c->state + STATE * i, c->start + STATE * i, STATE * sizeof(double));
+            if (c->status[i] != UNDER_WAY) { /* not traced: as it starts */
+                const double *row = (c->start != NULL ? c->start : c->state) + STATE * i;
+                if (c->start != NULL && c->state != NULL) memcpy(c->state + STATE * i, row, STATE * sizeof(double));
+                *lost_in(c, LOST_MISSED, b) += splat_photon(j->ms, c, i, c->status[i] == LANDED, row[P], row[P + 1],
+                                                            row[DPU], row[DPU + 1], row[DPV], row[DPV + 1], row[FLUX]);
                 continue;
             }
             pk->index[pk->count++] = i;
             if (pk->count == PACKET) {
-                trace_packet(j->ms, j->fa, c, pk, ev);
+                trace_packet(j->ms, j->fa, c, pk, ev, b);
                 pk->count = 0;
             }
         }
-        if (pk->count > 0) trace_packet(j->ms, j->fa, c, pk, ev);
+        if (pk->count > 0) trace_packet(j->ms, j->fa, c, pk, ev, b);
     }
     free(pk);
     free(ev);
@@ -908,7 +958,7 @@ static void reverse_packet(const mesh_scene *ms, const mesh_faces *fa, const chu
     const sfc_scene *sc = &ms->hf;
     const double to_px = sc->to_px;
     for (int64_t k = 0; k < pk->count; k++) {
-        const int64_t i = pk->index[k], n = c->n;
+        const int64_t i = splat_column(c, pk->index[k]), n = c->n;
         for (int j = 0; j < STATE; j++) rs->g[j][k] = 0.0;
         double gf[4];
         footprint_metric_adjoint(sc, pk->state[DPU][k] * to_px, pk->state[DPU + 1][k] * to_px,
@@ -975,78 +1025,19 @@ static int reverse_worker(void *context, int64_t thread) {
 /* ---------------------------------------------------------------- exported */
 
 /* Trace every photon of the chunk under way through its events, on c->threads threads, into
- * c->state from c->start (NULL: in place; see trace_packet). Returns 0, -1 when a thread could
- * not start. */
+ * c->state (NULL: not kept) from c->start (NULL: in place; see trace_packet), and every photon's splat arguments
+ * into c->pos, metric, flux; the flux lost per kind and block into c->lost. Returns 0, -1 when a
+ * thread could not start. */
 int SFC_EXPORT(sfc_mesh_trace)(const mesh_scene *ms, const mesh_faces *fa, const chunk_job *c) {
     worker_job j = {ms, fa, c, (c->n + BLOCK - 1) / BLOCK};
     return sfc_parallel(c->threads, trace_worker, &j);
 }
 
 /* The gradient w.r.t. the heights, into c->g_heights (threads, m, m), of the gradient w.r.t. the
- * landed photons' splat arguments (c->g_pos, g_metric, g_flux): c->state, medium and clear hold the
+ * landed photons' splat arguments (c->g_pos, g_metric, g_flux, in the trace's columns): c->state, medium and clear hold the
  * chunk as it was before sfc_mesh_trace logged its events, c->status the status after it (only
  * landed photons carry a gradient). Returns 0, -1 on failure to allocate or start threads. */
 int SFC_EXPORT(sfc_mesh_reverse)(const mesh_scene *ms, const mesh_faces *fa, const chunk_job *c) {
     worker_job j = {ms, fa, c, (c->n + BLOCK - 1) / BLOCK};
     return sfc_parallel(c->threads, reverse_worker, &j);
-}
-
-typedef struct {
-    const mesh_scene *ms;
-    const double *state;
-    const int64_t *status, *where;
-    int64_t n, threads;
-    double *pos, *metric, *flux, *missed;
-} splat_job;
-
-/* Thread t's share of sfc_mesh_splat_arguments: photons t * per .. (t + 1) * per - 1. */
-static int splat_arguments_worker(void *context, int64_t thread) {
-    const splat_job *j = (const splat_job *)context;
-    const sfc_scene *sc = &j->ms->hf;
-    const double k = sc->to_px;
-    const int64_t n = j->n, per = (n + j->threads - 1) / j->threads;
-    double missed = 0.0;
-    for (int64_t i = thread * per; i < imin(n, (thread + 1) * per); i++) {
-        const int64_t c = j->where[i];
-        double *pos = j->pos, *metric = j->metric;
-        if (j->status[i] != LANDED) {
-            pos[c] = pos[n + c] = 0.0;
-            metric[c] = 1.0;
-            metric[n + c] = 0.0;
-            metric[2 * n + c] = 1.0;
-            j->flux[c] = 0.0;
-            continue;
-        }
-        const double *row = j->state + STATE * i;
-        if (fabs(row[P]) > sc->receiver_half || fabs(row[P + 1]) > sc->receiver_half) missed += row[FLUX];
-        pos[c] = (row[P] + sc->receiver_half) * k - 0.5;
-        pos[n + c] = (row[P + 1] + sc->receiver_half) * k - 0.5;
-        double q[3];
-        footprint_metric(sc, row[DPU] * k, row[DPU + 1] * k, row[DPV] * k, row[DPV + 1] * k, q);
-        metric[c] = q[0];
-        metric[n + c] = q[1];
-        metric[2 * n + c] = q[2];
-        j->flux[c] = row[FLUX];
-    }
-    j->missed[thread] = missed;
-    return 0;
-}
-
-/* Pixel positions (2, N), footprint metrics (3, N) and flux (N,) of the landed photons, photon i's
- * at column where[i]; flux 0 and a unit metric for the others (splat_arguments), on `threads`
- * threads (thread t: a contiguous share). The flux (W) of the landed photons beside the receiver
- * into *missed (summed per thread, then in thread order). Returns 0, -1 on failure to allocate or
- * start threads. */
-int SFC_EXPORT(sfc_mesh_splat_arguments)(const mesh_scene *ms, const double *state, const int64_t *status,
-                                         const int64_t *where, int64_t n, int64_t threads, double *pos,
-                                         double *metric, double *flux, double *missed) {
-    if (threads < 1) threads = 1;
-    double *shares = (double *)calloc((size_t)threads, sizeof(double));
-    if (!shares) return -1;
-    splat_job j = {ms, state, status, where, n, threads, pos, metric, flux, shares};
-    const int result = sfc_parallel(threads, splat_arguments_worker, &j);
-    *missed = 0.0;
-    for (int64_t t = 0; t < threads; t++) *missed += shares[t];
-    free(shares);
-    return result;
 }

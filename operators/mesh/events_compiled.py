@@ -1,10 +1,11 @@
 """Host side of the mesh-scene photon kernels in C (``operators/kernels/mesh_events.c``).
 
 :func:`trace` takes a chunk of photons through all their events in one call (what
-:func:`operators.mesh.kernels_native.advance` does one event per call), :func:`splat_arguments` is
-the numba kernel of that name, and :func:`reverse` takes the gradient w.r.t. the landed photons'
-splat arguments back to the heights (what :func:`operators.mesh.adjoint_native.splat_arguments_adjoint`
-and :func:`operators.mesh.adjoint_native.retreat`, one event per call from a tape, do).
+:func:`operators.mesh.kernels_native.advance` does one event per call) and gives their splat
+arguments (what :func:`operators.mesh.kernels_native.splat_arguments` computes from the final
+states), and :func:`reverse` takes the gradient w.r.t. the landed photons' splat arguments back
+to the heights (what :func:`operators.mesh.adjoint_native.splat_arguments_adjoint` and
+:func:`operators.mesh.adjoint_native.retreat`, one event per call from a tape, do).
 Compiled at install as part of the extension (:mod:`operators.kernels.extension`): the first
 render through lenses traces at once instead of waiting for numba. ctypes releases the GIL for
 the call; the C code runs as many threads as numba would.
@@ -26,12 +27,14 @@ from operators.mesh.culling import CLEAR_COS
 from operators.mesh.embree_native import INTERSECT8
 from operators.mesh.intersect_reference import MIN_FACE_DISTANCE, START_OFFSET
 
-__all__ = ["AVAILABLE", "BYTES_PER_EVENT", "LOSS_KINDS", "EventLog", "Faces", "trace", "reverse", "splat_arguments"]
+__all__ = ["AVAILABLE", "BYTES_PER_EVENT", "LOSS_KINDS", "EventLog", "Faces", "SplatArguments", "trace", "reverse"]
 
 _P = ctypes.c_void_p
 _I = ctypes.c_int64
-# The flux a photon lost, per kind (columns of the trace's losses; LOSSES in trace_native.py).
-LOSS_KINDS = ("escaped", "inside_top", "fresnel_reflected", "max_depth")
+# The flux lost, per kind (rows of the trace's losses; LOSSES in trace_native.py).
+LOSS_KINDS = ("escaped", "inside_top", "fresnel_reflected", "max_depth", "missed_receiver")
+# Photons per block of the C kernels' threads (BLOCK in mesh_events.c).
+_BLOCK = 4096
 # Memory of one logged event: int8 kind, int32 face or plane, float64 distance.
 BYTES_PER_EVENT = 13
 
@@ -57,8 +60,9 @@ class _Chunk(ctypes.Structure):
 
     _fields_ = [("d", _P), ("m", _I), ("state", _P), ("start", _P), ("medium", _P), ("channel", _P), ("status", _P),
                 ("events", _P), ("clear", _P), ("lost", _P), ("log_kind", _P), ("log_which", _P), ("log_t", _P),
-                ("g_pos", _P), ("g_metric", _P), ("g_flux", _P), ("g_heights", _P), ("n", _I), ("max_depth", _I),
-                ("wait_at_top", _I), ("replay", _I), ("threads", _I)]
+                ("where", _P), ("pos", _P), ("metric", _P), ("flux", _P), ("g_pos", _P), ("g_metric", _P),
+                ("g_flux", _P), ("g_heights", _P), ("n", _I), ("max_depth", _I), ("wait_at_top", _I), ("replay", _I),
+                ("threads", _I)]
 
 
 def _bind() -> extension.Kernels:
@@ -67,8 +71,7 @@ def _bind() -> extension.Kernels:
     scene, faces, chunk = (ctypes.POINTER(s) for s in (_MeshScene, _Faces, _Chunk))
     return extension.bind((
         ("sfc_mesh_trace", [scene, faces, chunk], ctypes.c_int),
-        ("sfc_mesh_reverse", [scene, faces, chunk], ctypes.c_int),
-        ("sfc_mesh_splat_arguments", [scene, _P, _P, _P, _I, _I, _P, _P, _P, _P], ctypes.c_int)))
+        ("sfc_mesh_reverse", [scene, faces, chunk], ctypes.c_int)))
 
 
 _KERNELS = _bind()
@@ -127,12 +130,27 @@ class EventLog:
         return cls(np.empty((max_depth, n), np.int8), np.empty((max_depth, n), np.int32), np.empty((max_depth, n)))
 
 
-def _chunk(d: np.ndarray, state: np.ndarray, medium: np.ndarray, channel: np.ndarray, status: np.ndarray,
+@dataclass
+class SplatArguments:
+    """What the splat takes of N photons (:func:`operators.mesh.kernels_native.splat_arguments`):
+    pixel position (2, N), footprint metric (3, N) and flux (N,) (0 for a photon that did not
+    land), column ``where[i]`` for photon i."""
+
+    pos: np.ndarray
+    metric: np.ndarray
+    flux: np.ndarray
+
+    @classmethod
+    def empty(cls, n: int) -> SplatArguments:
+        return cls(np.empty((2, n)), np.empty((3, n)), np.empty(n))
+
+
+def _chunk(d: np.ndarray, state: np.ndarray | None, medium: np.ndarray, channel: np.ndarray, status: np.ndarray,
            events: np.ndarray, clear: np.ndarray, max_depth: int, wait_at_top: bool, log: EventLog | None,
-           replay: bool = False, lost: np.ndarray | None = None,
-           g_splat: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None, g_heights: np.ndarray | None = None,
-           start: np.ndarray | None = None) -> _Chunk:
-    n = state.shape[0]
+           replay: bool = False, lost: np.ndarray | None = None, where: np.ndarray | None = None,
+           splat: SplatArguments | None = None, g_splat: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+           g_heights: np.ndarray | None = None, start: np.ndarray | None = None) -> _Chunk:
+    n = (state if state is not None else start).shape[0]
     if d.ndim != 2 or d.shape[0] != d.shape[1]:
         raise ValueError(f"heights must be a square array, got {d.shape}")
     logged = (None, None, None) if log is None else (
@@ -140,13 +158,18 @@ def _chunk(d: np.ndarray, state: np.ndarray, medium: np.ndarray, channel: np.nda
         _data(log.t, np.float64, "log.t", (max_depth, n)))
     threads = nb.get_num_threads() if g_heights is None else g_heights.shape[0]
     return _Chunk(
-        _data(d, np.float64, "d", d.shape), d.shape[0], _data(state, np.float64, "state", (n, mk.STATE)),
+        _data(d, np.float64, "d", d.shape), d.shape[0],
+        None if state is None else _data(state, np.float64, "state", (n, mk.STATE)),
         None if start is None else _data(start, np.float64, "start", (n, mk.STATE)),
         _data(medium, np.int64, "medium", (n,)), _data(channel, np.int64, "channel", (n,)),
         _data(status, np.int64, "status", (n,)), _data(events, np.int64, "events", (n,)),
         _data(clear, np.bool_, "clear", (n,)),
-        None if lost is None else _data(lost, np.float64, "lost", (len(LOSS_KINDS), n)),
+        None if lost is None else _data(lost, np.float64, "lost", (len(LOSS_KINDS), _blocks(n))),
         *logged,
+        None if where is None else _data(where, np.int64, "where", (n,)),
+        *((None, None, None) if splat is None else (
+            _data(splat.pos, np.float64, "pos", (2, n)), _data(splat.metric, np.float64, "metric", (3, n)),
+            _data(splat.flux, np.float64, "flux", (n,)))),
         *((None, None, None) if g_splat is None else (
             _data(g_splat[0], np.float64, "g_pos", (2, n)), _data(g_splat[1], np.float64, "g_metric", (3, n)),
             _data(g_splat[2], np.float64, "g_flux", (n,)))),
@@ -154,55 +177,52 @@ def _chunk(d: np.ndarray, state: np.ndarray, medium: np.ndarray, channel: np.nda
         n, max_depth, int(wait_at_top), int(replay), threads)
 
 
+def _blocks(n: int) -> int:
+    """Blocks of the C kernels' threads in a chunk of ``n`` photons."""
+    return -(-n // _BLOCK)
+
+
 def _check_status(status: int) -> None:
     if status != 0:
         raise MemoryError("the C mesh kernels could not allocate their buffers or start their threads")
 
 
-def trace(d: np.ndarray, state: np.ndarray, medium: np.ndarray, channel: np.ndarray, status: np.ndarray,
+def trace(d: np.ndarray, state: np.ndarray | None, medium: np.ndarray, channel: np.ndarray, status: np.ndarray,
           events: np.ndarray, clear: np.ndarray, max_depth: int, wait_at_top: bool, faces: Faces,
-          sc: mk.MeshConstants, log: EventLog | None = None, replay: bool = False,
-          start: np.ndarray | None = None) -> np.ndarray:
+          sc: mk.MeshConstants, splat: SplatArguments, where: np.ndarray | None = None, log: EventLog | None = None,
+          replay: bool = False, start: np.ndarray | None = None) -> dict[str, float]:
     """Every photon under way through its events (at most ``max_depth``, until it lands, is lost,
     or with ``wait_at_top`` waits above the print; lost too once ``events`` (N,), counted over its
     whole path, reaches ``max_depth``), in place: ``state`` (N, STATE), ``medium``, ``status``,
     ``events``, ``clear`` (N,); heights ``d`` (m, m). With ``start`` (N, STATE) the photons start
-    from there and ``state`` only receives them (``start`` is not written). Records the events
-    into ``log``, or with ``replay`` takes them from it (logged at the same heights: no search).
-    Returns the flux each photon lost (len(LOSS_KINDS), N)."""
+    from there and ``state`` only receives them (None: their final states are not kept; ``start``
+    is not written). Every photon's splat
+    arguments into ``splat``, photon i's at column ``where[i]`` (None: i). Records the events into
+    ``log``, or with ``replay`` takes them from it (logged at the same heights: no search).
+    Returns the flux lost per kind (W; :data:`LOSS_KINDS`, summed block by block in photon order)."""
     if replay and log is None:
         raise ValueError("a replay needs the log of the events")
-    lost = np.zeros((len(LOSS_KINDS), state.shape[0]))
+    if state is None and start is None:
+        raise ValueError("a trace without final states needs its photons' start")
+    lost = np.empty((len(LOSS_KINDS), _blocks(len(status))))
     job = _chunk(d, state, medium, channel, status, events, clear, max_depth, wait_at_top, log, replay, lost,
-                 start=start)
+                 where, splat, start=start)
     trace_chunk = _KERNELS.function("sfc_mesh_trace")
     _check_status(trace_chunk(ctypes.byref(_scene(sc)), ctypes.byref(faces.struct), ctypes.byref(job)))
-    return lost
+    return {kind: float(total) for kind, total in zip(LOSS_KINDS, lost.sum(axis=1))}
 
 
 def reverse(d: np.ndarray, start: tuple[np.ndarray, np.ndarray, np.ndarray], channel: np.ndarray,
             status: np.ndarray, log: EventLog, faces: Faces, sc: mk.MeshConstants,
-            g_splat: tuple[np.ndarray, np.ndarray, np.ndarray], g_heights: np.ndarray) -> None:
+            g_splat: tuple[np.ndarray, np.ndarray, np.ndarray], g_heights: np.ndarray,
+            where: np.ndarray | None = None) -> None:
     """Add to ``g_heights`` (threads, m, m), one thread per row, the gradient w.r.t. the heights
     ``d`` of the gradient ``g_splat`` w.r.t. the landed photons' splat arguments (pos (2, N),
-    metric (3, N), flux (N,), as :func:`splat_arguments` gives them in chunk order): ``start``
-    (state, medium, clear) as the photons were before the :func:`trace` that filled ``log``,
-    ``status`` (N,) as they were after it."""
+    metric (3, N), flux (N,), photon i's at column ``where[i]`` (None: i), as :func:`trace` gives
+    them): ``start`` (state, medium, clear) as the photons were before the :func:`trace` that
+    filled ``log``, ``status`` (N,) as they were after it."""
     state, medium, clear = start
     job = _chunk(d, state, medium, channel, status, np.zeros(len(state), np.int64), clear, log.kind.shape[0], False,
-                 log, True, g_splat=g_splat, g_heights=g_heights)
+                 log, True, where=where, g_splat=g_splat, g_heights=g_heights)
     reverse_chunk = _KERNELS.function("sfc_mesh_reverse")
     _check_status(reverse_chunk(ctypes.byref(_scene(sc)), ctypes.byref(faces.struct), ctypes.byref(job)))
-
-
-def splat_arguments(state, status, where, sc, pos, metric, flux) -> float:
-    """:func:`operators.mesh.kernels_native.splat_arguments` in C (same arguments), on numba's
-    thread count; returns the flux (W) of the landed photons beside the receiver."""
-    n = state.shape[0]
-    missed = ctypes.c_double(0.0)
-    _check_status(_KERNELS.function("sfc_mesh_splat_arguments")(
-        ctypes.byref(_scene(sc)), _data(state, np.float64, "state", (n, mk.STATE)),
-        _data(status, np.int64, "status", (n,)), _data(where, np.int64, "where", (n,)), n, nb.get_num_threads(),
-        _data(pos, np.float64, "pos", (2, n)), _data(metric, np.float64, "metric", (3, n)),
-        _data(flux, np.float64, "flux", (n,)), ctypes.byref(missed)))
-    return missed.value

@@ -60,8 +60,9 @@ class Prefix:
 _EVENT_DTYPES = (np.int64, np.int64, np.float64)
 # Work continues on a compact copy of the photons under way once fewer than this share are.
 COMPACT = 0.5
-# A photon's final state and status that a render keeps beside its events (bytes).
-FINAL_BYTES_PER_PHOTON = mk.STATE * 8 + 8
+# A photon's splat arguments, status and channel in splat order that a render keeps beside its
+# events (bytes).
+SPLAT_BYTES_PER_PHOTON = 6 * 8 + 8 + 8
 
 
 @dataclass
@@ -89,6 +90,15 @@ class _Chunk:
                       self.events[index], self.clear[index])
 
 
+def _placed(channel: np.ndarray, where: np.ndarray | None) -> np.ndarray:
+    """``channel`` (N,) with photon i's entry at ``where[i]`` (None: as it is)."""
+    if where is None:
+        return channel
+    placed = np.empty_like(channel)
+    placed[where] = channel
+    return placed
+
+
 def _write_back(chunk: _Chunk, index: np.ndarray | None, work: _Chunk) -> None:
     """Copy ``work`` (the chunk's photons at ``index``; None: the chunk itself) into the chunk."""
     if index is None:
@@ -106,19 +116,19 @@ def _numba_splat_arguments(state, status, where, sc, pos, metric, flux) -> float
 
 
 class _RenderBuffers:
-    """Arrays each render fills again, per chunk: its photons' final states (n, STATE) and event
-    logs. The last render's are those its gradient reads; refilling them spares a render the page
+    """Arrays each render fills again, per chunk: its photons' splat arguments and event logs.
+    The last render's are those its gradient reads; refilling them spares a render the page
     faults of new arrays."""
 
     def __init__(self) -> None:
-        self._states: dict[int, np.ndarray] = {}
+        self._splats: dict[int, events_compiled.SplatArguments] = {}
         self._logs: dict[int, events_compiled.EventLog] = {}
 
-    def state(self, k: int, n: int) -> np.ndarray:
-        """Chunk ``k``'s state buffer for ``n`` photons."""
-        if k not in self._states or len(self._states[k]) != n:
-            self._states[k] = np.empty((n, mk.STATE))
-        return self._states[k]
+    def splat(self, k: int, n: int) -> events_compiled.SplatArguments:
+        """Chunk ``k``'s splat arguments for ``n`` photons."""
+        if k not in self._splats or len(self._splats[k].flux) != n:
+            self._splats[k] = events_compiled.SplatArguments.empty(n)
+        return self._splats[k]
 
     def log(self, k: int, n: int, max_depth: int) -> events_compiled.EventLog:
         """Chunk ``k``'s event log for ``n`` photons of ``max_depth`` events."""
@@ -141,7 +151,6 @@ class NativeMeshTracer:
         # (one event of every photon per call).
         self.compiled = operator.settings.kernels == "c" and events_compiled.AVAILABLE
         self._dtype = torch.empty(0, dtype=operator.dtype).numpy().dtype  # the operator's dtype in numpy
-        self._splat_arguments = events_compiled.splat_arguments if self.compiled else _numba_splat_arguments
         self._prefix: Prefix | None = None
         self._buffers = _RenderBuffers()
         # The heights of the last render and its events per chunk, for a vjp at the same heights.
@@ -182,22 +191,25 @@ class NativeMeshTracer:
 
     # -- events -------------------------------------------------------------------------------
     def _trace(self, d: np.ndarray, chunk: _Chunk, sc: mk.MeshConstants, wait_at_top: bool,
-               losses: dict[str, float], log: events_compiled.EventLog | None = None, replay: bool = False,
-               start: np.ndarray | None = None) -> None:
+               losses: dict[str, float], splat: events_compiled.SplatArguments | None = None,
+               where: np.ndarray | None = None, log: events_compiled.EventLog | None = None, replay: bool = False,
+               start: np.ndarray | None = None) -> events_compiled.SplatArguments:
         """The chunk's photons through their events, by the C kernels (all events in one call) or
-        by :meth:`_run` (one event per call); lost flux added to ``losses``; with the C kernels,
-        each photon's events recorded into ``log`` or, with ``replay``, taken from it, and with
-        ``start`` (N, STATE) the photons taken from there into ``chunk.state``."""
+        by :meth:`_run` (one event per call), and their splat arguments (into ``splat``, None: new
+        arrays), photon i's at column ``where[i]`` (None: i); lost flux added to ``losses``; with
+        the C kernels, each photon's events recorded into ``log`` or, with ``replay``, taken from
+        it, and with ``start`` (N, STATE) the photons taken from there, their final states not kept."""
         if not self.compiled:
-            if start is not None:
-                chunk.state[:] = start
             self._run(d, chunk, sc, wait_at_top, losses)
-            return
-        lost = events_compiled.trace(d, chunk.state, chunk.medium, chunk.channel, chunk.status, chunk.events,
-                                     chunk.clear, self.operator.settings.max_depth, wait_at_top, self._faces, sc, log,
+            return events_compiled.SplatArguments(*self._splat_inputs(chunk, sc, losses, where))
+        splat = events_compiled.SplatArguments.empty(len(chunk.state)) if splat is None else splat
+        final = None if start is not None else chunk.state
+        lost = events_compiled.trace(d, final, chunk.medium, chunk.channel, chunk.status, chunk.events, chunk.clear,
+                                     self.operator.settings.max_depth, wait_at_top, self._faces, sc, splat, where, log,
                                      replay, start)
-        for kind, total in zip(events_compiled.LOSS_KINDS, lost.sum(axis=1)):
-            losses[kind] += float(total)
+        for kind, total in lost.items():
+            losses[kind] += total
+        return splat
 
     def _run(self, d: np.ndarray, chunk: _Chunk, sc: mk.MeshConstants, wait_at_top: bool, losses: dict[str, float],
              tape: list | None = None, events_log: list | None = None, events_replay: list | None = None) -> None:
@@ -264,8 +276,8 @@ class NativeMeshTracer:
         the receiver is counted as missing it in ``losses`` (None: not counted)."""
         n = len(chunk.state)
         pos, metric, flux = np.empty((2, n)), np.empty((3, n)), np.empty(n)
-        missed = self._splat_arguments(chunk.state, chunk.status, np.arange(n) if where is None else where, sc, pos,
-                                       metric, flux)
+        missed = _numba_splat_arguments(chunk.state, chunk.status, np.arange(n) if where is None else where, sc, pos,
+                                        metric, flux)
         if losses is not None:
             losses["missed_receiver"] += missed
         return pos, metric, flux
@@ -277,14 +289,11 @@ class NativeMeshTracer:
 
     def _splat(self, chunk: _Chunk, sc: mk.MeshConstants, losses: dict[str, float], image: ImageAccumulator,
                where: np.ndarray | None = None) -> None:
-        """Splat the chunk into ``image``; ``where`` (N,): each photon's place in the order it is
-        splatted in (the emission order, which fixes the rounding of the sums; None: as traced)."""
+        """Splat the chunk into ``image`` (numba kernels); ``where`` (N,): each photon's place in
+        the order it is splatted in (the emission order, which fixes the rounding of the sums;
+        None: as traced)."""
         pos, metric, flux = self._splat_inputs(chunk, sc, losses, where)
-        channel = chunk.channel
-        if where is not None:
-            channel = np.empty_like(channel)
-            channel[where] = chunk.channel
-        image.add(pos, metric, flux, channel)
+        image.add(pos, metric, flux, _placed(chunk.channel, where))
 
     # -- the height-independent prefix --------------------------------------------------------
     def prefix(self) -> Prefix:
@@ -299,8 +308,8 @@ class NativeMeshTracer:
         waiting = []
         for start, stop in op.chunks():
             chunk = self._emitted(start, stop)
-            self._trace(dummy, chunk, sc, True, losses)
-            self._splat(chunk, sc, losses, image)
+            splat = self._trace(dummy, chunk, sc, True, losses)
+            image.add(splat.pos, splat.metric, splat.flux, chunk.channel)
             keep = chunk.status == mk.WAITING
             waiting.append((chunk.state[keep], chunk.channel[keep], chunk.events[keep]))
         state, channel, events = (np.concatenate(parts) for parts in zip(*waiting))
@@ -341,8 +350,8 @@ class NativeMeshTracer:
     # -- render and gradient ------------------------------------------------------------------
     def render(self, d: np.ndarray) -> tuple[torch.Tensor, dict[str, float]]:
         """Flux per pixel (c, n, n) of heights ``d`` (m, m) float64 and the losses (W); the photons'
-        events (with the C kernels: and their final states) are kept for a :meth:`vjp` at the same
-        heights, with the C kernels within ``event_log_mb``."""
+        events (with the C kernels: and their splat arguments) are kept for a :meth:`vjp` at the
+        same heights, with the C kernels within ``event_log_mb``."""
         pre = self.prefix()
         sc = self.constants(d)
         self._check_above(sc)
@@ -352,32 +361,35 @@ class NativeMeshTracer:
         budget = settings.event_log_mb * 2 ** 20
         log_bytes = len(pre.state) * settings.max_depth * events_compiled.BYTES_PER_EVENT
         keep = not self.compiled or log_bytes <= budget
-        keep_final = self.compiled and log_bytes + len(pre.state) * FINAL_BYTES_PER_PHOTON <= budget
+        keep_splat = self.compiled and log_bytes + len(pre.state) * SPLAT_BYTES_PER_PHOTON <= budget
         seen: list = []
-        finals: list = []
+        splats: list = []
         self._events_seen = None  # its arrays are the buffers this render refills
         for k, (start, stop) in enumerate(self._waiting_chunks()):
             chunk, where = self._waiting(start, stop, writable=not self.compiled)
             if self.compiled:
                 chunk.events = chunk.events.copy()
-                # The photons traced from the prefix into a buffer of this chunk (or, if not kept, of all).
-                begin, chunk.state = chunk.state, self._buffers.state(k if keep_final else 0, stop - start)
+                # The photons traced from the prefix, their splat arguments into a buffer of this
+                # chunk (or, if not kept, of all).
                 log = self._buffers.log(k, stop - start, settings.max_depth) if keep else None
-                self._trace(d, chunk, sc, False, losses, log, start=begin)
+                buffer = self._buffers.splat(k if keep_splat else 0, stop - start)
+                splat = self._trace(d, chunk, sc, False, losses, buffer, where, log, start=chunk.state)
                 seen.append(log)
-                if keep_final:
-                    finals.append((chunk.state, chunk.status))
+                channel = _placed(chunk.channel, where)
+                if keep_splat:
+                    splats.append((splat, channel, chunk.status))
+                image.add(splat.pos, splat.metric, splat.flux, channel)
             else:
                 seen.append([])
                 self._run(d, chunk, sc, False, losses, events_log=seen[-1])
-            self._splat(chunk, sc, losses, image, where)
-        self._events_seen = (d.copy(), seen, finals if keep_final else None) if keep else None
+                self._splat(chunk, sc, losses, image, where)
+        self._events_seen = (d.copy(), seen, splats if keep_splat else None) if keep else None
         return image.image().add_(pre.image), losses
 
     def vjp(self, d: np.ndarray, grad_flux: torch.Tensor) -> np.ndarray:
         """Gradient (m, m) w.r.t. d of <flux per pixel, grad_flux (c, n, n)>. The photons' events
         are replayed from the last :meth:`render` when it had the same heights (and kept them),
-        else searched again; with the C kernels, the final states that render kept spare the
+        else searched again; with the C kernels, the splat arguments that render kept spare the
         replay up to the splat. The C kernels take the gradient back through the logged events of
         packets of photons, event by event; the numba kernels keep a tape of every event's states and run it
         backwards."""
@@ -388,32 +400,33 @@ class NativeMeshTracer:
         # Padded once for all chunks, into the buffer of the last gradient where it fits.
         adjoint = PaddedAdjoint(to_numpy(grad_flux), c_kernels=self.compiled, spare=self._padded)
         same = self._events_seen is not None and np.array_equal(self._events_seen[0], d)
-        seen, finals = self._events_seen[1:] if same else (None, None)
-        from_finals = self.compiled and finals is not None  # the reverse only reads the start states
+        seen, splats = self._events_seen[1:] if same else (None, None)
+        from_splats = self.compiled and splats is not None  # the reverse only reads the start states
         chunks = self._waiting_chunks()
         g_rows = None if self.compiled else np.empty((max((b - a for a, b in chunks), default=0), mk.STATE))
         for k, (start, stop) in enumerate(chunks):
-            chunk, _ = self._waiting(start, stop, writable=not from_finals)
-            tape: list = []
-            if from_finals:
-                before, log = (chunk.state, chunk.medium, chunk.clear), seen[k]
-                chunk.state, chunk.status = finals[k]
-            elif self.compiled:
-                before = (chunk.state.copy(), chunk.medium.copy(), chunk.clear.copy())
-                log = (seen[k] if seen is not None
-                       else events_compiled.EventLog.empty(len(chunk.state), self.operator.settings.max_depth))
-                self._trace(d, chunk, sc, False, not_counted, log, replay=seen is not None)
-            else:
+            chunk, where = self._waiting(start, stop, writable=not from_splats)
+            if not self.compiled:
+                tape: list = []
                 self._run(d, chunk, sc, False, not_counted, tape, events_replay=None if seen is None else seen[k])
-            pos, metric, flux = self._splat_inputs(chunk, sc, None)
-            g_splat = adjoint.gather(pos, metric, flux, chunk.channel)
-            if self.compiled:
-                events_compiled.reverse(d, before, chunk.channel, chunk.status, log, self._faces, sc, g_splat,
-                                        g_heights)
-            else:
+                g_splat = adjoint.gather(*self._splat_inputs(chunk, sc, None), chunk.channel)
                 g_state = g_rows[:len(chunk.state)]
                 ma.splat_arguments_adjoint(chunk.state, chunk.status, sc, *g_splat, g_state)
                 self._reverse(d, chunk, sc, tape, g_state, g_heights)
+                continue
+            before = (chunk.state, chunk.medium, chunk.clear)
+            if from_splats:  # the render's splat arguments, in the order it splatted them
+                log = seen[k]
+                splat, channel, status = splats[k]
+            else:
+                before = tuple(a.copy() for a in before)
+                log = (seen[k] if seen is not None
+                       else events_compiled.EventLog.empty(len(chunk.state), self.operator.settings.max_depth))
+                splat = self._trace(d, chunk, sc, False, not_counted, log=log, replay=seen is not None)
+                channel, status, where = chunk.channel, chunk.status, None
+            g_splat = adjoint.gather(splat.pos, splat.metric, splat.flux, channel)
+            events_compiled.reverse(d, before, chunk.channel, status, log, self._faces, sc, g_splat, g_heights,
+                                    where)
         self._padded = (adjoint.padded, adjoint.pad)
         return g_heights.sum(axis=0)
 

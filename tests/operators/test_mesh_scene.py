@@ -188,9 +188,9 @@ def test_a_gradient_replays_the_renders_events_and_equals_one_that_searches_them
     assert torch.equal(op.vjp(heights, weights), searching.vjp(heights, weights))
 
 
-def test_a_gradient_from_the_renders_final_states_equals_one_that_replays_to_them():
-    """Within event_log_mb a render keeps its photons' final states beside their events and the
-    gradient starts from them; with a budget for the events only it replays them: the same bits."""
+def test_a_gradient_from_the_renders_splat_arguments_equals_one_that_replays_to_them():
+    """Within event_log_mb a render keeps its photons' splat arguments beside their events and the
+    gradient gathers at them; with a budget for the events only it replays them: the same bits."""
     scene, heights, op = paper_scene("two_lenses")
     waiting = len(op.native.prefix().state)
     events_only = (waiting * op.settings.max_depth * events_compiled.BYTES_PER_EVENT + waiting) / 2 ** 20
@@ -200,7 +200,7 @@ def test_a_gradient_from_the_renders_final_states_equals_one_that_replays_to_the
     assert op.native._events_seen[2] is not None
     assert replaying.native._events_seen is not None and replaying.native._events_seen[2] is None
     assert torch.equal(op.vjp(heights, weights), replaying.vjp(heights, weights))
-    assert torch.equal(op.render(heights), replaying.render(heights))  # the kept states were not changed
+    assert torch.equal(op.render(heights), replaying.render(heights))  # the prefix's states were not changed
 
 
 @pytest.mark.parametrize("elements, message", [
