@@ -60,9 +60,9 @@ class _Chunk(ctypes.Structure):
 
     _fields_ = [("d", _P), ("m", _I), ("state", _P), ("start", _P), ("medium", _P), ("channel", _P), ("status", _P),
                 ("events", _P), ("clear", _P), ("lost", _P), ("log_kind", _P), ("log_which", _P), ("log_t", _P),
-                ("where", _P), ("pos", _P), ("metric", _P), ("flux", _P), ("g_pos", _P), ("g_metric", _P),
-                ("g_flux", _P), ("g_heights", _P), ("n", _I), ("max_depth", _I), ("wait_at_top", _I), ("replay", _I),
-                ("threads", _I)]
+                ("pos", _P), ("metric", _P), ("flux", _P), ("where", _P), ("placed_pos", _P), ("placed_metric", _P),
+                ("placed_flux", _P), ("g_pos", _P), ("g_metric", _P), ("g_flux", _P), ("g_heights", _P), ("n", _I),
+                ("max_depth", _I), ("wait_at_top", _I), ("replay", _I), ("threads", _I)]
 
 
 def _bind() -> extension.Kernels:
@@ -134,7 +134,7 @@ class EventLog:
 class SplatArguments:
     """What the splat takes of N photons (:func:`operators.mesh.kernels_native.splat_arguments`):
     pixel position (2, N), footprint metric (3, N) and flux (N,) (0 for a photon that did not
-    land), column ``where[i]`` for photon i."""
+    land)."""
 
     pos: np.ndarray
     metric: np.ndarray
@@ -147,8 +147,8 @@ class SplatArguments:
 
 def _chunk(d: np.ndarray, state: np.ndarray | None, medium: np.ndarray, channel: np.ndarray, status: np.ndarray,
            events: np.ndarray, clear: np.ndarray, max_depth: int, wait_at_top: bool, log: EventLog | None,
-           replay: bool = False, lost: np.ndarray | None = None, where: np.ndarray | None = None,
-           splat: SplatArguments | None = None, g_splat: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+           replay: bool = False, lost: np.ndarray | None = None, splat: SplatArguments | None = None,
+           where: np.ndarray | None = None, placed: SplatArguments | None = None, g_splat: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
            g_heights: np.ndarray | None = None, start: np.ndarray | None = None) -> _Chunk:
     n = (state if state is not None else start).shape[0]
     if d.ndim != 2 or d.shape[0] != d.shape[1]:
@@ -166,15 +166,21 @@ def _chunk(d: np.ndarray, state: np.ndarray | None, medium: np.ndarray, channel:
         _data(clear, np.bool_, "clear", (n,)),
         None if lost is None else _data(lost, np.float64, "lost", (len(LOSS_KINDS), _blocks(n))),
         *logged,
-        None if where is None else _data(where, np.int64, "where", (n,)),
-        *((None, None, None) if splat is None else (
-            _data(splat.pos, np.float64, "pos", (2, n)), _data(splat.metric, np.float64, "metric", (3, n)),
-            _data(splat.flux, np.float64, "flux", (n,)))),
+        *_splat_columns(splat, n), None if where is None else _data(where, np.int64, "where", (n,)),
+        *_splat_columns(placed, n),
         *((None, None, None) if g_splat is None else (
             _data(g_splat[0], np.float64, "g_pos", (2, n)), _data(g_splat[1], np.float64, "g_metric", (3, n)),
             _data(g_splat[2], np.float64, "g_flux", (n,)))),
         None if g_heights is None else _data(g_heights, np.float64, "g_heights", (threads, *d.shape)),
         n, max_depth, int(wait_at_top), int(replay), threads)
+
+
+def _splat_columns(splat: SplatArguments | None, n: int) -> tuple[int | None, int | None, int | None]:
+    """The addresses of ``splat``'s arrays for ``n`` photons (None: three NULLs)."""
+    if splat is None:
+        return None, None, None
+    return (_data(splat.pos, np.float64, "pos", (2, n)), _data(splat.metric, np.float64, "metric", (3, n)),
+            _data(splat.flux, np.float64, "flux", (n,)))
 
 
 def _blocks(n: int) -> int:
@@ -189,24 +195,28 @@ def _check_status(status: int) -> None:
 
 def trace(d: np.ndarray, state: np.ndarray | None, medium: np.ndarray, channel: np.ndarray, status: np.ndarray,
           events: np.ndarray, clear: np.ndarray, max_depth: int, wait_at_top: bool, faces: Faces,
-          sc: mk.MeshConstants, splat: SplatArguments, where: np.ndarray | None = None, log: EventLog | None = None,
-          replay: bool = False, start: np.ndarray | None = None) -> dict[str, float]:
+          sc: mk.MeshConstants, splat: SplatArguments | None, where: np.ndarray | None = None,
+          placed: SplatArguments | None = None, log: EventLog | None = None, replay: bool = False,
+          start: np.ndarray | None = None) -> dict[str, float]:
     """Every photon under way through its events (at most ``max_depth``, until it lands, is lost,
     or with ``wait_at_top`` waits above the print; lost too once ``events`` (N,), counted over its
     whole path, reaches ``max_depth``), in place: ``state`` (N, STATE), ``medium``, ``status``,
     ``events``, ``clear`` (N,); heights ``d`` (m, m). With ``start`` (N, STATE) the photons start
     from there and ``state`` only receives them (None: their final states are not kept; ``start``
     is not written). Every photon's splat
-    arguments into ``splat``, photon i's at column ``where[i]`` (None: i). Records the events into
+    arguments into ``splat`` (None: not kept), photon i's at column i, and with ``where`` (N,)
+    into ``placed`` at column ``where[i]``. Records the events into
     ``log``, or with ``replay`` takes them from it (logged at the same heights: no search).
     Returns the flux lost per kind (W; :data:`LOSS_KINDS`, summed block by block in photon order)."""
     if replay and log is None:
         raise ValueError("a replay needs the log of the events")
     if state is None and start is None:
         raise ValueError("a trace without final states needs its photons' start")
+    if (where is None) != (placed is None):
+        raise ValueError("splat arguments placed by where need both where and placed")
     lost = np.empty((len(LOSS_KINDS), _blocks(len(status))))
     job = _chunk(d, state, medium, channel, status, events, clear, max_depth, wait_at_top, log, replay, lost,
-                 where, splat, start=start)
+                 splat, where, placed, start=start)
     trace_chunk = _KERNELS.function("sfc_mesh_trace")
     _check_status(trace_chunk(ctypes.byref(_scene(sc)), ctypes.byref(faces.struct), ctypes.byref(job)))
     return {kind: float(total) for kind, total in zip(LOSS_KINDS, lost.sum(axis=1))}
@@ -214,15 +224,14 @@ def trace(d: np.ndarray, state: np.ndarray | None, medium: np.ndarray, channel: 
 
 def reverse(d: np.ndarray, start: tuple[np.ndarray, np.ndarray, np.ndarray], channel: np.ndarray,
             status: np.ndarray, log: EventLog, faces: Faces, sc: mk.MeshConstants,
-            g_splat: tuple[np.ndarray, np.ndarray, np.ndarray], g_heights: np.ndarray,
-            where: np.ndarray | None = None) -> None:
+            g_splat: tuple[np.ndarray, np.ndarray, np.ndarray], g_heights: np.ndarray) -> None:
     """Add to ``g_heights`` (threads, m, m), one thread per row, the gradient w.r.t. the heights
     ``d`` of the gradient ``g_splat`` w.r.t. the landed photons' splat arguments (pos (2, N),
-    metric (3, N), flux (N,), photon i's at column ``where[i]`` (None: i), as :func:`trace` gives
-    them): ``start`` (state, medium, clear) as the photons were before the :func:`trace` that
-    filled ``log``, ``status`` (N,) as they were after it."""
+    metric (3, N), flux (N,), photon i's at column i, as :func:`trace` gives them): ``start``
+    (state, medium, clear) as the photons were before the :func:`trace` that filled ``log``,
+    ``status`` (N,) as they were after it."""
     state, medium, clear = start
     job = _chunk(d, state, medium, channel, status, np.zeros(len(state), np.int64), clear, log.kind.shape[0], False,
-                 log, True, where=where, g_splat=g_splat, g_heights=g_heights)
+                 log, True, g_splat=g_splat, g_heights=g_heights)
     reverse_chunk = _KERNELS.function("sfc_mesh_reverse")
     _check_status(reverse_chunk(ctypes.byref(_scene(sc)), ctypes.byref(faces.struct), ctypes.byref(job)))

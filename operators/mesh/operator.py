@@ -67,7 +67,7 @@ class MeshSceneSettings:
         extension: numba.
     event_log_mb: memory (MiB) for the events a render with the C kernels records (13 bytes an
         event, ``max_depth`` events a photon), which a gradient at the same heights replays instead
-        of searching again, and where they fit beside them the photons' splat arguments (64 bytes
+        of searching again, and where they fit beside them the photons' splat arguments (56 bytes
         a photon), at which that gradient gathers the splat's adjoint; 0 turns it off.
     """
 

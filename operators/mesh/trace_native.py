@@ -60,9 +60,8 @@ class Prefix:
 _EVENT_DTYPES = (np.int64, np.int64, np.float64)
 # Work continues on a compact copy of the photons under way once fewer than this share are.
 COMPACT = 0.5
-# A photon's splat arguments, status and channel in splat order that a render keeps beside its
-# events (bytes).
-SPLAT_BYTES_PER_PHOTON = 6 * 8 + 8 + 8
+# A photon's splat arguments and status that a render keeps beside its events (bytes).
+SPLAT_BYTES_PER_PHOTON = 6 * 8 + 8
 
 
 @dataclass
@@ -116,16 +115,17 @@ def _numba_splat_arguments(state, status, where, sc, pos, metric, flux) -> float
 
 
 class _RenderBuffers:
-    """Arrays each render fills again, per chunk: its photons' splat arguments and event logs.
-    The last render's are those its gradient reads; refilling them spares a render the page
-    faults of new arrays."""
+    """Arrays each render fills again, per chunk: its photons' splat arguments in the order they
+    were traced and their event logs, which the last render's gradient reads; and the splat
+    arguments in the order the image sums them (one chunk's at a time). Refilling them spares a
+    render the page faults of new arrays."""
 
     def __init__(self) -> None:
-        self._splats: dict[int, events_compiled.SplatArguments] = {}
+        self._splats: dict[int | None, events_compiled.SplatArguments] = {}
         self._logs: dict[int, events_compiled.EventLog] = {}
 
-    def splat(self, k: int, n: int) -> events_compiled.SplatArguments:
-        """Chunk ``k``'s splat arguments for ``n`` photons."""
+    def splat(self, k: int | None, n: int) -> events_compiled.SplatArguments:
+        """Chunk ``k``'s splat arguments for ``n`` photons (None: the ones the image sums)."""
         if k not in self._splats or len(self._splats[k].flux) != n:
             self._splats[k] = events_compiled.SplatArguments.empty(n)
         return self._splats[k]
@@ -192,21 +192,25 @@ class NativeMeshTracer:
     # -- events -------------------------------------------------------------------------------
     def _trace(self, d: np.ndarray, chunk: _Chunk, sc: mk.MeshConstants, wait_at_top: bool,
                losses: dict[str, float], splat: events_compiled.SplatArguments | None = None,
-               where: np.ndarray | None = None, log: events_compiled.EventLog | None = None, replay: bool = False,
-               start: np.ndarray | None = None) -> events_compiled.SplatArguments:
+               where: np.ndarray | None = None, placed: events_compiled.SplatArguments | None = None,
+               log: events_compiled.EventLog | None = None, replay: bool = False,
+               start: np.ndarray | None = None) -> events_compiled.SplatArguments | None:
         """The chunk's photons through their events, by the C kernels (all events in one call) or
-        by :meth:`_run` (one event per call), and their splat arguments (into ``splat``, None: new
-        arrays), photon i's at column ``where[i]`` (None: i); lost flux added to ``losses``; with
-        the C kernels, each photon's events recorded into ``log`` or, with ``replay``, taken from
-        it, and with ``start`` (N, STATE) the photons taken from there, their final states not kept."""
+        by :meth:`_run` (the prefix's only: one event per call), and their splat arguments, into
+        ``splat`` (None: new arrays, which are returned) and with ``where`` into ``placed`` at
+        column ``where[i]`` for photon i (then ``splat`` None is not kept); lost flux added to
+        ``losses``; with the C kernels, each photon's events recorded into ``log`` or, with
+        ``replay``, taken from it, and with ``start`` (N, STATE) the photons taken from there, their
+        final states not kept."""
         if not self.compiled:
             self._run(d, chunk, sc, wait_at_top, losses)
-            return events_compiled.SplatArguments(*self._splat_inputs(chunk, sc, losses, where))
-        splat = events_compiled.SplatArguments.empty(len(chunk.state)) if splat is None else splat
+            return events_compiled.SplatArguments(*self._splat_inputs(chunk, sc, losses))
+        if splat is None and placed is None:
+            splat = events_compiled.SplatArguments.empty(len(chunk.state))
         final = None if start is not None else chunk.state
         lost = events_compiled.trace(d, final, chunk.medium, chunk.channel, chunk.status, chunk.events, chunk.clear,
-                                     self.operator.settings.max_depth, wait_at_top, self._faces, sc, splat, where, log,
-                                     replay, start)
+                                     self.operator.settings.max_depth, wait_at_top, self._faces, sc, splat, where,
+                                     placed, log, replay, start)
         for kind, total in lost.items():
             losses[kind] += total
         return splat
@@ -369,16 +373,17 @@ class NativeMeshTracer:
             chunk, where = self._waiting(start, stop, writable=not self.compiled)
             if self.compiled:
                 chunk.events = chunk.events.copy()
-                # The photons traced from the prefix, their splat arguments into a buffer of this
-                # chunk (or, if not kept, of all).
+                # The photons traced from the prefix; their splat arguments in the order the image
+                # sums them, and where kept in the order they were traced (the gradient's gather
+                # then reads the adjoint image along their paths).
                 log = self._buffers.log(k, stop - start, settings.max_depth) if keep else None
-                buffer = self._buffers.splat(k if keep_splat else 0, stop - start)
-                splat = self._trace(d, chunk, sc, False, losses, buffer, where, log, start=chunk.state)
+                kept = self._buffers.splat(k, stop - start) if keep_splat else None
+                placed = self._buffers.splat(None, stop - start)
+                self._trace(d, chunk, sc, False, losses, kept, where, placed, log, start=chunk.state)
                 seen.append(log)
-                channel = _placed(chunk.channel, where)
                 if keep_splat:
-                    splats.append((splat, channel, chunk.status))
-                image.add(splat.pos, splat.metric, splat.flux, channel)
+                    splats.append((kept, chunk.status))
+                image.add(placed.pos, placed.metric, placed.flux, _placed(chunk.channel, where))
             else:
                 seen.append([])
                 self._run(d, chunk, sc, False, losses, events_log=seen[-1])
@@ -405,7 +410,7 @@ class NativeMeshTracer:
         chunks = self._waiting_chunks()
         g_rows = None if self.compiled else np.empty((max((b - a for a, b in chunks), default=0), mk.STATE))
         for k, (start, stop) in enumerate(chunks):
-            chunk, where = self._waiting(start, stop, writable=not from_splats)
+            chunk, _ = self._waiting(start, stop, writable=not from_splats)
             if not self.compiled:
                 tape: list = []
                 self._run(d, chunk, sc, False, not_counted, tape, events_replay=None if seen is None else seen[k])
@@ -415,18 +420,17 @@ class NativeMeshTracer:
                 self._reverse(d, chunk, sc, tape, g_state, g_heights)
                 continue
             before = (chunk.state, chunk.medium, chunk.clear)
-            if from_splats:  # the render's splat arguments, in the order it splatted them
+            if from_splats:
                 log = seen[k]
-                splat, channel, status = splats[k]
+                splat, status = splats[k]
             else:
                 before = tuple(a.copy() for a in before)
                 log = (seen[k] if seen is not None
                        else events_compiled.EventLog.empty(len(chunk.state), self.operator.settings.max_depth))
                 splat = self._trace(d, chunk, sc, False, not_counted, log=log, replay=seen is not None)
-                channel, status, where = chunk.channel, chunk.status, None
-            g_splat = adjoint.gather(splat.pos, splat.metric, splat.flux, channel)
-            events_compiled.reverse(d, before, chunk.channel, status, log, self._faces, sc, g_splat, g_heights,
-                                    where)
+                status = chunk.status
+            g_splat = adjoint.gather(splat.pos, splat.metric, splat.flux, chunk.channel)
+            events_compiled.reverse(d, before, chunk.channel, status, log, self._faces, sc, g_splat, g_heights)
         self._padded = (adjoint.padded, adjoint.pad)
         return g_heights.sum(axis=0)
 
