@@ -92,11 +92,9 @@ typedef struct {
  * at e N + i, so that a packet's photons' event is contiguous): kind (-1 past its last), face or
  * plane, distance, which the trace records or, with replay, takes instead of searching (logged at
  * the same heights). The trace's output for the splat: each photon's pixel position (2, N),
- * footprint metric (3, N) and flux (N,) (flux 0 and a unit metric unless it landed), photon i's
- * at column i (pos, metric, flux) and at column where[i] (placed_pos, placed_metric, placed_flux:
- * the order the image sums them in), either set NULL for none. The reverse's start (the chunk's
- * state, medium and clear before the trace), the gradient w.r.t. the splat arguments g_pos
- * (2, N), g_metric (3, N), g_flux (N,) (photon i's at column i) and its output g_heights (threads,
+ * footprint metric (3, N) and flux (N,) (flux 0 and a unit metric unless it landed). The
+ * reverse's start (the chunk's state, medium and clear before the trace), the gradient w.r.t. the
+ * splat arguments g_pos (2, N), g_metric (3, N), g_flux (N,) and its output g_heights (threads,
  * m, m). */
 enum { LOST_ESCAPED = 0, LOST_INSIDE_TOP = 1, LOST_FRESNEL = 2, LOST_MAX_DEPTH = 3, LOST_MISSED = 4, LOSS_KINDS = 5 };
 typedef struct {
@@ -113,8 +111,6 @@ typedef struct {
     int32_t *log_which;
     double *log_t;
     double *pos, *metric, *flux;
-    const int64_t *where;
-    double *placed_pos, *placed_metric, *placed_flux;
     const double *g_pos, *g_metric, *g_flux;
     double *g_heights;
     int64_t n, max_depth, wait_at_top, replay, threads;
@@ -131,36 +127,24 @@ static inline SFC_INLINE double *lost_in(const chunk_job *c, int kind, int64_t b
     return c->lost + kind * ((c->n + BLOCK - 1) / BLOCK) + b;
 }
 
-/* Photon i's splat arguments (splat_arguments in kernels_native.py) into column `col` of pos
- * (2, n), metric (3, n), flux (n,): pixel position, footprint metric and flux. */
-static inline SFC_INLINE void put_splat(double *pos, double *metric, double *flux, int64_t n, int64_t col,
-                                        const double a[6]) {
-    pos[col] = a[0];
-    pos[n + col] = a[1];
-    metric[col] = a[2];
-    metric[n + col] = a[3];
-    metric[2 * n + col] = a[4];
-    flux[col] = a[5];
-}
-
-/* Photon i's splat arguments into column i and column where[i] (chunk_job): pixel position,
- * footprint metric and flux where it landed (position p, position differentials dpu, dpv in mm),
- * else flux 0 and a unit metric. Returns the flux of a landed photon beside the receiver (W),
- * else 0. */
+/* Photon i's splat arguments (splat_arguments in kernels_native.py) into column i: pixel
+ * position, footprint metric and flux where it landed (position p, position differentials dpu,
+ * dpv in mm), else flux 0 and a unit metric. Returns the flux of a landed photon beside the
+ * receiver (W), else 0. */
 static inline SFC_INLINE double splat_photon(const mesh_scene *ms, const chunk_job *c, int64_t i, int landed,
                                              double px, double py, double dpux, double dpuy, double dpvx,
                                              double dpvy, double flux) {
     const sfc_scene *sc = &ms->hf;
     const double k = sc->to_px;
-    double a[6] = {0.0, 0.0, 1.0, 0.0, 1.0, 0.0};
-    if (landed) {
-        a[0] = (px + sc->receiver_half) * k - 0.5;
-        a[1] = (py + sc->receiver_half) * k - 0.5;
-        footprint_metric(sc, dpux * k, dpuy * k, dpvx * k, dpvy * k, a + 2);
-        a[5] = flux;
-    }
-    if (c->pos != NULL) put_splat(c->pos, c->metric, c->flux, c->n, i, a);
-    if (c->placed_pos != NULL) put_splat(c->placed_pos, c->placed_metric, c->placed_flux, c->n, c->where[i], a);
+    const int64_t n = c->n;
+    double q[3] = {1.0, 0.0, 1.0};
+    if (landed) footprint_metric(sc, dpux * k, dpuy * k, dpvx * k, dpvy * k, q);
+    c->pos[i] = landed ? (px + sc->receiver_half) * k - 0.5 : 0.0;
+    c->pos[n + i] = landed ? (py + sc->receiver_half) * k - 0.5 : 0.0;
+    c->metric[i] = q[0];
+    c->metric[n + i] = q[1];
+    c->metric[2 * n + i] = q[2];
+    c->flux[i] = landed ? flux : 0.0;
     return landed && (fabs(px) > sc->receiver_half || fabs(py) > sc->receiver_half) ? flux : 0.0;
 }
 
@@ -1029,9 +1013,8 @@ static int reverse_worker(void *context, int64_t thread) {
 /* ---------------------------------------------------------------- exported */
 
 /* Trace every photon of the chunk under way through its events, on c->threads threads, into
- * c->state (NULL: not kept) from c->start (NULL: in place; see trace_packet), and every photon's splat arguments
- * into c->pos, metric, flux and c->placed_pos, placed_metric, placed_flux (NULL: none); the flux
- * lost per kind and block into c->lost. Returns 0, -1 when a
+ * c->state (NULL: not kept) from c->start (NULL: in place; see trace_packet), and every photon's
+ * splat arguments into c->pos, metric, flux; the flux lost per kind and block into c->lost. Returns 0, -1 when a
  * thread could not start. */
 int SFC_EXPORT(sfc_mesh_trace)(const mesh_scene *ms, const mesh_faces *fa, const chunk_job *c) {
     worker_job j = {ms, fa, c, (c->n + BLOCK - 1) / BLOCK};

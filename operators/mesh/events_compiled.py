@@ -60,9 +60,8 @@ class _Chunk(ctypes.Structure):
 
     _fields_ = [("d", _P), ("m", _I), ("state", _P), ("start", _P), ("medium", _P), ("channel", _P), ("status", _P),
                 ("events", _P), ("clear", _P), ("lost", _P), ("log_kind", _P), ("log_which", _P), ("log_t", _P),
-                ("pos", _P), ("metric", _P), ("flux", _P), ("where", _P), ("placed_pos", _P), ("placed_metric", _P),
-                ("placed_flux", _P), ("g_pos", _P), ("g_metric", _P), ("g_flux", _P), ("g_heights", _P), ("n", _I),
-                ("max_depth", _I), ("wait_at_top", _I), ("replay", _I), ("threads", _I)]
+                ("pos", _P), ("metric", _P), ("flux", _P), ("g_pos", _P), ("g_metric", _P), ("g_flux", _P),
+                ("g_heights", _P), ("n", _I), ("max_depth", _I), ("wait_at_top", _I), ("replay", _I), ("threads", _I)]
 
 
 def _bind() -> extension.Kernels:
@@ -148,7 +147,7 @@ class SplatArguments:
 def _chunk(d: np.ndarray, state: np.ndarray | None, medium: np.ndarray, channel: np.ndarray, status: np.ndarray,
            events: np.ndarray, clear: np.ndarray, max_depth: int, wait_at_top: bool, log: EventLog | None,
            replay: bool = False, lost: np.ndarray | None = None, splat: SplatArguments | None = None,
-           where: np.ndarray | None = None, placed: SplatArguments | None = None, g_splat: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+           g_splat: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
            g_heights: np.ndarray | None = None, start: np.ndarray | None = None) -> _Chunk:
     n = (state if state is not None else start).shape[0]
     if d.ndim != 2 or d.shape[0] != d.shape[1]:
@@ -166,21 +165,14 @@ def _chunk(d: np.ndarray, state: np.ndarray | None, medium: np.ndarray, channel:
         _data(clear, np.bool_, "clear", (n,)),
         None if lost is None else _data(lost, np.float64, "lost", (len(LOSS_KINDS), _blocks(n))),
         *logged,
-        *_splat_columns(splat, n), None if where is None else _data(where, np.int64, "where", (n,)),
-        *_splat_columns(placed, n),
+        *((None, None, None) if splat is None else (
+            _data(splat.pos, np.float64, "pos", (2, n)), _data(splat.metric, np.float64, "metric", (3, n)),
+            _data(splat.flux, np.float64, "flux", (n,)))),
         *((None, None, None) if g_splat is None else (
             _data(g_splat[0], np.float64, "g_pos", (2, n)), _data(g_splat[1], np.float64, "g_metric", (3, n)),
             _data(g_splat[2], np.float64, "g_flux", (n,)))),
         None if g_heights is None else _data(g_heights, np.float64, "g_heights", (threads, *d.shape)),
         n, max_depth, int(wait_at_top), int(replay), threads)
-
-
-def _splat_columns(splat: SplatArguments | None, n: int) -> tuple[int | None, int | None, int | None]:
-    """The addresses of ``splat``'s arrays for ``n`` photons (None: three NULLs)."""
-    if splat is None:
-        return None, None, None
-    return (_data(splat.pos, np.float64, "pos", (2, n)), _data(splat.metric, np.float64, "metric", (3, n)),
-            _data(splat.flux, np.float64, "flux", (n,)))
 
 
 def _blocks(n: int) -> int:
@@ -195,8 +187,7 @@ def _check_status(status: int) -> None:
 
 def trace(d: np.ndarray, state: np.ndarray | None, medium: np.ndarray, channel: np.ndarray, status: np.ndarray,
           events: np.ndarray, clear: np.ndarray, max_depth: int, wait_at_top: bool, faces: Faces,
-          sc: mk.MeshConstants, splat: SplatArguments | None, where: np.ndarray | None = None,
-          placed: SplatArguments | None = None, log: EventLog | None = None, replay: bool = False,
+          sc: mk.MeshConstants, splat: SplatArguments, log: EventLog | None = None, replay: bool = False,
           start: np.ndarray | None = None) -> dict[str, float]:
     """Every photon under way through its events (at most ``max_depth``, until it lands, is lost,
     or with ``wait_at_top`` waits above the print; lost too once ``events`` (N,), counted over its
@@ -204,19 +195,16 @@ def trace(d: np.ndarray, state: np.ndarray | None, medium: np.ndarray, channel: 
     ``events``, ``clear`` (N,); heights ``d`` (m, m). With ``start`` (N, STATE) the photons start
     from there and ``state`` only receives them (None: their final states are not kept; ``start``
     is not written). Every photon's splat
-    arguments into ``splat`` (None: not kept), photon i's at column i, and with ``where`` (N,)
-    into ``placed`` at column ``where[i]``. Records the events into
+    arguments into ``splat``, photon i's at column i. Records the events into
     ``log``, or with ``replay`` takes them from it (logged at the same heights: no search).
     Returns the flux lost per kind (W; :data:`LOSS_KINDS`, summed block by block in photon order)."""
     if replay and log is None:
         raise ValueError("a replay needs the log of the events")
     if state is None and start is None:
         raise ValueError("a trace without final states needs its photons' start")
-    if (where is None) != (placed is None):
-        raise ValueError("splat arguments placed by where need both where and placed")
     lost = np.empty((len(LOSS_KINDS), _blocks(len(status))))
     job = _chunk(d, state, medium, channel, status, events, clear, max_depth, wait_at_top, log, replay, lost,
-                 splat, where, placed, start=start)
+                 splat, start=start)
     trace_chunk = _KERNELS.function("sfc_mesh_trace")
     _check_status(trace_chunk(ctypes.byref(_scene(sc)), ctypes.byref(faces.struct), ctypes.byref(job)))
     return {kind: float(total) for kind, total in zip(LOSS_KINDS, lost.sum(axis=1))}

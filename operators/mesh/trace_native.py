@@ -42,9 +42,8 @@ LOSSES = ("escaped", "max_depth", "inside_top", "fresnel_reflected", "missed_rec
 class Prefix:
     """Photons before their first hit on the printed top: state (N, STATE), channel and events
     used so far (N,); the fixed image (c, n, n, flux per pixel) and losses (W) of all others.
-    Within each chunk the photons are in the order they are traced in, by where they cross the
-    plane z = thickness (:func:`operators.mesh.locality.crossing_order`); ``place`` (N,) is
-    each one's place in its chunk in emission order, the order they are splatted in; ``lowest``
+    Within each chunk the photons are in the order they are traced and splatted in, by where they
+    cross the plane z = thickness (:func:`operators.mesh.locality.crossing_order`); ``lowest``
     the lowest z at which one waits (inf for none)."""
 
     state: np.ndarray
@@ -52,7 +51,6 @@ class Prefix:
     events: np.ndarray
     image: torch.Tensor
     losses: dict[str, float]
-    place: np.ndarray
     lowest: float
 
 
@@ -89,15 +87,6 @@ class _Chunk:
                       self.events[index], self.clear[index])
 
 
-def _placed(channel: np.ndarray, where: np.ndarray | None) -> np.ndarray:
-    """``channel`` (N,) with photon i's entry at ``where[i]`` (None: as it is)."""
-    if where is None:
-        return channel
-    placed = np.empty_like(channel)
-    placed[where] = channel
-    return placed
-
-
 def _write_back(chunk: _Chunk, index: np.ndarray | None, work: _Chunk) -> None:
     """Copy ``work`` (the chunk's photons at ``index``; None: the chunk itself) into the chunk."""
     if index is None:
@@ -106,26 +95,25 @@ def _write_back(chunk: _Chunk, index: np.ndarray | None, work: _Chunk) -> None:
         work.state, work.medium, work.status, work.events, work.clear)
 
 
-def _numba_splat_arguments(state, status, where, sc, pos, metric, flux) -> float:
+def _numba_splat_arguments(state, status, sc, pos, metric, flux) -> float:
     """:func:`operators.mesh.kernels_native.splat_arguments`, returning the flux (W) of the landed
     photons beside the receiver as the C kernel does."""
-    mk.splat_arguments(state, status, where, sc, pos, metric, flux)
+    mk.splat_arguments(state, status, np.arange(len(state)), sc, pos, metric, flux)
     outside = (status == mk.LANDED) & (np.abs(state[:, mk.P:mk.P + 2]) > sc.receiver_half).any(1)
     return float(state[outside, mk.FLUX].sum())
 
 
 class _RenderBuffers:
-    """Arrays each render fills again, per chunk: its photons' splat arguments in the order they
-    were traced and their event logs, which the last render's gradient reads; and the splat
-    arguments in the order the image sums them (one chunk's at a time). Refilling them spares a
-    render the page faults of new arrays."""
+    """Arrays each render fills again, per chunk: its photons' splat arguments and event logs.
+    The last render's are those its gradient reads; refilling them spares a render the page
+    faults of new arrays."""
 
     def __init__(self) -> None:
-        self._splats: dict[int | None, events_compiled.SplatArguments] = {}
+        self._splats: dict[int, events_compiled.SplatArguments] = {}
         self._logs: dict[int, events_compiled.EventLog] = {}
 
-    def splat(self, k: int | None, n: int) -> events_compiled.SplatArguments:
-        """Chunk ``k``'s splat arguments for ``n`` photons (None: the ones the image sums)."""
+    def splat(self, k: int, n: int) -> events_compiled.SplatArguments:
+        """Chunk ``k``'s splat arguments for ``n`` photons."""
         if k not in self._splats or len(self._splats[k].flux) != n:
             self._splats[k] = events_compiled.SplatArguments.empty(n)
         return self._splats[k]
@@ -192,25 +180,23 @@ class NativeMeshTracer:
     # -- events -------------------------------------------------------------------------------
     def _trace(self, d: np.ndarray, chunk: _Chunk, sc: mk.MeshConstants, wait_at_top: bool,
                losses: dict[str, float], splat: events_compiled.SplatArguments | None = None,
-               where: np.ndarray | None = None, placed: events_compiled.SplatArguments | None = None,
                log: events_compiled.EventLog | None = None, replay: bool = False,
                start: np.ndarray | None = None) -> events_compiled.SplatArguments | None:
         """The chunk's photons through their events, by the C kernels (all events in one call) or
         by :meth:`_run` (the prefix's only: one event per call), and their splat arguments, into
-        ``splat`` (None: new arrays, which are returned) and with ``where`` into ``placed`` at
-        column ``where[i]`` for photon i (then ``splat`` None is not kept); lost flux added to
+        ``splat`` (None: new arrays), which are returned; lost flux added to
         ``losses``; with the C kernels, each photon's events recorded into ``log`` or, with
         ``replay``, taken from it, and with ``start`` (N, STATE) the photons taken from there, their
         final states not kept."""
         if not self.compiled:
             self._run(d, chunk, sc, wait_at_top, losses)
-            return events_compiled.SplatArguments(*self._splat_inputs(chunk, sc, losses))
-        if splat is None and placed is None:
+            return self._splat_inputs(chunk, sc, losses)
+        if splat is None:
             splat = events_compiled.SplatArguments.empty(len(chunk.state))
         final = None if start is not None else chunk.state
         lost = events_compiled.trace(d, final, chunk.medium, chunk.channel, chunk.status, chunk.events, chunk.clear,
-                                     self.operator.settings.max_depth, wait_at_top, self._faces, sc, splat, where,
-                                     placed, log, replay, start)
+                                     self.operator.settings.max_depth, wait_at_top, self._faces, sc, splat, log,
+                                     replay, start)
         for kind, total in lost.items():
             losses[kind] += total
         return splat
@@ -273,31 +259,21 @@ class NativeMeshTracer:
             if index is not None:
                 g_state[index] = g
 
-    def _splat_inputs(self, chunk: _Chunk, sc: mk.MeshConstants, losses: dict[str, float] | None,
-                      where: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Pixel positions (2, N), metrics (3, N) and flux (N,) of the chunk's landed photons
-        (flux 0 for the others), photon i at place ``where[i]`` (None: i); the flux landing beside
-        the receiver is counted as missing it in ``losses`` (None: not counted)."""
-        n = len(chunk.state)
-        pos, metric, flux = np.empty((2, n)), np.empty((3, n)), np.empty(n)
-        missed = _numba_splat_arguments(chunk.state, chunk.status, np.arange(n) if where is None else where, sc, pos,
-                                        metric, flux)
+    def _splat_inputs(self, chunk: _Chunk, sc: mk.MeshConstants,
+                      losses: dict[str, float] | None) -> events_compiled.SplatArguments:
+        """The splat arguments of the chunk's photons from their final states, by the numba
+        kernels; the flux landing beside the receiver is counted as missing it in ``losses``
+        (None: not counted)."""
+        splat = events_compiled.SplatArguments.empty(len(chunk.state))
+        missed = _numba_splat_arguments(chunk.state, chunk.status, sc, splat.pos, splat.metric, splat.flux)
         if losses is not None:
             losses["missed_receiver"] += missed
-        return pos, metric, flux
+        return splat
 
     def _image(self) -> ImageAccumulator:
         """An empty image (c, n, n) of the operator's dtype that chunks are splatted into."""
         scene = self.operator.scene
         return ImageAccumulator(scene.channels, scene.receiver.resolution, self._dtype, c_kernels=self.compiled)
-
-    def _splat(self, chunk: _Chunk, sc: mk.MeshConstants, losses: dict[str, float], image: ImageAccumulator,
-               where: np.ndarray | None = None) -> None:
-        """Splat the chunk into ``image`` (numba kernels); ``where`` (N,): each photon's place in
-        the order it is splatted in (the emission order, which fixes the rounding of the sums;
-        None: as traced)."""
-        pos, metric, flux = self._splat_inputs(chunk, sc, losses, where)
-        image.add(pos, metric, flux, _placed(chunk.channel, where))
 
     # -- the height-independent prefix --------------------------------------------------------
     def prefix(self) -> Prefix:
@@ -319,10 +295,9 @@ class NativeMeshTracer:
         state, channel, events = (np.concatenate(parts) for parts in zip(*waiting))
         size = op.settings.chunk_size
         order = crossing_order(state[:, mk.P:mk.P + 3], state[:, mk.W:mk.W + 3], op.scene.substrate.thickness, size)
-        place = order - np.arange(len(order)) // size * size
         lowest = float(state[:, mk.P + 2].min()) if len(state) else math.inf
         self._prefix = Prefix(np.ascontiguousarray(state[order]), channel[order], events[order], image.image(), losses,
-                              place, lowest)
+                              lowest)
         return self._prefix
 
     def _emitted(self, start: int, stop: int) -> _Chunk:
@@ -337,15 +312,15 @@ class NativeMeshTracer:
         state[:, mk.FLUX] = batch.flux.double().numpy()
         return _Chunk.starting(state, batch.channel.numpy().astype(np.int64), np.zeros(n, dtype=np.int64))
 
-    def _waiting(self, start: int, stop: int, writable: bool = True) -> tuple[_Chunk, np.ndarray]:
+    def _waiting(self, start: int, stop: int, writable: bool = True) -> _Chunk:
         """Prefix photons start .. stop-1, about to meet the print, in the order they are traced
-        in, and each one's place (N,) among them in emission order; their states and event counts
-        are copies to trace in place, or with ``writable=False`` views of the prefix (read only)."""
+        in; their states and event counts are copies to trace in place, or with ``writable=False``
+        views of the prefix (read only)."""
         pre = self.prefix()
         state, events = pre.state[start:stop], pre.events[start:stop]
         if writable:
             state, events = state.copy(), events.copy()
-        return _Chunk.starting(state, pre.channel[start:stop], events), pre.place[start:stop]
+        return _Chunk.starting(state, pre.channel[start:stop], events)
 
     def _waiting_chunks(self) -> list[tuple[int, int]]:
         size, total = self.operator.settings.chunk_size, len(self.prefix().state)
@@ -370,24 +345,22 @@ class NativeMeshTracer:
         splats: list = []
         self._events_seen = None  # its arrays are the buffers this render refills
         for k, (start, stop) in enumerate(self._waiting_chunks()):
-            chunk, where = self._waiting(start, stop, writable=not self.compiled)
+            chunk = self._waiting(start, stop, writable=not self.compiled)
             if self.compiled:
                 chunk.events = chunk.events.copy()
-                # The photons traced from the prefix; their splat arguments in the order the image
-                # sums them, and where kept in the order they were traced (the gradient's gather
-                # then reads the adjoint image along their paths).
+                # The photons traced from the prefix, their splat arguments into a buffer of this
+                # chunk (or, if not kept, of all).
                 log = self._buffers.log(k, stop - start, settings.max_depth) if keep else None
-                kept = self._buffers.splat(k, stop - start) if keep_splat else None
-                placed = self._buffers.splat(None, stop - start)
-                self._trace(d, chunk, sc, False, losses, kept, where, placed, log, start=chunk.state)
+                splat = self._trace(d, chunk, sc, False, losses, self._buffers.splat(k if keep_splat else 0, stop - start),
+                                    log, start=chunk.state)
                 seen.append(log)
                 if keep_splat:
-                    splats.append((kept, chunk.status))
-                image.add(placed.pos, placed.metric, placed.flux, _placed(chunk.channel, where))
+                    splats.append((splat, chunk.status))
             else:
                 seen.append([])
                 self._run(d, chunk, sc, False, losses, events_log=seen[-1])
-                self._splat(chunk, sc, losses, image, where)
+                splat = self._splat_inputs(chunk, sc, losses)
+            image.add(splat.pos, splat.metric, splat.flux, chunk.channel)
         self._events_seen = (d.copy(), seen, splats if keep_splat else None) if keep else None
         return image.image().add_(pre.image), losses
 
@@ -410,11 +383,12 @@ class NativeMeshTracer:
         chunks = self._waiting_chunks()
         g_rows = None if self.compiled else np.empty((max((b - a for a, b in chunks), default=0), mk.STATE))
         for k, (start, stop) in enumerate(chunks):
-            chunk, _ = self._waiting(start, stop, writable=not from_splats)
+            chunk = self._waiting(start, stop, writable=not from_splats)
             if not self.compiled:
                 tape: list = []
                 self._run(d, chunk, sc, False, not_counted, tape, events_replay=None if seen is None else seen[k])
-                g_splat = adjoint.gather(*self._splat_inputs(chunk, sc, None), chunk.channel)
+                splat = self._splat_inputs(chunk, sc, None)
+                g_splat = adjoint.gather(splat.pos, splat.metric, splat.flux, chunk.channel)
                 g_state = g_rows[:len(chunk.state)]
                 ma.splat_arguments_adjoint(chunk.state, chunk.status, sc, *g_splat, g_state)
                 self._reverse(d, chunk, sc, tape, g_state, g_heights)
