@@ -1014,8 +1014,8 @@ static int reverse_worker(void *context, int64_t thread) {
 
 /* Trace every photon of the chunk under way through its events, on c->threads threads, into
  * c->state (NULL: not kept) from c->start (NULL: in place; see trace_packet), and every photon's
- * splat arguments into c->pos, metric, flux; the flux lost per kind and block into c->lost. Returns 0, -1 when a
- * thread could not start. */
+ * splat arguments into c->pos, metric, flux; the flux lost per kind and block into c->lost.
+ * Returns 0, -1 when a thread could not start. */
 int SFC_EXPORT(sfc_mesh_trace)(const mesh_scene *ms, const mesh_faces *fa, const chunk_job *c) {
     worker_job j = {ms, fa, c, (c->n + BLOCK - 1) / BLOCK};
     return sfc_parallel(c->threads, trace_worker, &j);

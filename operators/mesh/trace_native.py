@@ -181,10 +181,10 @@ class NativeMeshTracer:
     def _trace(self, d: np.ndarray, chunk: _Chunk, sc: mk.MeshConstants, wait_at_top: bool,
                losses: dict[str, float], splat: events_compiled.SplatArguments | None = None,
                log: events_compiled.EventLog | None = None, replay: bool = False,
-               start: np.ndarray | None = None) -> events_compiled.SplatArguments | None:
+               start: np.ndarray | None = None) -> events_compiled.SplatArguments:
         """The chunk's photons through their events, by the C kernels (all events in one call) or
-        by :meth:`_run` (the prefix's only: one event per call), and their splat arguments, into
-        ``splat`` (None: new arrays), which are returned; lost flux added to
+        by :meth:`_run` (the prefix's only: one event per call), and their splat arguments, which
+        are returned (with the C kernels in ``splat``; None: new arrays); lost flux added to
         ``losses``; with the C kernels, each photon's events recorded into ``log`` or, with
         ``replay``, taken from it, and with ``start`` (N, STATE) the photons taken from there, their
         final states not kept."""
