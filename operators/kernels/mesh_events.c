@@ -1012,6 +1012,9 @@ static int reverse_worker(void *context, int64_t thread) {
 
 /* ---------------------------------------------------------------- exported */
 
+/* Photons per block of the threads' work (BLOCK): c->lost holds a column per block. */
+int64_t SFC_EXPORT(sfc_mesh_block)(void) { return BLOCK; }
+
 /* Trace every photon of the chunk under way through its events, on c->threads threads, into
  * c->state (NULL: not kept) from c->start (NULL: in place; see trace_packet), and every photon's
  * splat arguments into c->pos, metric, flux; the flux lost per kind and block into c->lost.

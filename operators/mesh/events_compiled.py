@@ -33,8 +33,6 @@ _P = ctypes.c_void_p
 _I = ctypes.c_int64
 # The flux lost, per kind (rows of the trace's losses; LOSSES in trace_native.py).
 LOSS_KINDS = ("escaped", "inside_top", "fresnel_reflected", "max_depth", "missed_receiver")
-# Photons per block of the C kernels' threads (BLOCK in mesh_events.c).
-_BLOCK = 4096
 # Memory of one logged event: int8 kind, int32 face or plane, float64 distance.
 BYTES_PER_EVENT = 13
 
@@ -70,7 +68,8 @@ def _bind() -> extension.Kernels:
     scene, faces, chunk = (ctypes.POINTER(s) for s in (_MeshScene, _Faces, _Chunk))
     return extension.bind((
         ("sfc_mesh_trace", [scene, faces, chunk], ctypes.c_int),
-        ("sfc_mesh_reverse", [scene, faces, chunk], ctypes.c_int)))
+        ("sfc_mesh_reverse", [scene, faces, chunk], ctypes.c_int),
+        ("sfc_mesh_block", [], ctypes.c_int64)))
 
 
 _KERNELS = _bind()
@@ -176,8 +175,9 @@ def _chunk(d: np.ndarray, state: np.ndarray | None, medium: np.ndarray, channel:
 
 
 def _blocks(n: int) -> int:
-    """Blocks of the C kernels' threads in a chunk of ``n`` photons."""
-    return -(-n // _BLOCK)
+    """Blocks of the C kernels' threads in a chunk of ``n`` photons (the trace's losses hold a
+    column per block)."""
+    return -(-n // _KERNELS.function("sfc_mesh_block")())
 
 
 def _check_status(status: int) -> None:
