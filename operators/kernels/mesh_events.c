@@ -131,9 +131,9 @@ static inline SFC_INLINE double *lost_in(const chunk_job *c, int kind, int64_t b
  * position, footprint metric and flux where it landed (position p, position differentials dpu,
  * dpv in mm), else flux 0 and a unit metric. Returns the flux of a landed photon beside the
  * receiver (W), else 0. */
-static inline SFC_INLINE double splat_photon(const mesh_scene *ms, const chunk_job *c, int64_t i, int landed,
-                                             double px, double py, double dpux, double dpuy, double dpvx,
-                                             double dpvy, double flux) {
+static inline SFC_INLINE double put_splat_arguments(const mesh_scene *ms, const chunk_job *c, int64_t i,
+                                                    int landed, double px, double py, double dpux, double dpuy,
+                                                    double dpvx, double dpvy, double flux) {
     const sfc_scene *sc = &ms->hf;
     const double k = sc->to_px;
     const int64_t n = c->n;
@@ -751,9 +751,9 @@ static void trace_packet(const mesh_scene *ms, const mesh_faces *fa, const chunk
         c->medium[i] = pk->medium[k];
         c->status[i] = pk->status[k];
         c->clear[i] = (uint8_t)pk->clear[k];
-        lost[LOST_MISSED] += splat_photon(ms, c, i, pk->status[k] == LANDED, pk->state[P][k], pk->state[P + 1][k],
-                                          pk->state[DPU][k], pk->state[DPU + 1][k], pk->state[DPV][k],
-                                          pk->state[DPV + 1][k], pk->state[FLUX][k]);
+        lost[LOST_MISSED] += put_splat_arguments(ms, c, i, pk->status[k] == LANDED, pk->state[P][k],
+                                                 pk->state[P + 1][k], pk->state[DPU][k], pk->state[DPU + 1][k],
+                                                 pk->state[DPV][k], pk->state[DPV + 1][k], pk->state[FLUX][k]);
     }
     for (int kind = 0; kind < LOSS_KINDS; kind++) *lost_in(c, kind, block) += lost[kind];
 }
@@ -786,8 +786,9 @@ static int trace_worker(void *context, int64_t thread) {
             if (c->status[i] != UNDER_WAY) { /* not traced: as it starts */
                 const double *row = (c->start != NULL ? c->start : c->state) + STATE * i;
                 if (c->start != NULL && c->state != NULL) memcpy(c->state + STATE * i, row, STATE * sizeof(double));
-                *lost_in(c, LOST_MISSED, b) += splat_photon(j->ms, c, i, c->status[i] == LANDED, row[P], row[P + 1],
-                                                            row[DPU], row[DPU + 1], row[DPV], row[DPV + 1], row[FLUX]);
+                *lost_in(c, LOST_MISSED, b) += put_splat_arguments(j->ms, c, i, c->status[i] == LANDED, row[P],
+                                                                   row[P + 1], row[DPU], row[DPU + 1], row[DPV],
+                                                                   row[DPV + 1], row[FLUX]);
                 continue;
             }
             pk->index[pk->count++] = i;
