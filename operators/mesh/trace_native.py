@@ -379,11 +379,11 @@ class NativeMeshTracer:
         adjoint = PaddedAdjoint(to_numpy(grad_flux), c_kernels=self.compiled, spare=self._padded)
         same = self._events_seen is not None and np.array_equal(self._events_seen[0], d)
         seen, splats = self._events_seen[1:] if same else (None, None)
-        from_splats = self.compiled and splats is not None  # the reverse only reads the start states
+        from_splats = self.compiled and splats is not None
         chunks = self._waiting_chunks()
         g_rows = None if self.compiled else np.empty((max((b - a for a, b in chunks), default=0), mk.STATE))
         for k, (start, stop) in enumerate(chunks):
-            chunk = self._waiting(start, stop, writable=not from_splats)
+            chunk = self._waiting(start, stop, writable=not self.compiled)
             if not self.compiled:
                 tape: list = []
                 self._run(d, chunk, sc, False, not_counted, tape, events_replay=None if seen is None else seen[k])
@@ -393,15 +393,16 @@ class NativeMeshTracer:
                 ma.splat_arguments_adjoint(chunk.state, chunk.status, sc, *g_splat, g_state)
                 self._reverse(d, chunk, sc, tape, g_state, g_heights)
                 continue
-            before = (chunk.state, chunk.medium, chunk.clear)
             if from_splats:
-                log = seen[k]
+                before, log = (chunk.state, chunk.medium, chunk.clear), seen[k]
                 splat, status = splats[k]
-            else:
-                before = tuple(a.copy() for a in before)
+            else:  # traced again from the prefix's states, which stay the reverse's start
+                chunk.events = chunk.events.copy()
+                before = (chunk.state, chunk.medium.copy(), chunk.clear.copy())
                 log = (seen[k] if seen is not None
                        else events_compiled.EventLog.empty(len(chunk.state), self.operator.settings.max_depth))
-                splat = self._trace(d, chunk, sc, False, not_counted, log=log, replay=seen is not None)
+                splat = self._trace(d, chunk, sc, False, not_counted, log=log, replay=seen is not None,
+                                    start=chunk.state)
                 status = chunk.status
             g_splat = adjoint.gather(splat.pos, splat.metric, splat.flux, chunk.channel)
             events_compiled.reverse(d, before, chunk.channel, status, log, self._faces, sc, g_splat, g_heights)
