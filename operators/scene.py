@@ -20,6 +20,7 @@ def _finite(name: str, value: float) -> float:
     return float(value)
 
 
+WALLS = ("clear", "absorbing")  # Substrate.walls
 MAX_RECEIVER_RESOLUTION = 16384  # pixels per side: one float64 image of 16384^2 is 2 GB
 
 
@@ -41,16 +42,23 @@ class PointLight:
 
 @dataclass(frozen=True)
 class Substrate:
-    """Glass plate of ``thickness`` h below the printed height field, spanning [-half_width, half_width]^2."""
+    """Glass plate of ``thickness`` h below the printed height field, spanning [-half_width, half_width]^2.
+
+    ``walls``: ``clear`` (a cut block: light that meets a side wall refracts out of it or is
+    totally reflected back in, docs/method.md, "The substrate's side walls") or ``absorbing``
+    (blackened or frosted edges: that light is lost, the paper's assumption)."""
 
     thickness: float = 0.1
     half_width: float = 1.0
+    walls: str = "clear"
 
     def __post_init__(self) -> None:
         if not _finite("substrate.thickness", self.thickness) > 0.0:
             raise ValueError(f"substrate.thickness={self.thickness} must be positive (scene units)")
         if not _finite("substrate.half_width", self.half_width) > 0.0:
             raise ValueError(f"substrate.half_width={self.half_width} must be positive")
+        if self.walls not in WALLS:
+            raise ValueError(f"substrate.walls={self.walls!r} must be one of {', '.join(WALLS)}")
 
 
 @dataclass(frozen=True)

@@ -50,7 +50,7 @@ __all__ = ["SceneSetup", "build_scene", "build_heights", "build_operator", "buil
 
 SCENE_KEYS: dict[str, tuple[str, ...]] = {
     "light": ("position", "power"),
-    "substrate": ("thickness", "half_width"),
+    "substrate": ("thickness", "half_width", "walls"),
     "receiver": ("z", "resolution", "half_width"),
 }
 SCREEN_KEYS = ("psf", "sigma")
@@ -101,7 +101,7 @@ def build_scene(cfg: Mapping[str, Any], mm: float | None = None) -> Scene:
         light["position"] = tuple(scene_length(v, mm, f"light.position[{i}]") for i, v in enumerate(position))
     if "power" in light:
         light["power"] = _number("light.power", light["power"])
-    substrate = {k: scene_length(v, mm, f"substrate.{k}")
+    substrate = {k: v if k == "walls" else scene_length(v, mm, f"substrate.{k}")
                  for k, v in _group(cfg, "substrate", SCENE_KEYS["substrate"]).items()}
     receiver = _group(cfg, "receiver", SCENE_KEYS["receiver"])
     receiver = {k: _number(f"receiver.{k}", v, int) if k == "resolution" else scene_length(v, mm, f"receiver.{k}")

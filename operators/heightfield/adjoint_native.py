@@ -17,7 +17,7 @@ from operators.heightfield.kernels_native import (BLOCK, PACKET, emit, hit_cell,
                                                   splat_arguments, trace_packet)
 from operators.kernels.numba_settings import jit_call, jit_inline, jit_parallel
 from operators.kernels.simd import data_pointer, hit_adjoint
-from operators.optics.native import (UP, ZERO, add, away_from_zero, footprint_metric_adjoint, fresnel,
+from operators.optics.native import (UP, ZERO, add, away_from_zero, axpy, dot, footprint_metric_adjoint, fresnel,
                                      fresnel_adjoint, height_field_normal_adjoint, normal_differential_adjoint,
                                      passes, refract_adjoint, transfer_adjoint)
 from operators.splat.native import gather_photon, gather_photon_simd
@@ -32,32 +32,33 @@ def optics_adjoint(sc, w, dwu, dwv, flux0, t, jet, eta, state, g_flux, g_px, g_p
     sx, sy, sxx, sxy, syy = jet
     top, below, fu, fv = state
     n1, p1, dpu1, dpv1, dnu, dnv, w1, dwu1, dwv1, ci1, ct1 = top
-    _, dist2, p2, dpu2, dpv2, w2, dwu2, dwv2, ci2, ct2, dist3, p3, dpu3, dpv3 = below
+    _, dist2, p2, dpu2, dpv2, w2, dwu2, dwv2, ci2, ct2, dist3, p3, dpu3, dpv3, n2, fx, fy, _ = below
     t1 = fresnel(ci1, ct1, 1.0 / eta) if sc.fresnel else 1.0
     t2 = fresnel(ci2, ct2, eta) if sc.fresnel else 1.0
     k = sc.to_px
     g_ux, g_uy, g_vx, g_vy = footprint_metric_adjoint(fu[0], fu[1], fv[0], fv[1], sc.min_px, sc.max_px,
                                                       g00, g01, g11)
-    # Receiver plane.
-    g_p3 = (g_px * k, g_py * k, 0.0)
+    # Receiver plane (the walls' mirror undone: x -> fx x + ox, y likewise).
+    g_p3 = (g_px * k * fx, g_py * k * fy, 0.0)
     g_dpu2, g_dpv2, g_w2, g_dwu2, g_dwv2, g_dist3, _ = transfer_adjoint(
-        dpu2, dpv2, w2, dwu2, dwv2, dist3, UP, g_p3, (g_ux * k, g_uy * k, 0.0), (g_vx * k, g_vy * k, 0.0))
+        dpu2, dpv2, w2, dwu2, dwv2, dist3, UP, g_p3, (g_ux * k * fx, g_uy * k * fy, 0.0),
+        (g_vx * k * fx, g_vy * k * fy, 0.0))
     den3 = away_from_zero(w2[2])
     g_p2 = (g_p3[0], g_p3[1], g_p3[2] - g_dist3 / den3)
     g_w2 = (g_w2[0], g_w2[1], g_w2[2] - g_dist3 * dist3 / den3 * passes(w2[2]))
-    # Bottom refraction and transfer.
+    # Refraction and transfer at the face the photon leaves through (the bottom or a wall, n2).
     g_ci2 = g_ct2 = g_ci1 = g_ct1 = 0.0
     if sc.fresnel:
         g_ci2, g_ct2 = fresnel_adjoint(ci2, ct2, eta, g_flux * flux0 * t1)
         g_ci1, g_ct1 = fresnel_adjoint(ci1, ct1, 1.0 / eta, g_flux * flux0 * t2)
-    g_w1, g_dwu1, g_dwv1, _, _, _ = refract_adjoint(w1, dwu1, dwv1, UP, ZERO, ZERO, eta, g_w2, g_dwu2, g_dwv2,
+    g_w1, g_dwu1, g_dwv1, _, _, _ = refract_adjoint(w1, dwu1, dwv1, n2, ZERO, ZERO, eta, g_w2, g_dwu2, g_dwv2,
                                                     g_ci2, g_ct2)
     g_dpu1, g_dpv1, g_w1b, g_dwu1b, g_dwv1b, g_dist2, _ = transfer_adjoint(
-        dpu1, dpv1, w1, dwu1, dwv1, dist2, UP, g_p2, g_dpu2, g_dpv2)
-    den2 = away_from_zero(w1[2])
-    g_p1 = (g_p2[0], g_p2[1], g_p2[2] - g_dist2 / den2)
-    g_w1 = add(g_w1, g_w1b)
-    g_w1 = (g_w1[0], g_w1[1], g_w1[2] - g_dist2 * dist2 / den2 * passes(w1[2]))
+        dpu1, dpv1, w1, dwu1, dwv1, dist2, n2, g_p2, g_dpu2, g_dpv2)
+    wn2 = dot(w1, n2)
+    den2 = away_from_zero(wn2)
+    g_p1 = axpy(-g_dist2 / den2, n2, g_p2)
+    g_w1 = axpy(-g_dist2 * dist2 / den2 * passes(wn2), n2, add(g_w1, g_w1b))
     # Top refraction, normal differential, top transfer, normal.
     _, _, _, g_n1, g_dnu, g_dnv = refract_adjoint(w, dwu, dwv, n1, dnu, dnv, 1.0 / eta, g_w1,
                                                   add(g_dwu1, g_dwu1b), add(g_dwv1, g_dwv1b), g_ci1, g_ct1)

@@ -20,7 +20,8 @@ from operators.heightfield.catmull_rom import axis_weights, load_patch, surface_
 from operators.emission import R2_STEP
 from operators.heightfield.intersect_native import solve_hit, solve_hits
 from operators.kernels.numba_settings import FAST_MATH
-from operators.optics.native import (UP, ZERO, away_from_zero, footprint_metric, fresnel, height_field_normal,
+from operators.heightfield.side_walls import LOST, leaving_plane
+from operators.optics.native import (UP, ZERO, away_from_zero, dot, footprint_metric, fresnel, height_field_normal,
                                      normal_differential, refract, transfer)
 from operators.kernels.simd import data_pointer, surface_jets
 from operators.splat.native import splat_photon
@@ -38,7 +39,8 @@ class FusedScene(NamedTuple):
     receiver_z, receiver_half: receiver plane and half width; to_px: pixels per scene unit;
     min_px, max_px: footprint pixel filter and cut-off radii (pixels); fresnel: Fresnel weights;
     simd: the CPU kernels take the splat, its gather, the jets and the hit adjoint from the AVX2
-    extension (:mod:`operators.kernels.simd`; only where it is available).
+    extension (:mod:`operators.kernels.simd`; only where it is available); clear_walls: the
+    substrate's side walls refract and reflect (else they absorb; :mod:`operators.heightfield.side_walls`).
     """
 
     light_x: float
@@ -62,6 +64,7 @@ class FusedScene(NamedTuple):
     max_px: float
     fresnel: bool
     simd: bool
+    clear_walls: bool
 
 
 _jit = nb.njit(cache=True, inline="always", fastmath=FAST_MATH, error_model="numpy")
@@ -140,14 +143,22 @@ def refract_top(sc, w, dwu, dwv, t, jet, eta):
 
 @_jit
 def below_top(p1, dpu1, dpv1, w1, dwu1, dwv1, eta, sc):
-    """From the top hit to the receiver: (lost, dist2, p2, Dp2, w2, Dw2, cos_i, cos_t, dist3, p3, Dp3)."""
-    dist2 = -p1[2] / away_from_zero(w1[2])
-    p2, dpu2, dpv2 = transfer(p1, dpu1, dpv1, w1, dwu1, dwv1, dist2, UP)
-    w2, dwu2, dwv2, ci2, ct2, k2 = refract(w1, dwu1, dwv1, UP, ZERO, ZERO, eta)
-    lost = not (abs(p2[0]) <= sc.half and abs(p2[1]) <= sc.half) or k2 <= 0.0
+    """From the top hit to the receiver, through the bottom or a side wall
+    (:func:`operators.heightfield.side_walls.leaving_plane`): (lost, dist2, p2, Dp2, w2, Dw2,
+    cos_i, cos_t, dist3, p3, Dp3, n2, fx, fy, code), with p3 and Dp3 mirrored by the walls'
+    total reflections (x -> fx x + ox, y likewise) and n2 the face the photon leaves through."""
+    n2, c2, fx, ox, fy, oy, walled, code = leaving_plane(p1, w1, eta, sc.half, sc.clear_walls)
+    dist2 = (c2 - dot(p1, n2)) / away_from_zero(dot(w1, n2))
+    p2, dpu2, dpv2 = transfer(p1, dpu1, dpv1, w1, dwu1, dwv1, dist2, n2)
+    w2, dwu2, dwv2, ci2, ct2, k2 = refract(w1, dwu1, dwv1, n2, ZERO, ZERO, eta)
+    lost = walled or k2 <= 0.0
     dist3 = (sc.receiver_z - p2[2]) / away_from_zero(w2[2])
     p3, dpu3, dpv3 = transfer(p2, dpu2, dpv2, w2, dwu2, dwv2, dist3, UP)
-    return lost, dist2, p2, dpu2, dpv2, w2, dwu2, dwv2, ci2, ct2, dist3, p3, dpu3, dpv3
+    p3 = (fx * p3[0] + ox, fy * p3[1] + oy, p3[2])
+    dpu3 = (fx * dpu3[0], fy * dpu3[1], dpu3[2])
+    dpv3 = (fx * dpv3[0], fy * dpv3[1], dpv3[2])
+    return (lost, dist2, p2, dpu2, dpv2, w2, dwu2, dwv2, ci2, ct2, dist3, p3, dpu3, dpv3, n2, fx, fy,
+            LOST if lost else code)
 
 
 @_jit

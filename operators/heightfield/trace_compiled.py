@@ -17,17 +17,19 @@ import numpy as np
 from operators.emission import R2_STEP
 from operators.heightfield.intersect_native import MAX_MARCH_STEPS, NEWTON_ITERATIONS, SETTLE
 from operators.heightfield.kernels_native import FusedScene
+from operators.heightfield.side_walls import FOLD_LIMIT
 from operators.kernels import extension
 from operators.optics.reference import GRAZING
 from operators.splat.native import FAR_PX
 from operators.splat.splat import MAX_DIFFERENTIAL_PX
 
-_INTS = {"per_channel", "fresnel", "simd", "max_march_steps", "newton_iterations"}
+_INTS = {"per_channel", "fresnel", "simd", "clear_walls", "max_march_steps", "newton_iterations"}
 # The C struct sfc_scene: FusedScene's fields, then the constants the numba kernels import.
 _FIELDS = (*FusedScene._fields, "r2_u", "r2_v", "grazing", "max_differential_px", "settle", "max_march_steps",
-           "newton_iterations", "far_px")
+           "newton_iterations", "far_px", "fold_limit")
 _CONSTANTS = dict(r2_u=R2_STEP[0], r2_v=R2_STEP[1], grazing=GRAZING, max_differential_px=MAX_DIFFERENTIAL_PX,
-                  settle=SETTLE, max_march_steps=MAX_MARCH_STEPS, newton_iterations=NEWTON_ITERATIONS, far_px=FAR_PX)
+                  settle=SETTLE, max_march_steps=MAX_MARCH_STEPS, newton_iterations=NEWTON_ITERATIONS, far_px=FAR_PX,
+                  fold_limit=FOLD_LIMIT)
 
 
 class SceneStruct(ctypes.Structure):
@@ -48,7 +50,7 @@ def _bind() -> extension.Kernels:
         ("sfc_hf_render", [_P, _I, scene, _P, _P, _I, _I, _P, _I, _I, _I, _I, _I, _I, _P, _I, _I,
                            ctypes.POINTER(ctypes.c_double)], ctypes.c_int),
         ("sfc_hf_vjp", [_P, _I, scene, _P, _P, _I, _I, _P, _I, _I, _P, _I, _P, _I], ctypes.c_int),
-        ("sfc_hf_trace_aimed", [_P, _I, scene, ctypes.c_double, _P, _I, _P, _P, _I], ctypes.c_int)))
+        ("sfc_hf_trace_aimed", [_P, _I, scene, ctypes.c_double, _P, _I, _P, _P, _P, _I], ctypes.c_int)))
 
 
 _KERNELS = _bind()
@@ -122,16 +124,17 @@ def vjp(d: np.ndarray, sc: FusedScene, shifts: np.ndarray, indices: np.ndarray, 
 
 
 def trace_aimed(d: np.ndarray, sc: FusedScene, eta: float, aim: np.ndarray, pos: np.ndarray,
-                ratio: np.ndarray) -> None:
+                ratio: np.ndarray, path: np.ndarray) -> None:
     """:func:`operators.wavefront.renderer._trace_native` in C: rays aimed at ``aim`` (N, 2) (x, y
     on the substrate's top plane) through heights ``d`` (m, m), glass index ``eta``: receiver
-    positions (N, 2) (pixel corner units) into ``pos``, transmittances (N,) into ``ratio``; all
-    float64, C-contiguous; as many threads as numba's."""
+    positions (N, 2) (pixel corner units) into ``pos``, transmittances (N,) into ``ratio``, path
+    codes (N,) (operators/heightfield/side_walls.py) into ``path``; all float64, C-contiguous; as
+    many threads as numba's."""
     for name, array, shape in (("aim", aim, (aim.shape[0], 2)), ("pos", pos, (aim.shape[0], 2)),
-                               ("ratio", ratio, (aim.shape[0],))):
+                               ("ratio", ratio, (aim.shape[0],)), ("path", path, (aim.shape[0],))):
         if array.shape != shape or array.dtype != np.float64 or not array.flags.c_contiguous:
             raise ValueError(f"{name} must be a C-contiguous float64 array of shape {shape}")
     trace_aimed = _KERNELS.function("sfc_hf_trace_aimed")
     if trace_aimed(d.ctypes.data, d.shape[0], ctypes.byref(_scene(sc)), float(eta), aim.ctypes.data, aim.shape[0],
-                   pos.ctypes.data, ratio.ctypes.data, nb.get_num_threads()) != 0:
+                   pos.ctypes.data, ratio.ctypes.data, path.ctypes.data, nb.get_num_threads()) != 0:
         raise MemoryError("the C photon kernels could not start their threads")

@@ -50,7 +50,8 @@ class FusedTracer:
             * (light.position[2] - sub.thickness),
             radius=float(emitter.footprint_radius), receiver_z=float(rec.z), receiver_half=float(rec.half_width),
             to_px=rec.resolution / (2.0 * rec.half_width), min_px=float(filter_px),
-            max_px=float(max_pixel_radius), fresnel=bool(fresnel), simd=self.simd)
+            max_px=float(max_pixel_radius), fresnel=bool(fresnel), simd=self.simd,
+            clear_walls=sub.walls == "clear")
 
     def constants(self, d: np.ndarray) -> FusedScene:
         """Kernel constants for heights ``d`` (m, m) (the bracketing planes and slope bounds depend on them)."""

@@ -20,7 +20,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 # Version of the C functions' signatures that the declarations in Python match (sfc_abi_version).
-ABI_VERSION = 12
+ABI_VERSION = 13
 # Suffixes of the two builds of the photon kernels (heightfield_photons.c, mesh_events.c): baseline, AVX2 + FMA.
 BUILDS = ("", "_avx2")
 

@@ -91,13 +91,48 @@ static inline SFC_INLINE emitted emit(const sfc_scene *sc, const double *shifts,
 typedef struct {
     vec3 n1, p1, dpu1, dpv1, dnu, dnv, w1, dwu1, dwv1;
     double ci1, ct1;
-    double lost;  /* 1 where the photon is lost (side walls, total internal reflection), else 0 */
+    double lost;  /* 1 where the photon is lost (an absorbing wall, total internal reflection), else 0 */
+    vec3 n2;      /* normal of the face it leaves through, facing it: the bottom or a side wall */
+    double fx, fy, code; /* the walls' mirror of the landing (x -> fx x + ox, y likewise); path code */
     double dist2;
     vec3 p2, dpu2, dpv2, w2, dwu2, dwv2;
     double ci2, ct2, dist3;
-    vec3 p3, dpu3, dpv3;
+    vec3 p3, dpu3, dpv3;  /* on the receiver, mirrored */
     double fu[2], fv[2];
 } optics;
+
+/* The face through which a photon at p1 in the glass along w1 leaves the block and the mirror
+ * of its landing (leaving_plane in operators/heightfield/side_walls.py): sets o->n2, o->fx,
+ * o->fy, o->code and returns the plane's offset c2 (n2 . p = c2); *ox, *oy the mirror's shifts,
+ * *walled 1 where a wall loses it. Selects, not branches, so that the packet loop vectorises. */
+static inline SFC_INLINE double leaving_plane(const sfc_scene *sc, vec3 p1, vec3 w1, double eta, optics *o, double *ox,
+                                              double *oy, double *walled) {
+    const double half = sc->half;
+    const double tb = -p1.z / away_from_zero(sc, w1.z);
+    const double bx = p1.x + tb * w1.x, by = p1.y + tb * w1.y;
+    const int cross_x = fabs(bx) > half, cross_y = fabs(by) > half;
+    const double sx = bx > 0.0 ? 1.0 : -1.0, sy = by > 0.0 ? 1.0 : -1.0;
+    const double e2 = eta * eta;
+    const int exit_x = cross_x & (e2 * (1.0 - w1.x * w1.x) < 1.0);
+    const int exit_y = cross_y & (e2 * (1.0 - w1.y * w1.y) < 1.0);
+    const double tx = (sx * half - p1.x) * w1.x / dmax(w1.x * w1.x, 1e-300);
+    const double ty = (sy * half - p1.y) * w1.y / dmax(w1.y * w1.y, 1e-300);
+    const int via_x = exit_x & ((!exit_y) | (tx <= ty));
+    const int via_y = exit_y & !via_x;
+    const int fold_x = via_x ? 0 : (via_y ? (cross_x & (tx < ty)) : cross_x);
+    const int fold_y = via_y ? 0 : (via_x ? (cross_y & (ty < tx)) : cross_y);
+    const int lost = ((!sc->clear_walls) & (cross_x | cross_y)) | (fabs(bx) > sc->fold_limit * half)
+                     | (fabs(by) > sc->fold_limit * half);
+    o->n2 = v3(via_x ? -sx : 0.0, via_y ? -sy : 0.0, (via_x | via_y) ? 0.0 : 1.0);
+    o->fx = fold_x ? -1.0 : 1.0;
+    o->fy = fold_y ? -1.0 : 1.0;
+    *ox = fold_x ? 2.0 * sx * half : 0.0;
+    *oy = fold_y ? 2.0 * sy * half : 0.0;
+    *walled = lost ? 1.0 : 0.0;
+    o->code = lost ? 0.0 : 1.0 + (fold_x ? (sx > 0.0 ? 1.0 : 2.0) : 0.0) + 3.0 * (fold_y ? (sy > 0.0 ? 1.0 : 2.0) : 0.0)
+                           + 9.0 * (via_x ? 1.0 : (via_y ? 2.0 : 0.0));
+    return (via_x | via_y) ? -half : 0.0;
+}
 
 static inline SFC_INLINE void optics_state(const sfc_scene *sc, vec3 w, vec3 dwu, vec3 dwv, double t, const double jet[5],
                                 double eta, optics *o) {
@@ -108,13 +143,19 @@ static inline SFC_INLINE void optics_state(const sfc_scene *sc, vec3 w, vec3 dwu
     o->dnu = normal_differential(sxx, sxy, syy, o->n1, o->dpu1);
     o->dnv = normal_differential(sxx, sxy, syy, o->n1, o->dpv1);
     refract(w, dwu, dwv, o->n1, o->dnu, o->dnv, 1.0 / eta, &o->w1, &o->dwu1, &o->dwv1, &o->ci1, &o->ct1);
-    o->dist2 = -o->p1.z / away_from_zero(sc, o->w1.z);
-    transfer(sc, o->p1, o->dpu1, o->dpv1, o->w1, o->dwu1, o->dwv1, o->dist2, UP, &o->p2, &o->dpu2, &o->dpv2);
-    const double k2 = refract(o->w1, o->dwu1, o->dwv1, UP, ZERO, ZERO, eta, &o->w2, &o->dwu2, &o->dwv2, &o->ci2,
+    double ox, oy, walled;
+    const double c2 = leaving_plane(sc, o->p1, o->w1, eta, o, &ox, &oy, &walled);
+    o->dist2 = (c2 - dot(o->p1, o->n2)) / away_from_zero(sc, dot(o->w1, o->n2));
+    transfer(sc, o->p1, o->dpu1, o->dpv1, o->w1, o->dwu1, o->dwv1, o->dist2, o->n2, &o->p2, &o->dpu2, &o->dpv2);
+    const double k2 = refract(o->w1, o->dwu1, o->dwv1, o->n2, ZERO, ZERO, eta, &o->w2, &o->dwu2, &o->dwv2, &o->ci2,
                               &o->ct2);
-    o->lost = (!((fabs(o->p2.x) <= sc->half) & (fabs(o->p2.y) <= sc->half)) | (k2 <= 0.0)) ? 1.0 : 0.0;
+    o->lost = ((walled != 0.0) | (k2 <= 0.0)) ? 1.0 : 0.0;
+    o->code = o->lost != 0.0 ? 0.0 : o->code;
     o->dist3 = (sc->receiver_z - o->p2.z) / away_from_zero(sc, o->w2.z);
     transfer(sc, o->p2, o->dpu2, o->dpv2, o->w2, o->dwu2, o->dwv2, o->dist3, UP, &o->p3, &o->dpu3, &o->dpv3);
+    o->p3 = v3(o->fx * o->p3.x + ox, o->fy * o->p3.y + oy, o->p3.z);
+    o->dpu3 = v3(o->fx * o->dpu3.x, o->fy * o->dpu3.y, o->dpu3.z);
+    o->dpv3 = v3(o->fx * o->dpv3.x, o->fy * o->dpv3.y, o->dpv3.z);
     o->fu[0] = o->dpu3.x * sc->to_px;
     o->fu[1] = o->dpu3.y * sc->to_px;
     o->fv[0] = o->dpv3.x * sc->to_px;
@@ -151,26 +192,26 @@ static inline SFC_INLINE void optics_adjoint(const sfc_scene *sc, vec3 w, vec3 d
     double gf[4];
     footprint_metric_adjoint(sc, o->fu[0], o->fu[1], o->fv[0], o->fv[1], g[3], g[4], g[5], gf);
     /* Receiver plane. */
-    const vec3 g_p3 = v3(g[1] * k, g[2] * k, 0.0);
+    const vec3 g_p3 = v3(g[1] * k * o->fx, g[2] * k * o->fy, 0.0);
     const transfer_grads a3 = transfer_adjoint(sc, o->dpu2, o->dpv2, o->w2, o->dwu2, o->dwv2, o->dist3, UP, g_p3,
-                                               v3(gf[0] * k, gf[1] * k, 0.0), v3(gf[2] * k, gf[3] * k, 0.0));
+                                               v3(gf[0] * k * o->fx, gf[1] * k * o->fy, 0.0),
+                                               v3(gf[2] * k * o->fx, gf[3] * k * o->fy, 0.0));
     const double den3 = away_from_zero(sc, o->w2.z);
     const vec3 g_p2 = v3(g_p3.x, g_p3.y, g_p3.z - a3.g_dist / den3);
     const vec3 g_w2 = v3(a3.g_w.x, a3.g_w.y, a3.g_w.z - a3.g_dist * o->dist3 / den3 * passes(sc, o->w2.z));
-    /* Bottom refraction and transfer. */
+    /* Refraction and transfer at the face the photon leaves through (the bottom or a wall, n2). */
     double f_ci2, f_ct2, f_ci1, f_ct1;
     fresnel_adjoint(o->ci2, o->ct2, eta, g[0] * flux0 * t1, &f_ci2, &f_ct2);
     fresnel_adjoint(o->ci1, o->ct1, 1.0 / eta, g[0] * flux0 * t2, &f_ci1, &f_ct1);
     const double g_ci2 = sc->fresnel ? f_ci2 : 0.0, g_ct2 = sc->fresnel ? f_ct2 : 0.0;
     const double g_ci1 = sc->fresnel ? f_ci1 : 0.0, g_ct1 = sc->fresnel ? f_ct1 : 0.0;
-    const refract_grads r2 = refract_adjoint(o->w1, o->dwu1, o->dwv1, UP, ZERO, ZERO, eta, g_w2, a3.g_dwu, a3.g_dwv,
+    const refract_grads r2 = refract_adjoint(o->w1, o->dwu1, o->dwv1, o->n2, ZERO, ZERO, eta, g_w2, a3.g_dwu, a3.g_dwv,
                                              g_ci2, g_ct2);
-    const transfer_grads a2 = transfer_adjoint(sc, o->dpu1, o->dpv1, o->w1, o->dwu1, o->dwv1, o->dist2, UP, g_p2,
+    const transfer_grads a2 = transfer_adjoint(sc, o->dpu1, o->dpv1, o->w1, o->dwu1, o->dwv1, o->dist2, o->n2, g_p2,
                                                a3.g_dpu, a3.g_dpv);
-    const double den2 = away_from_zero(sc, o->w1.z);
-    const vec3 g_p1 = v3(g_p2.x, g_p2.y, g_p2.z - a2.g_dist / den2);
-    vec3 g_w1 = add3(r2.g_w, a2.g_w);
-    g_w1.z -= a2.g_dist * o->dist2 / den2 * passes(sc, o->w1.z);
+    const double wn2 = dot(o->w1, o->n2), den2 = away_from_zero(sc, wn2);
+    const vec3 g_p1 = axpy(-a2.g_dist / den2, o->n2, g_p2);
+    const vec3 g_w1 = axpy(-a2.g_dist * o->dist2 / den2 * passes(sc, wn2), o->n2, add3(r2.g_w, a2.g_w));
     /* Top refraction, normal differential, top transfer, normal. */
     const refract_grads r1 = refract_adjoint(w, dwu, dwv, o->n1, o->dnu, o->dnv, 1.0 / eta, g_w1,
                                              add3(r2.g_dwu, a2.g_dwu), add3(r2.g_dwv, a2.g_dwv), g_ci1, g_ct1);
@@ -611,15 +652,15 @@ typedef struct {
     const sfc_scene *sc;
     double eta;
     const double *aim;
-    double *pos, *ratio;
+    double *pos, *ratio, *path;
     int64_t count, blocks;
     _Atomic int64_t next_block;
 } aimed_job;
 
 /* One ray aimed at (ax, ay) on z = base, zero differentials (_trace_ray in
  * operators/wavefront/renderer.py): receiver position in pixel corner units and transmittance
- * (1, or the Fresnel product; 0 if lost). */
-static void trace_aimed(const aimed_job *j, double ax, double ay, double *x, double *y, double *ratio) {
+ * (1, or the Fresnel product; 0 if lost) and the path's code (leaving_plane; 0 if lost). */
+static void trace_aimed(const aimed_job *j, double ax, double ay, double *x, double *y, double *ratio, double *path) {
     const sfc_scene *sc = j->sc;
     const double dx = ax - sc->light_x, dy = ay - sc->light_y, dz = sc->base - sc->light_z;
     const double inv_r = 1.0 / sqrt(dx * dx + dy * dy + dz * dz);
@@ -635,6 +676,7 @@ static void trace_aimed(const aimed_job *j, double ax, double ay, double *x, dou
     if (sc->fresnel) transmittance = fresnel(o.ci1, o.ct1, 1.0 / j->eta) * fresnel(o.ci2, o.ct2, j->eta);
     const int good = o.lost == 0.0 && isfinite(*x) && isfinite(*y) && transmittance > 0.0;
     *ratio = good ? transmittance : 0.0;
+    *path = good ? o.code : 0.0;
 }
 
 static int aimed_worker(void *context, int64_t thread) {
@@ -644,18 +686,20 @@ static int aimed_worker(void *context, int64_t thread) {
         const int64_t b = atomic_fetch_add(&j->next_block, 1);
         if (b >= j->blocks) break;
         for (int64_t k = b * BLOCK; k < imin(j->count, (b + 1) * BLOCK); k++)
-            trace_aimed(j, j->aim[2 * k], j->aim[2 * k + 1], &j->pos[2 * k], &j->pos[2 * k + 1], &j->ratio[k]);
+            trace_aimed(j, j->aim[2 * k], j->aim[2 * k + 1], &j->pos[2 * k], &j->pos[2 * k + 1], &j->ratio[k],
+                        &j->path[k]);
     }
     return 0;
 }
 
 /* Rays aimed at aim (count, 2) (x, y on z = base) through heights d (m, m), glass index eta:
  * receiver positions (count, 2) in pixel corner units into pos, transmittances (count,) into
- * ratio. Returns 0, -1 on failure to start threads. */
+ * ratio, path codes (count,) into path. Returns 0, -1 on failure to start threads. */
 int SFC_EXPORT(sfc_hf_trace_aimed)(const double *d, int64_t m, const sfc_scene *sc, double eta, const double *aim, int64_t count,
-                       double *pos, double *ratio, int64_t threads) {
+                       double *pos, double *ratio, double *path, int64_t threads) {
     aimed_job j;
-    j.d = d; j.m = m; j.sc = sc; j.eta = eta; j.aim = aim; j.pos = pos; j.ratio = ratio; j.count = count;
+    j.d = d; j.m = m; j.sc = sc; j.eta = eta; j.aim = aim; j.pos = pos; j.ratio = ratio; j.path = path;
+    j.count = count;
     j.blocks = (count + BLOCK - 1) / BLOCK;
     atomic_init(&j.next_block, 0);
     return sfc_parallel(threads, aimed_worker, &j);

@@ -17,13 +17,14 @@ typedef struct {
     double light_x, light_y, light_z, half, base, spacing, zlo, zstart, zhi, slope_x, slope_y;
     int64_t per_channel;
     double flux_scale, radius, receiver_z, receiver_half, to_px, min_px, max_px;
-    int64_t fresnel, simd;
+    int64_t fresnel, simd, clear_walls;
     double r2_u, r2_v;          /* emission's R2 sequence steps (operators/emission.py) */
     double grazing;             /* optics.reference.GRAZING */
     double max_differential_px; /* splat.splat.MAX_DIFFERENTIAL_PX */
     double settle;              /* intersect_native.SETTLE */
     int64_t max_march_steps, newton_iterations;
     double far_px;              /* splat.native.FAR_PX */
+    double fold_limit;          /* heightfield.side_walls.FOLD_LIMIT */
 } sfc_scene;
 
 typedef struct { double x, y, z; } vec3;

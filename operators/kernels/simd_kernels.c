@@ -25,7 +25,7 @@
 /* Version of the signatures of this file's, heightfield_photons.c's and mesh_events.c's functions;
  * operators/kernels/extension.py refuses a build whose version differs
  * from its own (a stale build after the sources changed: pip install -e . rebuilds it). */
-int sfc_abi_version(void) { return 12; }
+int sfc_abi_version(void) { return 13; }
 
 /* 1 when the CPU runs the AVX2 / FMA kernels below, else 0 (they must not be called). */
 int sfc_simd_supported(void) {

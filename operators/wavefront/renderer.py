@@ -6,8 +6,9 @@ emission"; :meth:`operators.emission.PointLightEmitter.photons_toward`); each gr
 into two triangles. Every vertex ray is traced in float64 through the printed Catmull-Rom top, the
 substrate and onto the receiver plane (docs/method.md, "Refraction through the glass") by the
 fused native kernels' per-photon optics (:mod:`operators.heightfield.kernels_native`: the exact
-hit on the interpolant, Snell at both faces, rays lost at the side walls or by total internal
-reflection) or, with ``tracer="torch"``, by
+hit on the interpolant, Snell at the top and at the face the ray leaves through, the bottom or a
+side wall, total reflections at the walls, rays lost by total internal reflection at the bottom)
+or, with ``tracer="torch"``, by
 :func:`operators.heightfield.trace_reference.trace_substrate`: the same receiver points to ~1e-13
 pixels, the native tracer about 10 times faster.
 
@@ -20,11 +21,15 @@ transmittances. The flux spreads evenly over the image triangle on the receiver,
 exact pixel coverage (:mod:`operators.wavefront.coverage`); the image is flux per pixel over the
 pixel area, irradiance in W per scene unit^2 (c, n, n), as :meth:`CausticOperator.render` gives.
 
-Lost rays (side walls, total internal reflection; the tracer gives them zero flux): a triangle
-whose three vertices are lost is dropped; one with lost and kept vertices is cut into 4 by its
-edge midpoints, the new vertices traced, ``subdivisions`` times over, and only the sub-triangles
-still touching a lost vertex are dropped. What this drops is a band of width ~ Delta / 2^L along
-the edge of the lit region (measured in tests/operators/test_wavefront.py).
+Paths: every vertex ray carries the code of the path it took (left through the bottom or a side
+wall, mirrored by which walls' total reflections, or lost: an absorbing wall, total internal
+reflection at the bottom; :mod:`operators.heightfield.side_walls`). Within a triangle whose three
+vertices took one path the map is smooth; a triangle whose three vertices are lost is dropped;
+one whose vertices took different paths is cut into 4 by its edge midpoints, the new vertices
+traced, ``subdivisions`` times over, and only the sub-triangles whose vertices still took
+different paths are dropped. What this drops is a band of width ~ Delta / 2^L along each edge
+between paths: the edge of the lit region, and the lines on the top where the light starts to
+meet a side wall (measured in tests/operators/test_wavefront.py).
 
 Error: the map from aim points to receiver points is replaced by its piecewise-linear
 interpolant and the irradiance by a constant per image triangle; for a smooth height field the
@@ -50,6 +55,7 @@ import torch
 from operators.emission import PointLightEmitter
 from operators.heightfield import trace_compiled
 from operators.heightfield.kernels_native import hit_jet, optics_state
+from operators.heightfield.side_walls import LOST
 from operators.heightfield.trace_native import FusedTracer
 from operators.heightfield.trace_reference import trace_substrate
 from operators.kernels.numba_settings import jit_call, jit_parallel
@@ -116,33 +122,36 @@ def grid_solid_angles(k: int, half: float, base: float, light: tuple[float, floa
     return omega
 
 
-def grid_flux(omega: np.ndarray, ratio: np.ndarray, scale: float) -> tuple[np.ndarray, np.ndarray]:
+def grid_flux(omega: np.ndarray, ratio: np.ndarray, path: np.ndarray, scale: float) -> tuple[np.ndarray, np.ndarray]:
     """(flux, mixed), each (2, K-1, K-1): flux = scale * omega * the mean vertex transmittance
-    ``ratio`` (K, K) for triangles with no lost vertex (ratio 0), else 0; mixed: some but not
-    all of its vertices lost. Computed ``ROW_BLOCK`` rows at a time: whole-grid temporaries (33 MB
-    each at K = 2049) made this step take 0.6-1.2 s of a 4 M-vertex render, the blocks 0.06 s."""
+    ``ratio`` (K, K) for triangles whose three vertices took one path (``path`` (K, K), the
+    codes of operators/heightfield/side_walls.py, 0 for lost), else 0; mixed: its vertices took
+    different paths, not all lost. Computed ``ROW_BLOCK`` rows at a time: whole-grid temporaries
+    (33 MB each at K = 2049) made this step take 0.6-1.2 s of a 4 M-vertex render, the blocks 0.06 s."""
     flux = np.empty(omega.shape)
     mixed = np.empty(omega.shape, dtype=np.bool_)
     for a, b in _row_blocks(ratio.shape[0] - 1):
         top, bottom = ratio[a:b], ratio[a + 1:b + 1]
         r00, r01, r10, r11 = top[:, :-1], top[:, 1:], bottom[:, :-1], bottom[:, 1:]
+        c_top, c_bottom = path[a:b], path[a + 1:b + 1]
+        c00, c01, c10, c11 = c_top[:, :-1], c_top[:, 1:], c_bottom[:, :-1], c_bottom[:, 1:]
         corners = r00 + r11
-        lost_corners = (r00 == 0.0).view(np.uint8) + (r11 == 0.0).view(np.uint8)
-        for k, third in enumerate((r01, r10)):
-            lost = lost_corners + (third == 0.0).view(np.uint8)
+        for k, (third, code) in enumerate(((r01, c01), (r10, c10))):
+            one_path = (c00 == c11) & (c00 == code)
             block = scale * omega[k, a:b] * (corners + third) / 3.0
-            block[lost != 0] = 0.0
+            block[~one_path | (c00 == LOST)] = 0.0
             flux[k, a:b] = block
-            mixed[k, a:b] = (lost > 0) & (lost < 3)
+            mixed[k, a:b] = ~one_path
     return flux, mixed
 
 
 @jit_call
-def _trace_ray(d, sc, eta, ax, ay) -> tuple[float, float, float]:
+def _trace_ray(d, sc, eta, ax, ay) -> tuple[float, float, float, float]:
     """One ray aimed at (ax, ay) on z = sc.base, by the fused kernels' per-photon optics
     (:func:`operators.heightfield.kernels_native.hit_jet`, :func:`~operators.heightfield.kernels_native.optics_state`
-    with zero differentials): receiver position (x, y) in pixel corner units and transmittance
-    (1, the Fresnel product with sc.fresnel, 0 if lost). A call, not inlined into the parallel
+    with zero differentials): receiver position (x, y) in pixel corner units, transmittance
+    (1, the Fresnel product with sc.fresnel, 0 if lost) and the path's code
+    (:mod:`operators.heightfield.side_walls`, 0 if lost). A call, not inlined into the parallel
     loop (numba's parfor analysis trips over the inlined tuples)."""
     dx = ax - sc.light_x
     dy = ay - sc.light_y
@@ -158,15 +167,16 @@ def _trace_ray(d, sc, eta, ax, ay) -> tuple[float, float, float]:
     if sc.fresnel:
         transmittance = fresnel(top[9], top[10], 1.0 / eta) * fresnel(below[8], below[9], eta)
     good = not below[0] and math.isfinite(x) and math.isfinite(y) and transmittance > 0.0
-    return x, y, transmittance if good else 0.0
+    return x, y, transmittance if good else 0.0, float(below[17]) if good else 0.0
 
 
 @jit_parallel
-def _trace_native(d, sc, eta, aim, pos, ratio) -> None:
+def _trace_native(d, sc, eta, aim, pos, ratio, path) -> None:
     """Rays aimed at ``aim`` (N, 2) through heights ``d`` (m, m) with glass index ``eta``
-    (:func:`_trace_ray`): positions (N, 2) into ``pos``, transmittances (N,) into ``ratio``."""
+    (:func:`_trace_ray`): positions (N, 2) into ``pos``, transmittances (N,) into ``ratio``,
+    path codes (N,) into ``path``."""
     for k in nb.prange(aim.shape[0]):
-        pos[k, 0], pos[k, 1], ratio[k] = _trace_ray(d, sc, eta, aim[k, 0], aim[k, 1])
+        pos[k, 0], pos[k, 1], ratio[k], path[k] = _trace_ray(d, sc, eta, aim[k, 0], aim[k, 1])
 
 
 @dataclass
@@ -262,13 +272,16 @@ class WavefrontRenderer:
         half = self.scene.substrate.half_width
         return -half + (2.0 * half) * index / (self.vertices - 1)
 
-    def trace(self, heights: torch.Tensor, aim: np.ndarray, channel: int) -> tuple[np.ndarray, np.ndarray]:
+    def trace(self, heights: torch.Tensor, aim: np.ndarray, channel: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Rays of ``channel`` aimed at ``aim`` (N, 2) (x, y on z = h) traced onto the receiver:
-        positions (N, 2) in pixel corner units (pixel p spans [p, p + 1]) and transmittance
-        (N,) = flux out / flux in (1 without Fresnel, 0 for a lost ray)."""
+        positions (N, 2) in pixel corner units (pixel p spans [p, p + 1]), transmittance
+        (N,) = flux out / flux in (1 without Fresnel, 0 for a lost ray) and path codes (N,)
+        (which face the ray left through, which walls mirrored it:
+        :mod:`operators.heightfield.side_walls`; 0 for a lost ray)."""
         count = aim.shape[0]
         pos = np.empty((count, 2))
         ratio = np.empty(count)
+        path = np.empty(count)
         if self.tracer == "native":
             d = np.ascontiguousarray(heights.numpy())
             sc = self.fused.constants(d)
@@ -277,10 +290,10 @@ class WavefrontRenderer:
                 stop = min(count, start + self.chunk_size)
                 part = np.ascontiguousarray(aim[start:stop], dtype=np.float64)
                 if trace_compiled.AVAILABLE:
-                    trace_compiled.trace_aimed(d, sc, eta, part, pos[start:stop], ratio[start:stop])
+                    trace_compiled.trace_aimed(d, sc, eta, part, pos[start:stop], ratio[start:stop], path[start:stop])
                 else:
-                    _trace_native(d, sc, eta, part, pos[start:stop], ratio[start:stop])
-            return pos, ratio
+                    _trace_native(d, sc, eta, part, pos[start:stop], ratio[start:stop], path[start:stop])
+            return pos, ratio, path
         scene = self.scene
         to_px = 1.0 / scene.receiver.pixel_size
         for start in range(0, count, self.chunk_size):
@@ -294,13 +307,16 @@ class WavefrontRenderer:
             good = np.isfinite(r) & np.isfinite(p).all(axis=0) & (r > 0.0)
             pos[start:stop] = p.T
             ratio[start:stop] = np.where(good, r, 0.0)
-        return pos, ratio
+            path[start:stop] = np.where(good, hits.path.numpy(), LOST)
+        return pos, ratio, path
 
-    def _trace_grid(self, heights: torch.Tensor, channel: int) -> tuple[np.ndarray, np.ndarray]:
-        """Receiver positions (K, K, 2) (pixel corner units) and transmittances (K, K) of the grid."""
+    def _trace_grid(self, heights: torch.Tensor, channel: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Receiver positions (K, K, 2) (pixel corner units), transmittances (K, K) and path
+        codes (K, K) of the grid."""
         k = self.vertices
         pos = np.empty((k * k, 2))
         ratio = np.empty(k * k)
+        path = np.empty(k * k)
         rows_per_chunk = max(1, self.chunk_size // k)
         cols = self.aim_coordinates(np.arange(k))
         for r0 in range(0, k, rows_per_chunk):
@@ -308,36 +324,40 @@ class WavefrontRenderer:
             aim = np.empty((r1 - r0, k, 2))
             aim[:, :, 0] = cols[None, :]
             aim[:, :, 1] = self.aim_coordinates(np.arange(r0, r1))[:, None]
-            pos[r0 * k:r1 * k], ratio[r0 * k:r1 * k] = self.trace(heights, aim.reshape(-1, 2), channel)
-        return pos.reshape(k, k, 2), ratio.reshape(k, k)
+            rows = slice(r0 * k, r1 * k)
+            pos[rows], ratio[rows], path[rows] = self.trace(heights, aim.reshape(-1, 2), channel)
+        return pos.reshape(k, k, 2), ratio.reshape(k, k), path.reshape(k, k)
 
-    def _subdivide(self, heights: torch.Tensor, channel: int, pos: np.ndarray, ratio: np.ndarray,
+    def _subdivide(self, heights: torch.Tensor, channel: int, pos: np.ndarray, ratio: np.ndarray, path: np.ndarray,
                    mixed: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Cut the grid triangles flagged ``mixed`` (2, K-1, K-1) recursively at their edge
-        midpoints; returns the kept sub-triangles: aim points (T, 3, 2) (scene units), receiver
-        positions (T, 3, 2) (pixel corner units) and vertex transmittances (T, 3)."""
+        midpoints; returns the sub-triangles whose vertices took one path: aim points (T, 3, 2)
+        (scene units), receiver positions (T, 3, 2) (pixel corner units) and vertex
+        transmittances (T, 3)."""
         t, i, j = np.nonzero(mixed)
         rows = np.stack([i, i + (t == 1), i + 1], axis=1)
         cols = np.stack([j, j + 1, j + (t == 0)], axis=1)
         aim = np.stack([self.aim_coordinates(cols), self.aim_coordinates(rows)], axis=-1)
         rec = pos[rows, cols]
         q = ratio[rows, cols]
+        code = path[rows, cols]
         kept_aim, kept_rec, kept_q = [], [], []
         for _ in range(self.subdivisions):
             if aim.shape[0] == 0:
                 break
             mid = 0.5 * (aim + aim[:, [1, 2, 0]])  # m01, m12, m20
-            mid_rec, mid_q = self.trace(heights, mid.reshape(-1, 2), channel)
+            mid_rec, mid_q, mid_code = self.trace(heights, mid.reshape(-1, 2), channel)
             aim = np.concatenate([aim, mid], axis=1)[:, CHILDREN].reshape(-1, 3, 2)
             rec = np.concatenate([rec, mid_rec.reshape(-1, 3, 2)], axis=1)[:, CHILDREN].reshape(-1, 3, 2)
             q = np.concatenate([q, mid_q.reshape(-1, 3)], axis=1)[:, CHILDREN].reshape(-1, 3)
-            lost = (q == 0.0).sum(axis=1)
-            keep = lost == 0
+            code = np.concatenate([code, mid_code.reshape(-1, 3)], axis=1)[:, CHILDREN].reshape(-1, 3)
+            one_path = (code[:, 0] == code[:, 1]) & (code[:, 0] == code[:, 2])
+            keep = one_path & (code[:, 0] != LOST)
             kept_aim.append(aim[keep])
             kept_rec.append(rec[keep])
             kept_q.append(q[keep])
-            again = (lost > 0) & (lost < 3)
-            aim, rec, q = aim[again], rec[again], q[again]
+            again = ~one_path
+            aim, rec, q, code = aim[again], rec[again], q[again], code[again]
         if not kept_aim:
             return np.empty((0, 3, 2)), np.empty((0, 3, 2)), np.empty((0, 3))
         return np.concatenate(kept_aim), np.concatenate(kept_rec), np.concatenate(kept_q)
@@ -359,13 +379,13 @@ class WavefrontRenderer:
         budget = FluxBudget(0.0, 0.0, 0.0, 0.0)
         with torch.no_grad():
             for c in range(self.scene.channels):
-                pos, ratio = self._trace_grid(d, c)
-                flux, mixed = grid_flux(omega, ratio, scale)
+                pos, ratio, path = self._trace_grid(d, c)
+                flux, mixed = grid_flux(omega, ratio, path, scale)
                 image[c] = rasterize_grid(pos, flux, n)
                 kept_omega = float(omega[flux != 0.0].sum())
                 rasterised = float(flux.sum())
                 if self.subdivisions and mixed.any():
-                    aim, rec, q = self._subdivide(d, c, pos, ratio, mixed)
+                    aim, rec, q = self._subdivide(d, c, pos, ratio, path, mixed)
                     sub_omega = triangle_solid_angle(aim[:, 0, 0] - light[0], aim[:, 0, 1] - light[1],
                                                      aim[:, 1, 0] - light[0], aim[:, 1, 1] - light[1],
                                                      aim[:, 2, 0] - light[0], aim[:, 2, 1] - light[1], float(dz))

@@ -194,7 +194,7 @@ def test_tracer_follows_the_analytic_lens_inside_the_rim_band(centre):
     receiver = dataclasses.replace(SCENE.receiver, z=z, resolution=64, half_width=1.0)
     scene = dataclasses.replace(SCENE, receiver=receiver)
     aim, _ = _aperture_rays(centre, APERTURE - 2.0 * math.sqrt(2.0) * SPACING, per_side=41)
-    corners, transmitted = WavefrontRenderer(scene, vertices=3).trace(_cap(centre), aim, 0)
+    corners, transmitted, _ = WavefrontRenderer(scene, vertices=3).trace(_cap(centre), aim, 0)
     landed = corners * receiver.pixel_size - receiver.half_width  # pixel-corner units -> scene units
     b, s = _trace_lens(aim, centre)
     assert np.all(transmitted == 1.0)
