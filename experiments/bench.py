@@ -33,7 +33,7 @@ import numba
 import numpy as np
 import torch
 
-from experiments.bench_fidelity import fidelity_report
+from experiments.bench_fidelity import fidelity_report, wall_fidelity
 from experiments.bench_reconstruction import reconstruction_report
 from experiments.bench_stages import stage_profile
 from experiments.timing import best_seconds
@@ -353,8 +353,11 @@ def main(argv: list[str] | None = None) -> None:
                         help="receiver pixels per side of the fidelity section's renders")
     parser.add_argument("--wavefront-vertices", type=int, default=4097,
                         help="aim points per side of the height field's exact (wavefront-triangle) reference")
-    parser.add_argument("--only", choices=("fidelity", "mesh_scene"), default=None,
-                        help="print only that section (mesh_scene: at --mesh-photons, e.g. 262144 and 1048576)")
+    parser.add_argument("--wall-vertices", type=int, default=2049,
+                        help="aim points per side of the walls' exact references (fidelity section, ten renders)")
+    parser.add_argument("--only", choices=("fidelity", "walls", "mesh_scene"), default=None,
+                        help="print only that section (walls: the fidelity section's walls entry; mesh_scene: at "
+                             "--mesh-photons, e.g. 262144 and 1048576)")
     parser.add_argument("--footprint-px", type=float, default=3.0)
     parser.add_argument("--chunk-size", type=int, default=1 << 18)
     parser.add_argument("--device", choices=("cpu", "cuda"), default="cpu",
@@ -369,6 +372,9 @@ def main(argv: list[str] | None = None) -> None:
         print(json.dumps({"fidelity": fidelity_report(
             args.fidelity_photons, args.fidelity_bias_photons, args.fidelity_reference_photons,
             args.wavefront_vertices, tuple(args.fidelity_resolutions))}, indent=2))
+        return
+    if args.only == "walls":
+        print(json.dumps({"walls": wall_fidelity(args.fidelity_photons, args.wall_vertices)}, indent=2))
         return
     if args.only == "mesh_scene":
         print(json.dumps({"mesh_scene": time_mesh_scenes(heights, args.mesh_photons, mesh_fp, args.mesh_supersample)},
@@ -426,6 +432,7 @@ def main(argv: list[str] | None = None) -> None:
         report["fidelity"] = fidelity_report(args.fidelity_photons, args.fidelity_bias_photons,
                                              args.fidelity_reference_photons, args.wavefront_vertices,
                                              tuple(args.fidelity_resolutions))
+        report["fidelity"]["walls"] = wall_fidelity(args.fidelity_photons, args.wall_vertices)
     if args.reconstruction_rounds > 0:
         report["reconstruction"] = reconstruction_report(args.reconstruction_overrides, args.reconstruction_rounds)
     print(json.dumps(report, indent=2))

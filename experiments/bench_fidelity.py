@@ -11,6 +11,12 @@ at receivers of 128 and 256 pixels, every model design is compared with the exac
 - seconds per render and per gradient (loss and gradient in one call) at the budget, the best of
   two, one design after the other on the same machine.
 
+The walls: the default model (cell footprints, 4 x supersampled, 128 pixels, the reconstruction's
+final budget) on the true heights of every built-in scene at screens 0.05 and 0.2 below the
+substrate, with clear walls (the default) and with absorbing walls (light at the walls lost),
+against the exact reference of a block with clear walls, over the whole receiver and inside
+|x|, |y| < 0.95; and the seconds per gradient with clear and with absorbing walls, side by side.
+
 The exact reference of the height field is the wavefront-triangle renderer
 (operators/wavefront/renderer.py, ``wavefront_vertices`` aim points per side); through the lenses
 it is the mesh-scene operator's exact variant (cell footprints, 4 x supersampled) with
@@ -39,15 +45,17 @@ DESIGNS: dict[str, dict[str, Any]] = {
 SCENES = ("height_field", "two_lenses")  # conf/operator/<name>.yaml
 
 
-def configured_operator(scene_name: str, resolution: int, photons: int, seed: int, design: dict[str, Any]) -> Any:
-    """The operator of ``conf/operator/<scene_name>.yaml`` with ``design``'s footprint settings."""
+def configured_operator(scene_name: str, resolution: int, photons: int, seed: int, design: dict[str, Any],
+                        scene_overrides: tuple[str, ...] = ()) -> Any:
+    """The operator of ``conf/operator/<scene_name>.yaml`` with ``design``'s footprint settings and
+    ``scene_overrides`` (Hydra overrides of the scene, e.g. ``receiver.z=-0.2``)."""
     from hydra import compose, initialize_config_dir
     from omegaconf import OmegaConf
 
     from framework.core.scene_config import build_operator, build_scene
 
     overrides = [f"operator={scene_name}", f"photons={photons}", f"seed={seed}", f"receiver.resolution={resolution}",
-                 *[f"operator.{key}={value}" for key, value in design.items()]]
+                 *[f"operator.{key}={value}" for key, value in design.items()], *scene_overrides]
     with initialize_config_dir(config_dir=str(Path(__file__).resolve().parent.parent / "conf"), version_base=None):
         cfg = OmegaConf.to_container(compose("simulate", overrides=overrides), resolve=True)
     return build_operator(cfg, build_scene(cfg))
@@ -103,4 +111,36 @@ def fidelity_report(photons: int, bias_photons: int, reference_photons: int, ver
                     "gradient_seconds": best_seconds(lambda: ops[0].loss_and_grad(heights, target), repeats=2),
                 }
             report[f"{scene_name}_{n}px"] = entry
+    return report
+
+
+BUILT_IN_SCENES = ("print_lines", "oblique_lines", "bump", "gaussian", "letter_a")  # conf/scene/<name>.yaml
+WALL_SCREENS = (0.05, 0.2)  # screen distances below the substrate (scene units) of the walls' comparison
+INTERIOR = 0.95  # the part of the receiver |x|, |y| < INTERIOR that the light at the walls does not reach
+
+
+def wall_fidelity(photons: int, vertices: int, resolution: int = 128) -> dict[str, Any]:
+    """The section's walls entry (module docstring): per built-in scene and screen, the relative L2
+    distances of the default model with clear and with absorbing walls to the exact caustic of a
+    clear-walled block, whole receiver and interior, and the gradient's seconds with either."""
+    from operators.wavefront.renderer import WavefrontRenderer
+
+    design = DESIGNS["cell_footprints_supersampled_4x"]
+    centres = (torch.arange(resolution, dtype=torch.float64) + 0.5) / resolution * 2.0 - 1.0
+    inside = (centres.abs() < INTERIOR)[:, None] & (centres.abs() < INTERIOR)[None, :]
+    report: dict[str, Any] = {"photons": photons, "wavefront_vertices": vertices, "resolution": resolution}
+    for name in BUILT_IN_SCENES:
+        heights = torch.from_numpy(make_shape(name, 128)).float()
+        for screen in WALL_SCREENS:
+            entry: dict[str, Any] = {}
+            for walls in ("clear", "absorbing"):
+                model = configured_operator("height_field", resolution, photons, 0, design,
+                                            (f"receiver.z={-screen}", f"substrate.walls={walls}"))
+                if walls == "clear":
+                    exact = WavefrontRenderer(model.scene, vertices=vertices).render(heights.double())
+                image = model.render(heights).double()
+                target = exact.to(model.dtype)
+                entry[walls] = {"whole": relative(image, exact), "interior": relative(image[:, inside], exact[:, inside]),
+                                "gradient_seconds": best_seconds(lambda: model.loss_and_grad(heights, target), repeats=2)}
+            report[f"{name}_screen_{screen}"] = entry
     return report

@@ -121,6 +121,9 @@ class MeshSceneOperator(PhotonOperator):
 
     def __init__(self, scene: Scene, elements: Sequence[OpticalElement], settings: MeshSceneSettings) -> None:
         self.scene, self.elements, self.settings = scene, list(elements), settings
+        if scene.substrate.walls != "clear":
+            raise ValueError(f"substrate.walls={scene.substrate.walls} is not traced by operator=mesh_scene (its "
+                             "substrate has clear walls); use substrate.walls=clear, or operator=height_field")
         progress = MeshProgress("mesh scene", sum(len(e.mesh.faces) for e in self.elements), estimate=False)
         with progress.step("checking the elements' layout"):
             check_layout(self.elements, scene.light.position[2], scene.receiver.z)

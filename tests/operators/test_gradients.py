@@ -48,8 +48,8 @@ def test_loss_and_grad_is_the_gradient_of_the_squared_loss_and_independent_of_ch
     assert torch.allclose(grad_c, grad_a, rtol=1e-9, atol=1e-12 * float(grad_a.abs().max()))
 
 
-def test_gradient_stays_finite_when_steep_lines_cause_total_internal_reflection():
-    op = make_operator(photons=50_000, resolution=32, dtype="float32")
+def test_gradient_stays_finite_when_steep_lines_and_absorbing_walls_lose_photons():
+    op = make_operator(photons=50_000, resolution=32, dtype="float32", walls="absorbing")
     axis = torch.linspace(-1, 1, 64)
     ridge = 0.08 * torch.exp(-axis ** 2 / (2 * 0.02 ** 2))  # slopes up to ~2.4: beyond the critical angle
     heights = ridge.expand(64, 64).contiguous()

@@ -21,8 +21,8 @@ from tests.operators.conftest import bump
 LIGHT_Z, H, S = 10.0, 0.1, -0.05  # the default scene's light height, substrate thickness, receiver plane
 
 
-def _scene(resolution: int, half_width: float, wavelengths: tuple[float, ...] = (0.633,)) -> Scene:
-    return Scene(light=PointLight(), substrate=Substrate(), wavelengths=wavelengths,
+def _scene(resolution: int, half_width: float, wavelengths: tuple[float, ...] = (0.633,), walls: str = "clear") -> Scene:
+    return Scene(light=PointLight(), substrate=Substrate(walls=walls), wavelengths=wavelengths,
                  receiver=Receiver(z=S, resolution=resolution, half_width=half_width))
 
 
@@ -222,13 +222,15 @@ def _solid_angle_within(rho_max, half: float, distance: float, order: int = 64) 
 
 def test_energy_of_a_flat_slab_on_a_large_receiver():
     """All light through the top square is either on the image or in dropped triangles
-    (P / 4 pi times the square's closed-form solid angle, to rounding). What reaches the
-    receiver is the light that leaves through the bottom, not the side walls: the aim points q
+    (P / 4 pi times the square's closed-form solid angle, to rounding). With absorbing walls what
+    reaches the receiver is the light that leaves through the bottom, not the side walls: the aim points q
     with |q_x| s, |q_y| s <= W, s = 1 + h / sqrt(n^2 (|q|^2 + d^2) - |q|^2) the slab's radial
     stretch; the drop loses at most the lit part of strips Delta / 2^L wide along the edge,
     relative 2 Delta / (W 2^L). Measured (K = 257, Delta = W / 128): -1.9e-3 with L = 0, -9.2e-4
-    with L = 4, -1.9e-4 with L = 6; the analytic bound at L = 6 is 2.4e-4."""
-    scene = _scene(64, 1.3)
+    with L = 4, -1.9e-4 with L = 6; the analytic bound at L = 6 is 2.4e-4. With clear walls the
+    whole square's light lands, less the triangles cut where the light starts to meet a wall
+    (one line per wall: the same bound)."""
+    scene = _scene(64, 1.3, walls="absorbing")
     n, d, half = scene.indices[0], LIGHT_Z - H, 1.0
     square = _solid_angle_of_square(half, d) / (4.0 * math.pi)
     assert _solid_angle_within(lambda p: half / math.cos(p), half, d) / (4.0 * math.pi) == pytest.approx(square, rel=1e-13)
@@ -251,6 +253,14 @@ def test_energy_of_a_flat_slab_on_a_large_receiver():
         errors.append(received / transmitted - 1.0)
         assert -2.0 * (2.0 / (k - 1)) / half / 2 ** levels <= errors[-1] <= 1e-12, (levels, errors[-1])
     assert errors[0] < errors[1] < errors[2], errors
+    clear = []
+    for levels in (0, 6):
+        renderer = WavefrontRenderer(_scene(64, 1.3), vertices=k, subdivisions=levels)
+        received = float(renderer.render(torch.zeros(16, 16, dtype=torch.float64)).sum()) * renderer.pixel_area
+        assert received + renderer.last_budget.dropped == pytest.approx(square, rel=1e-12)
+        clear.append(received / square - 1.0)
+        assert -2.0 * (2.0 / (k - 1)) / half / 2 ** levels <= clear[-1] <= 1e-12, (levels, clear[-1])
+    assert clear[0] < clear[1], clear
 
 
 # -- 4. a smooth lens against the splat renderer --------------------------------------------------
@@ -260,7 +270,9 @@ def test_a_focusing_bump_matches_the_splat_renderer():
     CausticOperator with 2^24 photons, footprints of 0.5 px and a 0.3 px filter (64 px). The
     difference is the splat's own blur (footprints, filter, the pixel box modelled by a wider
     footprint): measured relative L2 6.75e-3 with 2^22, 2^24 and 2^26 photons alike (so not
-    photon noise), while the wavefront render at K = 1025 is within 4e-6 of K = 2049."""
+    photon noise), while the wavefront render at K = 1025 is within 4e-6 of K = 2049. Compared
+    inside |x|, |y| < 0.95: the light the side walls reflect lands within 0.4 pixels of the
+    receiver's edge, where the splat's footprints spill off the image."""
     scene = _scene(64, 1.0)
     heights = bump(64, sigma=0.25, height=0.1)
     exact = WavefrontRenderer(scene, vertices=1025).render(heights)
@@ -268,7 +280,8 @@ def test_a_focusing_bump_matches_the_splat_renderer():
                                                     pixel_integration=True, dtype="float64")).render(heights)
     peak = float(exact.max()) / float(exact[0, :4, :4].mean())
     assert peak > 1.2  # it focuses
-    difference = float(torch.linalg.vector_norm(exact - splat) / torch.linalg.vector_norm(exact))
+    inside = (slice(None), slice(2, -2), slice(2, -2))
+    difference = float(torch.linalg.vector_norm((exact - splat)[inside]) / torch.linalg.vector_norm(exact[inside]))
     assert difference < 1e-2, difference
 
 
