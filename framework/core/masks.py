@@ -49,6 +49,8 @@ def mask_from_height_field(
         if not (math.isfinite(float(value)) and float(value) >= 0.0):
             raise ValueError(f"{name}={value!r} must be a finite number >= 0 (defaults: threshold 1e-3, "
                              "dilation_fraction 0.05)")
+    if dilation_fraction > 1.0:
+        raise ValueError(f"dilation_fraction={dilation_fraction!r} must be at most 1 (a fraction of the grid's width)")
     if footprint not in ("square", "disk"):
         raise ValueError(f"footprint={footprint!r} is not supported; pass 'square' or 'disk'")
     seed = (d_true.abs() >= threshold).to(d_true.dtype)[None, None]

@@ -40,6 +40,14 @@ def non_negative_setting(name: str, value: float) -> float:
     return float(value)
 
 
+def dilation_setting(value: float) -> float:
+    """``data.mask_dilation``: a fraction of the grid's width in [0, 1]."""
+    value = non_negative_setting("mask_dilation", value)
+    if value > 1.0:
+        raise ValueError(f"data.mask_dilation={value!r} must be a fraction of the grid's width in [0, 1], e.g. 0.05")
+    return value
+
+
 def file_setting(name: str, value: object) -> str | None:
     """A file name given as ``data.<name>``: a non-empty string or None."""
     if value is not None and (not isinstance(value, str) or not value):
@@ -93,7 +101,7 @@ class SyntheticData:
         self.reference_photons = _count("reference_photons", reference_photons, 1)
         self.reference_resolution = _count("reference_resolution", reference_resolution, 2)
         self.mask_threshold = non_negative_setting("mask_threshold", mask_threshold)
-        self.mask_dilation = non_negative_setting("mask_dilation", mask_dilation)
+        self.mask_dilation = dilation_setting(mask_dilation)
         self.printed = file_setting("printed", printed)
 
     def printed_heights(self, request: DataRequest) -> torch.Tensor:
@@ -163,7 +171,7 @@ class KnownPrint:
         self.mask, self.volume, self.brightness = file_setting("mask", mask), volume, brightness
         self.delta = validate_delta(delta)
         self.mask_threshold = non_negative_setting("mask_threshold", mask_threshold)
-        self.mask_dilation = non_negative_setting("mask_dilation", mask_dilation)
+        self.mask_dilation = dilation_setting(mask_dilation)
 
     def printed_area(self, request: DataRequest) -> torch.Tensor:
         """The printed-area mask (m, m) bool: everywhere (no mask), the design's printed area
