@@ -354,7 +354,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--wavefront-vertices", type=int, default=4097,
                         help="aim points per side of the height field's exact (wavefront-triangle) reference")
     parser.add_argument("--wall-vertices", type=int, default=2049,
-                        help="aim points per side of the walls' exact references (fidelity section, ten renders)")
+                        help="aim points per side of the walls' exact references (fidelity section, ten renders at "
+                             "the first of --fidelity-resolutions)")
     parser.add_argument("--only", choices=("fidelity", "walls", "mesh_scene"), default=None,
                         help="print only that section (walls: the fidelity section's walls entry; mesh_scene: at "
                              "--mesh-photons, e.g. 262144 and 1048576)")
@@ -374,7 +375,8 @@ def main(argv: list[str] | None = None) -> None:
             args.wavefront_vertices, tuple(args.fidelity_resolutions))}, indent=2))
         return
     if args.only == "walls":
-        print(json.dumps({"walls": wall_fidelity(args.fidelity_photons, args.wall_vertices)}, indent=2))
+        print(json.dumps({"walls": wall_fidelity(args.fidelity_photons, args.wall_vertices,
+                                                 args.fidelity_resolutions[0])}, indent=2))
         return
     if args.only == "mesh_scene":
         print(json.dumps({"mesh_scene": time_mesh_scenes(heights, args.mesh_photons, mesh_fp, args.mesh_supersample)},
@@ -432,7 +434,8 @@ def main(argv: list[str] | None = None) -> None:
         report["fidelity"] = fidelity_report(args.fidelity_photons, args.fidelity_bias_photons,
                                              args.fidelity_reference_photons, args.wavefront_vertices,
                                              tuple(args.fidelity_resolutions))
-        report["fidelity"]["walls"] = wall_fidelity(args.fidelity_photons, args.wall_vertices)
+        report["fidelity"]["walls"] = wall_fidelity(args.fidelity_photons, args.wall_vertices,
+                                                    args.fidelity_resolutions[0])
     if args.reconstruction_rounds > 0:
         report["reconstruction"] = reconstruction_report(args.reconstruction_overrides, args.reconstruction_rounds)
     print(json.dumps(report, indent=2))

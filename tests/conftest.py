@@ -35,6 +35,7 @@ NUMBA_KERNEL_TESTS = (
     "tests/operators/test_splat.py", "tests/operators/test_simd.py", "tests/operators/test_heightfield_hit.py",
     "tests/operators/test_flat_slab.py", "tests/operators/test_gradients.py", "tests/operators/test_photon_paths.py",
     "tests/operators/test_wavefront.py", "tests/operators/test_precompile.py", "tests/framework/test_starts.py",
+    "tests/operators/test_side_walls.py", "tests/operators/test_flank_bound.py",
     "tests/experiments/test_compile_kernels.py",
     "tests/experiments/test_bench.py",
     # the mesh-scene operator with its numba event kernels (its other tests trace with the C kernels)

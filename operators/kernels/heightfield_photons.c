@@ -104,34 +104,37 @@ typedef struct {
 /* The face through which a photon at p1 in the glass along w1 leaves the block and the mirror
  * of its landing (leaving_plane in operators/heightfield/side_walls.py): sets o->n2, o->fx,
  * o->fy, o->code and returns the plane's offset c2 (n2 . p = c2); *ox, *oy the mirror's shifts,
- * *walled 1 where a wall loses it. Selects, not branches, so that the packet loop vectorises. */
+ * *walled 1 where a wall loses it. Flags are doubles 0 / 1 combined by arithmetic and the
+ * comparisons are selects, so that GCC vectorises the loops over a packet. */
 static inline SFC_INLINE double leaving_plane(const sfc_scene *sc, vec3 p1, vec3 w1, double eta, optics *o, double *ox,
                                               double *oy, double *walled) {
     const double half = sc->half;
     const double tb = -p1.z / away_from_zero(sc, w1.z);
     const double bx = p1.x + tb * w1.x, by = p1.y + tb * w1.y;
-    const int cross_x = fabs(bx) > half, cross_y = fabs(by) > half;
+    const double cross_x = fabs(bx) > half ? 1.0 : 0.0, cross_y = fabs(by) > half ? 1.0 : 0.0;
     const double sx = bx > 0.0 ? 1.0 : -1.0, sy = by > 0.0 ? 1.0 : -1.0;
     const double e2 = eta * eta;
-    const int exit_x = cross_x & (e2 * (1.0 - w1.x * w1.x) < 1.0);
-    const int exit_y = cross_y & (e2 * (1.0 - w1.y * w1.y) < 1.0);
+    const double exit_x = e2 * (1.0 - w1.x * w1.x) < 1.0 ? cross_x : 0.0;
+    const double exit_y = e2 * (1.0 - w1.y * w1.y) < 1.0 ? cross_y : 0.0;
     const double tx = (sx * half - p1.x) * w1.x / dmax(w1.x * w1.x, 1e-300);
     const double ty = (sy * half - p1.y) * w1.y / dmax(w1.y * w1.y, 1e-300);
-    const int via_x = exit_x & ((!exit_y) | (tx <= ty));
-    const int via_y = exit_y & !via_x;
-    const int fold_x = via_x ? 0 : (via_y ? (cross_x & (tx < ty)) : cross_x);
-    const int fold_y = via_y ? 0 : (via_x ? (cross_y & (ty < tx)) : cross_y);
-    const int lost = ((!sc->clear_walls) & (cross_x | cross_y)) | (fabs(bx) > sc->fold_limit * half)
-                     | (fabs(by) > sc->fold_limit * half);
-    o->n2 = v3(via_x ? -sx : 0.0, via_y ? -sy : 0.0, (via_x | via_y) ? 0.0 : 1.0);
-    o->fx = fold_x ? -1.0 : 1.0;
-    o->fy = fold_y ? -1.0 : 1.0;
-    *ox = fold_x ? 2.0 * sx * half : 0.0;
-    *oy = fold_y ? 2.0 * sy * half : 0.0;
-    *walled = lost ? 1.0 : 0.0;
-    o->code = lost ? 0.0 : 1.0 + (fold_x ? (sx > 0.0 ? 1.0 : 2.0) : 0.0) + 3.0 * (fold_y ? (sy > 0.0 ? 1.0 : 2.0) : 0.0)
-                           + 9.0 * (via_x ? 1.0 : (via_y ? 2.0 : 0.0));
-    return (via_x | via_y) ? -half : 0.0;
+    const double x_first = tx < ty ? 1.0 : 0.0, y_first = ty < tx ? 1.0 : 0.0;
+    const double via_x = exit_x * (1.0 - exit_y * (tx > ty ? 1.0 : 0.0));
+    const double via_y = exit_y * (1.0 - via_x);
+    const double fold_x = cross_x * (1.0 - via_x) * (1.0 - via_y * (1.0 - x_first));
+    const double fold_y = cross_y * (1.0 - via_y) * (1.0 - via_x * (1.0 - y_first));
+    const double far = (fabs(bx) > sc->fold_limit * half ? 1.0 : 0.0) + (fabs(by) > sc->fold_limit * half ? 1.0 : 0.0);
+    const double absorbed = sc->clear_walls ? 0.0 : cross_x + cross_y;
+    const double lost = far + absorbed > 0.0 ? 1.0 : 0.0;
+    o->n2 = v3(-sx * via_x, -sy * via_y, 1.0 - via_x - via_y);
+    o->fx = 1.0 - 2.0 * fold_x;
+    o->fy = 1.0 - 2.0 * fold_y;
+    *ox = 2.0 * sx * half * fold_x;
+    *oy = 2.0 * sy * half * fold_y;
+    *walled = lost;
+    o->code = (1.0 - lost) * (1.0 + fold_x * (sx > 0.0 ? 1.0 : 2.0) + 3.0 * fold_y * (sy > 0.0 ? 1.0 : 2.0)
+                              + 9.0 * (via_x + 2.0 * via_y));
+    return -half * (via_x + via_y);
 }
 
 static inline SFC_INLINE void optics_state(const sfc_scene *sc, vec3 w, vec3 dwu, vec3 dwv, double t, const double jet[5],
@@ -149,7 +152,7 @@ static inline SFC_INLINE void optics_state(const sfc_scene *sc, vec3 w, vec3 dwu
     transfer(sc, o->p1, o->dpu1, o->dpv1, o->w1, o->dwu1, o->dwv1, o->dist2, o->n2, &o->p2, &o->dpu2, &o->dpv2);
     const double k2 = refract(o->w1, o->dwu1, o->dwv1, o->n2, ZERO, ZERO, eta, &o->w2, &o->dwu2, &o->dwv2, &o->ci2,
                               &o->ct2);
-    o->lost = ((walled != 0.0) | (k2 <= 0.0)) ? 1.0 : 0.0;
+    o->lost = dmax(walled, k2 <= 0.0 ? 1.0 : 0.0);
     o->code = o->lost != 0.0 ? 0.0 : o->code;
     o->dist3 = (sc->receiver_z - o->p2.z) / away_from_zero(sc, o->w2.z);
     transfer(sc, o->p2, o->dpu2, o->dpv2, o->w2, o->dwu2, o->dwv2, o->dist3, UP, &o->p3, &o->dpu3, &o->dpv3);

@@ -32,6 +32,7 @@ def test_bench_prints_the_promised_figures(capsys):
           "--reference-photons", "20000", "--stage-photons", "0", "--mesh-photons", "20000",
           "--mesh-footprint", "cell", "--stack-photons", "20000", "--fidelity-photons", "20000", "--fidelity-bias-photons", "40000",
           "--fidelity-reference-photons", "40000", "--wavefront-vertices", "257", "--fidelity-resolutions", "48",
+          "--wall-vertices", "129",
           "--reconstruction-overrides", *SMALL_RUN])
     report = json.loads(capsys.readouterr().out)
     assert report["forward_photons_per_s"] > 0 and report["forward_backward_photons_per_s"] > 0
@@ -69,6 +70,14 @@ def test_bench_prints_the_promised_figures(capsys):
             figures = entry[design]
             assert 0 < figures["bias"] < 1 and 0 < figures["noise_at_budget"] < 1
             assert figures["render_seconds"] > 0 and figures["gradient_seconds"] > 0
+    walls = fidelity["walls"]
+    assert walls["resolution"] == 48 and walls["wavefront_vertices"] == 129
+    entries = [walls[f"{scene}_screen_{screen}"] for scene in ("print_lines", "oblique_lines", "bump", "gaussian",
+                                                                "letter_a") for screen in (0.05, 0.2)]
+    for entry in entries:
+        for kind in ("clear", "absorbing"):
+            assert 0 < entry[kind]["interior"] < 1 and 0 < entry[kind]["whole"] < 1
+            assert entry[kind]["gradient_seconds"] > 0
     runs = report["reconstruction"]
     for which in ("now", "earlier"):
         run = runs[which]
