@@ -14,7 +14,11 @@ PIXEL = 2.0 / 64  # the 64-pixel receiver's pixel, scene units
 TRUE_PX = 1.5
 SMALL_BUMP = ["scene=bump", "photons=60000", "receiver.resolution=64", "height_field.resolution=32",
               "data.reference_photons=200000", "data.reference_resolution=128", "checkpoint_every=10",
-              "screen.psf=gaussian", f"screen.sigma={TRUE_PX * PIXEL}", "data.delta=0.005"]
+              "screen.psf=gaussian", f"screen.sigma={TRUE_PX * PIXEL}", "data.delta=0.005",
+              # A sample with blackened edges: with clear walls the sharp band of wall light at the
+              # receiver's edge makes 20-iteration fits at narrow widths lag, and the profile
+              # prefers 2.5 px for the true 1.5 px (docs/method.md, "The screen's blur from the photo").
+              "substrate.walls=absorbing"]
 
 
 @pytest.mark.slow

@@ -20,7 +20,10 @@ def test_both_starts_on_a_strong_and_a_weak_caustic_are_logged_and_tabulated(tmp
           "--scenes", ",".join(SCENES),
           "--starts", "zero,transport", "--overrides", "photons=20000", "receiver.resolution=32",
           "height_field.resolution=16", "data.reference_photons=60000", "data.reference_resolution=64",
-          "operator.footprint_px=2", "solver.max_iter=2", "checkpoint_every=10"])
+          "operator.footprint_px=2", "solver.max_iter=2", "checkpoint_every=10",
+          # Blackened edges: on a 32-pixel receiver the 2-pixel footprints spill half the band of
+          # wall light off the image, and the transport start ends at 0.97 instead of 0.85.
+          "substrate.walls=absorbing"])
     rows = {(r["scene"], r["start"]): r for r in csv.DictReader(open(tmp_path / "out" / "starts.csv"))}
     assert set(rows) == {(scene, start) for scene in SCENES for start in ("zero", "transport")}
     for scene in SCENES:
