@@ -42,6 +42,7 @@ from framework.plugins.solvers.schwartzburg import SchwartzburgDesign
 from framework.plugins.starts.transport import TransportStart
 from operators.mesh.elements import PrintReachesElement
 from operators.scene import Scene
+from operators.wavefront.renderer import WavefrontRenderer, wavefront_vertices
 
 __all__ = ["DesignSetup", "DesignResult", "prepare_design", "run_design"]
 
@@ -50,6 +51,7 @@ STARTS = ("transport", "flat")
 THROUGH_OPTICS_REACH = 0.999  # through optical elements the transport may send light anywhere on the screen
 START_SHARE = 0.5  # the transport start's Newton stops after this share of the time budget
 POWER_TOLERANCE = 0.01  # an absolute target within 1% of the power that reaches the screen is taken as is
+WALL_LIGHT_NOTED = 1e-3  # the verdict names the side walls' light above this share of the caustic
 
 
 @dataclass
@@ -302,6 +304,23 @@ def _rendered_figures(setup: DesignSetup, d: np.ndarray, exact: Any) -> tuple[np
     return image, {"relative_l2": relative_l2(image, target), "ssim": ssim(image, target)}
 
 
+def _wall_light(setup: DesignSetup, d: np.ndarray, photons: int, caustic: np.ndarray) -> dict[str, float]:
+    """What the substrate's clear side walls add to the independently rendered ``caustic``
+    (docs/method.md, "The substrate's side walls"): the share of its light that a wall reflected
+    or refracted (the same heights rendered by the exact renderer with absorbing walls, the rest)
+    and how well that blackened-edge caustic matches the target. Empty for absorbing walls and
+    through optical elements (whose exact references are not wavefront renders)."""
+    scene = setup.scene
+    if scene.substrate.walls != "clear" or has_elements(setup.operator):
+        return {}
+    blackened = replace(scene, substrate=replace(scene.substrate, walls="absorbing"))
+    renderer = WavefrontRenderer(blackened, vertices=wavefront_vertices(photons, scene.channels))
+    image = renderer.render(torch.from_numpy(d).to(torch.float64)).double().numpy()
+    total = float(caustic.sum())
+    return {"wall_light_share": 1.0 - float(image.sum()) / total if total > 0 else 0.0,
+            "blackened_edges_relative_l2": relative_l2(image, setup.target.numpy())}
+
+
 def run_design(cfg: Mapping[str, Any], output_dir: Path, base_dir: Path | None = None,
                setup: DesignSetup | None = None) -> DesignResult:
     """Design the glass for ``cfg`` into ``output_dir`` (module docstring); resumes from the run
@@ -349,6 +368,7 @@ def run_design(cfg: Mapping[str, Any], output_dir: Path, base_dir: Path | None =
         photons = int(cfg.get("evaluation", {}).get("photons", 4 * setup.operator.photons))
         exact = setup.operator.exact_variant(photons, seed + 1000, setup.scene.receiver.resolution)
         caustic, figures = _rendered_figures(setup, heights, exact)
+        figures.update(_wall_light(setup, heights, photons, caustic))
         model = problem.fidelity.evaluate(torch.from_numpy(heights).to(setup.operator.dtype), with_grad=False)
         measured = setup.constraints.measure(heights)
         metrics = {**figures, "model_relative_l2": relative_l2(model.image.double().numpy(), setup.target.numpy()),
@@ -381,6 +401,11 @@ def design_verdict(metrics: Mapping[str, float], setup: DesignSetup, stop_reason
                      f"at least {0.5 * c.min_feature * mm:.3g} mm asked")
     if c.volume is not None:
         lines.append(f"volume {metrics['printed_volume'] * mm ** 3:.4g} mm3 (asked {c.volume * mm ** 3:.4g} mm3)")
+    if metrics.get("wall_light_share", 0.0) > WALL_LIGHT_NOTED:
+        lines.append(f"the substrate's clear side walls send {metrics['wall_light_share']:.1%} of the light on the "
+                     "screen (lines where the walls reflect the light entering next to them); with blackened or "
+                     f"frosted edges the caustic would match to {metrics['blackened_edges_relative_l2']:.1%} "
+                     "(design them in with substrate.walls=absorbing)")
     broken = [k[len("holds_"):] for k, v in metrics.items() if k.startswith("holds_") and not v]
     if broken:
         lines.append(f"NOT printable as asked: {', '.join(broken)} exceed their limits")
