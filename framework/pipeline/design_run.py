@@ -304,7 +304,7 @@ def _rendered_figures(setup: DesignSetup, d: np.ndarray, exact: Any) -> tuple[np
     return image, {"relative_l2": relative_l2(image, target), "ssim": ssim(image, target)}
 
 
-def _wall_light(setup: DesignSetup, d: np.ndarray, photons: int, caustic: np.ndarray) -> dict[str, float]:
+def wall_light(setup: DesignSetup, d: np.ndarray, photons: int, caustic: np.ndarray) -> dict[str, float]:
     """What the substrate's clear side walls add to the independently rendered ``caustic``
     (docs/method.md, "The substrate's side walls"): the share of its light that a wall reflected
     or refracted (the same heights rendered by the exact renderer with absorbing walls, the rest)
@@ -368,7 +368,7 @@ def run_design(cfg: Mapping[str, Any], output_dir: Path, base_dir: Path | None =
         photons = int(cfg.get("evaluation", {}).get("photons", 4 * setup.operator.photons))
         exact = setup.operator.exact_variant(photons, seed + 1000, setup.scene.receiver.resolution)
         caustic, figures = _rendered_figures(setup, heights, exact)
-        figures.update(_wall_light(setup, heights, photons, caustic))
+        figures.update(wall_light(setup, heights, photons, caustic))
         model = problem.fidelity.evaluate(torch.from_numpy(heights).to(setup.operator.dtype), with_grad=False)
         measured = setup.constraints.measure(heights)
         metrics = {**figures, "model_relative_l2": relative_l2(model.image.double().numpy(), setup.target.numpy()),
@@ -402,10 +402,15 @@ def design_verdict(metrics: Mapping[str, float], setup: DesignSetup, stop_reason
     if c.volume is not None:
         lines.append(f"volume {metrics['printed_volume'] * mm ** 3:.4g} mm3 (asked {c.volume * mm ** 3:.4g} mm3)")
     if metrics.get("wall_light_share", 0.0) > WALL_LIGHT_NOTED:
-        lines.append(f"the substrate's clear side walls send {metrics['wall_light_share']:.1%} of the light on the "
-                     "screen (lines where the walls reflect the light entering next to them); with blackened or "
-                     f"frosted edges the caustic would match to {metrics['blackened_edges_relative_l2']:.1%} "
-                     "(design them in with substrate.walls=absorbing)")
+        share, blackened = metrics["wall_light_share"], metrics["blackened_edges_relative_l2"]
+        line = (f"the substrate's clear side walls send {share:.1%} of the light on the screen (the light entering "
+                "next to them, reflected), ")
+        if blackened < metrics["relative_l2"]:
+            line += (f"which costs the match: with blackened or frosted edges it would be {blackened:.1%}; blacken "
+                     "them and design with substrate.walls=absorbing")
+        else:
+            line += f"designed into the caustic (with blackened or frosted edges it would match to {blackened:.1%})"
+        lines.append(line)
     broken = [k[len("holds_"):] for k, v in metrics.items() if k.startswith("holds_") and not v]
     if broken:
         lines.append(f"NOT printable as asked: {', '.join(broken)} exceed their limits")
