@@ -29,7 +29,7 @@ one whose vertices took different paths is cut into 4 by its edge midpoints, the
 traced, ``subdivisions`` times over, and only the sub-triangles whose vertices still took
 different paths are dropped. What this drops is a band of width ~ Delta / 2^L along each edge
 between paths: the edge of the lit region, and the lines on the top where the light starts to
-meet a side wall (measured in tests/operators/test_wavefront.py).
+meet a side wall (measured in tests/operators/test_wavefront.py and tests/operators/test_side_walls.py).
 
 Error: the map from aim points to receiver points is replaced by its piecewise-linear
 interpolant and the irradiance by a constant per image triangle; for a smooth height field the
