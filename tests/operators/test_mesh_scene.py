@@ -1,5 +1,5 @@
 """The mesh-scene operator against independent truths: the plain scene equals the height-field
-operator inside the receiver and adds the side walls' light at its border; a plano-convex lens
+operator, the light at the substrate's side walls included; a plano-convex lens
 focuses at its paraxial thick-lens focus; energy is conserved up to the counted losses; gradients
 through a lens below the print match finite differences."""
 
