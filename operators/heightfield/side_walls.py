@@ -45,7 +45,8 @@ def leaving_plane(p1, w1, eta, half, clear):
     facing the photon (UP for the bottom, -+e_x / -+e_y for a wall it refracts through); the
     mirror x -> fx x + ox, y -> fy y + oy that total reflections at the walls apply to the landing
     point (fx, fy = +-1); ``lost``: absorbed by a wall (or crossing the block); ``code`` the
-    path's code (LOST, or the module's encoding of the folds and the exit)."""
+    path's code, the module's encoding of the folds and the exit (the caller sets LOST for a
+    photon lost here or later)."""
     tb = -p1[2] / away_from_zero(w1[2])
     bx = p1[0] + tb * w1[0]
     by = p1[1] + tb * w1[1]
@@ -80,6 +81,6 @@ def leaving_plane(p1, w1, eta, half, clear):
     fy = -1.0 if fold_y else 1.0
     ox = 2.0 * sx * half if fold_x else 0.0
     oy = 2.0 * sy * half if fold_y else 0.0
-    code = LOST if lost else 1 + (0 if not fold_x else (1 if sx > 0.0 else 2)) \
-        + 3 * (0 if not fold_y else (1 if sy > 0.0 else 2)) + 9 * exit_code
+    code = 1 + (0 if not fold_x else (1 if sx > 0.0 else 2)) + 3 * (0 if not fold_y else (1 if sy > 0.0 else 2)) \
+        + 9 * exit_code
     return n2, c2, fx, ox, fy, oy, lost, code

@@ -94,9 +94,9 @@ def leaving_faces(position: torch.Tensor, direction: torch.Tensor, n_glass: torc
         reach = (side * half - position[:2]) * direction[:2] / (direction[:2] ** 2).clamp_min(1e-300)
         exit_x = exits[0] & (~exits[1] | (reach[0] <= reach[1]))
         exit_y = exits[1] & ~exit_x
-        fold = crosses.clone()
-        fold[0] = torch.where(exit_x, False, torch.where(exit_y, crosses[0] & (reach[0] < reach[1]), crosses[0]))
-        fold[1] = torch.where(exit_y, False, torch.where(exit_x, crosses[1] & (reach[1] < reach[0]), crosses[1]))
+        fold = torch.stack([
+            torch.where(exit_x, False, torch.where(exit_y, crosses[0] & (reach[0] < reach[1]), crosses[0])),
+            torch.where(exit_y, False, torch.where(exit_x, crosses[1] & (reach[1] < reach[0]), crosses[1]))])
         normal = torch.zeros_like(position)
         normal[0] = torch.where(exit_x, -side[0], 0.0)
         normal[1] = torch.where(exit_y, -side[1], 0.0)

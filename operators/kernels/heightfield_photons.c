@@ -103,8 +103,8 @@ typedef struct {
 
 /* The face through which a photon at p1 in the glass along w1 leaves the block and the mirror
  * of its landing (leaving_plane in operators/heightfield/side_walls.py): sets o->n2, o->fx,
- * o->fy, o->code and returns the plane's offset c2 (n2 . p = c2); *ox, *oy the mirror's shifts,
- * *walled 1 where a wall loses it. Flags are doubles 0 / 1 combined by arithmetic and the
+ * o->fy, o->code (optics_state sets 0 for a lost photon) and returns the plane's offset c2
+ * (n2 . p = c2); *ox, *oy the mirror's shifts, *walled 1 where a wall loses it. Flags are doubles 0 / 1 combined by arithmetic and the
  * comparisons are selects, so that GCC vectorises the loops over a packet. */
 static inline SFC_INLINE double leaving_plane(const sfc_scene *sc, vec3 p1, vec3 w1, double eta, optics *o, double *ox,
                                               double *oy, double *walled) {
@@ -132,8 +132,8 @@ static inline SFC_INLINE double leaving_plane(const sfc_scene *sc, vec3 p1, vec3
     *ox = 2.0 * sx * half * fold_x;
     *oy = 2.0 * sy * half * fold_y;
     *walled = lost;
-    o->code = (1.0 - lost) * (1.0 + fold_x * (sx > 0.0 ? 1.0 : 2.0) + 3.0 * fold_y * (sy > 0.0 ? 1.0 : 2.0)
-                              + 9.0 * (via_x + 2.0 * via_y));
+    o->code = 1.0 + fold_x * (sx > 0.0 ? 1.0 : 2.0) + 3.0 * fold_y * (sy > 0.0 ? 1.0 : 2.0)
+              + 9.0 * (via_x + 2.0 * via_y);
     return -half * (via_x + via_y);
 }
 
