@@ -1,4 +1,5 @@
-"""Photon emission from an isotropic point light toward the substrate's top square.
+"""Photon emission from the light (a point, or emission points over a disc or a square) toward the
+substrate's top square.
 
 Photons of channel k aim at points q_j (j = 0 .. N_c - 1) of the square [-W, W]^2 at z = h,
 placed by the R2 low-discrepancy sequence (Roberts 2018; generator 1/g, 1/g^2 with g the plastic
@@ -17,6 +18,15 @@ for a point light). ``footprint_radius`` follows from ``footprint_px``:
   (docs/method.md, "Photon emission");
 - a number: that many receiver pixels for light that went straight through (the paper's
   "smoothing", independent of the photon count so that renders with different counts blur alike).
+
+An extended light (operators/scene.py, ``light.shape: disc | square``) emits each channel's
+photons from its K emission points (operators/light_source.py, the ``r2`` pattern, shifted by the
+seed) in K consecutive segments of the same aim sequence: photon j of a channel leaves source
+point floor(j K / N_c). Every segment covers the square (a stretch of a Kronecker sequence is
+itself evenly spread), so each photon keeps its own cell (area A / N_c, the flux and footprint of
+a point light's photon) and the photons of all segments together are the point light's, each
+from its own point of the source. Photons of one segment share their origin:
+:meth:`LightEmitter.segments` gives the index ranges, and a batch never spans two.
 """
 
 from __future__ import annotations
@@ -27,6 +37,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from operators.light_source import moment_matched, patch_variance, receiver_spread, source_offsets
 from operators.scene import Scene
 
 PLASTIC_NUMBER = 1.324717957244746
@@ -48,7 +59,7 @@ def check_footprint(value: object) -> float | str:
 class PhotonBatch:
     """A chunk of photons leaving the light.
 
-    origin (3,), direction (3, N) unit vectors, direction_diff (2, 3, N) the differentials
+    origin (3,) (the photons' emission point), direction (3, N) unit vectors, direction_diff (2, 3, N) the differentials
     Dw_u and Dw_v, flux (N,) in W, channel (N,) int64 wavelength index.
     """
 
@@ -59,7 +70,7 @@ class PhotonBatch:
     channel: torch.Tensor
 
 
-class PointLightEmitter:
+class LightEmitter:
     """Deterministic photon source: the same seed gives the same photons, chunk by chunk."""
 
     def __init__(self, scene: Scene, photons: int, seed: int, footprint_px: float | str,
@@ -74,10 +85,22 @@ class PointLightEmitter:
         self.device = torch.device(device)
         rng = np.random.default_rng(seed)
         self.shifts = torch.from_numpy(rng.random((scene.channels, 2)))
+        self.sources = scene.light.source_count
+        if self.sources > self.per_channel:
+            raise ValueError(f"light.points={self.sources} exceeds the photons per wavelength ({self.per_channel}); "
+                             "lower light.points or raise photons")
+        # Emission points over the source (K, 2), offsets from the light's centre (one at 0 for a
+        # point), and the blur of the patch each stands for (module docstring).
+        offsets = source_offsets(scene.light, self.sources, "r2", tuple(rng.random(2)))
+        residual = patch_variance(scene.light, self.sources) if scene.light.extended else 0.0
+        self.offsets = moment_matched(offsets, scene.light, residual) if scene.light.extended else offsets
+        spread = receiver_spread(scene.light, scene.substrate.thickness, float(np.mean(scene.indices)), -scene.receiver.z)
+        # Silverman's kernel of radius R has a per-axis variance R^2 / 8 (operators/photon_operator.py).
+        self.source_blur_px = math.sqrt(8.0 * residual) * spread / scene.receiver.pixel_size
         half = scene.substrate.half_width
         self.cell_area = (2.0 * half) ** 2 / self.per_channel
         if footprint_px == CELL_FOOTPRINT:
-            self.footprint_radius = math.sqrt(self.cell_area / math.pi)
+            self.footprint_radius = math.sqrt(self.sources * self.cell_area / math.pi)
         else:
             lz = scene.light.position[2]
             drop = (lz - scene.substrate.thickness) / (lz - scene.receiver.z)
@@ -93,8 +116,33 @@ class PointLightEmitter:
         """Footprint radius over the radius at which footprints just tile the square."""
         return self.footprint_radius / math.sqrt(self.cell_area / math.pi)
 
+    def source_of(self, index: int) -> int:
+        """The emission point (0 .. K - 1) of photon ``index`` (channel-major order)."""
+        return (index % self.per_channel) * self.sources // self.per_channel
+
+    def segments(self) -> list[tuple[int, int]]:
+        """The index ranges of photons that share an emission point, in order: all photons for a
+        point light, one range per channel and emission point for an extended one."""
+        if self.sources == 1:
+            return [(0, self.total)]
+        bounds = [-(-k * self.per_channel // self.sources) for k in range(self.sources + 1)]
+        return [(c * self.per_channel + a, c * self.per_channel + b)
+                for c in range(self.scene.channels) for a, b in zip(bounds[:-1], bounds[1:])]
+
+    def origin(self, source: int) -> tuple[float, float, float]:
+        """Emission point ``source``'s position (x, y, z), scene units."""
+        x, y, z = self.scene.light.position
+        return (x + float(self.offsets[source, 0]), y + float(self.offsets[source, 1]), z)
+
     def batch(self, start: int, stop: int) -> PhotonBatch:
-        """Photons with global indices start .. stop-1 (channel-major order)."""
+        """Photons with global indices start .. stop-1 (channel-major order), all from one
+        emission point (within one of :meth:`segments`)."""
+        source = self.source_of(start)
+        last = stop - 1
+        if self.sources > 1 and stop > start and (self.source_of(last) != source
+                                                  or last // self.per_channel != start // self.per_channel):
+            raise ValueError(f"photons {start} .. {stop - 1} leave different emission points; split the range at "
+                             "LightEmitter.segments()")
         idx = torch.arange(start, stop, dtype=torch.int64)
         channel = idx // self.per_channel
         j = (idx - channel * self.per_channel).to(torch.float64)
@@ -105,13 +153,14 @@ class PointLightEmitter:
         cast = dict(dtype=self.dtype, device=self.device)
         targets = torch.stack([(2.0 * half) * u.to(**cast) - half, (2.0 * half) * v.to(**cast) - half,
                                torch.full_like(u, self.scene.substrate.thickness, **cast)])
-        return self.photons_toward(targets, channel.to(self.device))
+        return self.photons_toward(targets, channel.to(self.device), source)
 
-    def photons_toward(self, targets: torch.Tensor, channel: torch.Tensor) -> PhotonBatch:
-        """Photons aimed at ``targets`` (3, N) on the plane z = h, each standing for one cell of
-        area ``cell_area`` there; flux and direction differentials as in the module docstring."""
+    def photons_toward(self, targets: torch.Tensor, channel: torch.Tensor, source: int = 0) -> PhotonBatch:
+        """Photons from emission point ``source`` aimed at ``targets`` (3, N) on the plane z = h,
+        each standing for one cell of area ``cell_area`` there; flux and direction differentials as
+        in the module docstring."""
         scene = self.scene
-        light = torch.tensor(scene.light.position, dtype=targets.dtype, device=targets.device)
+        light = torch.tensor(self.origin(source), dtype=targets.dtype, device=targets.device)
         to_target = targets - light.unsqueeze(-1)
         r = torch.sqrt((to_target * to_target).sum(0))
         direction = to_target / r

@@ -35,10 +35,11 @@ PIXEL_SETTINGS = ("footprint_px", "min_footprint_px", "max_pixel_radius")
 PIXEL_BOX_R2 = 2.0 / 3.0
 
 
-def filter_radius_px(min_footprint_px: float, pixel_integration: bool) -> float:
-    """Radius (pixels) added in quadrature to every footprint: the pixel filter ``min_footprint_px``
-    and, with ``pixel_integration``, the pixel's own area (:data:`PIXEL_BOX_R2`)."""
-    return (min_footprint_px ** 2 + (PIXEL_BOX_R2 if pixel_integration else 0.0)) ** 0.5
+def filter_radius_px(min_footprint_px: float, pixel_integration: bool, source_px: float = 0.0) -> float:
+    """Radius (pixels) added in quadrature to every footprint: the pixel filter ``min_footprint_px``,
+    with ``pixel_integration`` the pixel's own area (:data:`PIXEL_BOX_R2`), and ``source_px``, the
+    blur of an extended light's patch per emission point (operators/emission.py)."""
+    return (min_footprint_px ** 2 + (PIXEL_BOX_R2 if pixel_integration else 0.0) + source_px ** 2) ** 0.5
 
 
 def check_setting_keys(settings: dict[str, Any], settings_class: type, plugin: str, extra: tuple[str, ...] = ()) -> None:
@@ -153,14 +154,16 @@ class PhotonOperator(ImageOperator):
         in scene units -> pixel positions (2, N) and footprint metrics (3, N)."""
         pos = (position + self.scene.receiver.half_width) * self._to_pixels - 0.5
         metric = footprint_metric(footprint * self._to_pixels,
-                                  filter_radius_px(self.settings.min_footprint_px, self.settings.pixel_integration),
+                                  filter_radius_px(self.settings.min_footprint_px, self.settings.pixel_integration,
+                                                   self.emitter.source_blur_px),
                                   self.settings.max_pixel_radius)
         return pos, metric
 
     def chunks(self) -> list[tuple[int, int]]:
-        """Photon index ranges of at most ``settings.chunk_size``."""
+        """Photon index ranges of at most ``settings.chunk_size``, each from one emission point
+        (the emitter's segments split)."""
         size = self.settings.chunk_size
-        return [(a, min(a + size, self.photons)) for a in range(0, self.photons, size)]
+        return [(a, min(a + size, stop)) for start, stop in self.emitter.segments() for a in range(start, stop, size)]
 
     def resampled(self, photons: int, seed: int, resolution: int) -> tuple[Scene, Any]:
         """Scene and settings of the same physics with another sampling (photons, seed, an

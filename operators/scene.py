@@ -1,7 +1,7 @@
 """Physical description of the caustic setup (docs/method.md, "Setup and units"); lengths in scene units.
 
 The substrate occupies [-W, W]^2 with its flat bottom at z = 0 and its top at z = h + d(x, y);
-a point light shines on it from above and the receiver plane at z = receiver.z < 0 records the
+a light (a point, a disc or a square) shines on it from above and the receiver plane at z = receiver.z < 0 records the
 caustic. Arrays follow [row, col] = [y, x].
 """
 
@@ -24,12 +24,26 @@ WALLS = ("clear", "absorbing")  # Substrate.walls
 MAX_RECEIVER_RESOLUTION = 16384  # pixels per side: one float64 image of 16384^2 is 2 GB
 
 
+LIGHT_SHAPES = ("point", "disc", "square")  # Light.shape
+MAX_SOURCE_POINTS = 4096  # Light.points: emission points of an extended light at most
+
+
 @dataclass(frozen=True)
-class PointLight:
-    """Isotropic point light: ``position`` (x, y, z) and ``power`` in W over the full sphere."""
+class Light:
+    """The light: ``position`` (x, y, z) of its centre and ``power`` in W over the full sphere.
+
+    ``shape``: ``point`` (an isotropic point), or an extended source facing the glass (a flash
+    behind a diffuser, docs/method.md, "The extended light"): a ``disc`` of diameter ``size`` or a
+    ``square`` of side ``size`` (scene units) in the plane z = position z, of uniform brightness.
+    The photon operators emit each photon from one of ``points`` emission points spread evenly
+    over the source (:func:`operators.emission.source_offsets`).
+    """
 
     position: tuple[float, float, float] = (0.0, 0.0, 10.0)
     power: float = 1.0
+    shape: str = "point"
+    size: float = 0.0
+    points: int = 64
 
     def __post_init__(self) -> None:
         if len(self.position) != 3:
@@ -38,6 +52,35 @@ class PointLight:
             _finite(f"light.position.{axis}", v)
         if not _finite("light.power", self.power) > 0.0:
             raise ValueError(f"light.power={self.power} W must be positive")
+        if self.shape not in LIGHT_SHAPES:
+            raise ValueError(f"light.shape={self.shape!r} must be one of {', '.join(LIGHT_SHAPES)}")
+        if not _finite("light.size", self.size) >= 0.0:
+            raise ValueError(f"light.size={self.size} must be >= 0 (scene units or e.g. '50 mm')")
+        if self.shape == "point" and self.size != 0.0:
+            raise ValueError(f"light.size={self.size} is set for light.shape=point; use light.shape=disc or square, "
+                             "or light.size=0")
+        if self.shape != "point" and self.size == 0.0:
+            raise ValueError(f"light.shape={self.shape} needs light.size > 0 (its diameter or side, e.g. '50 mm'), "
+                             "or light.shape=point")
+        if isinstance(self.points, bool) or int(self.points) != self.points or not 1 <= self.points <= MAX_SOURCE_POINTS:
+            raise ValueError(f"light.points={self.points!r} must be an integer in [1, {MAX_SOURCE_POINTS}] "
+                             "(emission points over an extended light)")
+
+    @property
+    def extended(self) -> bool:
+        """Whether the light has a size (a disc or a square)."""
+        return self.shape != "point"
+
+    @property
+    def source_count(self) -> int:
+        """Emission points the photon operators use: ``points`` for an extended light, else 1."""
+        return int(self.points) if self.extended else 1
+
+    def at(self, offset: tuple[float, float], power: float | None = None) -> Light:
+        """A point light moved by ``offset`` (dx, dy) within the source's plane, with ``power``
+        (None: this light's)."""
+        x, y, z = self.position
+        return Light(position=(x + offset[0], y + offset[1], z), power=self.power if power is None else power)
 
 
 @dataclass(frozen=True)
@@ -94,7 +137,7 @@ class Scene:
     length of one scene unit in mm (``units.mm_per_unit``: lengths the operators read, e.g. the
     optical elements' sizes, may be given in mm)."""
 
-    light: PointLight = field(default_factory=PointLight)
+    light: Light = field(default_factory=Light)
     substrate: Substrate = field(default_factory=Substrate)
     receiver: Receiver = field(default_factory=Receiver)
     material: DispersionCurve = FUSED_SILICA

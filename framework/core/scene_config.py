@@ -2,7 +2,7 @@
 
 Config layout (top-level keys; see conf/scene/*.yaml and conf/operator/*.yaml)::
 
-    light:        {position: [x, y, z], power: W}
+    light:        {position: [x, y, z], power: W, shape: point | disc | square, size: a, points: K}
     substrate:    {thickness: h, half_width: W}
     receiver:     {z: s, resolution: n, half_width: W}
     material:     {kind: fused_silica | sellmeier | cauchy | constant, ...coefficients}
@@ -42,14 +42,14 @@ from framework.core.shots import ShotSetup
 from framework.core.units import mm_per_unit, scene_length
 from operators.imaging import PSF_KINDS, ImagingOperator
 from operators.materials import material_from_config
-from operators.scene import PointLight, Receiver, Scene, Substrate
+from operators.scene import Light, Receiver, Scene, Substrate
 from operators.stack import StackOperator
 
 __all__ = ["SceneSetup", "build_scene", "build_heights", "build_operator", "build_stack", "operator_builder", "heights_from_spec", "height_grid",
            "screen_settings", "screen_sigma", "to_plain"]
 
 SCENE_KEYS: dict[str, tuple[str, ...]] = {
-    "light": ("position", "power"),
+    "light": ("position", "power", "shape", "size", "points"),
     "substrate": ("thickness", "half_width", "walls"),
     "receiver": ("z", "resolution", "half_width"),
 }
@@ -101,6 +101,10 @@ def build_scene(cfg: Mapping[str, Any], mm: float | None = None) -> Scene:
         light["position"] = tuple(scene_length(v, mm, f"light.position[{i}]") for i, v in enumerate(position))
     if "power" in light:
         light["power"] = _number("light.power", light["power"])
+    if "size" in light:
+        light["size"] = scene_length(light["size"], mm, "light.size")
+    if "points" in light:
+        light["points"] = _number("light.points", light["points"], int)
     substrate = {k: v if k == "walls" else scene_length(v, mm, f"substrate.{k}")
                  for k, v in _group(cfg, "substrate", SCENE_KEYS["substrate"]).items()}
     receiver = _group(cfg, "receiver", SCENE_KEYS["receiver"])
@@ -111,7 +115,7 @@ def build_scene(cfg: Mapping[str, Any], mm: float | None = None) -> Scene:
         wavelengths = [wavelengths]
     if not isinstance(wavelengths, (list, tuple)):
         raise ValueError(f"wavelengths={wavelengths!r} must be a list in micrometres, e.g. [0.633]")
-    return Scene(light=PointLight(**light), substrate=Substrate(**substrate), receiver=Receiver(**receiver),
+    return Scene(light=Light(**light), substrate=Substrate(**substrate), receiver=Receiver(**receiver),
                  material=material_from_config(to_plain(cfg.get("material")) or None),
                  wavelengths=tuple(_number(f"wavelengths[{i}]", v) for i, v in enumerate(wavelengths)),
                  mm_per_unit=mm)

@@ -2,8 +2,8 @@
 name, renders with other values, and the change applied.
 
 - :class:`CameraSetup`: one image seen through the camera (operators/imaging.py): ``gain``,
-  ``screen_distance``, ``light_height``, ``light_x``, ``light_y`` and the screen blur's width
-  ``psf_sigma``.
+  ``screen_distance``, ``light_height``, ``light_x``, ``light_y``, the extended light's size
+  ``light_size`` (its diameter or side, operators/scene.py) and the screen blur's width ``psf_sigma``.
 - :class:`StackSetup`: a stack of shots (operators/stack.py), each seen through the camera: one
   gain per shot (``gain_0`` .. ``gain_<N-1>``), the shared geometry and the shared ``psf_sigma``
   (one screen). ``screen_distance`` and the light's position are those of the configured scene;
@@ -28,7 +28,7 @@ from operators.stack import StackOperator
 
 __all__ = ["GEOMETRY", "PSF", "CameraSetup", "StackSetup", "is_gain", "setup_values", "with_setup"]
 
-GEOMETRY = ("screen_distance", "light_height", "light_x", "light_y")
+GEOMETRY = ("screen_distance", "light_height", "light_x", "light_y", "light_size")
 PSF = "psf_sigma"  # the screen blur's standard deviation, scene units (operators/imaging.py)
 
 
@@ -40,14 +40,16 @@ def is_gain(name: str) -> bool:
 def setup_values(scene: Scene, gain: float) -> dict[str, float]:
     """Every calibration parameter's value for a scene and gain (scene units)."""
     x, y, z = scene.light.position
-    return {"gain": gain, "screen_distance": -scene.receiver.z, "light_height": z, "light_x": x, "light_y": y}
+    return {"gain": gain, "screen_distance": -scene.receiver.z, "light_height": z, "light_x": x, "light_y": y,
+            "light_size": scene.light.size}
 
 
 def with_setup(scene: Scene, values: Mapping[str, float]) -> Scene:
     """``scene`` with the geometric calibration parameters in ``values`` replaced."""
     x, y, z = scene.light.position
     light = dataclasses.replace(scene.light, position=(values.get("light_x", x), values.get("light_y", y),
-                                                       values.get("light_height", z)))
+                                                       values.get("light_height", z)),
+                                size=values.get("light_size", scene.light.size))
     receiver = dataclasses.replace(scene.receiver, z=-values.get("screen_distance", -scene.receiver.z))
     return dataclasses.replace(scene, light=light, receiver=receiver)
 

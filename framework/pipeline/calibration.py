@@ -38,6 +38,14 @@ an update at its heights, and the rule judges the discrepancy under the updated 
 whose fit reaches the noise level within a few iterations (a gentle print) would otherwise end at
 the configured geometry.
 
+``light_size``, an extended light's diameter or side (``light.shape: disc | square``,
+operators/scene.py), starts at the configured ``light.size`` and is treated as the blur's width
+below is (a weak prior of PSF_PRIOR times its start, steps of at most a factor PSF_STEP, updated
+with the geometry); its column dG/da is a central difference of renders whose emission points
+scale with a (operators/light_source.py). Its blur grows with the screen's distance while the
+screen's own does not, so two photos at different distances tell the two apart (docs/method.md,
+"The extended light"). Reported also in mm (``calibration_light_size_mm``).
+
 ``psf_sigma``, the standard deviation of the screen's Gaussian spot (scene units), starts at
 ``calibration.psf_sigma_start``, else at the configured ``screen.sigma`` when > 0, else at one
 receiver pixel; with ``screen.psf: none`` the fitted blur is Gaussian all the same. It is moved to
@@ -76,7 +84,11 @@ from operators.stack import StackOperator
 
 __all__ = ["CALIBRATION_PARAMS", "JointCalibration", "setup_values", "with_setup"]
 
-CALIBRATION_PARAMS = ("gain", "screen_distance", "light_height", "light_x", "light_y", PSF)
+SIZE = "light_size"  # an extended light's diameter or side, scene units (operators/scene.py)
+CALIBRATION_PARAMS = ("gain", "screen_distance", "light_height", "light_x", "light_y", SIZE, PSF)
+# Parameters that no ruler measures (the blur's width, the flash's size): a weak prior and steps of
+# at most a factor PSF_STEP.
+WIDTHS = (PSF, SIZE)
 # Central-difference step, relative to the value (of the light height for the light's x and y,
 # which may be 0).
 _FD_STEP = 1e-3
@@ -133,6 +145,9 @@ class JointCalibration(Callback):
         if isinstance(prior, bool) or not isinstance(prior, (int, float)) or not prior > 0:
             raise ValueError(f"calibration.prior={prior!r} must be a relative standard deviation > 0, e.g. 0.1")
         self.setup_of = StackSetup(operator, scene) if isinstance(operator, StackOperator) else CameraSetup(operator)
+        if SIZE in params and not self.setup_of.scene.light.extended:
+            raise ValueError(f"calibration.params has {SIZE} but light.shape=point; give light.shape=disc or square "
+                             "and light.size where the fit starts (e.g. '30 mm')")
         self.params, self.every = self.setup_of.names(params), every
         self.damping, self.prior = float(damping), float(prior)
         self.state_path: Path | None = None
@@ -282,7 +297,7 @@ class JointCalibration(Callback):
         """The size of parameter p at its measured value (of the light height for the light's x, y)."""
         if p == HEIGHT_SCALE:
             return 1.0
-        own = is_gain(p) or p in ("screen_distance", "light_height")
+        own = is_gain(p) or p in ("screen_distance", "light_height", SIZE)
         return abs(self.initial.get(p, 1.0)) if own else abs(setup_values(self.setup_of.scene, 1.0)["light_height"])
 
     def jacobian(self, d: Tensor, params: Sequence[str]) -> tuple[Tensor, Tensor]:
@@ -300,7 +315,7 @@ class JointCalibration(Callback):
             if p == PSF:
                 columns.append(psf_column)
                 continue
-            h = _FD_STEP * self._scale(p)
+            h = _FD_STEP * (values[p] if p == SIZE else self._scale(p))
             plus = self._render(d, {**values, p: values[p] + h})
             minus = self._render(d, {**values, p: values[p] - h})
             columns.append((plus - minus) / (2.0 * h))
@@ -349,19 +364,22 @@ class JointCalibration(Callback):
         return self.values()
 
     def _precision(self, p: str) -> float:
-        """The prior's precision of parameter p: 0 for the gains (no prior), weak for psf_sigma."""
+        """The prior's precision of parameter p: 0 for the gains (no prior), weak for psf_sigma and
+        light_size (a standard deviation of PSF_PRIOR times the start)."""
         if is_gain(p) or p == HEIGHT_SCALE:
             return 0.0
         if p == PSF:
             return (PSF_PRIOR * max(self.initial[PSF], self.setup_of.pixel_size)) ** -2
+        if p == SIZE:
+            return (PSF_PRIOR * self.initial[SIZE]) ** -2
         return (self.prior * self._scale(p)) ** -2
 
     def _bounded(self, p: str, value: float, current: float) -> float:
         """``value`` of parameter p clipped to BOUND prior standard deviations around its measured
-        value; psf_sigma's to [current / 2, 2 current] (PSF_STEP), so it stays > 0."""
+        value; psf_sigma's and light_size's to [current / 2, 2 current] (PSF_STEP), so they stay > 0."""
         if is_gain(p):
             return value
-        if p == PSF:
+        if p in WIDTHS:
             return min(max(value, current / PSF_STEP), current * PSF_STEP)
         if p == HEIGHT_SCALE:
             return min(max(value, 1.0 - BOUND * self.prior), 1.0 + BOUND * self.prior)
@@ -390,10 +408,15 @@ class JointCalibration(Callback):
             out[f"calibration_{p}_initial"] = self.initial[p]
             if p in self.std:
                 out[f"calibration_{p}_std"] = self.std[p]
-            if not is_gain(p) and p != PSF:
+            if not is_gain(p) and p not in WIDTHS:
                 reach = BOUND * self.prior * self._scale(p)
                 out[f"calibration_{p}_at_bound"] = float(abs(v - self.initial[p]) >= reach * (1 - 1e-9))
         out.update({f"calibration_{k}": v for k, v in self.psf_units().items()})
+        if SIZE in self.params:
+            mm = float(self.setup_of.scene.mm_per_unit)
+            out[f"calibration_{SIZE}_mm"] = self.values()[SIZE] * mm
+            if SIZE in self.std:
+                out[f"calibration_{SIZE}_std_mm"] = self.std[SIZE] * mm
         return out
 
     def psf_units(self) -> dict[str, float]:

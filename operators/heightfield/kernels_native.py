@@ -72,7 +72,7 @@ _jit = nb.njit(cache=True, inline="always", fastmath=FAST_MATH, error_model="num
 
 @_jit
 def emit(index, sc, shifts):
-    """Photon ``index`` (channel-major) as in PointLightEmitter.batch: (channel, w, D_u w, D_v w, flux)."""
+    """Photon ``index`` (channel-major) as in LightEmitter.batch: (channel, w, D_u w, D_v w, flux)."""
     c = index // sc.per_channel
     j = float(index - c * sc.per_channel)
     u = shifts[c, 0] + j * R2_STEP[0]

@@ -20,8 +20,10 @@ for a gradient of the same heights, which then skips the hit search.
 
 from __future__ import annotations
 
+
 import math
 from dataclasses import dataclass
+from dataclasses import replace as dataclasses_replace
 from typing import Any
 
 import numba as nb
@@ -29,7 +31,7 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
-from operators.emission import CELL_FOOTPRINT, PointLightEmitter, check_footprint
+from operators.emission import CELL_FOOTPRINT, LightEmitter, check_footprint
 from operators.heightfield.trace_native import FusedTracer, HitCache
 from operators.light_paths import Arrivals, straight_landing
 from operators.kernels.numba_settings import to_numpy
@@ -39,6 +41,7 @@ from operators.heightfield.precompile import BackgroundCompile
 from operators.scene import Scene
 from operators.heightfield.surface import validate_heights
 from operators.supersample import SupersampledOperator, build_supersampled
+from operators.wavefront.extended import ExtendedLightReference
 from operators.wavefront.renderer import WavefrontRenderer, wavefront_vertices
 from operators.splat.splat import splat_photons
 from operators.heightfield.trace_reference import trace_substrate
@@ -164,13 +167,17 @@ class CausticOperator(PhotonOperator):
         """The same physics with another sampling (:meth:`PhotonOperator.resampled`)."""
         return CausticOperator(*self.resampled(photons, seed, resolution))
 
-    def exact_variant(self, photons: int, seed: int, resolution: int) -> WavefrontRenderer:
+    def exact_variant(self, photons: int, seed: int, resolution: int) -> WavefrontRenderer | ExtendedLightReference:
         """The same physics by wavefront triangles with exact pixel coverage
         (operators/wavefront/renderer.py): no footprint, no photon noise, about ``photons``
-        vertices per wavelength over the square; ``seed`` is not needed (the method is deterministic)."""
+        vertices per wavelength over the square; ``seed`` is not needed (the method is
+        deterministic). An extended light: the mean of such renders from points over the source
+        (operators/wavefront/extended.py)."""
         scene, _ = self.resampled(photons, seed, resolution)
-        return WavefrontRenderer(scene, vertices=wavefront_vertices(photons, scene.channels),
-                                 fresnel=self.settings.fresnel)
+        vertices = wavefront_vertices(photons, scene.channels)
+        if scene.light.extended:
+            return ExtendedLightReference(scene, vertices=vertices, fresnel=self.settings.fresnel)
+        return WavefrontRenderer(scene, vertices=vertices, fresnel=self.settings.fresnel)
 
     def warm_up(self) -> BackgroundCompile:
         """Context for a run that will take gradients: where the numba kernels trace on the CPU,
@@ -184,11 +191,12 @@ class CausticOperator(PhotonOperator):
         self.settings = settings or OperatorSettings()
         self.dtype = DTYPES[self.settings.dtype]
         self.device = torch.device(self.settings.device)
-        self.emitter = PointLightEmitter(scene, self.settings.photons, self.settings.seed,
+        self.emitter = LightEmitter(scene, self.settings.photons, self.settings.seed,
                                          self.settings.footprint_px, self.dtype, self.device)
         self.glass_index = torch.tensor(scene.indices, dtype=self.dtype, device=self.device)
         self.fused = FusedTracer(scene, self.emitter,
-                                 filter_radius_px(self.settings.min_footprint_px, self.settings.pixel_integration),
+                                 filter_radius_px(self.settings.min_footprint_px, self.settings.pixel_integration,
+                                                  self.emitter.source_blur_px),
                                  self.settings.max_pixel_radius, self.settings.fresnel, self.settings.simd,
                                  self.settings.kernels)
         self.hit_cache = HitCache(self.settings.hit_cache_mb)
@@ -256,7 +264,7 @@ class CausticOperator(PhotonOperator):
         substrate, the photon pattern, the chunks and the device. Operators with equal keys may
         share their hit cache (:meth:`share_hits`)."""
         s = self.settings
-        return (self.scene.light.position, self.scene.substrate, self.scene.channels, s.photons, s.seed, s.chunk_size,
+        return (self.scene.light, self.scene.substrate, self.scene.channels, s.photons, s.seed, s.chunk_size,
                 s.footprint_px, s.device)
 
     def share_hits(self, other: CausticOperator) -> None:
@@ -271,10 +279,9 @@ class CausticOperator(PhotonOperator):
         size, which bounds per-photon memory on the CPU, does not apply: the GPU stores none)."""
         image = torch.zeros(self.output_shape, dtype=self.dtype, device=self.device)
         d_gpu = torch.from_numpy(d).to(self.device)
-        sc = self.fused.constants(d)
-        for start, stop in tqdm(self.gpu.launches(0, self.photons), desc="photons", unit="launch",
-                                disable=not progress):
-            self.gpu.render(sc, d_gpu, start, stop, image)
+        launches = [(start, stop) for a, b in self.emitter.segments() for start, stop in self.gpu.launches(a, b)]
+        for start, stop in tqdm(launches, desc="photons", unit="launch", disable=not progress):
+            self.gpu.render(self.fused.constants(d, start), d_gpu, start, stop, image)
         return image / self.pixel_area
 
     def _vjp_gpu(self, d: np.ndarray, grad_image: torch.Tensor) -> torch.Tensor:
@@ -283,7 +290,9 @@ class CausticOperator(PhotonOperator):
         g = grad_image.detach().to(dtype=torch.float64, device=self.device) / self.pixel_area
         padded = torch.nn.functional.pad(g, (pad, pad, pad, pad)).contiguous()
         grad = torch.zeros(d.shape, dtype=torch.float64, device=self.device)
-        self.gpu.vjp(self.fused.constants(d), torch.from_numpy(d).to(self.device), 0, self.photons, padded, grad)
+        d_gpu = torch.from_numpy(d).to(self.device)
+        for start, stop in self.emitter.segments():
+            self.gpu.vjp(self.fused.constants(d, start), d_gpu, start, stop, padded, grad)
         return grad
 
     def render_reference(self, heights: torch.Tensor) -> torch.Tensor:
@@ -310,8 +319,10 @@ class CausticOperator(PhotonOperator):
 
     def arrivals(self, photons: int) -> Arrivals:
         """``photons`` photons of this light where they meet the flat print's top plane z = h
-        (straight from the light: the emitter aims at that plane)."""
-        emitter = PointLightEmitter(self.scene, photons, self.settings.seed, self.settings.footprint_px, torch.float64)
+        (straight from the light: the emitter aims at that plane; an extended light's from its
+        centre, where a start reads the light path)."""
+        point = dataclasses_replace(self.scene, light=self.scene.light.at((0.0, 0.0)))
+        emitter = LightEmitter(point, photons, self.settings.seed, self.settings.footprint_px, torch.float64)
         batch = emitter.batch(0, emitter.total)
         light = np.asarray(self.scene.light.position, dtype=np.float64)
         direction = batch.direction.numpy().T

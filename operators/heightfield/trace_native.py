@@ -9,7 +9,7 @@ import math
 import numba as nb
 import numpy as np
 
-from operators.emission import PointLightEmitter
+from operators.emission import LightEmitter
 from operators.heightfield import trace_compiled
 from operators.heightfield.adjoint_native import vjp_photons
 from operators.heightfield.kernels_native import FusedScene, render_photons
@@ -24,18 +24,19 @@ NO_HITS = np.empty(0)  # kernels' marker for "no hit cache"
 class FusedTracer:
     """Photons ``start .. stop-1`` of ``emitter`` traced through ``scene`` in one native pass each.
 
-    Matches the torch path (PointLightEmitter.batch, trace_substrate, footprint_metric,
+    Matches the torch path (LightEmitter.batch, trace_substrate, footprint_metric,
     splat_photons) photon by photon, computed in float64. ``kernels``: ``c`` or ``numba``
     (OperatorSettings.kernels; C only where the extension was built); ``simd``: both take the
     AVX2 splat, gather, jets and hit adjoint where the CPU has them.
     """
 
-    def __init__(self, scene: Scene, emitter: PointLightEmitter, filter_px: float,
+    def __init__(self, scene: Scene, emitter: LightEmitter, filter_px: float,
                  max_pixel_radius: float, fresnel: bool, simd: bool, kernels: str = "c") -> None:
         self.scene = scene
         self.simd = bool(simd) and SIMD_AVAILABLE  # whether the kernels use the AVX2 extension
         # Whether the C kernels trace (else the numba kernels).
         self.compiled = trace_compiled.AVAILABLE and kernels == "c"
+        self.emitter = emitter
         self.shifts = np.ascontiguousarray(emitter.shifts.numpy(), dtype=np.float64)
         self.indices = np.asarray(scene.indices, dtype=np.float64)
         self.capacity = (2 * math.ceil(max_pixel_radius) + 3) ** 2
@@ -53,13 +54,15 @@ class FusedTracer:
             max_px=float(max_pixel_radius), fresnel=bool(fresnel), simd=self.simd,
             clear_walls=sub.walls == "clear")
 
-    def constants(self, d: np.ndarray) -> FusedScene:
-        """Kernel constants for heights ``d`` (m, m) (the bracketing planes and slope bounds depend on them)."""
+    def constants(self, d: np.ndarray, start: int = 0) -> FusedScene:
+        """Kernel constants for heights ``d`` (m, m) (the bracketing planes and slope bounds depend
+        on them) and the photons from ``start`` on (their emission point: the light's position)."""
         grid = HeightFieldGrid(self.scene.substrate.thickness, self.scene.substrate.half_width, d.shape[0])
         zlo, zstart, zhi = grid.z_planes(d)
         slope_x, slope_y = grid.slope_bounds(d)
+        x, y, _ = self.emitter.origin(self.emitter.source_of(start))
         return FusedScene(spacing=grid.spacing, zlo=zlo, zstart=zstart, zhi=zhi, slope_x=slope_x, slope_y=slope_y,
-                          **self._constants)
+                          **{**self._constants, "light_x": x, "light_y": y})
 
     def image_buffers(self, dtype: np.dtype) -> np.ndarray:
         """Zeroed per-thread images (threads, c, n, n) for :meth:`render`."""
@@ -76,10 +79,10 @@ class FusedTracer:
         if replay and hit_t is None:
             raise ValueError("replay needs the recorded hits (hit_t)")
         if self.compiled:
-            return trace_compiled.render(d, self.constants(d), self.shifts, self.indices, start, stop, out,
+            return trace_compiled.render(d, self.constants(d, start), self.shifts, self.indices, start, stop, out,
                                          self.capacity, splat, NO_HITS if hit_t is None else hit_t, replay)
         with nb.parallel_chunksize(1):
-            return render_photons(d, self.constants(d), self.shifts, self.indices, start, stop, out,
+            return render_photons(d, self.constants(d, start), self.shifts, self.indices, start, stop, out,
                                   self.capacity, splat, NO_HITS if hit_t is None else hit_t, replay)
 
     def pad_gradient(self, grad_image: np.ndarray, divisor: float = 1.0) -> np.ndarray:
@@ -96,11 +99,11 @@ class FusedTracer:
         :meth:`render` recorded for these photons and these heights, replayed instead of searched."""
         _check_contiguous(d=d, padded=padded, out=out)
         if self.compiled:
-            trace_compiled.vjp(d, self.constants(d), self.shifts, self.indices, start, stop, padded, self.gather_pad,
+            trace_compiled.vjp(d, self.constants(d, start), self.shifts, self.indices, start, stop, padded, self.gather_pad,
                                out, NO_HITS if hit_t is None else hit_t)
             return
         with nb.parallel_chunksize(1):
-            vjp_photons(d, self.constants(d), self.shifts, self.indices, start, stop, padded, self.gather_pad, out,
+            vjp_photons(d, self.constants(d, start), self.shifts, self.indices, start, stop, padded, self.gather_pad, out,
                         NO_HITS if hit_t is None else hit_t)
 
 

@@ -34,7 +34,7 @@ import torch
 from tqdm.auto import tqdm
 
 from operators.heightfield.operator import DTYPES, KERNELS
-from operators.emission import CELL_FOOTPRINT, PointLightEmitter, check_footprint
+from operators.emission import CELL_FOOTPRINT, LightEmitter, check_footprint
 from operators.heightfield.surface import HeightFieldGrid, intersect_height_field, validate_heights
 from operators.light_paths import Arrivals
 from operators.materials import refractive_indices
@@ -124,6 +124,10 @@ class MeshSceneOperator(PhotonOperator):
         if scene.substrate.walls != "clear":
             raise ValueError(f"substrate.walls={scene.substrate.walls} is not traced by operator=mesh_scene (its "
                              "substrate has clear walls); use substrate.walls=clear, or operator=height_field")
+        if scene.light.extended and self.elements:
+            raise ValueError(f"light.shape={scene.light.shape} is traced by operator=mesh_scene without optical "
+                             "elements only (each emission point's patch is blurred as flat glass blurs it); use "
+                             "light.shape=point with elements, or operator=height_field")
         progress = MeshProgress("mesh scene", sum(len(e.mesh.faces) for e in self.elements), estimate=False)
         with progress.step("checking the elements' layout"):
             check_layout(self.elements, scene.light.position[2], scene.receiver.z)
@@ -134,7 +138,7 @@ class MeshSceneOperator(PhotonOperator):
             raise ValueError(f"element {inside.name} (z {low:.4g} .. {high:.4g}) overlaps the substrate "
                              f"(z 0 .. {top:g}); move it above or below")
         self.dtype = DTYPES[settings.dtype]
-        self.emitter = PointLightEmitter(self._aimed_scene(), settings.photons, settings.seed, settings.footprint_px, self.dtype)
+        self.emitter = LightEmitter(self._aimed_scene(), settings.photons, settings.seed, settings.footprint_px, self.dtype)
         with progress.step("building the ray-intersection structures"):
             self.intersector = MeshIntersector(self.elements)
         self._lowest_element = min((e.z_range[0] for e in self.elements), default=math.inf)
@@ -363,8 +367,10 @@ class MeshSceneOperator(PhotonOperator):
     def arrivals(self, photons: int) -> Arrivals:
         """``photons`` photons of this light, traced through the elements above the print, where
         they enter the flat print's top (z = h, inside the substrate's square): position, the
-        direction they arrive along, flux. Photons that miss the top are left out."""
-        emitter = PointLightEmitter(self._aimed_scene(), photons, self.settings.seed, self.settings.footprint_px,
+        direction they arrive along, flux. Photons that miss the top are left out (an extended
+        light's from its centre, where a start reads the light path)."""
+        aimed = self._aimed_scene()
+        emitter = LightEmitter(dataclasses.replace(aimed, light=aimed.light.at((0.0, 0.0))), photons, self.settings.seed, self.settings.footprint_px,
                                     torch.float64)
         batch = emitter.batch(0, emitter.total)
         n = batch.direction.shape[1]

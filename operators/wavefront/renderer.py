@@ -2,7 +2,7 @@
 
 The light's wavefront is sampled by a K x K grid of aim points covering the substrate's top square
 [-W, W]^2 on the plane z = h, aimed at as the photon emitter aims (docs/method.md, "Photon
-emission"; :meth:`operators.emission.PointLightEmitter.photons_toward`); each grid cell is split
+emission"; :meth:`operators.emission.LightEmitter.photons_toward`); each grid cell is split
 into two triangles. Every vertex ray is traced in float64 through the printed Catmull-Rom top, the
 substrate and onto the receiver plane (docs/method.md, "Refraction through the glass") by the
 fused native kernels' per-photon optics (:mod:`operators.heightfield.kernels_native`: the exact
@@ -52,7 +52,7 @@ import numba as nb
 import numpy as np
 import torch
 
-from operators.emission import PointLightEmitter
+from operators.emission import LightEmitter
 from operators.heightfield import trace_compiled
 from operators.heightfield.kernels_native import hit_jet, optics_state
 from operators.heightfield.side_walls import LOST
@@ -224,13 +224,16 @@ class WavefrontRenderer:
             raise ValueError(f"tracer={tracer!r} must be one of {', '.join(TRACERS)}")
         if not isinstance(fresnel, bool):
             raise ValueError(f"fresnel={fresnel!r} must be true or false")
+        if scene.light.extended:
+            raise ValueError(f"light.shape={scene.light.shape}: the wavefront renderer traces a point light; render an "
+                             "extended one by operators.wavefront.extended.ExtendedLightReference")
         self.scene = scene
         self.vertices = int(k)
         self.fresnel = fresnel
         self.chunk_size = int(chunk_size)
         self.subdivisions = int(subdivisions)
         self.tracer = tracer
-        self.emitter = PointLightEmitter(scene, scene.channels, 0, 1.0, torch.float64)
+        self.emitter = LightEmitter(scene, scene.channels, 0, 1.0, torch.float64)
         self.fused = FusedTracer(scene, self.emitter, 1.0, 20.0, fresnel, False)  # footprint settings unused
         self.glass_index = torch.tensor(scene.indices, dtype=torch.float64)
         self.last_budget: FluxBudget | None = None

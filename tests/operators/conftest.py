@@ -6,7 +6,7 @@ import numpy as np
 import torch
 
 from operators.heightfield.operator import CausticOperator, OperatorSettings
-from operators.scene import PointLight, Receiver, Scene, Substrate
+from operators.scene import Light, Receiver, Scene, Substrate
 
 
 def bump(m: int, centre: tuple[float, float] = (0.0, 0.0), sigma: float = 0.3, height: float = 0.05) -> torch.Tensor:
@@ -20,7 +20,7 @@ def bump(m: int, centre: tuple[float, float] = (0.0, 0.0), sigma: float = 0.3, h
 def make_operator(photons: int = 40_000, resolution: int = 32, half_width: float = 1.0,
                   wavelengths: tuple[float, ...] = (0.633,), chunk_size: int = 1 << 18, walls: str = "clear",
                   **settings) -> CausticOperator:
-    scene = Scene(light=PointLight(), substrate=Substrate(walls=walls),
+    scene = Scene(light=Light(), substrate=Substrate(walls=walls),
                   receiver=Receiver(z=-0.05, resolution=resolution, half_width=half_width),
                   wavelengths=wavelengths)
     settings.setdefault("dtype", "float64")

@@ -5,9 +5,9 @@ from __future__ import annotations
 import pytest
 import torch
 
-from operators.emission import PointLightEmitter
+from operators.emission import LightEmitter
 from operators.materials import ConstantIndex
-from operators.scene import PointLight, Receiver, Scene
+from operators.scene import Light, Receiver, Scene
 from tests.operators.conftest import make_operator
 
 
@@ -27,13 +27,13 @@ def test_bad_scenes():
     with pytest.raises(ValueError, match="receiver.z=0.2"):
         Receiver(z=0.2)
     with pytest.raises(ValueError, match="light.position z=0.05"):
-        Scene(light=PointLight(position=(0.0, 0.0, 0.05)))
+        Scene(light=Light(position=(0.0, 0.0, 0.05)))
     with pytest.raises(ValueError, match="refractive index 0.9"):
         Scene(material=ConstantIndex(0.9))
     with pytest.raises(ValueError, match="wavelength -0.5"):
         Scene(wavelengths=(-0.5,))
     with pytest.raises(ValueError, match="photons=0"):
-        PointLightEmitter(Scene(), 0, 0, 3.0)
+        LightEmitter(Scene(), 0, 0, 3.0)
     with pytest.raises(ValueError, match="dtype"):
         make_operator(dtype="float16")
     with pytest.raises(ValueError, match="hit_cache_mb=-1"):

@@ -24,7 +24,7 @@ from operators.materials import FUSED_SILICA, refractive_indices
 from operators.mesh import events_compiled
 from operators.mesh.operator import MeshSceneOperator, MeshSceneSettings
 from operators.mesh.elements import make_element
-from operators.scene import PointLight, Receiver, Scene
+from operators.scene import Light, Receiver, Scene
 
 
 CONF = str(Path(__file__).resolve().parents[2] / "conf")
@@ -68,7 +68,7 @@ def test_a_plano_convex_lens_focuses_at_its_thick_lens_focus():
     focus = back + thickness / n - image_distance - h * (1.0 - 1.0 / n)  # the flat slab shifts it down
 
     def landing(receiver_z: float) -> np.ndarray:
-        scene = Scene(light=PointLight((0.0, 0.0, light_z)), receiver=Receiver(z=receiver_z, resolution=64))
+        scene = Scene(light=Light((0.0, 0.0, light_z)), receiver=Receiver(z=receiver_z, resolution=64))
         op = MeshSceneOperator(scene, [element], MeshSceneSettings(photons=4000, dtype="float64",
                                                                    aperture_half_width=0.01))
         pos, _, flux, _, _ = op.trace(torch.zeros(16, 16, dtype=torch.float64), 0, op.photons)

@@ -14,7 +14,7 @@ from framework.core.shapes import make_shape
 from operators.heightfield import trace_compiled
 from operators.heightfield.operator import CausticOperator, OperatorSettings
 from operators.materials import ConstantIndex
-from operators.scene import PointLight, Receiver, Scene, Substrate
+from operators.scene import Light, Receiver, Scene, Substrate
 from operators.wavefront.renderer import WavefrontRenderer
 from tests.operators.conftest import bump
 from tests.operators.test_gradients import directional_check
@@ -23,7 +23,7 @@ LIGHT_Z, H, S, W = 10.0, 0.1, -0.05, 1.0
 
 
 def slab_scene(walls: str, resolution: int, half_width: float = 1.0, **scene) -> Scene:
-    return Scene(light=scene.pop("light", PointLight()), substrate=Substrate(thickness=H, half_width=W, walls=walls),
+    return Scene(light=scene.pop("light", Light()), substrate=Substrate(thickness=H, half_width=W, walls=walls),
                  receiver=Receiver(z=S, resolution=resolution, half_width=half_width), **scene)
 
 
@@ -120,7 +120,7 @@ def oblique_scene(resolution: int = 48) -> Scene:
     """Grazing light on glass of index 1.3 (< sqrt 2): light that meets a side wall is refracted
     out of it (the wall exit) or, at the other walls, totally reflected; a receiver wide enough
     for both."""
-    return slab_scene("clear", resolution, half_width=3.0, light=PointLight(position=(-2.0, 0.3, 1.0)),
+    return slab_scene("clear", resolution, half_width=3.0, light=Light(position=(-2.0, 0.3, 1.0)),
                       material=ConstantIndex(1.3))
 
 

@@ -12,7 +12,7 @@ import torch
 from scipy.optimize import brentq
 
 from operators.heightfield.operator import CausticOperator, OperatorSettings
-from operators.scene import PointLight, Receiver, Scene, Substrate
+from operators.scene import Light, Receiver, Scene, Substrate
 from operators.wavefront.coverage import rasterize_grid, rasterize_triangles
 from operators.wavefront.renderer import (ROW_BLOCK, WavefrontRenderer, grid_flux, grid_solid_angles,
                                          triangle_solid_angle, wavefront_vertices)
@@ -22,7 +22,7 @@ LIGHT_Z, H, S = 10.0, 0.1, -0.05  # the default scene's light height, substrate 
 
 
 def _scene(resolution: int, half_width: float, wavelengths: tuple[float, ...] = (0.633,), walls: str = "clear") -> Scene:
-    return Scene(light=PointLight(), substrate=Substrate(walls=walls), wavelengths=wavelengths,
+    return Scene(light=Light(), substrate=Substrate(walls=walls), wavelengths=wavelengths,
                  receiver=Receiver(z=S, resolution=resolution, half_width=half_width))
 
 
