@@ -23,10 +23,14 @@ An extended light (operators/scene.py, ``light.shape: disc | square``) emits eac
 photons from its K emission points (operators/light_source.py, the ``r2`` pattern, shifted by the
 seed) in K consecutive segments of the same aim sequence: photon j of a channel leaves source
 point floor(j K / N_c). Every segment covers the square (a stretch of a Kronecker sequence is
-itself evenly spread), so each photon keeps its own cell (area A / N_c, the flux and footprint of
-a point light's photon) and the photons of all segments together are the point light's, each
+itself evenly spread); each photon carries a point light's photon's flux (cell A / N_c) and, with
+``footprint_px: cell``, the footprint of its segment's cell (area K A / N_c: each segment's
+photons tile the square), and the photons of all segments together are the point light's, each
 from its own point of the source. Photons of one segment share their origin:
-:meth:`LightEmitter.segments` gives the index ranges, and a batch never spans two.
+:meth:`LightEmitter.segments` gives the index ranges, and a batch never spans two. The patch of
+the source each emission point stands for blurs the caustic by ``source_blur_sigma``
+(operators/light_source.py, ``patch_variance``, carried to the receiver by the flat glass's
+spread), which the operators apply to their images (a Gaussian integrated over each pixel).
 """
 
 from __future__ import annotations
@@ -95,8 +99,8 @@ class LightEmitter:
         residual = patch_variance(scene.light, self.sources) if scene.light.extended else 0.0
         self.offsets = moment_matched(offsets, scene.light, residual) if scene.light.extended else offsets
         spread = receiver_spread(scene.light, scene.substrate.thickness, float(np.mean(scene.indices)), -scene.receiver.z)
-        # Silverman's kernel of radius R has a per-axis variance R^2 / 8 (operators/photon_operator.py).
-        self.source_blur_px = math.sqrt(8.0 * residual) * spread / scene.receiver.pixel_size
+        # The patches' blur on the receiver: standard deviation per axis, scene units.
+        self.source_blur_sigma = math.sqrt(residual) * spread
         half = scene.substrate.half_width
         self.cell_area = (2.0 * half) ** 2 / self.per_channel
         if footprint_px == CELL_FOOTPRINT:

@@ -19,6 +19,7 @@ from typing import Any
 
 import torch
 
+from operators.gaussian_blur import ScreenBlur
 from operators.scene import Scene
 from operators.splat.splat import footprint_metric, splat_photons_vjp
 
@@ -35,11 +36,10 @@ PIXEL_SETTINGS = ("footprint_px", "min_footprint_px", "max_pixel_radius")
 PIXEL_BOX_R2 = 2.0 / 3.0
 
 
-def filter_radius_px(min_footprint_px: float, pixel_integration: bool, source_px: float = 0.0) -> float:
-    """Radius (pixels) added in quadrature to every footprint: the pixel filter ``min_footprint_px``,
-    with ``pixel_integration`` the pixel's own area (:data:`PIXEL_BOX_R2`), and ``source_px``, the
-    blur of an extended light's patch per emission point (operators/emission.py)."""
-    return (min_footprint_px ** 2 + (PIXEL_BOX_R2 if pixel_integration else 0.0) + source_px ** 2) ** 0.5
+def filter_radius_px(min_footprint_px: float, pixel_integration: bool) -> float:
+    """Radius (pixels) added in quadrature to every footprint: the pixel filter ``min_footprint_px``
+    and, with ``pixel_integration``, the pixel's own area (:data:`PIXEL_BOX_R2`)."""
+    return (min_footprint_px ** 2 + (PIXEL_BOX_R2 if pixel_integration else 0.0)) ** 0.5
 
 
 def check_setting_keys(settings: dict[str, Any], settings_class: type, plugin: str, extra: tuple[str, ...] = ()) -> None:
@@ -145,6 +145,13 @@ class PhotonOperator(ImageOperator):
         return self.scene.receiver.pixel_size ** 2
 
     @property
+    def source_blur(self) -> ScreenBlur:
+        """The blur of an extended light's patches on this receiver (operators/emission.py), which
+        render applies to its image and vjp to the image gradient (it is self-adjoint); none for a
+        point light."""
+        return ScreenBlur(self.emitter.source_blur_sigma, self.scene.receiver.pixel_size)
+
+    @property
     def _to_pixels(self) -> float:
         """Receiver pixels per scene unit."""
         return self.scene.receiver.resolution / (2.0 * self.scene.receiver.half_width)
@@ -154,8 +161,7 @@ class PhotonOperator(ImageOperator):
         in scene units -> pixel positions (2, N) and footprint metrics (3, N)."""
         pos = (position + self.scene.receiver.half_width) * self._to_pixels - 0.5
         metric = footprint_metric(footprint * self._to_pixels,
-                                  filter_radius_px(self.settings.min_footprint_px, self.settings.pixel_integration,
-                                                   self.emitter.source_blur_px),
+                                  filter_radius_px(self.settings.min_footprint_px, self.settings.pixel_integration),
                                   self.settings.max_pixel_radius)
         return pos, metric
 

@@ -41,7 +41,9 @@ the configured geometry.
 ``light_size``, an extended light's diameter or side (``light.shape: disc | square``,
 operators/scene.py), starts at the configured ``light.size`` and is treated as the blur's width
 below is (a weak prior of PSF_PRIOR times its start, steps of at most a factor PSF_STEP, updated
-with the geometry); its column dG/da is a central difference of renders whose emission points
+with the geometry, and, like a stack's distance, at every iteration that meets the noise level
+until it settles: the heights absorb part of a wrong size, so it moves on after the fit first meets
+the noise level); its column dG/da is a central difference of renders whose emission points
 scale with a (operators/light_source.py). Its blur grows with the screen's distance while the
 screen's own does not, so two photos at different distances tell the two apart (docs/method.md,
 "The extended light"). Reported also in mm (``calibration_light_size_mm``).
@@ -169,9 +171,11 @@ class JointCalibration(Callback):
         # A stack's screen distance moves with a scale of the heights (the shots' offsets tell the
         # distance only jointly with the heights' strength; module docstring), unless the solver
         # holds the known volume (regularizers/volume_hold.py), which fixes that strength itself.
-        # Its geometry is updated at every iteration at the noise level until it settles.
-        self.settles = isinstance(self.setup_of, StackSetup) and "screen_distance" in self.params
-        self.scales_heights = self.settles and not volume_held
+        # Its geometry, and that of a run that fits the light's size (which the heights absorb in
+        # part while it is off), is updated at every iteration at the noise level until it settles.
+        distance = isinstance(self.setup_of, StackSetup) and "screen_distance" in self.params
+        self.settles = distance or SIZE in self.params
+        self.scales_heights = distance and not volume_held
         self.height_scale = 1.0  # the last update's factor on the heights (1: none)
         self.settle_rounds = 0  # updates at the noise level in a row that still moved the geometry
 

@@ -195,8 +195,7 @@ class CausticOperator(PhotonOperator):
                                          self.settings.footprint_px, self.dtype, self.device)
         self.glass_index = torch.tensor(scene.indices, dtype=self.dtype, device=self.device)
         self.fused = FusedTracer(scene, self.emitter,
-                                 filter_radius_px(self.settings.min_footprint_px, self.settings.pixel_integration,
-                                                  self.emitter.source_blur_px),
+                                 filter_radius_px(self.settings.min_footprint_px, self.settings.pixel_integration),
                                  self.settings.max_pixel_radius, self.settings.fresnel, self.settings.simd,
                                  self.settings.kernels)
         self.hit_cache = HitCache(self.settings.hit_cache_mb)
@@ -242,7 +241,7 @@ class CausticOperator(PhotonOperator):
                               replay=known is not None)
         if not replaying:
             cache.finish_render(d)
-        return torch.from_numpy(out.sum(axis=0) / self.pixel_area).to(heights.device)
+        return self.source_blur.apply(torch.from_numpy(out.sum(axis=0) / self.pixel_area)).to(heights.device)
 
     def vjp(self, heights: torch.Tensor, grad_image: torch.Tensor) -> torch.Tensor:
         """F'(d)^* grad_image: the gradient (m, m) of <F(d), grad_image>, by the fused native path."""
@@ -250,6 +249,7 @@ class CausticOperator(PhotonOperator):
         if grad_image.shape != self.output_shape:
             raise ValueError(f"grad_image has shape {tuple(grad_image.shape)}, expected {self.output_shape}")
         d = to_numpy(heights).astype(np.float64)
+        grad_image = self.source_blur.adjoint(grad_image)
         if self.gpu is not None:
             return self._vjp_gpu(d, grad_image).to(self.dtype).to(dtype=heights.dtype, device=heights.device)
         padded = self.fused.pad_gradient(to_numpy(grad_image), self.pixel_area)
@@ -282,7 +282,7 @@ class CausticOperator(PhotonOperator):
         launches = [(start, stop) for a, b in self.emitter.segments() for start, stop in self.gpu.launches(a, b)]
         for start, stop in tqdm(launches, desc="photons", unit="launch", disable=not progress):
             self.gpu.render(self.fused.constants(d, start), d_gpu, start, stop, image)
-        return image / self.pixel_area
+        return self.source_blur.apply(image / self.pixel_area)
 
     def _vjp_gpu(self, d: np.ndarray, grad_image: torch.Tensor) -> torch.Tensor:
         """:meth:`vjp` on the GPU, all photons in one pass (no per-photon memory to bound)."""
@@ -302,13 +302,13 @@ class CausticOperator(PhotonOperator):
         with torch.no_grad():
             for start, stop in self.chunks():
                 image += self.trace_chunk(heights.detach(), start, stop)
-        return image
+        return self.source_blur.apply(image)
 
     def vjp_reference(self, heights: torch.Tensor, grad_image: torch.Tensor) -> torch.Tensor:
         """F'(d)^* grad_image by torch autograd through the torch path (the reference for vjp)."""
         self._check(heights)
         leaf = heights.detach().to(self.dtype).requires_grad_(True)
-        g = grad_image.detach().to(dtype=self.dtype, device=self.device) / self.pixel_area
+        g = self.source_blur.adjoint(grad_image.detach().to(dtype=self.dtype, device=self.device)) / self.pixel_area
         for start, stop in self.chunks():
             with torch.enable_grad():
                 backward_through_splat(*self.splat_inputs(leaf, start, stop), g)

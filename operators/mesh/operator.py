@@ -220,7 +220,8 @@ class MeshSceneOperator(PhotonOperator):
         self._check(heights)
         if self.native is not None:
             image, self.losses = self.native.render(heights.detach().double().cpu().numpy())
-            return image.div_(self.pixel_area).to(self.dtype).to(heights.device)  # a new image: divided in place
+            # A new image: divided in place.
+            return self.source_blur.apply(image.div_(self.pixel_area)).to(self.dtype).to(heights.device)
         image = torch.zeros(self.output_shape, dtype=self.dtype)
         self.losses = dict.fromkeys(LOSSES, 0.0)
         with torch.no_grad():
@@ -229,14 +230,14 @@ class MeshSceneOperator(PhotonOperator):
                 image += splat_photons(pos, metric, flux, channel, self.scene.channels, self.scene.receiver.resolution)
                 for key, value in losses.items():
                     self.losses[key] += value
-        return (image / self.pixel_area).to(heights.device)
+        return self.source_blur.apply(image / self.pixel_area).to(heights.device)
 
     def vjp(self, heights: torch.Tensor, grad_image: torch.Tensor) -> torch.Tensor:
         """F'(d)^* grad_image (m, m), by autograd through each chunk's photons in turn."""
         self._check(heights)
         if tuple(grad_image.shape) != self.output_shape:
             raise ValueError(f"grad_image has shape {tuple(grad_image.shape)}, expected {self.output_shape}")
-        g = grad_image.detach().to(self.dtype) / self.pixel_area
+        g = self.source_blur.adjoint(grad_image.detach().to(self.dtype)) / self.pixel_area
         if self.native is not None:
             grad = self.native.vjp(heights.detach().double().cpu().numpy(), g.cpu())
             return torch.from_numpy(grad).to(dtype=heights.dtype, device=heights.device)

@@ -172,8 +172,7 @@ class NativeMeshTracer:
             top_max = thickness + float(d.max()) + 1e-9
         values = (half, thickness, spacing, zlo, zstart, zhi, slope_x, slope_y, top_max, op._lowest_element,
                   scene.receiver.z, settings.fresnel, op._to_pixels, scene.receiver.half_width,
-                  filter_radius_px(settings.min_footprint_px, settings.pixel_integration, op.emitter.source_blur_px),
-                  settings.max_pixel_radius)
+                  filter_radius_px(settings.min_footprint_px, settings.pixel_integration), settings.max_pixel_radius)
         # One type per field whatever the config gave (20 or 20.0): numba compiles a kernel per signature.
         return mk.MeshConstants._make(bool(v) if name == "fresnel" else float(v)
                                       for name, v in zip(mk.MeshConstants._fields, values))

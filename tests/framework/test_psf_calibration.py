@@ -14,7 +14,8 @@ import torch.nn.functional as F
 from framework.pipeline.calibration import JointCalibration
 from framework.pipeline.reconstruction import Reconstruction, run_reconstruction
 from operators.heightfield.operator import CausticOperator
-from operators.imaging import ImagingOperator, ScreenBlur
+from operators.gaussian_blur import ScreenBlur
+from operators.imaging import ImagingOperator
 from operators.stack import StackOperator
 from tests.experiments.conftest import SMALL, compose_reconstruct
 from tests.operators.conftest import bump, make_operator

@@ -11,9 +11,13 @@ compared with the CPU operator at a realistic photon count.
 
 from __future__ import annotations
 
+import dataclasses
+
 import pytest
 import torch
 
+from operators.heightfield.operator import CausticOperator
+from operators.scene import Light
 from tests.operators.conftest import make_operator
 from tests.operators.test_fused import smooth_random_heights
 from tests.python_subprocess import run_json_script
@@ -89,3 +93,18 @@ def test_cuda_target_check_names_the_fix():
             require_cuda_target()
     else:
         require_cuda_target()
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU")
+def test_cuda_operator_matches_the_cpu_operator_under_a_disc():
+    """An extended light's stretches of photons, each launched with its emission point as the light."""
+    cpu = make_operator(photons=1 << 20, resolution=128)
+    scene = dataclasses.replace(cpu.scene, light=Light(shape="disc", size=2.0, points=64))
+    cpu = CausticOperator(scene, cpu.settings)
+    gpu = CausticOperator(scene, dataclasses.replace(cpu.settings, device="cuda"))
+    heights = smooth_random_heights(m=64)
+    cpu_image, gpu_image = cpu.render(heights), gpu.render(heights.cuda())
+    assert torch.allclose(gpu_image.cpu(), cpu_image, rtol=1e-9, atol=1e-9 * float(cpu_image.max()))
+    g = torch.randn(cpu.output_shape, dtype=torch.float64, generator=torch.Generator().manual_seed(2))
+    cpu_grad, gpu_grad = cpu.vjp(heights, g), gpu.vjp(heights.cuda(), g.cuda())
+    assert torch.allclose(gpu_grad.cpu(), cpu_grad, rtol=1e-8, atol=1e-8 * float(cpu_grad.abs().max()))

@@ -9,7 +9,8 @@ import pytest
 import torch
 
 from operators.heightfield.operator import CausticOperator
-from operators.imaging import ImagingOperator, ScreenBlur
+from operators.gaussian_blur import ScreenBlur
+from operators.imaging import ImagingOperator
 from operators.supersample import SupersampledOperator, block_mean
 from tests.operators.conftest import bump, make_operator
 
