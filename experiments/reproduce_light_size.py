@@ -2,19 +2,19 @@
 two screens, reconstructed with ``calibration.params=[light_size]`` from a wrong start and with the
 true size told (docs/method.md, "The extended light").
 
-    python -m experiments.reproduce_light_size --sizes 20 50 --start 35 --screens 0.05 0.2
+    python -m experiments.reproduce_light_size scene=gaussian --sizes 20 50 --start 35 --screens 0.05 0.2
 
 The photos are exact caustics (operators/wavefront/extended.py: wavefront renders from points over
-the disc, none of the model's photons, footprints or emission points) on a 256-pixel receiver,
-averaged to the reconstruction's 128 pixels, with ``--delta`` relative Gaussian noise (seeded).
-Each fit is a ``data=stack`` run of two file shots; every other argument is a Hydra override of
-conf/reconstruct.yaml. Writes light_size.json and the runs into --work.
+the disc with exact pixel coverage, none of the model's photons, footprints or emission points) on
+the reconstruction's receiver, with ``--delta`` relative Gaussian noise (seeded).
+Each fit is a ``data=stack`` run of two file shots, from ``initial=auto``'s transport start (the
+configured height field gives the mask and the volume; it is the truth, so it is not offered as the
+design start); every other argument is a Hydra override of conf/reconstruct.yaml. Writes light_size.json and the runs into --work.
 """
 
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 from pathlib import Path
 from typing import Any
@@ -24,25 +24,21 @@ import torch
 
 from experiments.configs import reconstruct_config
 from experiments.input_errors import one_line_input_errors
-from framework.core.data import resample_image
 from framework.core.scene_config import build_heights, build_scene
 from framework.pipeline.reconstruction import run_reconstruction
 from operators.wavefront.extended import ExtendedLightReference
 
-PHOTO_RESOLUTION = 256  # receiver pixels of the exact photos (averaged to receiver.resolution)
-PHOTO_VERTICES = 1025   # wavefront aim points per side of every source point's render
+PHOTO_VERTICES = 1025  # wavefront aim points per side of every source point's render
 
 
-def photo(overrides: list[str], size_mm: float, screen: float, delta: float, seed: int, path: Path) -> None:
+def photo(overrides: list[str], size_mm: float, screen: float, delta: float, seed: int, path: Path,
+          vertices: int = PHOTO_VERTICES) -> None:
     """The exact caustic of the configured print under a disc of ``size_mm`` on a screen ``screen``
     below the glass, with noise, saved to ``path`` (.npy, the reconstruction's receiver)."""
     if path.is_file():
         return
     cfg = reconstruct_config([*overrides, "light.shape=disc", f"light.size={size_mm}mm", f"receiver.z={-screen}"])
-    scene = build_scene(cfg)
-    fine = dataclasses.replace(scene, receiver=dataclasses.replace(scene.receiver, resolution=PHOTO_RESOLUTION))
-    clean = resample_image(ExtendedLightReference(fine, vertices=PHOTO_VERTICES).render(build_heights(cfg)),
-                           scene.receiver.resolution)
+    clean = ExtendedLightReference(build_scene(cfg), vertices=vertices).render(build_heights(cfg))
     noise = torch.randn(clean.shape, generator=torch.Generator().manual_seed(seed), dtype=torch.float64)
     noisy = clean + noise * (delta * float(clean.norm()) / float(noise.norm()))
     np.save(path, noisy.numpy())
@@ -64,7 +60,9 @@ def _reconstruct(overrides: list[str], photos: list[Path], screens: list[float],
                  volume: float, calibrate: bool, run_dir: Path) -> None:
     shots = ", ".join(f"{{screen_distance: {s}, image: '{p}'}}" for s, p in zip(screens, photos))
     extra = ["calibration.params=[light_size]"] if calibrate else []
-    cfg = reconstruct_config([*overrides, "data=stack", f"data.shots=[{shots}]", "++data.common.source=file",
+    # The configured height field is the truth: the data must not offer it as the print's design start.
+    cfg = reconstruct_config([*overrides, "~initial.candidates.design", "data=stack", f"data.shots=[{shots}]",
+                              "++data.common.source=file",
                               f"data.common.delta={delta}", "++data.common.mask=design", f"++data.common.volume={volume!r}",
                               "++data.common.brightness=as_is", "light.shape=disc", f"light.size={size_mm}mm",
                               "tracking.experiment=light_size", "defects.enabled=off", *extra])
@@ -72,7 +70,7 @@ def _reconstruct(overrides: list[str], photos: list[Path], screens: list[float],
 
 
 def study(overrides: list[str], sizes: list[float], start: float, screens: list[float], delta: float,
-          work: Path) -> list[dict[str, Any]]:
+          work: Path, vertices: int = PHOTO_VERTICES) -> list[dict[str, Any]]:
     """Photos and fits for every disc size; returns one row per size."""
     work.mkdir(parents=True, exist_ok=True)
     cfg = reconstruct_config(overrides)
@@ -83,7 +81,7 @@ def study(overrides: list[str], sizes: list[float], start: float, screens: list[
     for size in sizes:
         photos = [work / f"disc_{size:g}mm_screen_{s:g}.npy" for s in screens]
         for i, (s, path) in enumerate(zip(screens, photos)):
-            photo(overrides, size, s, delta, int(cfg.get("seed", 0)) + 10 * i + int(size), path)
+            photo(overrides, size, s, delta, int(cfg.get("seed", 0)) + 10 * i + int(size), path, vertices)
         told = fit(overrides, photos, screens, size, delta, volume, False, work / f"told_{size:g}mm", heights, h)
         found = fit(overrides, photos, screens, start, delta, volume, True, work / f"calibrated_{size:g}mm", heights, h)
         row = {"size_mm": size, "start_mm": start, "found_mm": found["calibration_light_size_mm"],
@@ -91,7 +89,8 @@ def study(overrides: list[str], sizes: list[float], start: float, screens: list[
                "error_told": told["rel_error"], "error_calibrated": found["rel_error"],
                "iterations_told": told["iterations"], "iterations_calibrated": found["iterations"],
                "discrepancy_over_delta_told": told["rel_discrepancy"] / told["delta"],
-               "discrepancy_over_delta_calibrated": found["rel_discrepancy"] / found["delta"]}
+               "discrepancy_over_delta_calibrated": found["rel_discrepancy"] / found["delta"],
+               "start_told": told["start"], "start_calibrated": found["start"]}
         print(f"disc {size:g} mm: found {row['found_mm']:.2f} mm from {start:g} mm "
               f"({100 * (row['found_mm'] / size - 1):+.1f}%); error {row['error_calibrated']:.4f} against "
               f"{row['error_told']:.4f} told ({100 * (row['error_calibrated'] / row['error_told'] - 1):+.1f}%)",
@@ -103,7 +102,7 @@ def study(overrides: list[str], sizes: list[float], start: float, screens: list[
 
 @one_line_input_errors
 def _run(args: argparse.Namespace) -> None:
-    study(args.overrides, args.sizes, args.start, args.screens, args.delta, args.work.resolve())
+    study(args.overrides, args.sizes, args.start, args.screens, args.delta, args.work.resolve(), args.vertices)
     print(f"wrote light_size.json to {args.work}")
 
 
@@ -114,6 +113,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--start", type=float, default=35.0, help="the calibrated fit's starting diameter, mm")
     parser.add_argument("--screens", nargs="+", type=float, default=[0.05, 0.2], help="screen distances, scene units")
     parser.add_argument("--delta", type=float, default=0.05, help="relative noise of the photos")
+    parser.add_argument("--vertices", type=int, default=PHOTO_VERTICES,
+                        help="wavefront aim points per side of every source point's render of the photos")
     parser.add_argument("--work", type=Path, default=Path("outputs/light_size"))
     _run(parser.parse_args(argv))
 

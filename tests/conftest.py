@@ -40,6 +40,7 @@ NUMBA_KERNEL_TESTS = (
     "tests/experiments/test_bench.py",
     # the mesh-scene operator with its numba event kernels (its other tests trace with the C kernels)
     "-numba]",
+    "under_a_disc[numba]",  # tests/operators/test_extended_light.py: the numba kernels under a disc
 )
 # Files whose tests share a module-scoped fixture that takes seconds (renders, photos): one worker
 # runs each, so that the fixture is built once.

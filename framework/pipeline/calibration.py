@@ -91,6 +91,10 @@ CALIBRATION_PARAMS = ("gain", "screen_distance", "light_height", "light_x", "lig
 # Parameters that no ruler measures (the blur's width, the flash's size): a weak prior and steps of
 # at most a factor PSF_STEP.
 WIDTHS = (PSF, SIZE)
+# A run whose calibration moved the light's size by more than this share is solved again from its
+# start under the calibrated setup (framework/pipeline/reconstruction.py): the heights fitted
+# while the size was off absorbed part of its blur.
+REFIT_SHARE = 0.02
 # Central-difference step, relative to the value (of the light height for the light's x and y,
 # which may be 0).
 _FD_STEP = 1e-3
@@ -397,6 +401,17 @@ class JointCalibration(Callback):
         except ValueError:
             return False
         return all(v > 0.0 for p, v in values.items() if is_gain(p)) and values.get("screen_distance", 1.0) > 0.0
+
+    def needs_refit(self, before: Mapping[str, float]) -> bool:
+        """Whether the light's size moved by more than REFIT_SHARE from ``before`` (the values when
+        the heights' run began): heights fitted under a wrong size absorb part of its blur, and a
+        run from the start under the calibrated size ends nearer the truth."""
+        return SIZE in self.params and abs(self.values()[SIZE] / before[SIZE] - 1.0) > REFIT_SHARE
+
+    def describe_move(self, before: Mapping[str, float]) -> str:
+        """``light_size 35 -> 49.3 mm``: how the size moved from ``before``."""
+        mm = float(self.setup_of.scene.mm_per_unit)
+        return f"{SIZE} {before[SIZE] * mm:.4g} -> {self.values()[SIZE] * mm:.4g} mm"
 
     def never_updated(self) -> list[str]:
         """The calibrated parameters that no update has moved yet (the run met the noise level before

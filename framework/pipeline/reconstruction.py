@@ -49,6 +49,8 @@ from operators.scene import Scene
 
 CALIBRATION_STATE = "calibration.json"
 FIRST_FIT_CALIBRATION = "first_fit_calibration.json"  # a stack's first shot's gain, fitted before the stack
+# Refits at most: runs of a start again after one whose calibration moved what the heights absorb.
+MAX_REFITS = 2
 MLFLOW_RUN = "mlflow_run.json"  # the run's MLflow run id, so that a job resumed in its directory logs into it
 
 
@@ -289,18 +291,25 @@ def _run_starts(parts: Reconstruction, problem: Problem, request: StartRequest, 
                 checkpoint: Path | None, tracker: MlflowTracker, truth_error: GroundTruthError | None
                 ) -> tuple[list[PhaseOutcome], bool, int]:
     """Run the solver from each of the start's phases in turn (continuing an interrupted run's own
-    phase from ``checkpoint``) until one reaches the noise level. Returns the finished runs, whether
+    phase from ``checkpoint``) until one reaches the noise level; where that run's calibration
+    moved a parameter the heights absorb in part (``JointCalibration.needs_refit``), run its start
+    again under the calibrated setup, up to ``MAX_REFITS`` times. Returns the finished runs, whether
     there were several starts, and the MLflow steps used."""
-    phases = parts.start.phases()
-    finished, first = resumed_phases(output_dir, checkpoint)
+    candidates = parts.start.phases()
+    finished, first, refits = resumed_phases(output_dir, checkpoint)
+    phases = [*candidates, *((f"{candidates[i][0]}_refit", candidates[i][1]) for i in refits)]
     steps = sum(outcome.result.iterations for outcome in finished)
-    for index in range(first, len(phases)):
+    index = first - 1
+    while index + 1 < len(phases):
+        index += 1
         name, start = phases[index]
-        if len(phases) > 1 and getattr(start, "reads_design", False) and problem.data.design is None:
+        if len(candidates) > 1 and getattr(start, "reads_design", False) and problem.data.design is None:
             continue  # initial=auto's design candidate: these data have no design
         if len(phases) > 1:  # so that a resumed run knows which start its checkpoint belongs to
-            torch.save({"done": [outcome.saved() for outcome in finished], "phase": index}, output_dir / PHASES)
+            torch.save({"done": [outcome.saved() for outcome in finished], "phase": index, "refits": refits},
+                       output_dir / PHASES)
         resume_from = checkpoint if index == first else None
+        calibrated = None if parts.calibration is None else parts.calibration.values()
         try:
             outcome = _solve_from(parts, problem, name, start, request, resume_from, output_dir, tracker, steps,
                                   truth_error)
@@ -312,6 +321,14 @@ def _run_starts(parts: Reconstruction, problem: Problem, request: StartRequest, 
         finished.append(outcome)
         steps += outcome.result.iterations
         if outcome.result.accepted:
+            if calibrated is not None and len(refits) < MAX_REFITS and parts.calibration.needs_refit(calibrated):
+                of = index if index < len(candidates) else refits[index - len(candidates)]
+                refits.append(of)
+                phases.append((f"{candidates[of][0]}_refit", candidates[of][1]))
+                print(f"the calibration moved {parts.calibration.describe_move(calibrated)} while the heights "
+                      f"absorbed part of it; solving again from start {candidates[of][0]} under the calibrated "
+                      "setup", flush=True)
+                continue
             break
         if index + 1 < len(phases):
             print(f"start {name} ended short of the noise level ({outcome.result.stop_reason}); "
@@ -356,7 +373,10 @@ def _reconstruct(parts: Reconstruction, output_dir: Path, base_dir: Path, checkp
             compiling.wait()
         request = StartRequest(problem.for_start(), lambda: parts.design(base_dir), base_dir)
         finished, several, steps = _run_starts(parts, problem, request, output_dir, checkpoint, tracker, truth_error)
-        chosen = max(finished, key=lambda o: (o.result.accepted, -o.rel_discrepancy))
+        # The last run that reached the noise level (a refit's setup is the calibrated one), else the
+        # run that came closest.
+        accepted = [o for o in finished if o.result.accepted]
+        chosen = accepted[-1] if accepted else min(finished, key=lambda o: o.rel_discrepancy)
         result, d = chosen.result, chosen.d
         final = final_operator(parts, result)
         prediction = final.render(d)

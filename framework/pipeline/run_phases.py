@@ -1,5 +1,6 @@
-"""The runs from each start of one reconstruction (``initial=auto`` tries several): how each
-ended (:class:`PhaseOutcome`), and the record that lets an interrupted run resume in the start its
+"""The runs from each start of one reconstruction (``initial=auto`` tries several; a run whose
+calibration moved what the heights absorb runs its start again, a refit): how each ended
+(:class:`PhaseOutcome`), and the record that lets an interrupted run resume in the start its
 checkpoint belongs to (:data:`PHASES`, :func:`resumed_phases`).
 """
 
@@ -16,7 +17,7 @@ from framework.plugins.solvers import IterationRecord, RunResult
 
 __all__ = ["PHASES", "PhaseOutcome", "resumed_phases"]
 
-PHASES = "phases.pt"  # initial=auto: the finished starts of a run, and which one is under way
+PHASES = "phases.pt"  # the finished starts of a run, the refits added, and which one is under way
 
 
 @dataclass
@@ -79,11 +80,13 @@ class PhaseOutcome:
                    saved["history"], saved["seconds"], saved["start_seconds"], saved["start_metrics"], saved["errors"])
 
 
-def resumed_phases(output_dir: Path, checkpoint: Path | None) -> tuple[list[PhaseOutcome], int]:
-    """The starts an interrupted run in ``output_dir`` had finished, and the index of the one its
-    own checkpoint belongs to; ([], 0) for a fresh run or another run's checkpoint."""
+def resumed_phases(output_dir: Path, checkpoint: Path | None) -> tuple[list[PhaseOutcome], int, list[int]]:
+    """The starts an interrupted run in ``output_dir`` had finished, the index of the one its own
+    checkpoint belongs to, and the starts (indices) it had added refits of; ([], 0, []) for a fresh
+    run or another run's checkpoint."""
     record = output_dir / PHASES
     if checkpoint is None or checkpoint != output_dir / CHECKPOINT or not record.is_file():
-        return [], 0
+        return [], 0, []
     saved = torch.load(record, weights_only=True)
-    return [PhaseOutcome.restored(x) for x in saved["done"]], int(saved["phase"])
+    return ([PhaseOutcome.restored(x) for x in saved["done"]], int(saved["phase"]),
+            [int(i) for i in saved.get("refits", [])])

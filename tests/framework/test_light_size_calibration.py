@@ -82,3 +82,16 @@ def test_a_point_light_s_size_is_refused_in_one_line() -> None:
     with pytest.raises(ValueError, match=r"^calibration.params has light_size but light.shape=point") as error:
         JointCalibration(op, ["light_size"])
     assert "\n" not in str(error.value)
+
+
+def test_a_size_that_moved_asks_for_a_refit() -> None:
+    stack = _stack(1.4)
+    calibration = JointCalibration(stack, ["gain", "light_size"], scene=_scene(1.4))
+    before = calibration.values()
+    calibration.setup_of.apply({"light_size": 1.42})
+    assert not calibration.needs_refit(before)  # 1.4%: within REFIT_SHARE
+    calibration.setup_of.apply({"light_size": 1.96})
+    assert calibration.needs_refit(before)
+    assert calibration.describe_move(before) == "light_size 35 -> 49 mm"
+    widths = JointCalibration(_stack(1.4), ["gain"], scene=_scene(1.4))
+    assert not widths.needs_refit(widths.values())  # the size is not calibrated
