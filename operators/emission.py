@@ -20,8 +20,8 @@ for a point light). ``footprint_radius`` follows from ``footprint_px``:
   "smoothing", independent of the photon count so that renders with different counts blur alike).
 
 An extended light (operators/scene.py, ``light.shape: disc | square``) emits each channel's
-photons from its K emission points (operators/light_source.py, the ``r2`` pattern, shifted by the
-seed) in K consecutive segments of the same aim sequence: photon j of a channel leaves source
+photons from its K emission points (:func:`source_points`: the R2 sequence shifted by the seed,
+put onto the source by operators/light_source.py) in K consecutive segments of the same aim sequence: photon j of a channel leaves source
 point floor(j K / N_c). Every segment covers the square (a stretch of a Kronecker sequence is
 itself evenly spread); each photon carries a point light's photon's flux (cell A / N_c) and, with
 ``footprint_px: cell``, the footprint of its segment's cell (area K A / N_c: each segment's
@@ -41,12 +41,25 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from operators.light_source import moment_matched, patch_variance, receiver_spread, source_offsets
-from operators.scene import Scene
+from operators.light_source import moment_matched, onto_source, patch_variance, receiver_spread
+from operators.scene import Light, Scene
 
 PLASTIC_NUMBER = 1.324717957244746
 CELL_FOOTPRINT = "cell"  # footprint_px setting: footprints the size of the photon's emission cell
 R2_STEP = (1.0 / PLASTIC_NUMBER, 1.0 / PLASTIC_NUMBER ** 2)
+
+
+def source_points(light: Light, count: int, shift: tuple[float, float]) -> np.ndarray:
+    """The photon operators' ``count`` emission points over an extended ``light``: the R2 sequence
+    with the Cranley-Patterson ``shift`` (in [0, 1)^2) put onto the source, centred and scaled so
+    that with the patches' blur (operators/light_source.py, ``patch_variance``) they keep the
+    source's mean and second moment; offsets (count, 2) float64 from its centre. A point light:
+    one point at 0."""
+    if not light.extended:
+        return np.zeros((1, 2))
+    k = np.arange(count, dtype=np.float64)
+    u, v = np.mod(shift[0] + k * R2_STEP[0], 1.0), np.mod(shift[1] + k * R2_STEP[1], 1.0)
+    return moment_matched(onto_source(light, u, v), light, patch_variance(light, count))
 
 
 def check_footprint(value: object) -> float | str:
@@ -95,9 +108,8 @@ class LightEmitter:
                              "lower light.points or raise photons")
         # Emission points over the source (K, 2), offsets from the light's centre (one at 0 for a
         # point), and the blur of the patch each stands for (module docstring).
-        offsets = source_offsets(scene.light, self.sources, "r2", tuple(rng.random(2)))
+        self.offsets = source_points(scene.light, self.sources, tuple(rng.random(2)))
         residual = patch_variance(scene.light, self.sources) if scene.light.extended else 0.0
-        self.offsets = moment_matched(offsets, scene.light, residual) if scene.light.extended else offsets
         spread = receiver_spread(scene.light, scene.substrate.thickness, float(np.mean(scene.indices)), -scene.receiver.z)
         # The patches' blur on the receiver: standard deviation per axis, scene units.
         self.source_blur_sigma = math.sqrt(residual) * spread

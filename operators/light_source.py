@@ -4,12 +4,13 @@ A flash behind a diffuser is a source of uniform brightness over a disc or a squ
 glass. Every point of it casts the point light's caustic; the extended light's caustic is their
 mean. Two point sets stand for the source:
 
-- ``r2``: the photon operators' (operators/emission.py): the R2 low-discrepancy sequence (the
-  aim points' generator) with a Cranley-Patterson shift drawn from the seed, mapped onto the
-  source by an area-preserving map (a disc: radius R sqrt(u), angle 2 pi v);
-- ``spiral``: the exact references' (operators/wavefront/extended.py), independent of the
-  model's: Vogel's sunflower spiral over a disc (radius R sqrt((k + 1/2) / K), angle k times the
-  golden angle), the centres of a q x q grid over a square (K = q^2).
+- the photon operators' (operators/emission.py, ``source_points``): the R2 low-discrepancy
+  sequence (the aim points' generator) with a Cranley-Patterson shift drawn from the seed, put
+  onto the source by :func:`onto_source`, an area-preserving map (a disc: radius R sqrt(u),
+  angle 2 pi v);
+- the exact references' (operators/wavefront/extended.py), independent of the model's,
+  :func:`spiral_points`: Vogel's sunflower spiral over a disc (radius R sqrt((k + 1/2) / K),
+  angle k times the golden angle), the centres of a q x q grid over a square (K = q^2).
 
 Both give K points of equal weight, offsets (K, 2) in x, y from the light's centre, scene units.
 """
@@ -22,36 +23,30 @@ import numpy as np
 
 from operators.scene import Light
 
-__all__ = ["PATTERNS", "source_offsets", "receiver_spread", "source_variance", "patch_variance", "moment_matched"]
+__all__ = ["onto_source", "spiral_points", "receiver_spread", "source_variance", "patch_variance", "moment_matched"]
 
-PATTERNS = ("r2", "spiral")
-_R2_STEP = (1.0 / 1.324717957244746, 1.0 / 1.324717957244746 ** 2)  # 1/g, 1/g^2, g the plastic number
 _GOLDEN_ANGLE = math.pi * (3.0 - math.sqrt(5.0))
 
 
-def source_offsets(light: Light, count: int, pattern: str = "r2", shift: tuple[float, float] = (0.5, 0.5)
-                   ) -> np.ndarray:
-    """``count`` emission points over ``light``'s disc or square: offsets (count, 2) float64 from
-    its centre (a point light: one point at 0). ``shift``: the r2 pattern's Cranley-Patterson shift
-    in [0, 1)^2; the spiral pattern takes none (a square's grid has ceil(sqrt(count))^2 points)."""
-    if pattern not in PATTERNS:
-        raise ValueError(f"source pattern {pattern!r} must be one of {', '.join(PATTERNS)}")
-    if not light.extended:
-        return np.zeros((1, 2))
-    k = np.arange(count, dtype=np.float64)
-    if pattern == "r2":
-        u = np.mod(shift[0] + k * _R2_STEP[0], 1.0)
-        v = np.mod(shift[1] + k * _R2_STEP[1], 1.0)
-        if light.shape == "square":
-            return np.stack([(u - 0.5) * light.size, (v - 0.5) * light.size], axis=1)
-        radius, angle = 0.5 * light.size * np.sqrt(u), 2.0 * math.pi * v
-    elif light.shape == "square":
+def onto_source(light: Light, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Points (u, v) of the unit square (N,) each, put onto ``light``'s disc or square by an
+    area-preserving map: offsets (N, 2) float64 from its centre."""
+    if light.shape == "square":
+        return np.stack([(u - 0.5) * light.size, (v - 0.5) * light.size], axis=1)
+    radius, angle = 0.5 * light.size * np.sqrt(u), 2.0 * math.pi * v
+    return np.stack([radius * np.cos(angle), radius * np.sin(angle)], axis=1)
+
+
+def spiral_points(light: Light, count: int) -> np.ndarray:
+    """About ``count`` points over ``light``'s disc (Vogel's spiral, exactly ``count``) or square
+    (the centres of a q x q grid, q = ceil(sqrt(count))): offsets (K, 2) float64 from its centre."""
+    if light.shape == "square":
         side = math.ceil(math.sqrt(count))
         centres = ((np.arange(side) + 0.5) / side - 0.5) * light.size
         x, y = np.meshgrid(centres, centres, indexing="xy")
         return np.stack([x.ravel(), y.ravel()], axis=1)
-    else:
-        radius, angle = 0.5 * light.size * np.sqrt((k + 0.5) / count), k * _GOLDEN_ANGLE
+    k = np.arange(count, dtype=np.float64)
+    radius, angle = 0.5 * light.size * np.sqrt((k + 0.5) / count), k * _GOLDEN_ANGLE
     return np.stack([radius * np.cos(angle), radius * np.sin(angle)], axis=1)
 
 

@@ -36,7 +36,7 @@ class Light:
     behind a diffuser, docs/method.md, "The extended light"): a ``disc`` of diameter ``size`` or a
     ``square`` of side ``size`` (scene units) in the plane z = position z, of uniform brightness.
     The photon operators emit each photon from one of ``points`` emission points spread evenly
-    over the source (:func:`operators.emission.source_offsets`).
+    over the source (:func:`operators.emission.source_points`).
     """
 
     position: tuple[float, float, float] = (0.0, 0.0, 10.0)

@@ -134,6 +134,9 @@ def prepare_design(cfg: Mapping[str, Any], base_dir: Path | None = None) -> Desi
     target = load_target(spec.get("image", "grace_hopper"), resolution, base_dir, spec.get("channel", "luminance"),
                          spec.get("text", "SfC"))
     scene = build_scene(cfg, mm)
+    if scene.light.extended:
+        raise ValueError(f"light.shape={scene.light.shape}: sfc-design designs for a point light (the light's "
+                         "position); give light.shape=point (a flash's size blurs what the design casts)")
     if scene.receiver.resolution != resolution:
         raise ValueError(f"receiver.resolution={scene.receiver.resolution} differs from target.resolution={resolution}; "
                          "set only target.resolution")

@@ -2,8 +2,8 @@
 
 Each point of a disc or square source (operators/scene.py, ``light.shape``) casts the caustic of a
 point light there; the extended light's is their mean. :class:`ExtendedLightReference` renders
-it from K points of the ``spiral`` pattern (operators/light_source.py), independent of the
-photon operators' ``r2`` emission points, each by the blur-free wavefront renderer
+it from K points of Vogel's spiral (operators/light_source.py, ``spiral_points``), independent of
+the photon operators' R2 emission points, each by the blur-free wavefront renderer
 (operators/wavefront/renderer.py) with the power split evenly. K is chosen per render so that
 neighbouring points' caustics lie at most a quarter pixel apart on the receiver: the caustic moves
 by ``receiver_spread`` per unit the light moves, taken for the thickest glass of the heights
@@ -17,7 +17,7 @@ import math
 
 import torch
 
-from operators.light_source import receiver_spread, source_offsets
+from operators.light_source import receiver_spread, spiral_points
 from operators.scene import Scene
 from operators.wavefront.renderer import WavefrontRenderer
 
@@ -63,7 +63,7 @@ class ExtendedLightReference:
     def render(self, heights: torch.Tensor, progress: bool = False) -> torch.Tensor:
         """Irradiance (c, n, n) float64 of the extended light through heights (m, m)."""
         count = self.points_for(float(heights.max()))
-        offsets = source_offsets(self.scene.light, count, "spiral")
+        offsets = spiral_points(self.scene.light, count)
         share = self.scene.light.power / len(offsets)
         image = None
         for dx, dy in offsets:

@@ -253,3 +253,10 @@ def test_a_negative_count_of_adam_steps_or_ssim_weight_is_refused_by_name():
         DesignLBFGS.from_config(adam_steps=-1)
     with pytest.raises(ValueError, match=r"solver.ssim_weight=-0.1 must be a number > 0"):
         DesignLBFGS.from_config(loss="l2_ssim", ssim_weight=-0.1)
+
+
+def test_an_extended_light_is_refused_in_one_line(tmp_path):
+    cfg = compose_design([*SMALL, "light.shape=disc", "light.size=50mm"], tmp_path)
+    with pytest.raises(ValueError, match=r"^light.shape=disc: sfc-design designs for a point light") as error:
+        prepare_design(cfg)
+    assert "\n" not in str(error.value)
