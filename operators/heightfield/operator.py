@@ -20,10 +20,8 @@ for a gradient of the same heights, which then skips the hit search.
 
 from __future__ import annotations
 
-
 import math
-from dataclasses import dataclass
-from dataclasses import replace as dataclasses_replace
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numba as nb
@@ -192,7 +190,7 @@ class CausticOperator(PhotonOperator):
         self.dtype = DTYPES[self.settings.dtype]
         self.device = torch.device(self.settings.device)
         self.emitter = LightEmitter(scene, self.settings.photons, self.settings.seed,
-                                         self.settings.footprint_px, self.dtype, self.device)
+                                    self.settings.footprint_px, self.dtype, self.device)
         self.glass_index = torch.tensor(scene.indices, dtype=self.dtype, device=self.device)
         self.fused = FusedTracer(scene, self.emitter,
                                  filter_radius_px(self.settings.min_footprint_px, self.settings.pixel_integration),
@@ -321,7 +319,7 @@ class CausticOperator(PhotonOperator):
         """``photons`` photons of this light where they meet the flat print's top plane z = h
         (straight from the light: the emitter aims at that plane; an extended light's from its
         centre, where a start reads the light path)."""
-        point = dataclasses_replace(self.scene, light=self.scene.light.at((0.0, 0.0)))
+        point = replace(self.scene, light=self.scene.light.at((0.0, 0.0)))
         emitter = LightEmitter(point, photons, self.settings.seed, self.settings.footprint_px, torch.float64)
         batch = emitter.batch(0, emitter.total)
         light = np.asarray(self.scene.light.position, dtype=np.float64)

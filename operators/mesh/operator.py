@@ -371,8 +371,8 @@ class MeshSceneOperator(PhotonOperator):
         direction they arrive along, flux. Photons that miss the top are left out (an extended
         light's from its centre, where a start reads the light path)."""
         aimed = self._aimed_scene()
-        emitter = LightEmitter(dataclasses.replace(aimed, light=aimed.light.at((0.0, 0.0))), photons, self.settings.seed, self.settings.footprint_px,
-                                    torch.float64)
+        point = dataclasses.replace(aimed, light=aimed.light.at((0.0, 0.0)))
+        emitter = LightEmitter(point, photons, self.settings.seed, self.settings.footprint_px, torch.float64)
         batch = emitter.batch(0, emitter.total)
         n = batch.direction.shape[1]
         ray = Rays(position=batch.origin.double().unsqueeze(-1).expand(3, n).clone(),

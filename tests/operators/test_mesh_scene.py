@@ -55,6 +55,17 @@ def test_the_plain_scene_is_the_height_field_operator_with_its_side_walls_light(
     assert mesh.losses["missed_receiver"] > 0.005 * emitted  # measured 0.95%: the slab's shadow is wider than the receiver
 
 
+def test_the_plain_scene_under_a_disc_is_the_height_field_operator_s_and_elements_refuse_it():
+    """An extended light: the same emission points, stretches of photons and patches' blur."""
+    scene = Scene(light=Light(shape="disc", size=2.0, points=16), receiver=Receiver(z=-0.2, resolution=64))
+    heights = torch.from_numpy(make_shape("print_lines", 64))
+    plain = CausticOperator(scene, OperatorSettings(photons=200_000, dtype="float64")).render(heights)
+    image = MeshSceneOperator(scene, [], MeshSceneSettings(photons=200_000, dtype="float64")).render(heights)
+    assert float((image - plain).norm() / plain.norm()) < 1e-9
+    with pytest.raises(ValueError, match=r"^light.shape=disc is traced by operator=mesh_scene without optical "):
+        MeshSceneOperator(scene, [make_element(lens_spec(1.0, 0.5, 0.1, 2.0))], MeshSceneSettings(photons=1000))
+
+
 def test_a_plano_convex_lens_focuses_at_its_thick_lens_focus():
     n = refractive_indices(FUSED_SILICA, [0.633])[0]
     focal, thickness, light_z = 1.5, 0.15, 1000.0
