@@ -34,7 +34,9 @@ class ReconstructionData:
     data of a print equal to its configuration, whose ground truth is then no design but the answer);
     shots: a stack's data shot by shot (framework/plugins/data/stack.py; empty for one image), whose
     target above stacks theirs along the channel axis; start_shot: the shot a start reads;
-    first_fit_shot: the shot a run from flat glass fits alone first (None: none).
+    first_fit_shot: the shot a run from flat glass fits alone first (None: none); line_search:
+    that shot is fitted alone from any start and the stack's lines searched across basins before
+    the stack is fitted (framework/pipeline/feature_search.py).
     """
 
     target: torch.Tensor
@@ -51,6 +53,7 @@ class ReconstructionData:
     shots: tuple[ReconstructionData, ...] = ()
     start_shot: int = 0
     first_fit_shot: int | None = None
+    line_search: bool = False
 
 
 def weighted_norm_sq(image: torch.Tensor, weights: torch.Tensor | None) -> float:

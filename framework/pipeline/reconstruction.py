@@ -33,6 +33,7 @@ from framework.pipeline.calibration import JointCalibration
 from framework.pipeline.callbacks import Checkpointer, GroundTruthError, MetricsHistory, ProgressBar
 from framework.pipeline.checkpoint import resume as resume_solver
 from framework.pipeline.defect_stage import DefectSettings, report_defects
+from framework.pipeline.feature_search import FeatureSearch
 from framework.pipeline.first_fit import fit_first_shot
 from framework.pipeline.photon_budget import PhotonBudget, with_photons
 from framework.pipeline.report_figures import save_reconstruction_figures
@@ -48,6 +49,7 @@ from framework.plugins.data.sources import resolve_path
 from operators.scene import Scene
 
 CALIBRATION_STATE = "calibration.json"
+LINE_SEARCH_PHOTONS = 1 << 18  # per shot and hypothesis of a stack's line search (framework/pipeline/feature_search.py)
 FIRST_FIT_CALIBRATION = "first_fit_calibration.json"  # a stack's first shot's gain, fitted before the stack
 # Refits at most: runs of a start again after one whose calibration moved what the heights absorb.
 MAX_REFITS = 2
@@ -122,7 +124,8 @@ def _solve_from(parts: Reconstruction, problem: Problem, name: str, start: Start
     else:
         d0 = torch.zeros(parts.grid.shape, dtype=operator.dtype)
     shaped = checkpoint is None and computed.shaped
-    if checkpoint is None and not shaped and problem.data.first_fit_shot is not None:
+    searched = checkpoint is None and problem.data.line_search
+    if checkpoint is None and (searched or not shaped) and problem.data.first_fit_shot is not None:
         def extra(shot: Problem) -> list[Callback]:
             gain = None if parts.calibration is None else parts.calibration.gain_of_shot(problem.data.first_fit_shot)
             if gain is not None:
@@ -133,6 +136,11 @@ def _solve_from(parts: Reconstruction, problem: Problem, name: str, start: Start
                                    extra, parts.max_iter, parts.settings.method)
         start_metrics.update({f"{name}_{k}": v for k, v in first.items()})
         shaped = True
+    if searched:
+        found, searched_metrics = FeatureSearch(problem, LINE_SEARCH_PHOTONS, parts.settings.seed)(
+            d0.detach().cpu().double().numpy())
+        d0 = torch.from_numpy(found).to(operator.dtype)
+        start_metrics.update({f"{name}_{k}": v for k, v in searched_metrics.items()})
     start_seconds = time.perf_counter() - began
     solver = parts.make_solver(problem, d0)
     if shaped:

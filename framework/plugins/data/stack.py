@@ -37,7 +37,7 @@ __all__ = ["StackData", "noise_weights", "stacked_data"]
 SHOT_SEED_STRIDE = 100_000  # shot i's reference renders and noise draw from seed + i * stride
 
 def stacked_data(shots: Sequence[ReconstructionData], weights: Sequence[float], start_shot: int,
-                 first_fit_shot: int | None = None) -> ReconstructionData:
+                 first_fit_shot: int | None = None, line_search: bool = False) -> ReconstructionData:
     """The data of a stack from its shots' data: targets (and clean images) scaled by sqrt(w_i)
     and stacked along the channel axis, pixel weights stacked, the noise level
     delta = sqrt(sum w_i delta_i^2 ||b_i||^2 / sum w_i ||b_i||^2), the print's mask and volume,
@@ -65,7 +65,7 @@ def stacked_data(shots: Sequence[ReconstructionData], weights: Sequence[float], 
         target=torch.cat([s.target * k for s, k in zip(shots, scales)]), mask=first.mask, volume=first.volume,
         delta=delta, weights=pixel_weights, ground_truth=truth, clean=clean, intrinsic_noise=intrinsic,
         left_out=left_out, source="; ".join(sources) if sources else None, shots=tuple(shots), start_shot=start_shot,
-        first_fit_shot=first_fit_shot)
+        first_fit_shot=first_fit_shot, line_search=line_search)
 
 
 def noise_weights(shots: Sequence[ReconstructionData], weights: Sequence[float],
@@ -96,7 +96,8 @@ class StackData:
             ``receiver_half_width``, ``gain``, ``weight``) and that source's own keys.
         common: Keys given to every shot that does not set them (e.g. ``{delta: 0.05}``).
         start_shot: The shot a start reads (the transport start inverts one caustic): its index, or
-            ``farthest`` (the shot with the farthest screen, whose caustic is the strongest).
+            ``farthest`` (the shot with the farthest screen, whose caustic is the strongest) or
+            ``nearest`` (the nearest screen's, whose light has crossed least).
         weighting: ``equal``: each shot's misfit counts with its ``weight`` (the maximum-likelihood
             weighting for shots of equal noise); ``distance``: times (s_near / s_i)^2, s_i the
             shot's screen distance and s_near the nearest one's. A screen k times farther
@@ -106,10 +107,13 @@ class StackData:
             maximum-likelihood weighting for shots whose noise is a share delta_i of their norm:
             each shot's relative misfit counts alike, however bright or peaked its caustic.
         first_fit: ``nearest``: a run from flat glass fits the nearest shot alone first
-            (framework/pipeline/first_fit.py); ``none``: the whole stack from the start.
+            (framework/pipeline/first_fit.py); ``lines``: the nearest shot is fitted alone from
+            any start, then every line of that fit is searched across basins by the misfit of
+            every shot (framework/pipeline/feature_search.py); ``none``: the whole stack from the
+            start.
     """
 
-    FIRST_FITS = ("nearest", "none")
+    FIRST_FITS = ("nearest", "lines", "none")
 
     WEIGHTINGS = ("equal", "distance", "noise")
 
@@ -125,16 +129,16 @@ class StackData:
         if weighting not in self.WEIGHTINGS:
             raise ValueError(f"data.weighting={weighting!r}; use {', '.join(self.WEIGHTINGS)}")
         if first_fit not in self.FIRST_FITS:
-            raise ValueError(f"data.first_fit={first_fit!r}; use {' or '.join(self.FIRST_FITS)}")
+            raise ValueError(f"data.first_fit={first_fit!r}; use one of {', '.join(self.FIRST_FITS)}")
         self.weighting, self.first_fit = weighting, first_fit
         if not isinstance(shots, (list, tuple)) or not shots:
             raise ValueError(f"data.shots={shots!r}: a stack needs a list of one or more shots, e.g. "
                              "data.shots='[{screen_distance: 0.05}, {screen_distance: 0.2}]'")
         if common is not None and not isinstance(common, Mapping):
             raise ValueError(f"data.common={common!r} must be a mapping of keys every shot gets, e.g. {{delta: 0.05}}")
-        if not (start_shot == "farthest" or (isinstance(start_shot, int) and not isinstance(start_shot, bool)
+        if not (start_shot in ("farthest", "nearest") or (isinstance(start_shot, int) and not isinstance(start_shot, bool)
                                              and 0 <= start_shot < len(shots))):
-            raise ValueError(f"data.start_shot={start_shot!r} must be 'farthest' or a shot index in [0, {len(shots)})")
+            raise ValueError(f"data.start_shot={start_shot!r} must be 'farthest', 'nearest' or a shot index in [0, {len(shots)})")
         self.specs: list[dict[str, Any]] = []
         self.sources: list[Any] = []
         for i, spec in enumerate(shots):
@@ -205,8 +209,10 @@ class StackData:
             request.operator.reweight(noise_weights(shots, request.operator.configured_weights, distances))
         weights = request.operator.weights
         start = self.start_shot
+        nearest = min(range(len(distances)), key=lambda i: distances[i])
         if start == "farthest":
             start = max(range(len(distances)), key=lambda i: distances[i])
-        nearest = min(range(len(distances)), key=lambda i: distances[i])
-        first = nearest if self.first_fit == "nearest" and len(shots) > 1 else None
-        return stacked_data(shots, weights, int(start), first)
+        elif start == "nearest":
+            start = nearest
+        first = nearest if self.first_fit != "none" and len(shots) > 1 else None
+        return stacked_data(shots, weights, int(start), first, line_search=first is not None and self.first_fit == "lines")
