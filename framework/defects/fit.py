@@ -44,12 +44,14 @@ PROBES = {"modulation": 0.3, "width": 0.3}  # the amount whose image change is s
 
 
 class Misfit(Protocol):
-    """The data term of heights h (m, m): ``misfit(h)`` = ||F(h) - b||_W^2 and ``residual(h)`` =
-    sqrt(w) (F(h) - b), the image it sums."""
+    """The data term of heights h (m, m): ``misfit(h)`` = ||F(h) - b||_W^2, ``residual(h)`` =
+    sqrt(w) (F(h) - b), the image it sums, and ``gradient(h)`` (m, m), its gradient in h."""
 
     def __call__(self, heights: torch.Tensor) -> float: ...
 
     def residual(self, heights: torch.Tensor) -> torch.Tensor: ...
+
+    def gradient(self, heights: torch.Tensor) -> torch.Tensor: ...
 
 
 @dataclass(frozen=True)

@@ -33,6 +33,7 @@ import torch
 from scipy import ndimage
 
 from framework.defects.fit import FEATURE_MM, Defect, Fit, Misfit, chance_of, fit_candidate, refit
+from framework.defects.matched_filter import photo_candidates
 from framework.defects.models import Frame
 from framework.defects.regions import Candidate, candidate_regions
 
@@ -170,14 +171,20 @@ def _joined(fits: list[Fit], design: torch.Tensor, at_explained: float, misfit: 
 
 
 def find_defects(d: torch.Tensor, at_d: float, design: torch.Tensor, mask: np.ndarray, z_map: np.ndarray,
-                 misfit: Misfit, noise: float, search: Search) -> tuple[list[Defect], int]:
-    """The defects that the photo needs, most evident first, and the number of fits tried.
+                 misfit: Misfit, noise: float, search: Search, column_norms: np.ndarray | None = None
+                 ) -> tuple[list[Defect], int]:
+    """The defects that the photo needs, most evident first, and the number of fits tried. When no
+    place where the reconstruction leaves the design is left, and ``column_norms`` are given, the
+    photo's own candidates (framework/defects/matched_filter.py) are fitted next.
 
     Args:
         d: The reconstruction (m, m), scene units. at_d: its misfit. design: c (m, m), scene units.
         mask: bool (m, m), the samples the fit could change. z_map: each sample's uncertainty (m, m),
             scene units, > 0 (the deviation's significance is |e| / z_map).
-        misfit: ||F(h) - b||_W^2 of heights h (m, m). noise: pixel noise standard deviation s.
+        misfit: ||F(h) - b||_W^2 of heights h (m, m) (and its gradient, read with
+            ``column_norms``). noise: pixel noise standard deviation s.
+        column_norms: ||w J_j|| per sample (m, m) (framework/defects/information.py), or None: no
+            candidates from the photo.
     """
     reach = REACH_MM / search.cell_mm
     explained, at_explained = design, misfit(design)
@@ -192,6 +199,10 @@ def find_defects(d: torch.Tensor, at_d: float, design: torch.Tensor, mask: np.nd
                                     search.cluster_mm)
         candidate = _screened(d, explained, [region.near(reach) for region in regions], misfit, at_d, noise,
                               0.5 * search.min_evidence)
+        if candidate is None and column_norms is not None:  # what the reconstruction does not show
+            found = photo_candidates(misfit.gradient(explained).double().cpu().numpy(), column_norms, mask & ~closed,
+                                     noise, 0.5 * search.min_evidence, search.cell_mm, search.cluster_mm)
+            candidate = found[0] if found else None
         if candidate is None:
             break
         tried += 1

@@ -102,12 +102,12 @@ class DefectReport:
 
 
 class _Misfit:
-    """||F(d) - b||_W^2 and the weighted residual sqrt(w) (F(d) - b) through a renderer of
-    ``photons`` (common random numbers: one seed)."""
+    """||F(d) - b||_W^2, the weighted residual sqrt(w) (F(d) - b) and the gradient through a
+    renderer of ``photons`` (common random numbers: one seed)."""
 
     def __init__(self, problem: Problem, photons: int, seed: int) -> None:
-        operator = problem.operator
-        self.render = operator.variant(photons, seed, operator.output_shape[-1]).render
+        self.operator = problem.operator.variant(photons, seed, problem.operator.output_shape[-1])
+        self.render = self.operator.render
         self.target = problem.data.target.double()
         self.root_weights = None if problem.data.weights is None else problem.data.weights.double().sqrt()
 
@@ -117,6 +117,12 @@ class _Misfit:
 
     def __call__(self, d: torch.Tensor) -> float:
         return float((self.residual(d) ** 2).sum())
+
+    def gradient(self, d: torch.Tensor) -> torch.Tensor:
+        """J^T (2 w (F(d) - b)) (m, m): one adjoint pass."""
+        r = self.residual(d)
+        image = 2.0 * (r if self.root_weights is None else self.root_weights * r)
+        return self.operator.vjp(d, image.to(self.operator.dtype))
 
 
 def evidence_needed(misfit_d: float, noise: float, pixels: int, settings: DefectSettings) -> float:
@@ -153,7 +159,7 @@ def report_defects(problem: Problem, d: torch.Tensor, settings: DefectSettings, 
     needed = evidence_needed(at_d, noise, pixels_used(data.target, data.weights), settings)
     search = Search(settings.z_min, settings.grow, settings.cluster_mm, needed, settings.max_candidates,
                     settings.evaluations, cell_mm, grid.cell_area, mm_per_unit)
-    found, tried = find_defects(d, at_d, design, mask, z_map, misfit, noise, search)
+    found, tried = find_defects(d, at_d, design, mask, z_map, misfit, noise, search, norms.double().cpu().numpy())
     defects = [defect for defect in found if not settings.within_tolerance(defect)]
     within = len(found) - len(defects)
     report = DefectReport(defects, deviation * mm_per_unit, sigma.double().cpu().numpy() * mm_per_unit, tried, needed,

@@ -8,8 +8,8 @@ there stays in it. The search takes the heights d (m, m) of such a fit, finds it
 features (:func:`line_features`) and tries, one feature after the other, other cross-sections of
 the same volume: each line's heights collapsed, slice by slice along its axis, onto a Gaussian of
 width s centred at an offset along its normal (:func:`collapsed`). Each hypothesis is rendered
-into every shot and kept where it lowers the stack's misfit. Widths and offsets are searched in
-turn (width at the fit's centre, then the offset at the best width, then the width again).
+into every shot and kept where it lowers the stack's misfit: every width and offset of a grid
+together, then the best one's neighbours at half a cell and 15% of width.
 
 Renders use the operator's cheap end (``photons`` per shot, the run's seed: every hypothesis sees
 the same photons, so differences between them are not photon noise).
@@ -39,6 +39,8 @@ MIN_SHARE = 0.1  # a part of one direction split off a joint feature keeps at le
 WIDTH_FACTORS = (1.0, 0.7, 0.5, 0.35, 0.25)  # of the feature's present width
 OFFSETS_CELLS = (-4, -3, -2, -1, 0, 1, 2, 3, 4)  # along the normal, in height cells
 MIN_WIDTH_CELLS = 0.6  # no narrower cross-section than this many cells (standard deviation)
+CENTRE_SMOOTHING = 2.0  # slices: the standard deviation of the smoothing of the slices' centres
+REFINE_WIDTH = 1.15  # the refinement's width steps (factor) around the grid's best
 
 
 @dataclass(frozen=True)
@@ -128,7 +130,7 @@ def line_features(d: np.ndarray) -> list[LineFeature]:
         if values[1] < ELONGATION * max(values[0], 1e-12):
             continue
         width = math.sqrt(max(values[0], 1e-12))
-        reach = ndimage.binary_dilation(cells, iterations=int(math.ceil(3.0 * width)) + 2)
+        reach = ndimage.binary_dilation(cells, iterations=int(math.ceil(3.0 * width)) + max(OFFSETS_CELLS) + 2)
         features.append(LineFeature(cells, reach & (owner == label), centre, vectors[:, 1], vectors[:, 0], width))
     return sorted(features, key=lambda f: -int(f.cells.sum()))
 
@@ -136,8 +138,9 @@ def line_features(d: np.ndarray) -> list[LineFeature]:
 def collapsed(d: np.ndarray, feature: LineFeature, width: float, offset: float) -> np.ndarray:
     """``d`` with the feature's region remade: the heights of each one-cell slice along its axis
     gathered onto a Gaussian cross-section of standard deviation ``width`` (cells) centred
-    ``offset`` cells along the normal from the slice's own centre; every slice keeps its volume,
-    the rest of ``d`` is unchanged."""
+    ``offset`` cells along the normal from the slice's own centre (the slices' height-weighted
+    centres, smoothed over :data:`CENTRE_SMOOTHING` slices); every slice keeps its volume, the
+    rest of ``d`` is unchanged."""
     rows, cols = np.nonzero(feature.region)
     dx, dy = cols - feature.centre[0], rows - feature.centre[1]
     along = dx * feature.axis[0] + dy * feature.axis[1]
@@ -146,7 +149,8 @@ def collapsed(d: np.ndarray, feature: LineFeature, width: float, offset: float) 
     slices -= slices.min()
     values = d[rows, cols]
     volume = np.bincount(slices, weights=values)
-    centres = np.bincount(slices, weights=values * across) / np.maximum(volume, 1e-300)
+    centres = (ndimage.gaussian_filter1d(np.bincount(slices, weights=values * across), CENTRE_SMOOTHING)
+               / np.maximum(ndimage.gaussian_filter1d(volume, CENTRE_SMOOTHING), 1e-300))
     profile = np.exp(-0.5 * ((across - centres[slices] - offset) / width) ** 2)
     norm = np.bincount(slices, weights=profile)
     out = d.copy()
@@ -176,6 +180,18 @@ class FeatureSearch:
         image = self.operator.render(torch.from_numpy(d).to(self.operator.dtype))
         return self.problem.fidelity.relative_discrepancy(image)
 
+    @staticmethod
+    def _grid(feature: LineFeature) -> list[tuple[float, float]]:
+        """Every (width, offset) of :data:`WIDTH_FACTORS` x :data:`OFFSETS_CELLS`, in cells."""
+        return [(max(feature.width * f, MIN_WIDTH_CELLS), float(o)) for f in WIDTH_FACTORS for o in OFFSETS_CELLS]
+
+    @staticmethod
+    def _refined(best: tuple[float, float]) -> list[tuple[float, float]]:
+        """The neighbours of the grid's best (width, offset): half a cell either way, 15% either way."""
+        width, offset = best
+        return [(width, offset + step) for step in (-0.5, 0.5)] + [
+            (max(width * f, MIN_WIDTH_CELLS), offset) for f in (1.0 / REFINE_WIDTH, REFINE_WIDTH)]
+
     def __call__(self, d: np.ndarray) -> tuple[np.ndarray, dict[str, float]]:
         """The heights after trying every line's hypotheses (module docstring), and what the search
         did: ``feature_search_{lines,changed,renders}`` and the misfit before and after."""
@@ -185,19 +201,16 @@ class FeatureSearch:
         changed = 0
         for feature in features:
             base, chosen = best, None
-            width, offset = feature.width, 0.0
-            for stage in ("width", "offset", "width"):
-                trials = ([(max(feature.width * f, MIN_WIDTH_CELLS), offset) for f in WIDTH_FACTORS]
-                          if stage == "width" else [(width, float(o)) for o in OFFSETS_CELLS])
+            for trials in (self._grid(feature), None):
+                if trials is None:
+                    if chosen is None:
+                        break
+                    trials = self._refined(chosen)
                 for trial in trials:
-                    if trial == chosen:
-                        continue
                     heights = collapsed(base, feature, *trial)
                     value = self.misfit(heights)
                     if value < best_misfit:
                         best, best_misfit, chosen = heights, value, trial
-                if chosen is not None:
-                    width, offset = chosen
             changed += chosen is not None
         return best, {"feature_search_lines": float(len(features)), "feature_search_changed": float(changed),
                       "feature_search_renders": float(self.renders), "feature_search_misfit_before": before,

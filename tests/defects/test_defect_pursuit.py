@@ -166,3 +166,25 @@ def test_a_cut_through_a_round_bump_is_found_in_the_frame_its_deviation_shows() 
     defects = _found(design, printed, printed.copy())
     assert defects and defects[0].kind == "interruption"
     assert math.hypot(defects[0].x_mm - planned.x_mm, defects[0].y_mm - planned.y_mm) <= 1.5
+
+
+class HeightsPhotoWithGradient(HeightsPhoto):
+    """:class:`HeightsPhoto` with its gradient 2 (h - print) (J = I: every column norm is 1)."""
+
+    def gradient(self, heights: torch.Tensor) -> torch.Tensor:
+        return 2.0 * self.residual(heights)
+
+
+def test_a_drop_the_reconstruction_does_not_show_is_found_from_the_photo() -> None:
+    design = make_shape("print_lines", M)
+    (site,) = feature_sites(design, CELL_MM, 1, 16.0, np.random.default_rng(3))
+    printed, drop = apply_defect(design, design, site, "excess", 0.3, 0.0, CELL_MM, MM_PER_UNIT)
+    photo = HeightsPhotoWithGradient(torch.from_numpy(printed))
+    d = torch.from_numpy(design.copy())  # the reconstruction kept the design's basin: no deviation at all
+    z_map = np.full(design.shape, 0.02 * float(design.max()) / 3.0)
+    args = (d, photo(d), torch.from_numpy(design), np.ones(design.shape, dtype=bool), z_map, photo, NOISE, _search())
+    assert find_defects(*args)[0] == []  # from the reconstruction alone: no candidate
+    defects, tried = find_defects(*args, np.ones(design.shape))
+    assert len(defects) == 1 and defects[0].kind == drop.kind and tried >= 1
+    assert math.hypot(defects[0].x_mm - drop.x_mm, defects[0].y_mm - drop.y_mm) <= 0.5
+    assert defects[0].size == pytest.approx(drop.size, rel=0.3)

@@ -1,6 +1,8 @@
 """The defect report against the design, end to end on a small print_lines problem (64 x 64 heights):
 a print equal to its design reports no defect; one interruption of known size is found with its kind,
-place and length; the files and metrics of the report; bad inputs refused before a run opens."""
+place and length; a drop that focuses before the screen found from the photo where the
+reconstruction shows nothing; the files and metrics of the report; bad inputs refused before a run
+opens."""
 
 from __future__ import annotations
 
@@ -11,7 +13,9 @@ import numpy as np
 import pytest
 
 from experiments.defect_prints import apply_defect, feature_sites
+from framework.core.problem import Problem
 from framework.core.scene_config import build_heights
+from framework.pipeline.defect_stage import report_defects
 from framework.pipeline.reconstruction import Reconstruction, run_reconstruction
 from tests.experiments.conftest import compose_reconstruct
 
@@ -112,3 +116,20 @@ def test_defects_on_without_a_design_and_bad_settings_are_refused(tmp_path) -> N
                                                         tmp_path), tmp_path)
     with pytest.raises(ValueError, match="defects.grow=5.0 exceeds defects.z_min=3.0"):
         Reconstruction.from_config(compose_reconstruct([*SMALL, "experiment=m2v1", "defects.grow=5.0"], tmp_path), tmp_path)
+
+
+def test_a_drop_that_focuses_before_the_screen_is_found_from_the_photo(tmp_path) -> None:
+    """A 1 mm^3 drop (0.7 mm high) is a lens that focuses between the top and the screen; with the
+    reconstruction held at the design (it shows nothing there), the report finds it from the photo."""
+    design = _design()
+    site = feature_sites(design, CELL_MM, 1, 10.0, np.random.default_rng(4))[0]
+    printed, planned = apply_defect(design, design, site, "excess", 1.0, 0.0, CELL_MM, 25.0)
+    np.save(tmp_path / "printed.npy", printed)
+    cfg = compose_reconstruct([*SMALL, f"data.printed={tmp_path / 'printed.npy'}"], tmp_path)
+    parts = Reconstruction.from_config(cfg, tmp_path)
+    data = parts.data_source.load(parts.data_request(tmp_path, tmp_path / "data"))
+    problem = Problem(parts.operator, data, parts.grid, parts.scene)
+    report = report_defects(problem, data.design, parts.defects, 0, 25.0, tmp_path)
+    assert [defect.kind for defect in report.defects] == ["excess"]
+    found = report.defects[0]
+    assert np.hypot(found.x_mm - planned.x_mm, found.y_mm - planned.y_mm) <= CELL_MM
