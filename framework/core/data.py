@@ -35,8 +35,8 @@ class ReconstructionData:
     shots: a stack's data shot by shot (framework/plugins/data/stack.py; empty for one image), whose
     target above stacks theirs along the channel axis; start_shot: the shot a start reads;
     first_fit_shot: the shot a run from flat glass fits alone first (None: none); line_search:
-    that shot is fitted alone from any start and the stack's lines searched across basins before
-    the stack is fitted (framework/pipeline/feature_search.py).
+    when every start ends short of the noise level, one more run fits that shot alone and
+    searches its lines across basins before the stack (framework/pipeline/feature_search.py).
     """
 
     target: torch.Tensor

@@ -25,10 +25,11 @@ import numpy as np
 import torch
 from scipy import ndimage
 
+from framework.core.contracts.start import StartRequest, StartResult
 from framework.core.problem import Problem
 from framework.pipeline.photon_budget import with_photons
 
-__all__ = ["LineFeature", "line_features", "collapsed", "FeatureSearch"]
+__all__ = ["LineFeature", "line_features", "collapsed", "FeatureSearch", "SearchedLines"]
 
 PRINTED_FRACTION = 0.1  # cells above this fraction of the highest belong to a feature
 ORIENTATION_BINS = 4  # features are split where their normal turns by more than 180 / bins degrees
@@ -215,3 +216,18 @@ class FeatureSearch:
         return best, {"feature_search_lines": float(len(features)), "feature_search_changed": float(changed),
                       "feature_search_renders": float(self.renders), "feature_search_misfit_before": before,
                       "feature_search_misfit_after": best_misfit}
+
+
+@dataclass(frozen=True)
+class SearchedLines:
+    """A stack's last start (``data.first_fit=lines``): ``start`` computed on the nearest shot
+    (``request``), the nearest shot fitted alone from it, its lines searched by every shot's misfit
+    (:class:`FeatureSearch`), then the stack (framework/pipeline/reconstruction.py)."""
+
+    start: Any
+    request: StartRequest
+    reads_design = False
+
+    def __call__(self, _: StartRequest) -> StartResult:
+        """The start on the nearest shot, whatever shot the run's own request reads."""
+        return self.start(self.request)

@@ -33,7 +33,7 @@ from framework.pipeline.calibration import JointCalibration
 from framework.pipeline.callbacks import Checkpointer, GroundTruthError, MetricsHistory, ProgressBar
 from framework.pipeline.checkpoint import resume as resume_solver
 from framework.pipeline.defect_stage import DefectSettings, report_defects
-from framework.pipeline.feature_search import FeatureSearch
+from framework.pipeline.feature_search import FeatureSearch, SearchedLines
 from framework.pipeline.first_fit import fit_first_shot
 from framework.pipeline.photon_budget import PhotonBudget, with_photons
 from framework.pipeline.report_figures import save_reconstruction_figures
@@ -124,7 +124,7 @@ def _solve_from(parts: Reconstruction, problem: Problem, name: str, start: Start
     else:
         d0 = torch.zeros(parts.grid.shape, dtype=operator.dtype)
     shaped = checkpoint is None and computed.shaped
-    searched = checkpoint is None and problem.data.line_search
+    searched = checkpoint is None and isinstance(start, SearchedLines)
     if checkpoint is None and (searched or not shaped) and problem.data.first_fit_shot is not None:
         def extra(shot: Problem) -> list[Callback]:
             gain = None if parts.calibration is None else parts.calibration.gain_of_shot(problem.data.first_fit_shot)
@@ -299,11 +299,15 @@ def _run_starts(parts: Reconstruction, problem: Problem, request: StartRequest, 
                 checkpoint: Path | None, tracker: MlflowTracker, truth_error: GroundTruthError | None
                 ) -> tuple[list[PhaseOutcome], bool, int]:
     """Run the solver from each of the start's phases in turn (continuing an interrupted run's own
-    phase from ``checkpoint``) until one reaches the noise level; where that run's calibration
+    phase from ``checkpoint``) until one reaches the noise level (a stack with
+    ``data.first_fit=lines`` adds one last phase: :class:`SearchedLines`); where that run's calibration
     moved a parameter the heights absorb in part (``JointCalibration.needs_refit``), run its start
     again under the calibrated setup, up to ``MAX_REFITS`` times. Returns the finished runs, whether
     there were several starts, and the MLflow steps used."""
     candidates = parts.start.phases()
+    if problem.data.line_search:  # a stack's last resort: the nearest shot's lines searched
+        nearest = replace(request, problem=problem.shot(problem.data.first_fit_shot))
+        candidates = [*candidates, (f"{candidates[0][0]}_lines", SearchedLines(candidates[0][1], nearest))]
     finished, first, refits = resumed_phases(output_dir, checkpoint)
     phases = [*candidates, *((f"{candidates[i][0]}_refit", candidates[i][1]) for i in refits)]
     steps = sum(outcome.result.iterations for outcome in finished)

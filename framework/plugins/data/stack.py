@@ -107,10 +107,11 @@ class StackData:
             maximum-likelihood weighting for shots whose noise is a share delta_i of their norm:
             each shot's relative misfit counts alike, however bright or peaked its caustic.
         first_fit: ``nearest``: a run from flat glass fits the nearest shot alone first
-            (framework/pipeline/first_fit.py); ``lines``: the nearest shot is fitted alone from
-            any start, then every line of that fit is searched across basins by the misfit of
-            every shot (framework/pipeline/feature_search.py); ``none``: the whole stack from the
-            start.
+            (framework/pipeline/first_fit.py); ``lines``: the same, and when every start ends short
+            of the noise level, one run more: the first start computed on the nearest shot, that
+            shot fitted alone, every line of its fit searched across basins by the misfit of every
+            shot (framework/pipeline/feature_search.py), then the stack; ``none``: the whole stack
+            from the start.
     """
 
     FIRST_FITS = ("nearest", "lines", "none")
