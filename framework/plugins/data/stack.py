@@ -126,7 +126,7 @@ class StackData:
                 "common": {"reference_photons": 1 << 18, "reference_resolution": 64}}
 
     def __init__(self, shots: Sequence[Mapping[str, Any]] | None = None, common: Mapping[str, Any] | None = None,
-                 start_shot: int | str = "farthest", weighting: str = "equal", first_fit: str = "nearest") -> None:
+                 start_shot: int | str = "farthest", weighting: str = "equal", first_fit: str = "lines") -> None:
         if weighting not in self.WEIGHTINGS:
             raise ValueError(f"data.weighting={weighting!r}; use {', '.join(self.WEIGHTINGS)}")
         if first_fit not in self.FIRST_FITS:
