@@ -65,16 +65,6 @@ class LineFeature:
     normal: np.ndarray
     width: float
 
-    def describe(self, half_width: float, mm_per_unit: float | None) -> str:
-        """'(x, y) mm, L mm long' of the feature on a grid spanning [-half_width, half_width]."""
-        m = self.cells.shape[0]
-        unit = 2.0 * half_width / (m - 1) * (mm_per_unit or 1.0)
-        x, y = (self.centre * unit - half_width * (mm_per_unit or 1.0))
-        rows, cols = np.nonzero(self.cells)
-        along = (cols - self.centre[0]) * self.axis[0] + (rows - self.centre[1]) * self.axis[1]
-        name = "mm" if mm_per_unit else "scene units"
-        return f"({x:.2f}, {y:.2f}) {name}, {float(np.ptp(along) + 1.0) * unit:.2f} {name} long"
-
 
 def _normals(d: np.ndarray, scale: float) -> np.ndarray:
     """Angle (m, m) in [0, pi) of each cell's normal: the dominant eigenvector of the gradients'

@@ -141,6 +141,10 @@ def _solve_from(parts: Reconstruction, problem: Problem, name: str, start: Start
             d0.detach().cpu().double().numpy())
         d0 = torch.from_numpy(found).to(operator.dtype)
         start_metrics.update({f"{name}_{k}": v for k, v in searched_metrics.items()})
+        print(f"line search: {searched_metrics['feature_search_changed']:.0f} of "
+              f"{searched_metrics['feature_search_lines']:.0f} lines remade; the stack's discrepancy "
+              f"{searched_metrics['feature_search_misfit_before']:.4f} -> "
+              f"{searched_metrics['feature_search_misfit_after']:.4f}", flush=True)
     start_seconds = time.perf_counter() - began
     solver = parts.make_solver(problem, d0)
     if shaped:
