@@ -5,6 +5,7 @@ kernels (:mod:`operators.heightfield.kernels_native`, :mod:`operators.heightfiel
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numba as nb
 import numpy as np
@@ -43,6 +44,7 @@ class FusedTracer:
         # Footprints' major semi-axes are capped at max_pixel_radius, so are their boxes' half extents.
         self.gather_pad = gather_padding(max_pixel_radius)
         self._padded: np.ndarray | None = None  # the adjoint image buffer that pad_gradient fills
+        self._heights: tuple[np.ndarray, dict[str, Any]] | None = None  # the last heights' constants
         light, sub, rec = scene.light, scene.substrate, scene.receiver
         self._constants = dict(
             light_x=float(light.position[0]), light_y=float(light.position[1]), light_z=float(light.position[2]),
@@ -57,12 +59,23 @@ class FusedTracer:
     def constants(self, d: np.ndarray, start: int = 0) -> FusedScene:
         """Kernel constants for heights ``d`` (m, m) (the bracketing planes and slope bounds depend
         on them) and the photons from ``start`` on (their emission point: the light's position)."""
+        x, y, _ = self.emitter.origin(self.emitter.source_of(start))
+        return FusedScene(**self._height_constants(d), **{**self._constants, "light_x": x, "light_y": y})
+
+    def _height_constants(self, d: np.ndarray) -> dict[str, Any]:
+        """The grid spacing, bracketing planes and slope bounds of heights ``d`` (m, m), kept for
+        the last heights seen: the chunks of one render (an extended light's segments among them)
+        read the same heights."""
+        cached = self._heights
+        if cached is not None and cached[0].shape == d.shape and np.array_equal(cached[0], d):
+            return cached[1]
         grid = HeightFieldGrid(self.scene.substrate.thickness, self.scene.substrate.half_width, d.shape[0])
         zlo, zstart, zhi = grid.z_planes(d)
         slope_x, slope_y = grid.slope_bounds(d)
-        x, y, _ = self.emitter.origin(self.emitter.source_of(start))
-        return FusedScene(spacing=grid.spacing, zlo=zlo, zstart=zstart, zhi=zhi, slope_x=slope_x, slope_y=slope_y,
-                          **{**self._constants, "light_x": x, "light_y": y})
+        values = {"spacing": grid.spacing, "zlo": zlo, "zstart": zstart, "zhi": zhi, "slope_x": slope_x,
+                  "slope_y": slope_y}
+        self._heights = (d.copy(), values)
+        return values
 
     def image_buffers(self, dtype: np.dtype) -> np.ndarray:
         """Zeroed per-thread images (threads, c, n, n) for :meth:`render`."""
