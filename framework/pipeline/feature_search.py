@@ -66,10 +66,10 @@ class LineFeature:
     width: float
 
 
-def _normals(d: np.ndarray, scale: float) -> np.ndarray:
-    """Angle (m, m) in [0, pi) of each cell's normal: the dominant eigenvector of the gradients'
-    structure tensor, integrated over ``scale`` cells (across a ridge on both of its flanks)."""
-    gy, gx = np.gradient(ndimage.gaussian_filter(d, 1.0))
+def _normals(gx: np.ndarray, gy: np.ndarray, scale: float) -> np.ndarray:
+    """Angle (m, m) in [0, pi) of each cell's normal from the gradients ``gx``, ``gy`` (m, m): the
+    dominant eigenvector of their structure tensor, integrated over ``scale`` cells (across a
+    ridge on both of its flanks)."""
     jxx, jyy, jxy = (ndimage.gaussian_filter(a, scale) for a in (gx * gx, gy * gy, gx * gy))
     return np.mod(0.5 * np.arctan2(2.0 * jxy, jxx - jyy), math.pi)
 
@@ -83,7 +83,7 @@ def _pieces(d: np.ndarray) -> list[np.ndarray]:
     printed = d > PRINTED_FRACTION * float(d.max())
     gy, gx = np.gradient(ndimage.gaussian_filter(d, 1.0))
     strength = gx * gx + gy * gy
-    bins = np.floor(_normals(d, 3.0) / math.pi * ORIENTATION_BINS + 0.5) % ORIENTATION_BINS
+    bins = np.floor(_normals(gx, gy, 3.0) / math.pi * ORIENTATION_BINS + 0.5) % ORIENTATION_BINS
     parts, count = ndimage.label(printed)
     pieces = []
     for label in range(1, count + 1):

@@ -119,7 +119,7 @@ def test_calibration_recovers_the_distance_and_every_gain_from_a_stack_with_know
     (["data.shots=[{offset: -0.06}]"], r"data.shots\[0\]: the screen would lie -0.01 below the substrate"),
     (["data.shots=[{screen_distance: 0.1, offset: 0.1}]"], r"data.shots\[0\] gives both screen_distance and offset"),
     (["data.shots=[{source: stack}]"], r"data.shots\[0\].source='stack'; use one of"),
-    (["data.start_shot=2"], r"data.start_shot=2 must be 'farthest', 'nearest' or a shot index in \[0, 2\)"),
+    (["data.start_shot=2"], r"data.start_shot=2 must be 'farthest' or a shot index in \[0, 2\)"),
     (["data.shots=[{weight: 0}]"], r"data.shots\[0\]: gain=1.0 and weight=0.0 must both be > 0"),
     (["data.weighting=loud"], r"data.weighting='loud'; use equal, distance, noise"),
     (["data.first_fit=farthest"], r"data.first_fit='farthest'; use one of nearest, lines, none"),

@@ -96,8 +96,7 @@ class StackData:
             ``receiver_half_width``, ``gain``, ``weight``) and that source's own keys.
         common: Keys given to every shot that does not set them (e.g. ``{delta: 0.05}``).
         start_shot: The shot a start reads (the transport start inverts one caustic): its index, or
-            ``farthest`` (the shot with the farthest screen, whose caustic is the strongest) or
-            ``nearest`` (the nearest screen's, whose light has crossed least).
+            ``farthest`` (the shot with the farthest screen, whose caustic is the strongest).
         weighting: ``equal``: each shot's misfit counts with its ``weight`` (the maximum-likelihood
             weighting for shots of equal noise); ``distance``: times (s_near / s_i)^2, s_i the
             shot's screen distance and s_near the nearest one's. A screen k times farther
@@ -137,9 +136,9 @@ class StackData:
                              "data.shots='[{screen_distance: 0.05}, {screen_distance: 0.2}]'")
         if common is not None and not isinstance(common, Mapping):
             raise ValueError(f"data.common={common!r} must be a mapping of keys every shot gets, e.g. {{delta: 0.05}}")
-        if not (start_shot in ("farthest", "nearest") or (isinstance(start_shot, int) and not isinstance(start_shot, bool)
+        if not (start_shot == "farthest" or (isinstance(start_shot, int) and not isinstance(start_shot, bool)
                                              and 0 <= start_shot < len(shots))):
-            raise ValueError(f"data.start_shot={start_shot!r} must be 'farthest', 'nearest' or a shot index in [0, {len(shots)})")
+            raise ValueError(f"data.start_shot={start_shot!r} must be 'farthest' or a shot index in [0, {len(shots)})")
         self.specs: list[dict[str, Any]] = []
         self.sources: list[Any] = []
         for i, spec in enumerate(shots):
@@ -210,10 +209,8 @@ class StackData:
             request.operator.reweight(noise_weights(shots, request.operator.configured_weights, distances))
         weights = request.operator.weights
         start = self.start_shot
-        nearest = min(range(len(distances)), key=lambda i: distances[i])
         if start == "farthest":
             start = max(range(len(distances)), key=lambda i: distances[i])
-        elif start == "nearest":
-            start = nearest
+        nearest = min(range(len(distances)), key=lambda i: distances[i])
         first = nearest if self.first_fit != "none" and len(shots) > 1 else None
         return stacked_data(shots, weights, int(start), first, line_search=first is not None and self.first_fit == "lines")
