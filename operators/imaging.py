@@ -24,13 +24,12 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from contextlib import AbstractContextManager
 from typing import Any
 
 import torch
 
 from operators.gaussian_blur import ScreenBlur
-from operators.photon_operator import ImageOperator
+from operators.photon_operator import WrappingOperator
 from operators.scene import Scene
 from operators.supersample import SupersampledOperator, block_mean, block_mean_adjoint
 
@@ -50,7 +49,7 @@ def _fine_stage(operator: Any) -> tuple[Any, int]:
     return operator, 1
 
 
-class ImagingOperator(ImageOperator):
+class ImagingOperator(WrappingOperator):
     """G(d) = gain * K * F(d): an operator plugin seen through the screen and the camera.
 
     Args:
@@ -112,12 +111,9 @@ class ImagingOperator(ImageOperator):
 
     # -- what the framework uses of an operator plugin -------------------------------------------
     @property
-    def dtype(self) -> torch.dtype:
-        return self.inner.dtype
-
-    @property
-    def photons(self) -> int:
-        return self.inner.photons
+    def wrapped(self) -> Any:
+        """The wrapped operator plugin F."""
+        return self.inner
 
     @property
     def pixel_area(self) -> float:
@@ -137,15 +133,6 @@ class ImagingOperator(ImageOperator):
             raise ValueError(f"grad_image has shape {tuple(grad_image.shape)}, expected {self.output_shape}")
         return self.fine.vjp(heights, self.gain * self.blur.adjoint(block_mean_adjoint(grad_image, self.factor)))
 
-    @property
-    def has_light_path(self) -> bool:
-        """The wrapped operator's (whose ``arrivals`` and ``land_from_bottom`` it passes on)."""
-        return bool(self.inner.has_light_path)
-
-    def warm_up(self) -> AbstractContextManager[Any]:
-        """The wrapped operator's warm-up."""
-        return self.inner.warm_up()
-
     def variant(self, photons: int, seed: int, resolution: int) -> ImagingOperator:
         """The same camera on another sampling of the wrapped operator (the references of
         synthetic data); its setup stays fixed."""
@@ -161,10 +148,3 @@ class ImagingOperator(ImageOperator):
             fine = self.inner.exact_variant(photons, seed, resolution * EXACT_BLUR_SUPERSAMPLE)
             inner = SupersampledOperator(fine, inner.scene, EXACT_BLUR_SUPERSAMPLE)
         return ImagingOperator(lambda scene: inner, self.scene, self.psf_sigma, self.gain)
-
-    def __getattr__(self, name: str) -> Any:
-        # Anything else an operator plugin offers (device, settings, ...) comes from the
-        # wrapped one.
-        if name.startswith("_") or name in ("inner", "fine", "factor"):
-            raise AttributeError(name)
-        return getattr(self.inner, name)

@@ -14,6 +14,7 @@ splat's adjoint (a gather per photon, no image needed) into whatever a chunk of 
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Sequence
 from contextlib import AbstractContextManager, nullcontext
 from typing import Any
 
@@ -23,7 +24,7 @@ from operators.gaussian_blur import ScreenBlur
 from operators.scene import Scene
 from operators.splat.splat import footprint_metric, splat_photons_vjp
 
-__all__ = ["PIXEL_SETTINGS", "PIXEL_BOX_R2", "ImageOperator", "NothingRunning", "PhotonOperator", "RenderFunction", "backward_through_splat",
+__all__ = ["PIXEL_SETTINGS", "PIXEL_BOX_R2", "ImageOperator", "NothingRunning", "PhotonOperator", "RenderFunction", "WrappingOperator", "backward_through_splat",
            "check_setting_keys", "filter_radius_px"]
 
 # Settings given in receiver pixels: a render at another receiver resolution scales them.
@@ -71,12 +72,29 @@ class ImageOperator:
         revision: 0: the setup never changes (an operator whose setup does counts it up).
         has_light_path: False unless a subclass offers ``arrivals`` and ``land_from_bottom``
             (operators/light_paths.py).
+        elements: () unless a subclass traces optical elements beside the print (operators/mesh/).
+        gain: 1.0 unless a subclass scales its images by a camera gain (operators/imaging.py).
+        shots: () unless a subclass renders several shots' images (operators/stack.py).
+        shot_count: 1: every pass traces ``photons`` once.
+        deterministic: False unless a render has no sampling noise (two renders are equal).
+        hit_key: None unless operators with equal keys may share where their photons meet the
+            print (:meth:`share_hits`).
     """
 
     dtype: torch.dtype
     conserves_energy: bool = False
     revision: int = 0
     has_light_path: bool = False
+    elements: Sequence[Any] = ()
+    gain: float = 1.0
+    shots: Sequence[Any] = ()
+    shot_count: int = 1
+    deterministic: bool = False
+    hit_key: Any = None
+
+    def share_hits(self, other: Any) -> None:
+        """Use ``other``'s hit cache (operators/stack.py); only an operator with a ``hit_key`` has one."""
+        raise ValueError(f"{type(self).__name__} has no hit cache to share (hit_key is None)")
 
     def render(self, heights: torch.Tensor, progress: bool = False) -> torch.Tensor:
         """The image F(d) (c, n, n) of heights d (m, m), without a graph."""
@@ -120,6 +138,61 @@ class ImageOperator:
 
     def __call__(self, heights: torch.Tensor) -> torch.Tensor:
         return RenderFunction.apply(heights, self)
+
+
+class WrappingOperator(ImageOperator):
+    """An operator that renders through another one, :attr:`wrapped` (a finer receiver, a camera),
+    and passes on what that one declares: dtype, photons, its light path, elements, shots, hit
+    cache and warm-up. Nothing else is passed on."""
+
+    @property
+    def wrapped(self) -> Any:
+        """The operator rendered through."""
+        raise NotImplementedError
+
+    @property
+    def dtype(self) -> torch.dtype:  # type: ignore[override]
+        return self.wrapped.dtype
+
+    @property
+    def photons(self) -> int:
+        return self.wrapped.photons
+
+    @property
+    def has_light_path(self) -> bool:  # type: ignore[override]
+        return bool(self.wrapped.has_light_path)
+
+    @property
+    def elements(self) -> Sequence[Any]:  # type: ignore[override]
+        return self.wrapped.elements
+
+    @property
+    def shot_count(self) -> int:  # type: ignore[override]
+        return self.wrapped.shot_count
+
+    @property
+    def deterministic(self) -> bool:  # type: ignore[override]
+        return self.wrapped.deterministic
+
+    @property
+    def hit_key(self) -> Any:  # type: ignore[override]
+        return self.wrapped.hit_key
+
+    def share_hits(self, other: Any) -> None:
+        """Share the wrapped operators' hit cache (operators/stack.py)."""
+        self.wrapped.share_hits(other.wrapped if isinstance(other, WrappingOperator) else other)
+
+    def arrivals(self, photons: int) -> Any:
+        """The wrapped operator's light path above the print (operators/light_paths.py)."""
+        return self.wrapped.arrivals(photons)
+
+    def land_from_bottom(self, points: Any, directions: Any) -> Any:
+        """The wrapped operator's light path below the print (operators/light_paths.py)."""
+        return self.wrapped.land_from_bottom(points, directions)
+
+    def warm_up(self) -> AbstractContextManager[Any]:
+        """The wrapped operator's warm-up."""
+        return self.wrapped.warm_up()
 
 
 class PhotonOperator(ImageOperator):

@@ -67,7 +67,7 @@ class StackOperator(ImageOperator):
         next shot's render of the same heights replays (operators/heightfield/trace_native.py)."""
         first: dict[Any, Any] = {}
         for shot in self.shots:
-            key = getattr(shot, "hit_key", None)
+            key = shot.hit_key
             if key is None:
                 continue
             if key in first:

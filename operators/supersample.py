@@ -19,12 +19,11 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Callable
-from contextlib import AbstractContextManager
 from typing import Any
 
 import torch
 
-from operators.photon_operator import PIXEL_SETTINGS, ImageOperator
+from operators.photon_operator import PIXEL_SETTINGS, WrappingOperator
 from operators.scene import Scene
 
 __all__ = ["SupersampledOperator", "block_mean", "block_mean_adjoint", "build_supersampled", "finer_scene"]
@@ -72,12 +71,13 @@ def block_mean_adjoint(grad: torch.Tensor, factor: int) -> torch.Tensor:
     return grad.repeat_interleave(factor, dim=-2).repeat_interleave(factor, dim=-1) / float(factor * factor)
 
 
-class SupersampledOperator(ImageOperator):
+class SupersampledOperator(WrappingOperator):
     """``fine``, an operator on a receiver ``factor`` times finer than ``scene``'s, seen through the
     block mean (module docstring): images (c, n, n) on ``scene``'s receiver.
 
-    Everything else an operator offers (settings, its light path, the hit cache a stack shares)
-    comes from ``fine``; ``scene`` is the configured one, which code outside the operator reads.
+    Its light path, elements, hit cache, camera gain and warm-up are ``fine``'s
+    (:class:`operators.photon_operator.WrappingOperator`); ``scene`` is the configured one, which
+    code outside the operator reads.
     """
 
     def __init__(self, fine: Any, scene: Scene, factor: int) -> None:
@@ -89,20 +89,13 @@ class SupersampledOperator(ImageOperator):
         self.fine, self.scene, self.factor = fine, scene, int(factor)
 
     @property
-    def dtype(self) -> torch.dtype:
-        return self.fine.dtype
-
-    @property
-    def photons(self) -> int:
-        return self.fine.photons
+    def wrapped(self) -> Any:
+        """The fine operator."""
+        return self.fine
 
     @property
     def conserves_energy(self) -> bool:
         return bool(self.fine.conserves_energy)
-
-    @property
-    def has_light_path(self) -> bool:
-        return bool(self.fine.has_light_path)
 
     @property
     def pixel_area(self) -> float:
@@ -133,20 +126,10 @@ class SupersampledOperator(ImageOperator):
         """The fine operator's exact references (:meth:`ImageOperator.exact_variant`) at ``resolution``."""
         return self.fine.exact_variant(photons, seed, resolution)
 
-    def warm_up(self) -> AbstractContextManager[Any]:
-        """The fine operator's warm-up."""
-        return self.fine.warm_up()
-
-    def share_hits(self, other: SupersampledOperator) -> None:
-        """Share the fine operators' hit cache (operators/stack.py)."""
-        self.fine.share_hits(other.fine if isinstance(other, SupersampledOperator) else other)
-
     def describe(self) -> dict[str, float]:
         """The fine operator's sampling figures and the supersampling factor."""
         return {**self.fine.describe(), "supersample": float(self.factor)}
 
-    def __getattr__(self, name: str) -> Any:
-        # Settings, emitter, hit_key, arrivals, land_from_bottom, ...: the fine operator's.
-        if name.startswith("_") or name in ("fine", "scene", "factor"):
-            raise AttributeError(name)
-        return getattr(self.fine, name)
+    @property
+    def gain(self) -> float:  # type: ignore[override]
+        return self.fine.gain

@@ -12,7 +12,7 @@ The plugins (declared as entry points in pyproject.toml; kind ``regularizer`` un
 - ``volume_hold`` :class:`VolumeHold`       the projection onto bounds, mask and a narrow volume band (kind ``post_step``)
 """
 
-from .base import PostStepUpdate, Regularizer, RegularizerContext
+from .base import CoefficientRegularizer, CoefficientTransform, PostStepUpdate, Regularizer, RegularizerContext
 from .bounds import HeightBounds
 from .pixel_l1 import PixelL1
 from .l1_bounds import PixelL1Bounds
@@ -24,6 +24,8 @@ from .volume_prox import VolumeSlabL1Bounds
 from .wavelet import WaveletL1, WaveletTransform
 
 __all__ = [
+    "CoefficientRegularizer",
+    "CoefficientTransform",
     "HeightBounds",
     "PixelL1",
     "PixelL1Bounds",

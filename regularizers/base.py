@@ -106,10 +106,12 @@ class Regularizer(_UsesContext, ABC):
     Attributes:
         has_prox: True if :meth:`prox` is implemented exactly (closed form or 1-D root find).
         smooth: True if R is differentiable (a gradient step may be used instead of a prox).
+        band: The band (q1, q2) of the height sum the term enforces (a known volume), else None.
     """
 
     has_prox: ClassVar[bool] = False
     smooth: ClassVar[bool] = False
+    band: tuple[float, float] | None = None
 
     @abstractmethod
     def value(self, d: torch.Tensor) -> float:
@@ -138,9 +140,51 @@ class Regularizer(_UsesContext, ABC):
 
 
 class PostStepUpdate(_UsesContext, ABC):
-    """A heuristic applied to d after each solver iteration; not a proximal map of any functional."""
+    """A heuristic applied to d after each solver iteration; not a proximal map of any functional.
+
+    Attributes:
+        band: The band (q1, q2) of the height sum it enforces (a known volume), else None.
+    """
+
+    band: tuple[float, float] | None = None
 
     @abstractmethod
     def __call__(self, d: torch.Tensor) -> torch.Tensor:
         """Return the updated height field (same shape, dtype and device as d); d is not modified."""
 
+
+
+class CoefficientTransform(ABC):
+    """An invertible linear transform of the height field, w = W d: (m, m) -> (m * m,) flat
+    coefficients, with the adjoint of its inverse (a pixel gradient to a coefficient gradient)."""
+
+    @abstractmethod
+    def forward(self, d: torch.Tensor) -> torch.Tensor:
+        """W d (m * m,) of heights d (m, m)."""
+
+    @abstractmethod
+    def inverse(self, w: torch.Tensor) -> torch.Tensor:
+        """W^-1 w (m, m) of flat coefficients w."""
+
+    @abstractmethod
+    def inverse_adjoint(self, g: torch.Tensor) -> torch.Tensor:
+        """(W^-1)^* g (m * m,) of a pixel gradient g (m, m)."""
+
+    def subbands(self) -> list[tuple[torch.Tensor, int]]:
+        """One (mask (m * m,) bool, flat index of a coefficient inside it) per group of coefficients
+        that a metric may scale alike; none here (a transform without subbands)."""
+        return []
+
+
+class CoefficientRegularizer(Regularizer):
+    """A regulariser of the coefficients w = W d of a :class:`CoefficientTransform`, with the
+    proximal map on the coefficients that a transform-domain solver steps with."""
+
+    @abstractmethod
+    def transform_for(self, shape: tuple[int, int]) -> CoefficientTransform:
+        """The transform W on a height grid of ``shape``."""
+
+    @abstractmethod
+    def prox_coefficients(self, w: torch.Tensor, step: float, metric: torch.Tensor | None = None) -> torch.Tensor:
+        """prox of ``step`` x the regulariser on flat coefficients w, in the metric diag(1 / metric)
+        when ``metric`` (flat, positive) is given."""

@@ -24,11 +24,11 @@ import torch
 
 
 from ._checks import check_height_field, check_nonnegative
-from .base import Regularizer, RegularizerContext
+from .base import CoefficientRegularizer, CoefficientTransform, RegularizerContext
 from .shrinkage import soft_shrink
 
 
-class WaveletTransform:
+class WaveletTransform(CoefficientTransform):
     """Orthogonal 2-D DWT W: R^(m x m) -> R^(m*m) (flat coefficient vector).
 
     Coefficients are laid out as ``pywt.coeffs_to_array`` does (approximation block top left),
@@ -142,7 +142,7 @@ class WaveletTransform:
         )
 
 
-class WaveletL1(Regularizer):
+class WaveletL1(CoefficientRegularizer):
     """R(d) = alpha_w * ||W d||_1 with the orthogonal DWT W (method M3).
 
     In coefficient space (w = W d) the prox is soft shrinkage, :meth:`prox_coefficients`;

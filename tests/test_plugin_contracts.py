@@ -23,7 +23,7 @@ from framework.core.masks import mask_from_height_field
 from framework.core.problem import HeightGrid, Problem
 from framework.plugins.stopping import StagnationStopping
 from framework.core.plugin_config import build_plugin
-from framework.core.registry import available, lookup
+from framework.core.registry import available, declared
 from operators.scene import Receiver, Scene
 from regularizers import PixelL1
 from tests.plugins.trivial import ExactStepSolver, MaskMeanStart, ShadowOperator, SmallChangeStopping
@@ -46,7 +46,7 @@ def known_problem() -> Problem:
 
 
 def _operator_maker(name: str, photons: int = 20_000):
-    settings = example_settings(lookup("operator", name))
+    settings = example_settings("operator", name)
     return lambda seed: build_plugin("operator", name, settings, "operator", scene=SCENE, photons=photons, seed=seed)
 
 
@@ -57,15 +57,13 @@ def test_every_operator_keeps_the_contract(name) -> None:
 
 @pytest.mark.parametrize("name", available("regularizer"))
 def test_every_regularizer_keeps_the_contract(name) -> None:
-    plugin = lookup("regularizer", name)
-    check_regularizer(build_plugin("regularizer", name, example_settings(plugin), "regularizer"),
+    check_regularizer(build_plugin("regularizer", name, example_settings("regularizer", name), "regularizer"),
                       who=f"regularizer/{name}")
 
 
 @pytest.mark.parametrize("name", available("post_step"))
 def test_every_post_step_keeps_the_contract(name) -> None:
-    plugin = lookup("post_step", name)
-    check_post_step(build_plugin("post_step", name, example_settings(plugin), "post_step"), who=f"post_step/{name}")
+    check_post_step(build_plugin("post_step", name, example_settings("post_step", name), "post_step"), who=f"post_step/{name}")
 
 
 def test_the_test_suites_operator_keeps_the_contract() -> None:
@@ -74,10 +72,9 @@ def test_the_test_suites_operator_keeps_the_contract() -> None:
 
 @pytest.mark.parametrize("name", available("solver"))
 def test_every_solver_solves_a_known_problem(name, known_problem) -> None:
-    plugin = lookup("solver", name)
-    settings = example_settings(plugin)
+    settings = example_settings("solver", name)
     check_solver(lambda: build_plugin("solver", name, settings, "solver"), known_problem, who=f"solver/{name}",
-                 iterations=getattr(plugin, "contract_iterations", 40))
+                 iterations=declared("solver", name, "contract_iterations", 40))
 
 
 def test_the_test_suites_solver_keeps_the_contract(known_problem) -> None:
@@ -97,7 +94,7 @@ def test_the_test_suites_start_and_stopping_rule_keep_the_contract(known_problem
 
 @pytest.mark.parametrize("name", available("stopping"))
 def test_every_stopping_rule_keeps_the_contract(name) -> None:
-    settings = example_settings(lookup("stopping", name))
+    settings = example_settings("stopping", name)
     check_stopping(lambda: build_plugin("stopping", name, settings, f"stopping.{name}"), who=f"stopping/{name}")
 
 
@@ -106,7 +103,7 @@ def _start_settings(name: str, directory: Path) -> dict:
     if name == "file":
         np.save(directory / "start.npy", 0.5 * smooth_bump(M).numpy())
         return {"path": "start.npy"}
-    return example_settings(lookup("initial", name))
+    return example_settings("initial", name)
 
 
 @pytest.mark.parametrize("name", available("initial"))
@@ -129,7 +126,7 @@ def _data_settings(name: str, problem: Problem, directory: Path) -> dict:
         np.save(directory / "photo.npy", (image[0] / image.max() * 0.8)[::-1].astype(np.float32))
         np.save(directory / "mask.npy", problem.data.mask.numpy())
         return {"photo": "photo.npy", "corners": [[0, n - 1], [n - 1, n - 1], [n - 1, 0], [0, 0]], "mask": "mask.npy"}
-    return example_settings(lookup("data", name))
+    return example_settings("data", name)
 
 
 @pytest.mark.parametrize("name", available("data"))

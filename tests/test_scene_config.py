@@ -72,7 +72,7 @@ def test_defaults_are_the_official_ones() -> None:
     assert cfg.height_field.resolution == 128 and cfg.height_field.shape == "print_lines"
     assert cfg.photons == 4194304 and cfg.seed == 0
     op = build_operator(cfg, scene)
-    s = op.settings  # the fine operator's: 4 x 4 fine pixels per receiver pixel, footprints in fine pixels
+    s = op.fine.settings  # the fine operator's: 4 x 4 fine pixels per receiver pixel, footprints in fine pixels
     assert op.factor == 4 and op.output_shape == (1, 512, 512) and op.fine.output_shape == (1, 2048, 2048)
     assert (s.footprint_px, s.min_footprint_px, s.max_pixel_radius, s.chunk_size) == ("cell", 0.4, 80, 262144)
     assert (s.fresnel, s.dtype, s.device, s.photons) == (False, "float32", "cpu", 4194304)
@@ -86,7 +86,7 @@ def test_command_line_style_overrides_reach_the_scene(tmp_path: Path) -> None:
     scene = build_scene(cfg)
     assert scene.light.position == (0.0, 0.0, 5.0) and scene.channels == 3 and scene.receiver.z == -0.2
     op = build_operator(cfg, scene)
-    assert op.settings.photons == 999 and op.settings.seed == 3 and op.dtype == torch.float64
+    assert op.fine.settings.photons == 999 and op.fine.settings.seed == 3 and op.dtype == torch.float64
     np.testing.assert_allclose(build_heights(cfg).numpy(), 0.02)
 
 

@@ -228,8 +228,8 @@ class DataFidelity:
         operator's; a stack of shots, operators/stack.py, traces them once per shot)."""
         self.renders += renders
         self.gradient_passes += gradients
-        photons = int(getattr(self.operator, "photons", 0)) if photons is None else photons
-        self.photon_traces += (renders + gradients) * photons * int(getattr(self.operator, "shot_count", 1))
+        photons = int(self.operator.photons) if photons is None else photons
+        self.photon_traces += (renders + gradients) * photons * int(self.operator.shot_count)
 
     def relative_discrepancy(self, image: Tensor) -> float:
         """||image - b||_W / ||b||_W."""

@@ -13,7 +13,7 @@ import inspect
 from collections.abc import Mapping
 from typing import Any, Callable
 
-from framework.core.registry import lookup
+from framework.core.registry import declared, lookup
 from framework.core.units import scene_length
 
 __all__ = ["as_mapping", "plugin_factory", "build_plugin", "build_plugin_map", "split_name", "with_scene_lengths"]
@@ -45,8 +45,7 @@ def split_name(spec: Any, where: str) -> tuple[str, dict[str, Any]]:
 
 def plugin_factory(kind: str, name: str) -> Callable[..., Any]:
     """The callable that builds plugin ``kind/name``: its ``from_config`` or the object itself."""
-    plugin = lookup(kind, name)
-    factory = getattr(plugin, "from_config", plugin)
+    factory = declared(kind, name, "from_config", lookup(kind, name))
     if not callable(factory):
         raise ValueError(f"plugin {kind}/{name} is not callable and has no from_config")
     return factory
@@ -94,7 +93,7 @@ def _length(value: Any, mm: float, where: str) -> Any:
 def _converted(kind: str, name: str, params: dict[str, Any], mm: float, where: str) -> dict[str, Any]:
     """``params`` with the plugin's ``length_keys`` (a class attribute) in scene units."""
     try:
-        keys = getattr(lookup(kind, name), "length_keys", ())
+        keys = declared(kind, name, "length_keys", ())
     except KeyError:
         return params  # an unknown name is refused, with the known names, when the plugin is built
     return {k: _length(v, mm, f"{where}.{k}") if k in keys else v for k, v in params.items()}

@@ -206,6 +206,11 @@ class IterativeSolver(ABC):
         self.state.d = d.detach().to(self.state.d).clone()
         self.setup_changed()
 
+    def refine(self, d: Tensor) -> bool:
+        """Go to the next, finer stage of a coarse-to-fine schedule and continue from ``d`` (m, m)
+        (the best iterate so far); False, and nothing changes, without a finer stage (here: none)."""
+        return False
+
     def volume_band(self) -> tuple[float, float] | None:
         """The band [q1, q2] of the height sum sum_j d_j that the solver enforces (a known
         deposited volume), or None; Morozov's rule accepts only iterates inside it."""
@@ -229,10 +234,11 @@ class IterativeSolver(ABC):
         """
         if isinstance(max_iter, bool) or not isinstance(max_iter, int) or max_iter < 0:
             raise ValueError(f"max_iter must be an int >= 0, got {max_iter!r}")
-        ordered = sorted(callbacks, key=lambda cb: getattr(cb, "order", 0))
-        for cb in ordered:
-            if not callable(getattr(cb, "on_iteration", None)):
-                raise ValueError(f"{type(cb).__name__} is not a Callback (no on_iteration); see framework.pipeline.callbacks")
+        for cb in callbacks:
+            if not isinstance(cb, Callback):
+                raise ValueError(f"{type(cb).__name__} is not a Callback (framework/core/solver_loop.py); derive it "
+                                 "from Callback, see framework/pipeline/callbacks.py")
+        ordered = sorted(callbacks, key=lambda cb: cb.order)
         self.max_iter = max_iter
         for cb in ordered:
             cb.on_start(self)
@@ -252,8 +258,8 @@ class IterativeSolver(ABC):
                 break
             for cb in ordered:
                 if cb.on_iteration(self, record) and not stop_reason:
-                    stopped_by, accepted = type(cb).__name__, bool(getattr(cb, "stop_accepts_iterate", False))
-                    stop_reason = getattr(cb, "stop_reason", None) or f"stopped by {stopped_by}"
+                    stopped_by, accepted = type(cb).__name__, bool(cb.stop_accepts_iterate)
+                    stop_reason = cb.stop_reason or f"stopped by {stopped_by}"
         result = RunResult(
             d=self.state.d,
             iterations=self.iteration,

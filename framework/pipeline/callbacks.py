@@ -34,7 +34,7 @@ class MetricsHistory(Callback):
         self.records: list["IterationRecord"] = []
 
     def on_start(self, solver) -> None:  # noqa: D102
-        self.records = list(getattr(solver, "history", []))
+        self.records = list(solver.history)
 
     def on_iteration(self, solver, record) -> None:  # noqa: D102
         self.records.append(record)
@@ -71,7 +71,7 @@ class ProgressBar(Callback):
         from tqdm.auto import tqdm
 
         self._bar = tqdm(
-            total=solver.max_iter, initial=solver.iteration, desc=self.desc or getattr(solver, "name", None),
+            total=solver.max_iter, initial=solver.iteration, desc=self.desc or solver.name,
             disable=self.disable, unit="it",
         )
 
@@ -134,7 +134,7 @@ class GroundTruthError(Callback):
 
     def __init__(self, d_true: Tensor, substrate_thickness: float) -> None:
         if not isinstance(d_true, Tensor) or d_true.ndim != 2:
-            raise ValueError(f"d_true must be an (m, m) tensor, got {getattr(d_true, 'shape', type(d_true).__name__)}")
+            raise ValueError(f"d_true must be an (m, m) tensor, got {tuple(d_true.shape) if isinstance(d_true, Tensor) else type(d_true).__name__}")
         h = float(substrate_thickness)
         if not (math.isfinite(h) and h >= 0.0):
             raise ValueError(f"substrate_thickness h must be finite and >= 0, got {substrate_thickness!r}")

@@ -42,7 +42,7 @@ def save_previews(cfg: Mapping[str, Any], setup: Any, heights: np.ndarray, photo
     glass's on it (``preview_<f>x_power_share``)."""
     out: dict[str, float] = {}
     distance = -setup.scene.receiver.z
-    lowest = min((e.z_range[0] for e in getattr(setup.operator, "elements", None) or ()), default=np.inf)
+    lowest = min((e.z_range[0] for e in setup.operator.elements), default=np.inf)
     for factor in preview_factors(cfg):
         if -factor * distance >= lowest:
             setup.notes.append(f"no preview at {factor:g}x: that screen (z={-factor * distance:.4g}) would lie at or "

@@ -30,7 +30,7 @@ LIT = 1e-4   # a pixel has light above this fraction of the brightest
 
 def has_elements(operator: Any) -> bool:
     """Whether ``operator`` traces optical elements besides the print and the substrate."""
-    return bool(getattr(operator, "elements", None))
+    return bool(operator.elements)
 
 
 def lit_half_width(cfg: Mapping[str, Any], scene: Scene, mm: float, heights: np.ndarray, seed: int) -> float:

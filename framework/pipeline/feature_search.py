@@ -25,7 +25,7 @@ import numpy as np
 import torch
 from scipy import ndimage
 
-from framework.core.contracts.start import StartRequest, StartResult
+from framework.core.contracts.start import Start, StartRequest, StartResult
 from framework.core.problem import Problem
 from framework.pipeline.photon_budget import with_photons
 
@@ -209,14 +209,13 @@ class FeatureSearch:
 
 
 @dataclass(frozen=True)
-class SearchedLines:
+class SearchedLines(Start):
     """A stack's last start (``data.first_fit=lines``): ``start`` computed on the nearest shot
     (``request``), the nearest shot fitted alone from it, its lines searched by every shot's misfit
     (:class:`FeatureSearch`), then the stack (framework/pipeline/reconstruction.py)."""
 
     start: Any
     request: StartRequest
-    reads_design = False
 
     def __call__(self, _: StartRequest) -> StartResult:
         """The start on the nearest shot, whatever shot the run's own request reads."""

@@ -22,7 +22,7 @@ from framework.core.contracts.solver import SolverBuilder
 from framework.core.contracts.start import Start, StartRequest
 from framework.core.contracts.stopping import StoppingRule
 from framework.core.plugin_config import as_mapping, build_plugin, split_name
-from framework.core.registry import lookup
+from framework.core.registry import declared
 from framework.core.objective import DataFidelity
 from framework.core.problem import HeightGrid, Problem
 from framework.core.run_settings import RunSettings, design_given
@@ -233,7 +233,7 @@ class Reconstruction:
         setup = SceneSetup.parse(cfg, settings.mm_per_unit, imaging=bool(calibration_cfg.get("params")),
                                  shots=data_source.setups if isinstance(data_source, ShotStack) else None)
         post_steps = dict(as_mapping(cfg.get("solver") or {}, "solver").get("post_steps") or {})
-        volume_held = any(getattr(lookup("post_step", name), "holds_volume", False) for name in post_steps)
+        volume_held = any(declared("post_step", name, "holds_volume", False) for name in post_steps)
         calibration = JointCalibration.from_config(setup.operator, calibration_cfg, setup.scene, setup.screen_sigma,
                                                    volume_held)
         solver_name, solver_params = split_name(cfg.get("solver"), "solver")
@@ -319,7 +319,7 @@ def _run_starts(parts: Reconstruction, problem: Problem, request: StartRequest, 
     while index + 1 < len(phases):
         index += 1
         name, start = phases[index]
-        if len(candidates) > 1 and getattr(start, "reads_design", False) and problem.data.design is None:
+        if len(candidates) > 1 and start.reads_design and problem.data.design is None:
             continue  # initial=auto's design candidate: these data have no design
         if len(phases) > 1:  # so that a resumed run knows which start its checkpoint belongs to
             torch.save({"done": [outcome.saved() for outcome in finished], "phase": index, "refits": refits},

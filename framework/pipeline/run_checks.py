@@ -17,7 +17,7 @@ import torch
 
 from framework.plugins.data.sources import resolve_path
 from framework.core.contracts.data_source import PrintFacts
-from framework.core.registry import lookup
+from framework.core.registry import declared
 from framework.pipeline.run_identity import check_resumable
 from framework.pipeline.tracking import KNOWN_SCHEMES, check_tracking_server
 
@@ -74,7 +74,7 @@ def check_volume_known(cfg: Mapping[str, Any], facts: PrintFacts) -> None:
         return
     solver = cfg.get("solver") or {}
     needing = [f"solver.{group}.{name}" for group, kind in (("regularizers", "regularizer"), ("post_steps", "post_step"))
-               for name in dict(solver.get(group) or {}) if getattr(lookup(kind, name), "needs_volume", False)]
+               for name in dict(solver.get(group) or {}) if declared(kind, name, "needs_volume", False)]
     if needing:
         raise ValueError(f"{' and '.join(needing)} need{'s' if len(needing) == 1 else ''} the deposited volume: set "
                          "data.volume=... (scene units^3 or e.g. '1.7 mm3'), or leave "

@@ -42,7 +42,7 @@ def _setup(operator: Any, weight: float) -> dict[str, float]:
     scene = operator.scene
     x, y, z = scene.light.position
     return {"screen_distance": -scene.receiver.z, "light_x": x, "light_y": y, "light_z": z,
-            "gain": float(getattr(operator, "gain", 1.0)), "weight": weight}
+            "gain": float(operator.gain), "weight": weight}
 
 
 def shots_of(problem: Problem, prediction: torch.Tensor) -> list[Shot]:

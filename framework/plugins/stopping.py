@@ -152,8 +152,7 @@ class StagnationStopping(StoppingRule):
             return False
         if record.iteration - self._progress_iteration < self.patience:
             return False
-        refine = getattr(solver, "refine", None)
-        if callable(refine) and refine(self.best_d):
+        if solver.refine(self.best_d):
             self.refined_at.append(record.iteration)
             self._reference = self.best_discrepancy
             self._progress_iteration = record.iteration

@@ -29,12 +29,12 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
-from operators.emission import CELL_FOOTPRINT, LightEmitter, check_footprint
+from operators.emission import LightEmitter
 from operators.heightfield.trace_native import FusedTracer, HitCache
 from operators.light_paths import Arrivals, straight_landing
 from operators.kernels.numba_settings import to_numpy
-from operators.photon_operator import (PIXEL_SETTINGS, PhotonOperator, backward_through_splat, check_setting_keys,
-                                      filter_radius_px)
+from operators.photon_settings import DTYPES, PhotonSettings, checked_flag, checked_number
+from operators.photon_operator import PhotonOperator, backward_through_splat, check_setting_keys, filter_radius_px
 from operators.heightfield.precompile import BackgroundCompile
 from operators.scene import Scene
 from operators.heightfield.surface import validate_heights
@@ -44,90 +44,37 @@ from operators.wavefront.renderer import WavefrontRenderer, wavefront_vertices
 from operators.splat.splat import splat_photons
 from operators.heightfield.trace_reference import trace_substrate
 
-DTYPES = {"float32": torch.float32, "float64": torch.float64}
-KERNELS = ("c", "numba")  # OperatorSettings.kernels
 
 
 @dataclass(frozen=True)
-class OperatorSettings:
-    """Numerical settings of the caustic operator.
+class OperatorSettings(PhotonSettings):
+    """Numerical settings of the caustic operator: those of every photon operator
+    (:class:`operators.photon_settings.PhotonSettings`) and
 
-    photons: total photons per evaluation (split evenly over the wavelengths).
-    seed: seeds the emission pattern; the same seed gives the same photons (common random numbers).
-    footprint_px: ``"cell"``: every footprint is the photon's own emission cell carried through
-        the optics (no blur of the model's own); a number: the footprint radius on the receiver
-        in pixels for light that went straight through (the paper's smoothing;
-        operators/emission.py).
-    min_footprint_px: pixel-filter radius added in quadrature to every footprint (pixels).
-    pixel_integration: every pixel averages the irradiance over its area (a camera pixel, or an
-        image area-averaged from a finer render), modelled by widening every footprint by the
-        pixel box's second moment (operators/photon_operator.py, PIXEL_BOX_R2); False evaluates
-        the irradiance at the pixel centres.
-    max_pixel_radius: cut-off for the footprint's major semi-axis, in pixels (paper: 20).
-    chunk_size: photons traced at once; sets the peak memory.
     hit_cache_mb: memory (MiB, 8 bytes per photon) for the surface hits that a render records
         and a gradient of the same heights replays instead of searching again; 0 turns it off.
-    fresnel: weight by Fresnel transmittance (the paper ignores Fresnel losses).
     simd: take the splat and its gather (footprints that fit an 8 x 8 pixel box), the surface
         jets and the hit adjoint from the AVX2 kernels of the compiled extension
         (operators/kernels/simd_kernels.c) where it was built and the CPU has AVX2; elsewhere, or with
         False, the numba kernels do them (same results to rounding).
-    kernels: which CPU photon kernels trace (same results to rounding): ``c``, those of the
-        compiled extension (operators/kernels/heightfield_photons.c, compiled at install: a run
-        traces at once); ``numba``, the numba kernels (compiled into numba's cache on first use,
-        1-2 minutes; docs/performance.md compares the two). Without the extension: numba.
+    device: ``cpu`` or ``cuda`` (operators/heightfield/trace_cuda.py).
     """
 
-    photons: int = 1 << 22
-    seed: int = 0
-    footprint_px: float | str = CELL_FOOTPRINT
-    min_footprint_px: float = 0.3
-    pixel_integration: bool = True
-    max_pixel_radius: float = 20.0
-    chunk_size: int = 1 << 18
     hit_cache_mb: float = 256.0
-    fresnel: bool = False
     simd: bool = True
-    kernels: str = "c"
-    dtype: str = "float32"
     device: str = "cpu"
 
     def __post_init__(self) -> None:
-        for key in ("photons", "seed", "chunk_size"):
-            value = getattr(self, key)
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or int(value) != value:
-                raise ValueError(f"{key}={value!r} must be an integer")
-            object.__setattr__(self, key, int(value))
-        object.__setattr__(self, "footprint_px", check_footprint(self.footprint_px))
-        for key in (*PIXEL_SETTINGS, "hit_cache_mb"):
-            value = getattr(self, key)
-            if key == "footprint_px":
-                continue
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-                raise ValueError(f"operator.{key}={value!r} must be a finite number")
-            object.__setattr__(self, key, float(value))
-        if self.kernels not in KERNELS:
-            raise ValueError(f"operator.kernels={self.kernels!r} must be one of {', '.join(KERNELS)}")
-        for key in ("fresnel", "simd", "pixel_integration"):
-            if not isinstance(getattr(self, key), bool):
-                raise ValueError(f"operator.{key}={getattr(self, key)!r} must be true or false")
+        super().__post_init__()
+        self._set("hit_cache_mb", checked_number(self.hit_cache_mb, "operator.hit_cache_mb", least=0.0,
+                                                 unit="MiB; 0 turns the hit cache off"))
+        checked_flag(self.simd, "operator.simd")
         try:
             device = torch.device(self.device)
         except (RuntimeError, TypeError):
             raise ValueError(f"operator.device={self.device!r} is not a torch device; use cpu or cuda") from None
         if device.type == "cuda" and not torch.cuda.is_available():
             raise ValueError(f"operator.device={self.device} but CUDA is not available here; use operator.device=cpu")
-        if self.photons < 1:
-            raise ValueError(f"photons={self.photons} must be positive, e.g. 1048576")
-        if not isinstance(self.dtype, str) or self.dtype not in DTYPES:
-            raise ValueError(f"dtype={self.dtype!r} is not supported; use float32 or float64")
-        if int(self.chunk_size) != self.chunk_size or self.chunk_size < 1:
-            raise ValueError(f"chunk_size={self.chunk_size} must be a positive integer, e.g. 262144")
-        if not self.hit_cache_mb >= 0.0:
-            raise ValueError(f"hit_cache_mb={self.hit_cache_mb} must be >= 0 (MiB; 0 turns the hit cache off)")
-        if not 0.0 < self.min_footprint_px < self.max_pixel_radius:
-            raise ValueError(f"need 0 < min_footprint_px ({self.min_footprint_px}) < max_pixel_radius "
-                             f"({self.max_pixel_radius})")
 
 
 class CausticOperator(PhotonOperator):

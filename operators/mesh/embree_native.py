@@ -13,6 +13,7 @@ import ctypes
 import glob
 import math
 import os
+from typing import Any
 
 import embreex
 import llvmlite.binding as llvm
@@ -76,6 +77,8 @@ class EmbreeTriangles:
     """An Embree scene of triangles (vertices (V, 3), faces (F, 3)); ``handle`` for the kernels.
     Face ids are the rows of ``faces``."""
 
+    _scene: Any = None  # set once the scene exists; released by __del__
+
     def __init__(self, vertices: np.ndarray, faces: np.ndarray) -> None:
         self._device = _LIB.rtcNewDevice(None)
         self._scene = _LIB.rtcNewScene(self._device)
@@ -96,7 +99,7 @@ class EmbreeTriangles:
         self.handle = int(self._scene)
 
     def __del__(self) -> None:
-        if getattr(self, "_scene", None):
+        if self._scene:
             _LIB.rtcReleaseScene(self._scene)
             _LIB.rtcReleaseDevice(self._device)
             self._scene = None

@@ -33,8 +33,7 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
-from operators.heightfield.operator import DTYPES, KERNELS
-from operators.emission import CELL_FOOTPRINT, LightEmitter, check_footprint
+from operators.emission import CELL_FOOTPRINT, LightEmitter
 from operators.heightfield.surface import HeightFieldGrid, intersect_height_field, validate_heights
 from operators.light_paths import Arrivals
 from operators.materials import refractive_indices
@@ -43,7 +42,8 @@ from operators.mesh.trace_native import LOSSES, NativeMeshTracer
 from operators.mesh.elements import MeshProgress, OpticalElement, PrintReachesElement, check_layout, make_elements
 from operators.mesh.rays import AIR, Rays, Surface, box_planes, reflect
 from operators.optics.reference import fresnel_transmittance, height_field_normal, height_field_normal_differential, refract, transfer
-from operators.photon_operator import PIXEL_SETTINGS, PhotonOperator, backward_through_splat, check_setting_keys
+from operators.photon_operator import PhotonOperator, backward_through_splat, check_setting_keys
+from operators.photon_settings import DTYPES, PhotonSettings, checked_flag, checked_number, checked_whole
 from operators.scene import Scene
 from operators.supersample import SupersampledOperator, build_supersampled, finer_scene
 from operators.splat.splat import splat_photons
@@ -56,15 +56,16 @@ EXACT_FILTER_PX = 0.3  # ... with this pixel filter (fine pixels)
 
 
 @dataclass(frozen=True)
-class MeshSceneSettings:
-    """Numerical settings (footprints in receiver pixels, as :class:`operators.heightfield.operator.OperatorSettings`).
+class MeshSceneSettings(PhotonSettings):
+    """Numerical settings: those of every photon operator (:class:`operators.photon_settings.PhotonSettings`,
+    footprints in receiver pixels; the kernels: the event kernels of operators/kernels/mesh_events.c
+    or numba's) and
 
+    max_depth: events (hits of a surface) a photon may have before it is dropped.
+    aperture_half_width: half width of the square on the substrate top's plane the photons are
+        aimed at, scene units or a length with a unit (None: the substrate's half width).
     native: trace with the event kernels (Embree on every thread); False: the torch tracer
         (autograd), the reference they are tested against.
-    kernels: which event kernels (same results to rounding): ``c``, those of the compiled
-        extension (operators/kernels/mesh_events.c, compiled at install); ``numba``, the numba
-        kernels (compiled into numba's cache on first use, about 2 minutes). Without the
-        extension: numba.
     event_log_mb: memory (MiB) for the events a render with the C kernels records (13 bytes an
         event, ``max_depth`` events a photon), which a gradient at the same heights replays instead
         of searching again, and where they fit beside them the photons' splat arguments (56 bytes
@@ -72,46 +73,21 @@ class MeshSceneSettings:
     """
 
     photons: int = 1 << 20
-    seed: int = 0
-    footprint_px: float | str = CELL_FOOTPRINT
-    min_footprint_px: float = 0.3
-    pixel_integration: bool = True
-    max_pixel_radius: float = 20.0
     chunk_size: int = 1 << 17
-    fresnel: bool = False
     max_depth: int = 16
     aperture_half_width: float | None = None
-    dtype: str = "float32"
     native: bool = True
-    kernels: str = "c"
     event_log_mb: float = 512.0
 
     def __post_init__(self) -> None:
-        for key in ("photons", "chunk_size", "max_depth"):
-            value = getattr(self, key)
-            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-                raise ValueError(f"operator.{key}={value!r} must be an integer >= 1")
-        object.__setattr__(self, "footprint_px", check_footprint(self.footprint_px))
-        for key in PIXEL_SETTINGS:
-            value = getattr(self, key)
-            if key == "footprint_px":
-                continue
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not value > 0:
-                raise ValueError(f"operator.{key}={value!r} must be a positive number (pixels)")
-        if not self.min_footprint_px < self.max_pixel_radius:
-            raise ValueError(f"need min_footprint_px ({self.min_footprint_px}) < max_pixel_radius ({self.max_pixel_radius})")
-        for key in ("fresnel", "native", "pixel_integration"):
-            if not isinstance(getattr(self, key), bool):
-                raise ValueError(f"operator.{key}={getattr(self, key)!r} must be true or false")
-        if self.dtype not in DTYPES:
-            raise ValueError(f"operator.dtype={self.dtype!r}; use float32 or float64")
-        if self.kernels not in KERNELS:
-            raise ValueError(f"operator.kernels={self.kernels!r} must be one of {', '.join(KERNELS)}")
-        if isinstance(self.event_log_mb, bool) or not isinstance(self.event_log_mb, (int, float)) or not (
-                0 <= self.event_log_mb < math.inf):
-            raise ValueError(f"operator.event_log_mb={self.event_log_mb!r} must be a number of MiB >= 0 (0: off)")
-        if self.aperture_half_width is not None and not self.aperture_half_width > 0:
-            raise ValueError(f"operator.aperture_half_width={self.aperture_half_width!r} must be positive or null")
+        super().__post_init__()
+        self._set("max_depth", checked_whole(self.max_depth, "operator.max_depth", 1))
+        checked_flag(self.native, "operator.native")
+        self._set("event_log_mb", checked_number(self.event_log_mb, "operator.event_log_mb", least=0.0,
+                                                 unit="MiB; 0: off"))
+        if self.aperture_half_width is not None:
+            self._set("aperture_half_width", checked_number(self.aperture_half_width, "operator.aperture_half_width",
+                                                            positive=True, unit="scene units, or null"))
 
 
 class MeshSceneOperator(PhotonOperator):

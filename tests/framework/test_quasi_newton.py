@@ -5,6 +5,7 @@ import torch
 
 from framework.plugins.solvers import BacktrackingStep, PixelLandweber
 from framework.plugins.solvers.quasi_newton import LbfgsMemory, check_quasi_newton
+from framework.plugins.solvers.step_size import LineSearchFailed, backtrack
 from tests.framework.test_momentum import _blur_problem
 from tests.framework.toy import DTYPE, Bounds
 
@@ -110,3 +111,26 @@ def test_the_pairs_survive_a_checkpoint_and_bad_settings_are_named():
         check_quasi_newton({"memory": 0})
     with pytest.raises(ValueError, match="keys memory"):
         check_quasi_newton({"size": 3})
+
+
+def test_the_shared_armijo_search_halves_to_the_first_step_of_sufficient_decrease():
+    # f(x) = x^2 from x = 1 along -f'(1) = -2 (slope -4): tau = 1 overshoots to f = 1, which fails
+    # 1 - 1e-4 * 4; tau = 0.5 lands on the minimum.
+    def evaluate(tau):
+        x = 1.0 - 2.0 * tau
+        return x * x, x
+
+    tau, x, trials = backtrack(evaluate, lambda tau, _: 1.0 - 1e-4 * tau * 4.0, 1.0, 0.5, 10)
+    assert (tau, x, trials) == (0.5, 0.0, 2)
+    with pytest.raises(LineSearchFailed, match=r"no sufficient decrease after 3 trials \(last tau=0.25"):
+        backtrack(lambda tau: (float("nan"), None), lambda tau, _: 0.0, 1.0, 0.5, 3)
+
+
+def test_a_pair_of_too_little_curvature_for_the_tolerance_is_not_stored():
+    # s^T y = 1e-13: positive, but below the design solver's 1e-12 ||s|| ||y|| = 2e-12.
+    s = torch.zeros(4, 4, dtype=DTYPE)
+    y = torch.zeros(4, 4, dtype=DTYPE)
+    s[0, 0], s[1, 1], y[0, 0], y[1, 1] = 1.0, 1.0, 1.0, -1.0 + 1e-13
+    memory = LbfgsMemory(2)
+    assert not memory.update(s, y, lambda x: x, tolerance=1e-12) and memory.pairs == []
+    assert memory.update(s, 2.0 * s, lambda x: x, tolerance=1e-12) and memory.gamma == pytest.approx(0.5)

@@ -15,6 +15,8 @@ from framework.plugins.solvers import (
     SobolevPreconditioner,
     WaveletLandweber,
 )
+from framework.core.solver_loop import Callback
+from regularizers import PostStepUpdate, Regularizer
 from tests.framework.toy import DTYPE, L1, Bounds, OrthogonalTransform, SpyPostStep, WaveletL1, make_problem
 
 
@@ -197,7 +199,7 @@ def test_m3_refine_keeps_w_equal_to_W_d():
     assert solver.step().iteration == 5
 
 
-class _NoProx:
+class _NoProx(Regularizer):
     has_prox = False
 
     def value(self, d):
@@ -221,7 +223,7 @@ def test_solvers_refuse_what_they_cannot_use():
         PixelLandweber(data, d0, 0.1, regularizers=[])
     with pytest.raises(ValueError, match="has_prox=False"):
         PixelLandweber(data, d0, 0.1, regularizers=[_NoProx()])
-    with pytest.raises(ValueError, match="not callable"):
+    with pytest.raises(ValueError, match="not a PostStepUpdate"):
         PixelLandweber(data, d0, 0.1, regularizers=[L1(1.0)], post_steps=[42])
     with pytest.raises(ValueError, match="d0 must be a square"):
         GradientDescent(data, torch.zeros(8, dtype=DTYPE), 0.1)
@@ -262,7 +264,7 @@ def test_divergence_and_failed_line_search_stop_the_run_cleanly():
     assert result.stopped_by == "solver" and "failed" in result.stop_reason
     assert bool(torch.isfinite(result.d).all())
 
-    class Increasing:  # each evaluation is worse than the last: no step can give sufficient decrease
+    class Increasing(Regularizer):  # each evaluation is worse than the last: no step can give sufficient decrease
         has_prox = True
         calls = 0
 
@@ -325,13 +327,23 @@ def test_two_metric_steps_reach_the_constrained_minimiser_where_projected_smooth
     assert errors[None] > 0.1  # measured 0.35: P spreads the active bound's gradient, the clamp cuts it back
 
 
+class _Raise(PostStepUpdate):
+    """Adds a constant to every height (a post step that leaves any upper bound)."""
+
+    def __init__(self, amount: float) -> None:
+        self.amount = amount
+
+    def __call__(self, d):
+        return d + self.amount
+
+
 def test_a_post_step_that_leaves_the_bounds_is_projected_back():
     from regularizers.base import RegularizerContext
     from regularizers.bounds import HeightBounds
     data, *_, L = make_problem()
     bounds = HeightBounds(0.0, 0.3)
     solver = PixelLandweber(data, torch.zeros(8, 8, dtype=DTYPE), ConstantStep(1.0 / L), regularizers=[bounds],
-                            post_steps=[lambda d: d + 1.0],
+                            post_steps=[_Raise(1.0)],
                             context=RegularizerContext(mask=torch.ones(8, 8, dtype=torch.bool)))
     record = solver.step()
     assert float(solver.d.max()) == pytest.approx(0.3) and math.isfinite(record.objective)
@@ -342,7 +354,7 @@ def test_m1_keeps_every_sample_at_or_above_the_floor_and_leaves_the_rest_unconst
     solver = GradientDescent(data, torch.zeros(16, 16, dtype=DTYPE), ConstantStep(0.5 / L), floor=-0.1)
     lowest = []
 
-    class Watch:
+    class Watch(Callback):
         def on_start(self, s): pass
         def on_iteration(self, s, record): lowest.append(float(s.d.min()))
         def on_end(self, s, result): pass

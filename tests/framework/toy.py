@@ -6,6 +6,7 @@ import torch
 from torch import Tensor
 
 from framework.core.objective import DataFidelity
+from regularizers import CoefficientRegularizer, CoefficientTransform, PostStepUpdate, Regularizer
 from operators.photon_operator import ImageOperator
 
 DTYPE = torch.float64
@@ -62,7 +63,7 @@ def make_problem(m: int = 8, n: int = 10, seed: int = 0, noise: float = 0.01, op
     return data, op, A, b, d_true, lipschitz
 
 
-class L1:
+class L1(Regularizer):
     """alpha ||d||_1 with soft-shrink prox."""
 
     has_prox = True
@@ -80,7 +81,7 @@ class L1:
         return torch.sign(d) * torch.clamp(d.abs() - step * self.alpha, min=0.0)
 
 
-class Bounds:
+class Bounds(Regularizer):
     """Indicator of [p1, p2]; prox = clamp."""
 
     has_prox = True
@@ -95,7 +96,7 @@ class Bounds:
         return d.clamp(self.p1, self.p2)
 
 
-class OrthogonalTransform:
+class OrthogonalTransform(CoefficientTransform):
     """w = Q vec(d) with Q orthogonal; records forward/inverse/inverse_adjoint calls in ``log``."""
 
     def __init__(self, m: int, log: list, seed: int = 1) -> None:
@@ -116,7 +117,7 @@ class OrthogonalTransform:
         return self.Q @ g.reshape(-1)
 
 
-class WaveletL1:
+class WaveletL1(CoefficientRegularizer):
     """alpha_w ||Q d||_1 with prox_coefficients = soft shrink; records its prox calls."""
 
     def __init__(self, transform: OrthogonalTransform, alpha: float, log: list) -> None:
@@ -125,12 +126,15 @@ class WaveletL1:
     def value(self, d: Tensor) -> float:
         return self.alpha * float((self.transform.Q @ d.reshape(-1)).abs().sum())
 
-    def prox_coefficients(self, w: Tensor, step: float) -> Tensor:
+    def transform_for(self, shape: tuple[int, int]) -> OrthogonalTransform:
+        return self.transform
+
+    def prox_coefficients(self, w: Tensor, step: float, metric: Tensor | None = None) -> Tensor:
         self.log.append("prox_coefficients")
         return torch.sign(w) * torch.clamp(w.abs() - step * self.alpha, min=0.0)
 
 
-class SpyPostStep:
+class SpyPostStep(PostStepUpdate):
     """A post step that records its calls and returns d unchanged (a copy)."""
 
     def __init__(self, log: list) -> None:

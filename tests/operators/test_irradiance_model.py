@@ -58,7 +58,7 @@ def test_the_true_print_renders_within_one_and_a_half_percent_of_its_exact_caust
     per side, 0.05% from converged), relative L2 over the receiver. Measured on print_lines: 1.1%
     (the paper's 5-pixel splat: 14%)."""
     model = configured_model(f"scene={shape}")
-    assert isinstance(model, SupersampledOperator) and model.settings.footprint_px == "cell"
+    assert isinstance(model, SupersampledOperator) and model.fine.settings.footprint_px == "cell"
     if shape == "print_lines":
         heights, exact = exact_print_lines
     else:

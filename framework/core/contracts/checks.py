@@ -41,6 +41,7 @@ from framework.core.contracts.start import Start, StartRequest
 from framework.core.contracts.stopping import StoppingRule
 from framework.core.data import ReconstructionData
 from framework.core.problem import HeightGrid, Problem
+from framework.core.registry import declared
 from framework.core.solver_loop import IterationRecord, IterativeSolver
 from operators.photon_operator import ImageOperator
 from operators.scene import Receiver, Scene
@@ -59,10 +60,10 @@ def _require(condition: bool, who: str, what: str) -> None:
         raise ContractViolation(f"{who}: {what}")
 
 
-def example_settings(plugin: Any) -> dict[str, Any]:
-    """The settings a plugin declares for the contract checks (its ``example_settings()``), else {}."""
-    example = getattr(plugin, "example_settings", None)
-    return dict(example()) if callable(example) else {}
+def example_settings(kind: str, name: str) -> dict[str, Any]:
+    """The settings plugin ``kind/name`` declares for the contract checks (its ``example_settings()``), else {}."""
+    example = declared(kind, name, "example_settings", None)
+    return dict(example()) if example is not None else {}
 
 
 def smooth_bump(m: int, height: float = 0.02, width: float = 0.3) -> torch.Tensor:

@@ -8,8 +8,9 @@ that gives the squared loss, autograd and the defaults below from ``render`` and
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from contextlib import AbstractContextManager
-from typing import Protocol, runtime_checkable
+from typing import Any, Protocol, runtime_checkable
 
 import torch
 
@@ -53,6 +54,15 @@ class Operator(Protocol):
         has_light_path: True when the operator also offers the two fixed halves of its light
             path around the print, ``arrivals(photons)`` and ``land_from_bottom(points,
             directions)`` (operators/light_paths.py), which the transport start inverts.
+        elements: The optical elements it traces besides the print and the substrate (lenses,
+            operators/mesh/); () for none.
+        gain: The camera gain its images carry (operators/imaging.py); 1.0 for none.
+        shots: The operators of a stack's shots (operators/stack.py), whose images it renders one
+            after the other; () for an operator of one image.
+        shot_count: How many times a pass traces ``photons`` (a stack's shots; 1 otherwise).
+
+    :class:`operators.photon_operator.ImageOperator` declares all of these with the defaults of an
+    operator of one image, without elements or gain; nothing is found by probing an operator for them.
     """
 
     dtype: torch.dtype
@@ -61,6 +71,10 @@ class Operator(Protocol):
     conserves_energy: bool
     revision: int
     has_light_path: bool
+    elements: Sequence[Any]
+    gain: float
+    shots: Sequence[Any]
+    shot_count: int
 
     @property
     def output_shape(self) -> tuple[int, int, int]:
@@ -98,7 +112,8 @@ class Operator(Protocol):
 
 
 
-MEMBERS = ("dtype", "photons", "pixel_area", "conserves_energy", "revision", "has_light_path", "output_shape",
+MEMBERS = ("dtype", "photons", "pixel_area", "conserves_energy", "revision", "has_light_path", "elements", "gain",
+           "shots", "shot_count", "output_shape",
            "render", "vjp",
            "loss_and_grad", "__call__", "variant", "warm_up")
 

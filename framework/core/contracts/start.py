@@ -57,9 +57,12 @@ class Start:
 
     Attributes:
         name: The start's name in metrics and logs (``start_<name>_*``).
+        reads_design: True for a start that reads the print's design (``initial=auto`` skips it
+            where the data carry none).
     """
 
     name: str = "start"
+    reads_design: bool = False
 
     def check(self, base_dir: Path) -> None:
         """Check what the start reads (files), before the run opens; a bad one raises naming the key."""

@@ -135,7 +135,7 @@ class SyntheticData:
         design = None if self.printed is None else request.design().double()
         make = operator.exact_variant if self.reference == "exact" else operator.variant
         first = make(self.reference_photons, request.seed + 1000, self.reference_resolution)
-        second = None if getattr(first, "deterministic", False) else make(
+        second = None if first.deterministic else make(
             self.reference_photons, request.seed + 2000, self.reference_resolution)
         return synthetic_data(truth, first.render, second.render if second is not None else None,
                               operator.output_shape[-1], self.delta, request.seed, request.grid.cell_area,

@@ -165,9 +165,8 @@ class StackData:
         return setups
 
     def _requests(self, request: DataRequest) -> list[DataRequest]:
-        operator = request.operator
-        shots = getattr(operator, "shots", None)
-        if shots is None or len(shots) != len(self.sources):
+        shots = request.operator.shots
+        if len(shots) != len(self.sources):
             raise ValueError("data=stack needs the stacked operator of its shots (framework/pipeline/reconstruction.py "
                              "builds it from data.shots)")
         return [dataclasses.replace(request, operator=shot, seed=request.seed + i * SHOT_SEED_STRIDE,

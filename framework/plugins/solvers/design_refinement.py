@@ -34,6 +34,8 @@ from framework.core.image_metrics import ssim_tensor
 from framework.core.solver_loop import IterationFailed, IterationRecord, IterativeSolver
 from framework.core.values import positive_int
 from framework.plugins.solvers.preconditioner import SobolevPreconditioner
+from framework.plugins.solvers.quasi_newton import LbfgsMemory
+from framework.plugins.solvers.step_size import LineSearchFailed, backtrack
 
 if TYPE_CHECKING:
     from framework.core.problem import Problem
@@ -42,6 +44,7 @@ __all__ = ["DesignAdam", "DesignLBFGS"]
 
 ARMIJO_C1 = 1e-4
 MAX_BACKTRACKS = 10
+PAIR_TOLERANCE = 1e-12  # a curvature pair is kept where s^T y > this x ||s|| ||y|| (positive curvature)
 LOSSES = ("l2", "hellinger", "l2_ssim")
 SSIM_WEIGHT = 0.05  # w of the l2_ssim data term
 HELLINGER_FLOOR = 1e-3  # added to both images under the square roots, as a fraction of the target's peak
@@ -161,7 +164,7 @@ class DesignLBFGS(IterativeSolver):
             self._smooth = SobolevPreconditioner(smoothing_length)
             self._smooth.setup(problem.context)
         self.memory, self.first_step = memory, first_step
-        self._pairs: list[tuple[Tensor, Tensor]] = []
+        self._lbfgs = LbfgsMemory(memory)
         self._current: tuple[float, Tensor, float, float] | None = None
 
     @staticmethod
@@ -185,24 +188,14 @@ class DesignLBFGS(IterativeSolver):
         lr, similarity = _positive("adam_lr", adam_lr), _positive("ssim_weight", ssim_weight)
         return lambda problem, d0: cls(problem, d0, memory, weight, step, length, loss, adam_steps, lr, similarity)
 
+    def _initial_metric(self, x: Tensor) -> Tensor:
+        """H_0 / gamma applied to x: the Sobolev smoothing, or the identity without one."""
+        return x if self._smooth is None else self._smooth(x)
+
     def _direction(self, grad: Tensor) -> Tensor:
-        """-H grad by the two-loop recursion over the kept pairs (s, y)."""
-        q = grad.clone()
-        alphas = []
-        for s, y in reversed(self._pairs):
-            alpha = float((s * q).sum()) / float((y * s).sum())
-            alphas.append(alpha)
-            q -= alpha * y
-        if self._smooth is not None:
-            q = self._smooth(q)
-        if self._pairs:
-            s, y = self._pairs[-1]
-            smooth_y = y if self._smooth is None else self._smooth(y)
-            q *= float((s * y).sum()) / float((y * smooth_y).sum())
-        for (s, y), alpha in zip(self._pairs, reversed(alphas)):
-            beta = float((y * q).sum()) / float((y * s).sum())
-            q += (alpha - beta) * s
-        return -q
+        """-H grad (m, m): the L-BFGS recursion over the kept pairs with H_0 = gamma P
+        (framework/plugins/solvers/quasi_newton.py)."""
+        return -self._lbfgs.gamma * self._lbfgs.direction(grad, self._initial_metric)
 
     def step(self) -> IterationRecord:
         """One L-BFGS iteration: direction, backtracking until Armijo holds, pair update (an Adam
@@ -218,22 +211,21 @@ class DesignLBFGS(IterativeSolver):
         direction = self._direction(grad)
         slope = float((grad * direction).sum())
         if not slope < 0.0:  # not a descent direction: forget the curvature and start afresh
-            self._pairs.clear()
+            self._lbfgs.reset()
             direction = self._direction(grad)
             slope = float((grad * direction).sum())
-        tau = 1.0 if self._pairs else self.first_step / max(float(direction.abs().max()), 1e-300)
-        trials = 0
-        for trials in range(1, MAX_BACKTRACKS + 1):
-            candidate = (d + tau * direction).to(self.state.d.dtype)
-            trial = self.objective(candidate)
-            if math.isfinite(trial[0]) and trial[0] <= value + ARMIJO_C1 * tau * slope:
-                break
-            tau *= 0.5
-        else:
-            raise IterationFailed(f"no decrease along the L-BFGS direction after {MAX_BACKTRACKS} halvings")
-        s, y = candidate.double() - d, trial[1] - grad
-        if float((s * y).sum()) > 1e-12 * float((y * y).sum()) ** 0.5 * float((s * s).sum()) ** 0.5:
-            self._pairs = (self._pairs + [(s, y)])[-self.memory:]
+        tau = 1.0 if self._lbfgs.pairs else self.first_step / max(float(direction.abs().max()), 1e-300)
+        def evaluate(step: float) -> tuple[float, tuple[Tensor, Any]]:
+            candidate = (d + step * direction).to(self.state.d.dtype)
+            evaluation = self.objective(candidate)
+            return evaluation[0], (candidate, evaluation)
+
+        try:
+            tau, (candidate, trial), trials = backtrack(evaluate, lambda step, _: value + ARMIJO_C1 * step * slope,
+                                                        tau, 0.5, MAX_BACKTRACKS)
+        except LineSearchFailed as failed:
+            raise IterationFailed(f"no decrease along the L-BFGS direction: {failed}") from None
+        self._lbfgs.update(candidate.double() - d, trial[1] - grad, self._initial_metric, PAIR_TOLERANCE)
         self.state.d, self._current = candidate, trial
         return self._record(trial, tau, trials, t0)
 
@@ -248,7 +240,7 @@ class DesignLBFGS(IterativeSolver):
         return record
 
     def setup_changed(self) -> None:  # noqa: D102
-        self._pairs.clear()
+        self._lbfgs.reset()
         self._current = None
 
     def set_heights(self, d: Tensor) -> None:  # noqa: D102
@@ -258,12 +250,15 @@ class DesignLBFGS(IterativeSolver):
 
     def state_dict(self) -> dict[str, Any]:
         """Adds the curvature pairs and the Adam steps' moments."""
-        return {**super().state_dict(), "pairs": [(s.clone(), y.clone()) for s, y in self._pairs],
-                "adam": self._adam.state_dict()}
+        return {**super().state_dict(), "quasi_newton": self._lbfgs.state_dict(), "adam": self._adam.state_dict()}
 
     def load_state_dict(self, state: dict[str, Any]) -> None:  # noqa: D102
         super().load_state_dict(state)
-        self._pairs = [(s.double(), y.double()) for s, y in state.get("pairs", [])]
+        self._lbfgs.reset()
+        if "quasi_newton" in state:
+            self._lbfgs.load_state_dict(state["quasi_newton"])
+        for s, y in state.get("pairs", []):  # a checkpoint that kept the pairs alone
+            self._lbfgs.update(s.double(), y.double(), self._initial_metric, PAIR_TOLERANCE)
         self._current = None
         with torch.no_grad():
             self._heights.copy_(self.state.d.double())

@@ -22,7 +22,8 @@ fitted once the broad shape is in place.
 from __future__ import annotations
 
 import math
-from typing import Any, Protocol, Sequence
+from abc import ABC, abstractmethod
+from typing import Any, Sequence
 
 import numpy as np
 import scipy.fft
@@ -33,15 +34,36 @@ from torch import Tensor
 __all__ = ["GradientPreconditioner", "SobolevPreconditioner", "check_stage_index", "neumann_laplacian_eigenvalues"]
 
 
-class GradientPreconditioner(Protocol):
+class GradientPreconditioner(ABC):
     """Maps the gradient (m, m) to the step direction (m, m), symmetric positive definite.
 
-    A preconditioner may also have ``refine() -> bool`` (switch to a finer metric; False when
-    there is none) and ``state_dict()`` / ``load_state_dict(state)`` for checkpoints.
+    The defaults are those of a single fixed metric; a coarse-to-fine schedule overrides them.
+
+    Attributes:
+        stage: The schedule's current stage (0 for a single metric).
+        length: The current smoothing length, scene units, or None for a metric without one.
     """
 
+    stage: int = 0
+    length: float | None = None
+
+    @abstractmethod
     def __call__(self, grad: Tensor) -> Tensor:
-        ...
+        """P grad (m, m)."""
+
+    def refine(self) -> bool:
+        """Switch to the next, finer metric; False (and no change) without one."""
+        return False
+
+    def setup(self, context: Any) -> None:
+        """Take what the metric needs of the problem (e.g. the grid spacing); nothing here."""
+
+    def state_dict(self) -> dict[str, Any]:
+        """What a checkpoint keeps (nothing for a fixed metric)."""
+        return {}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        """Restore :meth:`state_dict`."""
 
 
 def check_stage_index(stage: Any, key: str, null_means: str) -> int | None:
@@ -61,7 +83,7 @@ def neumann_laplacian_eigenvalues(m: int) -> np.ndarray:
     return 2.0 - 2.0 * np.cos(np.pi * np.arange(m) / m)
 
 
-class SobolevPreconditioner:
+class SobolevPreconditioner(GradientPreconditioner):
     """P = (I - l^2 Laplace)^(-p) on the height grid, reflecting borders, applied by a 2-D DCT.
 
     Args:
@@ -90,7 +112,7 @@ class SobolevPreconditioner:
         self._filters: dict[int, np.ndarray] = {}
 
     @property
-    def length(self) -> float:
+    def length(self) -> float:  # type: ignore[override]
         """The smoothing length of the current stage (scene units)."""
         return self.lengths[self.stage]
 

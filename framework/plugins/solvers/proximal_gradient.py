@@ -32,6 +32,7 @@ from framework.plugins.solvers.momentum import NesterovMomentum, check_momentum_
 from framework.plugins.solvers.preconditioner import GradientPreconditioner, check_stage_index
 from framework.plugins.solvers.quasi_newton import LbfgsMemory, check_quasi_newton
 from framework.plugins.solvers.step_size import LineSearchFailed, StepChoice, StepSizePolicy, as_step_policy
+from regularizers import PostStepUpdate, Regularizer
 
 __all__ = ["ProximalGradientSolver", "build_parts", "check_regularizers", "stage_changes",
            "check_two_metric_from", "check_shaped_start_from"]
@@ -86,9 +87,10 @@ def check_two_metric_from(stage: Any) -> int | None:
 def check_regularizers(regularizers: Sequence[Any], solver: str, role: str = "regularizers") -> list[Any]:
     out = list(regularizers)
     for r in out:
-        if not callable(getattr(r, "value", None)) or not callable(getattr(r, "prox", None)):
-            raise ValueError(f"{solver}: {role} entry {type(r).__name__} needs value(d) and prox(d, step)")
-        if getattr(r, "has_prox", True) is False:
+        if not isinstance(r, Regularizer):
+            raise ValueError(f"{solver}: {role} entry {type(r).__name__} is not a Regularizer (regularizers/base.py); "
+                             "derive it from Regularizer with value(d) and prox(d, step)")
+        if not r.has_prox:
             raise ValueError(
                 f"{solver}: {type(r).__name__} has no proximal map (has_prox=False); "
                 "a proximal-gradient solver can only use regularisers with a prox"
@@ -96,11 +98,12 @@ def check_regularizers(regularizers: Sequence[Any], solver: str, role: str = "re
     return out
 
 
-def _check_post_steps(post_steps: Sequence[Any], solver: str) -> list[Callable[[Tensor], Tensor]]:
+def _check_post_steps(post_steps: Sequence[Any], solver: str) -> list[PostStepUpdate]:
     out = list(post_steps)
     for u in out:
-        if not callable(u):
-            raise ValueError(f"{solver}: post step {type(u).__name__} is not callable as u(d) -> d")
+        if not isinstance(u, PostStepUpdate):
+            raise ValueError(f"{solver}: post step {type(u).__name__} is not a PostStepUpdate (regularizers/base.py); "
+                             "derive it from PostStepUpdate with __call__(d) -> d")
     return out
 
 
@@ -152,14 +155,15 @@ class ProximalGradientSolver(IterativeSolver):
         shaped_start_from: str = "first",
     ) -> None:
         super().__init__(d0)
-        if not callable(getattr(data, "evaluate", None)):
+        if not isinstance(data, DataFidelity):
             raise ValueError(f"{self.name}: data must be a DataFidelity, got {type(data).__name__}")
         self.data = data
         self.step_size = as_step_policy(step_size)
         self.regularizers = check_regularizers(regularizers, self.name)
         self.post_steps = _check_post_steps(post_steps, self.name)
-        if preconditioner is not None and not callable(preconditioner):
-            raise ValueError(f"{self.name}: preconditioner {type(preconditioner).__name__} is not callable as P(grad)")
+        if preconditioner is not None and not isinstance(preconditioner, GradientPreconditioner):
+            raise ValueError(f"{self.name}: preconditioner {type(preconditioner).__name__} is not a GradientPreconditioner "
+                             "(framework/plugins/solvers/preconditioner.py)")
         self.preconditioner = preconditioner
         self.two_metric_from = check_two_metric_from(two_metric_from)
         self.momentum_from = check_momentum_from(momentum_from)
@@ -171,8 +175,7 @@ class ProximalGradientSolver(IterativeSolver):
         self._direction: Tensor | None = None
         if context is not None:
             for item in self._context_users():
-                if callable(getattr(item, "setup", None)):
-                    item.setup(context)
+                item.setup(context)
 
     def _context_users(self) -> list[Any]:
         return [*self.regularizers, *self.post_steps, *([self.preconditioner] if self.preconditioner else [])]
@@ -225,7 +228,7 @@ class ProximalGradientSolver(IterativeSolver):
 
     def stage(self) -> int:
         """The preconditioner's stage (0 without one or for a single length)."""
-        return int(getattr(self.preconditioner, "stage", 0))
+        return 0 if self.preconditioner is None else int(self.preconditioner.stage)
 
     def _two_metric(self) -> bool:
         """Whether the current preconditioner stage takes the two-metric direction."""
@@ -276,8 +279,7 @@ class ProximalGradientSolver(IterativeSolver):
     def _project(self, d: Tensor) -> Tensor:
         """d brought into every regulariser's constraint set (an extrapolated point may leave it)."""
         for r in self.regularizers:
-            project = getattr(r, "project", None)  # duck-typed regularisers may have none
-            d = project(d) if callable(project) else d
+            d = r.project(d)
         return d
 
     def _extrapolated_step(self, objective_now: float, sq_distance: Callable[[Candidate], float]
@@ -287,7 +289,7 @@ class ProximalGradientSolver(IterativeSolver):
         Returns (the accepted choice or None, forward evaluations spent); when every trial is
         rejected the momentum restarts."""
         spent = 0
-        decrease = float(getattr(self.step_size, "sufficient_decrease", 0.0))
+        decrease = float(self.step_size.sufficient_decrease)
         for tau in self.step_size.momentum_trials():
             candidate = self._propose(tau)
             z = self.momentum.extrapolate(candidate["d"], self.state.d)
@@ -305,15 +307,14 @@ class ProximalGradientSolver(IterativeSolver):
         """The narrowest band of the regularisers and post steps that enforce the deposited volume
         (V1, V2, the hold: a ``band`` (q1, q2)), or None."""
         bands = [band for part in [*self.regularizers, *self.post_steps]
-                 if (band := getattr(part, "band", None)) is not None]
+                 if (band := part.band) is not None]
         return min(bands, key=lambda band: band[1] - band[0]) if bands else None
 
     def refine(self, d: Tensor) -> bool:
         """Switch the preconditioner to its next, finer stage and continue from ``d`` (m, m) (the
         best iterate so far); the step-size search starts afresh. False, and nothing changes, when
         the preconditioner has no finer stage (or there is none)."""
-        refine = getattr(self.preconditioner, "refine", None)
-        if not callable(refine) or not refine():
+        if self.preconditioner is None or not self.preconditioner.refine():
             return False
         self.state.d = d.detach().clone()
         self._evaluation = None
@@ -409,7 +410,7 @@ class ProximalGradientSolver(IterativeSolver):
                 "forward_evaluations": float(choice.forward_evaluations),
                 "extrapolated": float("prox_point" in choice.candidate),
                 **({"preconditioner_length": float(self.preconditioner.length)}
-                   if isinstance(getattr(self.preconditioner, "length", None), float) else {}),
+                   if self.preconditioner is not None and self.preconditioner.length is not None else {}),
             },
         )
         self.history.append(record)
@@ -427,7 +428,7 @@ class ProximalGradientSolver(IterativeSolver):
         state["momentum"] = self.momentum.state_dict()
         if self.lbfgs is not None:
             state["quasi_newton"] = self.lbfgs.state_dict()
-        if callable(getattr(self.preconditioner, "state_dict", None)):
+        if self.preconditioner is not None:
             state["preconditioner"] = self.preconditioner.state_dict()
         ev = self._evaluation
         state["evaluation"] = None if ev is None else {
@@ -441,7 +442,7 @@ class ProximalGradientSolver(IterativeSolver):
         self.momentum.load_state_dict(state.get("momentum", {}))
         if self.lbfgs is not None:
             self.lbfgs.load_state_dict(state.get("quasi_newton", {}))
-        if callable(getattr(self.preconditioner, "load_state_dict", None)):
+        if self.preconditioner is not None:
             self.preconditioner.load_state_dict(state.get("preconditioner", {}))
         self._direction = None
         ev = state.get("evaluation")

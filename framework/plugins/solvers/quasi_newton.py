@@ -67,11 +67,12 @@ class LbfgsMemory:
         self.pairs.clear()
         self.gamma = 1.0
 
-    def update(self, s: Tensor, y: Tensor, precondition: Callable[[Tensor], Tensor]) -> bool:
-        """Store the pair (s, y) if s^T y > 0 and set gamma = s^T y / y^T P y; returns whether it
-        was stored."""
+    def update(self, s: Tensor, y: Tensor, precondition: Callable[[Tensor], Tensor], tolerance: float = 0.0) -> bool:
+        """Store the pair (s, y) if s^T y > ``tolerance`` ||s|| ||y|| and set gamma = s^T y / y^T P y;
+        returns whether it was stored."""
         sy = float(torch.sum(s * y))
-        if not sy > 0.0:
+        least = 0.0 if tolerance == 0.0 else tolerance * float(torch.sum(s * s)) ** 0.5 * float(torch.sum(y * y)) ** 0.5
+        if not sy > least:
             return False
         ypy = float(torch.sum(y * precondition(y)))
         if not ypy > 0.0:

@@ -16,11 +16,36 @@ from typing import Any, Callable
 
 from framework.core.values import positive_number
 
-__all__ = ["StepChoice", "StepSizePolicy", "ConstantStep", "BacktrackingStep", "LineSearchFailed", "as_step_policy"]
+__all__ = ["StepChoice", "StepSizePolicy", "ConstantStep", "BacktrackingStep", "LineSearchFailed", "as_step_policy",
+           "backtrack"]
 
 
 class LineSearchFailed(RuntimeError):
     """No trial step gave sufficient decrease; the solver stops and keeps the current iterate."""
+
+
+def backtrack(evaluate: Callable[[float], tuple[float, Any]], bound: Callable[[float, Any], float], tau: float,
+              shrink: float, max_trials: int) -> tuple[float, Any, int]:
+    """The sufficient-decrease (Armijo) search shared by every solver: try ``tau``, ``shrink`` x
+    tau, ... until a trial's objective is finite and at most its ``bound``.
+
+    Args:
+        evaluate: tau -> (objective value, the trial) (the trial: whatever the solver keeps).
+        bound: (tau, trial) -> the largest objective value the test accepts at that step.
+        tau, shrink, max_trials: The first step, its factor after a rejection, the trials at most.
+
+    Returns:
+        (the accepted tau, its trial, the trials spent); :class:`LineSearchFailed` after
+        ``max_trials`` rejections, naming the last step and value.
+    """
+    value = math.nan
+    for trials in range(1, max_trials + 1):
+        value, trial = evaluate(tau)
+        if math.isfinite(value) and value <= bound(tau, trial):
+            return tau, trial, trials
+        tau *= shrink
+    raise LineSearchFailed(f"no sufficient decrease after {max_trials} trials (last tau={tau / shrink:.3g}, "
+                           f"value {value:.6g})")
 
 
 @dataclass(frozen=True)
@@ -41,7 +66,14 @@ class StepChoice:
 
 
 class StepSizePolicy(ABC):
-    """Chooses tau for each proximal-gradient iteration; its state is saved in checkpoints."""
+    """Chooses tau for each proximal-gradient iteration; its state is saved in checkpoints.
+
+    Attributes:
+        sufficient_decrease: The Armijo constant c a momentum trial's decrease is held to (0: any
+            decrease; a backtracking policy's own c).
+    """
+
+    sufficient_decrease: float = 0.0
 
     @property
     @abstractmethod
@@ -149,21 +181,20 @@ class BacktrackingStep(StepSizePolicy):
         return self.tau
 
     def select(self, propose, objective, sq_distance, objective_now) -> StepChoice:  # noqa: D102
-        tau = self.tau
-        last = math.nan
-        for trial in range(1, self.max_trials + 1):
+        def evaluate(tau: float) -> tuple[float, Any]:
             candidate = propose(tau)
-            value = objective(candidate)
-            bound = objective_now - self.sufficient_decrease / (2.0 * tau) * sq_distance(candidate)
-            if math.isfinite(value) and value <= bound:
-                self.tau = min(tau * self.grow, self.tau_max)
-                return StepChoice(step=tau, candidate=candidate, trials=trial, forward_evaluations=trial)
-            last = value
-            tau *= self.shrink
-        raise LineSearchFailed(
-            f"no sufficient decrease after {self.max_trials} trials (last tau={tau / self.shrink:.3g}, "
-            f"F={last:.6g} vs F(x)={objective_now:.6g}); the objective may be non-smooth here"
-        )
+            return objective(candidate), candidate
+
+        def bound(tau: float, candidate: Any) -> float:
+            return objective_now - self.sufficient_decrease / (2.0 * tau) * sq_distance(candidate)
+
+        try:
+            tau, candidate, trials = backtrack(evaluate, bound, self.tau, self.shrink, self.max_trials)
+        except LineSearchFailed as failed:
+            raise LineSearchFailed(f"{failed} against F(x)={objective_now:.6g}; the objective may be non-smooth "
+                                   "here") from None
+        self.tau = min(tau * self.grow, self.tau_max)
+        return StepChoice(step=tau, candidate=candidate, trials=trials, forward_evaluations=trials)
 
     def momentum_trials(self) -> list[float]:
         """The current step, then one shrunk: momentum survives a step that was a little too long."""

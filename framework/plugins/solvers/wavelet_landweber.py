@@ -38,6 +38,7 @@ from framework.plugins.solvers.preconditioner import GradientPreconditioner
 from framework.core.contracts.solver import SolverBuilder
 from framework.plugins.solvers.proximal_gradient import Candidate, ProximalGradientSolver, build_parts
 from framework.plugins.solvers.step_size import StepSizePolicy
+from regularizers import CoefficientRegularizer, CoefficientTransform
 
 __all__ = ["WaveletLandweber"]
 
@@ -81,19 +82,12 @@ class WaveletLandweber(ProximalGradientSolver):
         shaped_start_from: str = "first",
     ) -> None:
         self._check_pixel_step_ratio(pixel_step_ratio)
-        missing = [m for m in ("forward", "inverse", "inverse_adjoint") if not callable(getattr(wavelet, m, None))]
-        if wavelet is None or missing:
-            raise ValueError(
-                "landweber_wavelet needs a wavelet transform with forward, inverse and inverse_adjoint; "
-                f"got {type(wavelet).__name__} (missing: {', '.join(missing) or 'the transform'})"
-            )
-        if not callable(getattr(wavelet_regularizer, "prox_coefficients", None)) or not callable(
-            getattr(wavelet_regularizer, "value", None)
-        ):
-            raise ValueError(
-                "landweber_wavelet needs a wavelet regulariser with prox_coefficients(w, step) and value(d); "
-                f"got {type(wavelet_regularizer).__name__}"
-            )
+        if not isinstance(wavelet, CoefficientTransform):
+            raise ValueError("landweber_wavelet needs a wavelet transform (a CoefficientTransform, regularizers/base.py); "
+                             f"got {type(wavelet).__name__}")
+        if not isinstance(wavelet_regularizer, CoefficientRegularizer):
+            raise ValueError("landweber_wavelet needs a wavelet regulariser (a CoefficientRegularizer with "
+                             f"prox_coefficients(w, step), regularizers/base.py); got {type(wavelet_regularizer).__name__}")
         self.wavelet = wavelet
         self.wavelet_regularizer = wavelet_regularizer
         self.pixel_step_ratio = float(pixel_step_ratio)
@@ -129,7 +123,7 @@ class WaveletLandweber(ProximalGradientSolver):
         fresh_parts()  # a bad value fails now, before any render
         name, params = split_name(wavelet_regularizer, "solver.wavelet_regularizer")
         shrink = build_plugin("regularizer", name, params, "solver.wavelet_regularizer")
-        if not callable(getattr(shrink, "transform_for", None)):
+        if not isinstance(shrink, CoefficientRegularizer):
             raise ValueError(f"solver.wavelet_regularizer={name} has no wavelet transform (transform_for); "
                              "use l1_wavelet")
         cls._check_pixel_step_ratio(pixel_step_ratio)
@@ -145,7 +139,7 @@ class WaveletLandweber(ProximalGradientSolver):
     def _shrink_metric(self) -> Tensor | None:
         """Flat (m*m,) diagonal of W P W^* per subband, or None without a preconditioner (or for a
         transform without ``subbands()``)."""
-        if self.preconditioner is None or not callable(getattr(self.wavelet, "subbands", None)):
+        if self.preconditioner is None or not self.wavelet.subbands():
             return None
         if self._metric is None:
             like = self.state.d

@@ -315,7 +315,7 @@ def _direction_field(arrivals: Any, light: tuple[float, float, float], operator:
     directions (N, 3) of the light arriving there: straight from the light for the height-field
     operator's open scene, else interpolated once at the points' x, y between the traced arrivals
     (at most 65536 of them; nearest outside their hull)."""
-    if not getattr(operator, "elements", None):
+    if not operator.elements:
         source = np.asarray(light, dtype=np.float64)
 
         def straight(tops: np.ndarray) -> np.ndarray:
