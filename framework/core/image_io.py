@@ -11,6 +11,12 @@ from PIL import Image, UnidentifiedImageError
 from framework.core.height_field_io import load_npy
 
 
+def resolve_path(path: str | Path, base_dir: Path) -> Path:
+    """``path`` with ~ expanded, relative to ``base_dir`` unless absolute."""
+    p = Path(path).expanduser()
+    return p if p.is_absolute() else base_dir / p
+
+
 def existing_file(path: str | Path, what: str) -> Path:
     """``path`` as a Path once it is known to be a file; ``what`` names it in the one-line error."""
     p = Path(path).expanduser()

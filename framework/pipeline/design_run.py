@@ -26,6 +26,7 @@ from framework.core.design_target import DesignTarget, load_target, paraxial_sha
 from framework.core.image_io import load_mask
 from framework.core.image_metrics import relative_l2, ssim
 from framework.core.plugin_config import build_plugin, split_name
+from framework.plugins.stopping import MorozovStopping
 from framework.core.print_constraints import PrintConstraints
 from framework.core.problem import HeightGrid, Problem
 from framework.core.scene_config import build_operator, build_scene, to_plain
@@ -37,9 +38,6 @@ from framework.pipeline.design_report import save_design_figure, save_previews
 from framework.pipeline.design_screen import has_elements, lit_half_width
 from framework.pipeline.mm_outputs import export_outputs
 from framework.pipeline.tracking import MlflowTracker
-from framework.plugins.stopping import MorozovStopping
-from framework.plugins.solvers.schwartzburg import SchwartzburgDesign
-from framework.plugins.starts.transport import TransportStart
 from operators.mesh.elements import PrintReachesElement
 from operators.scene import Scene
 from operators.wavefront.renderer import WavefrontRenderer, wavefront_vertices
@@ -271,11 +269,13 @@ def _start(setup: DesignSetup, method: Mapping[str, Any], deadline: float | None
                               delta=0.0)
     problem = Problem(operator, data, setup.grid, operator.scene, setup.constraints)
     if has_elements(operator):  # the light's own path through the elements (the reconstructions' start)
-        start = TransportStart(reach=THROUGH_OPTICS_REACH, p1=0.0, p2=setup.constraints.max_height)
+        start = build_plugin("initial", "transport", {"reach": THROUGH_OPTICS_REACH, "p1": 0.0,
+                                                       "p2": setup.constraints.max_height}, "initial")
         found = start(StartRequest(problem, lambda: zeros, Path.cwd(), deadline))
         d, first = found.d.detach().double().cpu().numpy(), found.metrics
     else:  # flat bottom to screen: Schwartzburg's transport design
-        transport = SchwartzburgDesign(problem, zeros, **dict(method.get("transport") or {}))
+        transport = build_plugin("solver", "schwartzburg", dict(method.get("transport") or {}),
+                                 "design_method.transport")(problem, zeros)
         transport.deadline = deadline
         result = transport.run(int(method.get("transport_iterations", 3)))
         d, first = result.d.detach().double().cpu().numpy(), result.history[0].extras
@@ -357,7 +357,7 @@ def run_design(cfg: Mapping[str, Any], output_dir: Path, base_dir: Path | None =
             (output_dir / "start.json").write_text(json.dumps({"seconds": start_seconds, **start_metrics}))
         tracker.log_metrics({f"start_{k}": v for k, v in start_metrics.items()} | {"start_seconds": start_seconds})
         history = MetricsHistory()
-        at_noise = MorozovStopping(min(max(setup.model_noise, 1e-9), 0.5), factor)
+        at_noise = MorozovStopping(min(max(setup.model_noise, 1e-9), 0.5), factor)  # the model's noise, not the data's
         callbacks = [history, ProgressBar(desc=f"design ({method['name']})"), TimeBudget(seconds, start_seconds),
                      at_noise, tracker.metrics_callback(),
                      Checkpointer(checkpoint, every=int(cfg.get("checkpoint_every", 10)))]

@@ -45,7 +45,7 @@ from framework.pipeline.shot_report import save_shot_record, shot_metrics
 from framework.pipeline.run_phases import PHASES, PhaseOutcome, resumed_phases
 from framework.pipeline.tracking import MlflowTracker, local_store_uri
 from framework.pipeline.verdict import volume_report
-from framework.plugins.data.sources import resolve_path
+from framework.core.image_io import resolve_path
 from operators.scene import Scene
 
 CALIBRATION_STATE = "calibration.json"

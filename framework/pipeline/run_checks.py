@@ -15,7 +15,7 @@ from typing import Any
 
 import torch
 
-from framework.plugins.data.sources import resolve_path
+from framework.core.image_io import resolve_path
 from framework.core.contracts.data_source import PrintFacts
 from framework.core.registry import declared
 from framework.pipeline.run_identity import check_resumable

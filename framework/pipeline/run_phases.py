@@ -13,7 +13,7 @@ from typing import Any
 import torch
 
 from framework.pipeline.run_checks import CHECKPOINT
-from framework.plugins.solvers import IterationRecord, RunResult
+from framework.core.solver_loop import IterationRecord, RunResult
 
 __all__ = ["PHASES", "PhaseOutcome", "resumed_phases"]
 

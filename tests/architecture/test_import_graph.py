@@ -33,3 +33,15 @@ def test_no_circle_and_no_upward_arrow():
     graph = import_graph(ROOT)
     assert cycles(graph) == []
     assert upward_arrows(graph) == []
+
+
+# The one plugin the pipelines build by its class: the design's stopping rule at the model's own
+# noise (a config's stopping.morozov reads the data's noise, which a design target does not have).
+BUILT_BY_CLASS = {("framework.pipeline.design_run", "framework.plugins.stopping")}
+
+
+def test_the_pipelines_build_plugins_through_the_registry():
+    graph = import_graph(ROOT)
+    direct = {(module, target) for module, targets in graph.items() if module.startswith("framework.pipeline")
+              for target in targets if target.startswith("framework.plugins")}
+    assert direct == BUILT_BY_CLASS

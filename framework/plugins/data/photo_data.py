@@ -31,7 +31,8 @@ import torch
 
 from framework.core.data import ReconstructionData
 from framework.core.contracts.data_source import DataRequest, PrintFacts
-from framework.plugins.data.sources import KnownPrint, file_setting, resolve_path
+from framework.core.image_io import resolve_path
+from framework.plugins.data.sources import KnownPrint, file_setting
 from framework.plugins.data.photo_import import PhotoImport, import_photo, save_photo_figure
 
 __all__ = ["PhotoData", "two_exposure_delta"]

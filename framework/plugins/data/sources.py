@@ -14,24 +14,17 @@ alone, ``check(request)`` before a run opens, ``load(request)`` once it runs.
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import torch
 
 from framework.core.contracts.data_source import DataRequest, PrintFacts
 from framework.core.data import ReconstructionData, measured_data, synthetic_data, validate_delta
 from framework.core.height_field_io import load_height_field
-from framework.core.image_io import load_caustic_image, load_mask
+from framework.core.image_io import load_caustic_image, load_mask, resolve_path
 from framework.core.masks import mask_from_height_field
 from framework.core.units import scene_volume
 
-__all__ = ["KnownPrint", "file_setting", "SyntheticData", "FileData", "resolve_path"]
-
-
-def resolve_path(path: str | Path, base_dir: Path) -> Path:
-    """``path`` with ~ expanded, relative to ``base_dir`` unless absolute."""
-    p = Path(path).expanduser()
-    return p if p.is_absolute() else base_dir / p
+__all__ = ["KnownPrint", "file_setting", "SyntheticData", "FileData"]
 
 
 def non_negative_setting(name: str, value: float) -> float:

@@ -154,11 +154,14 @@ class SchwartzburgDesign(IterativeSolver):
 
     @classmethod
     def from_config(cls, mass_tolerance: float = 1e-3, black_level: float = 1e-3, smoothness: float = 0.1,
-                    outer_tolerance: float = 1e-2, power_tolerance: float = 0.1, source: str = "flat_caustic") -> Any:
+                    outer_tolerance: float = 1e-2, power_tolerance: float = 0.1, source: str = "flat_caustic",
+                    outside_hull: str = "flat") -> Any:
         """The plugin ``solver/schwartzburg``: checks the settings, returns the builder."""
         settings = cls.checked_settings(mass_tolerance, black_level, smoothness, outer_tolerance, power_tolerance,
                                         source)
-        return lambda problem, d0: cls(problem, d0, **settings)
+        if outside_hull not in OUTSIDE_HULL:
+            raise ValueError(f"solver.outside_hull={outside_hull!r} must be one of {', '.join(OUTSIDE_HULL)}")
+        return lambda problem, d0: cls(problem, d0, **settings, outside_hull=outside_hull)
 
     # -- the three stages ----------------------------------------------------------------------
     def transport(self) -> TransportPlan:

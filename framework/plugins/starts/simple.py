@@ -8,7 +8,7 @@ from typing import Any
 
 import torch
 
-from framework.plugins.data.sources import resolve_path
+from framework.core.image_io import resolve_path
 from framework.core.height_field_io import load_height_field
 
 from framework.core.contracts.start import Start, StartRequest, StartResult
