@@ -28,7 +28,7 @@ from torch import Tensor
 from framework.core.contracts.solver import SolverBuilder
 from framework.core.solver_loop import IterationRecord
 from framework.plugins.solvers.pixel_methods import PixelLandweber
-from framework.plugins.solvers.proximal_gradient import build_parts, check_regularizers
+from framework.plugins.solvers.proximal_parts import build_parts, check_regularizers
 
 __all__ = ["GaussNewtonLandweber", "check_gauss_newton"]
 

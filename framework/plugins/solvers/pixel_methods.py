@@ -15,8 +15,8 @@ from torch import Tensor
 from framework.core.contracts.solver import SolverBuilder
 from framework.core.objective import DataFidelity
 from framework.plugins.solvers.preconditioner import GradientPreconditioner
-from framework.plugins.solvers.proximal_gradient import (Candidate, ProximalGradientSolver, build_parts,
-                                                         check_regularizers)
+from framework.plugins.solvers.proximal_gradient import Candidate, ProximalGradientSolver
+from framework.plugins.solvers.proximal_parts import build_parts, check_regularizers
 from framework.plugins.solvers.step_size import StepSizePolicy
 
 __all__ = ["GradientDescent", "PixelLandweber"]

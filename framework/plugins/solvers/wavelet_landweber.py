@@ -36,7 +36,8 @@ from framework.core.plugin_config import build_plugin, split_name
 
 from framework.plugins.solvers.preconditioner import GradientPreconditioner
 from framework.core.contracts.solver import SolverBuilder
-from framework.plugins.solvers.proximal_gradient import Candidate, ProximalGradientSolver, build_parts
+from framework.plugins.solvers.proximal_gradient import Candidate, ProximalGradientSolver
+from framework.plugins.solvers.proximal_parts import build_parts
 from framework.plugins.solvers.step_size import StepSizePolicy
 from regularizers import CoefficientRegularizer, CoefficientTransform
 
