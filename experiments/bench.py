@@ -10,7 +10,8 @@ with the splat switched off against the full pass), the peak memory of a gradien
 with the paper's 8.4 million photons, and the native splat against the straightforward PyTorch
 splat on the same photons, side by side, each in a fresh process so that their peak memories are
 comparable; the mesh-scene operator (plain scene, two lenses) beside the height-field operator (a
-solver's iteration: a render, then the gradient from its image);
+solver's iteration: a render, then the gradient from its image; experiments/bench_mesh.py); with
+``--device cuda`` the operator on the GPU beside the CPU (experiments/bench_cuda.py);
 a stack of two screens with its shots sharing the hit search and without (operators/stack.py);
 the fidelity of each irradiance model against the exact caustic (experiments/bench_fidelity.py);
 and the default reconstruction with today's solver beside the earlier one
@@ -33,12 +34,13 @@ import numba
 import numpy as np
 import torch
 
+from experiments.bench_cuda import cuda_report
 from experiments.bench_fidelity import fidelity_report, wall_fidelity
+from experiments.bench_mesh import mesh_footprint, time_mesh_scenes
 from experiments.bench_reconstruction import reconstruction_report
 from experiments.bench_stages import stage_profile
 from experiments.timing import best_seconds
 from framework.core.shapes import make_shape
-from operators.emission import CELL_FOOTPRINT, check_footprint
 from operators.heightfield.operator import CausticOperator, OperatorSettings
 from operators.scene import Scene
 from operators.stack import StackOperator
@@ -113,80 +115,6 @@ def time_reference(heights: torch.Tensor, target: torch.Tensor, photons: int, fo
             "forward_backward_photons_per_s": op.photons / gradient_s}
 
 
-def mesh_footprint(value: str) -> float | str | None:
-    """--mesh-footprint's value as the operators check a footprint (operators/emission.py): 'cell'
-    or a number of pixels > 0; None where it is neither."""
-    try:
-        return check_footprint(value if value == CELL_FOOTPRINT else float(value))
-    except ValueError:
-        return None
-
-
-def mesh_scene_operators(photons: int, footprint_px: float | str, supersample: int) -> dict[str, object]:
-    """The height-field operator (conf/operator/height_field.yaml) and the mesh-scene operator on
-    the plain scene and through the paper's two lenses (conf/operator/mesh_scene.yaml,
-    two_lenses.yaml; with the C event kernels, the numba ones, and the torch tracer that both are
-    tested against), each from its config with the same photons, footprint and receiver
-    (``supersample`` x finer, operators/supersample.py)."""
-    from hydra import compose, initialize_config_dir
-    from omegaconf import OmegaConf
-
-    from framework.core.scene_config import build_operator, build_scene
-
-    def configured(name: str, *extra: str) -> object:
-        with initialize_config_dir(config_dir=str(Path(__file__).resolve().parent.parent / "conf"), version_base=None):
-            cfg = OmegaConf.to_container(compose("simulate", overrides=[
-                f"operator={name}", f"photons={photons}", f"operator.footprint_px={footprint_px}",
-                f"operator.supersample={supersample}", *extra]), resolve=True)
-        return build_operator(cfg, build_scene(cfg))
-
-    return {"height_field": configured("height_field"),
-            "mesh_scene_plain": configured("mesh_scene"), "mesh_scene_two_lenses": configured("two_lenses"),
-            "mesh_scene_two_lenses_numba": configured("two_lenses", "operator.kernels=numba"),
-            "mesh_scene_two_lenses_torch_tracer": configured("two_lenses", "operator.native=false")}
-
-
-def time_mesh_scenes(heights: torch.Tensor, photons: int, footprint_px: float | str,
-                     supersample: int, pairs: int = 5) -> dict[str, dict[str, float]]:
-    """Forward and forward + backward photons/s of :func:`mesh_scene_operators`, side by side
-    (the best of two rounds that run them in turn), and a solver's iteration: a render, then the
-    gradient at the same heights from that render's image (framework/core/objective.py), which
-    the mesh operator takes from the render's logged events. Its time over the height-field
-    operator's is the median of ``pairs`` ratios, each of an iteration and the height-field
-    operator's iteration run just before it, so that both see the same background load;
-    ``iteration_seconds`` is the best of those iterations."""
-    ops = mesh_scene_operators(photons, footprint_px, supersample)
-    names = list(ops)
-    targets = {name: op.render(torch.zeros_like(heights)) for name, op in ops.items()}
-    best = {name: [math.inf, math.inf, math.inf] for name in names}
-
-    def iteration(name: str) -> float:
-        op, target = ops[name], targets[name]
-        return best_seconds(lambda: op.loss_and_grad(heights, target, image=op.render(heights)), repeats=1)
-
-    for _ in range(2):
-        for name in names:
-            op, target = ops[name], targets[name]
-            best[name][0] = min(best[name][0], best_seconds(lambda: op.render(heights), repeats=1))
-            best[name][1] = min(best[name][1], best_seconds(lambda: op.loss_and_grad(heights, target), repeats=1))
-    ratios: dict[str, list[float]] = {name: [] for name in names}
-    for _ in range(pairs):
-        for name in names:
-            reference = iteration("height_field")
-            step = reference if name == "height_field" else iteration(name)
-            best["height_field"][2] = min(best["height_field"][2], reference)
-            best[name][2] = min(best[name][2], step)
-            ratios[name].append(step / reference)
-    plain, height_field = best["mesh_scene_plain"], best["height_field"]
-    return {name: {"forward_photons_per_s": photons / forward, "forward_backward_photons_per_s": photons / gradient,
-                   "gradient_time_over_plain_mesh_scene": gradient / plain[1],
-                   "gradient_time_over_height_field": gradient / height_field[1],
-                   "iteration_seconds": step,
-                   "iteration_ratios": ratios[name],
-                   "iteration_time_over_height_field": float(np.median(ratios[name]))}
-            for name, (forward, gradient, step) in best.items()}
-
-
 def _splat_worker(path: str, which: str, queue: mp.Queue) -> None:
     data = torch.load(path)
     splat = splat_photons if which == "native" else splat_photons_reference
@@ -224,55 +152,6 @@ def compare_splats(op: CausticOperator, heights: torch.Tensor, photons: int) -> 
             # process high-water mark; 1 MiB as its floor makes this ratio a lower bound.
             "memory_ratio_lower_bound": ref["peak_extra_mb"] / max(native["peak_extra_mb"], 1.0),
             "relative_image_difference": abs(native["sum"] - ref["sum"]) / abs(ref["sum"])}
-
-
-def cuda_report(heights: torch.Tensor, photons: int, grad_photons: int, footprint_px: float,
-                chunk_size: int) -> dict[str, object]:
-    """Forward and forward+backward photons/s of the operator on the GPU (``device: cuda``), its
-    trace/splat split, a gradient with the paper's photon count and the GPU's peak memory, beside
-    the CPU fused path of the same machine in the same run."""
-    def synced(run):
-        def call():
-            run()
-            torch.cuda.synchronize()
-        return call
-
-    def operator(count: int, device: str) -> CausticOperator:
-        return CausticOperator(Scene(), OperatorSettings(photons=count, footprint_px=footprint_px,
-                                                         chunk_size=chunk_size, device=device))
-
-    gpu_heights = heights.cuda()
-    op = operator(photons, "cuda")
-    target = op.render(torch.zeros(128, 128, device="cuda"))
-    op.loss_and_grad(gpu_heights, target)  # warm up: CUDA compilation
-    torch.cuda.synchronize()
-    forward_s = best_seconds(synced(lambda: op.render(gpu_heights)), repeats=5)
-    gradient_s = best_seconds(synced(lambda: op.loss_and_grad(gpu_heights, target)), repeats=5)
-    d = heights.double().numpy()
-    d_gpu = gpu_heights.double()
-    image = torch.zeros(op.output_shape, device="cuda")
-    trace_s = best_seconds(synced(lambda: op.gpu.render(op.fused.constants(d), d_gpu, 0, op.photons, image, False)),
-                           repeats=5)
-    big = operator(grad_photons, "cuda")
-    torch.cuda.reset_peak_memory_stats()
-    big_s = best_seconds(synced(lambda: big.loss_and_grad(gpu_heights, target)), repeats=3)
-    cpu = operator(photons, "cpu")
-    cpu_target = target.cpu()
-    cpu.loss_and_grad(heights, cpu_target)  # warm up
-    cpu_forward_s = best_seconds(lambda: cpu.render(heights), repeats=2)
-    cpu_gradient_s = best_seconds(lambda: cpu.loss_and_grad(heights, cpu_target), repeats=2)
-    return {
-        "gpu": torch.cuda.get_device_name(), "photons": op.photons,
-        "forward_photons_per_s": op.photons / forward_s,
-        "forward_backward_photons_per_s": op.photons / gradient_s,
-        "forward_split": {"trace_s": trace_s, "splat_s": forward_s - trace_s, "trace_fraction": trace_s / forward_s},
-        "gradient_paper_photons": {"photons": big.photons, "seconds": big_s,
-                                   "gpu_peak_allocated_mb": torch.cuda.max_memory_allocated() / 2 ** 20},
-        "cpu_same_machine": {"threads": numba.get_num_threads(),
-                             "forward_photons_per_s": cpu.photons / cpu_forward_s,
-                             "forward_backward_photons_per_s": cpu.photons / cpu_gradient_s},
-        "speedup_over_cpu": {"forward": cpu_forward_s / forward_s, "forward_backward": cpu_gradient_s / gradient_s},
-    }
 
 
 def time_stack(heights: torch.Tensor, photons: int, footprint_px: float, chunk_size: int,
