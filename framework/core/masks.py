@@ -13,14 +13,9 @@ from typing import Literal
 import torch
 import torch.nn.functional as F
 
+from framework.core.values import described
+
 __all__ = ["mask_from_height_field"]
-
-
-def _described(value: object) -> str:
-    """A tensor's shape and dtype, or another value's type, for an error message."""
-    if isinstance(value, torch.Tensor):
-        return f"shape {tuple(value.shape)}, {value.dtype}"
-    return type(value).__name__
 
 
 def mask_from_height_field(
@@ -51,7 +46,7 @@ def mask_from_height_field(
         169
     """
     if not isinstance(d_true, torch.Tensor) or d_true.ndim != 2 or not d_true.is_floating_point():
-        raise ValueError(f"d_true must be a floating-point (m, m) tensor, got {_described(d_true)}")
+        raise ValueError(f"d_true must be a floating-point (m, m) tensor, got {described(d_true)}")
     for name, value in (("threshold", threshold), ("dilation_fraction", dilation_fraction)):
         if not (math.isfinite(float(value)) and float(value) >= 0.0):
             raise ValueError(f"{name}={value!r} must be a finite number >= 0 (defaults: threshold 1e-3, "

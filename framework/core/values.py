@@ -5,7 +5,16 @@ from __future__ import annotations
 import math
 from typing import Any
 
-__all__ = ["non_negative_number", "positive_int", "positive_number"]
+import torch
+
+__all__ = ["described", "non_negative_number", "positive_int", "positive_number"]
+
+
+def described(value: object) -> str:
+    """A tensor's shape and dtype, or another value's type, for an error message."""
+    if isinstance(value, torch.Tensor):
+        return f"shape {tuple(value.shape)}, {value.dtype}"
+    return type(value).__name__
 
 
 def positive_number(value: Any, where: str, what: str = "number") -> float:

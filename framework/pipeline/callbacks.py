@@ -16,6 +16,7 @@ from torch import Tensor
 
 from framework.pipeline.checkpoint import save_checkpoint
 from framework.core.solver_loop import Callback
+from framework.core.values import described
 
 if TYPE_CHECKING:
     from framework.core.solver_loop import IterationRecord
@@ -134,7 +135,7 @@ class GroundTruthError(Callback):
 
     def __init__(self, d_true: Tensor, substrate_thickness: float) -> None:
         if not isinstance(d_true, Tensor) or d_true.ndim != 2:
-            raise ValueError(f"d_true must be an (m, m) tensor, got {tuple(d_true.shape) if isinstance(d_true, Tensor) else type(d_true).__name__}")
+            raise ValueError(f"d_true must be an (m, m) tensor, got {described(d_true)}")
         h = float(substrate_thickness)
         if not (math.isfinite(h) and h >= 0.0):
             raise ValueError(f"substrate_thickness h must be finite and >= 0, got {substrate_thickness!r}")

@@ -26,7 +26,6 @@ from framework.core.design_target import DesignTarget, load_target, paraxial_sha
 from framework.core.image_io import load_mask
 from framework.core.image_metrics import relative_l2, ssim
 from framework.core.plugin_config import build_plugin, split_name
-from framework.plugins.stopping import MorozovStopping
 from framework.core.print_constraints import PrintConstraints
 from framework.core.problem import HeightGrid, Problem
 from framework.core.scene_config import build_operator, build_scene, to_plain
@@ -35,6 +34,7 @@ from framework.core.units import mm_per_unit, scene_length, scene_volume
 from framework.pipeline.callbacks import Checkpointer, MetricsHistory, ProgressBar
 from framework.pipeline.checkpoint import restore
 from framework.pipeline.design_report import save_design_figure, save_previews
+from framework.plugins.stopping import MorozovStopping
 from framework.pipeline.design_screen import has_elements, lit_half_width
 from framework.pipeline.mm_outputs import export_outputs
 from framework.pipeline.tracking import MlflowTracker

@@ -45,7 +45,6 @@ from operators.splat.splat import splat_photons
 from operators.heightfield.trace_reference import trace_substrate
 
 
-
 @dataclass(frozen=True)
 class OperatorSettings(PhotonSettings):
     """Numerical settings of the caustic operator: those of every photon operator

@@ -163,7 +163,7 @@ class DesignLBFGS(IterativeSolver):
         if smoothing_length is not None:
             self._smooth = SobolevPreconditioner(smoothing_length)
             self._smooth.setup(problem.context)
-        self.memory, self.first_step = memory, first_step
+        self.first_step = first_step
         self._lbfgs = LbfgsMemory(memory)
         self._current: tuple[float, Tensor, float, float] | None = None
 
@@ -215,6 +215,7 @@ class DesignLBFGS(IterativeSolver):
             direction = self._direction(grad)
             slope = float((grad * direction).sum())
         tau = 1.0 if self._lbfgs.pairs else self.first_step / max(float(direction.abs().max()), 1e-300)
+
         def evaluate(step: float) -> tuple[float, tuple[Tensor, Any]]:
             candidate = (d + step * direction).to(self.state.d.dtype)
             evaluation = self.objective(candidate)
