@@ -33,7 +33,7 @@ from typing import Any
 import torch
 
 from experiments.timing import best_seconds
-from framework.core.shapes import make_shape
+from framework.scene.shapes import make_shape
 
 # The designs compared: the paper's splat, photon differentials at their own cells' size, and those
 # rendered on a 4 x finer receiver and block-averaged (the default, conf/operator/height_field.yaml).
@@ -52,7 +52,7 @@ def configured_operator(scene_name: str, resolution: int, photons: int, seed: in
     from hydra import compose, initialize_config_dir
     from omegaconf import OmegaConf
 
-    from framework.core.scene_config import build_operator, build_scene
+    from framework.scene.scene_config import build_operator, build_scene
 
     overrides = [f"operator={scene_name}", f"photons={photons}", f"seed={seed}", f"receiver.resolution={resolution}",
                  *[f"operator.{key}={value}" for key, value in design.items()], *scene_overrides]

@@ -34,7 +34,7 @@ def mesh_scene_operators(photons: int, footprint_px: float | str, supersample: i
     from hydra import compose, initialize_config_dir
     from omegaconf import OmegaConf
 
-    from framework.core.scene_config import build_operator, build_scene
+    from framework.scene.scene_config import build_operator, build_scene
 
     def configured(name: str, *extra: str) -> object:
         with initialize_config_dir(config_dir=str(Path(__file__).resolve().parent.parent / "conf"), version_base=None):

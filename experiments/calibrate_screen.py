@@ -2,7 +2,7 @@
 
 Reconstructs the photo under several widths of the Gaussian screen blur, each with the same start
 and budget and no stop at the noise level, and takes the width whose fit explains the photo best
-(framework/pipeline/width_search.py; docs/method.md, "The screen's blur from the photo"). The blur
+(framework/lab/width_search.py; docs/method.md, "The screen's blur from the photo"). The blur
 belongs to the setup (screen, camera, focus), not to the print: calibrate it once per setup, then
 reconstruct every print with ``screen.psf=gaussian screen.sigma=<found>``.
 
@@ -31,9 +31,9 @@ import matplotlib.pyplot as plt  # noqa: E402
 
 from experiments.input_errors import one_line_input_errors  # noqa: E402
 from experiments.configs import chooses_start, reconstruct_config  # noqa: E402
-from framework.core.scene_config import build_scene  # noqa: E402
-from framework.pipeline.reconstruction import run_reconstruction  # noqa: E402
-from framework.pipeline.width_search import MIN_RISE, WidthProfile, search_width  # noqa: E402
+from framework.scene.scene_config import build_scene  # noqa: E402
+from framework.reconstruction.reconstruction import run_reconstruction  # noqa: E402
+from framework.lab.width_search import MIN_RISE, WidthProfile, search_width  # noqa: E402
 
 GRID_PX = (0.35, 0.7, 1.4, 2.8)
 # The best fit must come within this factor of the noise level for its width to count: fits far

@@ -40,7 +40,7 @@ def _mesh() -> None:
     from hydra import compose, initialize_config_dir
 
     from experiments.configs import CONF
-    from framework.core.scene_config import build_heights, build_operator, build_scene, to_plain
+    from framework.scene.scene_config import build_heights, build_operator, build_scene, to_plain
 
     with initialize_config_dir(config_dir=CONF, version_base=None):
         cfg = to_plain(compose("simulate", overrides=[

@@ -8,7 +8,7 @@ from typing import Any
 
 from hydra import compose, initialize_config_dir
 
-from framework.core.scene_config import to_plain
+from framework.scene.scene_config import to_plain
 
 CONF = str(Path(__file__).resolve().parent.parent / "conf")
 

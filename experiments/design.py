@@ -23,8 +23,8 @@ from hydra.utils import get_original_cwd
 from omegaconf import DictConfig
 
 from experiments.input_errors import one_line_input_errors
-from framework.core.scene_config import to_plain
-from framework.pipeline.design_run import prepare_design, run_design
+from framework.scene.scene_config import to_plain
+from framework.design.design_run import prepare_design, run_design
 
 CONFIG_DIR = str(Path(__file__).resolve().parent.parent / "conf")
 

@@ -1,5 +1,5 @@
 """sfc-export: the heights, the glass mesh and the deviation from the design of a reconstruction run,
-in millimetres (framework/pipeline/mm_outputs.py, docs/export.md).
+in millimetres (framework/files/mm_outputs.py, docs/export.md).
 
 Examples::
 
@@ -34,10 +34,10 @@ from omegaconf import OmegaConf
 from experiments.input_errors import one_line_input_errors
 from framework.defects.fit import Defect
 from framework.defects.report import defect_lines
-from framework.pipeline.mm_outputs import MESH_FORMATS, export_outputs
-from framework.core.height_field_io import load_height_field, read_npy, validate_heights
-from framework.core.run_settings import design_given
-from framework.core.scene_config import build_heights, build_scene, to_plain
+from framework.files.mm_outputs import MESH_FORMATS, export_outputs
+from framework.files.height_field_io import load_height_field, read_npy, validate_heights
+from framework.scene.run_settings import design_given
+from framework.scene.scene_config import build_heights, build_scene, to_plain
 from framework.core.units import mm_per_unit
 
 INPUT_ERROR_STATUS = 2
@@ -154,7 +154,7 @@ def export_run(args: argparse.Namespace) -> None:
 
 
 def copy_defect_report(run_dir: Path, out: Path) -> None:
-    """The run's defect report (defects.json, .csv, .png; framework/pipeline/defect_stage.py) copied
+    """The run's defect report (defects.json, .csv, .png; framework/defects/defect_stage.py) copied
     into ``out`` and its verdict printed; nothing when the run has none."""
     report = run_dir / "defects.json"
     if not report.is_file():

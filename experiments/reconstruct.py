@@ -26,8 +26,8 @@ from hydra.utils import get_original_cwd
 from omegaconf import DictConfig
 
 from experiments.input_errors import one_line_input_errors
-from framework.pipeline.reconstruction import run_reconstruction
-from framework.core.scene_config import to_plain
+from framework.reconstruction.reconstruction import run_reconstruction
+from framework.scene.scene_config import to_plain
 
 CONFIG_DIR = str(Path(__file__).resolve().parent.parent / "conf")
 

@@ -27,7 +27,7 @@ from matplotlib.figure import Figure
 from experiments.configs import reconstruct_config
 from experiments.defect_prints import PlannedDefect, apply_defect, feature_sites
 from experiments.mlflow_store import TrackingStore, artifact, latest_runs, reproduction_parser, run_sweep, tracking_store
-from framework.core.scene_config import build_heights
+from framework.scene.scene_config import build_heights
 
 EXPERIMENT = "defects"
 SCENES = ("print_lines", "oblique_lines", "bump", "gaussian", "letter_a")

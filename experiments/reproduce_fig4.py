@@ -24,8 +24,8 @@ from matplotlib.figure import Figure
 from omegaconf import OmegaConf
 
 from experiments.mlflow_store import TrackingStore, artifact, latest_runs, reproduction_parser, tracking_store
-from framework.core.scene_config import build_heights, build_operator, build_scene
-from framework.pipeline.tracking import MlflowTracker
+from framework.scene.scene_config import build_heights, build_operator, build_scene
+from framework.tracking.mlflow_tracker import MlflowTracker
 
 EXPERIMENT = "fig4"
 SCENES = ("two_lenses", "prism_lens_array")

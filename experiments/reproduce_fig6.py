@@ -1,7 +1,7 @@
 """Reproduce the paper's Fig. 6: caustic design (Schwartzburg et al. 2014) against the regularised
 reconstruction M2V1 on the "Lines" (print_lines) and "A" (letter_a) height fields, both from the
 same noisy caustic (5% noise). The design runs with each transport source (the flat glass's
-caustic, and the light's irradiance on the glass: framework/plugins/solvers/schwartzburg.py). Runs the
+caustic, and the light's irradiance on the glass: framework/design/schwartzburg.py). Runs the
 six cases as one Hydra multirun logged to MLflow, then rebuilds the figure and the table (h) from
 the store.
 
@@ -22,7 +22,7 @@ from matplotlib.figure import Figure
 
 from experiments.mlflow_store import (TrackingStore, artifact, latest_runs, reproduction_parser, run_sweep,
                                       tracking_store)
-from framework.core.plotting import show_panel
+from framework.files.plotting import show_panel
 
 EXPERIMENT = "fig6"
 SCENES = {"print_lines": "Lines", "letter_a": "A"}

@@ -23,7 +23,7 @@ from matplotlib.figure import Figure
 
 from experiments.mlflow_store import (TrackingStore, artifact, latest_runs, reproduction_parser, run_sweep,
                                       tracking_store)
-from framework.core.plotting import show_panel
+from framework.files.plotting import show_panel
 
 EXPERIMENT = "fig7"
 RECEIVER_Z = -1.0

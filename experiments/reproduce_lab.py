@@ -41,12 +41,12 @@ from PIL import Image
 from experiments.calibrate_screen import calibrate
 from experiments.configs import known_print, reconstruct_config
 from experiments.mlflow_store import TrackingStore
-from framework.pipeline.calibration import with_setup
-from framework.pipeline.callbacks import GroundTruthError
+from framework.lab.calibration import with_setup
+from framework.core.callbacks import GroundTruthError
 from framework.core.data import resample_image
-from framework.plugins.data.photo_synthesis import synthesize_photo
-from framework.pipeline.reconstruction import Reconstruction, run_reconstruction
-from framework.core.scene_config import build_heights, build_operator, build_scene, height_grid
+from framework.lab.photo_synthesis import synthesize_photo
+from framework.reconstruction.reconstruction import Reconstruction, run_reconstruction
+from framework.scene.scene_config import build_heights, build_operator, build_scene, height_grid
 
 SCENES = ("print_lines", "bump")
 # The photo: 960 x 720 px, the receiver seen in perspective (about 3.6 photo pixels per receiver
@@ -65,7 +65,7 @@ def true_caustic(cfg: dict[str, Any], photons: int, resolution: int, seed: int,
     (the height field's wavefront triangles: about ``photons`` vertices, no footprint, no noise;
     ``seed`` for a method that samples) at an N = ``resolution`` receiver, the screen's blur
     included, in the configured setup with ``setup`` (calibration parameter values,
-    framework/pipeline/calibration.py) replaced."""
+    framework/lab/calibration.py) replaced."""
     scene = build_scene(cfg)
     if setup:
         scene = with_setup(scene, setup)
@@ -179,7 +179,7 @@ def with_noise(image: np.ndarray, delta: float, seed: int) -> np.ndarray:
 
 
 def error_against(truth: torch.Tensor, run_dir: Path, cfg: dict[str, Any]) -> float:
-    """The run's relative error of h + d against h + d_true (framework/pipeline/callbacks.py, GroundTruthError)."""
+    """The run's relative error of h + d against h + d_true (framework/core/callbacks.py, GroundTruthError)."""
     d = torch.from_numpy(np.load(run_dir / "height_field.npy"))
     return GroundTruthError(truth, float(cfg["substrate"]["thickness"])).errors(d)["rel_error"]
 

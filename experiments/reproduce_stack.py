@@ -33,8 +33,8 @@ from experiments.mlflow_store import TrackingStore
 from experiments.configs import known_print, reconstruct_config
 from experiments.reproduce_lab import error_against, true_caustic, truth_and_volume, with_noise
 from framework.core.data import resample_image
-from framework.plugins.data.stack import StackData
-from framework.pipeline.reconstruction import run_reconstruction
+from framework.stack.stack_data import StackData
+from framework.reconstruction.reconstruction import run_reconstruction
 
 SCREEN_SETS = ((0.05,), (0.05, 0.2), (0.05, 0.2, 1.0), (1.0, 0.05))
 WEIGHTINGS = StackData.WEIGHTINGS  # data.weighting

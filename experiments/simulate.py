@@ -22,8 +22,8 @@ from hydra.utils import get_original_cwd
 from omegaconf import DictConfig
 
 from experiments.input_errors import one_line_input_errors
-from framework.core.plotting import save_caustic_png, save_height_and_caustic_figure
-from framework.core.scene_config import build_heights, build_operator, build_scene
+from framework.files.plotting import save_caustic_png, save_height_and_caustic_figure
+from framework.scene.scene_config import build_heights, build_operator, build_scene
 
 # Absolute, so that the installed console script finds the configs too (a relative
 # "../conf" would be looked up as the package "conf", which is not installed).

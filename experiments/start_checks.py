@@ -5,7 +5,7 @@
 - a multirun checks every job before the first one starts: a sweep with one bad value refuses to
   start instead of running the jobs before it and dropping the ones after it. Each job's config is
   composed from the sweep's overrides, its plugins built and the checks a single run makes before
-  it opens run (framework/pipeline/reconstruction.py, ``Reconstruction.check``): no render, no MLflow run;
+  it opens run (framework/reconstruction/reconstruction.py, ``Reconstruction.check``): no render, no MLflow run;
 - a launcher whose engine is not there is refused (``hydra/launcher=slurm`` without SLURM, Ray or
   joblib not installed).
 """
@@ -25,9 +25,9 @@ from hydra.experimental.callback import Callback
 from omegaconf import DictConfig
 
 from experiments.input_errors import INPUT_ERRORS, TRACEBACK_VARIABLE, one_line
-from framework.pipeline.reconstruction import Reconstruction
-from framework.pipeline.run_checks import check_creatable_directory
-from framework.core.scene_config import to_plain
+from framework.reconstruction.reconstruction import Reconstruction
+from framework.reconstruction.run_checks import check_creatable_directory
+from framework.scene.scene_config import to_plain
 
 __all__ = ["CheckBeforeStart", "check_launcher", "sweep_jobs"]
 

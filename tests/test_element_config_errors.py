@@ -13,7 +13,7 @@ import trimesh
 
 import operators.mesh.shapes as mesh_shapes
 import operators.mesh.elements as optical_elements
-from framework.core.scene_config import build_operator, build_scene
+from framework.scene.scene_config import build_operator, build_scene
 from operators.mesh.shapes import crease_normals, lens, prism
 from operators.mesh.elements import load_mesh, make_element, make_elements
 

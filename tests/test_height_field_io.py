@@ -9,8 +9,8 @@ import pytest
 import torch
 from PIL import Image
 
-from framework.core.height_field_io import load_height_field, resample, save_height_field
-from framework.core.shapes import make_shape
+from framework.files.height_field_io import load_height_field, resample, save_height_field
+from framework.scene.shapes import make_shape
 
 
 @pytest.fixture()

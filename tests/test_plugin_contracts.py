@@ -21,7 +21,7 @@ from framework.core.data import ReconstructionData
 from operators.stack import StackOperator
 from framework.core.masks import mask_from_height_field
 from framework.core.problem import HeightGrid, Problem
-from framework.plugins.stopping import StagnationStopping
+from framework.reconstruction.stopping import StagnationStopping
 from framework.core.plugin_config import build_plugin
 from framework.core.registry import available, declared
 from operators.scene import Receiver, Scene

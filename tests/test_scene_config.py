@@ -11,8 +11,8 @@ import torch
 from hydra import compose, initialize_config_dir
 from omegaconf import DictConfig
 
-from framework.core.scene_config import build_heights, build_operator, build_scene
-from framework.core.shapes import make_shape
+from framework.scene.scene_config import build_heights, build_operator, build_scene
+from framework.scene.shapes import make_shape
 
 CONF = Path(__file__).resolve().parents[1] / "conf"
 SCENES = sorted(p.stem for p in (CONF / "scene").glob("*.yaml"))

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from framework.core.height_field_io import load_height_field
+from framework.files.height_field_io import load_height_field
 
 ROOT = Path(__file__).resolve().parents[1]
 SCRIPT = Path(sys.executable).parent / "sfc-simulate"

@@ -32,11 +32,11 @@ class ReconstructionData:
     source: the file the measured data were read from (the run logs it as the dataset's source);
     design: the print's design (m, m), scene units, when one was given (None: no design, or synthetic
     data of a print equal to its configuration, whose ground truth is then no design but the answer);
-    shots: a stack's data shot by shot (framework/plugins/data/stack.py; empty for one image), whose
+    shots: a stack's data shot by shot (framework/stack/stack_data.py; empty for one image), whose
     target above stacks theirs along the channel axis; start_shot: the shot a start reads;
     first_fit_shot: the shot a run from flat glass fits alone first (None: none); line_search:
     when every start ends short of the noise level, one more run fits that shot alone and
-    searches its lines across basins before the stack (framework/pipeline/feature_search.py).
+    searches its lines across basins before the stack (framework/reconstruction/feature_search.py).
     """
 
     target: torch.Tensor

@@ -7,7 +7,7 @@ similarity of Wang et al. 2004 ("Image quality assessment: from error visibility
 similarity"): Gaussian window of standard deviation 1.5 pixels, K1 = 0.01, K2 = 0.03, dynamic
 range L = the target's maximum, averaged over the pixels and the channels. :func:`ssim_tensor` is
 the same measure on torch tensors, differentiable in the image (a design's data term can hold it:
-framework/plugins/solvers/design_refinement.py); :func:`ssim` evaluates it on arrays.
+framework/design/design_refinement.py); :func:`ssim` evaluates it on arrays.
 """
 
 from __future__ import annotations

@@ -2,7 +2,7 @@
 
 For simulated data the rule of the paper's official code: |d_true| >= 1e-3,
 dilated by 5% of the grid width (6 px at m = 128); for measured data the same rule applied to the
-print's design, or a mask image (framework/core/image_io.py).
+print's design, or a mask image (framework/files/image_io.py).
 """
 
 from __future__ import annotations

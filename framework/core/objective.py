@@ -242,7 +242,7 @@ class DataFidelity:
 
     def use_operator(self, operator: Operator) -> None:
         """Go on with another operator of the same output shape (e.g. the same physics with other
-        photons, framework/pipeline/photon_budget.py); forgets the last render."""
+        photons, framework/reconstruction/photon_budget.py); forgets the last render."""
         if tuple(operator.output_shape) != tuple(self.target.shape):
             raise ValueError(f"operator {type(operator).__name__} renders {tuple(operator.output_shape)}, "
                              f"the target has shape {tuple(self.target.shape)}")

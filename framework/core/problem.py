@@ -31,7 +31,7 @@ class HeightGrid:
         resolution: m, samples per side.
         half_width: W, scene units (the substrate's half width).
         base: Height of the glass under the print (the substrate thickness h, scene units): the
-            relative error is taken of h + d (framework/pipeline/callbacks.py, GroundTruthError).
+            relative error is taken of h + d (framework/core/callbacks.py, GroundTruthError).
     """
 
     resolution: int
@@ -85,7 +85,7 @@ class Problem:
                              f"{self.grid.shape}; the mask must match the height field")
 
     def shot(self, index: int) -> Problem:
-        """Shot ``index`` of a stack (framework/plugins/data/stack.py) alone, through its own
+        """Shot ``index`` of a stack (framework/stack/stack_data.py) alone, through its own
         operator and scene."""
         operator = self.operator.shots[index]
         return Problem(operator, self.data.shots[index], self.grid, operator.scene)

@@ -1,9 +1,9 @@
-"""Where each shot of a stack was taken (framework/plugins/data/stack.py): the setup keys of one
+"""Where each shot of a stack was taken (framework/stack/stack_data.py): the setup keys of one
 shot's config, read against the configured scene.
 
 A shot's screen is the configured one moved by ``offset`` (or placed at ``screen_distance``),
 its light the configured one moved by ``light_offset`` (or placed at ``light``): offsets are what
-a translation stage or a lamp rail measures, so joint calibration (framework/pipeline/calibration.py)
+a translation stage or a lamp rail measures, so joint calibration (framework/lab/calibration.py)
 may move the configured distance and light while the offsets between the shots stay fixed.
 """
 

@@ -1,7 +1,7 @@
 """The solver loop shared by all methods: ``step()`` does one iteration, ``run()`` drives it.
 
 Stopping rules, logging, progress and checkpoints are :class:`Callback` objects
-(:mod:`framework.pipeline.callbacks`); ``run`` only enforces the iteration cap and asks the solver whether
+(:mod:`framework.core.callbacks`); ``run`` only enforces the iteration cap and asks the solver whether
 it has finished (:meth:`IterativeSolver.finished`, e.g. a direct method after its one step). The cap is *absolute*: ``run(max_iter)`` stops when
 ``solver.iteration == max_iter``, so a solver restored from a checkpoint and run with the same
 cap finishes exactly where an uninterrupted run would.
@@ -163,7 +163,7 @@ class IterativeSolver(ABC):
         self.history: list[IterationRecord] = []
         self.max_iter: int | None = None  # the cap of the current run (for progress bars)
         # A time.perf_counter() value by which a step that can stop early (a transport's Newton) ends
-        # and says so; set by a time budget (framework/pipeline/design_run.py, TimeBudget), None: none.
+        # and says so; set by a time budget (framework/design/design_run.py, TimeBudget), None: none.
         self.deadline: float | None = None
 
     @property
@@ -193,13 +193,13 @@ class IterativeSolver(ABC):
         with a coarse-to-fine schedule may begin at a later stage; nothing without one."""
 
     def setup_changed(self) -> None:
-        """The forward operator's setup changed (joint calibration, framework/pipeline/calibration.py,
-        or its photons, framework/pipeline/photon_budget.py): forget whatever was computed with the
+        """The forward operator's setup changed (joint calibration, framework/lab/calibration.py,
+        or its photons, framework/reconstruction/photon_budget.py): forget whatever was computed with the
         old one. Solvers that cache evaluations override it."""
 
     def set_heights(self, d: Tensor) -> None:
         """Go on from heights ``d`` (m, m) instead of the current ones (joint calibration moves the
-        heights with the screen distance it changes, framework/pipeline/calibration.py): forgets
+        heights with the screen distance it changes, framework/lab/calibration.py): forgets
         whatever was computed at the old ones."""
         if tuple(d.shape) != tuple(self.state.d.shape) or not bool(torch.isfinite(d).all()):
             raise ValueError(f"set_heights needs finite heights of shape {tuple(self.state.d.shape)}")
@@ -237,7 +237,7 @@ class IterativeSolver(ABC):
         for cb in callbacks:
             if not isinstance(cb, Callback):
                 raise ValueError(f"{type(cb).__name__} is not a Callback (framework/core/solver_loop.py); derive it "
-                                 "from Callback, see framework/pipeline/callbacks.py")
+                                 "from Callback, see framework/core/callbacks.py")
         ordered = sorted(callbacks, key=lambda cb: cb.order)
         self.max_iter = max_iter
         for cb in ordered:

@@ -67,7 +67,7 @@ def small_run_calls(directory: Path) -> list[tuple[str, str]]:
     """:func:`config_calls` of a small synthetic reconstruction (two iterations) run in ``directory``."""
     from hydra import compose, initialize_config_dir
 
-    from framework.pipeline.reconstruction import run_reconstruction
+    from framework.reconstruction.reconstruction import run_reconstruction
 
     conf = Path(__file__).resolve().parents[2] / "conf"
     with initialize_config_dir(config_dir=str(conf), version_base=None):

@@ -97,21 +97,46 @@ def cycles(graph: dict[str, set[str]]) -> list[list[str]]:
     return found
 
 
-# The layers of framework/, lowest first: a module imports only from its own layer or lower ones.
-LAYERS = ("framework.core", "framework.plugins", "framework.pipeline")
+# The rooms of framework/. Shared rooms by level, lowest first: a module imports from its own room
+# and from shared rooms of a lower level. A feature imports the shared rooms and, of the other
+# features, only those FEATURE_USES names (the reconstruction composes the photo workflow, the
+# stack, the defect report and the tracker; the design is tracked).
+SHARED = {"framework.core": 0, "framework.files": 1, "framework.scene": 2, "framework.data": 2,
+          "framework.optimization": 2}
+FEATURES = ("framework.reconstruction", "framework.design", "framework.lab", "framework.stack",
+            "framework.defects", "framework.tracking")
+FEATURE_USES = {"framework.reconstruction": {"framework.lab", "framework.stack", "framework.defects",
+                                             "framework.tracking"},
+                "framework.design": {"framework.tracking"}}
 
 
-def _layer(module: str) -> int | None:
-    return next((i for i, layer in enumerate(LAYERS) if module == layer or module.startswith(layer + ".")), None)
+def room(module: str) -> str | None:
+    """The room of framework/ that holds ``module`` (``framework.core`` ...), None outside framework/."""
+    parts = module.split(".")
+    return ".".join(parts[:2]) if parts[0] == "framework" and len(parts) > 1 else None
+
+
+def _may_import(a: str, b: str) -> bool:
+    room_a, room_b = room(a), room(b)
+    placed = set(SHARED) | set(FEATURES)
+    if room_a not in placed or room_b not in placed or room_a == room_b:  # unplaced: unknown_rooms tells
+        return True
+    if room_b in SHARED:
+        return room_a in FEATURES or (room_a in SHARED and SHARED[room_b] < SHARED[room_a])
+    return room_b in FEATURE_USES.get(room_a, set())
+
+
+def unknown_rooms(graph: dict[str, set[str]]) -> list[str]:
+    """Modules of framework/ in no room of SHARED or FEATURES (a new folder must be placed)."""
+    return sorted(m for m in graph if room(m) is not None and room(m) not in SHARED and room(m) not in FEATURES)
 
 
 def upward_arrows(graph: dict[str, set[str]]) -> list[tuple[str, str]]:
-    """Imports from operators/ or regularizers/ into framework/, from a layer of framework/ into a
-    higher one (core -> plugins -> pipeline), and from the registry into the project."""
+    """Imports from operators/ or regularizers/ into framework/, between rooms of framework/
+    against the rule above, and from the registry into the project."""
     arrows = [(a, b) for a, targets in graph.items() for b in targets
               if a.split(".")[0] in LOWER and b.split(".")[0] == "framework"]
-    arrows += [(a, b) for a, targets in graph.items() for b in targets
-               if _layer(a) is not None and _layer(b) is not None and _layer(b) > _layer(a)]
+    arrows += [(a, b) for a, targets in graph.items() for b in targets if not _may_import(a, b)]
     arrows += [("framework.core.registry", b) for b in graph.get("framework.core.registry", ())]
     return sorted(arrows)
 
@@ -124,6 +149,8 @@ def main(argv: list[str]) -> None:
         print("cycle:", " <-> ".join(component))
     for a, b in upward_arrows(graph):
         print(f"upward: {a} -> {b}")
+    for module in unknown_rooms(graph):
+        print(f"in no room: {module}")
 
 
 if __name__ == "__main__":

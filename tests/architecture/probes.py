@@ -19,10 +19,10 @@ from tests.architecture.import_graph import PACKAGES
 # (file, member): the probes of other libraries' objects, each with its reason.
 OTHER_LIBRARIES = {
     ("framework/core/registry.py", None): "the registry reads a plugin's declarations",
-    ("framework/pipeline/mm_outputs.py", "text"): "a PIL image's text chunks (absent on some formats)",
-    ("framework/plugins/data/photo_import.py", "tag_v2"): "a PIL image's TIFF tags (absent on other formats)",
-    ("framework/pipeline/tracking.py", "__spec__"): "the __main__ module's spec (absent when run as a script)",
-    ("framework/pipeline/tracking.py", "reason"): "a urllib error's reason (absent on some errors)",
+    ("framework/files/mm_outputs.py", "text"): "a PIL image's text chunks (absent on some formats)",
+    ("framework/lab/photo_import.py", "tag_v2"): "a PIL image's TIFF tags (absent on other formats)",
+    ("framework/tracking/mlflow_tracker.py", "__spec__"): "the __main__ module's spec (absent when run as a script)",
+    ("framework/tracking/mlflow_tracker.py", "reason"): "a urllib error's reason (absent on some errors)",
     ("operators/heightfield/trace_cuda.py", "ENABLE_CUDASIM"): "numba's configuration (absent in old releases)",
     ("operators/heightfield/trace_cuda.py", "implementation"): "numba.cuda's driver (absent without CUDA)",
     ("experiments/export.py", "problem_mark"): "a YAML error's position (absent on some errors)",

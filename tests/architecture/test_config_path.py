@@ -16,5 +16,5 @@ def test_stays_are_counted_per_run_of_calls():
 @pytest.mark.slow
 def test_a_reconstruction_hands_its_config_to_each_module_at_most_twice(tmp_path):
     visits = stays(small_run_calls(tmp_path))
-    assert "framework.core.run_settings" in visits and "framework.core.scene_config" in visits  # it is traced
+    assert "framework.scene.run_settings" in visits and "framework.scene.scene_config" in visits  # it is traced
     assert max(visits.values()) <= 2, visits

@@ -11,12 +11,12 @@ import torch
 from experiments.defect_prints import apply_defect, feature_sites
 from experiments.reproduce_defects import match, size_error
 from framework.core.contracts.checks import check_regularizer
-from framework.core.design_mesh import heights_from_mesh
-from framework.core.shapes import make_shape
+from framework.scene.design_mesh import heights_from_mesh
+from framework.scene.shapes import make_shape
 from framework.defects.information import column_norms, height_uncertainty, pixel_noise
 from framework.defects.models import DROP_ASPECT, Frame, apply_model, drop_volume
 from framework.defects.regions import candidate_regions
-from framework.pipeline.mm_outputs import glass_mesh
+from framework.files.mm_outputs import glass_mesh
 from regularizers import RegularizerContext
 from regularizers.l1_design import PixelL1DesignBounds
 
@@ -81,7 +81,7 @@ def test_candidates_keep_peaks_and_merge_near_parts() -> None:
 
 def test_the_uncertainty_is_larger_where_the_caustic_sees_less_and_shrinks_with_the_noise(tmp_path) -> None:
     from experiments.configs import reconstruct_config
-    from framework.pipeline.reconstruction import Reconstruction
+    from framework.reconstruction.reconstruction import Reconstruction
 
     cfg = reconstruct_config([f"height_field.resolution={M}", "receiver.resolution=64", "photons=262144"])
     parts = Reconstruction.from_config(cfg, tmp_path)

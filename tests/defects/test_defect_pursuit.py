@@ -13,12 +13,12 @@ import pytest
 import torch
 
 from experiments.defect_prints import apply_defect, feature_sites
-from framework.core.shapes import make_shape
+from framework.scene.shapes import make_shape
 from framework.defects.fit import Defect, Fit, fit_candidate, frame_of
 from framework.defects.models import apply_model
 from framework.defects.pursuit import Search, _joined, find_defects
 from framework.defects.regions import Candidate
-from framework.pipeline.defect_stage import DefectSettings, evidence_needed
+from framework.defects.defect_stage import DefectSettings, evidence_needed
 
 M = 64
 CELL_MM = 50.0 / (M - 1)

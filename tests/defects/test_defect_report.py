@@ -14,9 +14,9 @@ import pytest
 
 from experiments.defect_prints import apply_defect, feature_sites
 from framework.core.problem import Problem
-from framework.core.scene_config import build_heights
-from framework.pipeline.defect_stage import report_defects
-from framework.pipeline.reconstruction import Reconstruction, run_reconstruction
+from framework.scene.scene_config import build_heights
+from framework.defects.defect_stage import report_defects
+from framework.reconstruction.reconstruction import Reconstruction, run_reconstruction
 from tests.experiments.conftest import compose_reconstruct
 
 M = 64

@@ -10,15 +10,15 @@ import pytest
 import torch
 from PIL import Image
 
-from framework.core.design_target import BUILT_IN_TARGETS, load_target
+from framework.design.design_target import BUILT_IN_TARGETS, load_target
 from scipy.ndimage import gaussian_filter
 
 from framework.core.image_metrics import relative_l2, ssim, ssim_tensor
 from framework.core.print_constraints import PrintConstraints
 from framework.core.plugin_config import build_plugin, split_name
-from framework.pipeline.design_run import _method, prepare_design
-from framework.plugins.solvers.design_refinement import DesignAdam, DesignLBFGS
-from framework.plugins.solvers.schwartzburg import SchwartzburgDesign
+from framework.design.design_run import _method, prepare_design
+from framework.design.design_refinement import DesignAdam, DesignLBFGS
+from framework.design.schwartzburg import SchwartzburgDesign
 from operators.optics.inverse_refraction import deflection_angle
 from tests.design.conftest import SMALL, compose_design
 

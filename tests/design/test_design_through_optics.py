@@ -12,11 +12,11 @@ import numpy as np
 import pytest
 import torch
 
-from framework.core.design_target import paraxial_shadow
+from framework.design.design_target import paraxial_shadow
 from framework.core.image_metrics import relative_l2
-from framework.pipeline.design_run import _method, _start, prepare_design, run_design
-from framework.pipeline.design_screen import WIDE, lit_half_width
-from framework.plugins.solvers.design_refinement import _hellinger, _l2_ssim
+from framework.design.design_run import _method, _start, prepare_design, run_design
+from framework.design.design_screen import WIDE, lit_half_width
+from framework.design.design_refinement import _hellinger, _l2_ssim
 from tests.design.conftest import SMALL, compose_design
 
 LENSES = ["operator=two_lenses", "receiver.z=-1.0"]  # the paper's screen, 5 mm below the lower lens

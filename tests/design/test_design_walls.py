@@ -1,12 +1,12 @@
 """The design's account of the light that the substrate's clear side walls send on the screen
-(framework/pipeline/design_run.py, wall_light)."""
+(framework/design/design_run.py, wall_light)."""
 
 from __future__ import annotations
 
 import numpy as np
 import torch
 
-from framework.pipeline.design_run import prepare_design, wall_light
+from framework.design.design_run import prepare_design, wall_light
 from operators.wavefront.renderer import WavefrontRenderer, wavefront_vertices
 from tests.design.conftest import SMALL, compose_design
 from tests.operators.test_side_walls import wall_band_flux

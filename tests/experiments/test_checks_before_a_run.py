@@ -23,10 +23,10 @@ from PIL import Image
 
 from experiments.input_errors import INPUT_ERRORS, one_line_input_errors
 from experiments.start_checks import CheckBeforeStart, check_launcher, sweep_jobs
-from framework.pipeline.checkpoint import save_checkpoint
-from framework.plugins.data.photo_synthesis import synthesize_photo
-from framework.pipeline.reconstruction import Reconstruction, run_reconstruction
-from framework.pipeline.run_identity import run_fingerprint
+from framework.core.checkpoint import save_checkpoint
+from framework.lab.photo_synthesis import synthesize_photo
+from framework.reconstruction.reconstruction import Reconstruction, run_reconstruction
+from framework.reconstruction.run_identity import run_fingerprint
 from operators.heightfield.operator import CausticOperator
 from operators.mesh.operator import MeshSceneOperator
 from tests.experiments.conftest import SMALL, compose_reconstruct

@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 
 from experiments.dashboard_screenshots import chromium, metric_charts_url, runs_table_url, take_screenshots
-from framework.pipeline.tracking import MlflowTracker
+from framework.tracking.mlflow_tracker import MlflowTracker
 
 PNG = b"\x89PNG\r\n\x1a\n"
 

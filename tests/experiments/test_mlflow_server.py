@@ -8,8 +8,8 @@ import re
 import pytest
 from mlflow.tracking import MlflowClient
 
-from framework.pipeline.reconstruction import run_reconstruction
-from framework.pipeline.tracking import DATASET_CONTEXT, EXPERIMENT_KIND, EXPERIMENT_KIND_TAG
+from framework.reconstruction.reconstruction import run_reconstruction
+from framework.tracking.mlflow_tracker import DATASET_CONTEXT, EXPERIMENT_KIND, EXPERIMENT_KIND_TAG
 from tests.experiments.conftest import SMALL, compose_reconstruct
 from tests.mlflow_server import mlflow_server
 

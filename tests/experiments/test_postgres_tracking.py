@@ -11,9 +11,9 @@ import pytest
 from hydra import compose, initialize_config_dir
 from mlflow.tracking import MlflowClient
 
-from framework.core.scene_config import to_plain
+from framework.scene.scene_config import to_plain
 from framework.core.solver_loop import IterationRecord
-from framework.pipeline.tracking import MlflowTracker, flatten_params
+from framework.tracking.mlflow_tracker import MlflowTracker, flatten_params
 from tests.mlflow_server import mlflow_server
 from tests.postgres_server import postgres_bin, postgres_server
 

@@ -12,10 +12,10 @@ import pytest
 import torch
 from mlflow.tracking import MlflowClient
 
-from framework.pipeline.callbacks import MetricsHistory
+from framework.core.callbacks import MetricsHistory
 from framework.core.problem import Problem
-from framework.pipeline.reconstruction import CHECKPOINT, Reconstruction, build_start, run_reconstruction
-from framework.core.scene_config import build_heights
+from framework.reconstruction.reconstruction import CHECKPOINT, Reconstruction, build_start, run_reconstruction
+from framework.scene.scene_config import build_heights
 from framework.core.contracts.start import StartRequest
 from operators.heightfield.operator import CausticOperator
 from tests.experiments.conftest import SMALL, compose_reconstruct
@@ -223,8 +223,8 @@ def test_bad_configuration_is_refused_clearly(tmp_path, overrides, error, messag
 
 
 def test_stage_changes_come_from_the_records_whoever_asked_for_them():
-    from framework.plugins.solvers.proximal_gradient import stage_changes
-    from framework.plugins.solvers import IterationRecord
+    from framework.reconstruction.solvers.proximal_gradient import stage_changes
+    from framework.reconstruction.solvers import IterationRecord
 
     def record(i, length):
         extras = {} if length is None else {"preconditioner_length": length}

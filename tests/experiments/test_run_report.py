@@ -14,10 +14,10 @@ from mlflow.tracking import MlflowClient
 from PIL import Image
 
 from experiments.reproduce_lab import relative_error_after_scale
-from framework.plugins.data.photo_synthesis import synthesize_photo
-from framework.pipeline.reconstruction import Reconstruction, run_reconstruction
-from framework.core.scene_config import build_heights, build_operator, build_scene
-from framework.pipeline.verdict import run_verdict
+from framework.lab.photo_synthesis import synthesize_photo
+from framework.reconstruction.reconstruction import Reconstruction, run_reconstruction
+from framework.scene.scene_config import build_heights, build_operator, build_scene
+from framework.reconstruction.verdict import run_verdict
 from tests.experiments.conftest import SMALL, compose_reconstruct
 
 SHAPE = (360, 480)

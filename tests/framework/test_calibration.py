@@ -1,4 +1,4 @@
-"""Joint calibration of the setup (framework/pipeline/calibration.py) on real renders."""
+"""Joint calibration of the setup (framework/lab/calibration.py) on real renders."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import json
 import pytest
 import torch
 
-from framework.pipeline.calibration import JointCalibration, with_setup
+from framework.lab.calibration import JointCalibration, with_setup
 from operators.heightfield.operator import CausticOperator
 from operators.imaging import ImagingOperator
 from tests.operators.conftest import bump, make_operator

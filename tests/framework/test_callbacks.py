@@ -4,9 +4,9 @@ import pytest
 import torch
 
 from framework.core.solver_loop import Callback
-from framework.pipeline.callbacks import Checkpointer, GroundTruthError, MetricsHistory, ProgressBar
-from framework.plugins.stopping import MorozovStopping, StagnationStopping
-from framework.plugins.solvers import GradientDescent, IterationRecord, IterativeSolver
+from framework.core.callbacks import Checkpointer, GroundTruthError, MetricsHistory, ProgressBar
+from framework.reconstruction.stopping import MorozovStopping, StagnationStopping
+from framework.reconstruction.solvers import GradientDescent, IterationRecord, IterativeSolver
 from tests.framework.toy import DTYPE, make_problem
 
 

@@ -1,4 +1,4 @@
-"""The caustic-design baseline (framework/plugins/solvers/schwartzburg.py): the transport pushes the
+"""The caustic-design baseline (framework/design/schwartzburg.py): the transport pushes the
 light onto the target cells, the Snell normals send the light to the target points through our
 own optics, and a designed surface renders back to its target."""
 
@@ -12,8 +12,8 @@ import torch
 
 from framework.core.data import ReconstructionData
 from framework.core.problem import HeightGrid, Problem
-from framework.plugins.solvers.schwartzburg import SchwartzburgDesign, flat_magnification
-from framework.plugins.solvers.semi_discrete_transport import semi_discrete_transport
+from framework.design.schwartzburg import SchwartzburgDesign, flat_magnification
+from framework.optimization.semi_discrete_transport import semi_discrete_transport
 from operators.heightfield.operator import CausticOperator, OperatorSettings
 from operators.optics.inverse_refraction import glass_directions, snell_normals
 from operators.optics.reference import refract
@@ -95,7 +95,7 @@ def test_flat_glass_is_the_design_of_its_own_caustic():
 
 
 def test_a_designed_surface_renders_back_to_its_smooth_target():
-    from framework.core.shapes import make_shape
+    from framework.scene.shapes import make_shape
 
     problem = small_problem(torch.from_numpy(make_shape("bump", 32, sigma=0.3, height=0.05)))
     flat = problem.fidelity.evaluate(torch.zeros(32, 32, dtype=torch.float64), with_grad=False).rel_discrepancy

@@ -1,9 +1,9 @@
 import pytest
 import torch
 
-from framework.pipeline.callbacks import Callback, Checkpointer, MetricsHistory
-from framework.pipeline.checkpoint import load_checkpoint, restore, resume, save_checkpoint
-from framework.plugins.solvers import BacktrackingStep, GradientDescent, PixelLandweber, WaveletLandweber
+from framework.core.callbacks import Callback, Checkpointer, MetricsHistory
+from framework.core.checkpoint import load_checkpoint, restore, resume, save_checkpoint
+from framework.reconstruction.solvers import BacktrackingStep, GradientDescent, PixelLandweber, WaveletLandweber
 from tests.framework.toy import DTYPE, L1, Bounds, OrthogonalTransform, WaveletL1, make_problem
 
 

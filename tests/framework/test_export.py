@@ -1,4 +1,4 @@
-"""Millimetre outputs (framework/pipeline/mm_outputs.py): the glass mesh against analytic and trapezoid volumes,
+"""Millimetre outputs (framework/files/mm_outputs.py): the glass mesh against analytic and trapezoid volumes,
 mesh files read back, the 16-bit PNG round trip, hand-computed deviation metrics, bad inputs."""
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ import pytest
 import trimesh
 from PIL import Image
 
-from framework.pipeline.mm_outputs import (MESH_FORMATS, PRINTED, deviation_report, export_outputs, glass_mesh, read_height_png,
+from framework.files.mm_outputs import (MESH_FORMATS, PRINTED, deviation_report, export_outputs, glass_mesh, read_height_png,
                               write_height_png)
 
 H, W, MM = 0.1, 1.0, 25.0  # substrate thickness and half width (scene units), mm per scene unit

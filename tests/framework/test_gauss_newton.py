@@ -1,11 +1,11 @@
-"""Gauss-Newton directions (framework/plugins/solvers/gauss_newton.py) and the data term's curvature
+"""Gauss-Newton directions (framework/reconstruction/solvers/gauss_newton.py) and the data term's curvature
 product (framework/core/objective.py) on a linear blur problem, where J^T J is known exactly."""
 
 import pytest
 import torch
 
-from framework.plugins.solvers import BacktrackingStep, PixelLandweber
-from framework.plugins.solvers.gauss_newton import GaussNewtonLandweber, check_gauss_newton
+from framework.reconstruction.solvers import BacktrackingStep, PixelLandweber
+from framework.reconstruction.solvers.gauss_newton import GaussNewtonLandweber, check_gauss_newton
 from tests.framework.test_momentum import _blur_problem
 from tests.framework.toy import DTYPE, Bounds
 

@@ -1,4 +1,4 @@
-"""The extended light's size as a calibration parameter (framework/pipeline/calibration.py,
+"""The extended light's size as a calibration parameter (framework/lab/calibration.py,
 ``calibration.params=[light_size]``): its column against central differences, the size told by two
 screens from exact photos, and the refusals."""
 
@@ -9,8 +9,8 @@ import dataclasses
 import pytest
 import torch
 
-from framework.core.shapes import make_shape
-from framework.pipeline.calibration import JointCalibration
+from framework.scene.shapes import make_shape
+from framework.lab.calibration import JointCalibration
 from operators.heightfield.operator import CausticOperator, OperatorSettings
 from operators.imaging import ImagingOperator
 from operators.scene import Light, Receiver, Scene

@@ -1,4 +1,4 @@
-"""Nesterov momentum in the proximal-gradient solvers (framework/plugins/solvers/momentum.py)."""
+"""Nesterov momentum in the proximal-gradient solvers (framework/reconstruction/solvers/momentum.py)."""
 
 import math
 
@@ -6,8 +6,8 @@ import pytest
 import torch
 
 from framework.core.objective import DataFidelity
-from framework.plugins.solvers import BacktrackingStep, PixelLandweber
-from framework.plugins.solvers.momentum import NesterovMomentum, check_momentum_from
+from framework.reconstruction.solvers import BacktrackingStep, PixelLandweber
+from framework.reconstruction.solvers.momentum import NesterovMomentum, check_momentum_from
 from tests.framework.toy import DTYPE, Bounds, LinearOperator
 
 

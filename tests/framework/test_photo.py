@@ -1,4 +1,4 @@
-"""Photo import (framework/plugins/data/photo_import.py, photo_geometry.py, photo_synthesis.py): geometry, linearisation, dark/flat/saturation, refusals."""
+"""Photo import (framework/lab/photo_import.py, photo_geometry.py, photo_synthesis.py): geometry, linearisation, dark/flat/saturation, refusals."""
 
 from __future__ import annotations
 
@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 from PIL import Image
 
-import framework.plugins.data.photo_geometry
-from framework.plugins.data.photo_import import import_photo, linearize, read_photo, save_photo_figure
-from framework.plugins.data.photo_geometry import check_corners, homography, rectify
-from framework.plugins.data.photo_synthesis import synthesize_photo, vignetting_field
+import framework.lab.photo_geometry
+from framework.lab.photo_import import import_photo, linearize, read_photo, save_photo_figure
+from framework.lab.photo_geometry import check_corners, homography, rectify
+from framework.lab.photo_synthesis import synthesize_photo, vignetting_field
 
 N = 64
 SHAPE = (260, 300)  # photo (H, W)
@@ -76,7 +76,7 @@ def test_homography_recovers_a_known_projective_map() -> None:
 
 
 def test_homography_doctest() -> None:
-    result = doctest.testmod(framework.plugins.data.photo_geometry, extraglobs={"np": np})
+    result = doctest.testmod(framework.lab.photo_geometry, extraglobs={"np": np})
     assert result.failed == 0 and result.attempted > 0
 
 

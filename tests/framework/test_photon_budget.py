@@ -1,4 +1,4 @@
-"""The photon budget of a run (framework/pipeline/photon_budget.py)."""
+"""The photon budget of a run (framework/reconstruction/photon_budget.py)."""
 
 import math
 
@@ -6,9 +6,9 @@ import pytest
 import torch
 
 from framework.core.objective import DataFidelity
-from framework.core.run_settings import PhotonBudgetSettings
+from framework.scene.run_settings import PhotonBudgetSettings
 from framework.core.solver_loop import IterationRecord
-from framework.pipeline.photon_budget import PhotonBudget, photons_needed
+from framework.reconstruction.photon_budget import PhotonBudget, photons_needed
 from tests.framework.toy import DTYPE, LinearOperator
 
 M = 8

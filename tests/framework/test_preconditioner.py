@@ -9,7 +9,7 @@ import pytest
 import torch
 
 from framework.core.objective import DataFidelity
-from framework.plugins.solvers import BacktrackingStep, GradientDescent, SobolevPreconditioner
+from framework.reconstruction.solvers import BacktrackingStep, GradientDescent, SobolevPreconditioner
 from tests.framework.toy import DTYPE, LinearOperator
 
 

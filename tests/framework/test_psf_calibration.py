@@ -1,6 +1,6 @@
 """The screen blur's width as a calibration parameter: the pixel-integrated Gaussian kernel
 (operators/imaging.py), its analytic derivative in sigma, and psf_sigma fitted jointly with the gain
-(framework/pipeline/calibration.py)."""
+(framework/lab/calibration.py)."""
 
 from __future__ import annotations
 
@@ -11,8 +11,8 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-from framework.pipeline.calibration import JointCalibration
-from framework.pipeline.reconstruction import Reconstruction, run_reconstruction
+from framework.lab.calibration import JointCalibration
+from framework.reconstruction.reconstruction import Reconstruction, run_reconstruction
 from operators.heightfield.operator import CausticOperator
 from operators.gaussian_blur import ScreenBlur
 from operators.imaging import ImagingOperator

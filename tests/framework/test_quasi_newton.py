@@ -1,11 +1,11 @@
-"""L-BFGS directions in the proximal-gradient solvers (framework/plugins/solvers/quasi_newton.py)."""
+"""L-BFGS directions in the proximal-gradient solvers (framework/optimization/quasi_newton.py)."""
 
 import pytest
 import torch
 
-from framework.plugins.solvers import BacktrackingStep, PixelLandweber
-from framework.plugins.solvers.quasi_newton import LbfgsMemory, check_quasi_newton
-from framework.plugins.solvers.step_size import LineSearchFailed, backtrack
+from framework.reconstruction.solvers import BacktrackingStep, PixelLandweber
+from framework.optimization.quasi_newton import LbfgsMemory, check_quasi_newton
+from framework.optimization.step_size import LineSearchFailed, backtrack
 from tests.framework.test_momentum import _blur_problem
 from tests.framework.toy import DTYPE, Bounds
 

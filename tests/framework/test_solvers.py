@@ -5,7 +5,7 @@ import pytest
 import torch
 
 from framework.core.registry import available, lookup
-from framework.plugins.solvers import (
+from framework.reconstruction.solvers import (
     BacktrackingStep,
     LineSearchFailed,
     ConstantStep,

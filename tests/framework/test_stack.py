@@ -1,4 +1,4 @@
-"""Several shots of one print (operators/stack.py, framework/plugins/data/stack.py): the stacked
+"""Several shots of one print (operators/stack.py, framework/stack/stack_data.py): the stacked
 data term against its shots, a stack of one against a run of one image, calibration across the
 stack, and bad stacks refused."""
 
@@ -12,9 +12,9 @@ import pytest
 import torch
 
 from framework.core.objective import DataFidelity
-from framework.pipeline.calibration import JointCalibration
-from framework.pipeline.reconstruction import Reconstruction, run_reconstruction
-from framework.pipeline.verdict import run_verdict
+from framework.lab.calibration import JointCalibration
+from framework.reconstruction.reconstruction import Reconstruction, run_reconstruction
+from framework.reconstruction.verdict import run_verdict
 from operators.heightfield.operator import CausticOperator
 from operators.imaging import ImagingOperator
 from operators.stack import StackOperator

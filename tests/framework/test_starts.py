@@ -1,4 +1,4 @@
-"""Starts of the iteration (framework/plugins/starts/): the inverse refraction through the operator's own
+"""Starts of the iteration (framework/reconstruction/starts/): the inverse refraction through the operator's own
 light path against a paraboloid lens's closed-form normals, the masked transport start against
 known prints (height-field operator and the two lenses), the exit path of the mesh operator
 against its own tracer, and bad inputs."""
@@ -17,8 +17,8 @@ from framework.core.data import ReconstructionData
 from framework.core.masks import mask_from_height_field
 from framework.core.problem import HeightGrid, Problem
 from framework.core.contracts.start import StartRequest
-from framework.plugins.starts import TransportStart
-from framework.plugins.starts.transport import exit_directions, fit_masked_surface
+from framework.reconstruction.starts import TransportStart
+from framework.reconstruction.starts.transport import exit_directions, fit_masked_surface
 from operators.heightfield.operator import CausticOperator, OperatorSettings
 from operators.optics.inverse_refraction import snell_normals
 from operators.light_paths import flat_exit, refract_down
@@ -172,7 +172,7 @@ def test_bad_inputs_get_one_line_each():
 
 
 def test_flat_glass_is_no_shape_and_a_design_is():
-    from framework.plugins.starts.simple import DesignStart, ZeroStart
+    from framework.reconstruction.starts.simple import DesignStart, ZeroStart
     problem = height_field_problem(paraboloid(16, 0.6, 0.08))
     assert not ZeroStart()(request(problem)).shaped
     assert DesignStart()(request(problem)).shaped

@@ -5,13 +5,13 @@ import time
 import pytest
 import torch
 
-from framework.pipeline.callbacks import GroundTruthError
-from framework.plugins.stopping import MorozovStopping
+from framework.core.callbacks import GroundTruthError
+from framework.reconstruction.stopping import MorozovStopping
 from framework.core.data import ReconstructionData
-from framework.plugins.solvers import GradientDescent
-from framework.pipeline.tracking import (EXPERIMENT_KIND, EXPERIMENT_KIND_TAG, MlflowTracker, check_tracking_server,
+from framework.reconstruction.solvers import GradientDescent
+from framework.tracking.mlflow_tracker import (EXPERIMENT_KIND, EXPERIMENT_KIND_TAG, MlflowTracker, check_tracking_server,
                                 code_version_tags, flatten_params)
-from framework.pipeline.tracking_dataset import data_dataset
+from framework.tracking.tracking_dataset import data_dataset
 from tests.framework.toy import DTYPE, make_problem
 
 mlflow = pytest.importorskip("mlflow")

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from framework.core.scene_config import build_scene
+from framework.scene.scene_config import build_scene
 from framework.core.units import mm_per_unit, scene_length, scene_volume
 
 
@@ -52,7 +52,7 @@ def test_the_paper_sample_in_millimetres_is_the_scene_in_units() -> None:
 
     from hydra import compose, initialize_config_dir
 
-    from framework.core.scene_config import to_plain
+    from framework.scene.scene_config import to_plain
 
     conf = str(Path(__file__).resolve().parents[2] / "conf")
     with initialize_config_dir(config_dir=conf, version_base=None):

@@ -1,4 +1,4 @@
-"""The profile search of the screen blur's width (framework/pipeline/width_search.py) on misfit
+"""The profile search of the screen blur's width (framework/lab/width_search.py) on misfit
 curves with known minima."""
 
 from __future__ import annotations
@@ -7,7 +7,7 @@ import math
 
 import pytest
 
-from framework.pipeline.width_search import MIN_RISE, search_width
+from framework.lab.width_search import MIN_RISE, search_width
 
 
 def _curve(true_px: float, skew: float = 0.0):

@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 import torch
 
-from framework.core.scene_config import build_scene
-from framework.core.shapes import make_shape
+from framework.scene.scene_config import build_scene
+from framework.scene.shapes import make_shape
 from operators.emission import LightEmitter, source_points
 from operators.heightfield.operator import CausticOperator, OperatorSettings
 from operators.light_source import (onto_source, patch_variance, receiver_spread, source_variance,

@@ -83,7 +83,7 @@ class DataSource(Protocol):
 
 @runtime_checkable
 class ShotStack(DataSource, Protocol):
-    """A ``data`` plugin of several shots of one print (framework/plugins/data/stack.py)."""
+    """A ``data`` plugin of several shots of one print (framework/stack/stack_data.py)."""
 
     def setups(self, base: Scene, mm: float) -> Sequence[ShotSetup]:
         """Every shot's setup against the configured scene ``base`` (``mm`` millimetres per scene

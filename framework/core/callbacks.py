@@ -1,0 +1,157 @@
+"""Callbacks the pipeline adds to every solver loop (:class:`framework.core.solver_loop.Callback`):
+the metrics history, the progress bar, checkpoints and the error against a ground truth. The
+stopping rules are plugins (framework/reconstruction/stopping.py).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from collections import defaultdict
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import torch
+from torch import Tensor
+
+from framework.core.checkpoint import save_checkpoint
+from framework.core.solver_loop import Callback
+from framework.core.values import described
+
+if TYPE_CHECKING:
+    from framework.core.solver_loop import IterationRecord
+
+__all__ = ["MetricsHistory", "ProgressBar", "Checkpointer", "GroundTruthError"]
+
+
+class MetricsHistory(Callback):
+    """Collects every record (including those before a resume) for plots and tables.
+
+    Attributes:
+        records: The iteration records in order.
+    """
+
+    def __init__(self) -> None:
+        self.records: list["IterationRecord"] = []
+
+    def on_start(self, solver) -> None:  # noqa: D102
+        self.records = list(solver.history)
+
+    def on_iteration(self, solver, record) -> None:  # noqa: D102
+        self.records.append(record)
+
+    def columns(self) -> dict[str, list[float]]:
+        """Metric name -> values per iteration (NaN where an iteration lacks the metric)."""
+        names: dict[str, None] = {}
+        for r in self.records:
+            names.update(dict.fromkeys(r.metrics()))
+        cols: dict[str, list[float]] = defaultdict(list)
+        for r in self.records:
+            m = r.metrics()
+            for name in names:
+                cols[name].append(m.get(name, math.nan))
+        return dict(cols)
+
+    def __getitem__(self, name: str) -> list[float]:
+        return self.columns()[name]
+
+
+class ProgressBar(Callback):
+    """A tqdm bar over iterations with the discrepancy (and the errors, if computed) in the postfix.
+
+    Args:
+        desc: Bar label (e.g. the method name).
+        disable: Passed to tqdm (None: disable when not a terminal).
+    """
+
+    def __init__(self, desc: str | None = None, disable: bool | None = None) -> None:
+        self.desc, self.disable = desc, disable
+        self._bar: Any = None
+
+    def on_start(self, solver) -> None:  # noqa: D102
+        from tqdm.auto import tqdm
+
+        self._bar = tqdm(
+            total=solver.max_iter, initial=solver.iteration, desc=self.desc or solver.name,
+            disable=self.disable, unit="it",
+        )
+
+    def on_iteration(self, solver, record) -> None:  # noqa: D102
+        postfix = {"dis": f"{record.rel_discrepancy:.4g}", "tau": f"{record.step_size:.3g}"}
+        for key, label in (("rel_error", "err"), ("rel_error_d", "err_d")):
+            if key in record.extras:
+                postfix[label] = f"{record.extras[key]:.4g}"
+        self._bar.set_postfix(postfix, refresh=False)
+        self._bar.update(1)
+
+    def on_end(self, solver, result) -> None:  # noqa: D102
+        if self._bar is not None:
+            self._bar.close()
+            self._bar = None
+
+
+class Checkpointer(Callback):
+    """Saves the solver state to ``path`` every ``every`` iterations and at the end of the run.
+
+    Runs last (order 100), after the loggers, so the saved history holds every metric.
+
+    Args:
+        path: Checkpoint file (overwritten atomically each time).
+        every: Save when ``iteration % every == 0``.
+        at_end: Also save when the run ends.
+        run: The fingerprint of the run (framework/reconstruction/run_identity.py), stored with the state.
+    """
+
+    order = 100
+
+    def __init__(self, path: str | os.PathLike[str], every: int = 10, at_end: bool = True,
+                 run: dict[str, str] | None = None) -> None:
+        if isinstance(every, bool) or not isinstance(every, int) or every < 1:
+            raise ValueError(f"every must be an int >= 1, got {every!r}")
+        self.path, self.every, self.at_end, self.run = Path(path), every, at_end, run
+
+    def on_iteration(self, solver, record) -> None:  # noqa: D102
+        if record.iteration % self.every == 0:
+            save_checkpoint(solver, self.path, self.run)
+
+    def on_end(self, solver, result) -> None:  # noqa: D102
+        if self.at_end:
+            save_checkpoint(solver, self.path, self.run)
+
+
+class GroundTruthError(Callback):
+    """Adds the relative height errors to each record (for simulated data with known d_true).
+
+    ``rel_error``   = ||(h + d) - (h + d_true)|| / ||h + d_true||  (the paper's / official definition,
+    relative to the total height including the substrate thickness h);
+    ``rel_error_d`` = ||d - d_true|| / ||d_true||  (relative to the printed part alone).
+
+    Args:
+        d_true: Ground-truth height field (m, m), scene units.
+        substrate_thickness: h >= 0, scene units (official default 0.1).
+    """
+
+    order = -100
+
+    def __init__(self, d_true: Tensor, substrate_thickness: float) -> None:
+        if not isinstance(d_true, Tensor) or d_true.ndim != 2:
+            raise ValueError(f"d_true must be an (m, m) tensor, got {described(d_true)}")
+        h = float(substrate_thickness)
+        if not (math.isfinite(h) and h >= 0.0):
+            raise ValueError(f"substrate_thickness h must be finite and >= 0, got {substrate_thickness!r}")
+        self.d_true, self.h = d_true.detach(), h
+        self._norm_total = float(torch.linalg.vector_norm((h + self.d_true).double()))
+        self._norm_d = float(torch.linalg.vector_norm(self.d_true.double()))
+        if self._norm_total == 0.0:
+            raise ValueError("h + d_true is zero everywhere; the relative error is undefined")
+
+    def errors(self, d: Tensor) -> dict[str, float]:
+        """Both relative errors of the height field d (same shape as d_true)."""
+        if tuple(d.shape) != tuple(self.d_true.shape):
+            raise ValueError(f"d has shape {tuple(d.shape)}, d_true {tuple(self.d_true.shape)}")
+        diff = float(torch.linalg.vector_norm((d - self.d_true.to(d.device)).double()))
+        # (h + d) - (h + d_true) = d - d_true; only the normalisation differs.
+        return {"rel_error": diff / self._norm_total, "rel_error_d": diff / self._norm_d if self._norm_d else math.inf}
+
+    def on_iteration(self, solver, record) -> None:  # noqa: D102
+        record.extras.update(self.errors(solver.d))

@@ -1,0 +1,437 @@
+"""One caustic design, end to end (docs/design.md): target and limits checked -> the method's start
+-> its solver within the time budget -> the nearest printable design -> its caustic rendered
+independently at the design distance and the preview distances -> files, verdict, MLflow.
+
+Used by ``sfc-design`` (experiments/design.py). The methods (config group ``design_method``): ``sfc``
+(the transport design, then L-BFGS on the differentiable operator), ``schwartzburg`` (the
+transport design alone) and ``adam`` (Adam from flat glass, the Mitsuba 3 tutorial's method).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from collections.abc import Mapping
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from framework.core.contracts.start import StartRequest
+from framework.core.data import ReconstructionData
+from framework.design.design_target import DesignTarget, load_target, paraxial_shadow, screen_reach
+from framework.files.image_io import load_mask
+from framework.core.image_metrics import relative_l2, ssim
+from framework.core.plugin_config import build_plugin, split_name
+from framework.core.print_constraints import PrintConstraints
+from framework.core.problem import HeightGrid, Problem
+from framework.scene.scene_config import build_operator, build_scene, to_plain
+from framework.core.solver_loop import Callback
+from framework.core.units import mm_per_unit, scene_length, scene_volume
+from framework.core.callbacks import Checkpointer, MetricsHistory, ProgressBar
+from framework.core.checkpoint import restore
+from framework.design.design_report import save_design_figure, save_previews
+from framework.design.design_screen import has_elements, lit_half_width
+from framework.files.mm_outputs import export_outputs
+from framework.tracking.mlflow_tracker import MlflowTracker
+from operators.mesh.elements import PrintReachesElement
+from operators.scene import Scene
+from operators.wavefront.renderer import WavefrontRenderer, wavefront_vertices
+
+__all__ = ["DesignSetup", "DesignResult", "prepare_design", "run_design"]
+
+CHECKPOINT = "checkpoint.pt"
+STARTS = ("transport", "flat")
+THROUGH_OPTICS_REACH = 0.999  # through optical elements the transport may send light anywhere on the screen
+START_SHARE = 0.5  # the transport start's Newton stops after this share of the time budget
+POWER_TOLERANCE = 0.01  # an absolute target within 1% of the power that reaches the screen is taken as is
+WALL_LIGHT_NOTED = 1e-3  # the verdict names the side walls' light above this share of the caustic
+
+
+@dataclass
+class DesignSetup:
+    """Everything a design run needs, checked before any run opens.
+
+    Attributes:
+        scene: The scene, its receiver the target's square on the screen.
+        operator: The forward operator of the design (the configured plugin).
+        target: The target image (1, n, n) scaled to the power that reaches the screen (W per scene unit^2).
+        source: Where the target came from.
+        constraints: The printing limits.
+        grid: The height grid.
+        notes: What the setup changed and why (e.g. an energy normalisation), one line each.
+        mm: Millimetres per scene unit.
+        model_noise: The relative discrepancy that the operator's own render noise explains: two
+            renders of flat glass with photon seeds seed and seed + 1 differ by sqrt(2) times it.
+        flat_discrepancy: ||F(0) - target|| / ||target||, flat glass's relative discrepancy.
+    """
+
+    scene: Scene
+    operator: Any
+    target: torch.Tensor
+    source: str
+    constraints: PrintConstraints
+    grid: HeightGrid
+    notes: list[str]
+    mm: float
+    model_noise: float
+    flat_discrepancy: float
+
+    @property
+    def problem(self) -> Problem:
+        """The design as a :class:`Problem`; its noise level is the model's own render noise."""
+        data = ReconstructionData(target=self.target, mask=torch.ones(self.grid.shape, dtype=torch.bool),
+                                  volume=self.constraints.volume, delta=min(max(self.model_noise, 1e-9), 0.5),
+                                  source=self.source)
+        return Problem(self.operator, data, self.grid, self.scene, self.constraints)
+
+
+@dataclass
+class DesignResult:
+    """The end of a design: the printable heights (m, m), scene units, and the run's figures."""
+
+    heights: np.ndarray
+    metrics: dict[str, float]
+    verdict: list[str]
+
+
+def _length(value: Any, mm: float, where: str) -> float | None:
+    return None if value is None else scene_length(value, mm, where)
+
+
+def _constraints(cfg: Mapping[str, Any], m: int, half_width: float, mm: float, base_dir: Path | None
+                 ) -> PrintConstraints:
+    spec = dict(to_plain(cfg.get("constraints")) or {})
+    allowed = ("max_height", "max_slope", "min_feature", "volume", "mask")
+    unknown = [k for k in spec if k not in allowed]
+    if unknown:
+        raise ValueError(f"unknown key constraints.{unknown[0]}; allowed: {', '.join(allowed)}")
+    mask = None
+    if spec.get("mask") is not None:
+        path = Path(str(spec["mask"])).expanduser()
+        mask = load_mask(path if path.is_absolute() or base_dir is None else base_dir / path, m).numpy()
+    volume = spec.get("volume")
+    constraints = PrintConstraints(
+        max_height=_length(spec.get("max_height", "10 mm"), mm, "constraints.max_height"),
+        max_slope=spec.get("max_slope", 0.5), min_feature=_length(spec.get("min_feature"), mm, "constraints.min_feature"),
+        volume=None if volume is None else scene_volume(volume, mm, "constraints.volume"), mask=mask,
+        spacing=2.0 * half_width / (m - 1))
+    constraints.check_grid(m)
+    return constraints
+
+
+def prepare_design(cfg: Mapping[str, Any], base_dir: Path | None = None) -> DesignSetup:
+    """Read and check the target, the scene, the limits and the method's settings; render flat
+    glass to scale the target to the power that reaches the screen."""
+    mm = mm_per_unit(cfg)
+    spec = dict(to_plain(cfg.get("target")) or {})
+    resolution = spec.get("resolution", 256)
+    target = load_target(spec.get("image", "grace_hopper"), resolution, base_dir, spec.get("channel", "luminance"),
+                         spec.get("text", "SfC"))
+    scene = build_scene(cfg, mm)
+    if scene.light.extended:
+        raise ValueError(f"light.shape={scene.light.shape}: sfc-design designs for a point light (the light's "
+                         "position); give light.shape=point (a flash's size blurs what the design casts)")
+    if scene.receiver.resolution != resolution:
+        raise ValueError(f"receiver.resolution={scene.receiver.resolution} differs from target.resolution={resolution}; "
+                         "set only target.resolution")
+    m = int(to_plain(cfg.get("height_field") or {}).get("resolution", resolution))
+    through_optics = has_elements(build_operator(cfg, scene, mm=mm))
+    shadow = (lit_half_width(cfg, scene, mm, np.zeros((m, m)), int(cfg.get("seed", 0))) if through_optics
+              else paraxial_shadow(scene))
+    width = _length(spec.get("width"), mm, "target.width")
+    half = shadow if width is None else 0.5 * width
+    if not half > 0:
+        raise ValueError(f"target.width={spec.get('width')!r} must be a length > 0, e.g. '60 mm'")
+    scene = replace(scene, receiver=replace(scene.receiver, half_width=half))
+    grid = HeightGrid(m, scene.substrate.half_width, scene.substrate.thickness)
+    constraints = _constraints(cfg, m, grid.half_width, mm, base_dir)
+    if not through_optics:  # through lenses the deflection's reach has no closed form: not checked
+        _check_reach(target, scene, constraints.max_slope)
+    _check_method(cfg)
+    image, scene = _padded_to_shadow(target.image, scene, shadow)
+    operator = build_operator(cfg, scene, mm=mm)
+    zeros = torch.zeros(grid.shape, dtype=operator.dtype)
+    flat = operator.render(zeros).detach().double()
+    power = float(flat.sum())
+    if not power > 0:
+        raise ValueError("no light of flat glass reaches the screen; check light and receiver.z")
+    notes = []
+    if through_optics:
+        notes.append("through the scene's optical elements the target's reach on the screen is not checked: light "
+                     "the glass cannot send there shows as a misfit")
+    if scene.receiver.resolution != resolution:
+        notes.append(f"the screen is widened to {scene.receiver.resolution} x {scene.receiver.resolution} pixels "
+                     f"({2 * scene.receiver.half_width * mm:.4g} mm) around the target to catch all the light "
+                     "through the glass; outside the target it should be dark")
+    ratio = float(image.sum()) / power
+    if target.absolute and abs(ratio - 1.0) > POWER_TOLERANCE:
+        notes.append(f"the target carries {ratio:.1%} of the power that reaches the screen through the glass; "
+                     "scaled to it (a refractive design only moves light)")
+    elif not target.absolute:
+        notes.append("the target's brightness is relative: scaled to the power that reaches the screen through "
+                     f"the glass ({power * operator.pixel_area:.4g} W)")
+    image = image / ratio
+    second = operator.variant(operator.photons, int(cfg.get("seed", 0)) + 1, scene.receiver.resolution)
+    noise = float(torch.linalg.vector_norm(flat - second.render(zeros).double())) / (
+        math.sqrt(2.0) * float(torch.linalg.vector_norm(image)))
+    flat_discrepancy = float(torch.linalg.vector_norm(flat - image)) / float(torch.linalg.vector_norm(image))
+    return DesignSetup(scene, operator, image, target.source, constraints, grid, notes, mm, noise, flat_discrepancy)
+
+
+def _padded_to_shadow(image: np.ndarray, scene: Scene, shadow: float) -> tuple[torch.Tensor, Scene]:
+    """The target (1, N, N) and the scene with the screen widened by whole pixels, black, until it
+    holds flat glass's shadow: all the light through the glass then lands on it, and a design can
+    gather all of it into a target smaller than the glass's shadow."""
+    n, half = image.shape[0], scene.receiver.half_width
+    pixel = 2.0 * half / n
+    pad = max(0, math.ceil((shadow - half) / pixel - 1e-9))
+    padded = np.pad(image, pad)
+    receiver = replace(scene.receiver, resolution=n + 2 * pad, half_width=half + pad * pixel)
+    return torch.from_numpy(padded)[None].double(), replace(scene, receiver=receiver)
+
+
+def _check_reach(target: DesignTarget, scene: Scene, max_slope: float) -> None:
+    """Refuse a target whose light lies beyond what the glass can light under the slope limit."""
+    image, half = target.image, scene.receiver.half_width
+    n = image.shape[0]
+    lit = np.argwhere(image > 1e-3 * image.max())
+    centres = (np.arange(n) + 0.5) / n * 2 * half - half
+    extent = float(max(np.abs(centres[lit[:, 0]]).max(), np.abs(centres[lit[:, 1]]).max()))
+    reach = screen_reach(scene, max_slope)
+    if extent > reach:
+        raise ValueError(f"the target's light reaches {extent:.3g} scene units from the axis but the glass can light "
+                         f"only {reach:.3g} (flat glass's shadow plus the deflection of slope {max_slope:g}); lower "
+                         "target.width, move the screen (receiver.z) or raise constraints.max_slope")
+
+
+def _method(cfg: Mapping[str, Any]) -> dict[str, Any]:
+    method = dict(to_plain(cfg.get("design_method")) or {})
+    for key in ("name", "start", "solver"):
+        if key not in method:
+            raise ValueError(f"design_method.{key} is missing; choose one with design_method=sfc|schwartzburg|adam")
+    return method
+
+
+def _check_method(cfg: Mapping[str, Any]) -> None:
+    method = _method(cfg)
+    if method["start"] not in STARTS:
+        raise ValueError(f"design_method.start={method['start']!r} must be one of {', '.join(STARTS)}")
+    name, params = split_name(method["solver"], "design_method.solver")
+    build_plugin("solver", name, params, "design_method.solver")
+    seconds = cfg.get("seconds")
+    if isinstance(seconds, bool) or not isinstance(seconds, (int, float)) or not seconds > 0:
+        raise ValueError(f"seconds={seconds!r} must be the design's time budget in seconds > 0, e.g. 300")
+
+
+class TimeBudget(Callback):
+    """Stops the run when the method (its start included) has used ``seconds``; the design then is
+    the last iterate (a design has no noise level to stop at)."""
+
+    stop_accepts_iterate = True
+
+    def __init__(self, seconds: float, spent_before: float) -> None:
+        self.seconds, self.spent_before = seconds, spent_before
+
+    def on_start(self, solver) -> None:  # noqa: D102  (a step that can stop early ends with the budget)
+        solver.deadline = time.perf_counter() + self.seconds - self.spent_before - solver.state.elapsed_s
+
+    def on_iteration(self, solver, record) -> bool:  # noqa: D102
+        if self.spent_before + record.elapsed_s >= self.seconds:
+            self.stop_reason = f"the time budget of {self.seconds:g} s is spent"
+            return True
+        return False
+
+
+def _start(setup: DesignSetup, method: Mapping[str, Any], deadline: float | None = None
+           ) -> tuple[torch.Tensor, dict[str, float]]:
+    """The method's start heights: flat glass, or the transport design on a receiver of
+    ``design_method.transport_resolution`` pixels (heights on the design grid), projected onto the
+    printing limits where it breaks one. The transport design is Schwartzburg's outer iterations
+    where the light goes from the flat bottom straight to the screen, and the masked transport
+    start (framework/reconstruction/starts/transport.py, the whole glass masked) through optical elements.
+    The transport's Newton stops at ``deadline`` (a ``time.perf_counter()`` value) if it comes first."""
+    zeros = torch.zeros(setup.grid.shape, dtype=setup.operator.dtype)
+    if method["start"] == "flat":
+        return zeros, {}
+    coarse = int(method.get("transport_resolution", setup.scene.receiver.resolution))
+    operator = setup.operator
+    target = setup.target
+    if coarse != setup.scene.receiver.resolution:
+        operator = setup.operator.variant(setup.operator.photons, 0, coarse)
+        flat = operator.render(torch.zeros(setup.grid.shape, dtype=operator.dtype)).double()
+        target = torch.nn.functional.adaptive_avg_pool2d(target[None], coarse)[0]
+        target = target * (float(flat.sum()) / float(target.sum()))  # the same power on the coarse screen
+    data = ReconstructionData(target=target, mask=torch.ones(setup.grid.shape, dtype=torch.bool), volume=None,
+                              delta=0.0)
+    problem = Problem(operator, data, setup.grid, operator.scene, setup.constraints)
+    if has_elements(operator):  # the light's own path through the elements (the reconstructions' start)
+        start = build_plugin("initial", "transport", {"reach": THROUGH_OPTICS_REACH, "p1": 0.0,
+                                                       "p2": setup.constraints.max_height}, "initial")
+        found = start(StartRequest(problem, lambda: zeros, Path.cwd(), deadline))
+        d, first = found.d.detach().double().cpu().numpy(), found.metrics
+    else:  # flat bottom to screen: Schwartzburg's transport design
+        transport = build_plugin("solver", "schwartzburg", dict(method.get("transport") or {}),
+                                 "design_method.transport")(problem, zeros)
+        transport.deadline = deadline
+        result = transport.run(int(method.get("transport_iterations", 3)))
+        d, first = result.d.detach().double().cpu().numpy(), result.history[0].extras
+    printable = all(setup.constraints.holds(d).values())
+    if not printable:  # the refinement starts printable: its penalty then keeps it near the limits
+        d = setup.constraints.project(d)
+    return torch.from_numpy(d).to(setup.operator.dtype), {"transport_sites": first["transport_sites"],
+                                                          "transport_seconds": first["transport_seconds"],
+                                                          "transport_converged": first["transport_converged"],
+                                                          "transport_max_relative_mass_error":
+                                                              first["transport_max_relative_mass_error"],
+                                                          "transport_printable": float(printable)}
+
+
+def _unprojected_relative_l2(problem: Problem, raw: np.ndarray, target: np.ndarray) -> float:
+    """The relative L2 of the method's last iterate before the projection onto the limits, by the
+    design's operator; NaN where that iterate's print reaches into the optical elements above the
+    glass (the transport design alone fits heights beyond the limits, which no operator renders there)."""
+    try:
+        image = problem.fidelity.evaluate(torch.from_numpy(raw).to(problem.operator.dtype), with_grad=False).image
+    except PrintReachesElement:
+        return math.nan
+    return relative_l2(image.double().numpy(), target)
+
+
+def _rendered_figures(setup: DesignSetup, d: np.ndarray, exact: Any) -> tuple[np.ndarray, dict[str, float]]:
+    image = exact.render(torch.from_numpy(d).to(torch.float64)).detach().double().cpu().numpy()
+    target = setup.target.numpy()
+    return image, {"relative_l2": relative_l2(image, target), "ssim": ssim(image, target)}
+
+
+def wall_light(setup: DesignSetup, d: np.ndarray, photons: int, caustic: np.ndarray) -> dict[str, float]:
+    """What the substrate's clear side walls add to the independently rendered ``caustic``
+    (docs/method.md, "The substrate's side walls"): the share of its light that a wall reflected
+    or refracted (the same heights rendered by the exact renderer with absorbing walls, the rest)
+    and how well that blackened-edge caustic matches the target. Empty for absorbing walls and
+    through optical elements (whose exact references are not wavefront renders)."""
+    scene = setup.scene
+    if scene.substrate.walls != "clear" or has_elements(setup.operator):
+        return {}
+    blackened = replace(scene, substrate=replace(scene.substrate, walls="absorbing"))
+    renderer = WavefrontRenderer(blackened, vertices=wavefront_vertices(photons, scene.channels))
+    image = renderer.render(torch.from_numpy(d).to(torch.float64)).double().numpy()
+    total = float(caustic.sum())
+    return {"wall_light_share": 1.0 - float(image.sum()) / total if total > 0 else 0.0,
+            "blackened_edges_relative_l2": relative_l2(image, setup.target.numpy())}
+
+
+def run_design(cfg: Mapping[str, Any], output_dir: Path, base_dir: Path | None = None,
+               setup: DesignSetup | None = None) -> DesignResult:
+    """Design the glass for ``cfg`` into ``output_dir`` (module docstring); resumes from the run
+    directory's checkpoint if one is there."""
+    setup = setup or prepare_design(cfg, base_dir)
+    method = _method(cfg)
+    seconds, seed = float(cfg["seconds"]), int(cfg.get("seed", 0))
+    output_dir.mkdir(parents=True, exist_ok=True)
+    tracking = dict(to_plain(cfg.get("tracking")) or {})
+    problem = setup.problem
+    name, params = split_name(method["solver"], "design_method.solver")
+    checkpoint = output_dir / CHECKPOINT
+    with MlflowTracker(experiment=tracking.get("experiment", "caustic-design"), run_name=method["name"],
+                       store_dir=tracking.get("store_dir", "mlruns"), tracking_uri=tracking.get("uri"),
+                       params=to_plain(cfg), tags={"method": method["name"], "target": setup.source}) as tracker:
+        began = time.perf_counter()
+        start_metrics: dict[str, float] = {}
+        factor = float(cfg.get("model_noise_factor", 1.25))
+        flat_fits = not checkpoint.is_file() and setup.flat_discrepancy <= factor * setup.model_noise
+        if checkpoint.is_file() or flat_fits:
+            d0 = torch.zeros(setup.grid.shape, dtype=setup.operator.dtype)
+        else:
+            d0, start_metrics = _start(setup, method, began + START_SHARE * seconds)
+        start_seconds = time.perf_counter() - began
+        solver = build_plugin("solver", name, params, "design_method.solver")(problem, d0)
+        if checkpoint.is_file():
+            restore(solver, checkpoint)
+            start_metrics = json.loads((output_dir / "start.json").read_text())
+            start_seconds = float(start_metrics.pop("seconds"))
+        else:
+            (output_dir / "start.json").write_text(json.dumps({"seconds": start_seconds, **start_metrics}))
+        tracker.log_metrics({f"start_{k}": v for k, v in start_metrics.items()} | {"start_seconds": start_seconds})
+        history = MetricsHistory()
+        at_noise = build_plugin("stopping", "morozov", {"tau_dis": factor}, "design_method.model_noise_factor")
+        at_noise.setup(problem)  # the problem's noise level is the model's own, not a photo's
+        callbacks = [history, ProgressBar(desc=f"design ({method['name']})"), TimeBudget(seconds, start_seconds),
+                     at_noise, tracker.metrics_callback(),
+                     Checkpointer(checkpoint, every=int(cfg.get("checkpoint_every", 10)))]
+        result = solver.run(0 if flat_fits else int(method.get("max_iter", 100000)), callbacks)
+        if flat_fits:
+            result.stop_reason = "flat glass casts the target to within the operator's own render noise"
+        design_seconds = start_seconds + result.elapsed_s
+        raw = result.d.detach().double().cpu().numpy()
+        heights = setup.constraints.project(raw)
+        holds = setup.constraints.holds(heights)
+        photons = int(cfg.get("evaluation", {}).get("photons", 4 * setup.operator.photons))
+        exact = setup.operator.exact_variant(photons, seed + 1000, setup.scene.receiver.resolution)
+        caustic, figures = _rendered_figures(setup, heights, exact)
+        figures.update(wall_light(setup, heights, photons, caustic))
+        model = problem.fidelity.evaluate(torch.from_numpy(heights).to(setup.operator.dtype), with_grad=False)
+        measured = setup.constraints.measure(heights)
+        metrics = {**figures, "model_relative_l2": relative_l2(model.image.double().numpy(), setup.target.numpy()),
+                   "unprojected_relative_l2": _unprojected_relative_l2(problem, raw, setup.target.numpy()),
+                   "design_seconds": design_seconds, "start_seconds": start_seconds, "iterations": result.iterations,
+                   **{f"printed_{k}": v for k, v in measured.items()},
+                   **{f"holds_{k}": float(v) for k, v in holds.items()}}
+        transport = start_metrics or (result.history[0].extras if result.history else {})
+        if "transport_converged" in transport:
+            metrics["transport_converged"] = transport["transport_converged"]
+            metrics["transport_max_relative_mass_error"] = transport["transport_max_relative_mass_error"]
+        previews = save_previews(cfg, setup, heights, photons, seed, output_dir)
+        metrics.update(previews)
+        verdict = design_verdict(metrics, setup, result.stop_reason)
+        _save(output_dir, setup, heights, caustic, metrics, verdict, history)
+        tracker.log_metrics(metrics)
+        tracker.log_artifacts(output_dir, "design")
+    return DesignResult(heights, metrics, verdict)
+
+
+def design_verdict(metrics: Mapping[str, float], setup: DesignSetup, stop_reason: str) -> list[str]:
+    """The run's verdict, one line each: the match, the printing limits, how the run ended."""
+    c, mm = setup.constraints, setup.mm
+    lines = [f"matches the target to {metrics['relative_l2']:.1%} (relative L2 after energy normalisation), "
+             f"SSIM {metrics['ssim']:.2f}, rendered independently (exact wavefront renderer or fresh photons)",
+             f"max slope {metrics['printed_max_slope']:.3f} within {c.max_slope:g}; heights 0 to "
+             f"{metrics['printed_max_height'] * mm:.3f} mm within {c.max_height * mm:.3g} mm"]
+    if c.min_feature is not None:
+        lines.append(f"smallest crest or valley radius {mm / max(metrics['printed_max_curvature'], 1e-300):.3g} mm, "
+                     f"at least {0.5 * c.min_feature * mm:.3g} mm asked")
+    if c.volume is not None:
+        lines.append(f"volume {metrics['printed_volume'] * mm ** 3:.4g} mm3 (asked {c.volume * mm ** 3:.4g} mm3)")
+    if metrics.get("wall_light_share", 0.0) > WALL_LIGHT_NOTED:
+        share, blackened = metrics["wall_light_share"], metrics["blackened_edges_relative_l2"]
+        line = (f"the substrate's clear side walls send {share:.1%} of the light on the screen (the light entering "
+                "next to them, reflected), ")
+        if blackened < metrics["relative_l2"]:
+            line += (f"which costs the match: with blackened or frosted edges it would be {blackened:.1%}; blacken "
+                     "them and design with substrate.walls=absorbing")
+        else:
+            line += f"designed into the caustic (with blackened or frosted edges it would match to {blackened:.1%})"
+        lines.append(line)
+    broken = [k[len("holds_"):] for k, v in metrics.items() if k.startswith("holds_") and not v]
+    if broken:
+        lines.append(f"NOT printable as asked: {', '.join(broken)} exceed their limits")
+    lines += setup.notes
+    if metrics.get("transport_converged") == 0.0:
+        lines.append("the transport's Newton stopped at its time or round limit (half the budget, 1000 rounds) with "
+                     f"a cell's mass off by up to {metrics['transport_max_relative_mass_error']:.3g} of its own")
+    lines.append(f"designed in {metrics['design_seconds']:.0f} s ({stop_reason})")
+    return lines
+
+
+def _save(output_dir: Path, setup: DesignSetup, heights: np.ndarray, caustic: np.ndarray, metrics: Mapping[str, float],
+          verdict: list[str], history: MetricsHistory) -> None:
+    np.save(output_dir / "height_field.npy", heights)
+    np.save(output_dir / "caustic.npy", caustic.astype(np.float32))
+    np.save(output_dir / "target.npy", setup.target.numpy().astype(np.float32))
+    export_outputs(output_dir, heights, setup.grid.half_width, setup.grid.base, setup.mm, formats=("stl", "obj"))
+    save_design_figure(output_dir / "design.png", setup, heights, caustic, metrics, history)
+    (output_dir / "metrics.json").write_text(json.dumps(dict(metrics), indent=2))
+    (output_dir / "verdict.txt").write_text("\n".join(verdict) + "\n")

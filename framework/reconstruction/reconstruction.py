@@ -1,0 +1,435 @@
+"""One reconstruction, end to end: build every plugin by key, then data -> problem -> solver ->
+outputs, tracked in MLflow.
+
+Used by ``sfc-reconstruct`` (experiments/reconstruct.py); kept here so that the app stays thin
+and tests can run a reconstruction without Hydra's command line.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Mapping
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from framework.core.contracts.data_source import DataRequest, DataSource, ShotStack
+from framework.core.contracts.operator import Operator
+from framework.core.contracts.solver import SolverBuilder
+from framework.core.contracts.start import Start, StartRequest
+from framework.core.contracts.stopping import StoppingRule
+from framework.core.plugin_config import as_mapping, build_plugin, split_name
+from framework.core.registry import declared
+from framework.core.objective import DataFidelity
+from framework.core.problem import HeightGrid, Problem
+from framework.scene.run_settings import RunSettings, design_given
+from framework.core.values import positive_int
+from framework.scene.scene_config import SceneSetup
+from framework.core.solver_loop import Callback, RunResult, returned_iterate
+from framework.lab.calibration import JointCalibration
+from framework.core.callbacks import Checkpointer, GroundTruthError, MetricsHistory, ProgressBar
+from framework.core.checkpoint import resume as resume_solver
+from framework.defects.defect_stage import DefectSettings, report_defects
+from framework.reconstruction.feature_search import FeatureSearch, SearchedLines
+from framework.stack.first_fit import fit_first_shot
+from framework.reconstruction.photon_budget import PhotonBudget, with_photons
+from framework.reconstruction.report_figures import save_reconstruction_figures
+from framework.reconstruction.run_checks import (CHECKPOINT, check_tracking_target, check_volume, check_volume_known,
+                                           checked_resume, height_bounds)
+from framework.reconstruction.run_identity import run_fingerprint
+from framework.reconstruction.run_outputs import report_verdict, save_outputs
+from framework.stack.shot_report import save_shot_record, shot_metrics
+from framework.reconstruction.run_phases import PHASES, PhaseOutcome, resumed_phases
+from framework.tracking.mlflow_tracker import MlflowTracker, local_store_uri
+from framework.reconstruction.verdict import volume_report
+from framework.files.image_io import resolve_path
+from operators.scene import Scene
+
+CALIBRATION_STATE = "calibration.json"
+LINE_SEARCH_PHOTONS = 1 << 18  # per shot and hypothesis of a stack's line search (framework/reconstruction/feature_search.py)
+FIRST_FIT_CALIBRATION = "first_fit_calibration.json"  # a stack's first shot's gain, fitted before the stack
+# Refits at most: runs of a start again after one whose calibration moved what the heights absorb.
+MAX_REFITS = 2
+MLFLOW_RUN = "mlflow_run.json"  # the run's MLflow run id, so that a job resumed in its directory logs into it
+
+
+def build_start(spec: Any) -> Start:
+    """The ``initial`` plugin (framework/reconstruction/starts/) of the config group ``spec``, checked:
+    ``{name: zero | design | file | transport | auto, ...}`` (None: zero)."""
+    spec = spec or {"name": "zero"}
+    if isinstance(spec, str):
+        raise ValueError(f"initial={spec!r}: choose a start by name (initial=zero|design|file|transport|auto); "
+                         "a height-field file is initial=file initial.path=<file>")
+    name, params = split_name(spec, "initial")
+    return build_plugin("initial", name, params, "initial")
+
+
+def build_stopping(spec: Any) -> list[StoppingRule]:
+    """The plugins of the ``stopping`` group ``spec``, in config order (fresh ones for every run
+    from a start)."""
+    return [build_plugin("stopping", name, params, f"stopping.{name}")
+            for name, params in as_mapping(spec, "stopping").items()]
+
+
+def passes(fidelity: DataFidelity) -> dict[str, int]:
+    """The operator passes the solvers spent on the data term: forward renders, gradient passes
+    and photon-traces (the photons of every pass; a gradient pass traces every photon again)."""
+    return {"renders": fidelity.renders, "gradient_passes": fidelity.gradient_passes,
+            "photon_traces": fidelity.photon_traces}
+
+
+def photon_budget(parts: Reconstruction, problem: Problem) -> PhotonBudget | None:
+    """The photon budget of a run on ``problem`` (the run's, or one shot of its stack), or None:
+    every iteration traces the configured photons (no ``photon_budget.start``, no noise level, or
+    a joint calibration, which updates the configured operator's setup)."""
+    budget, delta = parts.settings.photon_budget, problem.data.delta
+    if budget.start is None or parts.calibration is not None or not delta or delta <= 0.0:
+        return None
+    return PhotonBudget(problem.fidelity, problem.operator, budget.start, budget.noise_share, float(delta),
+                        parts.settings.tau_dis, parts.settings.seed)
+
+
+def final_operator(parts: Reconstruction, result: RunResult) -> Operator:
+    """The operator with the photons of the run's last iteration (framework/reconstruction/photon_budget.py)."""
+    photons = result.history[-1].extras.get("photons") if result.history else None
+    return parts.operator if photons is None else with_photons(parts.operator, int(photons), parts.settings.seed)
+
+
+def interrupted_run(output_dir: Path, checkpoint: Path | None, store_dir: Path, uri: str | None) -> str | None:
+    """The MLflow run id of the interrupted job whose own checkpoint this run resumes (same run
+    directory, same tracking store), or None: then a new run starts."""
+    record = output_dir / MLFLOW_RUN
+    if checkpoint is None or checkpoint != output_dir / CHECKPOINT or not record.is_file():
+        return None
+    saved = json.loads(record.read_text())
+    return saved["run_id"] if saved["tracking_uri"] == (uri or local_store_uri(store_dir)) else None
+
+
+def _solve_from(parts: Reconstruction, problem: Problem, name: str, start: Start, request: StartRequest,
+                checkpoint: Path | None, output_dir: Path, tracker: MlflowTracker, steps_before: int,
+                truth_error: GroundTruthError | None) -> PhaseOutcome:
+    """Run the solver from one start (or continue it from ``checkpoint``) with fresh stopping rules."""
+    operator = parts.operator
+    began = time.perf_counter()
+    start_metrics: dict[str, float] = {}
+    if checkpoint is None:  # a resumed run continues from its checkpoint's heights
+        computed = start(request)
+        d0, start_metrics = computed.d.to(operator.dtype), dict(computed.metrics)
+        if truth_error is not None:  # how far the start itself is from the truth
+            start_metrics.update({f"{name}_initial_{k}": v for k, v in truth_error.errors(d0).items()})
+        tracker.log_metrics({f"start_{k}": v for k, v in start_metrics.items()}, step=steps_before)
+    else:
+        d0 = torch.zeros(parts.grid.shape, dtype=operator.dtype)
+    shaped = checkpoint is None and computed.shaped
+    searched = checkpoint is None and isinstance(start, SearchedLines)
+    if checkpoint is None and (searched or not shaped) and problem.data.first_fit_shot is not None:
+        def extra(shot: Problem) -> list[Callback]:
+            gain = None if parts.calibration is None else parts.calibration.gain_of_shot(problem.data.first_fit_shot)
+            if gain is not None:
+                gain.setup(shot.data.target, shot.data.weights, shot.data.delta, output_dir / FIRST_FIT_CALIBRATION)
+            return [c for c in (photon_budget(parts, shot), gain) if c is not None]
+
+        d0, first = fit_first_shot(problem, d0, parts.make_solver, build_stopping(parts.settings.cfg.get("stopping")),
+                                   extra, parts.max_iter, parts.settings.method)
+        start_metrics.update({f"{name}_{k}": v for k, v in first.items()})
+        shaped = True
+    if searched:
+        found, searched_metrics = FeatureSearch(problem, LINE_SEARCH_PHOTONS, parts.settings.seed)(
+            d0.detach().cpu().double().numpy())
+        d0 = torch.from_numpy(found).to(operator.dtype)
+        start_metrics.update({f"{name}_{k}": v for k, v in searched_metrics.items()})
+        print(f"line search: {searched_metrics['feature_search_changed']:.0f} of "
+              f"{searched_metrics['feature_search_lines']:.0f} lines remade; the stack's discrepancy "
+              f"{searched_metrics['feature_search_misfit_before']:.4f} -> "
+              f"{searched_metrics['feature_search_misfit_after']:.4f}", flush=True)
+    start_seconds = time.perf_counter() - began
+    solver = parts.make_solver(problem, d0)
+    if shaped:
+        solver.begin_from_shaped_start()
+    stopping = build_stopping(parts.settings.cfg.get("stopping"))
+    for rule in stopping:
+        rule.setup(problem)
+    history = MetricsHistory()
+    callbacks: list[Callback] = [history, *stopping, ProgressBar(desc=f"{parts.settings.method} from {name}"),
+                                 Checkpointer(output_dir / CHECKPOINT, every=parts.settings.checkpoint_every,
+                                              run=parts.fingerprint),
+                                 tracker.metrics_callback(step_offset=steps_before)]
+    budget = photon_budget(parts, problem)
+    callbacks += [c for c in (parts.calibration, truth_error, budget) if c is not None]
+    if checkpoint is not None:
+        print(f"resuming from {checkpoint}", flush=True)
+        result = resume_solver(solver, checkpoint, parts.max_iter, callbacks)
+    else:
+        result = solver.run(parts.max_iter, callbacks)
+    d, returned = returned_iterate(result, stopping)
+    discrepancy = problem.fidelity.relative_discrepancy(final_operator(parts, result).render(d))
+    return PhaseOutcome(name, result, d, returned, discrepancy, history.columns(), time.perf_counter() - began,
+                        start_seconds, start_metrics, truth_error.errors(d) if truth_error else {})
+
+
+@dataclass
+class Reconstruction:
+    """Everything a reconstruction is built from, checked against the config before any render.
+
+    Attributes:
+        settings: The config, parsed once (framework/scene/run_settings.py).
+        setup: The scene, height grid, operator and height-field group (framework/scene/scene_config.py).
+        data_source: The ``data`` plugin.
+        make_solver: The solver plugin's builder: (problem, d0) -> solver.
+        stopping: The ``stopping`` plugins, in config order.
+        start: The ``initial`` plugin: computes the start d0 (m, m) once the data are loaded.
+        max_iter: The solver's iteration cap.
+        fingerprint: What determines the result (framework/reconstruction/run_identity.py), stored in checkpoints.
+        calibration: Joint calibration of the setup (framework/lab/calibration.py), or None.
+    """
+
+    settings: RunSettings
+    setup: SceneSetup
+    data_source: DataSource
+    make_solver: SolverBuilder
+    stopping: list[StoppingRule]
+    start: Start
+    max_iter: int
+    fingerprint: dict[str, str]
+    calibration: JointCalibration | None = None
+    defects: DefectSettings = field(default_factory=DefectSettings)
+    _designs: dict[str, torch.Tensor] = field(default_factory=dict, repr=False)
+
+    @property
+    def operator(self) -> Operator:
+        """The forward-operator plugin."""
+        return self.setup.operator
+
+    @property
+    def scene(self) -> Scene:
+        """The scene (light, substrate, receiver, material, wavelengths)."""
+        return self.setup.scene
+
+    @property
+    def grid(self) -> HeightGrid:
+        """The height grid."""
+        return self.setup.grid
+
+    def design(self, base_dir: Path) -> torch.Tensor:
+        """The configured height field (m, m), float64, scene units: read or generated once per
+        ``base_dir``, a copy handed out each time."""
+        key = str(base_dir)
+        if key not in self._designs:
+            self._designs[key] = self.setup.heights(base_dir)
+        return self._designs[key].clone()
+
+    @classmethod
+    def from_config(cls, cfg: Mapping[str, Any], base_dir: Path) -> Reconstruction:
+        """Build every part by its registry key (scene, operator, data, solver, stopping rules) and
+        the start; a bad value fails here, before anything is rendered."""
+        settings = RunSettings.parse(cfg)
+        cfg = settings.cfg
+        calibration_cfg = as_mapping(cfg.get("calibration") or {}, "calibration")
+        data_name, data_params = split_name(cfg.get("data"), "data")
+        data_source = build_plugin("data", data_name, data_params, "data")
+        setup = SceneSetup.parse(cfg, settings.mm_per_unit, imaging=bool(calibration_cfg.get("params")),
+                                 shots=data_source.setups if isinstance(data_source, ShotStack) else None)
+        post_steps = dict(as_mapping(cfg.get("solver") or {}, "solver").get("post_steps") or {})
+        volume_held = any(declared("post_step", name, "holds_volume", False) for name in post_steps)
+        calibration = JointCalibration.from_config(setup.operator, calibration_cfg, setup.scene, setup.screen_sigma,
+                                                   volume_held)
+        solver_name, solver_params = split_name(cfg.get("solver"), "solver")
+        max_iter = positive_int(solver_params.pop("max_iter", None), "solver.max_iter")  # the loop's, not the solver's
+        make_solver = build_plugin("solver", solver_name, solver_params, "solver")
+        stopping = build_stopping(cfg.get("stopping"))
+        start = build_start(cfg.get("initial"))
+        start.check(base_dir)
+        regularizers = (cfg.get("solver") or {}).get("regularizers") or {}
+        if "l1_design" in regularizers and not _has_design(cfg):
+            raise ValueError("solver.regularizers.l1_design (experiment=design) needs the print's design: give "
+                             "height_field.path (the design) with data=file or data=photo, or data.printed (the print) "
+                             "with synthetic data")
+        defects = DefectSettings.parse(cfg.get("defects"))
+        if defects.enabled == "on" and not _has_design(cfg):
+            raise ValueError("defects.enabled=on needs the print's design: give height_field.path (the design) with "
+                             "data=file or data=photo, or data.printed with synthetic data; or defects.enabled=auto")
+        return cls(settings, setup, data_source, make_solver, stopping, start, max_iter,
+                   run_fingerprint(cfg, base_dir), calibration, defects)
+
+    def check(self, base_dir: Path, output_dir: Path) -> Path | None:
+        """Everything a run needs that the plugins' configs alone do not show, checked without a
+        render, before the tracker opens: the tracking target, the data's files and what they say
+        of the print (the volume against the printed area and the height bounds), the design of a
+        measured print, and the checkpoint to resume from (readable, of this run). Returns that
+        checkpoint, or None for a fresh run."""
+        tracking = self.settings.tracking
+        check_tracking_target(tracking.uri, resolve_path(tracking.store_dir, base_dir))
+        request = self.data_request(base_dir)
+        facts = self.data_source.check(request)
+        check_volume_known(self.settings.cfg, facts)
+        check_volume(facts.volume, facts.mask, self.grid.cell_area, height_bounds(self.settings.cfg),
+                     2.0 * float(self.scene.substrate.half_width))
+        if self.settings.design_given:
+            request.design()
+        return checked_resume(self.settings.resume, output_dir, base_dir, self.fingerprint)
+
+    def data_request(self, base_dir: Path, output_dir: Path | None = None) -> DataRequest:
+        """What the data source may use: the operator, the grid, the configured heights, the seed,
+        the run directory and the units."""
+        return DataRequest(self.operator, self.grid, lambda: self.design(base_dir),
+                           self.settings.seed, base_dir, output_dir, self.settings.mm_per_unit)
+
+
+def run_reconstruction(cfg: Mapping[str, Any], output_dir: Path, base_dir: Path,
+                       sweep_id: str | None = None) -> dict[str, Any]:
+    """Reconstruct the configured scene into ``output_dir``; returns the metrics written to metrics.json."""
+    parts = Reconstruction.from_config(cfg, base_dir)
+    checkpoint = parts.check(base_dir, output_dir)
+    output_dir.mkdir(parents=True, exist_ok=True)
+    if parts.settings.compile_in_background:
+        with parts.operator.warm_up() as compiling:
+            return _reconstruct(parts, output_dir, base_dir, checkpoint, sweep_id, compiling)
+    return _reconstruct(parts, output_dir, base_dir, checkpoint, sweep_id, None)
+
+
+def _has_design(cfg: Mapping[str, Any]) -> bool:
+    """Whether the run's data will carry the print's design: synthetic data of another print
+    (data.printed), or measured data with a design (framework/scene/run_settings.py)."""
+    data = cfg.get("data") or {}
+    if data.get("name") == "synthetic":
+        return bool(data.get("printed"))
+    return design_given(cfg)
+
+
+def _run_starts(parts: Reconstruction, problem: Problem, request: StartRequest, output_dir: Path,
+                checkpoint: Path | None, tracker: MlflowTracker, truth_error: GroundTruthError | None
+                ) -> tuple[list[PhaseOutcome], bool, int]:
+    """Run the solver from each of the start's phases in turn (continuing an interrupted run's own
+    phase from ``checkpoint``) until one reaches the noise level (a stack with
+    ``data.first_fit=lines`` adds one last phase: :class:`SearchedLines`); where that run's calibration
+    moved a parameter the heights absorb in part (``JointCalibration.needs_refit``), run its start
+    again under the calibrated setup, up to ``MAX_REFITS`` times. Returns the finished runs, whether
+    there were several starts, and the MLflow steps used."""
+    candidates = parts.start.phases()
+    if problem.data.line_search:  # a stack's last resort: the nearest shot's lines searched
+        nearest = replace(request, problem=problem.shot(problem.data.first_fit_shot))
+        candidates = [*candidates, (f"{candidates[0][0]}_lines", SearchedLines(candidates[0][1], nearest))]
+    finished, first, refits = resumed_phases(output_dir, checkpoint)
+    phases = [*candidates, *((f"{candidates[i][0]}_refit", candidates[i][1]) for i in refits)]
+    steps = sum(outcome.result.iterations for outcome in finished)
+    index = first - 1
+    while index + 1 < len(phases):
+        index += 1
+        name, start = phases[index]
+        if len(candidates) > 1 and start.reads_design and problem.data.design is None:
+            continue  # initial=auto's design candidate: these data have no design
+        if len(phases) > 1:  # so that a resumed run knows which start its checkpoint belongs to
+            torch.save({"done": [outcome.saved() for outcome in finished], "phase": index, "refits": refits},
+                       output_dir / PHASES)
+        resume_from = checkpoint if index == first else None
+        calibrated = None if parts.calibration is None else parts.calibration.values()
+        try:
+            outcome = _solve_from(parts, problem, name, start, request, resume_from, output_dir, tracker, steps,
+                                  truth_error)
+        except ValueError as error:
+            if len(phases) == 1:
+                raise
+            print(f"initial=auto: start {name} left out: {error}", flush=True)
+            continue
+        finished.append(outcome)
+        steps += outcome.result.iterations
+        if outcome.result.accepted:
+            if calibrated is not None and len(refits) < MAX_REFITS and parts.calibration.needs_refit(calibrated):
+                of = index if index < len(candidates) else refits[index - len(candidates)]
+                refits.append(of)
+                phases.append((f"{candidates[of][0]}_refit", candidates[of][1]))
+                print(f"the calibration moved {parts.calibration.describe_move(calibrated)} while the heights "
+                      f"absorbed part of it; solving again from start {candidates[of][0]} under the calibrated "
+                      "setup", flush=True)
+                continue
+            break
+        if index + 1 < len(phases):
+            print(f"start {name} ended short of the noise level ({outcome.result.stop_reason}); "
+                  f"trying start {phases[index + 1][0]}", flush=True)
+    if not finished:
+        raise ValueError("initial=auto: no candidate start could be computed from these data; see the lines above")
+    return finished, len(phases) > 1, steps
+
+
+def _reconstruct(parts: Reconstruction, output_dir: Path, base_dir: Path, checkpoint: Path | None,
+                 sweep_id: str | None, compiling: Any) -> dict[str, Any]:
+    settings, operator = parts.settings, parts.operator
+    method, cfg, tracking = settings.method, settings.cfg, settings.tracking
+    store_dir = resolve_path(tracking.store_dir, base_dir)
+    with MlflowTracker(experiment=tracking.experiment, run_name=cfg.get("method"), store_dir=store_dir,
+                       tracking_uri=tracking.uri, params=cfg, tags=settings.tags, sweep_id=sweep_id,
+                       continue_run_id=interrupted_run(output_dir, checkpoint, store_dir, tracking.uri)
+                       ) as tracker:
+        (output_dir / MLFLOW_RUN).write_text(json.dumps({"run_id": tracker.run_id,
+                                                         "tracking_uri": tracker.tracking_uri}))
+        start = time.perf_counter()
+        data = parts.data_source.load(parts.data_request(base_dir, output_dir))
+        if data.design is None and data.ground_truth is None and settings.design_given:
+            data = replace(data, design=parts.design(base_dir))  # a measured print's design
+        data_seconds = time.perf_counter() - start
+        tracker.log_data(data, cfg)
+        problem = Problem(operator, data, parts.grid, parts.scene)
+        # The design the mm outputs compare with: the print's design when the data carry one, else
+        # the truth of synthetic data (framework/reconstruction/run_checks.py).
+        design = data.design if data.design is not None else data.ground_truth
+        calibration = parts.calibration
+        if calibration is not None:
+            resume_from = None if checkpoint is None else checkpoint.parent / CALIBRATION_STATE
+            calibration.setup(data.target, data.weights, data.delta, output_dir / CALIBRATION_STATE, resume_from,
+                              goal=settings.tau_dis * data.delta)
+        truth_error = None
+        if data.ground_truth is not None:
+            truth_error = GroundTruthError(data.ground_truth.to(operator.dtype), parts.grid.base)
+        if compiling is not None and compiling.running:
+            print("waiting for the gradient kernel to compile (first run after an install; cached afterwards)",
+                  flush=True)
+            compiling.wait()
+        request = StartRequest(problem.for_start(), lambda: parts.design(base_dir), base_dir)
+        finished, several, steps = _run_starts(parts, problem, request, output_dir, checkpoint, tracker, truth_error)
+        # The last run that reached the noise level (a refit's setup is the calibrated one), else the
+        # run that came closest.
+        accepted = [o for o in finished if o.result.accepted]
+        chosen = accepted[-1] if accepted else min(finished, key=lambda o: o.rel_discrepancy)
+        result, d = chosen.result, chosen.d
+        final = final_operator(parts, result)
+        prediction = final.render(d)
+        volume = volume_report(d, data.volume, parts.grid.cell_area)
+        start_metrics = {"start": chosen.name, "start_time_s": sum(o.start_seconds for o in finished),
+                         **{k: v for o in finished for k, v in o.summary(several).items()}}
+        metrics: dict[str, Any] = {
+            "method": method, "iterations": result.iterations,
+            "returned_iteration": chosen.returned_iteration,
+            **result.solver_metrics,
+            "stop_reason": result.stop_reason, "stopped_by": result.stopped_by,
+            "run_time_s": sum(outcome.seconds for outcome in finished), "data_time_s": data_seconds,
+            "rel_discrepancy": problem.fidelity.relative_discrepancy(prediction),
+            "delta": data.delta, "intrinsic_noise": data.intrinsic_noise,
+            "photons_per_iteration": final.photons, **passes(problem.fidelity),
+            **(truth_error.errors(d) if truth_error else {}),
+            **volume,
+            **start_metrics, **(calibration.report() if calibration else {})}
+        shots = shot_metrics(problem, prediction)
+        metrics.update(shots)
+        metrics.update(save_outputs(output_dir, d, prediction, data, parts.grid, settings.mm_per_unit, design))
+        save_shot_record(output_dir, shots, len(data.shots))
+        metrics.update(report_verdict(metrics["rel_discrepancy"], data, settings.tau_dis, chosen.returned_iteration,
+                                      result.stop_reason, volume, shots,
+                                      calibration.never_updated() if calibration else ()))
+        reports_defects = data.design is not None and parts.defects.enabled != "off"
+        if reports_defects and data.shots:
+            print("no defect report: it reads one photo; reconstruct a single shot for it", flush=True)
+        elif reports_defects:
+            report = report_defects(problem, d, parts.defects, settings.seed, settings.mm_per_unit, output_dir)
+            metrics.update(report.metrics())
+            metrics["verdict"] += " " + " ".join(report.lines)
+        (output_dir / "metrics.json").write_text(json.dumps(metrics, indent=2))
+        save_reconstruction_figures(output_dir, d, problem, prediction, chosen.history)
+        tracker.log_metrics({k: float(v) for k, v in metrics.items() if isinstance(v, (int, float)) and v is not None},
+                            step=steps)  # the summary (flags as 0/1): last step, not 0
+        tracker.set_tags({"stop_reason": result.stop_reason, "stopped_by": result.stopped_by, "start": chosen.name,
+                          "verdict": metrics["verdict"]})
+        tracker.log_artifacts(output_dir)
+    return metrics

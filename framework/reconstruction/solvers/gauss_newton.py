@@ -1,0 +1,175 @@
+"""``gauss_newton``: M2 with Levenberg-Marquardt directions from conjugate gradients on J^T J
+(docs/method.md, "Gauss-Newton steps").
+
+The proximal-gradient iteration of M2 (framework/reconstruction/solvers/proximal_gradient.py) with its
+regularisers, post steps, bounds, two-metric steps and stopping rules, whose direction on the free
+samples is the damped Gauss-Newton step
+
+    (H + lambda I) p = grad f,    H = J^T W J / (||b||_W^2 a)    (the data term's curvature),
+
+solved inexactly by conjugate gradients preconditioned with the Sobolev metric P. Each product
+H v costs one render at d + h v (a forward difference with the same photons) and one adjoint
+pass (:meth:`framework.core.objective.DataFidelity.curvature_product`). lambda = mu times the
+Rayleigh quotient of H along the first preconditioned residual, and mu adapts as in
+Levenberg-Marquardt: halved when the line search accepts its first trial, quadrupled when it had
+to shorten the step. As with the quasi-Newton direction, p is returned divided by
+gamma = <g, p> / <g, P g>, so that the step size tau and the L1 prox's threshold tau alpha keep
+their meaning and the line search finds tau near gamma.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any, Callable
+
+import torch
+from torch import Tensor
+
+from framework.core.contracts.solver import SolverBuilder
+from framework.core.solver_loop import IterationRecord
+from framework.reconstruction.solvers.pixel_methods import PixelLandweber
+from framework.reconstruction.solvers.proximal_parts import build_parts, check_regularizers
+
+__all__ = ["GaussNewtonLandweber", "check_gauss_newton"]
+
+DEFAULTS = {"cg_iterations": 6, "cg_tolerance": 0.1, "damping": 0.1, "fd_step": 1e-4}
+
+
+def check_gauss_newton(settings: Any) -> dict[str, float]:
+    """``solver.gauss_newton`` ({cg_iterations, cg_tolerance, damping, fd_step}, each optional)
+    checked, with :data:`DEFAULTS` for those not given."""
+    if settings is None:
+        settings = {}
+    if not isinstance(settings, Mapping) or set(settings) - set(DEFAULTS):
+        raise ValueError(f"solver.gauss_newton={settings!r} must be a map with keys among {', '.join(DEFAULTS)}, "
+                         "e.g. {cg_iterations: 6, damping: 0.1}")
+    out = {**DEFAULTS, **settings}
+    iterations = out["cg_iterations"]
+    if isinstance(iterations, bool) or not isinstance(iterations, int) or iterations < 1:
+        raise ValueError(f"solver.gauss_newton.cg_iterations={iterations!r} must be an integer >= 1")
+    for key in ("cg_tolerance", "damping", "fd_step"):
+        value = out[key]
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0.0 < float(value) < float("inf"):
+            raise ValueError(f"solver.gauss_newton.{key}={value!r} must be a positive number")
+    if out["cg_tolerance"] >= 1.0:
+        raise ValueError(f"solver.gauss_newton.cg_tolerance={out['cg_tolerance']!r} must lie in (0, 1): the residual "
+                         "of the linear solve relative to the gradient")
+    return out
+
+
+class GaussNewtonLandweber(PixelLandweber):
+    """M2 (:class:`PixelLandweber`) along damped Gauss-Newton directions (module docstring).
+
+    Args:
+        gauss_newton: ``{cg_iterations, cg_tolerance, damping, fd_step}``: conjugate-gradient
+            iterations per direction at most, their stopping residual relative to the gradient,
+            the initial Levenberg-Marquardt factor mu, and the largest height change of the
+            forward difference (scene units).
+        Other arguments as :class:`PixelLandweber` (``quasi_newton`` is not used).
+    """
+
+    name = "gauss_newton"
+
+    def __init__(self, *args: Any, gauss_newton: Mapping[str, Any] | None = None, **kwargs: Any) -> None:
+        kwargs["quasi_newton"] = None
+        kwargs["momentum_from"] = None
+        super().__init__(*args, **kwargs)
+        self.settings = check_gauss_newton(gauss_newton)
+        self.mu = float(self.settings["damping"])
+        self.cg_steps = 0  # conjugate-gradient iterations of the last direction
+
+    def _plain_gradient(self) -> bool:
+        return False
+
+    def _free_direction(self, grad: Tensor, free: Tensor | None = None) -> Tensor:
+        """p / gamma (m, m) on the ``free`` samples (None: all), zero elsewhere."""
+        keep = (lambda x: x) if free is None else (lambda x: torch.where(free, x, torch.zeros_like(x)))
+        evaluation = self._current_evaluation()
+        d = self.state.d
+
+        def curvature(v: Tensor) -> Tensor:
+            return keep(self.data.curvature_product(d, evaluation.image, v, self.settings["fd_step"]))
+
+        g = keep(grad)
+        p = self._conjugate_gradients(curvature, g, lambda x: keep(self._apply_metric(x)))
+        gamma = float(torch.sum(g * p)) / max(float(torch.sum(g * keep(self._apply_metric(g)))), 1e-300)
+        if not gamma > 0.0:  # not a descent direction (a curvature product of the wrong sign): P grad
+            return keep(self._apply_metric(g))
+        return p / gamma
+
+    def _conjugate_gradients(self, curvature: Callable[[Tensor], Tensor], g: Tensor,
+                             precondition: Callable[[Tensor], Tensor]) -> Tensor:
+        """Approximately solve (H + lambda I) p = g by preconditioned CG from p = 0; lambda = mu
+        times the Rayleigh quotient of H along the first preconditioned residual."""
+        p = torch.zeros_like(g)
+        r = g.clone()
+        z = precondition(r)
+        direction = z.clone()
+        rz = float(torch.sum(r * z))
+        g_norm = float(torch.linalg.vector_norm(g))
+        lam = None
+        self.cg_steps = 0
+        for _ in range(int(self.settings["cg_iterations"])):
+            hq = curvature(direction)
+            qq = float(torch.sum(direction * direction))
+            if lam is None:
+                lam = self.mu * max(float(torch.sum(direction * hq)) / max(qq, 1e-300), 0.0)
+            aq = hq + lam * direction
+            curv = float(torch.sum(direction * aq))
+            self.cg_steps += 1
+            if not curv > 0.0:
+                break
+            alpha = rz / curv
+            p = p + alpha * direction
+            r = r - alpha * aq
+            if float(torch.linalg.vector_norm(r)) <= self.settings["cg_tolerance"] * g_norm:
+                break
+            z = precondition(r)
+            rz_new = float(torch.sum(r * z))
+            direction = z + (rz_new / rz) * direction
+            rz = rz_new
+        return p if self.cg_steps and float(torch.sum(p * p)) > 0.0 else precondition(g)
+
+    def step(self) -> IterationRecord:
+        """One iteration; then mu adapts to how the line search received the direction."""
+        record = super().step()
+        self.mu = self.mu * 0.5 if record.extras.get("trials", 1.0) <= 1.0 else self.mu * 4.0
+        self.mu = min(max(self.mu, 1e-4), 1e4)
+        record.extras["gauss_newton_cg_steps"] = float(self.cg_steps)
+        record.extras["gauss_newton_damping"] = self.mu
+        return record
+
+    def state_dict(self) -> dict[str, Any]:
+        """Adds the damping factor mu."""
+        return {**super().state_dict(), "gauss_newton_mu": self.mu}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:  # noqa: D102
+        super().load_state_dict(state)
+        self.mu = float(state.get("gauss_newton_mu", self.settings["damping"]))
+
+    @staticmethod
+    def example_settings() -> dict[str, Any]:
+        """Settings of the contract checks (framework/core/contracts/checks.py)."""
+        return {"step_size": {"name": "backtracking", "tau": 5e-3}, "regularizers": {"l1_bounds": {}},
+                "preconditioner": {"name": "sobolev", "length": [0.25]}, "gauss_newton": {"cg_iterations": 3}}
+
+    @classmethod
+    def from_config(cls, step_size: Mapping[str, Any], regularizers: Mapping[str, Any] | None = None,
+                    post_steps: Mapping[str, Any] | None = None, preconditioner: Mapping[str, Any] | None = None,
+                    two_metric_from: int | None = None, momentum_from: int | None = None,
+                    quasi_newton: Mapping[str, Any] | None = None, shaped_start_from: str = "first",
+                    gauss_newton: Mapping[str, Any] | None = None) -> SolverBuilder:
+        """The plugin ``solver/gauss_newton``: the keys of ``landweber_pixel`` (``momentum_from`` and
+        ``quasi_newton`` accepted and unused) and ``gauss_newton``."""
+        check_gauss_newton(gauss_newton)
+
+        def fresh_parts() -> dict[str, Any]:
+            parts = build_parts(step_size, preconditioner, regularizers, post_steps, two_metric_from, None, None,
+                                shaped_start_from)
+            cls._require_regularizers(parts["regularizers"])
+            check_regularizers(parts["regularizers"], cls.name)
+            return parts
+
+        fresh_parts()  # a bad value fails now, before any render
+        return lambda problem, d0: cls(problem.fidelity, d0, context=problem.context, gauss_newton=gauss_newton,
+                                       **fresh_parts())

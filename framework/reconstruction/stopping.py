@@ -1,0 +1,170 @@
+"""The stopping rules of the solver loop: plugins of kind ``stopping`` (``morozov``, ``stagnation``),
+built from the config's ``stopping`` group; the contract they keep is
+framework/core/contracts/stopping.py.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING
+
+from torch import Tensor
+
+from framework.core.contracts.stopping import StoppingRule
+
+if TYPE_CHECKING:
+    from framework.core.problem import Problem
+
+__all__ = ["MorozovStopping", "StagnationStopping"]
+
+
+def _checked_delta(delta: float) -> float:
+    delta = float(delta)
+    if not (math.isfinite(delta) and 0.0 < delta < 1.0):
+        raise ValueError(f"delta (relative noise level) must lie in (0, 1), got {delta!r}; 5% noise is 0.05")
+    return delta
+
+
+class MorozovStopping(StoppingRule):
+    """Morozov's discrepancy principle: stop once ||F(d) - b|| / ||b|| <= tau_dis * delta.
+
+    The principle is a regularisation method only for tau_dis > 1 (the residual of the exact
+    solution is about delta, so tau_dis <= 1 may never trigger, or only by chance); we therefore
+    refuse tau_dis <= 1. The paper uses 1.01 to 1.2.
+
+    When the deposited volume is known (a volume band [q1, q2] of the height sum, the narrowest of
+    V1, V2 and the hold), it is data too: an iterate is then admissible only if its height sum lies
+    in the band as well. Without that, a smooth print whose caustic barely sees volume spread over
+    the mask stops as soon as it fits the image, with a fraction of its volume (a 0.05-high bump:
+    at 31%).
+    Likewise a jointly calibrated geometry (framework/lab/calibration.py) must have settled:
+    an iteration whose calibration update still moved it by more than its standard error
+    (``record.extras["calibration_settled"] == 0``) is not accepted.
+
+    Args:
+        delta: Relative noise level of the data, 0 < delta < 1 (the paper: 0.05); None: set by
+            :meth:`setup`.
+        tau_dis: Safety factor > 1.
+        volume_band: (q1, q2), bounds of sum(d) for an admissible iterate; None: the solver's
+            (:meth:`framework.core.solver_loop.IterativeSolver.volume_band`), if it has one.
+    """
+
+    stop_accepts_iterate = True
+
+    def __init__(self, delta: float | None = None, tau_dis: float = 1.1,
+                 volume_band: tuple[float, float] | None = None) -> None:
+        tau_dis = float(tau_dis)
+        if not (math.isfinite(tau_dis) and tau_dis > 1.0):
+            raise ValueError(
+                f"tau_dis must be > 1 for the discrepancy principle, got {tau_dis!r}; the paper uses 1.01-1.2"
+            )
+        self.delta = None if delta is None else _checked_delta(delta)
+        self.tau_dis = tau_dis
+        self.volume_band = volume_band
+
+    @classmethod
+    def from_config(cls, tau_dis: float = 1.1) -> MorozovStopping:
+        """The rule of the config's ``stopping.morozov``; delta comes from the data (:meth:`setup`)."""
+        return cls(None, tau_dis)
+
+    def setup(self, problem: Problem) -> None:
+        """Take the noise level delta from the problem's data."""
+        self.delta = _checked_delta(problem.data.delta)
+
+    @property
+    def threshold(self) -> float:
+        """tau_dis * delta, the relative discrepancy at which the rule stops."""
+        if self.delta is None:
+            raise RuntimeError("MorozovStopping has no noise level; pass delta or call setup(problem)")
+        return self.tau_dis * self.delta
+
+    def on_start(self, solver) -> None:  # noqa: D102 (the solver's volume band, unless one was given)
+        self.threshold  # refuses a rule without delta before the first iteration
+        if self.volume_band is None:
+            self.volume_band = solver.volume_band()
+
+    def on_iteration(self, solver, record) -> bool:  # noqa: D102
+        if record.rel_discrepancy > self.threshold or not record.extras.get("calibration_settled", 1.0):
+            return False
+        volume = ""
+        if self.volume_band is not None:
+            q1, q2 = self.volume_band
+            total = float(solver.d.sum())
+            if not q1 <= total <= q2:
+                return False
+            volume = f" with the height sum {total:.4g} in the volume band [{q1:.4g}, {q2:.4g}]"
+        self.stop_reason = (
+            f"discrepancy principle: rel. discrepancy {record.rel_discrepancy:.4g} <= "
+            f"tau_dis * delta = {self.tau_dis:g} * {self.delta:g}{volume} at iteration {record.iteration}"
+        )
+        return True
+
+
+class StagnationStopping(StoppingRule):
+    """Stop once the discrepancy has not improved for ``patience`` iterations; keep the best iterate.
+
+    The complement of Morozov's rule for data the model cannot fit down to tau_dis * delta (a
+    local minimum, features the model cannot resolve): when the relative discrepancy has stayed
+    above (1 - min_improvement) times its best value for ``patience`` iterations, more
+    iterations only drift (e.g. the volume heuristic V1 pumping height into a stalled fit).
+    Before stopping, the solver is offered ``refine(best_d)`` (a coarse-to-fine preconditioner
+    schedule, :meth:`framework.reconstruction.solvers.proximal_gradient.ProximalGradientSolver.refine`): if it
+    accepts, it continues from the best iterate in a finer stage and the count starts again.
+    Otherwise the run stops, and ``best_d`` / ``best_iteration`` hold the iterate with the lowest
+    discrepancy, which the caller should report. The best iterate is not part of a checkpoint: a
+    resumed run starts tracking afresh.
+
+    Args:
+        patience: Iterations without improvement before refining or stopping (>= 1).
+        min_improvement: Relative decrease that counts as an improvement, in [0, 1).
+
+    Attributes:
+        refined_at: Iterations after which this rule switched the solver to a finer stage (a
+            solver may also switch by itself when its line search fails; the records'
+            ``preconditioner_length`` show every switch, see
+            :func:`framework.reconstruction.solvers.proximal_gradient.stage_changes`).
+    """
+
+    def __init__(self, patience: int = 8, min_improvement: float = 1e-3) -> None:
+        if isinstance(patience, bool) or int(patience) != patience or int(patience) < 1:
+            raise ValueError(f"patience={patience!r} must be an integer >= 1 (iterations), e.g. 8; null disables the rule")
+        if not 0.0 <= float(min_improvement) < 1.0:
+            raise ValueError(f"min_improvement={min_improvement!r} must lie in [0, 1), e.g. 1e-3")
+        self.patience, self.min_improvement = int(patience), float(min_improvement)
+        self.best_discrepancy = math.inf
+        self.best_iteration: int | None = None
+        self.best_d: Tensor | None = None
+        self._reference = math.inf  # discrepancy that the next improvement must beat by min_improvement
+        self._progress_iteration = 0  # iteration of the last such improvement (or refinement)
+        self.refined_at: list[int] = []
+
+    def on_iteration(self, solver, record) -> bool:  # noqa: D102
+        if record.rel_discrepancy < self.best_discrepancy or self.best_d is None:
+            self.best_discrepancy = record.rel_discrepancy
+            self.best_iteration = record.iteration
+            self.best_d = solver.d.detach().clone()
+        if not record.extras.get("calibration_settled", 1.0):  # a calibrated geometry still moving is progress
+            self._progress_iteration = record.iteration
+            return False
+        if record.rel_discrepancy < (1.0 - self.min_improvement) * self._reference:
+            self._reference = record.rel_discrepancy
+            self._progress_iteration = record.iteration
+            return False
+        if record.iteration - self._progress_iteration < self.patience:
+            return False
+        if solver.refine(self.best_d):
+            self.refined_at.append(record.iteration)
+            self._reference = self.best_discrepancy
+            self._progress_iteration = record.iteration
+            return False
+        self.stop_reason = (
+            f"stagnation: no {self.min_improvement:.2%} improvement of the rel. discrepancy for {self.patience} "
+            f"iterations; the best iterate (iteration {self.best_iteration}, {self.best_discrepancy:.4g}) is returned"
+        )
+        return True
+
+    def best_iterate(self) -> tuple[Tensor, int] | None:
+        """(d, iteration) of the lowest discrepancy seen, or None before the first iteration."""
+        if self.best_d is None or self.best_iteration is None:
+            return None
+        return self.best_d, self.best_iteration

@@ -1,0 +1,280 @@
+"""Build the scene, the heights, their grid and the forward operator from a (Hydra) config.
+
+Config layout (top-level keys; see conf/scene/*.yaml and conf/operator/*.yaml)::
+
+    light:        {position: [x, y, z], power: W, shape: point | disc | square, size: a, points: K}
+    substrate:    {thickness: h, half_width: W}
+    receiver:     {z: s, resolution: n, half_width: W}
+    material:     {kind: fused_silica | sellmeier | cauchy | constant, ...coefficients}
+    wavelengths:  [um, ...]                       # one image channel each
+    height_field: {shape, resolution, path, scale, params}
+    photons: N
+    seed: int
+    operator:     {name: <operator plugin>, ...its own settings}
+    screen:       {psf: none | gaussian, sigma: s}  # the screen's blur (operators/imaging.py)
+                                                    # (sigma: also where calibrating psf_sigma starts)
+    units:        {mm_per_unit: 25.0}               # framework/core/units.py
+
+Lengths are in scene units, or strings with a unit such as "2.5 mm" (framework/core/units.py). Groups
+may omit keys (dataclass defaults apply); unknown keys in a group are refused with an error
+naming the key. The operator plugin checks its own settings.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from omegaconf import DictConfig, ListConfig, OmegaConf
+
+from framework.scene.design_mesh import MESH_SUFFIXES, heights_from_mesh
+from framework.files.height_field_io import load_height_field
+from framework.core.contracts.operator import Operator
+from framework.core.plugin_config import build_plugin, split_name
+from framework.core.problem import HeightGrid
+from framework.scene.shapes import make_shape
+from framework.core.shots import ShotSetup
+from framework.core.units import mm_per_unit, scene_length
+from operators.imaging import PSF_KINDS, ImagingOperator
+from operators.materials import material_from_config
+from operators.scene import Light, Receiver, Scene, Substrate
+from operators.stack import StackOperator
+
+__all__ = ["SceneSetup", "build_scene", "build_heights", "build_operator", "build_stack", "operator_builder", "heights_from_spec", "height_grid",
+           "screen_settings", "screen_sigma", "to_plain"]
+
+SCENE_KEYS: dict[str, tuple[str, ...]] = {
+    "light": ("position", "power", "shape", "size", "points"),
+    "substrate": ("thickness", "half_width", "walls"),
+    "receiver": ("z", "resolution", "half_width"),
+}
+SCREEN_KEYS = ("psf", "sigma")
+HEIGHT_FIELD_KEYS = ("shape", "resolution", "path", "scale", "params")
+DEFAULT_RESOLUTION = 128
+
+
+def to_plain(cfg: Any) -> Any:
+    """A resolved plain-Python copy of an OmegaConf node (dicts and lists); other values unchanged."""
+    if isinstance(cfg, (DictConfig, ListConfig)):
+        return OmegaConf.to_container(cfg, resolve=True)
+    return cfg
+
+
+def _group(cfg: Mapping[str, Any], name: str, allowed: tuple[str, ...]) -> dict[str, Any]:
+    """The mapping ``cfg[name]`` (empty if absent) with its keys checked against ``allowed``."""
+    value = to_plain(cfg.get(name))
+    if value is None:
+        return {}
+    if not isinstance(value, Mapping):
+        raise ValueError(f"{name}={value!r} must be a mapping with keys {', '.join(allowed)}")
+    for key in value:
+        if key not in allowed:
+            raise ValueError(f"unknown key {name}.{key}; allowed keys of {name}: {', '.join(allowed) or 'none'}")
+    return dict(value)
+
+
+def _number(name: str, value: Any, kind: type = float) -> Any:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ValueError(f"{name}={value!r} must be a number")
+    if kind is int:
+        if int(value) != value:
+            raise ValueError(f"{name}={value} must be an integer")
+        return int(value)
+    return float(value)
+
+
+def build_scene(cfg: Mapping[str, Any], mm: float | None = None) -> Scene:
+    """Scene (light, substrate, receiver, material, wavelengths in um) from the config's top-level
+    keys; lengths in scene units or with a unit (framework/core/units.py), ``mm`` millimetres per
+    scene unit (None: the config's ``units.mm_per_unit``)."""
+    mm = mm_per_unit(cfg) if mm is None else mm
+    light = _group(cfg, "light", SCENE_KEYS["light"])
+    if "position" in light:
+        position = light["position"]
+        if not isinstance(position, (list, tuple)) or len(position) != 3:
+            raise ValueError(f"light.position={position!r} must be [x, y, z], e.g. light.position=[0,0,10]")
+        light["position"] = tuple(scene_length(v, mm, f"light.position[{i}]") for i, v in enumerate(position))
+    if "power" in light:
+        light["power"] = _number("light.power", light["power"])
+    if "size" in light:
+        light["size"] = scene_length(light["size"], mm, "light.size")
+    if "points" in light:
+        light["points"] = _number("light.points", light["points"], int)
+    substrate = {k: v if k == "walls" else scene_length(v, mm, f"substrate.{k}")
+                 for k, v in _group(cfg, "substrate", SCENE_KEYS["substrate"]).items()}
+    receiver = _group(cfg, "receiver", SCENE_KEYS["receiver"])
+    receiver = {k: _number(f"receiver.{k}", v, int) if k == "resolution" else scene_length(v, mm, f"receiver.{k}")
+                for k, v in receiver.items()}
+    wavelengths = to_plain(cfg.get("wavelengths", [0.633]))
+    if isinstance(wavelengths, (int, float)) and not isinstance(wavelengths, bool):
+        wavelengths = [wavelengths]
+    if not isinstance(wavelengths, (list, tuple)):
+        raise ValueError(f"wavelengths={wavelengths!r} must be a list in micrometres, e.g. [0.633]")
+    return Scene(light=Light(**light), substrate=Substrate(**substrate), receiver=Receiver(**receiver),
+                 material=material_from_config(to_plain(cfg.get("material")) or None),
+                 wavelengths=tuple(_number(f"wavelengths[{i}]", v) for i, v in enumerate(wavelengths)),
+                 mm_per_unit=mm)
+
+
+MAX_RESOLUTION = 8192  # height samples per side: 8192^2 float64 is 0.5 GB per copy
+
+
+def _grid_resolution(spec: Mapping[str, Any]) -> int:
+    """``height_field.resolution`` m, checked: an integer in [2, MAX_RESOLUTION]."""
+    resolution = _number("height_field.resolution", spec.get("resolution", DEFAULT_RESOLUTION), int)
+    if not 2 <= resolution <= MAX_RESOLUTION:
+        raise ValueError(f"height_field.resolution={resolution} must lie in [2, {MAX_RESOLUTION}] (samples per side; "
+                         "128 is the default)")
+    return resolution
+
+
+def build_heights(cfg: Mapping[str, Any], base_dir: str | Path | None = None) -> torch.Tensor:
+    """Heights d (m, m), float64, scene units, from ``height_field``.
+
+    ``path`` (a .npy or 8/16-bit .png/.tif, resolved against ``base_dir`` when relative) overrides
+    ``shape``; ``resolution`` m defaults to 128; ``scale`` multiplies the heights (for images:
+    the height of full white, in scene units or e.g. "0.4 mm"); ``params`` go to the shape function.
+    """
+    mm = mm_per_unit(cfg)
+    spec = _group(cfg, "height_field", HEIGHT_FIELD_KEYS)
+    path = spec.get("path")
+    mesh = isinstance(path, str) and Path(path).suffix.lower() in MESH_SUFFIXES
+    return heights_from_spec(spec, mm, base_dir, build_scene(cfg, mm).substrate if mesh else None)
+
+
+def heights_from_spec(spec: Mapping[str, Any], mm: float, base_dir: str | Path | None = None,
+                      substrate: Substrate | None = None) -> torch.Tensor:
+    """:func:`build_heights` of the ``height_field`` group ``spec`` (keys checked) with ``mm``
+    millimetres per scene unit; a glass mesh (.stl/.obj/.ply, framework/scene/design_mesh.py) is read
+    over ``substrate``."""
+    resolution = _grid_resolution(spec)
+    scale = scene_length(spec.get("scale", 1.0), mm, "height_field.scale")
+    path = spec.get("path")
+    if path is not None and (not isinstance(path, str) or isinstance(path, bool)):
+        raise ValueError(f"height_field.path={path!r} must be a file name (.npy/.png/.tif/.stl/.obj/.ply) or null")
+    if path:
+        path = Path(path)
+        if not path.is_absolute() and base_dir is not None:
+            path = Path(base_dir) / path
+        if path.suffix.lower() in MESH_SUFFIXES:
+            substrate = substrate or Substrate()
+            heights = heights_from_mesh(path, resolution, substrate.half_width, substrate.thickness, mm) * scale
+        else:
+            heights = load_height_field(path, resolution=resolution, scale=scale)
+    else:
+        shape = spec.get("shape")
+        if not shape:
+            raise ValueError("height_field needs a shape (e.g. height_field.shape=print_lines) or a path")
+        params = spec.get("params") or {}
+        if not isinstance(params, Mapping):
+            raise ValueError(f"height_field.params={params!r} must be a mapping of shape parameters")
+        if not scale >= 0.0:
+            raise ValueError(f"height_field.scale={scale} must be >= 0, e.g. 1.0")
+        heights = scale * make_shape(str(shape), resolution, **dict(params))
+    return torch.from_numpy(np.ascontiguousarray(heights, dtype=np.float64))
+
+
+def height_grid(cfg: Mapping[str, Any], scene: Scene) -> HeightGrid:
+    """The grid of the reconstructed heights: ``height_field.resolution`` samples over the substrate."""
+    spec = _group(cfg, "height_field", HEIGHT_FIELD_KEYS)
+    resolution = _grid_resolution(spec)
+    return HeightGrid(resolution, scene.substrate.half_width, scene.substrate.thickness)
+
+
+def screen_settings(cfg: Mapping[str, Any], mm: float | None = None) -> tuple[str, float]:
+    """(``screen.psf``, ``screen.sigma`` in scene units as configured, whatever the psf)."""
+    screen = _group(cfg, "screen", SCREEN_KEYS)
+    psf = screen.get("psf", "none")
+    if psf not in PSF_KINDS:
+        raise ValueError(f"screen.psf={psf!r}; use {' or '.join(PSF_KINDS)}")
+    return psf, scene_length(screen.get("sigma", 0.0), mm_per_unit(cfg) if mm is None else mm, "screen.sigma")
+
+
+def screen_sigma(cfg: Mapping[str, Any], mm: float | None = None) -> float:
+    """The screen's Gaussian spot (standard deviation, scene units) from ``screen``; 0 for none."""
+    psf, sigma = screen_settings(cfg, mm)
+    if psf == "gaussian" and not (math.isfinite(sigma) and sigma > 0.0):
+        raise ValueError(f"screen.psf=gaussian needs a finite screen.sigma > 0 (scene units or e.g. '0.1 mm'), "
+                         f"got {sigma}")
+    return sigma if psf == "gaussian" else 0.0
+
+
+def operator_builder(cfg: Mapping[str, Any]) -> Callable[[Scene], Operator]:
+    """Builds the operator plugin named by ``operator.name`` for a scene, with ``photons``, ``seed``
+    and the rest of the ``operator`` group (which the plugin checks)."""
+    name, params = split_name(to_plain(cfg.get("operator")), "operator")
+    photons = _number("photons", cfg.get("photons"), int)
+    seed = _number("seed", cfg.get("seed", 0), int)
+    if not 0 <= seed < 2 ** 63:
+        raise ValueError(f"seed={seed} must be an integer in [0, 2^63)")
+
+    def build(for_scene: Scene) -> Operator:
+        return build_plugin("operator", name, dict(params), "operator", scene=for_scene, photons=photons, seed=seed)
+
+    return build
+
+
+def build_operator(cfg: Mapping[str, Any], scene: Scene, imaging: bool = False, mm: float | None = None,
+                   gain: float = 1.0) -> Operator:
+    """The operator plugin of ``cfg`` (:func:`operator_builder`) for ``scene``, seen through the
+    screen (operators/imaging.py) when ``screen.psf`` is set, or always with ``imaging`` (a setup
+    that joint calibration may change) or a ``gain`` other than 1."""
+    build, sigma = operator_builder(cfg), screen_sigma(cfg, mm)
+    if sigma > 0.0 or imaging or gain != 1.0:
+        return ImagingOperator(build, scene, psf_sigma=sigma, gain=gain)
+    return build(scene)
+
+
+def build_stack(cfg: Mapping[str, Any], scene: Scene, shots: Sequence[ShotSetup], imaging: bool = False,
+                mm: float | None = None) -> StackOperator:
+    """The stacked operator (operators/stack.py) of the shots' setups (framework/stack/stack_data.py)
+    around the configured ``scene``, each shot's operator as :func:`build_operator` builds it."""
+    return StackOperator([build_operator(cfg, shot.scene(scene, f"data.shots[{i}]"), imaging, mm, shot.gain)
+                          for i, shot in enumerate(shots)], [shot.weight for shot in shots])
+
+
+@dataclass(frozen=True)
+class SceneSetup:
+    """The scene groups of a reconstruction's config, read once: the scene, the height grid, the
+    forward operator, and the ``height_field`` group the configured heights are made from.
+
+    Attributes:
+        scene: Light, substrate, receiver, material, wavelengths.
+        grid: The grid of the reconstructed heights.
+        operator: The operator plugin (seen through the screen when ``screen.psf`` is set, or with
+            ``imaging``).
+        height_field: The ``height_field`` group, keys checked.
+        mm_per_unit: Millimetres per scene unit.
+        screen_sigma: ``screen.sigma`` in scene units, whatever ``screen.psf`` (where joint
+            calibration of the blur's width starts, framework/lab/calibration.py).
+    """
+
+    scene: Scene
+    grid: HeightGrid
+    operator: Operator
+    height_field: dict[str, Any]
+    mm_per_unit: float
+    screen_sigma: float = 0.0
+
+    @classmethod
+    def parse(cls, cfg: Mapping[str, Any], mm: float, imaging: bool = False,
+              shots: Callable[[Scene, float], Sequence[ShotSetup]] | None = None) -> SceneSetup:
+        """Build the scene, grid and operator of ``cfg`` with ``mm`` millimetres per scene unit;
+        with ``shots`` (a stack's setups for the configured scene and ``mm``), the stacked operator."""
+        scene = build_scene(cfg, mm)
+        if shots is None:
+            operator = build_operator(cfg, scene, imaging, mm)
+        else:
+            operator = build_stack(cfg, scene, shots(scene, mm), imaging, mm)
+        return cls(scene, height_grid(cfg, scene), operator, _group(cfg, "height_field", HEIGHT_FIELD_KEYS), mm,
+                   screen_settings(cfg, mm)[1])
+
+    def heights(self, base_dir: str | Path | None = None) -> torch.Tensor:
+        """The configured heights (m, m), float64, scene units (:func:`build_heights`)."""
+        return heights_from_spec(self.height_field, self.mm_per_unit, base_dir, self.scene.substrate)
+

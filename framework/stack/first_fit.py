@@ -1,0 +1,45 @@
+"""A stack of shots from flat glass: the nearest screen first (docs/method.md, "Several photos").
+
+A near screen sees a gentle caustic that a run from flat glass fits; a far one sees the fine
+detail, and from flat glass its strong caustic stalls the fit in the wrong basin. So a stack's run
+from a start without the print's shape (flat glass) first fits the nearest shot alone, with the
+run's own solver, stopping rules and photon budget, and the stack then goes on from those heights
+at the solver's finest stage. With joint calibration of the gains, the first fit calibrates that
+shot's gain (the geometry waits for the whole stack, which alone can tell it).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import torch
+
+from framework.core.contracts.stopping import StoppingRule
+from framework.core.problem import Problem
+from framework.core.solver_loop import Callback, returned_iterate
+from framework.core.callbacks import ProgressBar
+
+__all__ = ["fit_first_shot"]
+
+
+def fit_first_shot(problem: Problem, d0: torch.Tensor, make_solver: Callable[[Problem, torch.Tensor], Any],
+                   stopping: list[StoppingRule], extra: Callable[[Problem], list[Callback]], max_iter: int,
+                   label: str) -> tuple[torch.Tensor, dict[str, float]]:
+    """The heights (m, m) that fit the stack's ``data.first_fit_shot`` alone from ``d0``, and what
+    that cost (``first_fit_*``: the shot, iterations, its discrepancy, renders, gradient passes,
+    photon-traces). ``stopping``: fresh rules; ``extra``: the callbacks of a run on one shot (its
+    photon budget, its gain's calibration)."""
+    index = problem.data.first_fit_shot
+    shot = problem.shot(index)
+    solver = make_solver(shot, d0)
+    for rule in stopping:
+        rule.setup(shot)
+    callbacks = [*stopping, ProgressBar(desc=f"{label}: shot {index} first"), *extra(shot)]
+    result = solver.run(max_iter, callbacks)
+    d, _ = returned_iterate(result, stopping)
+    fidelity = shot.fidelity
+    return d, {"first_fit_shot": float(index), "first_fit_iterations": float(result.iterations),
+               "first_fit_rel_discrepancy": fidelity.relative_discrepancy(shot.operator.render(d)),
+               "first_fit_renders": float(fidelity.renders), "first_fit_gradient_passes": float(fidelity.gradient_passes),
+               "first_fit_photon_traces": float(fidelity.photon_traces)}
