@@ -1,5 +1,5 @@
 """The two halves of an operator's light path around the print, for starts that invert it
-(framework/plugins/starts/transport.py).
+(framework/reconstruction/starts/transport.py).
 
 Every operator traces light from the point light, through whatever lies above the print, into the
 printed top, through the substrate, out of its flat bottom (z = 0) and through whatever lies below

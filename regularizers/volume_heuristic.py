@@ -87,7 +87,7 @@ class VolumeHeuristic(VolumeBand, PostStepUpdate):
         r_v: Window radius r_V >= 0 in pixels (official 2).
     """
 
-    needs_volume = True  # the run's checks refuse measured data without data.volume (framework/pipeline/run_checks.py)
+    needs_volume = True  # the run's checks refuse measured data without data.volume (framework/reconstruction/run_checks.py)
 
     def __init__(self, gamma: float = 0.1, v_eps: float = 0.25, r_v: int = 2) -> None:
         self.gamma = check_nonnegative(gamma, "gamma", "pass the heuristic strength gamma >= 0 (paper: 0.1)")

@@ -37,7 +37,7 @@ class ExtendedLightReference:
         fresnel: Fresnel weights at the interfaces.
     """
 
-    deterministic = True  # no sampling noise (framework/plugins/data/sources.py)
+    deterministic = True  # no sampling noise (framework/data/sources.py)
 
     def __init__(self, scene: Scene, vertices: int | None = None, fresnel: bool = False) -> None:
         if not scene.light.extended:

@@ -209,7 +209,7 @@ class WavefrontRenderer:
     """
 
     dtype = torch.float64
-    deterministic = True  # no sampling noise: one render is the clean image (framework/plugins/data/sources.py)
+    deterministic = True  # no sampling noise: one render is the clean image (framework/data/sources.py)
 
     def __init__(self, scene: Scene, vertices: int | None = None, fresnel: bool = False,
                  chunk_size: int = 1 << 18, subdivisions: int = 3, tracer: str = "native") -> None:
