@@ -14,6 +14,7 @@ splat's adjoint (a gather per photon, no image needed) into whatever a chunk of 
 from __future__ import annotations
 
 import dataclasses
+from abc import ABC, abstractmethod
 from collections.abc import Sequence
 from contextlib import AbstractContextManager, nullcontext
 from typing import Any
@@ -62,7 +63,7 @@ class NothingRunning:
         """Nothing to wait for."""
 
 
-class ImageOperator:
+class ImageOperator(ABC):
     """An operator given by ``render(heights)`` and ``vjp(heights, grad_image)``: the squared loss
     and its gradient in two passes, and autograd through ``operator(heights)``.
 
@@ -96,22 +97,24 @@ class ImageOperator:
         """Use ``other``'s hit cache (operators/stack.py); only an operator with a ``hit_key`` has one."""
         raise ValueError(f"{type(self).__name__} has no hit cache to share (hit_key is None)")
 
+    @abstractmethod
     def render(self, heights: torch.Tensor, progress: bool = False) -> torch.Tensor:
         """The image F(d) (c, n, n) of heights d (m, m), without a graph."""
-        raise NotImplementedError
 
+    @abstractmethod
     def vjp(self, heights: torch.Tensor, grad_image: torch.Tensor) -> torch.Tensor:
         """F'(d)^* grad_image (m, m)."""
-        raise NotImplementedError
 
     @property
+    @abstractmethod
     def output_shape(self) -> tuple[int, int, int]:
         """(c, n, n) of the images it renders."""
-        raise NotImplementedError
 
     def variant(self, photons: int, seed: int, resolution: int) -> "ImageOperator":
-        """The same physics with another sampling (photons, seed, an n = resolution receiver)."""
-        raise NotImplementedError
+        """The same physics with another sampling (photons, seed, an n = resolution receiver):
+        synthetic data and the photon budget need it; an operator of one fixed sampling has none."""
+        raise NotImplementedError(f"{type(self).__name__} has no variant; synthetic data need an operator that can "
+                                  "render with another photon count and receiver")
 
     def exact_variant(self, photons: int, seed: int, resolution: int) -> Any:
         """A renderer (``render(heights)`` -> (c, resolution, resolution)) of the same physics for

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from framework.core.contracts.checks import (ContractViolation, check_data_source, check_operator, check_post_step,
+from framework.core.contracts.checks import (BASES, ContractViolation, check_base, check_data_source, check_operator, check_post_step,
                                              check_regularizer, check_solver, check_start, check_stopping,
                                              example_settings, smooth_bump)
 from framework.core.contracts.data_source import DataRequest, ShotStack
@@ -23,10 +23,18 @@ from framework.core.masks import mask_from_height_field
 from framework.core.problem import HeightGrid, Problem
 from framework.reconstruction.stopping import StagnationStopping
 from framework.core.plugin_config import build_plugin
-from framework.core.registry import available, declared
+from framework.core.registry import KINDS, available, declared, register
+from framework.core import registry
 from operators.scene import Receiver, Scene
 from regularizers import PixelL1
-from tests.plugins.trivial import ExactStepSolver, MaskMeanStart, ShadowOperator, SmallChangeStopping
+from examples.plugins.exact_step_solver import ExactStepSolver
+from examples.plugins.l2_regularizer import PixelL2
+from examples.plugins.mask_mean_start import MaskMeanStart
+from examples.plugins.npz_data import NpzData
+from examples.plugins.shadow_operator import ShadowOperator
+from examples.plugins.small_change_stopping import SmallChangeStopping
+from framework.optimization.preconditioner import GradientPreconditioner
+from framework.optimization.step_size import StepSizePolicy
 
 SCENE = Scene(receiver=Receiver(resolution=32))
 M = 32  # height samples per side of the known problem
@@ -48,6 +56,35 @@ def known_problem() -> Problem:
 def _operator_maker(name: str, photons: int = 20_000):
     settings = example_settings("operator", name)
     return lambda seed: build_plugin("operator", name, settings, "operator", scene=SCENE, photons=photons, seed=seed)
+
+
+OWN_BASES = {**BASES, "step_size": StepSizePolicy, "preconditioner": GradientPreconditioner}
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_every_plugin_derives_from_its_kinds_base(kind) -> None:
+    assert available(kind), kind
+    for name in available(kind):
+        check_base(kind, name, OWN_BASES[kind])
+
+
+@pytest.fixture
+def own_registrations(monkeypatch):
+    """Registrations made in a test are forgotten after it."""
+    monkeypatch.setattr(registry, "_registered", {kind: dict(found) for kind, found in registry._registered.items()})
+
+
+def test_a_plugin_without_its_base_fails(own_registrations) -> None:
+    class DuckData:  # check and load, but not a DataSource
+        def check(self, request):
+            return None
+
+        def load(self, request):
+            return None
+
+    register("data", "duck")(DuckData)
+    with pytest.raises(ContractViolation, match="data/duck: .*not a subclass of framework.core.contracts.data_source.DataSource"):
+        check_base("data", "duck")
 
 
 @pytest.mark.parametrize("name", available("operator"))
@@ -90,6 +127,37 @@ def test_the_test_suites_start_and_stopping_rule_keep_the_contract(known_problem
     request = StartRequest(known_problem, lambda: known_problem.data.ground_truth.clone(), tmp_path)
     check_start(MaskMeanStart(), request, who="initial/mask_mean")
     check_stopping(lambda: SmallChangeStopping(1e-9), who="stopping/small_change")
+
+
+def test_the_example_regularizer_keeps_the_contract_and_its_prox_is_the_closed_form() -> None:
+    l2 = PixelL2(**PixelL2.example_settings())
+    check_regularizer(l2, who="regularizer/l2_pixel")
+    d = smooth_bump(8, 1.0)
+    # the prox's optimality condition: step * alpha * x + (x - d) = 0
+    x = l2.prox(d, 0.3)
+    assert torch.allclose(0.3 * 0.5 * x + (x - d), torch.zeros_like(d), atol=1e-15)
+    assert l2.value(d) == pytest.approx(0.25 * float((d ** 2).sum()))
+    for bad in (-1.0, float("nan"), True, "0.1"):
+        with pytest.raises(ValueError, match="alpha=.* must be a finite number >= 0"):
+            PixelL2(bad)
+
+
+def test_the_example_data_source_keeps_the_contract_and_refuses_bad_archives(known_problem, tmp_path) -> None:
+    target, mask = known_problem.data.target.double().numpy(), known_problem.data.mask.numpy()
+    np.savez(tmp_path / "caustic.npz", caustic=target[0], mask=mask)
+    request = DataRequest(known_problem.operator, known_problem.grid, lambda: known_problem.data.ground_truth.clone(), 0,
+                          tmp_path)
+    source = NpzData("caustic.npz", delta=0.02, volume=known_problem.data.volume)
+    check_data_source(source, request, who="data/npz")
+    assert torch.equal(source.load(request).target.double(), known_problem.data.target.double())
+    np.savez(tmp_path / "no_mask.npz", caustic=target[0])
+    np.savez(tmp_path / "small.npz", caustic=target[0, :10, :10], mask=mask)
+    for path, message in (("missing.npz", "does not exist"), ("no_mask.npz", "lacks the array.* mask"),
+                          ("small.npz", r"caustic has shape \(1, 10, 10\), the operator renders")):
+        with pytest.raises((ValueError, FileNotFoundError), match=message):
+            NpzData(path).check(request)
+    with pytest.raises(ValueError, match="data.delta=1.5 must lie in"):
+        NpzData("caustic.npz", delta=1.5)
 
 
 @pytest.mark.parametrize("name", available("stopping"))

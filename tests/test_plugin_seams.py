@@ -1,5 +1,5 @@
 """The plugin seams: every config group composes and builds, every registry key instantiates, and
-an operator and a non-iterative solver defined only in the test suite (tests/plugins/trivial.py)
+an operator and a non-iterative solver defined only in the test suite (examples/plugins/)
 run through sfc-simulate and sfc-reconstruct, registered the way a third-party package registers
 its plugins (entry points) and configured through Hydra's search path."""
 
@@ -25,7 +25,8 @@ from framework.reconstruction.reconstruction import Reconstruction
 from framework.core import registry
 from framework.core.registry import KINDS, available, register
 from operators.scene import Receiver, Scene
-from tests.plugins.trivial import ExactStepSolver, ShadowOperator
+from examples.plugins.exact_step_solver import ExactStepSolver
+from examples.plugins.shadow_operator import ShadowOperator
 
 ROOT = Path(__file__).resolve().parents[1]
 CONF = ROOT / "conf"
@@ -132,15 +133,17 @@ def _plugin_env(tmp_path: Path) -> dict[str, str]:
     dist.mkdir(parents=True)
     (dist / "METADATA").write_text("Metadata-Version: 2.1\nName: sfc-test-plugins\nVersion: 0.1\n")
     (dist / "entry_points.txt").write_text(
-        "[shape_from_caustics.operator]\nshadow = tests.plugins.trivial:ShadowOperator\n\n"
-        "[shape_from_caustics.solver]\nexact_step = tests.plugins.trivial:ExactStepSolver\n\n"
-        "[shape_from_caustics.initial]\nmask_mean = tests.plugins.trivial:MaskMeanStart\n\n"
-        "[shape_from_caustics.stopping]\nsmall_change = tests.plugins.trivial:SmallChangeStopping\n")
+        "[shape_from_caustics.operator]\nshadow = examples.plugins.shadow_operator:ShadowOperator\n\n"
+        "[shape_from_caustics.solver]\nexact_step = examples.plugins.exact_step_solver:ExactStepSolver\n\n"
+        "[shape_from_caustics.initial]\nmask_mean = examples.plugins.mask_mean_start:MaskMeanStart\n\n"
+        "[shape_from_caustics.stopping]\nsmall_change = examples.plugins.small_change_stopping:SmallChangeStopping\n\n"
+        "[shape_from_caustics.data]\nnpz = examples.plugins.npz_data:NpzData\n\n"
+        "[shape_from_caustics.regularizer]\nl2_pixel = examples.plugins.l2_regularizer:PixelL2\n")
     return {**os.environ, "PYTHONPATH": os.pathsep.join([str(tmp_path / "site"), str(ROOT)])}
 
 
 def _run_app(app: str, args: list[str], env: dict[str, str], cwd: Path) -> str:
-    search_path = f"hydra.searchpath=[file://{ROOT / 'tests' / 'plugins' / 'conf'}]"
+    search_path = f"hydra.searchpath=[file://{ROOT / 'examples' / 'plugins' / 'conf'}]"
     done = subprocess.run([sys.executable, "-m", f"experiments.{app}", search_path, *args], cwd=cwd, env=env,
                           capture_output=True, text=True, timeout=600)
     assert done.returncode == 0, done.stderr[-3000:]
@@ -155,7 +158,7 @@ def test_the_test_suites_operator_solver_start_and_stopping_rule_run_through_bot
     out = _run_app("simulate", [*scene, f"hydra.run.dir={tmp_path / 'sim'}"], env, tmp_path)
     heights = np.load(tmp_path / "sim" / "heights.npy")
     caustic = np.load(tmp_path / "sim" / "caustic.npy")
-    expected = 1.0 + 2.0 * np.kron(heights, np.ones((2, 2)))  # gain 2 (tests/plugins/conf/operator/shadow.yaml)
+    expected = 1.0 + 2.0 * np.kron(heights, np.ones((2, 2)))  # gain 2 (examples/plugins/conf/operator/shadow.yaml)
     np.testing.assert_allclose(caustic[0], expected, rtol=1e-6)
     assert (tmp_path / "sim" / "height_and_caustic.png").is_file() and "power on the receiver" in out
 
@@ -184,11 +187,21 @@ def test_the_test_suites_operator_solver_start_and_stopping_rule_run_through_bot
     assert len(client.get_metric_history(run.info.run_id, "rel_discrepancy")) >= 1
     assert {"heights.png", "metrics.json"} <= {a.path for a in client.list_artifacts(run.info.run_id)}
 
+    # the example data source: the simulated caustic and its printed area in one archive, fitted exactly
+    np.savez(tmp_path / "caustic.npz", caustic=caustic, mask=heights > 1e-3)
+    npz_dir = tmp_path / "npz"
+    _run_app("reconstruct", [*scene, "solver=exact_step", "~experiment", "+method=exact_step", "data=npz",
+                             f"data.path={tmp_path / 'caustic.npz'}", "data.delta=0.01", "initial=zero",
+                             "stopping=small_change", f"hydra.run.dir={npz_dir}", f"tracking.store_dir={store}"], env,
+             tmp_path)
+    metrics = json.loads((npz_dir / "metrics.json").read_text())
+    assert metrics["iterations"] == 1 and metrics["rel_discrepancy"] < 1e-9
+
 
 @pytest.mark.slow
 def test_the_example_figure_script_sweeps_collects_and_plots(tmp_path):
     out = tmp_path / "figures"
-    done = subprocess.run([sys.executable, "-m", "tests.plugins.figure_gain", "--store", str(tmp_path / "mlruns"),
+    done = subprocess.run([sys.executable, "-m", "examples.plugins.figure_gain", "--store", str(tmp_path / "mlruns"),
                            "--out", str(out), "--overrides", f"hydra.sweep.dir={tmp_path / 'sweep'}"],
                           cwd=tmp_path, env=_plugin_env(tmp_path), capture_output=True, text=True, timeout=600)
     assert done.returncode == 0, done.stderr[-3000:]

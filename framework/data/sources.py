@@ -17,7 +17,7 @@ import math
 
 import torch
 
-from framework.core.contracts.data_source import DataRequest, PrintFacts
+from framework.core.contracts.data_source import DataRequest, DataSource, PrintFacts
 from framework.core.data import ReconstructionData, measured_data, synthetic_data, validate_delta
 from framework.files.height_field_io import load_height_field
 from framework.files.image_io import load_caustic_image, load_mask, resolve_path
@@ -54,7 +54,7 @@ def _count(name: str, value: int, minimum: int) -> int:
     return int(value)
 
 
-class SyntheticData:
+class SyntheticData(DataSource):
     """Noisy caustic of the configured height field (framework/core/data.py, :func:`synthetic_data`).
 
     Args:
@@ -135,7 +135,7 @@ class SyntheticData:
                               self.mask_threshold, self.mask_dilation, design)
 
 
-class KnownPrint:
+class KnownPrint(DataSource):
     """What a measured data source knows about the print besides its image (the shared settings of
     ``data=file`` and ``data=photo``).
 

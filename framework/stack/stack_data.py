@@ -23,7 +23,7 @@ from typing import Any
 
 import torch
 
-from framework.core.contracts.data_source import DataRequest, PrintFacts
+from framework.core.contracts.data_source import DataRequest, PrintFacts, ShotStack
 from framework.core.data import ReconstructionData, weighted_norm_sq
 from framework.files.image_io import load_caustic_image, resolve_path
 from framework.core.plugin_config import build_plugin
@@ -87,7 +87,7 @@ def _named(index: int, step: Any, request: DataRequest) -> Any:
         raise ValueError(f"data.shots[{index}]: {error}") from None
 
 
-class StackData:
+class StackData(ShotStack):
     """Several measurements of one print (``data=stack``), module docstring.
 
     Args:

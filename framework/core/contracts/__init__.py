@@ -3,14 +3,19 @@ plugin of a kind are in :mod:`framework.core.contracts.checks`.
 
 | kind (entry-point group ``shape_from_caustics.<kind>``) | contract |
 |---|---|
-| ``operator`` | :class:`framework.core.contracts.operator.Operator` (base: operators/photon_operator.py, ``ImageOperator``) |
-| ``data`` | :class:`framework.core.contracts.data_source.DataSource` |
+| ``operator`` | :class:`operators.photon_operator.ImageOperator` (the members: :class:`framework.core.contracts.operator.Operator`) |
+| ``data`` | :class:`framework.core.contracts.data_source.DataSource` (several shots: ``ShotStack``) |
 | ``initial`` | :class:`framework.core.contracts.start.Start` |
-| ``solver`` | :class:`framework.core.contracts.solver.SolverPlugin` |
+| ``solver`` | :class:`framework.core.solver_loop.IterativeSolver` with ``from_config`` (:mod:`framework.core.contracts.solver`) |
 | ``stopping`` | :class:`framework.core.contracts.stopping.StoppingRule` |
 | ``regularizer``, ``post_step`` | :class:`regularizers.Regularizer`, :class:`regularizers.PostStepUpdate` |
+| ``step_size``, ``preconditioner`` | :class:`framework.optimization.step_size.StepSizePolicy`, :class:`framework.optimization.preconditioner.GradientPreconditioner` |
 
-Every member a contract names is there on every plugin of the kind (a base class gives the
-defaults): optional behaviour is declared by a value (``conserves_energy``, ``has_prox``,
-``needs_volume``), never found by probing for an attribute.
+One style for every kind: a plugin derives from its kind's abstract base class, implements the
+base's abstract methods (what only it can give) and inherits a default for everything else.
+Optional behaviour is declared by a value (``conserves_energy``, ``has_prox``, ``needs_volume``),
+never found by probing for an attribute. The operator's base lives in operators/ (which knows
+nothing of the framework); :class:`~framework.core.contracts.operator.Operator` lists its members
+for type hints. :func:`framework.core.contracts.checks.check_base` refuses a plugin that does not
+derive from its kind's base.
 """

@@ -24,6 +24,8 @@ plugin with required settings declares an example of them in a classmethod
 - data (:func:`check_data_source`): ``check`` and ``load`` agree on the printed area and on the
   volume where ``check`` knows it, the target has the operator's shape, the noise level lies in (0, 1), the same data twice.
 
+Before any of these, :func:`check_base`: the registered object derives from its kind's base.
+
 A failed check raises :class:`ContractViolation` naming the plugin and the check.
 """
 
@@ -41,13 +43,13 @@ from framework.core.contracts.start import Start, StartRequest
 from framework.core.contracts.stopping import StoppingRule
 from framework.core.data import ReconstructionData
 from framework.core.problem import HeightGrid, Problem
-from framework.core.registry import declared
+from framework.core.registry import declared, lookup
 from framework.core.solver_loop import IterationRecord, IterativeSolver
 from operators.photon_operator import ImageOperator
 from operators.scene import Receiver, Scene
 from regularizers import PostStepUpdate, Regularizer, RegularizerContext
 
-__all__ = ["ContractViolation", "example_settings", "check_operator", "check_regularizer", "check_post_step",
+__all__ = ["BASES", "ContractViolation", "check_base", "example_settings", "check_operator", "check_regularizer", "check_post_step",
            "check_solver", "check_stopping", "check_start", "check_data_source", "smooth_bump"]
 
 
@@ -58,6 +60,23 @@ class ContractViolation(AssertionError):
 def _require(condition: bool, who: str, what: str) -> None:
     if not condition:
         raise ContractViolation(f"{who}: {what}")
+
+
+# The base every registered plugin of a kind derives from (step_size and preconditioner: their
+# bases in framework/optimization/, checked by tests/test_plugin_contracts.py).
+BASES: dict[str, type] = {"operator": ImageOperator, "data": DataSource, "initial": Start, "solver": IterativeSolver,
+                          "stopping": StoppingRule, "regularizer": Regularizer, "post_step": PostStepUpdate}
+
+
+def check_base(kind: str, name: str, base: type | None = None) -> None:
+    """The registered plugin ``kind/name`` is a subclass of the kind's base (``base``, or
+    :data:`BASES`); a solver also has its ``from_config``."""
+    plugin, base, who = lookup(kind, name), base or BASES[kind], f"{kind}/{name}"
+    _require(isinstance(plugin, type) and issubclass(plugin, base), who,
+             f"is {plugin!r}, not a subclass of {base.__module__}.{base.__qualname__}; derive from it")
+    if kind == "solver":
+        _require(callable(declared(kind, name, "from_config", None)), who,
+                 "has no from_config(**settings) returning the builder (problem, d0) -> solver")
 
 
 def example_settings(kind: str, name: str) -> dict[str, Any]:

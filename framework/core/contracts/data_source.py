@@ -13,7 +13,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Protocol, Sequence, runtime_checkable
+from abc import ABC, abstractmethod
+from typing import Callable, Sequence
 
 import torch
 
@@ -67,25 +68,23 @@ class PrintFacts:
     volume_at_load: bool = False
 
 
-@runtime_checkable
-class DataSource(Protocol):
-    """A ``data`` plugin: built from its config keys, it produces the data on request."""
+class DataSource(ABC):
+    """Base of the ``data`` plugins: built from its config keys, it produces the data on request."""
 
+    @abstractmethod
     def check(self, request: DataRequest) -> PrintFacts:
         """Read and check every file and value the data need, rendering nothing; a bad one raises
         a ValueError / FileNotFoundError naming the key and the fix."""
-        ...
 
+    @abstractmethod
     def load(self, request: DataRequest) -> ReconstructionData:
         """The target image, mask, volume and noise level (and, for synthetic data, the truth)."""
-        ...
 
 
-@runtime_checkable
-class ShotStack(DataSource, Protocol):
-    """A ``data`` plugin of several shots of one print (framework/stack/stack_data.py)."""
+class ShotStack(DataSource):
+    """Base of a ``data`` plugin of several shots of one print (framework/stack/stack_data.py)."""
 
+    @abstractmethod
     def setups(self, base: Scene, mm: float) -> Sequence[ShotSetup]:
         """Every shot's setup against the configured scene ``base`` (``mm`` millimetres per scene
         unit); an impossible one (a screen inside the glass) raises a ValueError naming the shot."""
-        ...

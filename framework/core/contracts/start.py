@@ -10,6 +10,7 @@ solver from each in turn. :class:`Start` gives the defaults (nothing to check, o
 
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
@@ -52,7 +53,7 @@ class StartResult:
     shaped: bool = False
 
 
-class Start:
+class Start(ABC):
     """Base of the start plugins.
 
     Attributes:
@@ -71,6 +72,6 @@ class Start:
         """(name, start) of every candidate the solver runs from, in order: this start alone."""
         return [(self.name, self)]
 
+    @abstractmethod
     def __call__(self, request: StartRequest) -> StartResult:
         """The start d0 for the loaded data."""
-        raise NotImplementedError

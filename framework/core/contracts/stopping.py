@@ -9,14 +9,20 @@ gives up may offer ``best_iterate()`` to report instead.
 
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
+
 from framework.core.problem import Problem
-from framework.core.solver_loop import Callback
+from framework.core.solver_loop import Callback, IterationRecord, IterativeSolver
 
 __all__ = ["StoppingRule"]
 
 
-class StoppingRule(Callback):
-    """Base of the stopping rules: a callback with ``setup``."""
+class StoppingRule(Callback, ABC):
+    """Base of the stopping rules: a callback with ``setup`` whose ``on_iteration`` is its test."""
+
+    @abstractmethod
+    def on_iteration(self, solver: IterativeSolver, record: IterationRecord) -> bool | None:
+        """True to stop after this iteration (``stop_reason`` set first)."""
 
     def setup(self, problem: Problem) -> None:
         """Take what the rule needs of the problem before the run (nothing by default)."""

@@ -1,8 +1,8 @@
 """A figure script written as a plugin package would write one: how well one exact step recovers
-the bump through the ``shadow`` operator at two gains (tests/plugins/trivial.py).
+the bump through the ``shadow`` operator at two gains (examples/plugins/shadow_operator.py).
 
-    python -m tests.plugins.figure_gain --store mlruns --out figures      # sweep, then tabulate
-    python -m tests.plugins.figure_gain --table-only                      # tabulate the latest runs
+    python -m examples.plugins.figure_gain --store mlruns --out figures      # sweep, then tabulate
+    python -m examples.plugins.figure_gain --table-only                      # tabulate the latest runs
 
 The pattern of every reproduction script (docs/plugins.md, "Adding a figure script"): one Hydra
 multirun of sfc-reconstruct into an MLflow store (``run_sweep``), the latest finished run of each
