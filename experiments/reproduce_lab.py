@@ -45,7 +45,8 @@ from framework.lab.calibration import with_setup
 from framework.core.callbacks import GroundTruthError
 from framework.core.data import resample_image
 from framework.lab.photo_synthesis import synthesize_photo
-from framework.reconstruction.reconstruction import Reconstruction, run_reconstruction
+from framework.reconstruction.reconstruction import run_reconstruction
+from framework.reconstruction.parts import Reconstruction
 from framework.scene.scene_config import build_heights, build_operator, build_scene, height_grid
 
 SCENES = ("print_lines", "bump")

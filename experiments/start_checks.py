@@ -25,7 +25,7 @@ from hydra.experimental.callback import Callback
 from omegaconf import DictConfig
 
 from experiments.input_errors import INPUT_ERRORS, TRACEBACK_VARIABLE, one_line
-from framework.reconstruction.reconstruction import Reconstruction
+from framework.reconstruction.parts import Reconstruction
 from framework.reconstruction.run_checks import check_creatable_directory
 from framework.scene.scene_config import to_plain
 

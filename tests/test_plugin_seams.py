@@ -21,7 +21,7 @@ from omegaconf import OmegaConf
 from framework.core.data import ReconstructionData
 from framework.core.plugin_config import build_plugin
 from framework.core.problem import HeightGrid, Problem
-from framework.reconstruction.reconstruction import Reconstruction
+from framework.reconstruction.parts import Reconstruction
 from framework.core import registry
 from framework.core.registry import KINDS, available, register
 from operators.scene import Receiver, Scene

@@ -37,7 +37,7 @@ def save_previews(cfg: Mapping[str, Any], setup: Any, heights: np.ndarray, photo
     each over the square the glass can light there (the screen reach under the slope limit; through
     optical elements the square the design's light covers there), by
     the operator's independent renderer; writes preview_<f>x.npy/.png. ``setup`` is the run's
-    :class:`framework.design.design_run.DesignSetup`. A screen at or above the lowest optical
+    :class:`framework.design.design_setup.DesignSetup`. A screen at or above the lowest optical
     element is skipped, with a note in ``setup.notes``. Returns the power on each screen over flat
     glass's on it (``preview_<f>x_power_share``)."""
     out: dict[str, float] = {}
@@ -66,7 +66,7 @@ def save_previews(cfg: Mapping[str, Any], setup: Any, heights: np.ndarray, photo
 def save_design_figure(path: Path, setup: Any, heights: np.ndarray, caustic: np.ndarray,
                        metrics: Mapping[str, float], history: MetricsHistory) -> Path:
     """Target | designed caustic | difference | heights (mm), and the relative discrepancy per
-    iteration below; ``setup`` is the run's :class:`framework.design.design_run.DesignSetup`."""
+    iteration below; ``setup`` is the run's :class:`framework.design.design_setup.DesignSetup`."""
     from matplotlib.figure import Figure
 
     target = setup.target.numpy().sum(axis=0)

@@ -1,5 +1,5 @@
-"""One reconstruction, end to end: build every plugin by key, then data -> problem -> solver ->
-outputs, tracked in MLflow.
+"""One reconstruction, end to end: its parts built by key (framework/reconstruction/parts.py),
+then data -> problem -> solver -> outputs, tracked in MLflow.
 
 Used by ``sfc-reconstruct`` (experiments/reconstruct.py); kept here so that the app stays thin
 and tests can run a reconstruction without Hydra's command line.
@@ -10,43 +10,32 @@ from __future__ import annotations
 import json
 import time
 from collections.abc import Mapping
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
 import torch
 
-from framework.core.contracts.data_source import DataRequest, DataSource, ShotStack
 from framework.core.contracts.operator import Operator
-from framework.core.contracts.solver import SolverBuilder
 from framework.core.contracts.start import Start, StartRequest
-from framework.core.contracts.stopping import StoppingRule
-from framework.core.plugin_config import as_mapping, build_plugin, split_name
-from framework.core.registry import declared
 from framework.core.objective import DataFidelity
-from framework.core.problem import HeightGrid, Problem
-from framework.scene.run_settings import RunSettings, design_given
-from framework.core.values import positive_int
-from framework.scene.scene_config import SceneSetup
+from framework.core.problem import Problem
 from framework.core.solver_loop import Callback, RunResult, returned_iterate
-from framework.lab.calibration import JointCalibration
 from framework.core.callbacks import Checkpointer, GroundTruthError, MetricsHistory, ProgressBar
 from framework.core.checkpoint import resume as resume_solver
-from framework.defects.defect_stage import DefectSettings, report_defects
+from framework.defects.defect_stage import report_defects
 from framework.reconstruction.feature_search import FeatureSearch, SearchedLines
 from framework.stack.first_fit import fit_first_shot
 from framework.reconstruction.photon_budget import PhotonBudget, with_photons
 from framework.reconstruction.report_figures import save_reconstruction_figures
-from framework.reconstruction.run_checks import (CHECKPOINT, check_tracking_target, check_volume, check_volume_known,
-                                           checked_resume, height_bounds)
-from framework.reconstruction.run_identity import run_fingerprint
+from framework.reconstruction.run_checks import CHECKPOINT
 from framework.reconstruction.run_outputs import report_verdict, save_outputs
 from framework.stack.shot_report import save_shot_record, shot_metrics
 from framework.reconstruction.run_phases import PHASES, PhaseOutcome, resumed_phases
 from framework.tracking.mlflow_tracker import MlflowTracker, local_store_uri
+from framework.reconstruction.parts import Reconstruction, build_stopping
 from framework.reconstruction.verdict import volume_report
 from framework.files.image_io import resolve_path
-from operators.scene import Scene
 
 CALIBRATION_STATE = "calibration.json"
 LINE_SEARCH_PHOTONS = 1 << 18  # per shot and hypothesis of a stack's line search (framework/reconstruction/feature_search.py)
@@ -54,24 +43,6 @@ FIRST_FIT_CALIBRATION = "first_fit_calibration.json"  # a stack's first shot's g
 # Refits at most: runs of a start again after one whose calibration moved what the heights absorb.
 MAX_REFITS = 2
 MLFLOW_RUN = "mlflow_run.json"  # the run's MLflow run id, so that a job resumed in its directory logs into it
-
-
-def build_start(spec: Any) -> Start:
-    """The ``initial`` plugin (framework/reconstruction/starts/) of the config group ``spec``, checked:
-    ``{name: zero | design | file | transport | auto, ...}`` (None: zero)."""
-    spec = spec or {"name": "zero"}
-    if isinstance(spec, str):
-        raise ValueError(f"initial={spec!r}: choose a start by name (initial=zero|design|file|transport|auto); "
-                         "a height-field file is initial=file initial.path=<file>")
-    name, params = split_name(spec, "initial")
-    return build_plugin("initial", name, params, "initial")
-
-
-def build_stopping(spec: Any) -> list[StoppingRule]:
-    """The plugins of the ``stopping`` group ``spec``, in config order (fresh ones for every run
-    from a start)."""
-    return [build_plugin("stopping", name, params, f"stopping.{name}")
-            for name, params in as_mapping(spec, "stopping").items()]
 
 
 def passes(fidelity: DataFidelity) -> dict[str, int]:
@@ -170,114 +141,6 @@ def _solve_from(parts: Reconstruction, problem: Problem, name: str, start: Start
                         start_seconds, start_metrics, truth_error.errors(d) if truth_error else {})
 
 
-@dataclass
-class Reconstruction:
-    """Everything a reconstruction is built from, checked against the config before any render.
-
-    Attributes:
-        settings: The config, parsed once (framework/scene/run_settings.py).
-        setup: The scene, height grid, operator and height-field group (framework/scene/scene_config.py).
-        data_source: The ``data`` plugin.
-        make_solver: The solver plugin's builder: (problem, d0) -> solver.
-        stopping: The ``stopping`` plugins, in config order.
-        start: The ``initial`` plugin: computes the start d0 (m, m) once the data are loaded.
-        max_iter: The solver's iteration cap.
-        fingerprint: What determines the result (framework/reconstruction/run_identity.py), stored in checkpoints.
-        calibration: Joint calibration of the setup (framework/lab/calibration.py), or None.
-    """
-
-    settings: RunSettings
-    setup: SceneSetup
-    data_source: DataSource
-    make_solver: SolverBuilder
-    stopping: list[StoppingRule]
-    start: Start
-    max_iter: int
-    fingerprint: dict[str, str]
-    calibration: JointCalibration | None = None
-    defects: DefectSettings = field(default_factory=DefectSettings)
-    _designs: dict[str, torch.Tensor] = field(default_factory=dict, repr=False)
-
-    @property
-    def operator(self) -> Operator:
-        """The forward-operator plugin."""
-        return self.setup.operator
-
-    @property
-    def scene(self) -> Scene:
-        """The scene (light, substrate, receiver, material, wavelengths)."""
-        return self.setup.scene
-
-    @property
-    def grid(self) -> HeightGrid:
-        """The height grid."""
-        return self.setup.grid
-
-    def design(self, base_dir: Path) -> torch.Tensor:
-        """The configured height field (m, m), float64, scene units: read or generated once per
-        ``base_dir``, a copy handed out each time."""
-        key = str(base_dir)
-        if key not in self._designs:
-            self._designs[key] = self.setup.heights(base_dir)
-        return self._designs[key].clone()
-
-    @classmethod
-    def from_config(cls, cfg: Mapping[str, Any], base_dir: Path) -> Reconstruction:
-        """Build every part by its registry key (scene, operator, data, solver, stopping rules) and
-        the start; a bad value fails here, before anything is rendered."""
-        settings = RunSettings.parse(cfg)
-        cfg = settings.cfg
-        calibration_cfg = as_mapping(cfg.get("calibration") or {}, "calibration")
-        data_name, data_params = split_name(cfg.get("data"), "data")
-        data_source = build_plugin("data", data_name, data_params, "data")
-        setup = SceneSetup.parse(cfg, settings.mm_per_unit, imaging=bool(calibration_cfg.get("params")),
-                                 shots=data_source.setups if isinstance(data_source, ShotStack) else None)
-        post_steps = dict(as_mapping(cfg.get("solver") or {}, "solver").get("post_steps") or {})
-        volume_held = any(declared("post_step", name, "holds_volume", False) for name in post_steps)
-        calibration = JointCalibration.from_config(setup.operator, calibration_cfg, setup.scene, setup.screen_sigma,
-                                                   volume_held)
-        solver_name, solver_params = split_name(cfg.get("solver"), "solver")
-        max_iter = positive_int(solver_params.pop("max_iter", None), "solver.max_iter")  # the loop's, not the solver's
-        make_solver = build_plugin("solver", solver_name, solver_params, "solver")
-        stopping = build_stopping(cfg.get("stopping"))
-        start = build_start(cfg.get("initial"))
-        start.check(base_dir)
-        regularizers = (cfg.get("solver") or {}).get("regularizers") or {}
-        if "l1_design" in regularizers and not _has_design(cfg):
-            raise ValueError("solver.regularizers.l1_design (experiment=design) needs the print's design: give "
-                             "height_field.path (the design) with data=file or data=photo, or data.printed (the print) "
-                             "with synthetic data")
-        defects = DefectSettings.parse(cfg.get("defects"))
-        if defects.enabled == "on" and not _has_design(cfg):
-            raise ValueError("defects.enabled=on needs the print's design: give height_field.path (the design) with "
-                             "data=file or data=photo, or data.printed with synthetic data; or defects.enabled=auto")
-        return cls(settings, setup, data_source, make_solver, stopping, start, max_iter,
-                   run_fingerprint(cfg, base_dir), calibration, defects)
-
-    def check(self, base_dir: Path, output_dir: Path) -> Path | None:
-        """Everything a run needs that the plugins' configs alone do not show, checked without a
-        render, before the tracker opens: the tracking target, the data's files and what they say
-        of the print (the volume against the printed area and the height bounds), the design of a
-        measured print, and the checkpoint to resume from (readable, of this run). Returns that
-        checkpoint, or None for a fresh run."""
-        tracking = self.settings.tracking
-        check_tracking_target(tracking.uri, resolve_path(tracking.store_dir, base_dir))
-        request = self.data_request(base_dir)
-        facts = self.data_source.check(request)
-        check_volume_known(self.settings.cfg, facts)
-        check_volume(facts.volume, facts.mask, self.grid.cell_area, height_bounds(self.settings.cfg),
-                     2.0 * float(self.scene.substrate.half_width))
-        if self.settings.design_given:
-            request.design()
-        return checked_resume(self.settings.resume, output_dir, base_dir, self.fingerprint)
-
-    def data_request(self, base_dir: Path, output_dir: Path | None = None) -> DataRequest:
-        """What the data source may use: the operator, the grid, the configured heights, the seed,
-        the run directory and the units."""
-        return DataRequest(self.operator, self.grid, lambda: self.design(base_dir),
-                           self.settings.seed, base_dir, output_dir, self.settings.mm_per_unit)
-
-
 def run_reconstruction(cfg: Mapping[str, Any], output_dir: Path, base_dir: Path,
                        sweep_id: str | None = None) -> dict[str, Any]:
     """Reconstruct the configured scene into ``output_dir``; returns the metrics written to metrics.json."""
@@ -288,15 +151,6 @@ def run_reconstruction(cfg: Mapping[str, Any], output_dir: Path, base_dir: Path,
         with parts.operator.warm_up() as compiling:
             return _reconstruct(parts, output_dir, base_dir, checkpoint, sweep_id, compiling)
     return _reconstruct(parts, output_dir, base_dir, checkpoint, sweep_id, None)
-
-
-def _has_design(cfg: Mapping[str, Any]) -> bool:
-    """Whether the run's data will carry the print's design: synthetic data of another print
-    (data.printed), or measured data with a design (framework/scene/run_settings.py)."""
-    data = cfg.get("data") or {}
-    if data.get("name") == "synthetic":
-        return bool(data.get("printed"))
-    return design_given(cfg)
 
 
 def _run_starts(parts: Reconstruction, problem: Problem, request: StartRequest, output_dir: Path,

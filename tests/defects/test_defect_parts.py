@@ -81,7 +81,7 @@ def test_candidates_keep_peaks_and_merge_near_parts() -> None:
 
 def test_the_uncertainty_is_larger_where_the_caustic_sees_less_and_shrinks_with_the_noise(tmp_path) -> None:
     from experiments.configs import reconstruct_config
-    from framework.reconstruction.reconstruction import Reconstruction
+    from framework.reconstruction.parts import Reconstruction
 
     cfg = reconstruct_config([f"height_field.resolution={M}", "receiver.resolution=64", "photons=262144"])
     parts = Reconstruction.from_config(cfg, tmp_path)

@@ -16,7 +16,8 @@ from experiments.defect_prints import apply_defect, feature_sites
 from framework.core.problem import Problem
 from framework.scene.scene_config import build_heights
 from framework.defects.defect_stage import report_defects
-from framework.reconstruction.reconstruction import Reconstruction, run_reconstruction
+from framework.reconstruction.reconstruction import run_reconstruction
+from framework.reconstruction.parts import Reconstruction
 from tests.experiments.conftest import compose_reconstruct
 
 M = 64

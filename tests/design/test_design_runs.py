@@ -14,7 +14,8 @@ import trimesh
 from mlflow.tracking import MlflowClient
 from PIL import Image
 
-from framework.design.design_run import CHECKPOINT, prepare_design, run_design
+from framework.design.design_run import CHECKPOINT, run_design
+from framework.design.design_setup import prepare_design
 from tests.design.conftest import SMALL, compose_design
 from tests.python_subprocess import ROOT
 

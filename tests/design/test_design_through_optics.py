@@ -14,7 +14,8 @@ import torch
 
 from framework.design.design_target import paraxial_shadow
 from framework.core.image_metrics import relative_l2
-from framework.design.design_run import _method, _start, prepare_design, run_design
+from framework.design.design_run import _start, run_design
+from framework.design.design_setup import method_settings, prepare_design
 from framework.design.design_screen import WIDE, lit_half_width
 from framework.design.design_refinement import _hellinger, _l2_ssim
 from tests.design.conftest import SMALL, compose_design
@@ -81,7 +82,7 @@ def test_the_transport_design_alone_taller_than_the_room_below_the_upper_lens_st
 def test_a_transport_start_beyond_the_limits_is_projected_onto_them(tmp_path):
     cfg = compose_design([*SMALL, "target.image=text", "constraints.max_slope=0.3"], tmp_path)
     setup = prepare_design(cfg)
-    d0, metrics = _start(setup, _method(cfg))
+    d0, metrics = _start(setup, method_settings(cfg))
     assert metrics["transport_printable"] == 0.0
     assert all(setup.constraints.holds(d0.double().numpy(), rtol=1e-6).values())  # to the operator's float32
     flat = setup.operator.render(torch.zeros_like(d0)).double().numpy()

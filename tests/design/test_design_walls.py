@@ -6,7 +6,8 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from framework.design.design_run import prepare_design, wall_light
+from framework.design.design_run import wall_light
+from framework.design.design_setup import prepare_design
 from operators.wavefront.renderer import WavefrontRenderer, wavefront_vertices
 from tests.design.conftest import SMALL, compose_design
 from tests.operators.test_side_walls import wall_band_flux

@@ -25,7 +25,8 @@ from experiments.input_errors import INPUT_ERRORS, one_line_input_errors
 from experiments.start_checks import CheckBeforeStart, check_launcher, sweep_jobs
 from framework.core.checkpoint import save_checkpoint
 from framework.lab.photo_synthesis import synthesize_photo
-from framework.reconstruction.reconstruction import Reconstruction, run_reconstruction
+from framework.reconstruction.reconstruction import run_reconstruction
+from framework.reconstruction.parts import Reconstruction
 from framework.reconstruction.run_identity import run_fingerprint
 from operators.heightfield.operator import CausticOperator
 from operators.mesh.operator import MeshSceneOperator

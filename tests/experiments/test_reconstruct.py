@@ -14,7 +14,8 @@ from mlflow.tracking import MlflowClient
 
 from framework.core.callbacks import MetricsHistory
 from framework.core.problem import Problem
-from framework.reconstruction.reconstruction import CHECKPOINT, Reconstruction, build_start, run_reconstruction
+from framework.reconstruction.reconstruction import CHECKPOINT, run_reconstruction
+from framework.reconstruction.parts import Reconstruction, build_start
 from framework.scene.scene_config import build_heights
 from framework.core.contracts.start import StartRequest
 from operators.heightfield.operator import CausticOperator

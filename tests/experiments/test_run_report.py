@@ -15,7 +15,8 @@ from PIL import Image
 
 from experiments.reproduce_lab import relative_error_after_scale
 from framework.lab.photo_synthesis import synthesize_photo
-from framework.reconstruction.reconstruction import Reconstruction, run_reconstruction
+from framework.reconstruction.reconstruction import run_reconstruction
+from framework.reconstruction.parts import Reconstruction
 from framework.scene.scene_config import build_heights, build_operator, build_scene
 from framework.reconstruction.verdict import run_verdict
 from tests.experiments.conftest import SMALL, compose_reconstruct

@@ -12,7 +12,8 @@ import torch
 import torch.nn.functional as F
 
 from framework.lab.calibration import JointCalibration
-from framework.reconstruction.reconstruction import Reconstruction, run_reconstruction
+from framework.reconstruction.reconstruction import run_reconstruction
+from framework.reconstruction.parts import Reconstruction
 from operators.heightfield.operator import CausticOperator
 from operators.gaussian_blur import ScreenBlur
 from operators.imaging import ImagingOperator

@@ -5,16 +5,8 @@ import pytest
 import torch
 
 from framework.core.registry import available, lookup
-from framework.reconstruction.solvers import (
-    BacktrackingStep,
-    LineSearchFailed,
-    ConstantStep,
-    GradientDescent,
-    IterativeSolver,
-    PixelLandweber,
-    SobolevPreconditioner,
-    WaveletLandweber,
-)
+from framework.reconstruction.solvers import (BacktrackingStep, ConstantStep, GradientDescent, LineSearchFailed,
+                                             PixelLandweber, SobolevPreconditioner, WaveletLandweber)
 from framework.core.solver_loop import Callback
 from regularizers import PostStepUpdate, Regularizer
 from tests.framework.toy import DTYPE, L1, Bounds, OrthogonalTransform, SpyPostStep, WaveletL1, make_problem

@@ -13,7 +13,8 @@ import torch
 
 from framework.core.objective import DataFidelity
 from framework.lab.calibration import JointCalibration
-from framework.reconstruction.reconstruction import Reconstruction, run_reconstruction
+from framework.reconstruction.reconstruction import run_reconstruction
+from framework.reconstruction.parts import Reconstruction
 from framework.reconstruction.verdict import run_verdict
 from operators.heightfield.operator import CausticOperator
 from operators.imaging import ImagingOperator

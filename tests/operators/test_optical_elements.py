@@ -13,7 +13,7 @@ import trimesh
 
 from operators.mesh.crossings import self_crossings
 from operators.mesh.shapes import conic_sag, crease_normals, height_field_solid, lens, lens_array, prism
-from operators.mesh.elements import check_layout, load_mesh, make_element
+from operators.mesh.elements import check_layout, make_element
 
 
 def cap_volume(radius: float, height: float) -> float:

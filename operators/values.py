@@ -1,0 +1,86 @@
+"""Checked values from configs and arguments: the one family of value checks every package uses.
+
+operators/ is the lowest package (regularizers/ and framework/ import it, it imports neither), so
+the checks live here. Every error is one line in one format, ``<key>=<value> must be ...``,
+naming the config key (or argument) and, where the caller gives one, an example of a good value.
+A bool is never a number (``True`` is refused where a count or a length is asked), and a number
+is finite unless the caller allows infinity.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import torch
+
+__all__ = ["described", "checked_flag", "checked_height_field", "checked_number", "checked_whole"]
+
+
+def described(value: object) -> str:
+    """A tensor's shape and dtype, or another value's type, for an error message."""
+    if isinstance(value, torch.Tensor):
+        return f"shape {tuple(value.shape)}, {value.dtype}"
+    return type(value).__name__
+
+
+def _is_number(value: object) -> bool:
+    return not isinstance(value, bool) and isinstance(value, (int, float))
+
+
+def _interval(least: float, most: float, above: float | None, below: float | None) -> str:
+    low = f"> {above:g}" if above is not None else (f">= {least:g}" if least != -math.inf else "")
+    high = f"< {below:g}" if below is not None else (f"<= {most:g}" if most != math.inf else "")
+    if low and high:
+        return f"in {'(' if above is not None else '['}{above if above is not None else least:g}, " \
+               f"{below if below is not None else most:g}{')' if below is not None else ']'}"
+    return low or high
+
+
+def checked_number(value: Any, key: str, least: float = -math.inf, most: float = math.inf, *,
+                   above: float | None = None, below: float | None = None, must: str | None = None,
+                   example: str | None = None) -> float:
+    """``value`` as a float: a finite number (not a bool) with ``least <= value <= most`` and, where
+    given, ``value > above`` and ``value < below``; else a ValueError ``<key>=<value> must be ...``
+    (``must`` replaces the generated phrase; ``example`` is appended as ``, e.g. <example>``)."""
+    ok = _is_number(value) and math.isfinite(value) and least <= value <= most
+    ok = ok and (above is None or value > above) and (below is None or value < below)
+    if not ok:
+        interval = _interval(least, most, above, below)
+        phrase = must or (f"must be a number {interval}" if interval else "must be a finite number")
+        raise ValueError(f"{key}={value!r} {phrase}" + (f", e.g. {example}" if example else ""))
+    return float(value)
+
+
+def checked_whole(value: Any, key: str, least: int | None = None, most: int | None = None, *,
+                  must: str | None = None, example: str | None = None) -> int:
+    """``value`` as an int: a whole number (8 or 8.0, not True) in [least, most] where given; else a
+    ValueError ``<key>=<value> must be an integer >= <least>`` (or ``must``, and ``example``)."""
+    ok = _is_number(value) and math.isfinite(value) and int(value) == value
+    ok = ok and (least is None or value >= least) and (most is None or value <= most)
+    if not ok:
+        bounds = " and ".join(b for b in ("" if least is None else f">= {least}", "" if most is None else f"<= {most}") if b)
+        phrase = must or ("must be an integer" + (f" {bounds}" if bounds else ""))
+        raise ValueError(f"{key}={value!r} {phrase}" + (f", e.g. {example}" if example else ""))
+    return int(value)
+
+
+def checked_flag(value: Any, key: str) -> bool:
+    """``value`` if it is a bool, else a ValueError ``<key>=<value> must be true or false``."""
+    if not isinstance(value, bool):
+        raise ValueError(f"{key}={value!r} must be true or false")
+    return value
+
+
+def checked_height_field(d: Any, key: str = "d") -> torch.Tensor:
+    """``d`` if it is a finite floating-point tensor (m, m), else a ValueError naming ``key`` and the fix."""
+    if not isinstance(d, torch.Tensor):
+        raise ValueError(f"{key} must be a torch.Tensor, got {type(d).__name__}; wrap it with torch.as_tensor")
+    if d.ndim != 2:
+        raise ValueError(f"{key} must be a 2-D height field (m, m), got shape {tuple(d.shape)}; pass one channel")
+    if not d.is_floating_point():
+        raise ValueError(f"{key} has dtype {d.dtype}; pass a floating-point tensor (float32 or float64)")
+    if not bool(torch.isfinite(d).all()):
+        bad = int((~torch.isfinite(d)).sum())
+        raise ValueError(f"{key} contains {bad} NaN/inf value(s); check the step size or the gradient behind it")
+    return d
