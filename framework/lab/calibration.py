@@ -1,70 +1,22 @@
-"""Joint calibration: estimate parts of the setup together with the heights.
+"""Joint calibration: parts of the setup estimated together with the heights (docs/method.md,
+"Joint calibration", which derives and measures what this module does).
 
-A lab setup is never known exactly: the screen's distance below the substrate, the light's
-position, the camera's exposure gain and the screen's blur are measured with a ruler or not at
-all. With ``calibration.params`` set, :class:`JointCalibration` alternates with the height solver:
-every ``every`` iterations it takes a damped Gauss-Newton (Levenberg-Marquardt) step on the chosen
-parameters p at the current heights d, on the posterior of p given the data and the measured
-(configured) values p0 with relative standard deviation ``prior`` (the ruler's uncertainty; the
-gain has no prior, the blur's width a weak one, below),
+With ``calibration.params`` set, :class:`JointCalibration` alternates with the height solver:
+every ``every`` iterations one Levenberg-Marquardt step on the chosen parameters p at the current
+heights d, on the posterior of p given the data and the measured (configured) values p0,
 
     Phi(p) = ||W^(1/2) (G(d; p) - b)||^2 / s^2 + sum_i ((p_i - p0_i) / (prior * |p0_i|))^2,
 
-s^2 = ||W^(1/2) r||^2 / (N - k) the residual's variance per pixel at the current heights (so a
-poor fit early in the run lets the prior keep the geometry where it was measured). J = dG/dp by
-central differences of renders with the same photons (common random numbers: the renders differ
-only by the change of p), exactly for the gain (dG/dgain = G / gain) and the screen blur's width
-(dG/dsigma = gain (dK/dsigma) F(d), analytic, from the same render: operators/imaging.py). The
-step solves the damped normal equations (J^T W J / s^2 + P + lambda diag) dp = -(J^T W r / s^2 +
-P (p - p0)); it is kept only if it lowers Phi, otherwise lambda grows tenfold (up to three tries).
-Heights and geometry trade off (a farther screen spreads the caustic as a stronger print does), and
-at heights that still miss the data the geometry runs off to make up for them; so the geometry is
-updated only once the fit has come within twice the noise level (relative discrepancy <= 2 delta;
-the gain from the start), and it stays within ``BOUND`` prior standard deviations of its measured
-value (``calibration_<p>_at_bound`` in the metrics says when a parameter ended there). The reported
-standard error is sqrt(diag((J^T W J / s^2 + P)^-1)) at the final heights: it holds the heights
-fixed, so where heights and a parameter trade off (docs/method.md, "Joint calibration") it is too
-small, and the prior term is what keeps such a parameter near its measured value.
-
-A stack of shots at known offsets (framework/stack/stack_data.py) tells the screen distance, but
-only jointly with the heights' strength: heights k d with the screen at s / k cast nearly the
-caustic of d at s on one screen (docs/method.md, "Several photos"), so at heights fitted to a wrong
-distance a step on the distance alone goes the wrong way. On a stack the step on
-``screen_distance`` therefore also takes a factor k on the heights (a column dG/dk by central
-differences of renders of (1 +- 1e-3) d, no prior, within BOUND x prior of 1 per update), and the
-solver goes on from k d (:meth:`framework.core.solver_loop.IterativeSolver.set_heights`). And on
-a stack an iteration whose discrepancy Morozov's rule would accept (``goal``) is first followed by
-an update at its heights, and the rule judges the discrepancy under the updated setup: a stack
-whose fit reaches the noise level within a few iterations (a gentle print) would otherwise end at
-the configured geometry.
-
-``light_size``, an extended light's diameter or side (``light.shape: disc | square``,
-operators/scene.py), starts at the configured ``light.size`` and is treated as the blur's width
-below is (a weak prior of PSF_PRIOR times its start, steps of at most a factor PSF_STEP, updated
-with the geometry, and, like a stack's distance, at every iteration that meets the noise level
-until it settles: the heights absorb part of a wrong size, so it moves on after the fit first meets
-the noise level); its column dG/da is a central difference of renders whose emission points
-scale with a (operators/light_source.py). Its blur grows with the screen's distance while the
-screen's own does not, so two photos at different distances tell the two apart (docs/method.md,
-"The extended light"). Reported also in mm (``calibration_light_size_mm``).
-
-``psf_sigma``, the standard deviation of the screen's Gaussian spot (scene units), starts at
-``calibration.psf_sigma_start``, else at the configured ``screen.sigma`` when > 0, else at one
-receiver pixel; with ``screen.psf: none`` the fitted blur is Gaussian all the same. It is moved to
-its start when the data are set (:meth:`JointCalibration.setup`), after a synthetic source has
-rendered its references through the configured screen. The configured width is a guess, so its
-prior is weak: a standard deviation of ``PSF_PRIOR`` (10) times the start (at least one receiver
-pixel), which keeps the normal equations regular where the blur is far below a pixel and the data
-say nothing of it. One update changes it by at most a factor ``PSF_STEP`` (2) either way: the image
-is far from linear in a width below a pixel, where a Gauss-Newton step overshoots; so it stays > 0
-(a width far below a pixel is no blur: the kernel is then a delta to rounding), and a start must be
-> 0 (at 0 the image does not change with the width). It has no other bound, and it is updated with
-the geometry (once the fit is within twice the noise level: heights that still miss the data's
-detail would pull the blur down). Its value and standard error are also reported in receiver
-pixels and mm (``calibration_psf_sigma_px``, ``_mm``, ``_std_px``, ``_std_mm``).
-
-The state (parameters, updates, uncertainties) is written to ``calibration.json`` beside the
-checkpoint after every update, and a resumed run starts from it.
+J = dG/dp by central differences of renders with the same photons, exactly for the gain and the
+screen blur's width (operators/imaging.py); a step is kept only if it lowers Phi, else lambda grows
+tenfold (``_MAX_TRIES`` tries). The geometry moves only once the fit is within twice the noise
+level and stays within ``BOUND`` prior standard deviations of its measured value; ``psf_sigma``
+and ``light_size`` have a weak prior (``PSF_PRIOR`` times the start) and steps of at most a factor
+``PSF_STEP``. On a stack of shots (framework/stack/stack_data.py) the screen distance moves with a
+factor k on the heights (the shots' offsets tell the distance only jointly with the heights'
+strength), and an iteration Morozov's rule would accept is first followed by an update at its
+heights until the geometry settles. The state goes to ``calibration.json`` after every update, and
+a resumed run starts from it.
 """
 
 from __future__ import annotations
@@ -80,8 +32,8 @@ from torch import Tensor
 
 from framework.core.data import weighted_norm_sq
 from framework.core.solver_loop import Callback
-from framework.core.units import scene_length
 from framework.lab.calibrated_setup import PSF, CameraSetup, StackSetup, is_gain, setup_values, with_setup
+from framework.lab.calibration_config import calibration_settings, positive_length
 from operators.stack import StackOperator
 
 __all__ = ["CALIBRATION_PARAMS", "JointCalibration", "setup_values", "with_setup"]
@@ -111,10 +63,6 @@ PSF_PRIOR = 10.0
 # One update changes psf_sigma by at most this factor either way (the image is far from linear in a
 # width below a pixel, where a Gauss-Newton step overshoots).
 PSF_STEP = 2.0
-
-
-def _positive_length(value: Any) -> bool:
-    return not isinstance(value, bool) and isinstance(value, (int, float)) and math.isfinite(value) and value > 0.0
 
 
 class JointCalibration(Callback):
@@ -159,7 +107,7 @@ class JointCalibration(Callback):
         self.state_path: Path | None = None
         self.initial = self.values()
         if PSF in self.params:
-            if psf_sigma_start is not None and not _positive_length(psf_sigma_start):
+            if psf_sigma_start is not None and not positive_length(psf_sigma_start):
                 raise ValueError(f"calibration.psf_sigma_start={psf_sigma_start!r} must be a length > 0 (scene units "
                                  "or e.g. '0.1 mm'), or null to start from screen.sigma")
             configured = self.initial[PSF]
@@ -192,37 +140,8 @@ class JointCalibration(Callback):
         (scene units, whatever ``screen.psf``), where ``psf_sigma`` starts unless
         ``psf_sigma_start`` is given (0: one receiver pixel); ``volume_held``: the solver holds the
         known volume, so a stack's distance moves without a factor on the heights."""
-        keys = ("params", "every", "damping", "prior", "psf_sigma_start")
-        unknown = [k for k in settings if k not in keys]
-        if unknown:
-            raise ValueError(f"unknown key calibration.{unknown[0]}; calibration takes {', '.join(keys)}")
-        params = settings.get("params") or []
-        if isinstance(params, str):
-            params = [params]
-        if not isinstance(params, (list, tuple)) or not all(isinstance(p, str) for p in params):
-            raise ValueError(f"calibration.params={settings.get('params')!r} must be a list of names, e.g. "
-                             "[gain, screen_distance], or [] for none")
-        if not params:
-            return None
-        start = settings.get("psf_sigma_start")
-        if start is not None and PSF not in params:
-            raise ValueError(f"calibration.psf_sigma_start={start!r} is set but calibration.params={list(params)!r} "
-                             f"lacks {PSF}: add it, or drop the start")
-        if PSF in params:
-            if start is not None:
-                mm = scene.mm_per_unit if scene is not None else operator.scene.mm_per_unit
-                given, start = start, scene_length(start, mm, "calibration.psf_sigma_start")
-                if not _positive_length(start):
-                    raise ValueError(f"calibration.psf_sigma_start={given!r} must be a length > 0 (scene units or "
-                                     "e.g. '0.1 mm'), or null to start from screen.sigma")
-            elif not (isinstance(screen_sigma, (int, float)) and math.isfinite(screen_sigma) and screen_sigma >= 0):
-                raise ValueError(f"screen.sigma={screen_sigma!r} cannot start calibration.params' psf_sigma: give a "
-                                 "length >= 0 (scene units or e.g. '0.1 mm'; 0: one receiver pixel), or "
-                                 "calibration.psf_sigma_start")
-            elif screen_sigma > 0.0:
-                start = float(screen_sigma)
-        return cls(operator, list(params), every=settings.get("every", 30), damping=settings.get("damping", 1e-3),
-                   prior=settings.get("prior", 0.1), scene=scene, psf_sigma_start=start, volume_held=volume_held)
+        settings_ = calibration_settings(settings, operator, scene, screen_sigma)
+        return None if settings_ is None else cls(operator, scene=scene, volume_held=volume_held, **settings_)
 
     def gain_of_shot(self, index: int) -> JointCalibration | None:
         """The calibration of shot ``index``'s gain alone (a stack's first fit,

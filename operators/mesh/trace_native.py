@@ -14,7 +14,6 @@ the splat's adjoint gather to the heights.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import numba as nb
 import numpy as np
@@ -31,28 +30,12 @@ from operators.heightfield.surface import HeightFieldGrid
 from operators.photon_operator import filter_radius_px
 from operators.kernels.numba_settings import to_numpy
 from operators.splat.splat import ImageAccumulator, PaddedAdjoint
+from operators.mesh.photon_chunks import PhotonChunk, Prefix, RenderBuffers, write_back
 
-__all__ = ["LOSSES", "NativeMeshTracer", "Prefix"]
+__all__ = ["LOSSES", "NativeMeshTracer"]
 
 # The kinds of lost flux a render reports (W each).
 LOSSES = ("escaped", "max_depth", "inside_top", "fresnel_reflected", "missed_receiver")
-
-
-@dataclass
-class Prefix:
-    """Photons before their first hit on the printed top: state (N, STATE), channel and events
-    used so far (N,); the fixed image (c, n, n, flux per pixel) and losses (W) of all others.
-    Within each chunk the photons are in the order they are traced and splatted in, by where they
-    cross the plane z = thickness (:func:`operators.mesh.locality.crossing_order`); ``lowest``
-    the lowest z at which one waits (inf for none)."""
-
-    state: np.ndarray
-    channel: np.ndarray
-    events: np.ndarray
-    image: torch.Tensor
-    losses: dict[str, float]
-    lowest: float
-
 
 # Event kinds, faces or planes and distances as the kernels take them.
 _EVENT_DTYPES = (np.int64, np.int64, np.float64)
@@ -62,67 +45,12 @@ COMPACT = 0.5
 SPLAT_BYTES_PER_PHOTON = 6 * 8 + 8
 
 
-@dataclass
-class _Chunk:
-    """Photons under way: state (N, STATE), medium, channel, status, event count and whether
-    they left a face with no element in front (N,)."""
-
-    state: np.ndarray
-    medium: np.ndarray
-    channel: np.ndarray
-    status: np.ndarray
-    events: np.ndarray
-    clear: np.ndarray
-
-    @classmethod
-    def starting(cls, state: np.ndarray, channel: np.ndarray, events: np.ndarray) -> _Chunk:
-        """Photons in air, under way."""
-        n = len(state)
-        return cls(state, np.full(n, mk.AIR, dtype=np.int64), channel, np.full(n, mk.UNDER_WAY, dtype=np.int64),
-                   events, np.zeros(n, dtype=np.bool_))
-
-    def take(self, index: np.ndarray) -> _Chunk:
-        """A copy of the photons at ``index``."""
-        return _Chunk(self.state[index], self.medium[index], self.channel[index], self.status[index],
-                      self.events[index], self.clear[index])
-
-
-def _write_back(chunk: _Chunk, index: np.ndarray | None, work: _Chunk) -> None:
-    """Copy ``work`` (the chunk's photons at ``index``; None: the chunk itself) into the chunk."""
-    if index is None:
-        return
-    chunk.state[index], chunk.medium[index], chunk.status[index], chunk.events[index], chunk.clear[index] = (
-        work.state, work.medium, work.status, work.events, work.clear)
-
-
 def _numba_splat_arguments(state, status, sc, pos, metric, flux) -> float:
     """:func:`operators.mesh.kernels_native.splat_arguments`, returning the flux (W) of the landed
     photons beside the receiver as the C kernel does."""
     mk.splat_arguments(state, status, np.arange(len(state)), sc, pos, metric, flux)
     outside = (status == mk.LANDED) & (np.abs(state[:, mk.P:mk.P + 2]) > sc.receiver_half).any(1)
     return float(state[outside, mk.FLUX].sum())
-
-
-class _RenderBuffers:
-    """Arrays each render fills again, per chunk: its photons' splat arguments and event logs.
-    The last render's are those its gradient reads; refilling them spares a render the page
-    faults of new arrays."""
-
-    def __init__(self) -> None:
-        self._splats: dict[int, events_compiled.SplatArguments] = {}
-        self._logs: dict[int, events_compiled.EventLog] = {}
-
-    def splat(self, k: int, n: int) -> events_compiled.SplatArguments:
-        """Chunk ``k``'s splat arguments for ``n`` photons."""
-        if k not in self._splats or len(self._splats[k].flux) != n:
-            self._splats[k] = events_compiled.SplatArguments.empty(n)
-        return self._splats[k]
-
-    def log(self, k: int, n: int, max_depth: int) -> events_compiled.EventLog:
-        """Chunk ``k``'s event log for ``n`` photons of ``max_depth`` events."""
-        if k not in self._logs or self._logs[k].kind.shape != (max_depth, n):
-            self._logs[k] = events_compiled.EventLog.empty(n, max_depth)
-        return self._logs[k]
 
 
 class NativeMeshTracer:
@@ -140,7 +68,7 @@ class NativeMeshTracer:
         self.compiled = operator.settings.kernels == "c" and events_compiled.AVAILABLE
         self._dtype = torch.empty(0, dtype=operator.dtype).numpy().dtype  # the operator's dtype in numpy
         self._prefix: Prefix | None = None
-        self._buffers = _RenderBuffers()
+        self._buffers = RenderBuffers()
         # The heights of the last render and its events per chunk, for a vjp at the same heights.
         self._events_seen: tuple[np.ndarray, list] | None = None
         # The last gradient's padded adjoint image and its border, overwritten by the next.
@@ -178,7 +106,7 @@ class NativeMeshTracer:
                                       for name, v in zip(mk.MeshConstants._fields, values))
 
     # -- events -------------------------------------------------------------------------------
-    def _trace(self, d: np.ndarray, chunk: _Chunk, sc: mk.MeshConstants, wait_at_top: bool,
+    def _trace(self, d: np.ndarray, chunk: PhotonChunk, sc: mk.MeshConstants, wait_at_top: bool,
                losses: dict[str, float], splat: events_compiled.SplatArguments | None = None,
                log: events_compiled.EventLog | None = None, replay: bool = False,
                start: np.ndarray | None = None) -> events_compiled.SplatArguments:
@@ -201,7 +129,7 @@ class NativeMeshTracer:
             losses[kind] += total
         return splat
 
-    def _run(self, d: np.ndarray, chunk: _Chunk, sc: mk.MeshConstants, wait_at_top: bool, losses: dict[str, float],
+    def _run(self, d: np.ndarray, chunk: PhotonChunk, sc: mk.MeshConstants, wait_at_top: bool, losses: dict[str, float],
              tape: list | None = None, events_log: list | None = None, events_replay: list | None = None) -> None:
         """Advance the chunk's photons until none is under way (or each has had max_depth
         events), adding lost flux to ``losses``. Once fewer than half of the photons worked on are
@@ -219,7 +147,7 @@ class NativeMeshTracer:
                 break
             if count < COMPACT * len(work.state):
                 keep = np.flatnonzero(under_way)
-                _write_back(chunk, index, work)
+                write_back(chunk, index, work)
                 index = keep if index is None else index[keep]
                 work = chunk.take(index)
             n = len(work.state)
@@ -245,9 +173,9 @@ class NativeMeshTracer:
             done = (work.status == mk.UNDER_WAY) & (work.events >= max_depth)
             losses["max_depth"] += float(flux[done].sum())
             work.status[done] = mk.LOST
-        _write_back(chunk, index, work)
+        write_back(chunk, index, work)
 
-    def _reverse(self, d: np.ndarray, chunk: _Chunk, sc: mk.MeshConstants, tape: list, g_state: np.ndarray,
+    def _reverse(self, d: np.ndarray, chunk: PhotonChunk, sc: mk.MeshConstants, tape: list, g_state: np.ndarray,
                  g_heights: np.ndarray) -> None:
         """Run a chunk's recorded events backwards: ``g_state`` (N, STATE), the gradient w.r.t.
         the photons' final states, into ``g_heights`` (threads, m, m)."""
@@ -259,7 +187,7 @@ class NativeMeshTracer:
             if index is not None:
                 g_state[index] = g
 
-    def _splat_inputs(self, chunk: _Chunk, sc: mk.MeshConstants,
+    def _splat_inputs(self, chunk: PhotonChunk, sc: mk.MeshConstants,
                       losses: dict[str, float] | None) -> events_compiled.SplatArguments:
         """The splat arguments of the chunk's photons from their final states, by the numba
         kernels; the flux landing beside the receiver is counted as missing it in ``losses``
@@ -300,7 +228,7 @@ class NativeMeshTracer:
                               lowest)
         return self._prefix
 
-    def _emitted(self, start: int, stop: int) -> _Chunk:
+    def _emitted(self, start: int, stop: int) -> PhotonChunk:
         """Photons start .. stop-1 at the light, as a chunk."""
         batch = self.operator.emitter.batch(start, stop)
         n = batch.direction.shape[1]
@@ -310,9 +238,9 @@ class NativeMeshTracer:
         state[:, mk.DWU:mk.DWU + 3] = batch.direction_diff[0].double().numpy().T
         state[:, mk.DWV:mk.DWV + 3] = batch.direction_diff[1].double().numpy().T
         state[:, mk.FLUX] = batch.flux.double().numpy()
-        return _Chunk.starting(state, batch.channel.numpy().astype(np.int64), np.zeros(n, dtype=np.int64))
+        return PhotonChunk.starting(state, batch.channel.numpy().astype(np.int64), np.zeros(n, dtype=np.int64))
 
-    def _waiting(self, start: int, stop: int, writable: bool = True) -> _Chunk:
+    def _waiting(self, start: int, stop: int, writable: bool = True) -> PhotonChunk:
         """Prefix photons start .. stop-1, about to meet the print, in the order they are traced
         in; their states and event counts are copies to trace in place, or with ``writable=False``
         views of the prefix (read only)."""
@@ -320,7 +248,7 @@ class NativeMeshTracer:
         state, events = pre.state[start:stop], pre.events[start:stop]
         if writable:
             state, events = state.copy(), events.copy()
-        return _Chunk.starting(state, pre.channel[start:stop], events)
+        return PhotonChunk.starting(state, pre.channel[start:stop], events)
 
     def _waiting_chunks(self) -> list[tuple[int, int]]:
         size, total = self.operator.settings.chunk_size, len(self.prefix().state)

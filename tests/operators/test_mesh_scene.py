@@ -22,7 +22,8 @@ from framework.scene.shapes import make_shape
 from operators.heightfield.operator import CausticOperator, OperatorSettings
 from operators.materials import FUSED_SILICA, refractive_indices
 from operators.mesh import events_compiled
-from operators.mesh.operator import MeshSceneOperator, MeshSceneSettings
+from operators.mesh.operator import MeshSceneOperator
+from operators.mesh.settings import MeshSceneSettings
 from operators.mesh.elements import make_element
 from operators.scene import Light, Receiver, Scene
 

@@ -7,7 +7,7 @@ from __future__ import annotations
 import pytest
 
 from operators.heightfield.operator import OperatorSettings
-from operators.mesh.operator import MeshSceneSettings
+from operators.mesh.settings import MeshSceneSettings
 
 BAD = [
     (dict(photons=10.5), r"^photons=10.5 must be an integer >= 1$"),

@@ -14,8 +14,8 @@ from scipy.optimize import brentq
 from operators.heightfield.operator import CausticOperator, OperatorSettings
 from operators.scene import Light, Receiver, Scene, Substrate
 from operators.wavefront.coverage import rasterize_grid, rasterize_triangles
-from operators.wavefront.renderer import (ROW_BLOCK, WavefrontRenderer, grid_flux, grid_solid_angles,
-                                         triangle_solid_angle, wavefront_vertices)
+from operators.wavefront.flux import ROW_BLOCK, grid_flux, grid_solid_angles, triangle_solid_angle
+from operators.wavefront.renderer import WavefrontRenderer, wavefront_vertices
 from tests.operators.conftest import bump
 
 LIGHT_Z, H, S = 10.0, 0.1, -0.05  # the default scene's light height, substrate thickness, receiver plane
