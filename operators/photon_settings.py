@@ -3,48 +3,23 @@
 :class:`PhotonSettings` holds what the height-field and the mesh-scene operators both read (the
 photon count and pattern, the footprints in receiver pixels, the chunk that bounds memory, Fresnel
 weights, the dtype and the CPU kernels); each operator's settings add their own fields and checks
-(operators/heightfield/operator.py, operators/mesh/operator.py). The value checks below are the
-ones every setting of an operator uses, each error one line naming the key and the fix.
+(operators/heightfield/operator.py, operators/mesh/settings.py), all with the value checks of
+operators/values.py.
 """
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import torch
 
 from operators.emission import CELL_FOOTPRINT, check_footprint
+from operators.values import checked_flag, checked_number, checked_whole
 
-__all__ = ["DTYPES", "KERNELS", "PhotonSettings", "checked_flag", "checked_number", "checked_whole"]
+__all__ = ["DTYPES", "KERNELS", "PhotonSettings"]
 
 DTYPES = {"float32": torch.float32, "float64": torch.float64}
 KERNELS = ("c", "numba")  # which CPU photon kernels trace: the compiled extension's, or numba's
-
-
-def checked_whole(value: object, key: str, least: int | None = None) -> int:
-    """``value`` as an int: a whole number (1048576 or 1048576.0, not True), at least ``least``."""
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or int(value) != value:
-        raise ValueError(f"{key}={value!r} must be an integer" + ("" if least is None else f" >= {least}"))
-    if least is not None and value < least:
-        raise ValueError(f"{key}={value!r} must be an integer >= {least}")
-    return int(value)
-
-
-def checked_number(value: object, key: str, least: float = -math.inf, positive: bool = False, unit: str = "") -> float:
-    """``value`` as a float: a finite number (not True), at least ``least``, above 0 with ``positive``."""
-    finite = not isinstance(value, bool) and isinstance(value, (int, float)) and math.isfinite(value)
-    if not finite or value < least or (positive and not value > 0.0):
-        kind = "a positive number" if positive else ("a finite number" if least == -math.inf else f"a number >= {least:g}")
-        raise ValueError(f"{key}={value!r} must be {kind}" + (f" ({unit})" if unit else ""))
-    return float(value)
-
-
-def checked_flag(value: object, key: str) -> bool:
-    """``value`` if it is a bool."""
-    if not isinstance(value, bool):
-        raise ValueError(f"{key}={value!r} must be true or false")
-    return value
 
 
 @dataclass(frozen=True)
@@ -88,7 +63,7 @@ class PhotonSettings:
         self._set("chunk_size", checked_whole(self.chunk_size, "operator.chunk_size", 1))
         self._set("footprint_px", check_footprint(self.footprint_px))
         for key in ("min_footprint_px", "max_pixel_radius"):
-            self._set(key, checked_number(getattr(self, key), f"operator.{key}", positive=True, unit="pixels"))
+            self._set(key, checked_number(getattr(self, key), f"operator.{key}", above=0.0, unit="pixels"))
         if not self.min_footprint_px < self.max_pixel_radius:
             raise ValueError(f"need operator.min_footprint_px ({self.min_footprint_px}) < operator.max_pixel_radius "
                              f"({self.max_pixel_radius})")

@@ -14,7 +14,7 @@ from typing import Any
 
 import torch
 
-__all__ = ["described", "checked_flag", "checked_height_field", "checked_number", "checked_whole"]
+__all__ = ["checked_flag", "checked_height_field", "checked_number", "checked_whole", "described", "is_number"]
 
 
 def described(value: object) -> str:
@@ -24,39 +24,50 @@ def described(value: object) -> str:
     return type(value).__name__
 
 
-def _is_number(value: object) -> bool:
+def is_number(value: object) -> bool:
+    """Whether ``value`` is an int or a float (a bool is not a number here)."""
     return not isinstance(value, bool) and isinstance(value, (int, float))
 
 
-def _interval(least: float, most: float, above: float | None, below: float | None) -> str:
-    low = f"> {above:g}" if above is not None else (f">= {least:g}" if least != -math.inf else "")
-    high = f"< {below:g}" if below is not None else (f"<= {most:g}" if most != math.inf else "")
+def _number_phrase(least: float, most: float, above: float | None, below: float | None) -> str:
+    """'must be a positive number', 'must be a number in [0, 1)', ... for the bounds given."""
+    low = None if above is None and least == -math.inf else ("(" if above is not None else "[",
+                                                               above if above is not None else least)
+    high = None if below is None and most == math.inf else (")" if below is not None else "]",
+                                                            below if below is not None else most)
     if low and high:
-        return f"in {'(' if above is not None else '['}{above if above is not None else least:g}, " \
-               f"{below if below is not None else most:g}{')' if below is not None else ']'}"
-    return low or high
+        return f"must be a number in {low[0]}{low[1]:g}, {high[1]:g}{high[0]}"
+    if low:
+        if low == ("(", 0):
+            return "must be a positive number"
+        return f"must be a number {'>' if low[0] == '(' else '>='} {low[1]:g}"
+    if high:
+        return f"must be a number {'<' if high[0] == ')' else '<='} {high[1]:g}"
+    return "must be a finite number"
 
 
 def checked_number(value: Any, key: str, least: float = -math.inf, most: float = math.inf, *,
                    above: float | None = None, below: float | None = None, must: str | None = None,
-                   example: str | None = None) -> float:
+                   unit: str | None = None, example: str | None = None) -> float:
     """``value`` as a float: a finite number (not a bool) with ``least <= value <= most`` and, where
     given, ``value > above`` and ``value < below``; else a ValueError ``<key>=<value> must be ...``
-    (``must`` replaces the generated phrase; ``example`` is appended as ``, e.g. <example>``)."""
-    ok = _is_number(value) and math.isfinite(value) and least <= value <= most
+    (``must`` replaces the generated phrase; ``unit`` is appended in parentheses, ``example`` as
+    ``, e.g. <example>``)."""
+    ok = is_number(value) and math.isfinite(value) and least <= value <= most
     ok = ok and (above is None or value > above) and (below is None or value < below)
     if not ok:
-        interval = _interval(least, most, above, below)
-        phrase = must or (f"must be a number {interval}" if interval else "must be a finite number")
-        raise ValueError(f"{key}={value!r} {phrase}" + (f", e.g. {example}" if example else ""))
+        phrase = must or _number_phrase(least, most, above, below)
+        raise ValueError(f"{key}={value!r} {phrase}" + (f" ({unit})" if unit else "")
+                         + (f", e.g. {example}" if example else ""))
     return float(value)
 
 
 def checked_whole(value: Any, key: str, least: int | None = None, most: int | None = None, *,
                   must: str | None = None, example: str | None = None) -> int:
-    """``value`` as an int: a whole number (8 or 8.0, not True) in [least, most] where given; else a
-    ValueError ``<key>=<value> must be an integer >= <least>`` (or ``must``, and ``example``)."""
-    ok = _is_number(value) and math.isfinite(value) and int(value) == value
+    """``value`` as an int: a whole number (8 or 8.0, as YAML's 1e6 reads; not True) in [least, most]
+    where given; else a ValueError ``<key>=<value> must be an integer >= <least>`` (or ``must``, and
+    ``example``)."""
+    ok = is_number(value) and math.isfinite(value) and int(value) == value
     ok = ok and (least is None or value >= least) and (most is None or value <= most)
     if not ok:
         bounds = " and ".join(b for b in ("" if least is None else f">= {least}", "" if most is None else f"<= {most}") if b)

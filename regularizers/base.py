@@ -17,7 +17,7 @@ from typing import ClassVar
 
 import torch
 
-from ._checks import check_positive
+from operators.values import checked_number
 
 
 @dataclass(frozen=True)
@@ -45,7 +45,7 @@ class RegularizerContext:
             raise ValueError(f"mask must be a 2-D torch.Tensor (m, m), got {shape}; pass one mask image")
         if self.mask.dtype != torch.bool:
             raise ValueError(f"mask has dtype {self.mask.dtype}, expected torch.bool; pass mask > 0.5 or mask.bool()")
-        check_positive(self.pixel_area, "pixel_area", "pass the area of one height-field sample, e.g. (2/m)**2")
+        checked_number(self.pixel_area, "pixel_area", above=0.0, unit="the area of one height-field sample", example="(2/m)**2")
         if self.design is not None and (not isinstance(self.design, torch.Tensor)
                                         or tuple(self.design.shape) != tuple(self.mask.shape)):
             shape = tuple(self.design.shape) if isinstance(self.design, torch.Tensor) else type(self.design).__name__
@@ -136,7 +136,7 @@ class Regularizer(_UsesContext, ABC):
 
     @staticmethod
     def _check_step(step: float) -> float:
-        return check_positive(step, "step", "pass the solver step size tau > 0")
+        return checked_number(step, "step", above=0.0, unit="the solver step size tau")
 
 
 class PostStepUpdate(_UsesContext, ABC):

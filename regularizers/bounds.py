@@ -8,7 +8,9 @@ import math
 
 import torch
 
-from ._checks import check_bounds, check_height_field, check_nonnegative
+from operators.values import checked_height_field, checked_number
+
+from ._checks import checked_bounds
 from .base import Regularizer
 from .shrinkage import clamp_on_mask
 
@@ -31,23 +33,23 @@ class HeightBounds(Regularizer):
     smooth = False
 
     def __init__(self, p1: float = 0.0, p2: float = 0.3, atol: float = 1e-12) -> None:
-        self.p1, self.p2 = check_bounds(p1, p2)
-        self.atol = check_nonnegative(atol, "atol", "pass a small feasibility tolerance such as 1e-12")
+        self.p1, self.p2 = checked_bounds(p1, p2)
+        self.atol = checked_number(atol, "atol", least=0.0, unit="a feasibility tolerance", example="1e-12")
 
     def value(self, d: torch.Tensor) -> float:
         """0.0 if d lies in C (within ``atol``), else ``inf``."""
-        check_height_field(d)
+        checked_height_field(d)
         mask = self._mask_for(d)
         gap = (d - clamp_on_mask(d, mask, self.p1, self.p2)).abs().max()
         return 0.0 if float(gap) <= self.atol else math.inf
 
     def project(self, d: torch.Tensor) -> torch.Tensor:
         """Projection of d onto C: clamp to [p1, p2] on the mask, 0 off it; shape (m, m)."""
-        check_height_field(d)
+        checked_height_field(d)
         return clamp_on_mask(d, self._mask_for(d), self.p1, self.p2)
 
     def prox(self, d: torch.Tensor, step: float) -> torch.Tensor:
         """Projection of d onto C, shape (m, m)."""
-        check_height_field(d)
+        checked_height_field(d)
         self._check_step(step)
         return clamp_on_mask(d, self._mask_for(d), self.p1, self.p2)

@@ -6,8 +6,9 @@ import math
 
 import torch
 
+from operators.values import checked_height_field, checked_number
 
-from ._checks import check_bounds, check_height_field, check_nonnegative
+from ._checks import checked_bounds
 from .base import Regularizer
 from .shrinkage import clamp_on_mask, soft_shrink
 
@@ -39,13 +40,13 @@ class PixelL1Bounds(Regularizer):
     smooth = False
 
     def __init__(self, alpha: float = 2e-3, p1: float = 0.0, p2: float = 0.3, atol: float = 1e-12) -> None:
-        self.alpha = check_nonnegative(alpha, "alpha", "pass the L1 weight alpha_p >= 0 (paper: 2e-3)")
-        self.p1, self.p2 = check_bounds(p1, p2)
-        self.atol = check_nonnegative(atol, "atol", "pass a small feasibility tolerance such as 1e-12")
+        self.alpha = checked_number(alpha, "alpha", least=0.0, unit="the L1 weight alpha_p", example="2e-3 (the paper)")
+        self.p1, self.p2 = checked_bounds(p1, p2)
+        self.atol = checked_number(atol, "atol", least=0.0, unit="a feasibility tolerance", example="1e-12")
 
     def value(self, d: torch.Tensor) -> float:
         """alpha * ||d||_1 if d is in C (within ``atol``), else ``inf``."""
-        check_height_field(d)
+        checked_height_field(d)
         gap = (d - clamp_on_mask(d, self._mask_for(d), self.p1, self.p2)).abs().max()
         if float(gap) > self.atol:
             return math.inf
@@ -53,11 +54,11 @@ class PixelL1Bounds(Regularizer):
 
     def project(self, d: torch.Tensor) -> torch.Tensor:
         """Projection of d onto C: clamp to [p1, p2] on the mask, 0 off it; shape (m, m)."""
-        check_height_field(d)
+        checked_height_field(d)
         return clamp_on_mask(d, self._mask_for(d), self.p1, self.p2)
 
     def prox(self, d: torch.Tensor, step: float) -> torch.Tensor:
         """Eq. (7): clamp_[p1,p2](S(d, step * alpha)) on the mask, 0 off it; shape (m, m)."""
-        check_height_field(d)
+        checked_height_field(d)
         k = self._check_step(step) * self.alpha
         return clamp_on_mask(soft_shrink(d, k), self._mask_for(d), self.p1, self.p2)

@@ -11,7 +11,9 @@ import math
 
 import torch
 
-from ._checks import check_bounds, check_height_field, check_nonnegative
+from operators.values import checked_height_field, checked_number
+
+from ._checks import checked_bounds
 from .base import Regularizer
 from .shrinkage import clamp_on_mask, soft_shrink
 
@@ -35,8 +37,8 @@ class PixelL1DesignBounds(Regularizer):
     smooth = False
 
     def __init__(self, alpha: float = 2e-3, p1: float = 0.0, p2: float = 0.3) -> None:
-        self.alpha = check_nonnegative(alpha, "alpha", "pass the weight of the deviation from the design, e.g. 2e-3")
-        self.p1, self.p2 = check_bounds(p1, p2)
+        self.alpha = checked_number(alpha, "alpha", least=0.0, unit="the weight of the deviation from the design", example="2e-3")
+        self.p1, self.p2 = checked_bounds(p1, p2)
 
     def _design_for(self, d: torch.Tensor) -> torch.Tensor:
         design = self.ctx.design
@@ -50,19 +52,19 @@ class PixelL1DesignBounds(Regularizer):
 
     def value(self, d: torch.Tensor) -> float:
         """alpha ||d - c||_1 if d is in C (within 1e-12), else ``inf``."""
-        check_height_field(d)
+        checked_height_field(d)
         if float((d - self.project(d)).abs().max()) > 1e-12:
             return math.inf
         return self.alpha * float((d - self._design_for(d)).abs().sum())
 
     def project(self, d: torch.Tensor) -> torch.Tensor:
         """Projection onto C: clamp to [p1, p2] on the mask, 0 off it; shape (m, m)."""
-        check_height_field(d)
+        checked_height_field(d)
         return clamp_on_mask(d, self._mask_for(d), self.p1, self.p2)
 
     def prox(self, d: torch.Tensor, step: float) -> torch.Tensor:
         """I_[p1,p2](c + S(d - c, step alpha)) on the mask, 0 off it; shape (m, m)."""
-        check_height_field(d)
+        checked_height_field(d)
         c = self._design_for(d)
         return clamp_on_mask(c + soft_shrink(d - c, self._check_step(step) * self.alpha), self._mask_for(d),
                              self.p1, self.p2)

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import torch
 
+from operators.values import checked_height_field, checked_number
 
-from ._checks import check_height_field, check_nonnegative
 from .base import Regularizer
 from .shrinkage import soft_shrink
 
@@ -24,14 +24,14 @@ class PixelL1(Regularizer):
     smooth = False
 
     def __init__(self, alpha: float = 2e-3) -> None:
-        self.alpha = check_nonnegative(alpha, "alpha", "pass the L1 weight alpha_p >= 0 (paper: 2e-3)")
+        self.alpha = checked_number(alpha, "alpha", least=0.0, unit="the L1 weight alpha_p", example="2e-3 (the paper)")
 
     def value(self, d: torch.Tensor) -> float:
         """alpha * ||d||_1 for d of shape (m, m)."""
-        check_height_field(d)
+        checked_height_field(d)
         return self.alpha * float(d.abs().sum())
 
     def prox(self, d: torch.Tensor, step: float) -> torch.Tensor:
         """S(d, step * alpha), shape (m, m)."""
-        check_height_field(d)
+        checked_height_field(d)
         return soft_shrink(d, self._check_step(step) * self.alpha)

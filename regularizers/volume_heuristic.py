@@ -7,8 +7,9 @@ import math
 import torch
 import torch.nn.functional as F
 
+from operators.values import checked_height_field, checked_number
 
-from ._checks import check_height_field, check_nonnegative, check_relative_tolerance
+from ._checks import checked_relative_tolerance
 from .base import PostStepUpdate, RegularizerContext
 
 
@@ -90,8 +91,8 @@ class VolumeHeuristic(VolumeBand, PostStepUpdate):
     needs_volume = True  # the run's checks refuse measured data without data.volume (framework/reconstruction/run_checks.py)
 
     def __init__(self, gamma: float = 0.1, v_eps: float = 0.25, r_v: int = 2) -> None:
-        self.gamma = check_nonnegative(gamma, "gamma", "pass the heuristic strength gamma >= 0 (paper: 0.1)")
-        self.v_eps = check_relative_tolerance(v_eps)
+        self.gamma = checked_number(gamma, "gamma", least=0.0, unit="the heuristic strength", example="0.1 (the paper)")
+        self.v_eps = checked_relative_tolerance(v_eps)
         if int(r_v) != r_v or int(r_v) < 0:
             raise ValueError(f"window radius r_v={r_v!r} must be a non-negative integer; the paper uses 2")
         self.r_v = int(r_v)
@@ -103,7 +104,7 @@ class VolumeHeuristic(VolumeBand, PostStepUpdate):
 
     def __call__(self, d: torch.Tensor) -> torch.Tensor:
         """Apply eq. (8) once; returns a new tensor of d's shape (m, m), dtype and device."""
-        check_height_field(d)
+        checked_height_field(d)
         mask = self._mask_for(d)
         q1, q2 = self.band
         v = float(d.sum())

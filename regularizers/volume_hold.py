@@ -17,7 +17,9 @@ from __future__ import annotations
 
 import torch
 
-from ._checks import check_bounds, check_height_field, check_relative_tolerance
+from operators.values import checked_height_field
+
+from ._checks import checked_bounds, checked_relative_tolerance
 from .base import PostStepUpdate, RegularizerContext
 from .shrinkage import clamp_on_mask
 from .volume_heuristic import VolumeBand
@@ -41,8 +43,8 @@ class VolumeHold(VolumeBand, PostStepUpdate):
     holds_volume = True  # a stack's calibrated distance moves without a factor on the heights (calibration.py)
 
     def __init__(self, tolerance: float = 0.02, p1: float = 0.0, p2: float = 0.3) -> None:
-        self.tolerance = check_relative_tolerance(tolerance, "tolerance")
-        self.p1, self.p2 = check_bounds(p1, p2)
+        self.tolerance = checked_relative_tolerance(tolerance, "tolerance")
+        self.p1, self.p2 = checked_bounds(p1, p2)
 
     def setup(self, ctx: RegularizerContext) -> None:
         """Store the context and the band [q1, q2] (a sum of heights); refuse a band the bounds cannot
@@ -52,7 +54,7 @@ class VolumeHold(VolumeBand, PostStepUpdate):
 
     def __call__(self, d: torch.Tensor) -> torch.Tensor:
         """d (m, m) held in bounds, mask and band; a new tensor of d's dtype and device."""
-        check_height_field(d)
+        checked_height_field(d)
         printed = self._mask_for(d)
         moving = printed
         if float(torch.clamp(d[printed], self.p1, self.p2).sum()) < self.band[0]:  # raise only the glass there is

@@ -12,8 +12,9 @@ import math
 
 import torch
 
+from operators.values import checked_height_field, checked_number
 
-from ._checks import check_bounds, check_height_field, check_nonnegative, check_positive, check_relative_tolerance
+from ._checks import checked_bounds, checked_relative_tolerance
 from .base import Regularizer, RegularizerContext
 from .shrinkage import clamp_on_mask, soft_shrink
 from .volume_heuristic import VolumeBand
@@ -69,10 +70,10 @@ class VolumeSlabL1Bounds(VolumeBand, Regularizer):
         tol: float = 1e-12,
         max_iter: int = 200,
     ) -> None:
-        self.alpha = check_nonnegative(alpha, "alpha", "pass the L1 weight alpha_p >= 0 (paper: 2e-3)")
-        self.p1, self.p2 = check_bounds(p1, p2)
-        self.v_eps = check_relative_tolerance(v_eps)
-        self.tol = check_positive(tol, "tol", "pass a small relative tolerance such as 1e-12")
+        self.alpha = checked_number(alpha, "alpha", least=0.0, unit="the L1 weight alpha_p", example="2e-3 (the paper)")
+        self.p1, self.p2 = checked_bounds(p1, p2)
+        self.v_eps = checked_relative_tolerance(v_eps)
+        self.tol = checked_number(tol, "tol", above=0.0, unit="a relative tolerance", example="1e-12")
         if int(max_iter) < 1:
             raise ValueError(f"max_iter={max_iter!r} must be >= 1; 200 bisection steps reach float64 precision")
         self.max_iter = int(max_iter)
@@ -84,7 +85,7 @@ class VolumeSlabL1Bounds(VolumeBand, Regularizer):
 
     def value(self, d: torch.Tensor, rtol: float = 1e-9) -> float:
         """alpha ||d||_1 if d meets bounds, mask and band (relative tolerance ``rtol``), else ``inf``."""
-        check_height_field(d)
+        checked_height_field(d)
         q1, q2 = self.band
         mask = self._mask_for(d)
         gap = float((d - clamp_on_mask(d, mask, self.p1, self.p2)).abs().max())
@@ -96,7 +97,7 @@ class VolumeSlabL1Bounds(VolumeBand, Regularizer):
 
     def prox(self, d: torch.Tensor, step: float) -> torch.Tensor:
         """clamp_[p1,p2](S(d - lambda, step alpha)) on the mask, 0 off it; shape (m, m)."""
-        check_height_field(d)
+        checked_height_field(d)
         k = self._check_step(step) * self.alpha
         mask = self._mask_for(d)
         return clamp_on_mask(soft_shrink(d - self.shift(d, step), k), mask, self.p1, self.p2)
@@ -104,12 +105,12 @@ class VolumeSlabL1Bounds(VolumeBand, Regularizer):
     def project(self, d: torch.Tensor) -> torch.Tensor:
         """The nearest point of the set where :meth:`value` is finite (bounds, mask and band): the
         prox without the l1 term, shape (m, m)."""
-        check_height_field(d)
+        checked_height_field(d)
         return clamp_on_mask(d - self._multiplier(d, 0.0), self._mask_for(d), self.p1, self.p2)
 
     def shift(self, d: torch.Tensor, step: float) -> float:
         """The multiplier lambda of the slab constraint for prox_{step R}(d) (0 inside the band)."""
-        check_height_field(d)
+        checked_height_field(d)
         return self._multiplier(d, self._check_step(step) * self.alpha)
 
     def _multiplier(self, d: torch.Tensor, k: float) -> float:

@@ -22,8 +22,8 @@ import numpy as np
 import pywt
 import torch
 
+from operators.values import checked_height_field, checked_number
 
-from ._checks import check_height_field, check_nonnegative
 from .base import CoefficientRegularizer, CoefficientTransform, RegularizerContext
 from .shrinkage import soft_shrink
 
@@ -121,7 +121,7 @@ class WaveletTransform(CoefficientTransform):
 
     # --- checks --------------------------------------------------------------------------------
     def _check_grid(self, d: torch.Tensor) -> None:
-        check_height_field(d)
+        checked_height_field(d)
         if tuple(d.shape) != self.shape:
             raise ValueError(
                 f"height field shape {tuple(d.shape)} does not match the transform grid {self.shape}; "
@@ -159,7 +159,7 @@ class WaveletL1(CoefficientRegularizer):
     smooth = False
 
     def __init__(self, alpha_w: float = 1e-2, wavelet: str = "db3", levels: int = 3) -> None:
-        self.alpha_w = check_nonnegative(alpha_w, "alpha_w", "pass the wavelet L1 weight >= 0 (paper: 1e-2)")
+        self.alpha_w = checked_number(alpha_w, "alpha_w", least=0.0, unit="the wavelet L1 weight", example="1e-2 (the paper)")
         self.wavelet = wavelet
         self.levels = int(levels)
         self._transform: WaveletTransform | None = None
@@ -178,7 +178,7 @@ class WaveletL1(CoefficientRegularizer):
 
     def value(self, d: torch.Tensor) -> float:
         """alpha_w * ||W d||_1 for d of shape (m, m)."""
-        check_height_field(d)
+        checked_height_field(d)
         return self.alpha_w * float(self.transform_for(tuple(d.shape)).forward(d).abs().sum())
 
     def prox_coefficients(self, w: torch.Tensor, step: float, metric: torch.Tensor | None = None) -> torch.Tensor:
@@ -191,6 +191,6 @@ class WaveletL1(CoefficientRegularizer):
 
     def prox(self, d: torch.Tensor, step: float) -> torch.Tensor:
         """W^-1 S(W d, step * alpha_w), shape (m, m) (exact because W is orthogonal)."""
-        check_height_field(d)
+        checked_height_field(d)
         transform = self.transform_for(tuple(d.shape))
         return transform.inverse(self.prox_coefficients(transform.forward(d), step))

@@ -138,7 +138,7 @@ def test_the_example_regularizer_keeps_the_contract_and_its_prox_is_the_closed_f
     assert torch.allclose(0.3 * 0.5 * x + (x - d), torch.zeros_like(d), atol=1e-15)
     assert l2.value(d) == pytest.approx(0.25 * float((d ** 2).sum()))
     for bad in (-1.0, float("nan"), True, "0.1"):
-        with pytest.raises(ValueError, match="alpha=.* must be a finite number >= 0"):
+        with pytest.raises(ValueError, match="alpha=.* must be a number >= 0, e.g. 1e-3"):
             PixelL2(bad)
 
 
@@ -156,7 +156,7 @@ def test_the_example_data_source_keeps_the_contract_and_refuses_bad_archives(kno
                           ("small.npz", r"caustic has shape \(1, 10, 10\), the operator renders")):
         with pytest.raises((ValueError, FileNotFoundError), match=message):
             NpzData(path).check(request)
-    with pytest.raises(ValueError, match="data.delta=1.5 must lie in"):
+    with pytest.raises(ValueError, match=r"data.delta=1.5 must be a number in \(0, 1\)"):
         NpzData("caustic.npz", delta=1.5)
 
 

@@ -9,10 +9,9 @@ Chosen with ``+solver.regularizers.l2_pixel={alpha: 1e-3}`` (docs/plugins.md, "A
 
 from __future__ import annotations
 
-import math
-
 import torch
 
+from operators.values import checked_number
 from regularizers.base import Regularizer
 
 
@@ -27,9 +26,7 @@ class PixelL2(Regularizer):
     smooth = True
 
     def __init__(self, alpha: float = 1e-3) -> None:
-        if isinstance(alpha, bool) or not isinstance(alpha, (int, float)) or not (math.isfinite(alpha) and alpha >= 0):
-            raise ValueError(f"regularizer l2_pixel: alpha={alpha!r} must be a finite number >= 0, e.g. 1e-3")
-        self.alpha = float(alpha)
+        self.alpha = checked_number(alpha, "alpha", least=0.0, example="1e-3")  # one line naming key and fix
 
     @staticmethod
     def example_settings() -> dict[str, float]:

@@ -9,7 +9,6 @@ Chosen with ``data=npz data.path=caustic.npz data.delta=0.05`` (docs/plugins.md,
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 
 import numpy as np
@@ -17,6 +16,7 @@ import torch
 
 from framework.core.contracts.data_source import DataRequest, DataSource, PrintFacts
 from framework.core.data import ReconstructionData
+from operators.values import checked_number
 
 
 class NpzData(DataSource):
@@ -31,12 +31,9 @@ class NpzData(DataSource):
     def __init__(self, path: str | None = None, delta: float = 0.05, volume: float | None = None) -> None:
         if not path:
             raise ValueError("data=npz needs data.path=<archive .npz with arrays caustic and mask>")
-        if isinstance(delta, bool) or not isinstance(delta, (int, float)) or not 0.0 < delta < 1.0:
-            raise ValueError(f"data.delta={delta!r} must lie in (0, 1); 5% noise is 0.05")
-        if volume is not None and (isinstance(volume, bool) or not isinstance(volume, (int, float))
-                                   or not (math.isfinite(volume) and volume > 0)):
-            raise ValueError(f"data.volume={volume!r} must be a positive number (scene units^3) or null")
-        self.path, self.delta, self.volume = path, float(delta), volume
+        self.path, self.delta = path, checked_number(delta, "data.delta", above=0.0, below=1.0, example="0.05 (5% noise)")
+        self.volume = None if volume is None else checked_number(volume, "data.volume", above=0.0,
+                                                                 unit="scene units^3, or null")
 
     def _arrays(self, request: DataRequest) -> tuple[torch.Tensor, torch.Tensor]:
         """(caustic (c, n, n) float64, mask (m, m) bool), read and checked against the request."""

@@ -16,7 +16,7 @@ from torch import Tensor
 
 from framework.core.checkpoint import save_checkpoint
 from framework.core.solver_loop import Callback
-from framework.core.values import described
+from operators.values import described
 
 if TYPE_CHECKING:
     from framework.core.solver_loop import IterationRecord

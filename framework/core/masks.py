@@ -13,7 +13,7 @@ from typing import Literal
 import torch
 import torch.nn.functional as F
 
-from framework.core.values import described
+from operators.values import described
 
 __all__ = ["mask_from_height_field"]
 

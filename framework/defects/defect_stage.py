@@ -21,7 +21,7 @@ import torch
 
 from framework.core.plugin_config import as_mapping
 from framework.core.problem import Problem
-from framework.core.values import non_negative_number, positive_int, positive_number
+from operators.values import checked_number, checked_whole
 from framework.defects.fit import Defect
 from framework.defects.information import column_norms, height_uncertainty, pixel_noise, pixels_used
 from framework.defects.pursuit import Search, find_defects
@@ -68,14 +68,14 @@ class DefectSettings:
         if settings.enabled not in ENABLED:
             raise ValueError(f"defects.enabled={settings.enabled!r}; use {' | '.join(ENABLED)}")
         for key in ("min_deviation", "z_min", "grow", "cluster_mm", "min_evidence", "model_error_share"):
-            positive_number(getattr(settings, key), f"defects.{key}")
+            checked_number(getattr(settings, key), f"defects.{key}", above=0.0)
         if settings.grow > settings.z_min:
             raise ValueError(f"defects.grow={settings.grow} exceeds defects.z_min={settings.z_min}; the extent's "
                              "level must not be above the peak's")
         for key in ("max_candidates", "probes", "photons", "evaluations"):
-            positive_int(getattr(settings, key), f"defects.{key}")
+            checked_whole(getattr(settings, key), f"defects.{key}", least=1)
         for key in ("tolerance", "tolerance_mm"):
-            non_negative_number(getattr(settings, key), f"defects.{key}")
+            checked_number(getattr(settings, key), f"defects.{key}", least=0.0)
         return settings
 
 

@@ -32,7 +32,7 @@ from torch import Tensor
 
 from framework.core.image_metrics import ssim_tensor
 from framework.core.solver_loop import IterationFailed, IterationRecord, IterativeSolver
-from framework.core.values import positive_int
+from operators.values import checked_whole
 from framework.optimization.preconditioner import SobolevPreconditioner
 from framework.optimization.quasi_newton import LbfgsMemory
 from framework.optimization.step_size import LineSearchFailed, backtrack
@@ -178,7 +178,7 @@ class DesignLBFGS(IterativeSolver):
                     smoothing_length: float | None = None, loss: str = "l2", adam_steps: int = 0,
                     adam_lr: float = 2e-4, ssim_weight: float = SSIM_WEIGHT) -> Any:
         """The plugin ``solver/design_lbfgs``: checks the settings, returns the builder."""
-        memory = positive_int(memory, "solver.memory")
+        memory = checked_whole(memory, "solver.memory", least=1)
         weight, step = _positive("penalty_weight", penalty_weight), _positive("first_step", first_step)
         length = None if smoothing_length is None else _positive("smoothing_length", smoothing_length)
         if loss not in LOSSES:

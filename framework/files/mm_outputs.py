@@ -19,7 +19,7 @@ from PIL import Image, PngImagePlugin
 
 from framework.files.plotting import label_xy_axes, save_figure
 from framework.core.units import mm_per_unit as checked_mm_per_unit
-from framework.core.values import positive_number
+from operators.values import checked_number
 
 if TYPE_CHECKING:
     import trimesh
@@ -63,7 +63,7 @@ def glass_mesh(d: np.ndarray, half_width: float, thickness: float, mm_per_unit: 
         half_width: W, scene units. thickness: h, scene units. mm_per_unit: mm per scene unit.
     """
     d = _heights(d, "d")
-    w = positive_number(half_width, "half_width", "length")
+    w = checked_number(half_width, "half_width", above=0.0, unit="scene units")
     scale = _scale(mm_per_unit)
     if isinstance(thickness, bool) or not isinstance(thickness, (int, float)) or not math.isfinite(thickness):
         raise ValueError(f"thickness={thickness!r} must be a finite number (scene units)")
@@ -107,7 +107,7 @@ def write_height_png(path: str | Path, d_mm: np.ndarray, pitch_mm: float) -> Pat
     white = max d_mm; the PNG text keys ``PNG_KEYS`` hold both and the sample pitch in mm.
     """
     d_mm = _heights(d_mm, "d_mm")
-    pitch = positive_number(pitch_mm, "pitch_mm", "length")
+    pitch = checked_number(pitch_mm, "pitch_mm", above=0.0, unit="mm")
     offset = min(float(d_mm.min()), 0.0)
     span = float(d_mm.max()) - offset
     step = span / _FULL_COUNT if span > 0.0 else 1.0
@@ -155,7 +155,8 @@ def deviation_report(d: np.ndarray, design: np.ndarray, grid_half_width: float,
         raise ValueError(f"design has shape {design.shape}, the reconstruction {d.shape}; resample the design "
                          "to the reconstruction's grid")
     scale = _scale(mm_per_unit)
-    spacing = 2.0 * positive_number(grid_half_width, "grid_half_width", "length") / (d.shape[0] - 1)
+    half = checked_number(grid_half_width, "grid_half_width", above=0.0, unit="scene units")
+    spacing = 2.0 * half / (d.shape[0] - 1)
     cell_mm3 = spacing ** 2 * scale ** 3
     error = (d - design) * scale
     printed = (np.abs(d) >= PRINTED) | (np.abs(design) >= PRINTED)
@@ -179,7 +180,7 @@ def save_deviation_figure(path: str | Path, d: np.ndarray, design: np.ndarray, h
     scale = _scale(mm_per_unit)
     design_mm, d_mm = _heights(design, "design") * scale, _heights(d, "d") * scale
     error_um = (d_mm - design_mm) * 1e3
-    w_mm = positive_number(half_width, "half_width", "length") * scale
+    w_mm = checked_number(half_width, "half_width", above=0.0, unit="scene units") * scale
     extent = (-w_mm, w_mm, -w_mm, w_mm)
     low = min(float(design_mm.min()), float(d_mm.min()), 0.0)
     high = max(float(design_mm.max()), float(d_mm.max()), low + 1e-9)

@@ -14,7 +14,7 @@ from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from typing import Any, Callable
 
-from framework.core.values import positive_number
+from operators.values import checked_number
 
 __all__ = ["StepChoice", "StepSizePolicy", "ConstantStep", "BacktrackingStep", "LineSearchFailed", "as_step_policy",
            "backtrack"]
@@ -118,7 +118,7 @@ class ConstantStep(StepSizePolicy):
     """
 
     def __init__(self, tau: float) -> None:
-        self.tau = positive_number(tau, "tau")
+        self.tau = checked_number(tau, "tau", above=0.0)
 
     @property
     def current_step(self) -> float:
@@ -161,7 +161,7 @@ class BacktrackingStep(StepSizePolicy):
         max_trials: int = 30,
         tau_max: float = math.inf,
     ) -> None:
-        self.tau0 = positive_number(tau, "tau")
+        self.tau0 = checked_number(tau, "tau", above=0.0)
         if not 0.0 < float(shrink) < 1.0:
             raise ValueError(f"shrink must lie in (0, 1), got {shrink!r}")
         if not (math.isfinite(float(grow)) and float(grow) >= 1.0):
@@ -213,7 +213,7 @@ class BacktrackingStep(StepSizePolicy):
         return {"tau": self.tau}
 
     def load_state_dict(self, state: dict[str, float]) -> None:
-        self.tau = positive_number(state["tau"], "tau")
+        self.tau = checked_number(state["tau"], "tau", above=0.0)
 
     def __repr__(self) -> str:
         return f"BacktrackingStep(tau0={self.tau0}, shrink={self.shrink}, grow={self.grow}, tau={self.tau})"

@@ -20,7 +20,7 @@ from framework.core.contracts.stopping import StoppingRule
 from framework.core.plugin_config import as_mapping, build_plugin, split_name
 from framework.core.problem import HeightGrid
 from framework.core.registry import declared
-from framework.core.values import positive_int
+from operators.values import checked_whole
 from framework.defects.defect_stage import DefectSettings
 from framework.files.image_io import resolve_path
 from framework.lab.calibration import JointCalibration
@@ -119,7 +119,8 @@ class Reconstruction:
         calibration = JointCalibration.from_config(setup.operator, calibration_cfg, setup.scene, setup.screen_sigma,
                                                    volume_held)
         solver_name, solver_params = split_name(cfg.get("solver"), "solver")
-        max_iter = positive_int(solver_params.pop("max_iter", None), "solver.max_iter")  # the loop's, not the solver's
+        # the loop's cap, not the solver's
+        max_iter = checked_whole(solver_params.pop("max_iter", None), "solver.max_iter", least=1)
         make_solver = build_plugin("solver", solver_name, solver_params, "solver")
         stopping = build_stopping(cfg.get("stopping"))
         start = build_start(cfg.get("initial"))

@@ -16,7 +16,7 @@ from typing import Any
 from framework.core.plugin_config import as_mapping, with_scene_lengths
 from framework.scene.scene_config import to_plain
 from framework.core.units import mm_per_unit
-from framework.core.values import positive_int, positive_number
+from operators.values import checked_number, checked_whole
 
 __all__ = ["PhotonBudgetSettings", "RunSettings", "TrackingSettings", "design_given"]
 
@@ -83,7 +83,7 @@ class PhotonBudgetSettings:
         share = budget.get("noise_share", 0.5)
         if isinstance(share, bool) or not isinstance(share, (int, float)) or not 0.0 < float(share) <= 1.0:
             raise ValueError(f"photon_budget.noise_share={share!r} must lie in (0, 1], e.g. 0.5")
-        return cls(None if start is None else positive_int(start, "photon_budget.start"), float(share))
+        return cls(None if start is None else checked_whole(start, "photon_budget.start", least=1), float(share))
 
 
 @dataclass(frozen=True)
@@ -136,8 +136,8 @@ class RunSettings:
                 "data": data.get("name"), "operator": (plain.get("operator") or {}).get("name"),
                 "solver": (plain.get("solver") or {}).get("name")}
         return cls(plain, mm, _seed(plain.get("seed", 0)), method,
-                   positive_int(plain.get("checkpoint_every"), "checkpoint_every"),
+                   checked_whole(plain.get("checkpoint_every"), "checkpoint_every", least=1),
                    bool(plain.get("compile_in_background", True)), plain.get("resume"),
                    TrackingSettings.parse(plain.get("tracking")), tags, design_given(plain),
-                   positive_number(morozov.get("tau_dis", 1.0), "stopping.morozov.tau_dis"),
+                   checked_number(morozov.get("tau_dis", 1.0), "stopping.morozov.tau_dis", above=0.0),
                    PhotonBudgetSettings.parse(plain.get("photon_budget")))

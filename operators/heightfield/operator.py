@@ -33,7 +33,8 @@ from operators.emission import LightEmitter
 from operators.heightfield.trace_native import FusedTracer, HitCache
 from operators.light_paths import Arrivals, straight_landing
 from operators.kernels.numba_settings import to_numpy
-from operators.photon_settings import DTYPES, PhotonSettings, checked_flag, checked_number
+from operators.photon_settings import DTYPES, PhotonSettings
+from operators.values import checked_flag, checked_number
 from operators.photon_operator import PhotonOperator, backward_through_splat, check_setting_keys, filter_radius_px
 from operators.heightfield.precompile import BackgroundCompile
 from operators.scene import Scene

@@ -6,7 +6,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from operators.photon_settings import PhotonSettings, checked_flag, checked_number, checked_whole
+from operators.photon_settings import PhotonSettings
+from operators.values import checked_flag, checked_number, checked_whole
 
 __all__ = ["MeshSceneSettings"]
 
@@ -43,4 +44,4 @@ class MeshSceneSettings(PhotonSettings):
                                                  unit="MiB; 0: off"))
         if self.aperture_half_width is not None:
             self._set("aperture_half_width", checked_number(self.aperture_half_width, "operator.aperture_half_width",
-                                                            positive=True, unit="scene units, or null"))
+                                                            above=0.0, unit="scene units, or null"))

@@ -182,7 +182,7 @@ def test_unknown_format_is_refused_before_anything_is_written(tmp_path):
 def test_other_bad_inputs_name_the_value(tmp_path):
     with pytest.raises(ValueError, match=r"design has shape \(4, 4\), the reconstruction \(3, 3\)"):
         deviation_report(np.zeros((3, 3)), np.zeros((4, 4)), W, MM)
-    with pytest.raises(ValueError, match=r"half_width=0.0 must be a finite length > 0"):
+    with pytest.raises(ValueError, match=r"half_width=0.0 must be a positive number \(scene units\)"):
         glass_mesh(np.zeros((3, 3)), 0.0, H, MM)
     Image.fromarray(np.zeros((4, 4), dtype=np.uint16)).save(tmp_path / "plain.png")
     with pytest.raises(ValueError, match=r"has no PNG text key 'mm_per_count'"):

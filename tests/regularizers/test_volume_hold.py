@@ -84,5 +84,5 @@ def test_a_sum_above_the_band_ends_on_its_upper_edge() -> None:
 def test_an_unreachable_volume_is_refused() -> None:
     with pytest.raises(ValueError, match=r"volume_hold: the volume band .* unreachable .* check data.volume"):
         hold(22 * P2 * 1.5)
-    with pytest.raises(ValueError, match=r"tolerance=1.5 must lie in \[0, 1\)"):
+    with pytest.raises(ValueError, match=r"tolerance=1.5 must be a number in \[0, 1\)"):
         VolumeHold(tolerance=1.5)
