@@ -34,6 +34,7 @@ from experiments.configs import chooses_start, reconstruct_config  # noqa: E402
 from framework.scene.scene_config import build_scene  # noqa: E402
 from framework.reconstruction.reconstruction import run_reconstruction  # noqa: E402
 from framework.lab.width_search import MIN_RISE, WidthProfile, search_width  # noqa: E402
+from operators.values import checked_whole  # noqa: E402
 
 GRID_PX = (0.35, 0.7, 1.4, 2.8)
 # The best fit must come within this factor of the noise level for its width to count: fits far
@@ -122,8 +123,7 @@ def profile_figure(result: dict[str, Any], path: Path) -> None:
 def calibrate(overrides: list[str], work: Path, widths: tuple[float, ...] = GRID_PX, iterations: int = 60,
               tolerance: float = 0.05) -> dict[str, Any]:
     """Search the width, write screen_calibration.json and screen_profile.png into ``work``; returns the result."""
-    if isinstance(iterations, bool) or not isinstance(iterations, int) or iterations < 1:
-        raise ValueError(f"--iterations={iterations!r} must be an integer >= 1, e.g. 60")
+    iterations = checked_whole(iterations, "--iterations", 1, example="60")
     runs = ProfileRuns(overrides, work, iterations)
     result = runs.summary(search_width(runs.misfit, widths, tolerance=tolerance))
     result["verdict"] = verdict(result)

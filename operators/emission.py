@@ -43,6 +43,7 @@ import torch
 
 from operators.light_source import moment_matched, onto_source, patch_variance, receiver_spread
 from operators.scene import Light, Scene
+from operators.values import checked_number, checked_whole
 
 PLASTIC_NUMBER = 1.324717957244746
 CELL_FOOTPRINT = "cell"  # footprint_px setting: footprints the size of the photon's emission cell
@@ -66,10 +67,8 @@ def check_footprint(value: object) -> float | str:
     """``operator.footprint_px`` checked: ``"cell"`` or a positive number of receiver pixels."""
     if value == CELL_FOOTPRINT:
         return CELL_FOOTPRINT
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not (math.isfinite(value) and value > 0.0):
-        raise ValueError(f"operator.footprint_px={value!r} must be 'cell' (the photon's own emission cell) or a "
-                         "positive number of receiver pixels, e.g. 3")
-    return float(value)
+    return checked_number(value, "operator.footprint_px", above=0.0, example="3", must="must be 'cell' (the "
+                          "photon's own emission cell) or a positive number of receiver pixels")
 
 
 @dataclass
@@ -92,9 +91,8 @@ class LightEmitter:
 
     def __init__(self, scene: Scene, photons: int, seed: int, footprint_px: float | str,
                  dtype: torch.dtype = torch.float32, device: torch.device | str = "cpu") -> None:
-        if int(photons) != photons or photons < scene.channels:
-            raise ValueError(f"photons={photons} must be an integer >= the number of wavelengths "
-                             f"({scene.channels}); typical values are 1e6 - 1e8")
+        photons = checked_whole(photons, "photons", scene.channels, must="must be an integer >= the number of "
+                                f"wavelengths ({scene.channels}); typical values are 1e6 - 1e8")
         footprint_px = check_footprint(footprint_px)
         self.scene = scene
         self.per_channel = int(photons) // scene.channels

@@ -9,6 +9,7 @@ import math
 import torch
 
 from operators.band_filter import separable_correlate
+from operators.values import checked_number
 
 __all__ = ["PSF_TRUNCATE", "ScreenBlur", "pixel_integrated_gaussian"]
 
@@ -60,9 +61,8 @@ class ScreenBlur:
     """
 
     def __init__(self, sigma: float, pixel_size: float) -> None:
-        if isinstance(sigma, bool) or not isinstance(sigma, (int, float)) or not (math.isfinite(sigma) and sigma >= 0):
-            raise ValueError(f"screen.sigma={sigma!r} must be a length >= 0 (scene units or e.g. '0.1 mm')")
-        self.sigma = float(sigma)
+        self.sigma = checked_number(sigma, "screen.sigma", 0.0,
+                                    must="must be a length >= 0 (scene units or e.g. '0.1 mm')")
         self.pixel_size = float(pixel_size)
         self.sigma_px = self.sigma / self.pixel_size
         self.profile, self.profile_derivative = pixel_integrated_gaussian(self.sigma_px)

@@ -7,6 +7,8 @@ from dataclasses import dataclass
 from collections.abc import Mapping
 from typing import Any, Protocol, Sequence
 
+from operators.values import is_number
+
 # The coefficients each material kind takes (``kind`` and ``name`` aside).
 MATERIAL_KEYS: dict[str, tuple[str, ...]] = {
     "fused_silica": (),
@@ -91,8 +93,7 @@ def make_material(spec: dict[str, Any]) -> DispersionCurve:
 def _coefficient(value: Any, where: str, listed: bool) -> None:
     """Refuse a coefficient that is not a number (``listed``: a non-empty list of numbers)."""
     values = value if listed and isinstance(value, (list, tuple)) and value else [value]
-    if (listed and not isinstance(value, (list, tuple))) or any(
-            isinstance(v, bool) or not isinstance(v, (int, float)) for v in values):
+    if (listed and not isinstance(value, (list, tuple))) or not all(is_number(v) for v in values):
         raise ValueError(f"{where}={value!r} must be {'a list of numbers' if listed else 'a number'}, "
                          f"e.g. {where}={'[0.696, 0.408, 0.897]' if listed else '1.5'}")
 

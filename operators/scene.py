@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 
 from operators.materials import FUSED_SILICA, DispersionCurve, refractive_indices
 from operators.units import DEFAULT_MM_PER_UNIT
+from operators.values import checked_whole
 
 
 def _finite(name: str, value: float) -> float:
@@ -62,9 +63,8 @@ class Light:
         if self.shape != "point" and self.size == 0.0:
             raise ValueError(f"light.shape={self.shape} needs light.size > 0 (its diameter or side, e.g. '50 mm'), "
                              "or light.shape=point")
-        if isinstance(self.points, bool) or int(self.points) != self.points or not 1 <= self.points <= MAX_SOURCE_POINTS:
-            raise ValueError(f"light.points={self.points!r} must be an integer in [1, {MAX_SOURCE_POINTS}] "
-                             "(emission points over an extended light)")
+        checked_whole(self.points, "light.points", 1, MAX_SOURCE_POINTS,
+                      must=f"must be an integer in [1, {MAX_SOURCE_POINTS}] (emission points over an extended light)")
 
     @property
     def extended(self) -> bool:
@@ -115,9 +115,8 @@ class Receiver:
     def __post_init__(self) -> None:
         if not _finite("receiver.z", self.z) < 0.0:
             raise ValueError(f"receiver.z={self.z} must lie below the substrate bottom (z < 0), e.g. -0.05")
-        if int(self.resolution) != self.resolution or not 2 <= self.resolution <= MAX_RECEIVER_RESOLUTION:
-            raise ValueError(f"receiver.resolution={self.resolution} must be an integer in [2, "
-                             f"{MAX_RECEIVER_RESOLUTION}] (pixels per side)")
+        checked_whole(self.resolution, "receiver.resolution", 2, MAX_RECEIVER_RESOLUTION,
+                      must=f"must be an integer in [2, {MAX_RECEIVER_RESOLUTION}] (pixels per side)")
         if not _finite("receiver.half_width", self.half_width) > 0.0:
             raise ValueError(f"receiver.half_width={self.half_width} must be positive")
 

@@ -25,6 +25,7 @@ import torch
 
 from operators.photon_operator import PIXEL_SETTINGS, WrappingOperator
 from operators.scene import Scene
+from operators.values import checked_whole, is_number
 
 __all__ = ["SupersampledOperator", "block_mean", "block_mean_adjoint", "build_supersampled", "finer_scene"]
 
@@ -36,14 +37,11 @@ def build_supersampled(make: Callable[[Scene, dict[str, Any]], Any], scene: Scen
     ``settings`` (or, where absent, in ``defaults``, the settings dataclass) are in output pixels
     and are scaled to the fine receiver's."""
     settings = dict(settings)
-    factor = settings.pop("supersample", 1)
-    if isinstance(factor, bool) or not isinstance(factor, (int, float)) or int(factor) != factor or not 1 <= factor <= 16:
-        raise ValueError(f"operator.supersample={factor!r} must be an integer in 1 .. 16 (receiver pixels rendered per "
-                         "output pixel side; 1: none)")
-    factor = int(factor)
+    factor = checked_whole(settings.pop("supersample", 1), "operator.supersample", 1, 16, must="must be an integer "
+                           "in 1 .. 16 (receiver pixels rendered per output pixel side; 1: none)")
     for key in PIXEL_SETTINGS:
         value = settings.get(key, getattr(defaults, key))
-        if isinstance(value, (int, float)) and not isinstance(value, bool):
+        if is_number(value):
             settings[key] = value * factor
     fine = make(finer_scene(scene, factor), settings)
     return fine if factor == 1 else SupersampledOperator(fine, scene, factor)
@@ -81,8 +79,7 @@ class SupersampledOperator(WrappingOperator):
     """
 
     def __init__(self, fine: Any, scene: Scene, factor: int) -> None:
-        if isinstance(factor, bool) or int(factor) != factor or factor < 1:
-            raise ValueError(f"operator.supersample={factor!r} must be an integer >= 1 (1: no supersampling)")
+        factor = checked_whole(factor, "operator.supersample", 1, must="must be an integer >= 1 (1: no supersampling)")
         if fine.output_shape[-1] != scene.receiver.resolution * factor:
             raise ValueError(f"the fine operator renders {fine.output_shape[-1]} pixels, not "
                              f"{factor} x {scene.receiver.resolution}")

@@ -9,6 +9,8 @@ from __future__ import annotations
 import re
 from typing import Any
 
+from operators.values import is_number
+
 __all__ = ["DEFAULT_MM_PER_UNIT", "scene_length", "scene_volume"]
 
 DEFAULT_MM_PER_UNIT = 25.0
@@ -19,9 +21,7 @@ _QUANTITY = re.compile(r"^\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*([a-z
 
 def _quantity(value: Any, where: str, cubic: bool) -> tuple[float, float | None]:
     """(number, mm per given unit, or None for a bare number in scene units)."""
-    if isinstance(value, bool):
-        raise ValueError(f"{where}={value!r} must be a number (scene units) or a string such as '2.5 mm'")
-    if isinstance(value, (int, float)):
+    if is_number(value):
         return float(value), None
     example = "'1.7 mm3'" if cubic else "'2.5 mm'"
     match = _QUANTITY.match(value) if isinstance(value, str) else None

@@ -10,8 +10,10 @@ is finite unless the caller allows infinity.
 from __future__ import annotations
 
 import math
+import numbers
 from typing import Any
 
+import numpy as np
 import torch
 
 __all__ = ["checked_flag", "checked_height_field", "checked_number", "checked_whole", "described", "is_number"]
@@ -25,8 +27,8 @@ def described(value: object) -> str:
 
 
 def is_number(value: object) -> bool:
-    """Whether ``value`` is an int or a float (a bool is not a number here)."""
-    return not isinstance(value, bool) and isinstance(value, (int, float))
+    """Whether ``value`` is a real number: an int or a float, NumPy's too (a bool is not a number here)."""
+    return isinstance(value, numbers.Real) and not isinstance(value, (bool, np.bool_))
 
 
 def _number_phrase(least: float, most: float, above: float | None, below: float | None) -> str:

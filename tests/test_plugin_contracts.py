@@ -61,6 +61,11 @@ def _operator_maker(name: str, photons: int = 20_000):
 OWN_BASES = {**BASES, "step_size": StepSizePolicy, "preconditioner": GradientPreconditioner}
 
 
+def test_caustic_design_has_its_own_kind() -> None:
+    assert set(available("design")) == {"schwartzburg", "design_lbfgs", "design_adam"}
+    assert "design_lbfgs" not in available("solver") and "schwartzburg" in available("solver")  # also a reconstruction
+
+
 @pytest.mark.parametrize("kind", KINDS)
 def test_every_plugin_derives_from_its_kinds_base(kind) -> None:
     assert available(kind), kind
@@ -107,11 +112,14 @@ def test_the_test_suites_operator_keeps_the_contract() -> None:
     check_operator(lambda seed: ShadowOperator.from_config(SCENE, 1, seed), who="operator/shadow")
 
 
-@pytest.mark.parametrize("name", available("solver"))
-def test_every_solver_solves_a_known_problem(name, known_problem) -> None:
-    settings = example_settings("solver", name)
-    check_solver(lambda: build_plugin("solver", name, settings, "solver"), known_problem, who=f"solver/{name}",
-                 iterations=declared("solver", name, "contract_iterations", 40))
+SOLVERS = [("solver", name) for name in available("solver")] + [("design", name) for name in available("design")]
+
+
+@pytest.mark.parametrize("kind, name", SOLVERS, ids=[f"{k}/{n}" for k, n in SOLVERS])
+def test_every_solver_solves_a_known_problem(kind, name, known_problem) -> None:
+    settings = example_settings(kind, name)
+    check_solver(lambda: build_plugin(kind, name, settings, kind), known_problem, who=f"{kind}/{name}",
+                 iterations=declared(kind, name, "contract_iterations", 40))
 
 
 def test_the_test_suites_solver_keeps_the_contract(known_problem) -> None:

@@ -75,7 +75,8 @@ MINIMAL = {
     ("solver", "landweber_wavelet"): ({"step_size": STEP, "wavelet_regularizer": {"name": "l1_wavelet", "levels": 1},
                                        "preconditioner": {"name": "sobolev"}}, {}),
     ("solver", "schwartzburg"): ({"outer_tolerance": 0.5}, {}),
-    ("solver", "design_lbfgs"): ({}, {}), ("solver", "design_adam"): ({"lr": 1e-3}, {}),
+    ("design", "schwartzburg"): ({"outer_tolerance": 0.5}, {}),
+    ("design", "design_lbfgs"): ({}, {}), ("design", "design_adam"): ({"lr": 1e-3}, {}),
     ("solver", "gauss_newton"): ({"step_size": STEP, "regularizers": {"l1_bounds": {}},
                                   "post_steps": {"volume_hold": {}}, "gauss_newton": {"cg_iterations": 2}}, {}),
     ("regularizer", "bounds"): ({}, {}), ("regularizer", "l1_bounds"): ({}, {}), ("regularizer", "l1_pixel"): ({}, {}),
@@ -100,7 +101,7 @@ def test_every_registry_key_is_listed_here():
 def test_every_registry_key_instantiates(kind, name):
     params, supplied = MINIMAL[(kind, name)]
     plugin = build_plugin(kind, name, params, kind, **supplied)
-    if kind == "solver":  # a builder: the solver itself runs two iterations on a small problem
+    if kind in ("solver", "design"):  # a builder: the solver itself runs two iterations on a small problem
         problem = small_problem()
         result = plugin(problem, torch.zeros(8, 8, dtype=torch.float64)).run(2)
         assert result.iterations == 2 and result.history[-1].rel_discrepancy < 1.0

@@ -12,6 +12,7 @@ from __future__ import annotations
 import torch
 
 from framework.core.contracts.start import Start, StartRequest, StartResult
+from operators.values import checked_number
 
 
 class MaskMeanStart(Start):
@@ -21,9 +22,7 @@ class MaskMeanStart(Start):
     name = "mask_mean"
 
     def __init__(self, scale: float = 1.0) -> None:
-        if isinstance(scale, bool) or not isinstance(scale, (int, float)) or not scale >= 0:
-            raise ValueError(f"initial.scale={scale!r} must be a number >= 0, e.g. 1.0")
-        self.scale = float(scale)
+        self.scale = checked_number(scale, "initial.scale", least=0.0, example="1.0")
 
     def __call__(self, request: StartRequest) -> StartResult:
         problem = request.problem

@@ -13,15 +13,15 @@ import torch
 
 from framework.core.contracts.stopping import StoppingRule
 from framework.core.solver_loop import IterationRecord, IterativeSolver
+from operators.values import checked_number
 
 
 class SmallChangeStopping(StoppingRule):
     """Stop once an iteration moves no height sample by more than ``tolerance`` (scene units)."""
 
     def __init__(self, tolerance: float = 1e-6) -> None:
-        if isinstance(tolerance, bool) or not isinstance(tolerance, (int, float)) or not tolerance > 0:
-            raise ValueError(f"stopping.small_change.tolerance={tolerance!r} must be a positive length, e.g. 1e-6")
-        self.tolerance = float(tolerance)
+        self.tolerance = checked_number(tolerance, "stopping.small_change.tolerance", above=0.0, unit="scene units",
+                                        example="1e-6")
         self.previous: torch.Tensor | None = None
 
     def on_start(self, solver: IterativeSolver) -> None:

@@ -16,7 +16,7 @@ from torch import Tensor
 
 from framework.core.checkpoint import save_checkpoint
 from framework.core.solver_loop import Callback
-from operators.values import described
+from operators.values import checked_whole, described
 
 if TYPE_CHECKING:
     from framework.core.solver_loop import IterationRecord
@@ -106,8 +106,7 @@ class Checkpointer(Callback):
 
     def __init__(self, path: str | os.PathLike[str], every: int = 10, at_end: bool = True,
                  run: dict[str, str] | None = None) -> None:
-        if isinstance(every, bool) or not isinstance(every, int) or every < 1:
-            raise ValueError(f"every must be an int >= 1, got {every!r}")
+        every = checked_whole(every, "every", 1)
         self.path, self.every, self.at_end, self.run = Path(path), every, at_end, run
 
     def on_iteration(self, solver, record) -> None:  # noqa: D102

@@ -18,6 +18,7 @@ import torch
 import torch.nn.functional as F
 
 from framework.core.masks import mask_from_height_field
+from operators.values import checked_number
 
 
 @dataclass
@@ -76,9 +77,7 @@ def resample_image(image: torch.Tensor, resolution: int) -> torch.Tensor:
 
 def validate_delta(delta: float) -> float:
     """The relative noise level delta as a float; refused unless it lies in (0, 1)."""
-    if isinstance(delta, bool) or not isinstance(delta, (int, float)) or not 0.0 < delta < 1.0:
-        raise ValueError(f"data.delta={delta} must be a relative noise level in (0, 1), e.g. 0.05")
-    return float(delta)
+    return checked_number(delta, "data.delta", above=0.0, below=1.0, example="0.05")
 
 
 def synthetic_data(ground_truth: torch.Tensor, render_a: Callable[[torch.Tensor], torch.Tensor],

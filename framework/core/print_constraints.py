@@ -25,6 +25,8 @@ import scipy.sparse as sp
 import torch
 from scipy.sparse.linalg import factorized
 
+from operators.values import checked_number
+
 __all__ = ["PrintConstraints"]
 
 ADMM_RHO = 16.0  # the splitting's penalty (docs/design.md, "Printability": nearer and faster than 1 at 256 x 256)
@@ -70,14 +72,11 @@ class PrintConstraints:
 
     def __post_init__(self) -> None:
         for name in ("max_height", "max_slope", "spacing"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not (math.isfinite(value) and value > 0):
-                raise ValueError(f"constraints.{name}={value!r} must be a number > 0")
+            checked_number(getattr(self, name), f"constraints.{name}", above=0.0, must="must be a number > 0")
         for name in ("min_feature", "volume"):
-            value = getattr(self, name)
-            if value is not None and (isinstance(value, bool) or not isinstance(value, (int, float))
-                                      or not (math.isfinite(value) and value > 0)):
-                raise ValueError(f"constraints.{name}={value!r} must be a number > 0 or null")
+            if getattr(self, name) is not None:
+                checked_number(getattr(self, name), f"constraints.{name}", above=0.0,
+                               must="must be a number > 0 or null")
 
     @property
     def max_curvature(self) -> float:

@@ -12,12 +12,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 from functools import cached_property
 
-
 from framework.core.data import ReconstructionData
 from framework.core.contracts.operator import Operator
 from framework.core.objective import DataFidelity
 from framework.core.print_constraints import PrintConstraints
 from operators.scene import Scene
+from operators.values import checked_whole
 from regularizers import RegularizerContext
 
 __all__ = ["HeightGrid", "Problem"]
@@ -39,8 +39,7 @@ class HeightGrid:
     base: float
 
     def __post_init__(self) -> None:
-        if isinstance(self.resolution, bool) or int(self.resolution) != self.resolution or self.resolution < 4:
-            raise ValueError(f"height_field.resolution={self.resolution!r} must be an integer >= 4, e.g. 128")
+        checked_whole(self.resolution, "height_field.resolution", 4, example="128")
 
     @property
     def shape(self) -> tuple[int, int]:

@@ -14,7 +14,8 @@ A leaf module: it imports nothing of this project. Plugins come from two places:
 
 Kinds (what a plugin of each kind is, docs/plugins.md):
 ``operator``, ``solver``, ``regularizer``, ``post_step``, ``step_size``, ``preconditioner``,
-``stopping``, ``data`` and ``initial`` (the start of the iteration).
+``stopping``, ``data``, ``initial`` (the start of the iteration) and ``design`` (the solver of a
+caustic-design method, ``sfc-design``'s ``design_method.solver``).
 """
 
 from __future__ import annotations
@@ -25,7 +26,7 @@ from typing import Any, Callable, TypeVar
 T = TypeVar("T")
 
 KINDS: tuple[str, ...] = ("operator", "solver", "regularizer", "post_step", "step_size", "preconditioner",
-                          "stopping", "data", "initial")
+                          "stopping", "data", "initial", "design")
 ENTRY_POINT_PREFIX = "shape_from_caustics."
 
 _registered: dict[str, dict[str, Any]] = {kind: {} for kind in KINDS}

@@ -10,12 +10,12 @@ may move the configured distance and light while the offsets between the shots s
 from __future__ import annotations
 
 import dataclasses
-import math
 from collections.abc import Mapping
 from typing import Any
 
 from framework.core.units import scene_length
 from operators.scene import Scene
+from operators.values import checked_number
 
 __all__ = ["SETUP_KEYS", "ShotSetup", "shot_setup"]
 
@@ -57,12 +57,6 @@ class ShotSetup:
         return dataclasses.replace(base, light=dataclasses.replace(base.light, position=light), receiver=receiver)
 
 
-def _number(value: Any, where: str) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-        raise ValueError(f"{where}={value!r} must be a finite number")
-    return float(value)
-
-
 def _triple(value: Any, where: str, mm: float) -> tuple[float, float, float]:
     if not isinstance(value, (list, tuple)) or len(value) != 3:
         raise ValueError(f"{where}={value!r} must be [x, y, z] (scene units or e.g. '2 mm')")
@@ -90,7 +84,8 @@ def shot_setup(spec: Mapping[str, Any], where: str, base: Scene, mm: float) -> S
         half = scene_length(half, mm, f"{where}.receiver_half_width")
         if not half > 0.0:
             raise ValueError(f"{where}.receiver_half_width={spec['receiver_half_width']!r} must be a length > 0")
-    gain, weight = _number(spec.get("gain", 1.0), f"{where}.gain"), _number(spec.get("weight", 1.0), f"{where}.weight")
+    gain = checked_number(spec.get("gain", 1.0), f"{where}.gain")
+    weight = checked_number(spec.get("weight", 1.0), f"{where}.weight")
     if not gain > 0.0 or not weight > 0.0:
         raise ValueError(f"{where}: gain={gain} and weight={weight} must both be > 0")
     return ShotSetup(offset, light_offset, half, gain, weight)  # type: ignore[arg-type]

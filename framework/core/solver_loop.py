@@ -16,6 +16,8 @@ from typing import Any, ClassVar, Sequence
 import torch
 from torch import Tensor
 
+from operators.values import checked_whole
+
 __all__ = ["Callback", "IterationRecord", "RunResult", "SolverState", "IterativeSolver", "IterationFailed", "returned_iterate"]
 
 
@@ -232,8 +234,7 @@ class IterativeSolver(ABC):
             max_iter: Absolute iteration cap (counts iterations done before a resume).
             callbacks: :class:`Callback` instances.
         """
-        if isinstance(max_iter, bool) or not isinstance(max_iter, int) or max_iter < 0:
-            raise ValueError(f"max_iter must be an int >= 0, got {max_iter!r}")
+        max_iter = checked_whole(max_iter, "max_iter", 0)
         for cb in callbacks:
             if not isinstance(cb, Callback):
                 raise ValueError(f"{type(cb).__name__} is not a Callback (framework/core/solver_loop.py); derive it "

@@ -12,11 +12,11 @@ with the same factor.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping
 from typing import Any
 
 from operators.units import DEFAULT_MM_PER_UNIT, scene_length, scene_volume
+from operators.values import checked_number
 
 __all__ = ["DEFAULT_MM_PER_UNIT", "mm_per_unit", "scene_length", "scene_volume"]
 
@@ -30,7 +30,5 @@ def mm_per_unit(cfg: Mapping[str, Any]) -> float:
     if unknown:
         raise ValueError(f"unknown key units.{unknown[0]}; units takes mm_per_unit")
     value = units.get("mm_per_unit", DEFAULT_MM_PER_UNIT)
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not (math.isfinite(value) and value > 0):
-        raise ValueError(f"units.mm_per_unit={value!r} must be a length > 0 in mm per scene unit, "
-                         "e.g. 25 (the paper: 1 scene unit = 2.5 cm)")
-    return float(value)
+    return checked_number(value, "units.mm_per_unit", above=0.0, must="must be a length > 0 in mm per scene unit",
+                          example="25 (the paper: 1 scene unit = 2.5 cm)")

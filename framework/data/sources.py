@@ -13,8 +13,6 @@ alone, ``check(request)`` before a run opens, ``load(request)`` once it runs.
 
 from __future__ import annotations
 
-import math
-
 import torch
 
 from framework.core.contracts.data_source import DataRequest, DataSource, PrintFacts
@@ -23,19 +21,14 @@ from framework.files.height_field_io import load_height_field
 from framework.files.image_io import load_caustic_image, load_mask, resolve_path
 from framework.core.masks import mask_from_height_field
 from framework.core.units import scene_volume
+from operators.values import checked_number, checked_whole, is_number
 
 __all__ = ["KnownPrint", "file_setting", "SyntheticData", "FileData"]
 
 
-def non_negative_setting(name: str, value: float) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not (math.isfinite(value) and value >= 0):
-        raise ValueError(f"data.{name}={value!r} must be a finite number >= 0")
-    return float(value)
-
-
 def dilation_setting(value: float) -> float:
     """``data.mask_dilation``: a fraction of the grid's width in [0, 1]."""
-    value = non_negative_setting("mask_dilation", value)
+    value = checked_number(value, "data.mask_dilation", 0.0, must="must be a finite number >= 0")
     if value > 1.0:
         raise ValueError(f"data.mask_dilation={value!r} must be a fraction of the grid's width in [0, 1], e.g. 0.05")
     return value
@@ -46,12 +39,6 @@ def file_setting(name: str, value: object) -> str | None:
     if value is not None and (not isinstance(value, str) or not value):
         raise ValueError(f"data.{name}={value!r} must be a file name (a string) or null")
     return value
-
-
-def _count(name: str, value: int, minimum: int) -> int:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or int(value) != value or value < minimum:
-        raise ValueError(f"data.{name}={value!r} must be an integer >= {minimum}")
-    return int(value)
 
 
 class SyntheticData(DataSource):
@@ -91,9 +78,10 @@ class SyntheticData(DataSource):
                              "or model (the model's own render, the paper's protocol)")
         self.reference = reference
         self.delta = validate_delta(delta)
-        self.reference_photons = _count("reference_photons", reference_photons, 1)
-        self.reference_resolution = _count("reference_resolution", reference_resolution, 2)
-        self.mask_threshold = non_negative_setting("mask_threshold", mask_threshold)
+        self.reference_photons = checked_whole(reference_photons, "data.reference_photons", 1)
+        self.reference_resolution = checked_whole(reference_resolution, "data.reference_resolution", 2)
+        self.mask_threshold = checked_number(mask_threshold, "data.mask_threshold", 0.0,
+                                             must="must be a finite number >= 0")
         self.mask_dilation = dilation_setting(mask_dilation)
         self.printed = file_setting("printed", printed)
 
@@ -157,13 +145,13 @@ class KnownPrint(DataSource):
                  mask_threshold: float, mask_dilation: float) -> None:
         if brightness not in self.BRIGHTNESS:
             raise ValueError(f"data.brightness={brightness!r}; use {' or '.join(self.BRIGHTNESS)}")
-        if volume is not None and not isinstance(volume, str) and (
-                isinstance(volume, bool) or not isinstance(volume, (int, float))):
+        if volume is not None and not isinstance(volume, str) and not is_number(volume):
             raise ValueError(f"data.volume={volume!r} must be a number (scene units^3), a string such as '1.7 mm3', "
                              "or null")
         self.mask, self.volume, self.brightness = file_setting("mask", mask), volume, brightness
         self.delta = validate_delta(delta)
-        self.mask_threshold = non_negative_setting("mask_threshold", mask_threshold)
+        self.mask_threshold = checked_number(mask_threshold, "data.mask_threshold", 0.0,
+                                             must="must be a finite number >= 0")
         self.mask_dilation = dilation_setting(mask_dilation)
 
     def printed_area(self, request: DataRequest) -> torch.Tensor:

@@ -18,6 +18,7 @@ import torch
 import torch.nn.functional as F
 
 from framework.core.contracts.operator import Operator
+from operators.values import checked_whole
 
 __all__ = ["column_norms", "pixel_noise", "pixels_used", "height_uncertainty"]
 
@@ -36,8 +37,7 @@ def column_norms(operator: Operator, d: torch.Tensor, weights: torch.Tensor | No
         smoothing_px: The squared norms are averaged over a (2 r + 1)^2 window of samples (r = this):
             neighbouring columns differ little, their average has a smaller spread. 0: none.
     """
-    if isinstance(probes, bool) or not isinstance(probes, int) or probes < 1:
-        raise ValueError(f"probes={probes!r} must be an integer >= 1, e.g. 16")
+    probes = checked_whole(probes, "probes", 1, example="16")
     shape = tuple(operator.output_shape)
     generator = torch.Generator().manual_seed(int(seed))
     squares = torch.zeros_like(d, dtype=torch.float64)

@@ -1,5 +1,5 @@
 """Caustic-design solvers on the differentiable operator (docs/design.md): the plugins
-``solver/design_lbfgs`` (the refinement of ``sfc-design``) and ``solver/design_adam`` (the baseline
+``design/design_lbfgs`` (the refinement of ``sfc-design``) and ``design/design_adam`` (the baseline
 of the Mitsuba 3 caustics tutorial: Adam on the heights from flat glass).
 
 Both minimise the design objective
@@ -23,7 +23,6 @@ step), the heights clipped to [0, max_height] after every step as in the tutoria
 
 from __future__ import annotations
 
-import math
 import time
 from typing import TYPE_CHECKING, Any
 
@@ -32,7 +31,7 @@ from torch import Tensor
 
 from framework.core.image_metrics import ssim_tensor
 from framework.core.solver_loop import IterationFailed, IterationRecord, IterativeSolver
-from operators.values import checked_whole
+from operators.values import checked_number, checked_whole
 from framework.optimization.preconditioner import SobolevPreconditioner
 from framework.optimization.quasi_newton import LbfgsMemory
 from framework.optimization.step_size import LineSearchFailed, backtrack
@@ -48,12 +47,6 @@ PAIR_TOLERANCE = 1e-12  # a curvature pair is kept where s^T y > this x ||s|| ||
 LOSSES = ("l2", "hellinger", "l2_ssim")
 SSIM_WEIGHT = 0.05  # w of the l2_ssim data term
 HELLINGER_FLOOR = 1e-3  # added to both images under the square roots, as a fraction of the target's peak
-
-
-def _positive(name: str, value: Any) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not (math.isfinite(value) and value > 0):
-        raise ValueError(f"solver.{name}={value!r} must be a number > 0")
-    return float(value)
 
 
 def _hellinger(problem: Problem, d: Tensor) -> tuple[float, Tensor, float]:
@@ -177,15 +170,18 @@ class DesignLBFGS(IterativeSolver):
     def from_config(cls, memory: int = 12, penalty_weight: float = 10.0, first_step: float = 2e-3,
                     smoothing_length: float | None = None, loss: str = "l2", adam_steps: int = 0,
                     adam_lr: float = 2e-4, ssim_weight: float = SSIM_WEIGHT) -> Any:
-        """The plugin ``solver/design_lbfgs``: checks the settings, returns the builder."""
+        """The plugin ``design/design_lbfgs``: checks the settings, returns the builder."""
         memory = checked_whole(memory, "solver.memory", least=1)
-        weight, step = _positive("penalty_weight", penalty_weight), _positive("first_step", first_step)
-        length = None if smoothing_length is None else _positive("smoothing_length", smoothing_length)
+        weight = checked_number(penalty_weight, "solver.penalty_weight", above=0.0, must="must be a number > 0")
+        step = checked_number(first_step, "solver.first_step", above=0.0, must="must be a number > 0")
+        length = None if smoothing_length is None else checked_number(
+            smoothing_length, "solver.smoothing_length", above=0.0, must="must be a number > 0")
         if loss not in LOSSES:
             raise ValueError(f"solver.loss={loss!r} must be one of {', '.join(LOSSES)}")
-        if isinstance(adam_steps, bool) or not isinstance(adam_steps, int) or adam_steps < 0:
-            raise ValueError(f"solver.adam_steps={adam_steps!r} must be a whole number >= 0 (0: L-BFGS from the start)")
-        lr, similarity = _positive("adam_lr", adam_lr), _positive("ssim_weight", ssim_weight)
+        adam_steps = checked_whole(adam_steps, "solver.adam_steps", 0,
+                                   must="must be a whole number >= 0 (0: L-BFGS from the start)")
+        lr = checked_number(adam_lr, "solver.adam_lr", above=0.0, must="must be a number > 0")
+        similarity = checked_number(ssim_weight, "solver.ssim_weight", above=0.0, must="must be a number > 0")
         return lambda problem, d0: cls(problem, d0, memory, weight, step, length, loss, adam_steps, lr, similarity)
 
     def _initial_metric(self, x: Tensor) -> Tensor:
@@ -296,8 +292,9 @@ class DesignAdam(IterativeSolver):
 
     @classmethod
     def from_config(cls, lr: float = 2e-4, penalty_weight: float = 10.0) -> Any:
-        """The plugin ``solver/design_adam``: checks the settings, returns the builder."""
-        lr, weight = _positive("lr", lr), _positive("penalty_weight", penalty_weight)
+        """The plugin ``design/design_adam``: checks the settings, returns the builder."""
+        lr = checked_number(lr, "solver.lr", above=0.0, must="must be a number > 0")
+        weight = checked_number(penalty_weight, "solver.penalty_weight", above=0.0, must="must be a number > 0")
         return lambda problem, d0: cls(problem, d0, lr, weight)
 
     def step(self) -> IterationRecord:

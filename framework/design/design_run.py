@@ -101,7 +101,7 @@ def _start(setup: DesignSetup, method: Mapping[str, Any], deadline: float | None
         found = start(StartRequest(problem, lambda: zeros, Path.cwd(), deadline))
         d, first = found.d.detach().double().cpu().numpy(), found.metrics
     else:  # flat bottom to screen: Schwartzburg's transport design
-        transport = build_plugin("solver", "schwartzburg", dict(method.get("transport") or {}),
+        transport = build_plugin("design", "schwartzburg", dict(method.get("transport") or {}),
                                  "design_method.transport")(problem, zeros)
         transport.deadline = deadline
         result = transport.run(int(method.get("transport_iterations", 3)))
@@ -175,7 +175,7 @@ def run_design(cfg: Mapping[str, Any], output_dir: Path, base_dir: Path | None =
         else:
             d0, start_metrics = _start(setup, method, began + START_SHARE * seconds)
         start_seconds = time.perf_counter() - began
-        solver = build_plugin("solver", name, params, "design_method.solver")(problem, d0)
+        solver = build_plugin("design", name, params, "design_method.solver")(problem, d0)
         if checkpoint.is_file():
             restore(solver, checkpoint)
             start_metrics = json.loads((output_dir / "start.json").read_text())

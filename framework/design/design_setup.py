@@ -24,6 +24,7 @@ from framework.scene.scene_config import build_operator, build_scene, to_plain
 from framework.core.units import mm_per_unit, scene_length, scene_volume
 from framework.design.design_screen import has_elements, lit_half_width
 from operators.scene import Scene
+from operators.values import checked_number
 
 __all__ = ["DesignSetup", "method_settings", "prepare_design"]
 
@@ -192,7 +193,6 @@ def _check_method(cfg: Mapping[str, Any]) -> None:
     if method["start"] not in STARTS:
         raise ValueError(f"design_method.start={method['start']!r} must be one of {', '.join(STARTS)}")
     name, params = split_name(method["solver"], "design_method.solver")
-    build_plugin("solver", name, params, "design_method.solver")
+    build_plugin("design", name, params, "design_method.solver")
     seconds = cfg.get("seconds")
-    if isinstance(seconds, bool) or not isinstance(seconds, (int, float)) or not seconds > 0:
-        raise ValueError(f"seconds={seconds!r} must be the design's time budget in seconds > 0, e.g. 300")
+    checked_number(seconds, "seconds", above=0.0, must="must be the design's time budget in seconds > 0", example="300")

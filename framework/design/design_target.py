@@ -24,6 +24,7 @@ from framework.files.height_field_io import load_npy
 from framework.files.image_io import existing_file
 from operators.optics.inverse_refraction import deflection_angle, flat_magnification
 from operators.scene import Scene
+from operators.values import checked_whole
 
 __all__ = ["BUILT_IN_TARGETS", "CHANNELS", "DesignTarget", "built_in_target", "load_target", "paraxial_shadow",
            "screen_reach"]
@@ -141,8 +142,8 @@ def load_target(image: str, resolution: int, base_dir: str | Path | None = None,
     """The target ``image`` (a built-in name or a file path, relative to ``base_dir``) on a screen
     of (resolution, resolution) pixels, checked: a missing file, an unreadable or non-square .npy,
     negative, non-finite or all-black values each raise a one-line error naming the fix."""
-    if isinstance(resolution, bool) or not isinstance(resolution, int) or resolution < 8:
-        raise ValueError(f"target.resolution={resolution!r} must be an integer >= 8 (screen pixels per side), e.g. 256")
+    resolution = checked_whole(resolution, "target.resolution", 8,
+                               must="must be an integer >= 8 (screen pixels per side)", example="256")
     if channel not in CHANNELS:
         raise ValueError(f"target.channel={channel!r} must be one of {', '.join(CHANNELS)}")
     if not isinstance(image, str) or not image:

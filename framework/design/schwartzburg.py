@@ -50,6 +50,7 @@ from scipy.sparse.linalg import factorized
 from torch import Tensor
 
 from operators.optics.inverse_refraction import flat_magnification, glass_directions, snell_normals
+from operators.values import checked_number
 
 from framework.core.solver_loop import IterationFailed, IterationRecord, IterativeSolver
 from framework.optimization.semi_discrete_transport import TransportPlan, semi_discrete_transport
@@ -142,12 +143,10 @@ class SchwartzburgDesign(IterativeSolver):
         for name, value, low, high in (("mass_tolerance", mass_tolerance, 0.0, 1.0), ("black_level", black_level, 0.0, 1.0),
                                        ("outer_tolerance", outer_tolerance, 0.0, 1.0),
                                        ("power_tolerance", power_tolerance, 0.0, 1.0)):
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not low < value < high:
-                raise ValueError(f"solver.{name}={value!r} must lie in ({low}, {high})")
+            checked_number(value, f"solver.{name}", above=low, below=high, must=f"must lie in ({low}, {high})")
         if source not in SOURCES:
             raise ValueError(f"solver.source={source!r}; use {' or '.join(SOURCES)}")
-        if isinstance(smoothness, bool) or not isinstance(smoothness, (int, float)) or not smoothness >= 0:
-            raise ValueError(f"solver.smoothness={smoothness!r} must be a number >= 0")
+        checked_number(smoothness, "solver.smoothness", 0.0)
         return {"mass_tolerance": float(mass_tolerance), "black_level": float(black_level),
                 "smoothness": float(smoothness), "outer_tolerance": float(outer_tolerance),
                 "power_tolerance": float(power_tolerance), "source": source}

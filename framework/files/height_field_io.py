@@ -28,6 +28,8 @@ import torch
 import torch.nn.functional as F
 from PIL import Image
 
+from operators.values import checked_whole
+
 __all__ = ["load_height_field", "save_height_field", "resample", "load_npy", "read_npy", "validate_heights", "IMAGE_SUFFIXES"]
 
 IMAGE_SUFFIXES = (".png", ".tif", ".tiff")
@@ -57,9 +59,7 @@ def resample(heights: np.ndarray, resolution: int) -> np.ndarray:
     Upsampling is bicubic with aligned corners; downsampling averages areas. Bicubic overshoot
     below zero is clipped to 0.
     """
-    if isinstance(resolution, bool) or int(resolution) != resolution or resolution < 2:
-        raise ValueError(f"resolution={resolution} must be an integer >= 2, e.g. 128")
-    m = int(resolution)
+    m = checked_whole(resolution, "resolution", 2, example="128")
     if heights.shape == (m, m):
         return heights.copy()
     t = torch.from_numpy(np.ascontiguousarray(heights, dtype=np.float64))[None, None]

@@ -9,7 +9,6 @@ Heights d (m, m) are in scene units, sampled at linspace(-W, W, m) in x (columns
 from __future__ import annotations
 
 import json
-import math
 from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -65,9 +64,7 @@ def glass_mesh(d: np.ndarray, half_width: float, thickness: float, mm_per_unit: 
     d = _heights(d, "d")
     w = checked_number(half_width, "half_width", above=0.0, unit="scene units")
     scale = _scale(mm_per_unit)
-    if isinstance(thickness, bool) or not isinstance(thickness, (int, float)) or not math.isfinite(thickness):
-        raise ValueError(f"thickness={thickness!r} must be a finite number (scene units)")
-    top = float(thickness) + d
+    top = checked_number(thickness, "thickness", unit="scene units") + d
     if top.min() <= 0.0:
         i, j = np.unravel_index(np.argmin(top), top.shape)
         raise ValueError(f"glass top h + d = {top[i, j]:.6g} <= 0 at d[{i}, {j}]={d[i, j]:.6g} "

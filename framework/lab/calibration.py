@@ -33,8 +33,9 @@ from torch import Tensor
 from framework.core.data import weighted_norm_sq
 from framework.core.solver_loop import Callback
 from framework.lab.calibrated_setup import PSF, CameraSetup, StackSetup, is_gain, setup_values, with_setup
-from framework.lab.calibration_config import calibration_settings, positive_length
+from framework.lab.calibration_config import calibration_settings
 from operators.stack import StackOperator
+from operators.values import checked_number, checked_whole
 
 __all__ = ["CALIBRATION_PARAMS", "JointCalibration", "setup_values", "with_setup"]
 
@@ -92,12 +93,10 @@ class JointCalibration(Callback):
         if unknown or not params or len(set(params)) != len(params):
             raise ValueError(f"calibration.params={list(params)!r}: give distinct names from "
                              f"{', '.join(CALIBRATION_PARAMS)}")
-        if isinstance(every, bool) or not isinstance(every, int) or every < 1:
-            raise ValueError(f"calibration.every={every!r} must be an integer >= 1, e.g. 30")
-        if isinstance(damping, bool) or not isinstance(damping, (int, float)) or not damping > 0:
-            raise ValueError(f"calibration.damping={damping!r} must be a number > 0, e.g. 1e-3")
-        if isinstance(prior, bool) or not isinstance(prior, (int, float)) or not prior > 0:
-            raise ValueError(f"calibration.prior={prior!r} must be a relative standard deviation > 0, e.g. 0.1")
+        every = checked_whole(every, "calibration.every", 1, example="30")
+        damping = checked_number(damping, "calibration.damping", above=0.0, must="must be a number > 0", example="1e-3")
+        prior = checked_number(prior, "calibration.prior", above=0.0, must="must be a relative standard deviation > 0",
+                               example="0.1")
         self.setup_of = StackSetup(operator, scene) if isinstance(operator, StackOperator) else CameraSetup(operator)
         if SIZE in params and not self.setup_of.scene.light.extended:
             raise ValueError(f"calibration.params has {SIZE} but light.shape=point; give light.shape=disc or square "
@@ -107,9 +106,10 @@ class JointCalibration(Callback):
         self.state_path: Path | None = None
         self.initial = self.values()
         if PSF in self.params:
-            if psf_sigma_start is not None and not positive_length(psf_sigma_start):
-                raise ValueError(f"calibration.psf_sigma_start={psf_sigma_start!r} must be a length > 0 (scene units "
-                                 "or e.g. '0.1 mm'), or null to start from screen.sigma")
+            if psf_sigma_start is not None:
+                checked_number(psf_sigma_start, "calibration.psf_sigma_start", above=0.0,
+                               must="must be a length > 0 (scene units or e.g. '0.1 mm'), or null to start from "
+                                    "screen.sigma")
             configured = self.initial[PSF]
             self.initial[PSF] = float(psf_sigma_start if psf_sigma_start is not None else
                                       configured if configured > 0.0 else self.setup_of.pixel_size)

@@ -11,13 +11,9 @@ from typing import Any
 
 from framework.core.units import scene_length
 from framework.lab.calibrated_setup import PSF
+from operators.values import checked_number
 
-__all__ = ["calibration_settings", "positive_length"]
-
-
-def positive_length(value: Any) -> bool:
-    """Whether ``value`` is a finite number > 0 (not a bool)."""
-    return not isinstance(value, bool) and isinstance(value, (int, float)) and math.isfinite(value) and value > 0.0
+__all__ = ["calibration_settings"]
 
 
 def calibration_settings(settings: Mapping[str, Any], operator: Any, scene: Any = None,
@@ -47,15 +43,15 @@ def calibration_settings(settings: Mapping[str, Any], operator: Any, scene: Any 
         if start is not None:
             mm = scene.mm_per_unit if scene is not None else operator.scene.mm_per_unit
             given, start = start, scene_length(start, mm, "calibration.psf_sigma_start")
-            if not positive_length(start):
+            if not (math.isfinite(start) and start > 0.0):  # scene_length gives a float: only its value is checked
                 raise ValueError(f"calibration.psf_sigma_start={given!r} must be a length > 0 (scene units or "
                                  "e.g. '0.1 mm'), or null to start from screen.sigma")
-        elif not (isinstance(screen_sigma, (int, float)) and math.isfinite(screen_sigma) and screen_sigma >= 0):
-            raise ValueError(f"screen.sigma={screen_sigma!r} cannot start calibration.params' psf_sigma: give a "
-                             "length >= 0 (scene units or e.g. '0.1 mm'; 0: one receiver pixel), or "
-                             "calibration.psf_sigma_start")
-        elif screen_sigma > 0.0:
-            start = float(screen_sigma)
+        else:
+            sigma = checked_number(screen_sigma, "screen.sigma", 0.0, must="cannot start calibration.params' "
+                                   "psf_sigma: give a length >= 0 (scene units or e.g. '0.1 mm'; 0: one receiver "
+                                   "pixel), or calibration.psf_sigma_start")
+            if sigma > 0.0:
+                start = sigma
     return {"params": list(params), "every": settings.get("every", 30), "damping": settings.get("damping", 1e-3),
             "prior": settings.get("prior", 0.1), "psf_sigma_start": start}
 

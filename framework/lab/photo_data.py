@@ -34,6 +34,7 @@ from framework.core.contracts.data_source import DataRequest, PrintFacts
 from framework.files.image_io import resolve_path
 from framework.data.sources import KnownPrint, file_setting
 from framework.lab.photo_import import PhotoImport, import_photo, save_photo_figure
+from operators.values import is_number
 
 __all__ = ["PhotoData", "two_exposure_delta"]
 
@@ -82,7 +83,7 @@ class PhotoData(KnownPrint):
                              "receiver's bottom-left, bottom-right, top-right and top-left corners in the photo")
         if flat_kind not in FLAT_KINDS:
             raise ValueError(f"data.flat_kind={flat_kind!r}; use {' or '.join(FLAT_KINDS)}")
-        if pixel_centre not in (0, 0.5) or isinstance(pixel_centre, bool):
+        if not is_number(pixel_centre) or pixel_centre not in (0, 0.5):
             raise ValueError(f"data.pixel_centre={pixel_centre!r} must be 0 (the first pixel's centre at 0: NumPy, "
                              "OpenCV) or 0.5 (GIMP, Pillow, Inkscape)")
         self.estimate_delta = delta == "auto"

@@ -9,9 +9,9 @@ centres at -W + (p + 0.5) 2W / n (docs/photo_import.md).
 
 from __future__ import annotations
 
-import numbers
-
 import numpy as np
+
+from operators.values import checked_number, checked_whole
 
 __all__ = ["CORNER_NAMES", "CORNER_ORDER", "MIN_AREA_PX", "MAX_SUPERSAMPLE", "check_corners", "homography",
            "project_points", "bilinear_samples", "check_receiver_grid", "rectify", "saturated_receiver_pixels",
@@ -132,19 +132,19 @@ def bilinear_samples(image: np.ndarray, col: np.ndarray, row: np.ndarray) -> np.
 MAX_SUPERSAMPLE = 16
 
 
-def check_receiver_grid(resolution: int, half_width: float, supersample: int) -> None:
-    for name, value in (("receiver.resolution", resolution), ("data.supersample", supersample)):
-        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
-            raise ValueError(f"{name}={value!r} must be a positive integer")
+def check_receiver_grid(resolution: int, half_width: float, supersample: int) -> tuple[int, int]:
+    """(resolution, supersample) as ints, once they and ``half_width`` are checked."""
+    resolution = checked_whole(resolution, "receiver.resolution", 1, must="must be a positive integer")
+    supersample = checked_whole(supersample, "data.supersample", 1, must="must be a positive integer")
     if supersample > MAX_SUPERSAMPLE:
         raise ValueError(f"data.supersample={supersample} must be at most {MAX_SUPERSAMPLE} (samples per receiver "
                          "pixel and axis; 4 is plenty)")
     _check_half_width(half_width)
+    return resolution, supersample
 
 
 def _check_half_width(half_width: float) -> None:
-    if isinstance(half_width, bool) or not isinstance(half_width, numbers.Real) or not half_width > 0:
-        raise ValueError(f"receiver half width {half_width!r} must be positive (scene units)")
+    checked_number(half_width, "receiver.half_width", above=0.0, unit="scene units")
 
 
 def _receiver_blocks(h: np.ndarray, resolution: int, half_width: float, supersample: int):
@@ -167,7 +167,7 @@ def rectify(photo: np.ndarray, h: np.ndarray, resolution: int, half_width: float
     Each receiver pixel is the mean of supersample x supersample bilinear photo samples at the
     images under ``h`` (from :func:`homography`) of a uniform sub-grid of the pixel.
     """
-    check_receiver_grid(resolution, half_width, supersample)
+    resolution, supersample = check_receiver_grid(resolution, half_width, supersample)
     photo = np.asarray(photo, dtype=np.float64)
     photo = photo[..., None] if photo.ndim == 2 else photo
     if photo.ndim != 3:
@@ -184,7 +184,7 @@ def saturated_receiver_pixels(saturated_photo_mask: np.ndarray, h: np.ndarray, r
                               half_width: float, supersample: int = 4) -> np.ndarray:
     """(n, n) bool, rows y-up: receiver pixels any of whose sub-samples (as in :func:`rectify`)
     has a photo pixel of ``saturated_photo_mask`` (H, W) in its 2 x 2 bilinear support."""
-    check_receiver_grid(resolution, half_width, supersample)
+    resolution, supersample = check_receiver_grid(resolution, half_width, supersample)
     mask = np.asarray(saturated_photo_mask, dtype=bool)
     if mask.ndim != 2:
         raise ValueError(f"saturated photo mask has shape {mask.shape}; expected (H, W)")

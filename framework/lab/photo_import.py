@@ -26,6 +26,7 @@ from framework.files.image_io import existing_file
 from framework.lab.photo_geometry import (check_corners, check_receiver_grid, homography, inside_receiver, rectify,
                                       saturated_receiver_pixels)
 from framework.files.plotting import label_xy_axes, normalise, save_figure
+from operators.values import checked_number, checked_whole
 
 __all__ = ["FULL_SCALE", "PhotoImport", "read_photo", "linearize", "import_photo", "save_photo_figure"]
 
@@ -79,9 +80,11 @@ def read_photo(path: str | Path, bit_depth: int | None = None) -> tuple[np.ndarr
 
     ``bit_depth`` (8, 16 or None = either) is what the photo must have; a mismatch is refused.
     """
-    if bit_depth is not None and (isinstance(bit_depth, bool) or not isinstance(bit_depth, int)
-                                  or bit_depth not in FULL_SCALE):
-        raise ValueError(f"data.bit_depth={bit_depth!r} must be 8, 16 or null (accept either)")
+    if bit_depth is not None:
+        must = "must be 8, 16 or null (accept either)"
+        bit_depth = checked_whole(bit_depth, "data.bit_depth", must=must)
+        if bit_depth not in FULL_SCALE:
+            raise ValueError(f"data.bit_depth={bit_depth!r} {must}")
     array, depth = _read_frame(path, "photo")
     if bit_depth is not None and depth != bit_depth:
         what = "a linear float array" if depth == 0 else f"{depth}-bit"
@@ -131,9 +134,9 @@ def linearize(values: np.ndarray, response: Response = "linear", gamma: float = 
     if response == "linear":
         return values
     if response == "gamma":
-        if isinstance(gamma, bool) or not isinstance(gamma, (int, float)) or not (np.isfinite(gamma) and gamma > 0):
-            raise ValueError(f"data.gamma={gamma!r} must be a positive exponent, e.g. 2.2 (linear = v ** gamma)")
-        return np.sign(values) * np.abs(values) ** float(gamma)
+        gamma = checked_number(gamma, "data.gamma", above=0.0, must="must be a positive exponent",
+                               example="2.2 (linear = v ** gamma)")
+        return np.sign(values) * np.abs(values) ** gamma
     if response == "srgb":
         v = np.abs(values)
         return np.sign(values) * np.where(v <= 0.04045, v / 12.92, ((v + 0.055) / 1.055) ** 2.4)
@@ -216,15 +219,15 @@ def import_photo(path: str | Path, corners: object, half_width: float, resolutio
     raw, depth = read_photo(path, bit_depth)
     name = Path(path).name
     corners = check_corners(corners, raw.shape)
-    check_receiver_grid(resolution, half_width, supersample)
+    resolution, supersample = check_receiver_grid(resolution, half_width, supersample)
     if channel not in ("grey", "red", "green", "blue"):
         raise ValueError(f"data.channel={channel!r} must be 'grey', 'red', 'green' or 'blue'")
     full = FULL_SCALE.get(depth, 1)
     unit = "DN" if depth else "(fraction of full scale)"
-    if isinstance(black_level, bool) or not isinstance(black_level, (int, float)) or not 0 <= black_level < full:
-        raise ValueError(f"data.black_level={black_level!r} must lie in [0, {full}) {unit} for photo {name}")
-    if isinstance(saturation, bool) or not isinstance(saturation, (int, float)) or not 0 < saturation <= 1:
-        raise ValueError(f"data.saturation={saturation!r} must be a fraction of full scale in (0, 1], e.g. 0.98")
+    checked_number(black_level, "data.black_level", 0.0, below=full,
+                   must=f"must lie in [0, {full}) {unit} for photo {name}")
+    checked_number(saturation, "data.saturation", above=0.0, most=1.0,
+                   must="must be a fraction of full scale in (0, 1]", example="0.98")
     if not 0 <= max_dropped < 1:
         raise ValueError(f"max_dropped={max_dropped!r} must be a fraction in [0, 1)")
     linearize(np.zeros(1), response, gamma)  # refuses an unknown response

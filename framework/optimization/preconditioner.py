@@ -30,6 +30,7 @@ import scipy.fft
 import torch
 from torch import Tensor
 
+from operators.values import checked_whole
 
 __all__ = ["GradientPreconditioner", "SobolevPreconditioner", "check_stage_index", "neumann_laplacian_eigenvalues"]
 
@@ -71,10 +72,8 @@ def check_stage_index(stage: Any, key: str, null_means: str) -> int | None:
     ``solver.momentum_from``) as an index >= 0, or None (``null_means`` says what null does)."""
     if stage is None:
         return None
-    if isinstance(stage, bool) or not isinstance(stage, int) or stage < 0:
-        raise ValueError(f"{key}={stage!r} must be a preconditioner stage index >= 0 "
-                         f"(0: from the first length) or null ({null_means})")
-    return stage
+    return checked_whole(stage, key, 0, must="must be a preconditioner stage index >= 0 "
+                                             f"(0: from the first length) or null ({null_means})")
 
 
 def neumann_laplacian_eigenvalues(m: int) -> np.ndarray:

@@ -29,6 +29,8 @@ from typing import Any
 import torch
 from torch import Tensor
 
+from operators.values import checked_whole
+
 __all__ = ["LbfgsMemory", "check_quasi_newton"]
 
 
@@ -42,9 +44,7 @@ def check_quasi_newton(settings: Any) -> dict[str, int] | None:
                          "e.g. 8) and from_stage (the preconditioner stage it starts at, e.g. 1)")
     out = {"memory": settings.get("memory", 8), "from_stage": settings.get("from_stage", 1)}
     for key, low in (("memory", 1), ("from_stage", 0)):
-        value = out[key]
-        if isinstance(value, bool) or not isinstance(value, int) or value < low:
-            raise ValueError(f"solver.quasi_newton.{key}={value!r} must be an integer >= {low}")
+        out[key] = checked_whole(out[key], f"solver.quasi_newton.{key}", low)
     return out
 
 
@@ -56,9 +56,7 @@ class LbfgsMemory:
     """
 
     def __init__(self, memory: int = 8) -> None:
-        if isinstance(memory, bool) or int(memory) != memory or memory < 1:
-            raise ValueError(f"quasi-Newton memory={memory!r} must be an integer >= 1")
-        self.memory = int(memory)
+        self.memory = checked_whole(memory, "quasi-Newton memory", 1)
         self.pairs: list[tuple[Tensor, Tensor, float]] = []  # (s, y, 1 / s^T y)
         self.gamma = 1.0
 

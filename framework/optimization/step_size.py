@@ -14,7 +14,7 @@ from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from typing import Any, Callable
 
-from operators.values import checked_number
+from operators.values import checked_number, is_number
 
 __all__ = ["StepChoice", "StepSizePolicy", "ConstantStep", "BacktrackingStep", "LineSearchFailed", "as_step_policy",
            "backtrack"]
@@ -223,7 +223,7 @@ def as_step_policy(step_size: StepSizePolicy | float) -> StepSizePolicy:
     """A policy from a policy or a number (a number means :class:`ConstantStep`)."""
     if isinstance(step_size, StepSizePolicy):
         return step_size
-    if isinstance(step_size, (int, float)) and not isinstance(step_size, bool):
+    if is_number(step_size):
         return ConstantStep(step_size)
     raise ValueError(
         f"step_size must be a StepSizePolicy or a positive number, got {type(step_size).__name__}; "

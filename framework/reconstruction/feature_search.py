@@ -28,6 +28,7 @@ from scipy import ndimage
 from framework.core.contracts.start import Start, StartRequest, StartResult
 from framework.core.problem import Problem
 from framework.reconstruction.photon_budget import with_photons
+from operators.values import checked_whole
 
 __all__ = ["LineFeature", "line_features", "collapsed", "FeatureSearch", "SearchedLines"]
 
@@ -159,8 +160,7 @@ class FeatureSearch:
     """
 
     def __init__(self, problem: Problem, photons: int, seed: int) -> None:
-        if isinstance(photons, bool) or not isinstance(photons, int) or photons < 1:
-            raise ValueError(f"feature search photons={photons!r} must be an integer >= 1")
+        photons = checked_whole(photons, "feature search photons", 1)
         self.problem = problem
         self.operator = with_photons(problem.operator, min(photons, int(problem.operator.photons)), seed)
         self.renders = 0

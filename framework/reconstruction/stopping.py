@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING
 from torch import Tensor
 
 from framework.core.contracts.stopping import StoppingRule
+from operators.values import checked_whole
 
 if TYPE_CHECKING:
     from framework.core.problem import Problem
@@ -126,11 +127,11 @@ class StagnationStopping(StoppingRule):
     """
 
     def __init__(self, patience: int = 8, min_improvement: float = 1e-3) -> None:
-        if isinstance(patience, bool) or int(patience) != patience or int(patience) < 1:
-            raise ValueError(f"patience={patience!r} must be an integer >= 1 (iterations), e.g. 8; null disables the rule")
+        patience = checked_whole(patience, "patience", 1, must="must be an integer >= 1 (iterations)",
+                                 example="8; null disables the rule")
         if not 0.0 <= float(min_improvement) < 1.0:
             raise ValueError(f"min_improvement={min_improvement!r} must lie in [0, 1), e.g. 1e-3")
-        self.patience, self.min_improvement = int(patience), float(min_improvement)
+        self.patience, self.min_improvement = patience, float(min_improvement)
         self.best_discrepancy = math.inf
         self.best_iteration: int | None = None
         self.best_d: Tensor | None = None

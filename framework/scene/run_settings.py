@@ -40,12 +40,6 @@ def design_given(cfg: Mapping[str, Any]) -> bool:
         isinstance(initial, Mapping) and initial.get("name") == "design")
 
 
-def _seed(value: Any) -> int:
-    if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value < 2 ** 63:
-        raise ValueError(f"seed={value!r} must be an integer in [0, 2^63)")
-    return value
-
-
 @dataclass(frozen=True)
 class TrackingSettings:
     """Where the run is logged: the MLflow ``experiment``, the local store directory ``store_dir``
@@ -81,9 +75,9 @@ class PhotonBudgetSettings:
             raise ValueError(f"photon_budget has unknown key(s) {unknown}; its keys are start and noise_share")
         start = budget.get("start")
         share = budget.get("noise_share", 0.5)
-        if isinstance(share, bool) or not isinstance(share, (int, float)) or not 0.0 < float(share) <= 1.0:
-            raise ValueError(f"photon_budget.noise_share={share!r} must lie in (0, 1], e.g. 0.5")
-        return cls(None if start is None else checked_whole(start, "photon_budget.start", least=1), float(share))
+        share = checked_number(share, "photon_budget.noise_share", most=1.0, above=0.0, must="must lie in (0, 1]",
+                               example="0.5")
+        return cls(None if start is None else checked_whole(start, "photon_budget.start", least=1), share)
 
 
 @dataclass(frozen=True)
@@ -135,7 +129,8 @@ class RunSettings:
         tags = {"method": method, "scene": (plain.get("height_field") or {}).get("shape", "file"),
                 "data": data.get("name"), "operator": (plain.get("operator") or {}).get("name"),
                 "solver": (plain.get("solver") or {}).get("name")}
-        return cls(plain, mm, _seed(plain.get("seed", 0)), method,
+        seed = checked_whole(plain.get("seed", 0), "seed", 0, 2 ** 63 - 1, must="must be an integer in [0, 2^63)")
+        return cls(plain, mm, seed, method,
                    checked_whole(plain.get("checkpoint_every"), "checkpoint_every", least=1),
                    bool(plain.get("compile_in_background", True)), plain.get("resume"),
                    TrackingSettings.parse(plain.get("tracking")), tags, design_given(plain),

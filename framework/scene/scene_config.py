@@ -44,6 +44,7 @@ from operators.imaging import PSF_KINDS, ImagingOperator
 from operators.materials import material_from_config
 from operators.scene import Light, Receiver, Scene, Substrate
 from operators.stack import StackOperator
+from operators.values import checked_number, checked_whole, is_number
 
 __all__ = ["SceneSetup", "build_scene", "build_heights", "build_operator", "build_stack", "operator_builder", "heights_from_spec", "height_grid",
            "screen_settings", "screen_sigma", "to_plain"]
@@ -78,16 +79,6 @@ def _group(cfg: Mapping[str, Any], name: str, allowed: tuple[str, ...]) -> dict[
     return dict(value)
 
 
-def _number(name: str, value: Any, kind: type = float) -> Any:
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise ValueError(f"{name}={value!r} must be a number")
-    if kind is int:
-        if int(value) != value:
-            raise ValueError(f"{name}={value} must be an integer")
-        return int(value)
-    return float(value)
-
-
 def build_scene(cfg: Mapping[str, Any], mm: float | None = None) -> Scene:
     """Scene (light, substrate, receiver, material, wavelengths in um) from the config's top-level
     keys; lengths in scene units or with a unit (framework/core/units.py), ``mm`` millimetres per
@@ -100,24 +91,25 @@ def build_scene(cfg: Mapping[str, Any], mm: float | None = None) -> Scene:
             raise ValueError(f"light.position={position!r} must be [x, y, z], e.g. light.position=[0,0,10]")
         light["position"] = tuple(scene_length(v, mm, f"light.position[{i}]") for i, v in enumerate(position))
     if "power" in light:
-        light["power"] = _number("light.power", light["power"])
+        light["power"] = checked_number(light["power"], "light.power", must="must be a number")
     if "size" in light:
         light["size"] = scene_length(light["size"], mm, "light.size")
     if "points" in light:
-        light["points"] = _number("light.points", light["points"], int)
+        light["points"] = checked_whole(light["points"], "light.points")
     substrate = {k: v if k == "walls" else scene_length(v, mm, f"substrate.{k}")
                  for k, v in _group(cfg, "substrate", SCENE_KEYS["substrate"]).items()}
     receiver = _group(cfg, "receiver", SCENE_KEYS["receiver"])
-    receiver = {k: _number(f"receiver.{k}", v, int) if k == "resolution" else scene_length(v, mm, f"receiver.{k}")
+    receiver = {k: checked_whole(v, f"receiver.{k}") if k == "resolution" else scene_length(v, mm, f"receiver.{k}")
                 for k, v in receiver.items()}
     wavelengths = to_plain(cfg.get("wavelengths", [0.633]))
-    if isinstance(wavelengths, (int, float)) and not isinstance(wavelengths, bool):
+    if is_number(wavelengths):
         wavelengths = [wavelengths]
     if not isinstance(wavelengths, (list, tuple)):
         raise ValueError(f"wavelengths={wavelengths!r} must be a list in micrometres, e.g. [0.633]")
     return Scene(light=Light(**light), substrate=Substrate(**substrate), receiver=Receiver(**receiver),
                  material=material_from_config(to_plain(cfg.get("material")) or None),
-                 wavelengths=tuple(_number(f"wavelengths[{i}]", v) for i, v in enumerate(wavelengths)),
+                 wavelengths=tuple(checked_number(v, f"wavelengths[{i}]", must="must be a number")
+                                   for i, v in enumerate(wavelengths)),
                  mm_per_unit=mm)
 
 
@@ -126,7 +118,7 @@ MAX_RESOLUTION = 8192  # height samples per side: 8192^2 float64 is 0.5 GB per c
 
 def _grid_resolution(spec: Mapping[str, Any]) -> int:
     """``height_field.resolution`` m, checked: an integer in [2, MAX_RESOLUTION]."""
-    resolution = _number("height_field.resolution", spec.get("resolution", DEFAULT_RESOLUTION), int)
+    resolution = checked_whole(spec.get("resolution", DEFAULT_RESOLUTION), "height_field.resolution")
     if not 2 <= resolution <= MAX_RESOLUTION:
         raise ValueError(f"height_field.resolution={resolution} must lie in [2, {MAX_RESOLUTION}] (samples per side; "
                          "128 is the default)")
@@ -155,7 +147,7 @@ def heights_from_spec(spec: Mapping[str, Any], mm: float, base_dir: str | Path |
     resolution = _grid_resolution(spec)
     scale = scene_length(spec.get("scale", 1.0), mm, "height_field.scale")
     path = spec.get("path")
-    if path is not None and (not isinstance(path, str) or isinstance(path, bool)):
+    if path is not None and not isinstance(path, str):
         raise ValueError(f"height_field.path={path!r} must be a file name (.npy/.png/.tif/.stl/.obj/.ply) or null")
     if path:
         path = Path(path)
@@ -208,10 +200,8 @@ def operator_builder(cfg: Mapping[str, Any]) -> Callable[[Scene], Operator]:
     """Builds the operator plugin named by ``operator.name`` for a scene, with ``photons``, ``seed``
     and the rest of the ``operator`` group (which the plugin checks)."""
     name, params = split_name(to_plain(cfg.get("operator")), "operator")
-    photons = _number("photons", cfg.get("photons"), int)
-    seed = _number("seed", cfg.get("seed", 0), int)
-    if not 0 <= seed < 2 ** 63:
-        raise ValueError(f"seed={seed} must be an integer in [0, 2^63)")
+    photons = checked_whole(cfg.get("photons"), "photons")
+    seed = checked_whole(cfg.get("seed", 0), "seed", 0, 2 ** 63 - 1, must="must be an integer in [0, 2^63)")
 
     def build(for_scene: Scene) -> Operator:
         return build_plugin("operator", name, dict(params), "operator", scene=for_scene, photons=photons, seed=seed)

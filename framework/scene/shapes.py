@@ -24,6 +24,8 @@ from typing import Callable, Sequence
 
 import numpy as np
 
+from operators.values import checked_whole
+
 __all__ = ["SHAPES", "make_shape", "grid", "g", "G2", "line_v", "line_h", "print_lines_on",
            "flat", "gaussian", "print_lines", "oblique_lines", "bump", "letter_a", "segment_distance"]
 
@@ -176,10 +178,9 @@ def make_shape(name: str, resolution: int, **params: object) -> np.ndarray:
     """
     if name not in SHAPES:
         raise ValueError(f"unknown shape {name!r}; known shapes: {', '.join(sorted(SHAPES))}")
-    if isinstance(resolution, bool) or int(resolution) != resolution or resolution < 2:
-        raise ValueError(f"resolution={resolution} must be an integer >= 2, e.g. 128")
+    resolution = checked_whole(resolution, "resolution", 2, example="128")
     function = SHAPES[name]
     _check_params(name, function, params)
-    x, y = grid(int(resolution))
+    x, y = grid(resolution)
     d = np.asarray(function(x, y, **params), dtype=np.float64)
     return np.clip(d, 0.0, None)

@@ -31,6 +31,7 @@ from framework.core.registry import available
 from framework.core.shots import SETUP_KEYS, ShotSetup, shot_setup
 from framework.data.sources import FileData
 from operators.scene import Scene
+from operators.values import checked_whole
 
 __all__ = ["StackData", "noise_weights", "stacked_data"]
 
@@ -136,9 +137,9 @@ class StackData(ShotStack):
                              "data.shots='[{screen_distance: 0.05}, {screen_distance: 0.2}]'")
         if common is not None and not isinstance(common, Mapping):
             raise ValueError(f"data.common={common!r} must be a mapping of keys every shot gets, e.g. {{delta: 0.05}}")
-        if not (start_shot == "farthest" or (isinstance(start_shot, int) and not isinstance(start_shot, bool)
-                                             and 0 <= start_shot < len(shots))):
-            raise ValueError(f"data.start_shot={start_shot!r} must be 'farthest' or a shot index in [0, {len(shots)})")
+        if start_shot != "farthest":
+            start_shot = checked_whole(start_shot, "data.start_shot", 0, len(shots) - 1,
+                                       must=f"must be 'farthest' or a shot index in [0, {len(shots)})")
         self.specs: list[dict[str, Any]] = []
         self.sources: list[Any] = []
         for i, spec in enumerate(shots):

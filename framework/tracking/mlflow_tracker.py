@@ -37,6 +37,7 @@ from typing import TYPE_CHECKING, Any
 from framework.core.solver_loop import Callback
 from framework.tracking.store_template import create_empty_store
 from framework.tracking.tracking_dataset import data_dataset
+from operators.values import checked_whole
 
 if TYPE_CHECKING:
     from framework.core.data import ReconstructionData
@@ -367,8 +368,7 @@ class MlflowMetricsCallback(Callback):
     order = 50
 
     def __init__(self, tracker: MlflowTracker, every: int = 1, step_offset: int = 0) -> None:
-        if isinstance(every, bool) or not isinstance(every, int) or every < 1:
-            raise ValueError(f"every must be an int >= 1, got {every!r}")
+        every = checked_whole(every, "every", 1)
         self.tracker, self.every, self.step_offset = tracker, every, int(step_offset)
         self._last_logged = -1
 

@@ -39,6 +39,7 @@ from operators.materials import DispersionCurve, material_from_config
 from operators.mesh.crossings import mutual_crossings, self_crossings
 from operators.mesh.shapes import crease_normals, lens, lens_array, prism
 from operators.units import DEFAULT_MM_PER_UNIT, scene_length
+from operators.values import checked_number, checked_whole, is_number
 
 __all__ = ["OpticalElement", "GENERATORS", "ELEMENT_KEYS", "LARGE_MESH_FACES", "MeshProgress", "load_mesh",
            "make_element", "make_elements", "check_layout", "PrintReachesElement"]
@@ -148,14 +149,6 @@ def load_mesh(path: str | Path, what: str | None = None) -> trimesh.Trimesh:
     return mesh.process()
 
 
-def _number(value: Any, where: str, fix: str, integer: bool = False) -> float | int:
-    """``value`` as a float (``integer``: an int), else a ValueError naming ``where`` and ``fix``."""
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or (
-            integer and not (math.isfinite(value) and int(value) == value)):
-        raise ValueError(f"{where}={value!r} must be {fix}")
-    return int(value) if integer else float(value)
-
-
 def _triple(value: Any, where: str, read: Callable[[Any, str], float], fix: str) -> tuple[float, float, float]:
     """Three values read by ``read`` from a list, else a ValueError naming ``where`` and ``fix``."""
     if not isinstance(value, Sequence) or isinstance(value, (str, bytes)) or len(value) != 3:
@@ -190,10 +183,15 @@ def _generator_params(shape: str, params: Any, where: str, mm_per_unit: float) -
         if typing.get_origin(hint) is typing.Annotated:
             values[key] = scene_length(value, mm_per_unit, name)
         elif hint is int:
-            values[key] = _number(value, name, "an integer", integer=True)
+            values[key] = checked_whole(value, name, must="must be an integer")
         else:
-            values[key] = _number(value, name, "a number")
+            values[key] = checked_number(value, name, must="must be a number")
     return values
+
+
+def _is_name(name: Any) -> bool:
+    """Whether ``name`` can name an element: a non-empty string or an int (not a bool)."""
+    return (isinstance(name, str) or (isinstance(name, int) and is_number(name))) and str(name) != ""
 
 
 def make_element(spec: Mapping[str, Any], base_dir: str | Path | None = None,
@@ -205,7 +203,7 @@ def make_element(spec: Mapping[str, Any], base_dir: str | Path | None = None,
         raise ValueError(f"{where or 'an element'}={spec!r} must be a mapping with keys {', '.join(ELEMENT_KEYS)}")
     spec = dict(spec)
     name = spec.get("name", "element")
-    if not isinstance(name, (str, int)) or isinstance(name, bool) or str(name) == "":
+    if not _is_name(name):
         raise ValueError(f"{where or 'operator.elements'}.name={name!r} must be a string, e.g. top_lens")
     name = str(name)
     key = where or f"operator.elements.{name}"
@@ -220,10 +218,11 @@ def make_element(spec: Mapping[str, Any], base_dir: str | Path | None = None,
                        lambda v, at: scene_length(v, mm_per_unit, at),
                        "[x, y, z] (scene units or strings such as '27 mm'), e.g. [0, 0, 1.15]")
     rotation = _triple(spec.get("rotation_deg", (0.0, 0.0, 0.0)), f"{key}.rotation_deg",
-                       lambda v, at: _number(v, at, "a number of degrees"),
+                       lambda v, at: checked_number(v, at, must="must be a number of degrees"),
                        "[x, y, z] in degrees, e.g. [0, 0, 45]")
     material = material_from_config(spec.get("material"), f"{key}.material")
-    crease = _number(spec.get("crease_angle_deg", 30.0), f"{key}.crease_angle_deg", "a number of degrees, e.g. 30")
+    crease = checked_number(spec.get("crease_angle_deg", 30.0), f"{key}.crease_angle_deg",
+                            must="must be a number of degrees", example="30")
     if not 0.0 <= crease < 180.0:
         raise ValueError(f"{key}.crease_angle_deg={crease:g} must lie in [0, 180), e.g. 30")
     if shape == "file":
@@ -277,7 +276,7 @@ def make_elements(specs: Any, base_dir: str | Path | None = None, mm_per_unit: f
     elements = []
     for index, spec in enumerate(specs):
         name = spec.get("name") if isinstance(spec, Mapping) else None
-        named = isinstance(name, (str, int)) and not isinstance(name, bool) and str(name) != ""
+        named = _is_name(name)
         key = f"{where}.{name}" if named else f"{where}.{index}"
         if named and str(name) in names:
             raise ValueError(f"{key}: two elements are named {name}; give each element its own name")

@@ -61,6 +61,7 @@ from operators.kernels.numba_settings import jit_call, jit_parallel
 from operators.optics.native import ZERO, fresnel
 from operators.heightfield.surface import validate_heights
 from operators.scene import Scene
+from operators.values import checked_flag, checked_whole
 from operators.wavefront.coverage import rasterize_grid, rasterize_triangles
 from operators.wavefront.flux import grid_flux, grid_solid_angles, triangle_solid_angle
 
@@ -76,8 +77,8 @@ CHILDREN = np.array([[0, 3, 5], [3, 1, 4], [5, 4, 2], [3, 4, 5]])
 def wavefront_vertices(photons: int, channels: int) -> int:
     """Grid size K for a photon budget: (K - 1)^2 = photons / channels cells per channel, each
     of the emitter's cell area (2 W)^2 / photons-per-channel; about ``photons`` vertices in all."""
-    if isinstance(photons, bool) or int(photons) != photons or photons < channels:
-        raise ValueError(f"photons={photons!r} must be an integer >= the number of wavelengths ({channels})")
+    photons = checked_whole(photons, "photons", channels,
+                            must=f"must be an integer >= the number of wavelengths ({channels})")
     return int(round(math.sqrt(photons / channels))) + 1
 
 
@@ -149,17 +150,14 @@ class WavefrontRenderer:
 
     def __init__(self, scene: Scene, vertices: int | None = None, fresnel: bool = False,
                  chunk_size: int = 1 << 18, subdivisions: int = 3, tracer: str = "native") -> None:
-        k = self.default_vertices(scene) if vertices is None else vertices
-        if isinstance(k, bool) or int(k) != k or k < 2:
-            raise ValueError(f"vertices={vertices!r} must be an integer >= 2 (aim points per side), e.g. 2049")
-        if isinstance(chunk_size, bool) or int(chunk_size) != chunk_size or chunk_size < 1:
-            raise ValueError(f"chunk_size={chunk_size!r} must be a positive integer, e.g. 262144")
-        if isinstance(subdivisions, bool) or int(subdivisions) != subdivisions or not 0 <= subdivisions <= MAX_SUBDIVISIONS:
-            raise ValueError(f"subdivisions={subdivisions!r} must be an integer in [0, {MAX_SUBDIVISIONS}]")
+        k = checked_whole(self.default_vertices(scene) if vertices is None else vertices, "vertices", 2,
+                          must="must be an integer >= 2 (aim points per side)", example="2049")
+        chunk_size = checked_whole(chunk_size, "chunk_size", 1, must="must be a positive integer", example="262144")
+        subdivisions = checked_whole(subdivisions, "subdivisions", 0, MAX_SUBDIVISIONS,
+                                     must=f"must be an integer in [0, {MAX_SUBDIVISIONS}]")
         if tracer not in TRACERS:
             raise ValueError(f"tracer={tracer!r} must be one of {', '.join(TRACERS)}")
-        if not isinstance(fresnel, bool):
-            raise ValueError(f"fresnel={fresnel!r} must be true or false")
+        checked_flag(fresnel, "fresnel")
         if scene.light.extended:
             raise ValueError(f"light.shape={scene.light.shape}: the wavefront renderer traces a point light; render an "
                              "extended one by operators.wavefront.extended.ExtendedLightReference")

@@ -233,7 +233,7 @@ def test_sfcs_lbfgs_turns_a_one_pixel_gradient_into_a_broad_first_step(tmp_path)
     cfg = compose_design([*SMALL, "height_field.resolution=64"], tmp_path)
     problem = prepare_design(cfg).problem
     name, params = split_name(method_settings(cfg)["solver"], "design_method.solver")
-    solver = build_plugin("solver", name, params, "design_method.solver")(problem, torch.zeros(64, 64))
+    solver = build_plugin("design", name, params, "design_method.solver")(problem, torch.zeros(64, 64))
     spike = torch.zeros(64, 64, dtype=torch.float64)
     spike[32, 32] = 1.0
     step = -solver._direction(spike)

@@ -65,7 +65,8 @@ def _require(condition: bool, who: str, what: str) -> None:
 # The base every registered plugin of a kind derives from (step_size and preconditioner: their
 # bases in framework/optimization/, checked by tests/test_plugin_contracts.py).
 BASES: dict[str, type] = {"operator": ImageOperator, "data": DataSource, "initial": Start, "solver": IterativeSolver,
-                          "stopping": StoppingRule, "regularizer": Regularizer, "post_step": PostStepUpdate}
+                          "design": IterativeSolver, "stopping": StoppingRule, "regularizer": Regularizer,
+                          "post_step": PostStepUpdate}
 
 
 def check_base(kind: str, name: str, base: type | None = None) -> None:
@@ -74,7 +75,7 @@ def check_base(kind: str, name: str, base: type | None = None) -> None:
     plugin, base, who = lookup(kind, name), base or BASES[kind], f"{kind}/{name}"
     _require(isinstance(plugin, type) and issubclass(plugin, base), who,
              f"is {plugin!r}, not a subclass of {base.__module__}.{base.__qualname__}; derive from it")
-    if kind == "solver":
+    if kind in ("solver", "design"):
         _require(callable(declared(kind, name, "from_config", None)), who,
                  "has no from_config(**settings) returning the builder (problem, d0) -> solver")
 

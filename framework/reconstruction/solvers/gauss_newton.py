@@ -29,6 +29,7 @@ from framework.core.contracts.solver import SolverBuilder
 from framework.core.solver_loop import IterationRecord
 from framework.reconstruction.solvers.pixel_methods import PixelLandweber
 from framework.reconstruction.solvers.proximal_parts import build_parts, check_regularizers
+from operators.values import checked_number, checked_whole
 
 __all__ = ["GaussNewtonLandweber", "check_gauss_newton"]
 
@@ -44,13 +45,9 @@ def check_gauss_newton(settings: Any) -> dict[str, float]:
         raise ValueError(f"solver.gauss_newton={settings!r} must be a map with keys among {', '.join(DEFAULTS)}, "
                          "e.g. {cg_iterations: 6, damping: 0.1}")
     out = {**DEFAULTS, **settings}
-    iterations = out["cg_iterations"]
-    if isinstance(iterations, bool) or not isinstance(iterations, int) or iterations < 1:
-        raise ValueError(f"solver.gauss_newton.cg_iterations={iterations!r} must be an integer >= 1")
+    out["cg_iterations"] = checked_whole(out["cg_iterations"], "solver.gauss_newton.cg_iterations", 1)
     for key in ("cg_tolerance", "damping", "fd_step"):
-        value = out[key]
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0.0 < float(value) < float("inf"):
-            raise ValueError(f"solver.gauss_newton.{key}={value!r} must be a positive number")
+        out[key] = checked_number(out[key], f"solver.gauss_newton.{key}", above=0.0)
     if out["cg_tolerance"] >= 1.0:
         raise ValueError(f"solver.gauss_newton.cg_tolerance={out['cg_tolerance']!r} must lie in (0, 1): the residual "
                          "of the linear solve relative to the gradient")

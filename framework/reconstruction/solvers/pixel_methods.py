@@ -18,6 +18,7 @@ from framework.optimization.preconditioner import GradientPreconditioner
 from framework.reconstruction.solvers.proximal_gradient import Candidate, ProximalGradientSolver
 from framework.reconstruction.solvers.proximal_parts import build_parts, check_regularizers
 from framework.optimization.step_size import StepSizePolicy
+from operators.values import checked_number
 
 __all__ = ["GradientDescent", "PixelLandweber"]
 
@@ -75,10 +76,9 @@ class GradientDescent(ProximalGradientSolver):
         without regularisers no sample is pinned, so ``two_metric_from`` changes nothing);
         ``min_thickness`` in [0, 1): the fraction of the substrate thickness h that every sample
         keeps (floor = -(1 - min_thickness) h; null: no floor)."""
-        if min_thickness is not None and (isinstance(min_thickness, bool) or not isinstance(min_thickness, (int, float))
-                                          or not 0.0 <= float(min_thickness) < 1.0):
-            raise ValueError(f"solver.min_thickness={min_thickness!r} must lie in [0, 1) (fraction of the substrate "
-                             "thickness every sample keeps, e.g. 0.1) or be null")
+        if min_thickness is not None:
+            checked_number(min_thickness, "solver.min_thickness", 0.0, below=1.0, must="must lie in [0, 1) (fraction "
+                           "of the substrate thickness every sample keeps, e.g. 0.1) or be null")
         def fresh_parts() -> dict[str, Any]:
             return build_parts(step_size, preconditioner, two_metric_from=two_metric_from, momentum_from=momentum_from,
                                quasi_newton=quasi_newton, shaped_start_from=shaped_start_from)

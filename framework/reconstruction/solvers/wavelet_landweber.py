@@ -39,6 +39,7 @@ from framework.core.contracts.solver import SolverBuilder
 from framework.reconstruction.solvers.proximal_gradient import Candidate, ProximalGradientSolver
 from framework.reconstruction.solvers.proximal_parts import build_parts
 from framework.optimization.step_size import StepSizePolicy
+from operators.values import checked_number
 from regularizers import CoefficientRegularizer, CoefficientTransform
 
 __all__ = ["WaveletLandweber"]
@@ -82,7 +83,7 @@ class WaveletLandweber(ProximalGradientSolver):
         quasi_newton: Mapping[str, Any] | None = None,
         shaped_start_from: str = "first",
     ) -> None:
-        self._check_pixel_step_ratio(pixel_step_ratio)
+        checked_number(pixel_step_ratio, "pixel_step_ratio", above=0.0, unit="tau_p / tau_w")
         if not isinstance(wavelet, CoefficientTransform):
             raise ValueError("landweber_wavelet needs a wavelet transform (a CoefficientTransform, regularizers/base.py); "
                              f"got {type(wavelet).__name__}")
@@ -96,11 +97,6 @@ class WaveletLandweber(ProximalGradientSolver):
                          two_metric_from, momentum_from, quasi_newton, shaped_start_from)
         self.coefficients: Tensor = self.wavelet.forward(self.state.d)  # w = W d, flat
         self._metric: Tensor | None = None  # diag of W P W^* for the current preconditioner stage
-
-    @staticmethod
-    def _check_pixel_step_ratio(ratio: float) -> None:
-        if isinstance(ratio, bool) or not isinstance(ratio, (int, float)) or not float(ratio) > 0.0:
-            raise ValueError(f"pixel_step_ratio (tau_p / tau_w) must be > 0, got {ratio!r}")
 
     @staticmethod
     def example_settings() -> dict[str, Any]:
@@ -127,7 +123,7 @@ class WaveletLandweber(ProximalGradientSolver):
         if not isinstance(shrink, CoefficientRegularizer):
             raise ValueError(f"solver.wavelet_regularizer={name} has no wavelet transform (transform_for); "
                              "use l1_wavelet")
-        cls._check_pixel_step_ratio(pixel_step_ratio)
+        checked_number(pixel_step_ratio, "solver.pixel_step_ratio", above=0.0, unit="tau_p / tau_w")
 
         def build(problem, d0: Tensor) -> WaveletLandweber:
             parts = fresh_parts()  # every run from a start with its own step size and preconditioner stage

@@ -2,9 +2,7 @@
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
-from typing import Any
 
 import torch
 
@@ -12,14 +10,9 @@ from framework.files.image_io import resolve_path
 from framework.files.height_field_io import load_height_field
 
 from framework.core.contracts.start import Start, StartRequest, StartResult
+from operators.values import checked_number
 
 __all__ = ["ZeroStart", "DesignStart", "FileStart"]
-
-
-def _scale(value: Any) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0.0 <= value < math.inf:
-        raise ValueError(f"initial.scale={value!r} must be a finite number >= 0, e.g. 0.5")
-    return float(value)
 
 
 def _checked_shape(d: torch.Tensor, request: StartRequest, what: str) -> torch.Tensor:
@@ -48,7 +41,7 @@ class DesignStart(Start):
     reads_design = True
 
     def __init__(self, scale: float = 1.0) -> None:
-        self.scale = _scale(scale)
+        self.scale = checked_number(scale, "initial.scale", 0.0, must="must be a finite number >= 0", example="0.5")
 
     def __call__(self, request: StartRequest) -> StartResult:
         d = request.design().double() * self.scale
@@ -65,7 +58,8 @@ class FileStart(Start):
         if not isinstance(path, str) or not path:
             raise ValueError(f"initial.path={path!r}: give the height field to start from, e.g. "
                              "initial=file initial.path=outputs/<run>/height_field.npy")
-        self.path, self.scale = path, _scale(scale)
+        self.path = path
+        self.scale = checked_number(scale, "initial.scale", 0.0, must="must be a finite number >= 0", example="0.5")
 
     def check(self, base_dir: Path) -> Path:
         """The file, which must exist (checked before the run opens)."""

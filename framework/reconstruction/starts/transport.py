@@ -37,6 +37,7 @@ from scipy.sparse.linalg import factorized
 from framework.optimization.semi_discrete_transport import semi_discrete_transport
 from operators.optics.inverse_refraction import snell_normals
 from operators.light_paths import LightPath, flat_exit, refract_down
+from operators.values import checked_number, checked_whole
 from regularizers import RegularizerContext
 from regularizers.volume_prox import VolumeSlabL1Bounds
 
@@ -198,17 +199,13 @@ class TransportStart(Start):
     def __init__(self, photons: int = 262144, reach: float = 0.05, black_level: float = 1e-3, smoothness: float = 0.1,
                  p1: float = 0.0, p2: float = 0.3, volume_tolerance: float = 0.02, outer_iterations: int = 2,
                  newton_steps: int = 20, mass_tolerance: float = 1e-3) -> None:
-        for key, value in (("photons", photons), ("outer_iterations", outer_iterations),
-                           ("newton_steps", newton_steps)):
-            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-                raise ValueError(f"initial.{key}={value!r} must be an integer >= 1")
+        photons, outer_iterations, newton_steps = (checked_whole(value, f"initial.{key}", 1) for key, value in (
+            ("photons", photons), ("outer_iterations", outer_iterations), ("newton_steps", newton_steps)))
         for key, value, low, high in (("reach", reach, 0.0, 1.0), ("black_level", black_level, 0.0, 1.0),
                                       ("volume_tolerance", volume_tolerance, 0.0, 1.0),
                                       ("mass_tolerance", mass_tolerance, 0.0, 1.0)):
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not low < value < high:
-                raise ValueError(f"initial.{key}={value!r} must lie in ({low}, {high})")
-        if isinstance(smoothness, bool) or not isinstance(smoothness, (int, float)) or not smoothness >= 0:
-            raise ValueError(f"initial.smoothness={smoothness!r} must be a number >= 0")
+            checked_number(value, f"initial.{key}", above=low, below=high, must=f"must lie in ({low}, {high})")
+        checked_number(smoothness, "initial.smoothness", 0.0)
         if not (isinstance(p1, (int, float)) and isinstance(p2, (int, float)) and 0.0 <= p1 < p2 < math.inf):
             raise ValueError(f"initial.p1={p1!r}, initial.p2={p2!r} must satisfy 0 <= p1 < p2 (scene units)")
         self.photons, self.reach, self.black_level, self.smoothness = photons, float(reach), float(black_level), float(smoothness)
