@@ -43,9 +43,9 @@ from experiments.timing import best_seconds
 from framework.scene.shapes import make_shape
 from operators.heightfield.operator import CausticOperator, OperatorSettings
 from operators.scene import Scene
-from operators.stack import StackOperator
-from operators.splat.splat import splat_photons
 from operators.splat.reference import splat_photons_reference
+from operators.splat.splat import splat_photons
+from operators.stack import StackOperator
 
 # Throughput the CPU path is held to on a 2-core machine (docs/performance.md): photons/s.
 TARGET_FORWARD = 5e6

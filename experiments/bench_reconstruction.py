@@ -20,8 +20,8 @@ from typing import Any, Sequence
 
 from hydra import compose, initialize_config_dir
 
-from framework.scene.scene_config import to_plain
 from framework.reconstruction.reconstruction import run_reconstruction
+from framework.scene.scene_config import to_plain
 
 CONFIG_DIR = str(Path(__file__).resolve().parent.parent / "conf")
 

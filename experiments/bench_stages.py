@@ -22,9 +22,9 @@ import numba as nb
 import numpy as np
 
 from operators.heightfield.adjoint_native import vjp_range
+from operators.heightfield.intersect_native import packet_gaps, solve_hits
 from operators.heightfield.kernels_native import PACKET, emit, packet_jets, render_range
 from operators.heightfield.trace_native import NO_HITS
-from operators.heightfield.intersect_native import packet_gaps, solve_hits
 from operators.kernels.numba_settings import FAST_MATH
 
 # Cuts of the forward photon path, in order; each includes the ones before.

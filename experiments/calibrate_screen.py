@@ -29,11 +29,11 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
-from experiments.input_errors import one_line_input_errors  # noqa: E402
 from experiments.configs import chooses_start, reconstruct_config  # noqa: E402
-from framework.scene.scene_config import build_scene  # noqa: E402
-from framework.reconstruction.reconstruction import run_reconstruction  # noqa: E402
+from experiments.input_errors import one_line_input_errors  # noqa: E402
 from framework.lab.width_search import MIN_RISE, WidthProfile, search_width  # noqa: E402
+from framework.reconstruction.reconstruction import run_reconstruction  # noqa: E402
+from framework.scene.scene_config import build_scene  # noqa: E402
 from operators.values import checked_whole  # noqa: E402
 
 GRID_PX = (0.35, 0.7, 1.4, 2.8)

@@ -23,9 +23,9 @@ from hydra.utils import get_original_cwd
 from omegaconf import DictConfig
 
 from experiments.input_errors import one_line_input_errors
-from framework.scene.scene_config import to_plain
 from framework.design.design_run import run_design
 from framework.design.design_setup import prepare_design
+from framework.scene.scene_config import to_plain
 
 CONFIG_DIR = str(Path(__file__).resolve().parent.parent / "conf")
 

@@ -26,7 +26,8 @@ from matplotlib.figure import Figure
 
 from experiments.configs import reconstruct_config
 from experiments.defect_prints import apply_defect, feature_sites
-from experiments.mlflow_store import TrackingStore, artifact, latest_runs, reproduction_parser, run_sweep, tracking_store
+from experiments.mlflow_store import (TrackingStore, artifact, latest_runs, reproduction_parser, run_sweep,
+                                      tracking_store)
 from framework.scene.scene_config import build_heights
 
 EXPERIMENT = "defects"

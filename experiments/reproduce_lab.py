@@ -41,12 +41,12 @@ from PIL import Image
 from experiments.calibrate_screen import calibrate
 from experiments.configs import known_print, reconstruct_config
 from experiments.mlflow_store import TrackingStore
-from framework.lab.calibration import with_setup
 from framework.core.callbacks import GroundTruthError
 from framework.core.data import resample_image
+from framework.lab.calibration import with_setup
 from framework.lab.photo_synthesis import synthesize_photo
-from framework.reconstruction.reconstruction import run_reconstruction
 from framework.reconstruction.parts import Reconstruction
+from framework.reconstruction.reconstruction import run_reconstruction
 from framework.scene.scene_config import build_heights, build_operator, build_scene, height_grid
 
 SCENES = ("print_lines", "bump")

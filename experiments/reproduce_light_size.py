@@ -24,8 +24,8 @@ import torch
 
 from experiments.configs import reconstruct_config
 from experiments.input_errors import one_line_input_errors
-from framework.scene.scene_config import build_heights, build_scene
 from framework.reconstruction.reconstruction import run_reconstruction
+from framework.scene.scene_config import build_heights, build_scene
 from operators.wavefront.extended import ExtendedLightReference
 
 PHOTO_VERTICES = 1025  # wavefront aim points per side of every source point's render

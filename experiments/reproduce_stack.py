@@ -29,12 +29,12 @@ from typing import Any
 import numpy as np
 import torch
 
-from experiments.mlflow_store import TrackingStore
 from experiments.configs import known_print, reconstruct_config
+from experiments.mlflow_store import TrackingStore
 from experiments.reproduce_lab import error_against, true_caustic, truth_and_volume, with_noise
 from framework.core.data import resample_image
-from framework.stack.stack_data import StackData
 from framework.reconstruction.reconstruction import run_reconstruction
+from framework.stack.stack_data import StackData
 
 SCREEN_SETS = ((0.05,), (0.05, 0.2), (0.05, 0.2, 1.0), (1.0, 0.05))
 WEIGHTINGS = StackData.WEIGHTINGS  # data.weighting

@@ -14,9 +14,9 @@ The plugins (declared as entry points in pyproject.toml; kind ``regularizer`` un
 
 from .base import CoefficientRegularizer, CoefficientTransform, PostStepUpdate, Regularizer, RegularizerContext
 from .bounds import HeightBounds
-from .pixel_l1 import PixelL1
 from .l1_bounds import PixelL1Bounds
 from .l1_design import PixelL1DesignBounds
+from .pixel_l1 import PixelL1
 from .shrinkage import clamp_on_mask, soft_shrink
 from .volume_heuristic import VolumeHeuristic, volume_band, window_mean
 from .volume_hold import VolumeHold

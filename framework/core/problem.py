@@ -12,8 +12,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from functools import cached_property
 
-from framework.core.data import ReconstructionData
 from framework.core.contracts.operator import Operator
+from framework.core.data import ReconstructionData
 from framework.core.objective import DataFidelity
 from framework.core.print_constraints import PrintConstraints
 from operators.scene import Scene

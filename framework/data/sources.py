@@ -17,10 +17,10 @@ import torch
 
 from framework.core.contracts.data_source import DataRequest, DataSource, PrintFacts
 from framework.core.data import ReconstructionData, measured_data, synthetic_data, validate_delta
-from framework.files.height_field_io import load_height_field
-from framework.files.image_io import load_caustic_image, load_mask, resolve_path
 from framework.core.masks import mask_from_height_field
 from framework.core.units import scene_volume
+from framework.files.height_field_io import load_height_field
+from framework.files.image_io import load_caustic_image, load_mask, resolve_path
 from operators.values import checked_number, checked_whole, is_number
 
 __all__ = ["KnownPrint", "file_setting", "SyntheticData", "FileData"]

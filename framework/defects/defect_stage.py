@@ -21,11 +21,11 @@ import torch
 
 from framework.core.plugin_config import as_mapping
 from framework.core.problem import Problem
-from operators.values import checked_number, checked_whole
 from framework.defects.fit import Defect
 from framework.defects.information import column_norms, height_uncertainty, pixel_noise, pixels_used
 from framework.defects.pursuit import Search, find_defects
 from framework.defects.report import defect_lines, save_defect_figure, save_defect_table
+from operators.values import checked_number, checked_whole
 
 __all__ = ["DefectSettings", "DefectReport", "evidence_needed", "report_defects"]
 

@@ -31,10 +31,10 @@ from torch import Tensor
 
 from framework.core.image_metrics import ssim_tensor
 from framework.core.solver_loop import IterationFailed, IterationRecord, IterativeSolver
-from operators.values import checked_number, checked_whole
 from framework.optimization.preconditioner import SobolevPreconditioner
 from framework.optimization.quasi_newton import LbfgsMemory
 from framework.optimization.step_size import LineSearchFailed, backtrack
+from operators.values import checked_number, checked_whole
 
 if TYPE_CHECKING:
     from framework.core.problem import Problem

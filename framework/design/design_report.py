@@ -11,10 +11,10 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import torch
 
-from framework.files.plotting import label_xy_axes, save_caustic_png, save_figure
-from framework.design.design_target import screen_reach
-from framework.scene.scene_config import build_operator, to_plain
 from framework.design.design_screen import has_elements, lit_half_width
+from framework.design.design_target import screen_reach
+from framework.files.plotting import label_xy_axes, save_caustic_png, save_figure
+from framework.scene.scene_config import build_operator, to_plain
 from operators.values import is_number
 
 if TYPE_CHECKING:

@@ -20,22 +20,22 @@ from typing import Any
 import numpy as np
 import torch
 
+from framework.core.callbacks import Checkpointer, MetricsHistory, ProgressBar
+from framework.core.checkpoint import restore
 from framework.core.contracts.start import StartRequest
 from framework.core.data import ReconstructionData
 from framework.core.image_metrics import relative_l2, ssim
 from framework.core.plugin_config import build_plugin, split_name
 from framework.core.problem import Problem
-from framework.scene.scene_config import to_plain
 from framework.core.solver_loop import Callback
-from framework.core.callbacks import Checkpointer, MetricsHistory, ProgressBar
-from framework.core.checkpoint import restore
 from framework.design.design_report import save_design_figure, save_previews
 from framework.design.design_screen import has_elements
+from framework.design.design_setup import DesignSetup, method_settings, prepare_design
 from framework.files.mm_outputs import export_outputs
+from framework.scene.scene_config import to_plain
 from framework.tracking.mlflow_tracker import MlflowTracker
 from operators.mesh.elements import PrintReachesElement
 from operators.wavefront.renderer import WavefrontRenderer, wavefront_vertices
-from framework.design.design_setup import DesignSetup, method_settings, prepare_design
 
 __all__ = ["DesignResult", "design_verdict", "run_design", "wall_light"]
 

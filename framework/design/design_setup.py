@@ -15,14 +15,14 @@ import numpy as np
 import torch
 
 from framework.core.data import ReconstructionData
-from framework.design.design_target import DesignTarget, load_target, paraxial_shadow, screen_reach
-from framework.files.image_io import load_mask
 from framework.core.plugin_config import build_plugin, split_name
 from framework.core.print_constraints import PrintConstraints
 from framework.core.problem import HeightGrid, Problem
-from framework.scene.scene_config import build_operator, build_scene, to_plain
 from framework.core.units import mm_per_unit, scene_length, scene_volume
 from framework.design.design_screen import has_elements, lit_half_width
+from framework.design.design_target import DesignTarget, load_target, paraxial_shadow, screen_reach
+from framework.files.image_io import load_mask
+from framework.scene.scene_config import build_operator, build_scene, to_plain
 from operators.scene import Scene
 from operators.values import checked_number
 

@@ -49,11 +49,10 @@ from scipy.interpolate import griddata
 from scipy.sparse.linalg import factorized
 from torch import Tensor
 
-from operators.optics.inverse_refraction import flat_magnification, glass_directions, snell_normals
-from operators.values import checked_number
-
 from framework.core.solver_loop import IterationFailed, IterationRecord, IterativeSolver
 from framework.optimization.semi_discrete_transport import TransportPlan, semi_discrete_transport
+from operators.optics.inverse_refraction import flat_magnification, glass_directions, snell_normals
+from operators.values import checked_number
 
 if TYPE_CHECKING:
     from framework.core.problem import Problem

@@ -16,8 +16,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from PIL import Image, PngImagePlugin
 
-from framework.files.plotting import label_xy_axes, save_figure
 from framework.core.units import mm_per_unit as checked_mm_per_unit
+from framework.files.plotting import label_xy_axes, save_figure
 from operators.values import checked_number
 
 if TYPE_CHECKING:

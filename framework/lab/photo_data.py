@@ -29,10 +29,10 @@ from typing import Any
 import numpy as np
 import torch
 
-from framework.core.data import ReconstructionData
 from framework.core.contracts.data_source import DataRequest, PrintFacts
-from framework.files.image_io import resolve_path
+from framework.core.data import ReconstructionData
 from framework.data.sources import KnownPrint, file_setting
+from framework.files.image_io import resolve_path
 from framework.lab.photo_import import PhotoImport, import_photo, save_photo_figure
 from operators.values import is_number
 

@@ -23,9 +23,9 @@ from PIL import Image, UnidentifiedImageError
 
 from framework.files.height_field_io import load_npy
 from framework.files.image_io import existing_file
-from framework.lab.photo_geometry import (check_corners, check_receiver_grid, homography, inside_receiver, rectify,
-                                      saturated_receiver_pixels)
 from framework.files.plotting import label_xy_axes, normalise, save_figure
+from framework.lab.photo_geometry import (check_corners, check_receiver_grid, homography, inside_receiver, rectify,
+                                          saturated_receiver_pixels)
 from operators.values import checked_number, checked_whole
 
 __all__ = ["FULL_SCALE", "PhotoImport", "read_photo", "linearize", "import_photo", "save_photo_figure"]

@@ -6,8 +6,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from framework.lab.photo_import import FULL_SCALE
 from framework.lab.photo_geometry import bilinear_samples, homography, project_points
+from framework.lab.photo_import import FULL_SCALE
 
 __all__ = ["vignetting_field", "synthesize_photo"]
 

@@ -20,7 +20,6 @@ from framework.core.contracts.stopping import StoppingRule
 from framework.core.plugin_config import as_mapping, build_plugin, split_name
 from framework.core.problem import HeightGrid
 from framework.core.registry import declared
-from operators.values import checked_whole
 from framework.defects.defect_stage import DefectSettings
 from framework.files.image_io import resolve_path
 from framework.lab.calibration import JointCalibration
@@ -30,6 +29,7 @@ from framework.reconstruction.run_identity import run_fingerprint
 from framework.scene.run_settings import RunSettings, design_given
 from framework.scene.scene_config import SceneSetup
 from operators.scene import Scene
+from operators.values import checked_whole
 
 __all__ = ["Reconstruction", "build_start", "build_stopping"]
 

@@ -16,26 +16,26 @@ from typing import Any
 
 import torch
 
+from framework.core.callbacks import Checkpointer, GroundTruthError, MetricsHistory, ProgressBar
+from framework.core.checkpoint import resume as resume_solver
 from framework.core.contracts.operator import Operator
 from framework.core.contracts.start import Start, StartRequest
 from framework.core.objective import DataFidelity
 from framework.core.problem import Problem
 from framework.core.solver_loop import Callback, RunResult, returned_iterate
-from framework.core.callbacks import Checkpointer, GroundTruthError, MetricsHistory, ProgressBar
-from framework.core.checkpoint import resume as resume_solver
 from framework.defects.defect_stage import report_defects
+from framework.files.image_io import resolve_path
 from framework.reconstruction.feature_search import FeatureSearch, SearchedLines
-from framework.stack.first_fit import fit_first_shot
+from framework.reconstruction.parts import Reconstruction, build_stopping
 from framework.reconstruction.photon_budget import PhotonBudget, with_photons
 from framework.reconstruction.report_figures import save_reconstruction_figures
 from framework.reconstruction.run_checks import CHECKPOINT
 from framework.reconstruction.run_outputs import report_verdict, save_outputs
-from framework.stack.shot_report import save_shot_record, shot_metrics
 from framework.reconstruction.run_phases import PHASES, PhaseOutcome, resumed_phases
-from framework.tracking.mlflow_tracker import MlflowTracker, local_store_uri
-from framework.reconstruction.parts import Reconstruction, build_stopping
 from framework.reconstruction.verdict import volume_report
-from framework.files.image_io import resolve_path
+from framework.stack.first_fit import fit_first_shot
+from framework.stack.shot_report import save_shot_record, shot_metrics
+from framework.tracking.mlflow_tracker import MlflowTracker, local_store_uri
 
 CALIBRATION_STATE = "calibration.json"
 LINE_SEARCH_PHOTONS = 1 << 18  # per shot and hypothesis of a stack's line search (framework/reconstruction/feature_search.py)

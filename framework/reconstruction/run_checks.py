@@ -15,9 +15,9 @@ from typing import Any
 
 import torch
 
-from framework.files.image_io import resolve_path
 from framework.core.contracts.data_source import PrintFacts
 from framework.core.registry import declared
+from framework.files.image_io import resolve_path
 from framework.reconstruction.run_identity import check_resumable
 from framework.tracking.mlflow_tracker import KNOWN_SCHEMES, check_tracking_server
 

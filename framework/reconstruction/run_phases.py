@@ -12,8 +12,8 @@ from typing import Any
 
 import torch
 
-from framework.reconstruction.run_checks import CHECKPOINT
 from framework.core.solver_loop import IterationRecord, RunResult
+from framework.reconstruction.run_checks import CHECKPOINT
 
 __all__ = ["PHASES", "PhaseOutcome", "resumed_phases"]
 

@@ -14,8 +14,8 @@ from dataclasses import dataclass
 from typing import Any
 
 from framework.core.plugin_config import as_mapping, with_scene_lengths
-from framework.scene.scene_config import to_plain
 from framework.core.units import mm_per_unit
+from framework.scene.scene_config import to_plain
 from operators.values import checked_number, checked_whole
 
 __all__ = ["PhotonBudgetSettings", "RunSettings", "TrackingSettings", "design_given"]

@@ -32,14 +32,14 @@ import numpy as np
 import torch
 from omegaconf import DictConfig, ListConfig, OmegaConf
 
-from framework.scene.design_mesh import MESH_SUFFIXES, heights_from_mesh
-from framework.files.height_field_io import load_height_field
 from framework.core.contracts.operator import Operator
 from framework.core.plugin_config import build_plugin, split_name
 from framework.core.problem import HeightGrid
-from framework.scene.shapes import make_shape
 from framework.core.shots import ShotSetup
 from framework.core.units import mm_per_unit, scene_length
+from framework.files.height_field_io import load_height_field
+from framework.scene.design_mesh import MESH_SUFFIXES, heights_from_mesh
+from framework.scene.shapes import make_shape
 from operators.imaging import PSF_KINDS, ImagingOperator
 from operators.materials import material_from_config
 from operators.scene import Light, Receiver, Scene, Substrate

@@ -15,10 +15,10 @@ from typing import Any
 
 import torch
 
+from framework.core.callbacks import ProgressBar
 from framework.core.contracts.stopping import StoppingRule
 from framework.core.problem import Problem
 from framework.core.solver_loop import Callback, returned_iterate
-from framework.core.callbacks import ProgressBar
 
 __all__ = ["fit_first_shot"]
 

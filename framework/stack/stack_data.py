@@ -25,11 +25,11 @@ import torch
 
 from framework.core.contracts.data_source import DataRequest, PrintFacts, ShotStack
 from framework.core.data import ReconstructionData, weighted_norm_sq
-from framework.files.image_io import load_caustic_image, resolve_path
 from framework.core.plugin_config import build_plugin
 from framework.core.registry import available
 from framework.core.shots import SETUP_KEYS, ShotSetup, shot_setup
 from framework.data.sources import FileData
+from framework.files.image_io import load_caustic_image, resolve_path
 from operators.scene import Scene
 from operators.values import checked_whole
 

@@ -18,8 +18,8 @@ from operators.heightfield.kernels_native import (BLOCK, PACKET, emit, hit_cell,
 from operators.kernels.numba_settings import jit_call, jit_inline, jit_parallel
 from operators.kernels.simd import data_pointer, hit_adjoint
 from operators.optics.native import (UP, ZERO, add, away_from_zero, axpy, dot, footprint_metric_adjoint, fresnel,
-                                     fresnel_adjoint, height_field_normal_adjoint, normal_differential_adjoint,
-                                     passes, refract_adjoint, transfer_adjoint)
+                                     fresnel_adjoint, height_field_normal_adjoint, normal_differential_adjoint, passes,
+                                     refract_adjoint, transfer_adjoint)
 from operators.splat.native import gather_photon, gather_photon_simd
 
 __all__ = ["optics_adjoint", "photon_vjp", "vjp_range", "vjp_photons"]

@@ -15,7 +15,8 @@ import math
 import numba as nb
 import numpy as np
 
-from operators.heightfield.catmull_rom import axis_weights, contract, load_patch, scatter_patch, surface_gradient, surface_jet_at
+from operators.heightfield.catmull_rom import (axis_weights, contract, load_patch, scatter_patch, surface_gradient,
+                                               surface_jet_at)
 from operators.kernels.numba_settings import FAST_MATH
 
 MAX_MARCH_STEPS = 512

@@ -12,10 +12,10 @@ from __future__ import annotations
 
 from numba import cuda, float64
 
-from operators.heightfield.catmull_rom import clamped_node
 from operators.heightfield.adjoint_native import photon_vjp
+from operators.heightfield.catmull_rom import clamped_node
 from operators.heightfield.kernels_native import trace_photon
-from operators.splat.native import footprint_box, footprint_usable, falloff, row_terms
+from operators.splat.native import falloff, footprint_box, footprint_usable, row_terms
 
 THREADS_PER_BLOCK = 128
 

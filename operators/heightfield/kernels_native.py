@@ -16,14 +16,14 @@ from typing import NamedTuple
 import numba as nb
 import numpy as np
 
-from operators.heightfield.catmull_rom import axis_weights, load_patch, surface_jet_at
 from operators.emission import R2_STEP
+from operators.heightfield.catmull_rom import axis_weights, load_patch, surface_jet_at
 from operators.heightfield.intersect_native import solve_hit, solve_hits
-from operators.kernels.numba_settings import FAST_MATH
 from operators.heightfield.side_walls import LOST, leaving_plane
+from operators.kernels.numba_settings import FAST_MATH
+from operators.kernels.simd import data_pointer, surface_jets
 from operators.optics.native import (UP, ZERO, away_from_zero, dot, footprint_metric, fresnel, height_field_normal,
                                      normal_differential, refract, transfer)
-from operators.kernels.simd import data_pointer, surface_jets
 from operators.splat.native import splat_photon
 
 

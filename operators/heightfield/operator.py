@@ -30,20 +30,20 @@ import torch
 from tqdm.auto import tqdm
 
 from operators.emission import LightEmitter
-from operators.heightfield.trace_native import FusedTracer, HitCache
-from operators.light_paths import Arrivals, straight_landing
-from operators.kernels.numba_settings import to_numpy
-from operators.photon_settings import DTYPES, PhotonSettings
-from operators.values import checked_flag, checked_number
-from operators.photon_operator import PhotonOperator, backward_through_splat, check_setting_keys, filter_radius_px
 from operators.heightfield.precompile import BackgroundCompile
-from operators.scene import Scene
 from operators.heightfield.surface import validate_heights
+from operators.heightfield.trace_native import FusedTracer, HitCache
+from operators.heightfield.trace_reference import trace_substrate
+from operators.kernels.numba_settings import to_numpy
+from operators.light_paths import Arrivals, straight_landing
+from operators.photon_operator import PhotonOperator, backward_through_splat, check_setting_keys, filter_radius_px
+from operators.photon_settings import DTYPES, PhotonSettings
+from operators.scene import Scene
+from operators.splat.splat import splat_photons
 from operators.supersample import SupersampledOperator, build_supersampled
+from operators.values import checked_flag, checked_number
 from operators.wavefront.extended import ExtendedLightReference
 from operators.wavefront.renderer import WavefrontRenderer, wavefront_vertices
-from operators.splat.splat import splat_photons
-from operators.heightfield.trace_reference import trace_substrate
 
 
 @dataclass(frozen=True)

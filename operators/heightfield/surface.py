@@ -8,8 +8,8 @@ import numba as nb
 import numpy as np
 import torch
 
-from operators.kernels.numba_settings import to_numpy
 from operators.heightfield.intersect_native import hit_backward, hit_forward
+from operators.kernels.numba_settings import to_numpy
 
 # Catmull-Rom overshoots the sample range by at most 9/32 of it: along one axis the negative
 # weights sum to -s (1 - s) / 2 >= -1/8 and the positive ones to at most 9/8, so in 2-D the

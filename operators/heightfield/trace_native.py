@@ -15,8 +15,8 @@ from operators.heightfield import trace_compiled
 from operators.heightfield.adjoint_native import vjp_photons
 from operators.heightfield.kernels_native import FusedScene, render_photons
 from operators.heightfield.surface import HeightFieldGrid
-from operators.scene import Scene
 from operators.kernels.simd import AVAILABLE as SIMD_AVAILABLE
+from operators.scene import Scene
 from operators.splat.native import gather_padding, pad_for_gather
 
 NO_HITS = np.empty(0)  # kernels' marker for "no hit cache"

@@ -7,11 +7,11 @@ from dataclasses import dataclass
 import torch
 
 from operators.emission import PhotonBatch
-from operators.heightfield.surface import HeightFieldGrid, intersect_height_field
-from operators.optics.reference import (away_from_zero, fresnel_transmittance, height_field_normal, height_field_normal_differential,
-                              refract, transfer)
-from operators.scene import Scene, Substrate
 from operators.heightfield.side_walls import FOLD_LIMIT, LOST
+from operators.heightfield.surface import HeightFieldGrid, intersect_height_field
+from operators.optics.reference import (away_from_zero, fresnel_transmittance, height_field_normal,
+                                        height_field_normal_differential, refract, transfer)
+from operators.scene import Scene, Substrate
 
 
 @dataclass

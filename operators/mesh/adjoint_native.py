@@ -14,8 +14,7 @@ from operators.heightfield.catmull_rom import axis_weights, load_patch, scatter_
 from operators.heightfield.intersect_native import hit_adjoint_patch
 from operators.kernels.numba_settings import jit_call, jit_parallel
 from operators.mesh.kernels_native import (AT_TOP, BLOCK, DPU, DPV, DWU, DWV, ESCAPED, FLUX, INSIDE_TOP, LANDED, MESH,
-                                           P, RECEIVER, STATE, TOP, W, event_surface, face_shading, interface, put,
-                                           vec)
+                                           RECEIVER, STATE, TOP, P, W, event_surface, face_shading, interface, put, vec)
 from operators.optics.native import (ZERO, add, axpy, dot, footprint_metric_adjoint, fresnel, fresnel_adjoint,
                                      height_field_normal_adjoint, normal_differential_adjoint, refract_adjoint, scale,
                                      transfer_adjoint)

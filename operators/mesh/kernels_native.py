@@ -26,10 +26,10 @@ import numba as nb
 
 from operators.heightfield.catmull_rom import surface_jet_at
 from operators.heightfield.intersect_native import solve_hit
+from operators.kernels.numba_settings import FAST_MATH
 from operators.mesh.culling import CLEAR_COS
 from operators.mesh.embree_native import first_face, ray_buffer
 from operators.mesh.intersect_reference import MIN_FACE_DISTANCE, START_OFFSET
-from operators.kernels.numba_settings import FAST_MATH
 from operators.optics.native import (UP, ZERO, axpy, dot, footprint_metric, fresnel, height_field_normal,
                                      normal_differential, refract, scale, transfer)
 

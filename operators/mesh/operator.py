@@ -36,18 +36,19 @@ from operators.emission import CELL_FOOTPRINT, LightEmitter
 from operators.heightfield.surface import HeightFieldGrid, intersect_height_field, validate_heights
 from operators.light_paths import Arrivals
 from operators.materials import refractive_indices
-from operators.mesh.intersect_reference import MIN_FACE_DISTANCE, MeshIntersector
-from operators.mesh.trace_native import LOSSES, NativeMeshTracer
 from operators.mesh.elements import MeshProgress, OpticalElement, PrintReachesElement, check_layout, make_elements
+from operators.mesh.intersect_reference import MIN_FACE_DISTANCE, MeshIntersector
 from operators.mesh.rays import AIR, Rays, Surface, box_planes, reflect
-from operators.optics.reference import fresnel_transmittance, height_field_normal, height_field_normal_differential, refract, transfer
+from operators.mesh.settings import MeshSceneSettings
+from operators.mesh.trace_native import LOSSES, NativeMeshTracer
+from operators.optics.reference import (fresnel_transmittance, height_field_normal, height_field_normal_differential,
+                                        refract, transfer)
 from operators.photon_operator import PhotonOperator, backward_through_splat, check_setting_keys
 from operators.photon_settings import DTYPES
 from operators.scene import Scene
-from operators.supersample import SupersampledOperator, build_supersampled, finer_scene
 from operators.splat.splat import splat_photons
+from operators.supersample import SupersampledOperator, build_supersampled, finer_scene
 from operators.units import scene_length
-from operators.mesh.settings import MeshSceneSettings
 
 __all__ = ["EXACT_FILTER_PX", "MeshSceneOperator"]
 

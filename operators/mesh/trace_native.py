@@ -19,6 +19,8 @@ import numba as nb
 import numpy as np
 import torch
 
+from operators.heightfield.surface import HeightFieldGrid
+from operators.kernels.numba_settings import to_numpy
 from operators.mesh import adjoint_native as ma
 from operators.mesh import events_compiled
 from operators.mesh import kernels_native as mk
@@ -26,11 +28,9 @@ from operators.mesh.culling import clear_faces
 from operators.mesh.elements import PrintReachesElement
 from operators.mesh.embree_native import EmbreeTriangles
 from operators.mesh.locality import crossing_order
-from operators.heightfield.surface import HeightFieldGrid
-from operators.photon_operator import filter_radius_px
-from operators.kernels.numba_settings import to_numpy
-from operators.splat.splat import ImageAccumulator, PaddedAdjoint
 from operators.mesh.photon_chunks import PhotonChunk, Prefix, RenderBuffers, write_back
+from operators.photon_operator import filter_radius_px
+from operators.splat.splat import ImageAccumulator, PaddedAdjoint
 
 __all__ = ["LOSSES", "NativeMeshTracer"]
 

@@ -22,8 +22,7 @@ from numba.extending import overload
 
 from operators.kernels.numba_settings import FAST_MATH
 from operators.kernels.simd import (data_pointer, gather_box8, gather_spans, splat_box8_f32, splat_box8_f64,
-                                   splat_spans_f32, splat_spans_f64)
-
+                                    splat_spans_f32, splat_spans_f64)
 
 # Photons farther than this from the image (pixels) are skipped: nothing of theirs can land.
 FAR_PX = 1e7

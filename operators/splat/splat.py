@@ -13,7 +13,6 @@ from operators.kernels.simd import AVAILABLE as SIMD_AVAILABLE
 from operators.splat import compiled
 from operators.splat.native import gather_padding, pad_for_gather, splat_backward, splat_forward
 
-
 MAX_DIFFERENTIAL_PX = 1e6
 
 

@@ -55,11 +55,11 @@ from operators.emission import LightEmitter
 from operators.heightfield import trace_compiled
 from operators.heightfield.kernels_native import hit_jet, optics_state
 from operators.heightfield.side_walls import LOST
+from operators.heightfield.surface import validate_heights
 from operators.heightfield.trace_native import FusedTracer
 from operators.heightfield.trace_reference import trace_substrate
 from operators.kernels.numba_settings import jit_call, jit_parallel
 from operators.optics.native import ZERO, fresnel
-from operators.heightfield.surface import validate_heights
 from operators.scene import Scene
 from operators.values import checked_flag, checked_whole
 from operators.wavefront.coverage import rasterize_grid, rasterize_triangles

@@ -11,9 +11,9 @@ stacked operator of those setups (operators/stack.py), and the request's operato
 
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from pathlib import Path
-from abc import ABC, abstractmethod
 from typing import Callable, Sequence
 
 import torch

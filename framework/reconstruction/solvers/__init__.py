@@ -7,11 +7,13 @@ proximal-gradient iteration; step sizes ``constant`` and ``backtracking``; the p
 builder ``(problem, d0) -> solver`` (framework/core/problem.py).
 """
 
-from framework.core.solver_loop import Callback, IterationFailed, IterationRecord, IterativeSolver, RunResult, SolverState
+from framework.core.solver_loop import (Callback, IterationFailed, IterationRecord, IterativeSolver, RunResult,
+                                        SolverState)
 from framework.optimization.preconditioner import GradientPreconditioner, SobolevPreconditioner
+from framework.optimization.step_size import (BacktrackingStep, ConstantStep, LineSearchFailed, StepChoice,
+                                              StepSizePolicy, as_step_policy)
 from framework.reconstruction.solvers.pixel_methods import GradientDescent, PixelLandweber
 from framework.reconstruction.solvers.proximal_gradient import ProximalGradientSolver
-from framework.optimization.step_size import BacktrackingStep, ConstantStep, LineSearchFailed, StepChoice, StepSizePolicy, as_step_policy
 from framework.reconstruction.solvers.wavelet_landweber import WaveletLandweber
 
 __all__ = [

@@ -15,9 +15,9 @@ from torch import Tensor
 from framework.core.contracts.solver import SolverBuilder
 from framework.core.objective import DataFidelity
 from framework.optimization.preconditioner import GradientPreconditioner
+from framework.optimization.step_size import StepSizePolicy
 from framework.reconstruction.solvers.proximal_gradient import Candidate, ProximalGradientSolver
 from framework.reconstruction.solvers.proximal_parts import build_parts, check_regularizers
-from framework.optimization.step_size import StepSizePolicy
 from operators.values import checked_number
 
 __all__ = ["GradientDescent", "PixelLandweber"]

@@ -27,12 +27,12 @@ from torch import Tensor
 
 from framework.core.objective import DataEvaluation, DataFidelity
 from framework.core.solver_loop import IterationFailed, IterationRecord, IterativeSolver
-from framework.reconstruction.solvers.momentum import NesterovMomentum, check_momentum_from
-from framework.reconstruction.solvers.proximal_parts import (check_post_steps, check_regularizers, check_shaped_start_from,
-                                                      check_two_metric_from)
 from framework.optimization.preconditioner import GradientPreconditioner
 from framework.optimization.quasi_newton import LbfgsMemory, check_quasi_newton
 from framework.optimization.step_size import LineSearchFailed, StepChoice, StepSizePolicy, as_step_policy
+from framework.reconstruction.solvers.momentum import NesterovMomentum, check_momentum_from
+from framework.reconstruction.solvers.proximal_parts import (check_post_steps, check_regularizers,
+                                                             check_shaped_start_from, check_two_metric_from)
 
 __all__ = ["ProximalGradientSolver", "stage_changes"]
 

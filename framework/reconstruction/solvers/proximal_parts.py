@@ -8,9 +8,9 @@ from collections.abc import Mapping
 from typing import Any, Sequence
 
 from framework.core.plugin_config import build_plugin, build_plugin_map, split_name
-from framework.reconstruction.solvers.momentum import check_momentum_from
 from framework.optimization.preconditioner import check_stage_index
 from framework.optimization.quasi_newton import check_quasi_newton
+from framework.reconstruction.solvers.momentum import check_momentum_from
 from regularizers import PostStepUpdate, Regularizer
 
 __all__ = ["SHAPED_START_FROM", "build_parts", "check_post_steps", "check_regularizers", "check_shaped_start_from",

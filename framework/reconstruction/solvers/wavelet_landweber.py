@@ -31,14 +31,13 @@ from typing import Any, Sequence
 import torch
 from torch import Tensor
 
+from framework.core.contracts.solver import SolverBuilder
 from framework.core.objective import DataFidelity
 from framework.core.plugin_config import build_plugin, split_name
-
 from framework.optimization.preconditioner import GradientPreconditioner
-from framework.core.contracts.solver import SolverBuilder
+from framework.optimization.step_size import StepSizePolicy
 from framework.reconstruction.solvers.proximal_gradient import Candidate, ProximalGradientSolver
 from framework.reconstruction.solvers.proximal_parts import build_parts
-from framework.optimization.step_size import StepSizePolicy
 from operators.values import checked_number
 from regularizers import CoefficientRegularizer, CoefficientTransform
 

@@ -13,9 +13,8 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from framework.core.plugin_config import as_mapping, build_plugin
-
 from framework.core.contracts.start import Start, StartRequest, StartResult
+from framework.core.plugin_config import as_mapping, build_plugin
 
 __all__ = ["AutoStart"]
 

@@ -6,10 +6,9 @@ from pathlib import Path
 
 import torch
 
-from framework.files.image_io import resolve_path
-from framework.files.height_field_io import load_height_field
-
 from framework.core.contracts.start import Start, StartRequest, StartResult
+from framework.files.height_field_io import load_height_field
+from framework.files.image_io import resolve_path
 from operators.values import checked_number
 
 __all__ = ["ZeroStart", "DesignStart", "FileStart"]

@@ -34,14 +34,13 @@ from scipy.interpolate import LinearNDInterpolator, NearestNDInterpolator
 from scipy.ndimage import distance_transform_edt, gaussian_filter
 from scipy.sparse.linalg import factorized
 
+from framework.core.contracts.start import Start, StartRequest, StartResult
 from framework.optimization.semi_discrete_transport import semi_discrete_transport
-from operators.optics.inverse_refraction import snell_normals
 from operators.light_paths import LightPath, flat_exit, refract_down
+from operators.optics.inverse_refraction import snell_normals
 from operators.values import checked_number, checked_whole
 from regularizers import RegularizerContext
 from regularizers.volume_prox import VolumeSlabL1Bounds
-
-from framework.core.contracts.start import Start, StartRequest, StartResult
 
 __all__ = ["TransportStart", "masked_sources", "exit_directions", "fit_masked_surface"]
 
