@@ -40,7 +40,7 @@ from experiments.bench_mesh import mesh_footprint, time_mesh_scenes
 from experiments.bench_reconstruction import reconstruction_report
 from experiments.bench_stages import stage_profile
 from experiments.timing import best_seconds
-from framework.scene.shapes import make_shape
+from framework.scene.printed_shapes import make_shape
 from operators.heightfield.operator import CausticOperator, OperatorSettings
 from operators.scene import Scene
 from operators.splat.reference import splat_photons_reference

@@ -33,7 +33,7 @@ from typing import Any
 import torch
 
 from experiments.timing import best_seconds
-from framework.scene.shapes import make_shape
+from framework.scene.printed_shapes import make_shape
 
 # The designs compared: the paper's splat, photon differentials at their own cells' size, and those
 # rendered on a 4 x finer receiver and block-averaged (the default, conf/operator/height_field.yaml).

@@ -18,7 +18,7 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from experiments.mlflow_store import artifact, latest_runs, reproduction_parser, run_sweep, tracking_store
-from framework.scene.shapes import make_shape
+from framework.scene.printed_shapes import make_shape
 
 METHODS = ["M2V1", "M3V1", "M1", "M2V0", "M3V0", "M2V2", "M3V2"]
 # Paper Table 1 (Titan RTX GPU): run time (min), rel. discrepancy, rel. error, iterations.

@@ -10,8 +10,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+from operators.lengths import DEFAULT_MM_PER_UNIT
 from operators.materials import FUSED_SILICA, DispersionCurve, refractive_indices
-from operators.units import DEFAULT_MM_PER_UNIT
 from operators.values import checked_whole
 
 

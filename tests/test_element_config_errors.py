@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 import trimesh
 
-import operators.mesh.shapes as mesh_shapes
+import operators.mesh.element_meshes as element_meshes
 import operators.mesh.elements as optical_elements
 from framework.scene.scene_config import build_operator, build_scene
-from operators.mesh.shapes import crease_normals, lens, prism
+from operators.mesh.element_meshes import crease_normals, lens, prism
 from operators.mesh.elements import load_mesh, make_element, make_elements
 
 LENS = {"name": "top_lens", "shape": "lens", "position": [0.0, 0.0, 1.15],
@@ -155,7 +155,7 @@ def test_crease_normals_in_small_blocks_equal_one_block(monkeypatch) -> None:
     fan = lens(1.0, 0.3, 4.0, 4.0, rings=3, segments=64)  # 64 faces meet at each apex
     box = trimesh.creation.box()
     whole = [crease_normals(mesh, angle) for mesh in (fan, box) for angle in (0.0, 30.0, 90.0)]
-    monkeypatch.setattr(mesh_shapes, "CREASE_PAIRS_PER_BLOCK", 7)  # fewer pairs than one apex corner has
+    monkeypatch.setattr(element_meshes, "CREASE_PAIRS_PER_BLOCK", 7)  # fewer pairs than one apex corner has
     blocks = [crease_normals(mesh, angle) for mesh in (fan, box) for angle in (0.0, 30.0, 90.0)]
     for a, b in zip(whole, blocks):
         np.testing.assert_allclose(a, b, atol=1e-14)

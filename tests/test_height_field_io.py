@@ -10,7 +10,7 @@ import torch
 from PIL import Image
 
 from framework.files.height_field_io import load_height_field, resample, save_height_field
-from framework.scene.shapes import make_shape
+from framework.scene.printed_shapes import make_shape
 
 
 @pytest.fixture()

@@ -12,7 +12,7 @@ from hydra import compose, initialize_config_dir
 from omegaconf import DictConfig
 
 from framework.scene.scene_config import build_heights, build_operator, build_scene
-from framework.scene.shapes import make_shape
+from framework.scene.printed_shapes import make_shape
 
 CONF = Path(__file__).resolve().parents[1] / "conf"
 SCENES = sorted(p.stem for p in (CONF / "scene").glob("*.yaml"))

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from framework.scene.shapes import SHAPES, g, grid, line_h, line_v, make_shape, oblique_lines
+from framework.scene.printed_shapes import SHAPES, g, grid, line_h, line_v, make_shape, oblique_lines
 
 L1_PEAK = 1.0 / (0.5 * math.sqrt(2.0 * math.pi))  # max g(0.5, 0, .)
 M = 121  # linspace(-1, 1, 121) holds x = 0, -0.5 and y = 0.75, 5/12 exactly (steps of 1/60)
@@ -125,7 +125,7 @@ def test_bad_resolution(resolution: object) -> None:
 
 
 def test_letter_a_strokes_peak_at_their_height_and_fall_off_with_their_width() -> None:
-    from framework.scene.shapes import letter_a, segment_distance
+    from framework.scene.printed_shapes import letter_a, segment_distance
 
     x, y = grid(257)
     d = letter_a(x, y)

@@ -6,7 +6,7 @@ of the scene config (light position, substrate, receiver, screen blur, the optic
 placements and sizes), the plugins' length parameters (their ``length_keys``: height bounds,
 preconditioner lengths, the mask threshold) and the deposited volume may be given either as a number in scene units or
 as a string with a unit, e.g. ``substrate.thickness="2.5 mm"`` or ``data.volume="1.7 mm3"``
-(parsed by operators/units.py); outputs in millimetres (framework/files/mm_outputs.py) are converted back
+(parsed by operators/lengths.py); outputs in millimetres (framework/files/mm_outputs.py) are converted back
 with the same factor.
 """
 
@@ -15,7 +15,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
-from operators.units import DEFAULT_MM_PER_UNIT, scene_length, scene_volume
+from operators.lengths import DEFAULT_MM_PER_UNIT, scene_length, scene_volume
 from operators.values import checked_number
 
 __all__ = ["DEFAULT_MM_PER_UNIT", "mm_per_unit", "scene_length", "scene_volume"]

@@ -39,7 +39,7 @@ from framework.core.shots import ShotSetup
 from framework.core.units import mm_per_unit, scene_length
 from framework.files.height_field_io import load_height_field
 from framework.scene.design_mesh import MESH_SUFFIXES, heights_from_mesh
-from framework.scene.shapes import make_shape
+from framework.scene.printed_shapes import make_shape
 from operators.imaging import PSF_KINDS, ImagingOperator
 from operators.materials import material_from_config
 from operators.scene import Light, Receiver, Scene, Substrate

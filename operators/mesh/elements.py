@@ -1,5 +1,5 @@
 """Optical elements in the light path: closed meshes with a placement, a material and shading
-normals, from a file (OBJ / STL / PLY via trimesh) or a generator (operators/mesh/shapes.py).
+normals, from a file (OBJ / STL / PLY via trimesh) or a generator (operators/mesh/element_meshes.py).
 
 An element's config (one entry of the list ``operator.elements``)::
 
@@ -13,8 +13,8 @@ is checked: finite vertices, closed, consistently wound, normals outward, and no
 itself (no face crossing another; operators/mesh/crossings.py). :func:`check_layout` refuses
 elements that overlap (a vertex of one inside another, or surfaces that cross; elements may touch)
 or do not lie between the receiver and the light. Lengths (the position and the generators'
-:data:`operators.mesh.shapes.Length` parameters) are in scene units or strings with a unit such as
-"27 mm" (operators/units.py). Every config error is one line naming the key, e.g.
+:data:`operators.mesh.element_meshes.Length` parameters) are in scene units or strings with a unit such as
+"27 mm" (operators/lengths.py). Every config error is one line naming the key, e.g.
 ``operator.elements.top_lens.position``. Meshes of a million faces or more report a memory estimate
 and their steps on stderr as they are built.
 """
@@ -35,10 +35,10 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 import trimesh
 
+from operators.lengths import DEFAULT_MM_PER_UNIT, scene_length
 from operators.materials import DispersionCurve, material_from_config
 from operators.mesh.crossings import mutual_crossings, self_crossings
-from operators.mesh.shapes import crease_normals, lens, lens_array, prism
-from operators.units import DEFAULT_MM_PER_UNIT, scene_length
+from operators.mesh.element_meshes import crease_normals, lens, lens_array, prism
 from operators.values import checked_number, checked_whole, is_number
 
 __all__ = ["OpticalElement", "GENERATORS", "ELEMENT_KEYS", "LARGE_MESH_FACES", "MeshProgress", "load_mesh",
@@ -161,7 +161,7 @@ def _triple(value: Any, where: str, read: Callable[[Any, str], float], fix: str)
 
 def _generator_params(shape: str, params: Any, where: str, mm_per_unit: float) -> dict[str, Any]:
     """The keyword arguments of generator ``shape`` from config ``params`` (``where``): every key
-    known, every required one given, lengths (:data:`operators.mesh.shapes.Length`) in scene units
+    known, every required one given, lengths (:data:`operators.mesh.element_meshes.Length`) in scene units
     or with a unit, integers and numbers checked."""
     generator = GENERATORS[shape]
     signature = inspect.signature(generator).parameters

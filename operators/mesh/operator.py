@@ -48,7 +48,7 @@ from operators.photon_settings import DTYPES
 from operators.scene import Scene
 from operators.splat.splat import splat_photons
 from operators.supersample import SupersampledOperator, build_supersampled, finer_scene
-from operators.units import scene_length
+from operators.lengths import scene_length
 
 __all__ = ["EXACT_FILTER_PX", "MeshSceneOperator"]
 

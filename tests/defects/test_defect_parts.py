@@ -12,7 +12,7 @@ from experiments.defect_prints import apply_defect, feature_sites
 from experiments.reproduce_defects import match, size_error
 from framework.core.contracts.checks import check_regularizer
 from framework.scene.design_mesh import heights_from_mesh
-from framework.scene.shapes import make_shape
+from framework.scene.printed_shapes import make_shape
 from framework.defects.information import column_norms, height_uncertainty, pixel_noise
 from framework.defects.models import DROP_ASPECT, Frame, apply_model, drop_volume
 from framework.defects.regions import candidate_regions

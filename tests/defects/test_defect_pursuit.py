@@ -13,7 +13,7 @@ import pytest
 import torch
 
 from experiments.defect_prints import apply_defect, feature_sites
-from framework.scene.shapes import make_shape
+from framework.scene.printed_shapes import make_shape
 from framework.defects.fit import Defect, Fit, fit_candidate, frame_of
 from framework.defects.models import apply_model
 from framework.defects.pursuit import Search, _joined, find_defects

@@ -16,7 +16,7 @@ import trimesh
 from omegaconf import OmegaConf
 
 from experiments.export import main
-from framework.scene.shapes import make_shape
+from framework.scene.printed_shapes import make_shape
 from tests.python_subprocess import ROOT
 
 M, H, W, MM = 16, 0.1, 1.0, 20.0

@@ -95,7 +95,7 @@ def test_flat_glass_is_the_design_of_its_own_caustic():
 
 
 def test_a_designed_surface_renders_back_to_its_smooth_target():
-    from framework.scene.shapes import make_shape
+    from framework.scene.printed_shapes import make_shape
 
     problem = small_problem(torch.from_numpy(make_shape("bump", 32, sigma=0.3, height=0.05)))
     flat = problem.fidelity.evaluate(torch.zeros(32, 32, dtype=torch.float64), with_grad=False).rel_discrepancy

@@ -9,7 +9,7 @@ import dataclasses
 import pytest
 import torch
 
-from framework.scene.shapes import make_shape
+from framework.scene.printed_shapes import make_shape
 from framework.lab.calibration import JointCalibration
 from operators.heightfield.operator import CausticOperator, OperatorSettings
 from operators.imaging import ImagingOperator

@@ -13,7 +13,7 @@ import pytest
 import torch
 
 from framework.scene.scene_config import build_scene
-from framework.scene.shapes import make_shape
+from framework.scene.printed_shapes import make_shape
 from operators.emission import LightEmitter, source_points
 from operators.heightfield.operator import CausticOperator, OperatorSettings
 from operators.light_source import (onto_source, patch_variance, receiver_spread, source_variance,

@@ -13,7 +13,7 @@ from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
 from framework.scene.scene_config import build_operator, build_scene
-from framework.scene.shapes import make_shape
+from framework.scene.printed_shapes import make_shape
 from operators.supersample import SupersampledOperator, block_mean, block_mean_adjoint
 from operators.wavefront.renderer import WavefrontRenderer
 from tests.operators.test_wavefront import _pixel_means, _slab_irradiance

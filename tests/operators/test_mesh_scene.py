@@ -18,7 +18,7 @@ from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
 from framework.scene.scene_config import build_heights, build_operator, build_scene
-from framework.scene.shapes import make_shape
+from framework.scene.printed_shapes import make_shape
 from operators.heightfield.operator import CausticOperator, OperatorSettings
 from operators.materials import FUSED_SILICA, refractive_indices
 from operators.mesh import events_compiled

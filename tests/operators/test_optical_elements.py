@@ -12,7 +12,7 @@ import pytest
 import trimesh
 
 from operators.mesh.crossings import self_crossings
-from operators.mesh.shapes import conic_sag, crease_normals, height_field_solid, lens, lens_array, prism
+from operators.mesh.element_meshes import conic_sag, crease_normals, height_field_solid, lens, lens_array, prism
 from operators.mesh.elements import check_layout, make_element
 
 

@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from framework.core.data import resample_image
-from framework.scene.shapes import make_shape
+from framework.scene.printed_shapes import make_shape
 from operators.photon_operator import PIXEL_BOX_R2, filter_radius_px
 from tests.operators.conftest import make_operator
 

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import torch
 
-from framework.scene.shapes import make_shape
+from framework.scene.printed_shapes import make_shape
 from operators.heightfield import trace_compiled
 from operators.heightfield.operator import CausticOperator, OperatorSettings
 from operators.materials import ConstantIndex

@@ -16,7 +16,7 @@ from operators.scene import Receiver, Scene
 from operators.splat import compiled
 from operators.splat.native import gather_padding, pad_for_gather, splat_backward, splat_forward
 from operators.splat.splat import footprint_capacity, footprint_half_extent
-from framework.scene.shapes import make_shape
+from framework.scene.printed_shapes import make_shape
 from tests.python_subprocess import run_json_script
 
 needs_simd = pytest.mark.skipif(not simd.AVAILABLE, reason="AVX2 extension not built or CPU without AVX2")
@@ -178,7 +178,7 @@ import torch
 from operators.kernels import simd
 from operators.heightfield.operator import CausticOperator, OperatorSettings
 from operators.scene import Receiver, Scene
-from framework.scene.shapes import make_shape
+from framework.scene.printed_shapes import make_shape
 
 op = CausticOperator(Scene(receiver=Receiver(resolution=64)), OperatorSettings(photons=20000, dtype="float64"))
 heights = torch.from_numpy(make_shape("gaussian", 32))
