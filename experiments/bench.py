@@ -14,6 +14,8 @@ solver's iteration: a render, then the gradient from its image; experiments/benc
 ``--device cuda`` the operator on the GPU beside the CPU (experiments/bench_cuda.py);
 a stack of two screens with its shots sharing the hit search and without (operators/stack.py);
 the fidelity of each irradiance model against the exact caustic (experiments/bench_fidelity.py);
+how an iteration's time and the peak memory grow with m = n and the number of photos
+(experiments/bench_scale.py);
 and the default reconstruction with today's solver beside the earlier one
 (experiments/bench_reconstruction.py).
 """
@@ -38,6 +40,7 @@ from experiments.bench_cuda import cuda_report
 from experiments.bench_fidelity import fidelity_report, wall_fidelity
 from experiments.bench_mesh import mesh_footprint, time_mesh_scenes
 from experiments.bench_reconstruction import reconstruction_report
+from experiments.bench_scale import scale_report
 from experiments.bench_stages import stage_profile
 from experiments.timing import best_seconds
 from framework.scene.printed_shapes import make_shape
@@ -235,7 +238,11 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--wall-vertices", type=int, default=2049,
                         help="aim points per side of the walls' exact references (fidelity section, ten renders at "
                              "the first of --fidelity-resolutions)")
-    parser.add_argument("--only", choices=("fidelity", "walls", "mesh_scene"), default=None,
+    parser.add_argument("--scale-sizes", type=int, nargs="*", default=[128, 256, 512],
+                        help="m = n of the scale section (none: skip it)")
+    parser.add_argument("--scale-per-pixel", type=float, default=64.0,
+                        help="photons per receiver pixel of the scale section (the photon budget's default cap)")
+    parser.add_argument("--only", choices=("fidelity", "walls", "mesh_scene", "scale"), default=None,
                         help="print only that section (walls: the fidelity section's walls entry; mesh_scene: at "
                              "--mesh-photons, e.g. 262144 and 1048576)")
     parser.add_argument("--footprint-px", type=float, default=3.0)
@@ -260,6 +267,10 @@ def main(argv: list[str] | None = None) -> None:
     if args.only == "mesh_scene":
         print(json.dumps({"mesh_scene": time_mesh_scenes(heights, args.mesh_photons, mesh_fp, args.mesh_supersample)},
                          indent=2))
+        return
+    if args.only == "scale":
+        print(json.dumps({"scale": scale_report(tuple(args.scale_sizes), args.scale_per_pixel, args.footprint_px,
+                                                args.chunk_size)}, indent=2))
         return
     if args.device == "cuda":
         if not torch.cuda.is_available():
@@ -315,6 +326,9 @@ def main(argv: list[str] | None = None) -> None:
                                              tuple(args.fidelity_resolutions))
         report["fidelity"]["walls"] = wall_fidelity(args.fidelity_photons, args.wall_vertices,
                                                     args.fidelity_resolutions[0])
+    if args.scale_sizes:
+        report["scale"] = scale_report(tuple(args.scale_sizes), args.scale_per_pixel, args.footprint_px,
+                                       args.chunk_size)
     if args.reconstruction_rounds > 0:
         report["reconstruction"] = reconstruction_report(args.reconstruction_overrides, args.reconstruction_rounds)
     print(json.dumps(report, indent=2))

@@ -7,18 +7,11 @@ caustic. Arrays follow [row, col] = [y, x].
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 
 from operators.lengths import DEFAULT_MM_PER_UNIT
 from operators.materials import FUSED_SILICA, DispersionCurve, refractive_indices
-from operators.values import checked_whole
-
-
-def _finite(name: str, value: float) -> float:
-    if not math.isfinite(value):
-        raise ValueError(f"{name}={value} is not a finite number")
-    return float(value)
+from operators.values import checked_number, checked_whole
 
 
 WALLS = ("clear", "absorbing")  # Substrate.walls
@@ -50,13 +43,11 @@ class Light:
         if len(self.position) != 3:
             raise ValueError(f"light.position={self.position} must have three coordinates (x, y, z)")
         for axis, v in zip("xyz", self.position):
-            _finite(f"light.position.{axis}", v)
-        if not _finite("light.power", self.power) > 0.0:
-            raise ValueError(f"light.power={self.power} W must be positive")
+            checked_number(v, f"light.position.{axis}")
+        checked_number(self.power, "light.power", above=0.0, unit="W")
         if self.shape not in LIGHT_SHAPES:
             raise ValueError(f"light.shape={self.shape!r} must be one of {', '.join(LIGHT_SHAPES)}")
-        if not _finite("light.size", self.size) >= 0.0:
-            raise ValueError(f"light.size={self.size} must be >= 0 (scene units or e.g. '50 mm')")
+        checked_number(self.size, "light.size", least=0.0, must="must be >= 0", unit="scene units or e.g. '50 mm'")
         if self.shape == "point" and self.size != 0.0:
             raise ValueError(f"light.size={self.size} is set for light.shape=point; use light.shape=disc or square, "
                              "or light.size=0")
@@ -96,10 +87,8 @@ class Substrate:
     walls: str = "clear"
 
     def __post_init__(self) -> None:
-        if not _finite("substrate.thickness", self.thickness) > 0.0:
-            raise ValueError(f"substrate.thickness={self.thickness} must be positive (scene units)")
-        if not _finite("substrate.half_width", self.half_width) > 0.0:
-            raise ValueError(f"substrate.half_width={self.half_width} must be positive")
+        checked_number(self.thickness, "substrate.thickness", above=0.0, unit="scene units")
+        checked_number(self.half_width, "substrate.half_width", above=0.0, unit="scene units")
         if self.walls not in WALLS:
             raise ValueError(f"substrate.walls={self.walls!r} must be one of {', '.join(WALLS)}")
 
@@ -113,12 +102,11 @@ class Receiver:
     half_width: float = 1.0
 
     def __post_init__(self) -> None:
-        if not _finite("receiver.z", self.z) < 0.0:
-            raise ValueError(f"receiver.z={self.z} must lie below the substrate bottom (z < 0), e.g. -0.05")
+        checked_number(self.z, "receiver.z", below=0.0, must="must lie below the substrate bottom (z < 0)",
+                       example="-0.05")
         checked_whole(self.resolution, "receiver.resolution", 2, MAX_RECEIVER_RESOLUTION,
                       must=f"must be an integer in [2, {MAX_RECEIVER_RESOLUTION}] (pixels per side)")
-        if not _finite("receiver.half_width", self.half_width) > 0.0:
-            raise ValueError(f"receiver.half_width={self.half_width} must be positive")
+        checked_number(self.half_width, "receiver.half_width", above=0.0, unit="scene units")
 
     @property
     def pixel_size(self) -> float:
@@ -144,8 +132,7 @@ class Scene:
     mm_per_unit: float = DEFAULT_MM_PER_UNIT
 
     def __post_init__(self) -> None:
-        if not _finite("units.mm_per_unit", self.mm_per_unit) > 0.0:
-            raise ValueError(f"units.mm_per_unit={self.mm_per_unit} must be positive (mm per scene unit)")
+        checked_number(self.mm_per_unit, "units.mm_per_unit", above=0.0, unit="mm per scene unit")
         if not self.wavelengths:
             raise ValueError("wavelengths is empty; give at least one, e.g. [0.633] (micrometres)")
         refractive_indices(self.material, self.wavelengths)

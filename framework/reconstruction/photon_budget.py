@@ -29,7 +29,7 @@ from typing import Any
 from framework.core.objective import DataFidelity
 from framework.core.solver_loop import Callback, IterationRecord, IterativeSolver
 
-__all__ = ["PhotonBudget", "render_noise", "photons_needed", "with_photons"]
+__all__ = ["PhotonBudget", "finer_receiver_cap", "render_noise", "photons_needed", "with_photons"]
 
 SEED_OFFSET = 3000  # the second photon pattern: seed + 3000 (the data's references use + 1000, + 2000)
 
@@ -39,6 +39,19 @@ def with_photons(operator: Any, photons: int, seed: int) -> Any:
     if photons == int(operator.photons):
         return operator
     return operator.variant(photons, seed, int(operator.output_shape[-1]))
+
+
+def finer_receiver_cap(operator: Any, photons_resolution: int | None) -> int | None:
+    """The photon cap of ``operator``'s receiver (n x n) when its ``photons`` are meant for one of
+    ``photons_resolution`` pixels a side: photons x (n / photons_resolution)^2, rounded up to a
+    doubling so that the budget's doublings reach it; None (the cap is ``photons``) for a receiver
+    no finer, or without a resolution. A pixel's relative render noise goes as 1 / sqrt(its
+    photons): a finer receiver needs more photons in all for the same noise per pixel, and so for
+    the same share of Morozov's allowance."""
+    n = int(operator.output_shape[-1])
+    if photons_resolution is None or n <= photons_resolution:
+        return None
+    return int(operator.photons) * 2 ** math.ceil(2.0 * math.log2(n / photons_resolution) - 1e-12)
 
 
 def render_noise(fidelity: DataFidelity, operator: Any, other: Any, d: Any) -> float:
@@ -61,21 +74,24 @@ class PhotonBudget(Callback):
 
     Args:
         fidelity: The run's data term; its operator is swapped for variants with other photons.
-        operator: The configured operator: its ``photons`` are the cap, ``variant`` builds the others.
+        operator: The configured operator: ``variant`` builds the others; its ``photons`` are the cap
+            unless ``cap`` is larger.
         start: Photons of the first iterations (<= the cap).
         noise_share: Share of Morozov's allowance (tau_dis^2 - 1) delta^2 the render noise may take.
         delta: The data's noise level.
         tau_dis: Morozov's factor.
         seed: The run's seed (photon patterns: seed, and seed + 3000 for the noise estimate).
         near: Discrepancy (in tau_dis delta) below which the budget is checked once more.
+        cap: The most photons an iteration may trace (None: the operator's ``photons``; a smaller
+            value is raised to those).
     """
 
     order = -50  # before the stopping rules, which then see the discrepancy with the photons in force
 
     def __init__(self, fidelity: DataFidelity, operator: Any, start: int, noise_share: float, delta: float,
-                 tau_dis: float, seed: int, near: float = 1.5) -> None:
+                 tau_dis: float, seed: int, near: float = 1.5, cap: int | None = None) -> None:
         self.fidelity, self.operator, self.seed = fidelity, operator, seed
-        self.cap = int(operator.photons)
+        self.cap = max(int(operator.photons), cap or 0)
         self.start = min(int(start), self.cap)
         self.noise_share, self.delta = noise_share, delta
         self.morozov_excess = max(tau_dis * tau_dis - 1.0, 0.0) * delta * delta

@@ -27,7 +27,7 @@ from framework.defects.defect_stage import report_defects
 from framework.files.image_io import resolve_path
 from framework.reconstruction.feature_search import FeatureSearch, SearchedLines
 from framework.reconstruction.parts import Reconstruction, build_stopping
-from framework.reconstruction.photon_budget import PhotonBudget, with_photons
+from framework.reconstruction.photon_budget import PhotonBudget, finer_receiver_cap, with_photons
 from framework.reconstruction.report_figures import save_reconstruction_figures
 from framework.reconstruction.run_checks import CHECKPOINT
 from framework.reconstruction.run_outputs import report_verdict, save_outputs
@@ -60,7 +60,8 @@ def photon_budget(parts: Reconstruction, problem: Problem) -> PhotonBudget | Non
     if budget.start is None or parts.calibration is not None or not delta or delta <= 0.0:
         return None
     return PhotonBudget(problem.fidelity, problem.operator, budget.start, budget.noise_share, float(delta),
-                        parts.settings.tau_dis, parts.settings.seed)
+                        parts.settings.tau_dis, parts.settings.seed,
+                        cap=finer_receiver_cap(problem.operator, budget.photons_resolution))
 
 
 def final_operator(parts: Reconstruction, result: RunResult) -> Operator:

@@ -61,23 +61,33 @@ class TrackingSettings:
 @dataclass(frozen=True)
 class PhotonBudgetSettings:
     """``photon_budget`` (framework/reconstruction/photon_budget.py): ``start`` photons of the first
-    iterations (None: the configured ``photons`` throughout) and the ``noise_share`` of Morozov's
-    allowance (tau_dis^2 - 1) delta^2 that the render noise may take."""
+    iterations (None: the configured ``photons`` throughout), the ``noise_share`` of Morozov's
+    allowance (tau_dis^2 - 1) delta^2 that the render noise may take, and ``photons_resolution``: the
+    receiver resolution n the configured ``photons`` are meant for (a finer receiver may trace
+    photons x (n / photons_resolution)^2 where the noise level needs them; None: at most
+    ``photons`` at any n)."""
 
     start: int | None
     noise_share: float
+    photons_resolution: int | None = None
 
     @classmethod
     def parse(cls, spec: Any) -> PhotonBudgetSettings:
         budget = as_mapping(spec or {}, "photon_budget")
-        unknown = sorted(set(budget) - {"start", "noise_share"})
+        unknown = sorted(set(budget) - {"start", "noise_share", "photons_resolution"})
         if unknown:
-            raise ValueError(f"photon_budget has unknown key(s) {unknown}; its keys are start and noise_share")
+            raise ValueError(f"photon_budget has unknown key(s) {unknown}; its keys are start, noise_share and "
+                             "photons_resolution")
+        resolution = budget.get("photons_resolution")
+        if resolution is not None:
+            resolution = checked_whole(resolution, "photon_budget.photons_resolution", least=1,
+                                       must="must be a receiver resolution >= 1 (pixels per side) or null",
+                                       example="128")
         start = budget.get("start")
         share = budget.get("noise_share", 0.5)
         share = checked_number(share, "photon_budget.noise_share", most=1.0, above=0.0, must="must lie in (0, 1]",
                                example="0.5")
-        return cls(None if start is None else checked_whole(start, "photon_budget.start", least=1), share)
+        return cls(None if start is None else checked_whole(start, "photon_budget.start", least=1), share, resolution)
 
 
 @dataclass(frozen=True)

@@ -10,6 +10,7 @@ import pytest
 import torch
 
 from experiments.bench import main
+from experiments.bench_scale import growth_exponent
 from tests.python_subprocess import run_json_script
 
 
@@ -32,7 +33,7 @@ def test_bench_prints_the_promised_figures(capsys):
           "--reference-photons", "20000", "--stage-photons", "0", "--mesh-photons", "20000",
           "--mesh-footprint", "cell", "--stack-photons", "20000", "--fidelity-photons", "20000", "--fidelity-bias-photons", "40000",
           "--fidelity-reference-photons", "40000", "--wavefront-vertices", "257", "--fidelity-resolutions", "48",
-          "--wall-vertices", "129",
+          "--wall-vertices", "129", "--scale-sizes", "16", "32", "--scale-per-pixel", "2",
           "--reconstruction-overrides", *SMALL_RUN])
     report = json.loads(capsys.readouterr().out)
     assert report["forward_photons_per_s"] > 0 and report["forward_backward_photons_per_s"] > 0
@@ -57,6 +58,7 @@ def test_bench_prints_the_promised_figures(capsys):
     assert mesh["mesh_scene_plain"]["gradient_time_over_plain_mesh_scene"] == 1.0
     assert mesh["height_field"]["gradient_time_over_height_field"] == 1.0
     assert all(m["forward_photons_per_s"] > 0 and m["forward_backward_photons_per_s"] > 0 for m in mesh.values())
+    assert set(report["scale"]["grid"]) == {"16", "32"} and set(report["scale"]["stacks"]) == {"1", "2", "3"}
     stack = report["stack"]
     assert stack["photons_per_shot"] == 20000 and stack["render_speedup_shared"] > 0
     assert stack["shared_render_and_gradient_s"] > stack["shared_render_s"] > 0
@@ -104,6 +106,24 @@ def test_the_mesh_section_alone_compares_every_operator_at_the_same_photons(caps
         assert len(m["iteration_ratios"]) == 5 and min(m["iteration_ratios"]) > 0
         assert m["iteration_time_over_height_field"] == pytest.approx(float(np.median(m["iteration_ratios"])))
         assert m["iteration_seconds"] > 0
+
+
+def test_the_growth_exponent_is_the_log_log_slope():
+    assert growth_exponent([128.0 ** 2, 256.0 ** 2, 512.0 ** 2], [1.0, 4.0, 16.0]) == pytest.approx(1.0)
+    assert growth_exponent([1.0, 2.0, 3.0], [2.0, 2.0, 2.0]) == pytest.approx(0.0, abs=1e-12)
+
+
+@pytest.mark.slow
+def test_the_scale_section_alone_times_every_size_and_stack_in_its_own_process(capsys):
+    main(["--only", "scale", "--scale-sizes", "16", "32", "64", "--scale-per-pixel", "2", "--chunk-size", "8192"])
+    scale = json.loads(capsys.readouterr().out)["scale"]
+    assert set(scale["grid"]) == {"16", "32", "64"} and set(scale["stacks"]) == {"1", "2", "3"}
+    assert [scale["grid"][m]["photons"] for m in ("16", "32", "64")] == [512, 2048, 8192]  # 2 a pixel
+    assert scale["stack_m"] == 32 and scale["stack_photons_per_shot"] == 2048
+    for case in [*scale["grid"].values(), *scale["stacks"].values()]:
+        assert case["seconds"] > 0 and case["peak_rss_mb"] > 100  # a fresh process with torch loaded
+    for key in ("seconds_exponent_in_samples", "memory_exponent_in_samples", "seconds_exponent_in_shots"):
+        assert math.isfinite(scale[key])
 
 
 # The stage kernels cost 1.5 min of compiling on a cold cache; as plain Python (JIT off) the

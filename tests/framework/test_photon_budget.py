@@ -8,7 +8,7 @@ import torch
 from framework.core.objective import DataFidelity
 from framework.scene.run_settings import PhotonBudgetSettings
 from framework.core.solver_loop import IterationRecord
-from framework.reconstruction.photon_budget import PhotonBudget, photons_needed
+from framework.reconstruction.photon_budget import PhotonBudget, finer_receiver_cap, photons_needed
 from tests.framework.toy import DTYPE, LinearOperator
 
 M = 8
@@ -107,8 +107,40 @@ def test_the_budget_stops_at_the_configured_photons_and_a_resumed_run_goes_on_wi
     assert resumed.photons == 64_000
 
 
+class _Receiver:
+    def __init__(self, photons: int, n: int) -> None:
+        self.photons, self.output_shape = photons, (1, n, n)
+
+
+def test_a_finer_receiver_may_trace_photons_in_proportion_to_its_pixels_in_doublings():
+    photons = 1 << 20
+    assert finer_receiver_cap(_Receiver(photons, 128), 128) is None  # the configured photons: nothing changes
+    assert finer_receiver_cap(_Receiver(20_000, 64), 128) is None  # a coarser receiver keeps the photons it is given
+    assert finer_receiver_cap(_Receiver(photons, 256), 128) == 4 * photons
+    assert finer_receiver_cap(_Receiver(photons, 512), 128) == 16 * photons
+    assert finer_receiver_cap(_Receiver(photons, 200), 128) == 4 * photons  # 2.44 x the pixels: the next doubling
+    assert finer_receiver_cap(_Receiver(photons, 512), None) is None
+
+
+def test_a_cap_above_the_configured_photons_lets_the_noise_level_have_what_it_needs():
+    target = torch.full((1, M, M), 0.5, dtype=DTYPE)
+    operator = NoisyRenders(64_000, seed=0, scale=0.02 * math.sqrt(1000), target_norm=float(target.norm()))
+    fidelity = DataFidelity(operator, target)
+    budget = PhotonBudget(fidelity, operator, start=1000, noise_share=0.1, delta=0.05, tau_dis=1.01, seed=0,
+                          cap=256_000)
+    solver = StagedSolver()
+    budget.on_start(solver)
+    record = _record(1, 0.0505)  # Morozov's allowance needs 128 k (the test above: stopped at 64 k)
+    budget.on_iteration(solver, record)
+    assert record.extras["photons"] == 128_000 and fidelity.operator.photons == 128_000
+    assert budget.noise <= budget.allowance(0.0505)
+
+
 def test_bad_budget_settings_are_refused_with_the_key():
     assert PhotonBudgetSettings.parse(None) == PhotonBudgetSettings(None, 0.5)
+    assert PhotonBudgetSettings.parse({"start": 1000, "photons_resolution": 128}).photons_resolution == 128
+    with pytest.raises(ValueError, match=r"photon_budget.photons_resolution=0 must be a receiver resolution >= 1"):
+        PhotonBudgetSettings.parse({"start": 1000, "photons_resolution": 0})
     with pytest.raises(ValueError, match="photon_budget.start=0"):
         PhotonBudgetSettings.parse({"start": 0})
     with pytest.raises(ValueError, match="photon_budget.noise_share=2"):
