@@ -27,7 +27,6 @@ import dataclasses
 import json
 import math
 import multiprocessing as mp
-import resource
 import tempfile
 import time
 from pathlib import Path
@@ -42,7 +41,7 @@ from experiments.bench_mesh import mesh_footprint, time_mesh_scenes
 from experiments.bench_reconstruction import reconstruction_report
 from experiments.bench_scale import scale_report
 from experiments.bench_stages import stage_profile
-from experiments.timing import best_seconds
+from experiments.timing import best_seconds, peak_rss_mb
 from framework.scene.printed_shapes import make_shape
 from operators.heightfield.operator import CausticOperator, OperatorSettings
 from operators.scene import Scene
@@ -53,11 +52,6 @@ from operators.stack import StackOperator
 # Throughput the CPU path is held to on a 2-core machine (docs/performance.md): photons/s.
 TARGET_FORWARD = 5e6
 TARGET_FORWARD_BACKWARD = 2e6
-
-
-def peak_rss_mb() -> float:
-    """High-water mark of this process's resident memory (MiB)."""
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
 def make_operator(photons: int, footprint_px: float, chunk_size: int, simd: bool = True,

@@ -14,13 +14,13 @@ from __future__ import annotations
 
 import math
 import multiprocessing as mp
-import resource
 import time
 from typing import Any
 
 import numpy as np
 import torch
 
+from experiments.timing import peak_rss_mb
 from framework.scene.printed_shapes import make_shape
 from operators.heightfield.operator import CausticOperator, OperatorSettings
 from operators.scene import Receiver, Scene
@@ -49,7 +49,7 @@ def _iteration_worker(m: int, shots: int, photons: int, footprint_px: float, chu
         t0 = time.perf_counter()
         op.loss_and_grad(heights, target, image=op.render(heights))
         best = min(best, time.perf_counter() - t0)
-    queue.put({"seconds": best, "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0})
+    queue.put({"seconds": best, "peak_rss_mb": peak_rss_mb()})
 
 
 def _in_fresh_process(*args: Any) -> dict[str, float]:

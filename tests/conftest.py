@@ -10,6 +10,8 @@ import os
 
 import pytest
 
+from framework.core import registry
+
 _WORKERS = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
 
 if _WORKERS > 1:
@@ -55,3 +57,9 @@ def pytest_collection_modifyitems(config, items) -> None:
             item.add_marker(pytest.mark.xdist_group("numba_kernels"))
         elif path in SHARED_FIXTURE_FILES:
             item.add_marker(pytest.mark.xdist_group(path))
+
+
+@pytest.fixture
+def own_registrations(monkeypatch):
+    """Registrations made in a test are forgotten after it."""
+    monkeypatch.setattr(registry, "_registered", {kind: dict(found) for kind, found in registry._registered.items()})

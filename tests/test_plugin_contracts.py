@@ -24,7 +24,6 @@ from framework.core.problem import HeightGrid, Problem
 from framework.reconstruction.stopping import StagnationStopping
 from framework.core.plugin_config import build_plugin
 from framework.core.registry import KINDS, available, declared, register
-from framework.core import registry
 from operators.scene import Receiver, Scene
 from regularizers import PixelL1
 from examples.plugins.exact_step_solver import ExactStepSolver
@@ -71,12 +70,6 @@ def test_every_plugin_derives_from_its_kinds_base(kind) -> None:
     assert available(kind), kind
     for name in available(kind):
         check_base(kind, name, OWN_BASES[kind])
-
-
-@pytest.fixture
-def own_registrations(monkeypatch):
-    """Registrations made in a test are forgotten after it."""
-    monkeypatch.setattr(registry, "_registered", {kind: dict(found) for kind, found in registry._registered.items()})
 
 
 def test_a_plugin_without_its_base_fails(own_registrations) -> None:

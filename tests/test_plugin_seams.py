@@ -22,7 +22,6 @@ from framework.core.data import ReconstructionData
 from framework.core.plugin_config import build_plugin
 from framework.core.problem import HeightGrid, Problem
 from framework.reconstruction.parts import Reconstruction
-from framework.core import registry
 from framework.core.registry import KINDS, available, register
 from operators.scene import Receiver, Scene
 from examples.plugins.exact_step_solver import ExactStepSolver
@@ -109,12 +108,6 @@ def test_every_registry_key_instantiates(kind, name):
         assert plugin.render(torch.zeros(8, 8, dtype=plugin.dtype)).shape == plugin.output_shape
     else:
         assert plugin is not None
-
-
-@pytest.fixture
-def own_registrations(monkeypatch):
-    """Registrations made in a test are forgotten after it."""
-    monkeypatch.setattr(registry, "_registered", {kind: dict(found) for kind, found in registry._registered.items()})
 
 
 def test_register_adds_a_plugin_in_process_and_refuses_a_taken_name(own_registrations):
