@@ -90,11 +90,16 @@ class SobolevPreconditioner(GradientPreconditioner):
             from ``setup``); finer detail than l is damped, broader detail passes unchanged. A
             decreasing list of lengths is a coarse-to-fine schedule (see :meth:`refine`).
         order: Exponent p > 0 (2 matches the |k|^4 growth of the data term's Hessian).
+        grid: The height grid (samples a side) the lengths are meant for: on a finer grid of m
+            samples each length shrinks by grid / m, so that the schedule spans the same cells
+            (the data of a finer grid resolve finer detail, and a length of many cells holds it
+            back); on a grid no finer the lengths hold in scene units. None: scene units on
+            every grid.
     """
 
     length_keys = ("length",)  # may be given with a unit, e.g. '3 mm' (framework/core/plugin_config.py)
 
-    def __init__(self, length: float | Sequence[float] = 0.125, order: float = 2.0) -> None:
+    def __init__(self, length: float | Sequence[float] = 0.125, order: float = 2.0, grid: int | None = None) -> None:
         lengths = [length] if isinstance(length, (int, float)) else list(length)
         if not lengths or not all(isinstance(v, (int, float)) and math.isfinite(v) and v > 0.0 for v in lengths):
             raise ValueError(f"preconditioner length={length!r} must be a positive length in scene units "
@@ -105,6 +110,8 @@ class SobolevPreconditioner(GradientPreconditioner):
         if not (math.isfinite(float(order)) and float(order) > 0.0):
             raise ValueError(f"preconditioner order={order!r} must be positive, e.g. 2")
         self.lengths = [float(v) for v in lengths]
+        self.grid = None if grid is None else checked_whole(grid, "preconditioner grid", least=2, example="128")
+        self._scale = 1.0  # grid / m on a finer grid (setup)
         self.stage = 0
         self.order = float(order)
         self._spacing: float | None = None
@@ -112,8 +119,8 @@ class SobolevPreconditioner(GradientPreconditioner):
 
     @property
     def length(self) -> float:  # type: ignore[override]
-        """The smoothing length of the current stage (scene units)."""
-        return self.lengths[self.stage]
+        """The smoothing length of the current stage on the grid of ``setup`` (scene units)."""
+        return self.lengths[self.stage] * self._scale
 
     def refine(self) -> bool:
         """Go to the next, finer length of the schedule; False (and no change) at the last one."""
@@ -136,8 +143,11 @@ class SobolevPreconditioner(GradientPreconditioner):
         self._filters.clear()
 
     def setup(self, context: Any) -> None:
-        """Take the grid spacing sqrt(a) (scene units) from a context with ``pixel_area`` a."""
+        """Take the grid spacing sqrt(a) (scene units) from a context with ``pixel_area`` a, and the
+        grid's samples a side from its ``mask`` (m, m) where the lengths are meant for a ``grid``."""
         self._spacing = math.sqrt(float(context.pixel_area))
+        m = None if self.grid is None else int(context.mask.shape[-1])
+        self._scale = 1.0 if m is None or m <= self.grid else self.grid / m
         self._filters.clear()
 
     def _filter(self, m: int) -> np.ndarray:

@@ -23,6 +23,7 @@ from framework.core.registry import declared
 from framework.defects.defect_stage import DefectSettings
 from framework.files.image_io import resolve_path
 from framework.lab.calibration import JointCalibration
+from framework.reconstruction.coarse_to_fine import CoarseToFineSettings
 from framework.reconstruction.run_checks import (check_tracking_target, check_volume, check_volume_known,
                                                  checked_resume, height_bounds)
 from framework.reconstruction.run_identity import run_fingerprint
@@ -66,6 +67,9 @@ class Reconstruction:
         max_iter: The solver's iteration cap.
         fingerprint: What determines the result (framework/reconstruction/run_identity.py), stored in checkpoints.
         calibration: Joint calibration of the setup (framework/lab/calibration.py), or None.
+        defects: The defect report's settings.
+        coarse_to_fine: The coarser grids each start is solved on first
+            (framework/reconstruction/coarse_to_fine.py).
     """
 
     settings: RunSettings
@@ -78,6 +82,7 @@ class Reconstruction:
     fingerprint: dict[str, str]
     calibration: JointCalibration | None = None
     defects: DefectSettings = field(default_factory=DefectSettings)
+    coarse_to_fine: CoarseToFineSettings = field(default_factory=CoarseToFineSettings)
     _designs: dict[str, torch.Tensor] = field(default_factory=dict, repr=False)
 
     @property
@@ -125,6 +130,10 @@ class Reconstruction:
         stopping = build_stopping(cfg.get("stopping"))
         start = build_start(cfg.get("initial"))
         start.check(base_dir)
+        coarse_to_fine = CoarseToFineSettings.parse(cfg.get("coarse_to_fine"))
+        if coarse_to_fine.levels > 1 and isinstance(data_source, ShotStack):
+            raise ValueError(f"coarse_to_fine.levels={coarse_to_fine.levels} reads one photo; a stack of shots "
+                             "runs on its own grid: set coarse_to_fine.levels=1")
         regularizers = (cfg.get("solver") or {}).get("regularizers") or {}
         if "l1_design" in regularizers and not _has_design(cfg):
             raise ValueError("solver.regularizers.l1_design (experiment=design) needs the print's design: give "
@@ -135,7 +144,7 @@ class Reconstruction:
             raise ValueError("defects.enabled=on needs the print's design: give height_field.path (the design) with "
                              "data=file or data=photo, or data.printed with synthetic data; or defects.enabled=auto")
         return cls(settings, setup, data_source, make_solver, stopping, start, max_iter,
-                   run_fingerprint(cfg, base_dir), calibration, defects)
+                   run_fingerprint(cfg, base_dir), calibration, defects, coarse_to_fine)
 
     def check(self, base_dir: Path, output_dir: Path) -> Path | None:
         """Everything a run needs that the plugins' configs alone do not show, checked without a

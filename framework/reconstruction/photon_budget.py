@@ -26,10 +26,14 @@ from __future__ import annotations
 import math
 from typing import Any
 
+from framework.core.contracts.operator import Operator
 from framework.core.objective import DataFidelity
+from framework.core.problem import Problem
 from framework.core.solver_loop import Callback, IterationRecord, IterativeSolver
+from framework.reconstruction.parts import Reconstruction
 
-__all__ = ["PhotonBudget", "finer_receiver_cap", "render_noise", "photons_needed", "with_photons"]
+__all__ = ["PhotonBudget", "budget_photons", "photon_budget", "photons_needed", "receiver_scale", "render_noise",
+           "with_photons"]
 
 SEED_OFFSET = 3000  # the second photon pattern: seed + 3000 (the data's references use + 1000, + 2000)
 
@@ -41,17 +45,17 @@ def with_photons(operator: Any, photons: int, seed: int) -> Any:
     return operator.variant(photons, seed, int(operator.output_shape[-1]))
 
 
-def finer_receiver_cap(operator: Any, photons_resolution: int | None) -> int | None:
-    """The photon cap of ``operator``'s receiver (n x n) when its ``photons`` are meant for one of
-    ``photons_resolution`` pixels a side: photons x (n / photons_resolution)^2, rounded up to a
-    doubling so that the budget's doublings reach it; None (the cap is ``photons``) for a receiver
-    no finer, or without a resolution. A pixel's relative render noise goes as 1 / sqrt(its
-    photons): a finer receiver needs more photons in all for the same noise per pixel, and so for
-    the same share of Morozov's allowance."""
+def receiver_scale(operator: Any, photons_resolution: int | None) -> int:
+    """The factor on the photons (the budget's start and cap) of ``operator``'s receiver (n x n)
+    when the configured photons are meant for one of ``photons_resolution`` pixels a side:
+    (n / photons_resolution)^2, rounded up to a doubling so that the budget's doublings reach it;
+    1 for a receiver no finer, or without a resolution. A pixel's relative render noise goes as
+    1 / sqrt(its photons): a finer receiver needs more photons in all for the same noise per pixel,
+    and so for the same share of Morozov's allowance."""
     n = int(operator.output_shape[-1])
     if photons_resolution is None or n <= photons_resolution:
-        return None
-    return int(operator.photons) * 2 ** math.ceil(2.0 * math.log2(n / photons_resolution) - 1e-12)
+        return 1
+    return 2 ** math.ceil(2.0 * math.log2(n / photons_resolution) - 1e-12)
 
 
 def render_noise(fidelity: DataFidelity, operator: Any, other: Any, d: Any) -> float:
@@ -168,3 +172,26 @@ class PhotonBudget(Callback):
         regularization = record.objective - record.data_fidelity
         record.data_fidelity, record.rel_discrepancy = evaluation.value, evaluation.rel_discrepancy
         record.objective = evaluation.value + regularization
+
+
+def budget_photons(parts: Reconstruction, operator: Operator) -> tuple[int, int]:
+    """The photon budget's (start, cap) on ``operator``'s receiver: ``photon_budget.start`` and the
+    configured photons, both times the receiver's scale (framework/reconstruction/photon_budget.py,
+    ``receiver_scale``)."""
+    budget = parts.settings.photon_budget
+    scale = receiver_scale(operator, budget.photons_resolution)
+    return (budget.start or int(operator.photons)) * scale, int(operator.photons) * scale
+
+
+def photon_budget(parts: Reconstruction, problem: Problem, photons: tuple[int, int] | None = None
+                  ) -> PhotonBudget | None:
+    """The photon budget of a run on ``problem`` (the run's, one shot of its stack, or a coarse
+    level with its own (start, cap) ``photons``; None: ``budget_photons``), or None: every
+    iteration traces the configured photons (no ``photon_budget.start``, no noise level, or a joint
+    calibration, which updates the configured operator's setup)."""
+    budget, delta = parts.settings.photon_budget, problem.data.delta
+    if budget.start is None or parts.calibration is not None or not delta or delta <= 0.0:
+        return None
+    start, cap = photons or budget_photons(parts, problem.operator)
+    return PhotonBudget(problem.fidelity, problem.operator, start, budget.noise_share, float(delta),
+                        parts.settings.tau_dis, parts.settings.seed, cap=cap)

@@ -19,15 +19,16 @@ import torch
 from framework.core.callbacks import Checkpointer, GroundTruthError, MetricsHistory, ProgressBar
 from framework.core.checkpoint import resume as resume_solver
 from framework.core.contracts.operator import Operator
-from framework.core.contracts.start import Start, StartRequest
+from framework.core.contracts.start import Start, StartRequest, StartResult
 from framework.core.objective import DataFidelity
 from framework.core.problem import Problem
 from framework.core.solver_loop import Callback, RunResult, returned_iterate
 from framework.defects.defect_stage import report_defects
 from framework.files.image_io import resolve_path
+from framework.reconstruction.coarse_to_fine import coarser_problem, resample_heights
 from framework.reconstruction.feature_search import FeatureSearch, SearchedLines
 from framework.reconstruction.parts import Reconstruction, build_stopping
-from framework.reconstruction.photon_budget import PhotonBudget, finer_receiver_cap, with_photons
+from framework.reconstruction.photon_budget import budget_photons, photon_budget, with_photons
 from framework.reconstruction.report_figures import save_reconstruction_figures
 from framework.reconstruction.run_checks import CHECKPOINT
 from framework.reconstruction.run_outputs import report_verdict, save_outputs
@@ -52,18 +53,6 @@ def passes(fidelity: DataFidelity) -> dict[str, int]:
             "photon_traces": fidelity.photon_traces}
 
 
-def photon_budget(parts: Reconstruction, problem: Problem) -> PhotonBudget | None:
-    """The photon budget of a run on ``problem`` (the run's, or one shot of its stack), or None:
-    every iteration traces the configured photons (no ``photon_budget.start``, no noise level, or
-    a joint calibration, which updates the configured operator's setup)."""
-    budget, delta = parts.settings.photon_budget, problem.data.delta
-    if budget.start is None or parts.calibration is not None or not delta or delta <= 0.0:
-        return None
-    return PhotonBudget(problem.fidelity, problem.operator, budget.start, budget.noise_share, float(delta),
-                        parts.settings.tau_dis, parts.settings.seed,
-                        cap=finer_receiver_cap(problem.operator, budget.photons_resolution))
-
-
 def final_operator(parts: Reconstruction, result: RunResult) -> Operator:
     """The operator with the photons of the run's last iteration (framework/reconstruction/photon_budget.py)."""
     photons = result.history[-1].extras.get("photons") if result.history else None
@@ -80,6 +69,48 @@ def interrupted_run(output_dir: Path, checkpoint: Path | None, store_dir: Path, 
     return saved["run_id"] if saved["tracking_uri"] == (uri or local_store_uri(store_dir)) else None
 
 
+def _coarse_levels(parts: Reconstruction, problem: Problem, name: str, start: Start, request: StartRequest
+                   ) -> tuple[StartResult, dict[str, float]]:
+    """The start, solved on the coarser grids of ``coarse_to_fine`` first (framework/reconstruction/
+    coarse_to_fine.py): computed on the coarsest, each level solved by the configured solver and
+    stopping rules from the last one's heights, the result resampled to the run's grid (a shaped
+    start). Returns it with each level's iterations, discrepancy and seconds
+    (``<start>_level<m>_*``); without coarse levels, the start itself."""
+    n = int(problem.operator.output_shape[-1])
+    levels = parts.coarse_to_fine.resolutions(parts.grid.resolution, n)
+    if not levels:
+        return start(request), {}
+    start_photons, cap = budget_photons(parts, problem.operator)
+    coarse = []
+    for m_level, n_level in levels:
+        share = (n_level / n) ** 2  # the same photons per receiver pixel as the run's
+        photons = (max(1, int(start_photons * share)), max(1, int(cap * share)))
+        coarse.append((coarser_problem(problem, m_level, n_level, photons[1], parts.settings.seed), photons))
+    first = coarse[0][0]
+    design = request.design
+    computed = start(replace(request, problem=first,
+                             design=lambda: resample_heights(design(), first.grid.resolution)))
+    d, shaped, metrics = computed.d.to(problem.operator.dtype), computed.shaped, {}
+    for level, photons in coarse:
+        began, m_level = time.perf_counter(), level.grid.resolution
+        solver = parts.make_solver(level, resample_heights(d, m_level))
+        if shaped:
+            solver.begin_from_shaped_start()
+        stopping = build_stopping(parts.settings.cfg.get("stopping"))
+        for rule in stopping:
+            rule.setup(level)
+        budget = photon_budget(parts, level, photons)
+        callbacks: list[Callback] = [*stopping, ProgressBar(desc=f"{parts.settings.method} from {name} at {m_level}")]
+        result = solver.run(parts.max_iter, [*callbacks, *([budget] if budget else [])])
+        d, _ = returned_iterate(result, stopping)
+        shaped = True
+        metrics.update({f"{name}_level{m_level}_iterations": float(result.iterations),
+                        f"{name}_level{m_level}_rel_discrepancy": result.history[-1].rel_discrepancy
+                        if result.history else float("nan"),
+                        f"{name}_level{m_level}_seconds": time.perf_counter() - began})
+    return replace(computed, d=resample_heights(d, parts.grid.resolution), shaped=True), metrics
+
+
 def _solve_from(parts: Reconstruction, problem: Problem, name: str, start: Start, request: StartRequest,
                 checkpoint: Path | None, output_dir: Path, tracker: MlflowTracker, steps_before: int,
                 truth_error: GroundTruthError | None) -> PhaseOutcome:
@@ -88,8 +119,8 @@ def _solve_from(parts: Reconstruction, problem: Problem, name: str, start: Start
     began = time.perf_counter()
     start_metrics: dict[str, float] = {}
     if checkpoint is None:  # a resumed run continues from its checkpoint's heights
-        computed = start(request)
-        d0, start_metrics = computed.d.to(operator.dtype), dict(computed.metrics)
+        computed, level_metrics = _coarse_levels(parts, problem, name, start, request)
+        d0, start_metrics = computed.d.to(operator.dtype), {**computed.metrics, **level_metrics}
         if truth_error is not None:  # how far the start itself is from the truth
             start_metrics.update({f"{name}_initial_{k}": v for k, v in truth_error.errors(d0).items()})
         tracker.log_metrics({f"start_{k}": v for k, v in start_metrics.items()}, step=steps_before)

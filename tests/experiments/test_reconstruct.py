@@ -147,6 +147,18 @@ def test_a_start_from_half_the_design_beats_the_flat_start(tmp_path):
     assert half["rel_error_d"] < 0.5 * flat["rel_error_d"], (half, flat)
 
 
+@pytest.mark.slow
+def test_a_coarse_level_brings_the_bump_the_fine_level_starts_from(tmp_path):
+    """coarse_to_fine.levels=2: the bump solved on 16 x 16 heights (a 32 x 32 receiver) first; the
+    32 x 32 run starts from it, far closer to the truth than flat glass (rel_error_d 1)."""
+    cfg = compose_reconstruct([*SMALL, *BUMP, "solver.max_iter=30", "coarse_to_fine.levels=2",
+                               "coarse_to_fine.coarsest=16"], tmp_path)
+    metrics = run_reconstruction(cfg, tmp_path / "levels", tmp_path)
+    assert 1 <= metrics["start_zero_level16_iterations"] <= 30, metrics
+    assert metrics["start_zero_initial_rel_error_d"] < 0.7, metrics
+    assert metrics["rel_error_d"] < 0.5, metrics
+
+
 @pytest.mark.parametrize("experiment", ["m1", "m2v0", "m2v1", "m2v2", "m3v0", "m3v1", "m3v2"])
 @pytest.mark.slow
 def test_every_experiment_preset_runs_two_iterations(tmp_path, experiment):
@@ -212,6 +224,7 @@ def test_measured_data_from_files(tmp_path):
     (["solver.preconditioner.length=-1"], ValueError, "length=-1"),
     (["solver.preconditioner.name=multigrid"], KeyError, "multigrid"),
     (["stopping.stagnation.patience=0"], ValueError, "patience=0"),
+    (["coarse_to_fine.levels=0"], ValueError, "coarse_to_fine.levels=0"),
 ])
 def test_bad_configuration_is_refused_clearly(tmp_path, overrides, error, message):
     np.save(tmp_path / "caustic.npy", np.ones((1, 64, 64)))

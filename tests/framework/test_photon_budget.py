@@ -8,7 +8,7 @@ import torch
 from framework.core.objective import DataFidelity
 from framework.scene.run_settings import PhotonBudgetSettings
 from framework.core.solver_loop import IterationRecord
-from framework.reconstruction.photon_budget import PhotonBudget, finer_receiver_cap, photons_needed
+from framework.reconstruction.photon_budget import PhotonBudget, photons_needed, receiver_scale
 from tests.framework.toy import DTYPE, LinearOperator
 
 M = 8
@@ -108,18 +108,17 @@ def test_the_budget_stops_at_the_configured_photons_and_a_resumed_run_goes_on_wi
 
 
 class _Receiver:
-    def __init__(self, photons: int, n: int) -> None:
-        self.photons, self.output_shape = photons, (1, n, n)
+    def __init__(self, n: int) -> None:
+        self.output_shape = (1, n, n)
 
 
-def test_a_finer_receiver_may_trace_photons_in_proportion_to_its_pixels_in_doublings():
-    photons = 1 << 20
-    assert finer_receiver_cap(_Receiver(photons, 128), 128) is None  # the configured photons: nothing changes
-    assert finer_receiver_cap(_Receiver(20_000, 64), 128) is None  # a coarser receiver keeps the photons it is given
-    assert finer_receiver_cap(_Receiver(photons, 256), 128) == 4 * photons
-    assert finer_receiver_cap(_Receiver(photons, 512), 128) == 16 * photons
-    assert finer_receiver_cap(_Receiver(photons, 200), 128) == 4 * photons  # 2.44 x the pixels: the next doubling
-    assert finer_receiver_cap(_Receiver(photons, 512), None) is None
+def test_a_finer_receiver_scales_the_photons_in_proportion_to_its_pixels_in_doublings():
+    assert receiver_scale(_Receiver(128), 128) == 1  # the configured photons: nothing changes
+    assert receiver_scale(_Receiver(64), 128) == 1  # a coarser receiver keeps the photons it is given
+    assert receiver_scale(_Receiver(256), 128) == 4
+    assert receiver_scale(_Receiver(512), 128) == 16
+    assert receiver_scale(_Receiver(200), 128) == 4  # 2.44 x the pixels: the next doubling
+    assert receiver_scale(_Receiver(512), None) == 1
 
 
 def test_a_cap_above_the_configured_photons_lets_the_noise_level_have_what_it_needs():

@@ -59,6 +59,24 @@ def test_is_symmetric_positive_definite_and_keeps_constants():
     assert float(p(u).norm()) < 0.2 * float(u.norm())
 
 
+def test_lengths_meant_for_a_grid_keep_their_cells_on_a_finer_one():
+    """With grid=8, an m = 16 grid (spacing 2 / 15) smooths over the cells an m = 8 grid would: the
+    dense inverse with l = 0.5 x 8 / 16 = 0.25; on m = 8 and m = 4 the lengths hold in scene units."""
+    g = torch.randn(16, 16, generator=torch.Generator().manual_seed(5), dtype=DTYPE)
+    for m, expected_length in ((16, 0.25), (8, 0.5), (4, 0.5)):
+        spacing = 2.0 / (m - 1)
+        p = SobolevPreconditioner(length=[0.5], order=1.0, grid=8)
+        p.setup(SimpleNamespace(pixel_area=spacing ** 2, mask=torch.ones(m, m, dtype=torch.bool)))
+        assert math.isclose(p.length, expected_length, rel_tol=1e-15)
+        cells = expected_length / spacing
+        op = torch.eye(m * m, dtype=DTYPE) + cells ** 2 * neumann_laplacian_2d(m)
+        part = g[:m, :m]
+        torch.testing.assert_close(p(part), torch.linalg.solve(op, part.reshape(-1)).reshape(m, m),
+                                   rtol=1e-10, atol=1e-12)
+    with pytest.raises(ValueError, match="preconditioner grid=0"):
+        SobolevPreconditioner(grid=0)
+
+
 def test_bad_settings_and_missing_setup_are_refused():
     with pytest.raises(ValueError, match="length"):
         SobolevPreconditioner(length=0.0)
