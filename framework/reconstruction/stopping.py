@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING
 from torch import Tensor
 
 from framework.core.contracts.stopping import StoppingRule
-from operators.values import checked_whole
+from operators.values import checked_whole, is_number
 
 if TYPE_CHECKING:
     from framework.core.problem import Problem
@@ -115,9 +115,18 @@ class StagnationStopping(StoppingRule):
     discrepancy, which the caller should report. The best iterate is not part of a checkpoint: a
     resumed run starts tracking afresh.
 
+    With ``refine_share`` the rule also refines before the fit stalls: when the last ``patience``
+    iterations of a stage removed less than that share of the misfit above the noise level,
+    r^2 - delta^2 (r the relative discrepancy, delta the data's noise level), a coarse metric
+    near the noise level only creeps while the next, finer one goes on at its own pace
+    (docs/performance.md, "How the cost grows with the grid"). It never stops a run by itself.
+
     Args:
         patience: Iterations without improvement before refining or stopping (>= 1).
         min_improvement: Relative decrease that counts as an improvement, in [0, 1).
+        refine_share: Share in (0, 1) of r^2 - delta^2 that ``patience`` iterations of a stage must
+            remove, else the solver is offered its next stage; None: only when the fit stalls
+            (or without a noise level).
 
     Attributes:
         refined_at: Iterations after which this rule switched the solver to a finer stage (a
@@ -126,12 +135,19 @@ class StagnationStopping(StoppingRule):
             :func:`framework.reconstruction.solvers.proximal_gradient.stage_changes`).
     """
 
-    def __init__(self, patience: int = 8, min_improvement: float = 1e-3) -> None:
+    def __init__(self, patience: int = 8, min_improvement: float = 1e-3, refine_share: float | None = None) -> None:
         patience = checked_whole(patience, "patience", 1, must="must be an integer >= 1 (iterations)",
                                  example="8; null disables the rule")
         if not 0.0 <= float(min_improvement) < 1.0:
             raise ValueError(f"min_improvement={min_improvement!r} must lie in [0, 1), e.g. 1e-3")
+        if refine_share is not None and not (is_number(refine_share) and 0.0 < float(refine_share) < 1.0):
+            raise ValueError(f"stopping.stagnation.refine_share={refine_share!r} must lie in (0, 1), e.g. 0.25; "
+                             "null refines only when the fit stalls")
         self.patience, self.min_improvement = patience, float(min_improvement)
+        self.refine_share = None if refine_share is None else float(refine_share)
+        self.delta: float | None = None
+        self._stage: int | None = None
+        self._stage_discrepancies: list[float] = []  # relative discrepancies of the current stage
         self.best_discrepancy = math.inf
         self.best_iteration: int | None = None
         self.best_d: Tensor | None = None
@@ -139,11 +155,18 @@ class StagnationStopping(StoppingRule):
         self._progress_iteration = 0  # iteration of the last such improvement (or refinement)
         self.refined_at: list[int] = []
 
+    def setup(self, problem: Problem) -> None:
+        """Take the noise level delta (for ``refine_share``) from the problem's data."""
+        delta = problem.data.delta
+        self.delta = float(delta) if delta and delta > 0.0 else None
+
     def on_iteration(self, solver, record) -> bool:  # noqa: D102
         if record.rel_discrepancy < self.best_discrepancy or self.best_d is None:
             self.best_discrepancy = record.rel_discrepancy
             self.best_iteration = record.iteration
             self.best_d = solver.d.detach().clone()
+        if self._refined_early(solver, record):
+            return False
         if not record.extras.get("calibration_settled", 1.0):  # a calibrated geometry still moving is progress
             self._progress_iteration = record.iteration
             return False
@@ -162,6 +185,28 @@ class StagnationStopping(StoppingRule):
             f"stagnation: no {self.min_improvement:.2%} improvement of the rel. discrepancy for {self.patience} "
             f"iterations; the best iterate (iteration {self.best_iteration}, {self.best_discrepancy:.4g}) is returned"
         )
+        return True
+
+    def _refined_early(self, solver, record) -> bool:
+        """With ``refine_share``: whether the current stage's last ``patience`` iterations removed
+        too little of r^2 - delta^2 and the solver took its next stage (from the best iterate)."""
+        if self.refine_share is None or self.delta is None:
+            return False
+        if solver.stage() != self._stage:
+            self._stage, self._stage_discrepancies = solver.stage(), []
+        self._stage_discrepancies.append(record.rel_discrepancy)
+        if len(self._stage_discrepancies) <= self.patience:
+            return False
+        misfit = [r * r - self.delta * self.delta for r in (self._stage_discrepancies[-1 - self.patience],
+                                                             record.rel_discrepancy)]
+        if not (misfit[0] > 0.0 and misfit[1] > (1.0 - self.refine_share) * misfit[0]):
+            return False
+        if not solver.refine(self.best_d):
+            return False
+        self.refined_at.append(record.iteration)
+        self._reference = self.best_discrepancy
+        self._progress_iteration = record.iteration
+        self._stage, self._stage_discrepancies = solver.stage(), []
         return True
 
     def best_iterate(self) -> tuple[Tensor, int] | None:

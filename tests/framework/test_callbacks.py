@@ -1,4 +1,5 @@
 import math
+from types import SimpleNamespace
 
 import pytest
 import torch
@@ -148,6 +149,9 @@ class RefiningSolver(ScriptedSolver):
         self.refined_from.append(float(d[0, 0]))
         return True
 
+    def stage(self):
+        return len(self.refined_from)
+
 
 def test_stagnation_refines_from_the_best_iterate_before_it_stops():
     # best 0.3 at iteration 3, no progress on 4..6 -> refine from iterate 3 after iteration 6;
@@ -161,15 +165,39 @@ def test_stagnation_refines_from_the_best_iterate_before_it_stops():
     torch.testing.assert_close(stagnation.best_d, torch.full((2, 2), 7.0, dtype=DTYPE))
 
 
+CREEPING = [0.5, 0.3, 0.2, 0.15, 0.149, 0.148, 0.147, 0.12, 0.11, 0.109, 0.1085, 0.108, 0.1075, 0.107]
+
+
+def test_stagnation_refines_early_when_a_stage_removes_too_little_of_the_misfit_above_the_noise():
+    # delta 0.1: r^2 - delta^2 is 0.0125 at iteration 4 and 0.011609 at 7, which keeps more than
+    # 75% of it, so refine_share 0.25 (patience 3) refines after iteration 7 from its best iterate
+    # although every iteration improves by more than 0.1%; the last stage creeps on to the end.
+    stagnation = StagnationStopping(patience=3, refine_share=0.25)
+    stagnation.setup(SimpleNamespace(data=SimpleNamespace(delta=0.1)))
+    solver = RefiningSolver(CREEPING, stages=1)
+    result = solver.run(len(CREEPING), [stagnation])
+    assert solver.refined_from == [7.0] and stagnation.refined_at == [7]
+    assert result.stopped_by == "max_iter" and stagnation.best_iteration == len(CREEPING)
+
+
+@pytest.mark.parametrize("share, delta", [(None, 0.1), (0.25, None), (0.01, 0.1)])
+def test_stagnation_does_not_refine_early_without_a_share_a_noise_level_or_with_a_small_share(share, delta):
+    stagnation = StagnationStopping(patience=3, refine_share=share)
+    stagnation.setup(SimpleNamespace(data=SimpleNamespace(delta=delta)))
+    solver = RefiningSolver(CREEPING, stages=1)
+    assert solver.run(len(CREEPING), [stagnation]).stopped_by == "max_iter" and solver.refined_from == []
+
+
 def test_stagnation_keeps_the_lowest_discrepancy_even_below_the_improvement_threshold():
     stagnation = StagnationStopping(patience=2, min_improvement=0.1)
     result = ScriptedSolver([0.5, 0.3, 0.29, 0.28, 0.27]).run(5, [stagnation])
     assert result.iterations == 4 and stagnation.best_iteration == 4  # 0.28: lowest, though < 10% better
 
 
-@pytest.mark.parametrize("kwargs", [{"patience": 0}, {"patience": 2.5}, {"min_improvement": 1.0}])
+@pytest.mark.parametrize("kwargs", [{"patience": 0}, {"patience": 2.5}, {"min_improvement": 1.0},
+                                    {"refine_share": 1.0}, {"refine_share": 0.0}, {"refine_share": "a"}])
 def test_stagnation_refuses_bad_settings(kwargs):
-    with pytest.raises(ValueError, match="patience|min_improvement"):
+    with pytest.raises(ValueError, match="patience|min_improvement|refine_share"):
         StagnationStopping(**kwargs)
 
 
