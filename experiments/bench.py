@@ -14,8 +14,8 @@ solver's iteration: a render, then the gradient from its image; experiments/benc
 ``--device cuda`` the operator on the GPU beside the CPU (experiments/bench_cuda.py);
 a stack of two screens with its shots sharing the hit search and without (operators/stack.py);
 the fidelity of each irradiance model against the exact caustic (experiments/bench_fidelity.py);
-how an iteration's time and the peak memory grow with m = n and the number of photos
-(experiments/bench_scale.py);
+how an iteration's time, the time to the noise level and the peak memory grow with m = n and the
+number of photos (experiments/bench_scale.py);
 and the default reconstruction with today's solver beside the earlier one
 (experiments/bench_reconstruction.py).
 """
@@ -30,6 +30,7 @@ import multiprocessing as mp
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 import numba
 import numpy as np
@@ -39,7 +40,7 @@ from experiments.bench_cuda import cuda_report
 from experiments.bench_fidelity import fidelity_report, wall_fidelity
 from experiments.bench_mesh import mesh_footprint, time_mesh_scenes
 from experiments.bench_reconstruction import reconstruction_report
-from experiments.bench_scale import scale_report
+from experiments.bench_scale import noise_level_report, scale_report
 from experiments.bench_stages import stage_profile
 from experiments.timing import best_seconds, peak_rss_mb
 from framework.scene.printed_shapes import make_shape
@@ -195,6 +196,18 @@ def profile_stages(op: CausticOperator, heights: torch.Tensor, target: torch.Ten
     }
 
 
+def scale_section(args: argparse.Namespace) -> dict[str, Any]:
+    """The scale section: an iteration at each of ``--scale-sizes`` and the stacks, and the
+    reconstructions to the noise level at each of ``--scale-solve-sizes`` (either may be empty)."""
+    section: dict[str, Any] = {}
+    if args.scale_sizes:
+        section.update(scale_report(tuple(args.scale_sizes), args.scale_per_pixel, args.footprint_px, args.chunk_size))
+    if args.scale_solve_sizes:
+        section["to_noise_level"] = noise_level_report(tuple(args.scale_solve_sizes), args.scale_solve_scene,
+                                                       args.scale_solve_overrides)
+    return section
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--photons", type=int, default=1 << 22, help="photons for the speed runs")
@@ -233,9 +246,15 @@ def main(argv: list[str] | None = None) -> None:
                         help="aim points per side of the walls' exact references (fidelity section, ten renders at "
                              "the first of --fidelity-resolutions)")
     parser.add_argument("--scale-sizes", type=int, nargs="*", default=[128, 256, 512],
-                        help="m = n of the scale section (none: skip it)")
+                        help="m = n of the scale section's iteration timings (none: skip them)")
     parser.add_argument("--scale-per-pixel", type=float, default=64.0,
                         help="photons per receiver pixel of the scale section (the photon budget's default cap)")
+    parser.add_argument("--scale-solve-sizes", type=int, nargs="*", default=[128, 256, 512],
+                        help="m = n of the scale section's reconstructions to the noise level (none: skip them)")
+    parser.add_argument("--scale-solve-scene", default="print_lines",
+                        help="built-in scene of the scale section's reconstructions")
+    parser.add_argument("--scale-solve-overrides", nargs="*", default=[],
+                        help="extra sfc-reconstruct overrides for the scale section's reconstructions")
     parser.add_argument("--only", choices=("fidelity", "walls", "mesh_scene", "scale"), default=None,
                         help="print only that section (walls: the fidelity section's walls entry; mesh_scene: at "
                              "--mesh-photons, e.g. 262144 and 1048576)")
@@ -263,8 +282,7 @@ def main(argv: list[str] | None = None) -> None:
                          indent=2))
         return
     if args.only == "scale":
-        print(json.dumps({"scale": scale_report(tuple(args.scale_sizes), args.scale_per_pixel, args.footprint_px,
-                                                args.chunk_size)}, indent=2))
+        print(json.dumps({"scale": scale_section(args)}, indent=2))
         return
     if args.device == "cuda":
         if not torch.cuda.is_available():
@@ -320,9 +338,8 @@ def main(argv: list[str] | None = None) -> None:
                                              tuple(args.fidelity_resolutions))
         report["fidelity"]["walls"] = wall_fidelity(args.fidelity_photons, args.wall_vertices,
                                                     args.fidelity_resolutions[0])
-    if args.scale_sizes:
-        report["scale"] = scale_report(tuple(args.scale_sizes), args.scale_per_pixel, args.footprint_px,
-                                       args.chunk_size)
+    if args.scale_sizes or args.scale_solve_sizes:
+        report["scale"] = scale_section(args)
     if args.reconstruction_rounds > 0:
         report["reconstruction"] = reconstruction_report(args.reconstruction_overrides, args.reconstruction_rounds)
     print(json.dumps(report, indent=2))

@@ -1,32 +1,39 @@
-"""sfc-bench's scale section (experiments/bench.py, ``--only scale``): how one iteration's cost and
-the process's peak memory grow with the grid and the number of photos.
+"""sfc-bench's scale section (experiments/bench.py, ``--only scale``): how one iteration's cost,
+the time to the noise level and the process's peak memory grow with the grid and the number of
+photos.
 
 An iteration of every solver is a render and a gradient at its image (the data term's two
 passes). At m = n = 128, 256, 512 (print_lines sampled at m, an n x n receiver) each traces the
 photons the photon budget's cap gives that receiver (``per_pixel`` photons a pixel,
 framework/reconstruction/photon_budget.py); a stack of 1, 2, 3 photos (screens 0.05, 0.1, 0.2
 below the substrate, operators/stack.py) at the middle size. Every case runs in a fresh process,
-so that its peak resident memory is its own. The growth exponents are fitted by least squares in
-log-log: seconds ~ (m^2)^p over the sizes, ~ shots^q over the stacks.
+so that its peak resident memory is its own. The time to the noise level is a whole
+``sfc-reconstruct`` run of a built-in scene sampled at m = n (its reference caustic at 2m,
+experiments/bench_reconstruction.py), also each in a fresh process: its seconds of solving, its
+photon-traces and whether it met Morozov's rule. The growth exponents are fitted by least squares
+in log-log: seconds ~ (m^2)^p over the sizes, ~ shots^q over the stacks.
 """
 
 from __future__ import annotations
 
 import math
 import multiprocessing as mp
+import tempfile
 import time
-from typing import Any
+from pathlib import Path
+from typing import Any, Callable, Sequence
 
 import numpy as np
 import torch
 
+from experiments.bench_reconstruction import run_once
 from experiments.timing import peak_rss_mb
 from framework.scene.printed_shapes import make_shape
 from operators.heightfield.operator import CausticOperator, OperatorSettings
 from operators.scene import Receiver, Scene
 from operators.stack import StackOperator
 
-__all__ = ["SCREENS", "growth_exponent", "scale_report"]
+__all__ = ["SCREENS", "growth_exponent", "noise_level_report", "scale_report"]
 
 SCREENS = (0.05, 0.1, 0.2)  # the photos' screen distances below the substrate (scene units)
 
@@ -52,10 +59,16 @@ def _iteration_worker(m: int, shots: int, photons: int, footprint_px: float, chu
     queue.put({"seconds": best, "peak_rss_mb": peak_rss_mb()})
 
 
-def _in_fresh_process(*args: Any) -> dict[str, float]:
+def _solve_worker(overrides: list[str], workdir: str, name: str, queue: Any) -> None:
+    """One reconstruction's figures (experiments/bench_reconstruction.py, ``run_once``) and the
+    peak resident memory (MiB) of this process."""
+    queue.put({**run_once(overrides, Path(workdir), name), "peak_rss_mb": peak_rss_mb()})
+
+
+def _in_fresh_process(*args: Any, target: Callable[..., None] = _iteration_worker) -> dict[str, Any]:
     ctx = mp.get_context("spawn")
     queue = ctx.Queue()
-    proc = ctx.Process(target=_iteration_worker, args=(*args, queue))
+    proc = ctx.Process(target=target, args=(*args, queue))
     proc.start()
     result = queue.get()
     proc.join()
@@ -88,3 +101,23 @@ def scale_report(sizes: tuple[int, ...] = (128, 256, 512), per_pixel: float = 64
         "stack_m": middle, "stack_photons_per_shot": photons, "stacks": stacks,
         "seconds_exponent_in_shots": growth_exponent([1.0, 2.0, 3.0], [stacks[k]["seconds"] for k in ("1", "2", "3")]),
     }
+
+
+def noise_level_report(sizes: Sequence[int] = (128, 256, 512), scene: str = "print_lines",
+                       overrides: Sequence[str] = ()) -> dict[str, Any]:
+    """``sfc-reconstruct scene=<scene>`` sampled at m = n in ``sizes`` (reference caustic at 2m),
+    each in a fresh process, with ``overrides`` on top: iterations, seconds of solving
+    (``run_time_s``), photon-traces, whether it met Morozov's rule, peak memory; the growth
+    exponents of the seconds and photon-traces in m^2 (with two sizes or more)."""
+    runs: dict[str, dict[str, Any]] = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for m in sizes:
+            grid = [f"scene={scene}", f"receiver.resolution={m}", f"height_field.resolution={m}",
+                    f"data.reference_resolution={2 * m}"]
+            runs[str(m)] = _in_fresh_process([*grid, *overrides], tmp, f"m{m}", target=_solve_worker)
+    report: dict[str, Any] = {"scene": scene, "overrides": list(overrides), "runs": runs}
+    if len(sizes) >= 2:
+        samples = [float(m * m) for m in sizes]
+        for key in ("run_time_s", "photon_traces"):
+            report[f"{key}_exponent_in_samples"] = growth_exponent(samples, [runs[str(m)][key] for m in sizes])
+    return report

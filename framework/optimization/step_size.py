@@ -71,9 +71,13 @@ class StepSizePolicy(ABC):
     Attributes:
         sufficient_decrease: The Armijo constant c a momentum trial's decrease is held to (0: any
             decrease; a backtracking policy's own c).
+        searches: Whether :meth:`select` tests its trials by the objective (a line search): the
+            solver may then test a first trial of its own, the finished iterate
+            (framework/reconstruction/solvers/proximal_gradient.py).
     """
 
     sufficient_decrease: float = 0.0
+    searches: bool = False
 
     @property
     @abstractmethod
@@ -151,6 +155,8 @@ class BacktrackingStep(StepSizePolicy):
         max_trials: Trials per iteration before :class:`LineSearchFailed`.
         tau_max: Upper bound for grown steps.
     """
+
+    searches = True
 
     def __init__(
         self,

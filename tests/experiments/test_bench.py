@@ -14,6 +14,10 @@ from experiments.bench_scale import growth_exponent
 from tests.python_subprocess import run_json_script
 
 
+# Small reconstructions for the scale section's runs to the noise level (their grid set there).
+SOLVE_TO_NOISE = ["solver.max_iter=3", "initial=zero", "photons=16384", "photon_budget.start=4096",
+                  "photon_budget.photons_resolution=32", "data.reference_photons=65536", "checkpoint_every=100"]
+
 # A small reconstruction for the bench's reconstruction section: 3 iterations from flat glass.
 SMALL_RUN = ["solver.max_iter=3", "initial=zero", "photons=16384", "photon_budget.start=4096",
              "data.reference_photons=65536", "data.reference_resolution=64", "receiver.resolution=64",
@@ -33,7 +37,7 @@ def test_bench_prints_the_promised_figures(capsys):
           "--reference-photons", "20000", "--stage-photons", "0", "--mesh-photons", "20000",
           "--mesh-footprint", "cell", "--stack-photons", "20000", "--fidelity-photons", "20000", "--fidelity-bias-photons", "40000",
           "--fidelity-reference-photons", "40000", "--wavefront-vertices", "257", "--fidelity-resolutions", "48",
-          "--wall-vertices", "129", "--scale-sizes", "16", "32", "--scale-per-pixel", "2",
+          "--wall-vertices", "129", "--scale-sizes", "16", "32", "--scale-per-pixel", "2", "--scale-solve-sizes",
           "--reconstruction-overrides", *SMALL_RUN])
     report = json.loads(capsys.readouterr().out)
     assert report["forward_photons_per_s"] > 0 and report["forward_backward_photons_per_s"] > 0
@@ -59,6 +63,7 @@ def test_bench_prints_the_promised_figures(capsys):
     assert mesh["height_field"]["gradient_time_over_height_field"] == 1.0
     assert all(m["forward_photons_per_s"] > 0 and m["forward_backward_photons_per_s"] > 0 for m in mesh.values())
     assert set(report["scale"]["grid"]) == {"16", "32"} and set(report["scale"]["stacks"]) == {"1", "2", "3"}
+    assert "to_noise_level" not in report["scale"]  # --scale-solve-sizes with no sizes leaves them out
     stack = report["stack"]
     assert stack["photons_per_shot"] == 20000 and stack["render_speedup_shared"] > 0
     assert stack["shared_render_and_gradient_s"] > stack["shared_render_s"] > 0
@@ -115,7 +120,8 @@ def test_the_growth_exponent_is_the_log_log_slope():
 
 @pytest.mark.slow
 def test_the_scale_section_alone_times_every_size_and_stack_in_its_own_process(capsys):
-    main(["--only", "scale", "--scale-sizes", "16", "32", "64", "--scale-per-pixel", "2", "--chunk-size", "8192"])
+    main(["--only", "scale", "--scale-sizes", "16", "32", "64", "--scale-per-pixel", "2", "--chunk-size", "8192",
+          "--scale-solve-sizes", "32", "64", "--scale-solve-overrides", *SOLVE_TO_NOISE])
     scale = json.loads(capsys.readouterr().out)["scale"]
     assert set(scale["grid"]) == {"16", "32", "64"} and set(scale["stacks"]) == {"1", "2", "3"}
     assert [scale["grid"][m]["photons"] for m in ("16", "32", "64")] == [512, 2048, 8192]  # 2 a pixel
@@ -124,6 +130,15 @@ def test_the_scale_section_alone_times_every_size_and_stack_in_its_own_process(c
         assert case["seconds"] > 0 and case["peak_rss_mb"] > 100  # a fresh process with torch loaded
     for key in ("seconds_exponent_in_samples", "memory_exponent_in_samples", "seconds_exponent_in_shots"):
         assert math.isfinite(scale[key])
+    solved = scale["to_noise_level"]
+    assert solved["scene"] == "print_lines" and set(solved["runs"]) == {"32", "64"}
+    for run in solved["runs"].values():
+        assert 1 <= run["iterations"] <= 3 and run["run_time_s"] > 0 and run["peak_rss_mb"] > 100
+        assert run["photon_traces"] >= 4096 * (run["renders"] + run["gradient_passes"])
+    # four times the samples: more photon-traces (the budget's start and cap scale with the receiver)
+    assert solved["runs"]["64"]["photon_traces"] > solved["runs"]["32"]["photon_traces"]
+    for key in ("run_time_s_exponent_in_samples", "photon_traces_exponent_in_samples"):
+        assert math.isfinite(solved[key])
 
 
 # The stage kernels cost 1.5 min of compiling on a cold cache; as plain Python (JIT off) the

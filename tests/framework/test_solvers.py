@@ -356,3 +356,45 @@ def test_m1_keeps_every_sample_at_or_above_the_floor_and_leaves_the_rest_unconst
     torch.testing.assert_close(result.d, b.clamp(min=-0.1), rtol=0, atol=1e-9)
     with pytest.raises(ValueError, match="negative height"):
         GradientDescent(data, torch.zeros(16, 16, dtype=DTYPE), ConstantStep(1.0), floor=0.05)
+
+
+class ShrinkingPostStep(SpyPostStep):
+    """A post step that moves every iterate: d scaled by 0.99."""
+
+    def __call__(self, d):
+        super().__call__(d)
+        return 0.99 * d
+
+
+def test_a_searched_step_moved_by_a_post_step_needs_no_render_of_its_own():
+    # the first trial is tested at the finished iterate (prox, then post step), so the gradient
+    # there reuses its render: the operator runs once for d0 and once per trial, none per iteration
+    data, op, *_, L = make_problem()
+    solver = PixelLandweber(data, torch.zeros(8, 8, dtype=DTYPE), BacktrackingStep(tau=1.0 / L, grow=1.0),
+                            regularizers=[Bounds(0.0, 0.3)], post_steps=[ShrinkingPostStep([])])
+    result = solver.run(10)
+    trials = sum(r.extras["trials"] for r in result.history)
+    assert trials == 10 and op.calls == 1 + trials
+    objectives = [r.objective for r in result.history]
+    assert all(b < a for a, b in zip(objectives, objectives[1:]))
+
+
+class Lowering(SpyPostStep):
+    """A post step that undoes every step up from flat glass: d - 1, clamped at 0."""
+
+    def __call__(self, d):
+        super().__call__(d)
+        return torch.clamp(d - 1.0, min=0.0)
+
+
+def test_a_finished_trial_that_fails_the_test_hands_over_to_the_search_at_the_proximal_points():
+    # every step up from flat glass is undone: F at the finished iterate does not decrease, so the
+    # search goes on at the proximal point of the same step, which passes; the post step then
+    # moves it back, and the gradient there needs a render of its own
+    data, op, *_, L = make_problem()
+    solver = PixelLandweber(data, torch.zeros(8, 8, dtype=DTYPE), BacktrackingStep(tau=0.01 / L, grow=1.0),
+                            regularizers=[Bounds(0.0, 0.3)], post_steps=[Lowering([])])
+    result = solver.run(3)
+    assert [r.extras["trials"] for r in result.history] == [2.0, 2.0, 2.0]
+    assert op.calls == 1 + 3 * 3
+    torch.testing.assert_close(result.d, torch.zeros(8, 8, dtype=DTYPE))

@@ -20,7 +20,7 @@ import dataclasses
 import math
 import time
 from collections.abc import Mapping
-from typing import Any, Callable, Sequence
+from typing import Any, Sequence
 
 import torch
 from torch import Tensor
@@ -29,14 +29,13 @@ from framework.core.objective import DataEvaluation, DataFidelity
 from framework.core.solver_loop import IterationFailed, IterationRecord, IterativeSolver
 from framework.optimization.preconditioner import GradientPreconditioner
 from framework.optimization.quasi_newton import LbfgsMemory, check_quasi_newton
-from framework.optimization.step_size import LineSearchFailed, StepChoice, StepSizePolicy, as_step_policy
+from framework.optimization.step_size import LineSearchFailed, StepSizePolicy, as_step_policy
 from framework.reconstruction.solvers.momentum import NesterovMomentum, check_momentum_from
 from framework.reconstruction.solvers.proximal_parts import (check_post_steps, check_regularizers,
                                                              check_shaped_start_from, check_two_metric_from)
+from framework.reconstruction.solvers.trial_steps import Candidate, extrapolated_trial, finished_first_trial
 
 __all__ = ["ProximalGradientSolver", "stage_changes"]
-
-Candidate = dict[str, Tensor]
 
 
 def stage_changes(history: Sequence[IterationRecord]) -> list[int]:
@@ -214,27 +213,6 @@ class ProximalGradientSolver(IterativeSolver):
             d = r.project(d)
         return d
 
-    def _extrapolated_step(self, objective_now: float, sq_distance: Callable[[Candidate], float]
-                           ) -> tuple[StepChoice | None, int]:
-        """The momentum trials: at each of the policy's momentum steps, the proximal point and the
-        data term at its extrapolation, kept when F decreases there as the line search demands.
-        Returns (the accepted choice or None, forward evaluations spent); when every trial is
-        rejected the momentum restarts."""
-        spent = 0
-        decrease = float(self.step_size.sufficient_decrease)
-        for tau in self.step_size.momentum_trials():
-            candidate = self._propose(tau)
-            z = self.momentum.extrapolate(candidate["d"], self.state.d)
-            if z is None:
-                return None, spent
-            trial = {**candidate, "d": self._project(z), "prox_point": candidate["d"]}
-            spent += 1
-            if self._objective(trial) <= objective_now - decrease / (2.0 * tau) * sq_distance(trial):
-                self.step_size.accepted_elsewhere(tau)
-                return StepChoice(step=tau, candidate=trial, trials=spent, forward_evaluations=spent), spent
-        self.momentum.reset()
-        return None, spent
-
     def volume_band(self) -> tuple[float, float] | None:
         """The narrowest band of the regularisers and post steps that enforce the deposited volume
         (V1, V2, the hold: a ``band`` (q1, q2)), or None."""
@@ -295,7 +273,12 @@ class ProximalGradientSolver(IterativeSolver):
             return float(torch.sum((c.get("prox_point", c["d"]) - d) ** 2))
 
         momentum = self._with_momentum()
-        choice, spent = self._extrapolated_step(objective_now, sq_distance) if momentum else (None, 0)
+        choice, spent = extrapolated_trial(self, objective_now, sq_distance) if momentum else (None, 0)
+        if choice is None and self.post_steps and self.step_size.searches:
+            choice, tried = finished_first_trial(self, objective_now, sq_distance)
+            spent += tried
+            if choice is not None:
+                choice = dataclasses.replace(choice, trials=spent, forward_evaluations=spent)
         try:
             if choice is None:
                 choice = self.step_size.select(self._propose, self._objective, sq_distance, objective_now)
@@ -308,9 +291,10 @@ class ProximalGradientSolver(IterativeSolver):
                 self.state.elapsed_s += time.perf_counter() - t0
                 return self.step()
             raise IterationFailed(str(err)) from err
-        new = self._finalize(choice.candidate)
+        finished = "finished" in choice.candidate
+        new = choice.candidate if finished else self._finalize(choice.candidate)
         if momentum:  # a post step that moved the iterate restarts the momentum from where it put it
-            moved = bool(self.post_steps) and not torch.equal(new["d"], choice.candidate["d"])
+            moved = finished or (bool(self.post_steps) and not torch.equal(new["d"], choice.candidate["d"]))
             self.momentum.accepted(new["d"] if moved else choice.candidate.get("prox_point", new["d"]),
                                    keep=not moved)
         if not bool(torch.isfinite(new["d"]).all()):
@@ -340,7 +324,7 @@ class ProximalGradientSolver(IterativeSolver):
                 "regularization": regularization,
                 "trials": float(choice.trials),
                 "forward_evaluations": float(choice.forward_evaluations),
-                "extrapolated": float("prox_point" in choice.candidate),
+                "extrapolated": float("prox_point" in choice.candidate and not finished),
                 **({"preconditioner_length": float(self.preconditioner.length)}
                    if self.preconditioner is not None and self.preconditioner.length is not None else {}),
             },
