@@ -18,7 +18,7 @@ from framework.core.contracts.solver import SolverBuilder
 from framework.core.contracts.start import Start
 from framework.core.contracts.stopping import StoppingRule
 from framework.core.plugin_config import as_mapping, build_plugin, split_name
-from framework.core.problem import HeightGrid
+from framework.core.problem import HeightGrid, Problem
 from framework.core.registry import declared
 from framework.defects.defect_stage import DefectSettings
 from framework.files.image_io import resolve_path
@@ -99,6 +99,15 @@ class Reconstruction:
     def grid(self) -> HeightGrid:
         """The height grid."""
         return self.setup.grid
+
+    def fresh_stopping(self, problem: Problem | None = None) -> list[StoppingRule]:
+        """The configured stopping rules built afresh (each run from a start keeps its own best
+        iterate), set up for ``problem`` if one is given."""
+        stopping = build_stopping(self.settings.cfg.get("stopping"))
+        if problem is not None:
+            for rule in stopping:
+                rule.setup(problem)
+        return stopping
 
     def design(self, base_dir: Path) -> torch.Tensor:
         """The configured height field (m, m), float64, scene units: read or generated once per

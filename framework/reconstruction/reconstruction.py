@@ -27,7 +27,7 @@ from framework.defects.defect_stage import report_defects
 from framework.files.image_io import resolve_path
 from framework.reconstruction.coarse_to_fine import coarser_problem, resample_heights
 from framework.reconstruction.feature_search import FeatureSearch, SearchedLines
-from framework.reconstruction.parts import Reconstruction, build_stopping
+from framework.reconstruction.parts import Reconstruction
 from framework.reconstruction.photon_budget import budget_photons, photon_budget, with_photons
 from framework.reconstruction.report_figures import save_reconstruction_figures
 from framework.reconstruction.run_checks import CHECKPOINT
@@ -96,9 +96,7 @@ def _coarse_levels(parts: Reconstruction, problem: Problem, name: str, start: St
         solver = parts.make_solver(level, resample_heights(d, m_level))
         if shaped:
             solver.begin_from_shaped_start()
-        stopping = build_stopping(parts.settings.cfg.get("stopping"))
-        for rule in stopping:
-            rule.setup(level)
+        stopping = parts.fresh_stopping(level)
         budget = photon_budget(parts, level, photons)
         callbacks: list[Callback] = [*stopping, ProgressBar(desc=f"{parts.settings.method} from {name} at {m_level}")]
         result = solver.run(parts.max_iter, [*callbacks, *([budget] if budget else [])])
@@ -135,7 +133,7 @@ def _solve_from(parts: Reconstruction, problem: Problem, name: str, start: Start
                 gain.setup(shot.data.target, shot.data.weights, shot.data.delta, output_dir / FIRST_FIT_CALIBRATION)
             return [c for c in (photon_budget(parts, shot), gain) if c is not None]
 
-        d0, first = fit_first_shot(problem, d0, parts.make_solver, build_stopping(parts.settings.cfg.get("stopping")),
+        d0, first = fit_first_shot(problem, d0, parts.make_solver, parts.fresh_stopping(),
                                    extra, parts.max_iter, parts.settings.method)
         start_metrics.update({f"{name}_{k}": v for k, v in first.items()})
         shaped = True
@@ -152,9 +150,7 @@ def _solve_from(parts: Reconstruction, problem: Problem, name: str, start: Start
     solver = parts.make_solver(problem, d0)
     if shaped:
         solver.begin_from_shaped_start()
-    stopping = build_stopping(parts.settings.cfg.get("stopping"))
-    for rule in stopping:
-        rule.setup(problem)
+    stopping = parts.fresh_stopping(problem)
     history = MetricsHistory()
     callbacks: list[Callback] = [history, *stopping, ProgressBar(desc=f"{parts.settings.method} from {name}"),
                                  Checkpointer(output_dir / CHECKPOINT, every=parts.settings.checkpoint_every,

@@ -176,10 +176,7 @@ class StagnationStopping(StoppingRule):
             return False
         if record.iteration - self._progress_iteration < self.patience:
             return False
-        if solver.refine(self.best_d):
-            self.refined_at.append(record.iteration)
-            self._reference = self.best_discrepancy
-            self._progress_iteration = record.iteration
+        if self._refine(solver, record.iteration):
             return False
         self.stop_reason = (
             f"stagnation: no {self.min_improvement:.2%} improvement of the rel. discrepancy for {self.patience} "
@@ -201,12 +198,16 @@ class StagnationStopping(StoppingRule):
                                                              record.rel_discrepancy)]
         if not (misfit[0] > 0.0 and misfit[1] > (1.0 - self.refine_share) * misfit[0]):
             return False
+        return self._refine(solver, record.iteration)
+
+    def _refine(self, solver, iteration: int) -> bool:
+        """Offer the solver its next stage from the best iterate; if it takes it, the count of
+        iterations without improvement starts again after ``iteration``."""
         if not solver.refine(self.best_d):
             return False
-        self.refined_at.append(record.iteration)
+        self.refined_at.append(iteration)
         self._reference = self.best_discrepancy
-        self._progress_iteration = record.iteration
-        self._stage, self._stage_discrepancies = solver.stage(), []
+        self._progress_iteration = iteration
         return True
 
     def best_iterate(self) -> tuple[Tensor, int] | None:
