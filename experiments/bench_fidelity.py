@@ -27,11 +27,11 @@ from __future__ import annotations
 
 import math
 import time
-from pathlib import Path
 from typing import Any
 
 import torch
 
+import conf
 from experiments.timing import best_seconds
 from framework.scene.printed_shapes import make_shape
 
@@ -56,7 +56,7 @@ def configured_operator(scene_name: str, resolution: int, photons: int, seed: in
 
     overrides = [f"operator={scene_name}", f"photons={photons}", f"seed={seed}", f"receiver.resolution={resolution}",
                  *[f"operator.{key}={value}" for key, value in design.items()], *scene_overrides]
-    with initialize_config_dir(config_dir=str(Path(__file__).resolve().parent.parent / "conf"), version_base=None):
+    with initialize_config_dir(config_dir=conf.DIRECTORY, version_base=None):
         cfg = OmegaConf.to_container(compose("simulate", overrides=overrides), resolve=True)
     return build_operator(cfg, build_scene(cfg))
 

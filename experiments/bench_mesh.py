@@ -5,11 +5,11 @@ backward and a solver's iteration, side by side in one run."""
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import numpy as np
 import torch
 
+import conf
 from experiments.timing import best_seconds
 from operators.emission import CELL_FOOTPRINT, check_footprint
 
@@ -37,7 +37,7 @@ def mesh_scene_operators(photons: int, footprint_px: float | str, supersample: i
     from framework.scene.scene_config import build_operator, build_scene
 
     def configured(name: str, *extra: str) -> object:
-        with initialize_config_dir(config_dir=str(Path(__file__).resolve().parent.parent / "conf"), version_base=None):
+        with initialize_config_dir(config_dir=conf.DIRECTORY, version_base=None):
             cfg = OmegaConf.to_container(compose("simulate", overrides=[
                 f"operator={name}", f"photons={photons}", f"operator.footprint_px={footprint_px}",
                 f"operator.supersample={supersample}", *extra]), resolve=True)

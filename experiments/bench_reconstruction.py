@@ -20,10 +20,11 @@ from typing import Any, Sequence
 
 from hydra import compose, initialize_config_dir
 
+import conf
 from framework.reconstruction.reconstruction import run_reconstruction
 from framework.scene.scene_config import to_plain
 
-CONFIG_DIR = str(Path(__file__).resolve().parent.parent / "conf")
+CONFIG_DIR = conf.DIRECTORY
 
 # The solver before momentum and the photon budget (docs/performance.md, "Fewer photon-traces").
 EARLIER_SOLVER = ("solver.momentum_from=null", "photon_budget.start=null")

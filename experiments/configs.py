@@ -3,14 +3,14 @@ reconstructions in one process."""
 
 from __future__ import annotations
 
-from pathlib import Path
 from typing import Any
 
 from hydra import compose, initialize_config_dir
 
+import conf
 from framework.scene.scene_config import to_plain
 
-CONF = str(Path(__file__).resolve().parent.parent / "conf")
+CONF = conf.DIRECTORY
 
 
 def reconstruct_config(overrides: list[str]) -> dict[str, Any]:

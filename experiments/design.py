@@ -22,25 +22,31 @@ from hydra.core.hydra_config import HydraConfig
 from hydra.utils import get_original_cwd
 from omegaconf import DictConfig
 
+import conf
+from experiments.config_errors import checked_app
 from experiments.input_errors import one_line_input_errors
+from framework.core.progress import Heartbeat
 from framework.design.design_run import run_design
 from framework.design.design_setup import prepare_design
 from framework.scene.scene_config import to_plain
 
-CONFIG_DIR = str(Path(__file__).resolve().parent.parent / "conf")
+CONFIG_DIR = conf.DIRECTORY
 
 
 @hydra.main(version_base=None, config_path=CONFIG_DIR, config_name="design")
 @one_line_input_errors
-def main(cfg: DictConfig) -> None:
+def app(cfg: DictConfig) -> None:
     """Hydra entry point: check everything, design, print the verdict and where the files went."""
     output_dir = Path(HydraConfig.get().runtime.output_dir)
     plain = to_plain(cfg)
-    setup = prepare_design(plain, Path(get_original_cwd()))
-    result = run_design(plain, output_dir, setup=setup)
+    with Heartbeat("design: checking the target and the limits"):
+        setup = prepare_design(plain, Path(get_original_cwd()))
+        result = run_design(plain, output_dir, setup=setup)
     print("\n".join(result.verdict))
     print(f"wrote height_field.npy, glass.stl, glass.obj, design.png, previews and metrics.json to {output_dir}")
 
+
+main = checked_app("design", app)  # the console script: mistyped overrides end in one line
 
 if __name__ == "__main__":
     main()

@@ -25,24 +25,32 @@ from hydra.types import RunMode
 from hydra.utils import get_original_cwd
 from omegaconf import DictConfig
 
+import conf
+from experiments.config_errors import checked_app
 from experiments.input_errors import one_line_input_errors
+from experiments.run_summary import reconstruction_summary
+from framework.core.progress import Heartbeat
 from framework.reconstruction.reconstruction import run_reconstruction
 from framework.scene.scene_config import to_plain
 
-CONFIG_DIR = str(Path(__file__).resolve().parent.parent / "conf")
+CONFIG_DIR = conf.DIRECTORY
 
 
 @hydra.main(version_base=None, config_path=CONFIG_DIR, config_name="reconstruct")
 @one_line_input_errors
-def main(cfg: DictConfig) -> None:
+def app(cfg: DictConfig) -> None:
     """Hydra entry point: one reconstruction per job; multirun jobs share an MLflow sweep id."""
     hydra_cfg = HydraConfig.get()
     output_dir = Path(hydra_cfg.runtime.output_dir)
     sweep_id = hydra_cfg.sweep.dir if hydra_cfg.mode == RunMode.MULTIRUN else None
-    metrics = run_reconstruction(to_plain(cfg), output_dir, Path(get_original_cwd()), sweep_id=sweep_id)
-    print(json.dumps(metrics, indent=2))
-    print(f"wrote height_field.npy, metrics.json and figures to {output_dir}")
+    with Heartbeat("reconstruction: rendering the data"):
+        metrics = run_reconstruction(to_plain(cfg), output_dir, Path(get_original_cwd()), sweep_id=sweep_id)
+    if cfg.get("print_metrics", False):
+        print(json.dumps(metrics, indent=2))
+    print("\n".join(reconstruction_summary(metrics, output_dir)))
 
+
+main = checked_app("reconstruct", app)  # the console script: mistyped overrides end in one line
 
 if __name__ == "__main__":
     main()

@@ -23,13 +23,14 @@ from hydra import compose, initialize_config_dir
 from matplotlib.figure import Figure
 from omegaconf import OmegaConf
 
+import conf
 from experiments.mlflow_store import TrackingStore, artifact, latest_runs, reproduction_parser, tracking_store
 from framework.scene.scene_config import build_heights, build_operator, build_scene
 from framework.tracking.mlflow_tracker import MlflowTracker
 
 EXPERIMENT = "fig4"
 SCENES = ("two_lenses", "prism_lens_array")
-CONF = str(Path(__file__).resolve().parent.parent / "conf")
+CONF = conf.DIRECTORY
 
 
 def render_pair(operator_name: str, photons: int, seed: int, overrides: list[str]) -> tuple[np.ndarray, float, float]:

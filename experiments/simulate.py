@@ -21,13 +21,15 @@ from hydra.core.hydra_config import HydraConfig
 from hydra.utils import get_original_cwd
 from omegaconf import DictConfig
 
+import conf
+from experiments.config_errors import checked_app
 from experiments.input_errors import one_line_input_errors
 from framework.files.plotting import save_caustic_png, save_height_and_caustic_figure
 from framework.scene.scene_config import build_heights, build_operator, build_scene
 
 # Absolute, so that the installed console script finds the configs too (a relative
 # "../conf" would be looked up as the package "conf", which is not installed).
-CONFIG_DIR = str(Path(__file__).resolve().parent.parent / "conf")
+CONFIG_DIR = conf.DIRECTORY
 
 
 def simulate(cfg: DictConfig, output_dir: Path, base_dir: Path | None = None) -> dict[str, float]:
@@ -59,7 +61,7 @@ def simulate(cfg: DictConfig, output_dir: Path, base_dir: Path | None = None) ->
 
 @hydra.main(version_base=None, config_path=CONFIG_DIR, config_name="simulate")
 @one_line_input_errors
-def main(cfg: DictConfig) -> None:
+def app(cfg: DictConfig) -> None:
     """Hydra entry point: simulate, then report where the files went, the power and the speed."""
     output_dir = Path(HydraConfig.get().runtime.output_dir)
     stats = simulate(cfg, output_dir, base_dir=Path(get_original_cwd()))
@@ -67,6 +69,8 @@ def main(cfg: DictConfig) -> None:
     print(f"power on the receiver: {stats['power_w']:.6g} W; "
           f"{stats['photons']} photons in {stats['seconds']:.3g} s ({stats['photons_per_s']:.4g} photons/s)")
 
+
+main = checked_app("simulate", app)  # the console script: mistyped overrides end in one line
 
 if __name__ == "__main__":
     main()

@@ -15,6 +15,7 @@ import torch
 from torch import Tensor
 
 from framework.core.checkpoint import save_checkpoint
+from framework.core.progress import report
 from framework.core.solver_loop import Callback
 from operators.values import checked_whole, described
 
@@ -57,16 +58,20 @@ class MetricsHistory(Callback):
 
 
 class ProgressBar(Callback):
-    """A tqdm bar over iterations with the discrepancy (and the errors, if computed) in the postfix.
+    """A tqdm bar over iterations with the discrepancy (and the errors, if computed) in the postfix;
+    where stderr is not a terminal, the same figures and the time left in the lines of
+    :class:`framework.core.progress.Heartbeat`.
 
     Args:
         desc: Bar label (e.g. the method name).
         disable: Passed to tqdm (None: disable when not a terminal).
+        seconds: The run's time budget, if it has one (s): the time left is at most what remains of it.
     """
 
-    def __init__(self, desc: str | None = None, disable: bool | None = None) -> None:
-        self.desc, self.disable = desc, disable
+    def __init__(self, desc: str | None = None, disable: bool | None = None, seconds: float | None = None) -> None:
+        self.desc, self.disable, self.seconds = desc, disable, seconds
         self._bar: Any = None
+        self._first = (0, 0.0)  # (iteration, elapsed s) when the bar started
 
     def on_start(self, solver) -> None:  # noqa: D102
         from tqdm.auto import tqdm
@@ -75,6 +80,15 @@ class ProgressBar(Callback):
             total=solver.max_iter, initial=solver.iteration, desc=self.desc or solver.name,
             disable=self.disable, unit="it",
         )
+        self._first = (solver.iteration, solver.state.elapsed_s)
+
+    def seconds_left(self, iteration: int, elapsed_s: float, max_iter: int) -> float:
+        """The most the run can still take (s): the remaining iterations at the mean pace so far,
+        capped by the time budget."""
+        done = iteration - self._first[0]
+        pace = (elapsed_s - self._first[1]) / done if done > 0 else math.inf
+        left = pace * max(max_iter - iteration, 0)
+        return min(left, self.seconds - elapsed_s) if self.seconds is not None else left
 
     def on_iteration(self, solver, record) -> None:  # noqa: D102
         postfix = {"dis": f"{record.rel_discrepancy:.4g}", "tau": f"{record.step_size:.3g}"}
@@ -83,12 +97,16 @@ class ProgressBar(Callback):
                 postfix[label] = f"{record.extras[key]:.4g}"
         self._bar.set_postfix(postfix, refresh=False)
         self._bar.update(1)
+        left = self.seconds_left(record.iteration, record.elapsed_s, solver.max_iter)
+        figures = ", ".join(f"{label} {value}" for label, value in postfix.items())
+        report(f"{self.desc or solver.name}: iteration {record.iteration}/{solver.max_iter}, {figures}, "
+               f"at most {max(left, 0.0):.0f} s left")
 
     def on_end(self, solver, result) -> None:  # noqa: D102
         if self._bar is not None:
             self._bar.close()
             self._bar = None
-
+        report(f"{self.desc or solver.name}: stopped at iteration {solver.iteration}; writing the outputs")
 
 class Checkpointer(Callback):
     """Saves the solver state to ``path`` every ``every`` iterations and at the end of the run.

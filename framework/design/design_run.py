@@ -27,6 +27,7 @@ from framework.core.data import ReconstructionData
 from framework.core.image_metrics import relative_l2, ssim
 from framework.core.plugin_config import build_plugin, split_name
 from framework.core.problem import Problem
+from framework.core.progress import phase
 from framework.core.solver_loop import Callback
 from framework.design.design_report import save_design_figure, save_previews
 from framework.design.design_screen import has_elements
@@ -173,6 +174,7 @@ def run_design(cfg: Mapping[str, Any], output_dir: Path, base_dir: Path | None =
         if checkpoint.is_file() or flat_fits:
             d0 = torch.zeros(setup.grid.shape, dtype=setup.operator.dtype)
         else:
+            phase(f"design: the {method['name']} start (at most {START_SHARE * seconds:.0f} s)")
             d0, start_metrics = _start(setup, method, began + START_SHARE * seconds)
         start_seconds = time.perf_counter() - began
         solver = build_plugin("design", name, params, "design_method.solver")(problem, d0)
@@ -186,7 +188,9 @@ def run_design(cfg: Mapping[str, Any], output_dir: Path, base_dir: Path | None =
         history = MetricsHistory()
         at_noise = build_plugin("stopping", "morozov", {"tau_dis": factor}, "design_method.model_noise_factor")
         at_noise.setup(problem)  # the problem's noise level is the model's own, not a photo's
-        callbacks = [history, ProgressBar(desc=f"design ({method['name']})"), TimeBudget(seconds, start_seconds),
+        phase(f"design ({method['name']}): refining within the {seconds:.0f} s budget")
+        callbacks = [history, ProgressBar(desc=f"design ({method['name']})", seconds=seconds - start_seconds),
+                     TimeBudget(seconds, start_seconds),
                      at_noise, tracker.metrics_callback(),
                      Checkpointer(checkpoint, every=int(cfg.get("checkpoint_every", 10)))]
         result = solver.run(0 if flat_fits else int(method.get("max_iter", 100000)), callbacks)
@@ -194,9 +198,11 @@ def run_design(cfg: Mapping[str, Any], output_dir: Path, base_dir: Path | None =
             result.stop_reason = "flat glass casts the target to within the operator's own render noise"
         design_seconds = start_seconds + result.elapsed_s
         raw = result.d.detach().double().cpu().numpy()
+        phase("design: the nearest printable design")
         heights = setup.constraints.project(raw)
         holds = setup.constraints.holds(heights)
         photons = int(cfg.get("evaluation", {}).get("photons", 4 * setup.operator.photons))
+        phase(f"design: rendering the printable design independently ({photons} photons)")
         exact = setup.operator.exact_variant(photons, seed + 1000, setup.scene.receiver.resolution)
         caustic, figures = _rendered_figures(setup, heights, exact)
         figures.update(wall_light(setup, heights, photons, caustic))
@@ -211,6 +217,8 @@ def run_design(cfg: Mapping[str, Any], output_dir: Path, base_dir: Path | None =
         if "transport_converged" in transport:
             metrics["transport_converged"] = transport["transport_converged"]
             metrics["transport_max_relative_mass_error"] = transport["transport_max_relative_mass_error"]
+        if cfg.get("previews"):
+            phase(f"design: previews at {', '.join(f'{p:g}' for p in cfg['previews'])} x the screen distance")
         previews = save_previews(cfg, setup, heights, photons, seed, output_dir)
         metrics.update(previews)
         verdict = design_verdict(metrics, setup, result.stop_reason)

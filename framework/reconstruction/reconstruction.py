@@ -17,6 +17,7 @@ from typing import Any
 import torch
 
 from framework.core.callbacks import Checkpointer, GroundTruthError, MetricsHistory, ProgressBar
+from framework.core.progress import report
 from framework.core.checkpoint import resume as resume_solver
 from framework.core.contracts.operator import Operator
 from framework.core.contracts.start import Start, StartRequest, StartResult
@@ -270,6 +271,7 @@ def _reconstruct(parts: Reconstruction, output_dir: Path, base_dir: Path, checkp
                   flush=True)
             compiling.wait()
         request = StartRequest(problem.for_start(), lambda: parts.design(base_dir), base_dir)
+        report(f"reconstruction ({method}): computing the start")
         finished, several, steps = _run_starts(parts, problem, request, output_dir, checkpoint, tracker, truth_error)
         # The last run that reached the noise level (a refit's setup is the calibrated one), else the
         # run that came closest.
@@ -304,9 +306,10 @@ def _reconstruct(parts: Reconstruction, output_dir: Path, base_dir: Path, checkp
         if reports_defects and data.shots:
             print("no defect report: it reads one photo; reconstruct a single shot for it", flush=True)
         elif reports_defects:
-            report = report_defects(problem, d, parts.defects, settings.seed, settings.mm_per_unit, output_dir)
-            metrics.update(report.metrics())
-            metrics["verdict"] += " " + " ".join(report.lines)
+            report("reconstruction: the defect report against the design")
+            defects = report_defects(problem, d, parts.defects, settings.seed, settings.mm_per_unit, output_dir)
+            metrics.update(defects.metrics())
+            metrics["verdict"] += " " + " ".join(defects.lines)
         (output_dir / "metrics.json").write_text(json.dumps(metrics, indent=2))
         save_reconstruction_figures(output_dir, d, problem, prediction, chosen.history)
         tracker.log_metrics({k: float(v) for k, v in metrics.items() if isinstance(v, (int, float)) and v is not None},
