@@ -140,7 +140,10 @@ def wall_fidelity(photons: int, vertices: int, resolution: int = 128) -> dict[st
                     exact = WavefrontRenderer(model.scene, vertices=vertices).render(heights.double())
                 image = model.render(heights).double()
                 target = exact.to(model.dtype)
-                entry[walls] = {"whole": relative(image, exact), "interior": relative(image[:, inside], exact[:, inside]),
-                                "gradient_seconds": best_seconds(lambda: model.loss_and_grad(heights, target), repeats=2)}
+                entry[walls] = {
+                    "whole": relative(image, exact),
+                    "interior": relative(image[:, inside], exact[:, inside]),
+                    "gradient_seconds": best_seconds(lambda: model.loss_and_grad(heights, target), repeats=2),
+                }
             report[f"{name}_screen_{screen}"] = entry
     return report

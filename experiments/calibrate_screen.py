@@ -145,7 +145,9 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--widths", nargs="+", type=float, default=list(GRID_PX),
                         help="the first widths to fit, receiver pixels (>= 3; extended at the edges)")
     parser.add_argument("--iterations", type=int, default=60, help="iterations of every fit")
-    parser.add_argument("--tolerance", type=float, default=0.05, help="stop when the width moves by less than this share")
+    parser.add_argument(
+        "--tolerance", type=float, default=0.05, help="stop when the width moves by less than this share"
+    )
     parser.add_argument("--work", type=Path, default=Path("outputs/screen_calibration"))
     _run(parser.parse_args(argv))
 

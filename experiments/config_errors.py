@@ -27,12 +27,14 @@ __all__ = ["checked_app", "override_error"]
 # Hydra's own flags that take the next argument, and those after which no run starts.
 FLAGS_WITH_VALUE = ("--config-path", "-cp", "--config-name", "-cn", "--config-dir", "-cd", "--experimental-rerun")
 CUSTOM_CONFIG = ("--config-path", "-cp", "--config-name", "-cn", "--config-dir", "-cd")
+OWN_SEARCH_PATH = "hydra.searchpath"  # configs of the user's own (Hydra checks those; the compose API sees only conf/)
 VALUE_KEYS = ("image", "path", "file", "name", "tau")  # the key a bare value most likely meant, in this order
 MAX_OPTIONS = 12
 
 
 def _overrides(argv: Sequence[str]) -> list[str] | None:
-    """The overrides of a command line, or None where it chooses its own config (then Hydra checks)."""
+    """The overrides of a command line, or None where it chooses its own config (then Hydra checks,
+    as it does where the overrides add a config search path)."""
     out, skip = [], False
     for token in argv:
         if skip:
@@ -56,7 +58,7 @@ def _combinations(overrides: list[str]) -> Iterator[list[str]]:
     for index, override in enumerate(parsed):
         if override.is_sweep_override():
             for value in list(override.sweep_string_iterator())[1:]:
-                yield [*first[:index], f"{override.get_key_element()}={value}", *first[index + 1:]]
+                yield [*first[:index], f"{override.get_key_element()}={value}", *first[index + 1 :]]
 
 
 def _compose(config_name: str, overrides: list[str]) -> DictConfig:
@@ -77,8 +79,7 @@ def _did_you_mean(word: str, choices: Sequence[str], prefix: str = "") -> str:
 def _unknown_option(error: MissingConfigException) -> str:
     group, _, option = str(error.missing_cfg_file or "").rpartition("/")
     options = list(error.options or [])
-    return (f"{group}={option} is not an option of {group}; {_did_you_mean(option, options)}"
-            f"options: {_listed(options)}")
+    return f"{group}={option} is not an option of {group}; {_did_you_mean(option, options)}options: {_listed(options)}"
 
 
 def _unknown_key(config_name: str, overrides: list[str], key: str) -> str:
@@ -93,14 +94,18 @@ def _unknown_key(config_name: str, overrides: list[str], key: str) -> str:
             keys = list(node.keys()) if isinstance(node, DictConfig) else []
             where = f"{section} takes" if section else "the config has"
             prefix = f"{section}." if section else ""
-            return f"unknown key {key}: {'.'.join(parts[:depth + 1])} does not exist; {_did_you_mean(part, keys, prefix)}" \
-                   f"{where}: {_listed(keys)}"
+            return (
+                f"unknown key {key}: {'.'.join(parts[: depth + 1])} does not exist; {_did_you_mean(part, keys, prefix)}"
+                f"{where}: {_listed(keys)}"
+            )
         node = node[part]
     keys = list(node.keys()) if isinstance(node, DictConfig) else []
     section = ".".join(parts[:-1]) or "the config"
     prefix = ".".join(parts[:-1]) + "." if len(parts) > 1 else ""
-    return (f"unknown key {key}; {_did_you_mean(parts[-1], keys, prefix)}{section} takes: {_listed(keys)} "
-            f"(+{key}=... adds a key of your own)")
+    return (
+        f"unknown key {key}; {_did_you_mean(parts[-1], keys, prefix)}{section} takes: {_listed(keys)} "
+        f"(+{key}=... adds a key of your own)"
+    )
 
 
 def _same_kind(current: Any, value: str) -> bool:
@@ -110,7 +115,7 @@ def _same_kind(current: Any, value: str) -> bool:
         number = True
     except ValueError:
         number = False
-    if isinstance(current, bool) or isinstance(current, DictConfig):
+    if isinstance(current, DictConfig):
         return False
     return isinstance(current, (int, float)) if number else isinstance(current, str) or current is None
 
@@ -124,9 +129,12 @@ def _value_for_section(base: DictConfig, overrides: list[str]) -> str | None:
         node = OmegaConf.select(base, key, default=None, throw_on_missing=False)
         if isinstance(node, DictConfig) and not value.lstrip().startswith("{") and value.strip() != "null":
             keys = [str(k) for k in node.keys()]
-            alike = [k for k in keys if _same_kind(OmegaConf.select(node, k, default=None, throw_on_missing=False), value)]
+            alike = [
+                k for k in keys if _same_kind(OmegaConf.select(node, k, default=None, throw_on_missing=False), value)
+            ]
             meant = next((k for k in VALUE_KEYS if k in alike), (alike or keys or ["<key>"])[0])
-            return f"{key} is a section of keys ({_listed(keys)}), not a value; set one of them, e.g. {key}.{meant}={value}"
+            example = f"{key}.{meant}={value}"
+            return f"{key} is a section of keys ({_listed(keys)}), not a value; set one of them, e.g. {example}"
     return None
 
 
@@ -171,7 +179,7 @@ def checked_app(config_name: str, app: Callable[[], Any]) -> Callable[[], Any]:
 
     def main() -> Any:
         overrides = _overrides(sys.argv[1:])
-        if overrides:
+        if overrides and not any(_key(o).startswith(OWN_SEARCH_PATH) for o in overrides):
             problem = override_error(config_name, overrides)
             if problem is not None:
                 raise SystemExit(f"error: {problem}")

@@ -1,5 +1,6 @@
-"""Screenshots of the MLflow dashboard (docs/dashboard.md): an experiment's runs table and one run's
-metric charts, taken with headless Chromium from a local ``mlflow server`` on an MLflow store.
+"""Screenshots of the MLflow dashboard (docs/dashboard.md): every metric charted across an experiment's
+runs and one run's metric charts, taken with headless Chromium from a local ``mlflow server`` on an
+MLflow store, after checking in the rendered page that the UI shows the runs and their metrics.
 
 Example::
 
@@ -13,9 +14,13 @@ shows the runs table rather than the GenAI overview.
 from __future__ import annotations
 
 import argparse
+import re
 import shutil
 import subprocess
 import tempfile
+from collections.abc import Sequence
+from dataclasses import dataclass
+from html.parser import HTMLParser
 from pathlib import Path
 
 from experiments.mlflow_server import serve
@@ -27,6 +32,8 @@ WINDOW = (1600, 1000)
 # real time here; 30 s of it sometimes shot the metric charts before they had fetched their data.
 RENDER_BUDGET_MS = 300_000
 NAMES = ("mlflow_runs.png", "mlflow_metrics.png")
+MAX_RUNS_CHECKED = 20  # the run names a page must show, at most (the newest finished runs)
+MAX_METRICS_CHECKED = 12  # the metric keys a page must show, at most
 
 
 def chromium() -> str | None:
@@ -39,28 +46,104 @@ def runs_table_url(server: str, experiment_id: str) -> str:
     return f"{server}/#/experiments/{experiment_id}/runs?{WORKFLOW}"
 
 
+def runs_chart_url(server: str, experiment_id: str) -> str:
+    """The UI page that charts every metric across an experiment's runs (one chart per metric, one
+    line or point per run), beside the list of runs."""
+    return f"{runs_table_url(server, experiment_id)}&compareRunsMode=CHART"
+
+
 def metric_charts_url(server: str, experiment_id: str, run_id: str) -> str:
     """The UI page of one run's metric charts (each metric against its step, the iteration)."""
     return f"{server}/#/experiments/{experiment_id}/runs/{run_id}/model-metrics?{WORKFLOW}"
+
+
+def _chromium_command(browser: str, profile: str, window: tuple[int, int]) -> list[str]:
+    return [
+        browser,
+        "--headless",
+        "--no-sandbox",
+        "--disable-gpu",
+        "--disable-quic",
+        "--no-first-run",
+        "--disable-background-networking",
+        "--disable-component-update",
+        "--disable-sync",
+        f"--user-data-dir={profile}",
+        f"--window-size={window[0]},{window[1]}",
+        f"--virtual-time-budget={RENDER_BUDGET_MS}",
+    ]
 
 
 def screenshot(browser: str, url: str, out: Path, window: tuple[int, int] = WINDOW) -> Path:
     """Save a PNG of ``url`` as headless Chromium renders it in a fresh profile."""
     out.parent.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(prefix="sfc-chromium-") as profile:
-        command = [browser, "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-                   "--disable-background-networking", "--disable-component-update", "--disable-sync",
-                   f"--user-data-dir={profile}", f"--window-size={window[0]},{window[1]}",
-                   f"--virtual-time-budget={RENDER_BUDGET_MS}", f"--screenshot={out.resolve()}", url]
+        command = [*_chromium_command(browser, profile, window), f"--screenshot={out.resolve()}", url]
         done = subprocess.run(command, capture_output=True, text=True, timeout=180)
     if done.returncode != 0 or not out.is_file():
         raise RuntimeError(f"{browser} could not screenshot {url} (exit {done.returncode}): {done.stderr[-500:]}")
     return out
 
 
-def pages(server: str, experiment: str, run_name: str | None = None) -> tuple[str, str]:
-    """The runs-table and metric-charts URLs of ``experiment``: the charts of its newest finished run
-    (named ``run_name`` if given)."""
+def rendered_page(browser: str, url: str, window: tuple[int, int] = WINDOW) -> str:
+    """The page's document (HTML) after headless Chromium has run its scripts, as a user would see it."""
+    with tempfile.TemporaryDirectory(prefix="sfc-chromium-") as profile:
+        command = [*_chromium_command(browser, profile, window), "--dump-dom", url]
+        done = subprocess.run(command, capture_output=True, text=True, timeout=180)
+    if done.returncode != 0:
+        raise RuntimeError(f"{browser} could not open {url} (exit {done.returncode}): {done.stderr[-500:]}")
+    return done.stdout
+
+
+class _VisibleText(HTMLParser):
+    """The text of a document outside its scripts and styles, one piece per text node."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.pieces: list[str] = []
+        self._hidden = 0
+
+    def handle_starttag(self, tag: str, attrs: list[tuple[str, str | None]]) -> None:  # noqa: D102
+        self._hidden += tag in ("script", "style", "noscript")
+
+    def handle_endtag(self, tag: str) -> None:  # noqa: D102
+        self._hidden -= tag in ("script", "style", "noscript") and self._hidden > 0
+
+    def handle_data(self, data: str) -> None:  # noqa: D102
+        if not self._hidden and data.strip():
+            self.pieces.append(data.strip())
+
+
+def visible_text(page: str) -> str:
+    """What a rendered page shows as text (its text nodes outside scripts and styles, one per line)."""
+    parser = _VisibleText()
+    parser.feed(page)
+    return "\n".join(parser.pieces)
+
+
+def check_page(page: str, url: str, names: Sequence[str]) -> None:
+    """Refuse a rendered page whose text does not show each of ``names`` (runs, metrics) as a word of
+    its own, naming those missing."""
+    text = visible_text(page)
+    missing = [name for name in names if not re.search(rf"(?<![\w.]){re.escape(name)}(?![\w.])", text)]
+    if missing:
+        raise RuntimeError(
+            f"the MLflow UI at {url} does not show {', '.join(missing)}; it may have no runs, or "
+            "the UI's pages moved (see experiments/dashboard_screenshots.py)"
+        )
+
+
+@dataclass(frozen=True)
+class Page:
+    """A UI page to shoot, and the names (runs, metrics) it must show."""
+
+    url: str
+    shows: tuple[str, ...]
+
+
+def pages(server: str, experiment: str, run_name: str | None = None) -> tuple[Page, Page]:
+    """The chart of every metric across ``experiment``'s finished runs and the metric charts of its newest
+    finished run (named ``run_name`` if given), each with the run names and metric keys it must show."""
     from mlflow.tracking import MlflowClient
 
     client = MlflowClient(tracking_uri=server)
@@ -68,28 +151,37 @@ def pages(server: str, experiment: str, run_name: str | None = None) -> tuple[st
     if found is None:
         names = ", ".join(e.name for e in client.search_experiments())
         raise SystemExit(f"error: no experiment {experiment!r} in the store; it has {names} (choose with --experiment)")
-    query = "attributes.status = 'FINISHED'" + (f" and attributes.run_name = '{run_name}'" if run_name else "")
+    finished = "attributes.status = 'FINISHED'"
+    query = finished + (f" and attributes.run_name = '{run_name}'" if run_name else "")
     runs = client.search_runs([found.experiment_id], query, order_by=["attributes.start_time DESC"], max_results=1)
     if not runs:
         what = f"finished run named {run_name!r}" if run_name else "finished run"
         raise SystemExit(f"error: experiment {experiment!r} has no {what} to chart (see --run-name)")
-    return (runs_table_url(server, found.experiment_id),
-            metric_charts_url(server, found.experiment_id, runs[0].info.run_id))
+    every = client.search_runs([found.experiment_id], finished, max_results=MAX_RUNS_CHECKED)
+    run_names = tuple(sorted({r.info.run_name for r in every}))
+    metrics = tuple(sorted(runs[0].data.metrics)[:MAX_METRICS_CHECKED])
+    return (
+        Page(runs_chart_url(server, found.experiment_id), run_names + metrics),
+        Page(metric_charts_url(server, found.experiment_id, runs[0].info.run_id), metrics),
+    )
 
 
-def take_screenshots(backend_uri: str, experiment: str, out_dir: Path, run_name: str | None = None,
-                     names: tuple[str, str] = NAMES) -> list[Path]:
-    """Serve ``backend_uri`` and save the runs table and the metric charts of ``experiment`` as PNGs
-    (see :func:`pages`)."""
+def take_screenshots(
+    backend_uri: str, experiment: str, out_dir: Path, run_name: str | None = None, names: tuple[str, str] = NAMES
+) -> list[Path]:
+    """Serve ``backend_uri`` and save the chart across the runs of ``experiment`` and one run's metric
+    charts as PNGs (see :func:`pages`), after checking that the UI shows their runs and metrics."""
     browser = chromium()
     if browser is None:
         raise SystemExit(f"error: no Chromium binary ({', '.join(BROWSERS)}); install one: apt-get install chromium")
     with tempfile.TemporaryDirectory(prefix="sfc-mlflow-ui-") as scratch:
         with serve(backend_uri, Path(scratch) / "artifacts", Path(scratch) / "server.log") as server:
-            urls = pages(server, experiment, run_name)
-            for url in urls:
-                print(url.replace(server, "<server>"), flush=True)
-            return [screenshot(browser, url, out_dir / name) for url, name in zip(urls, names)]
+            shots = []
+            for page, name in zip(pages(server, experiment, run_name), names):
+                print(page.url.replace(server, "<server>"), flush=True)
+                check_page(rendered_page(browser, page.url), page.url, page.shows)
+                shots.append(screenshot(browser, page.url, out_dir / name))
+            return shots
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -115,8 +115,17 @@ def _source(s_mm: np.ndarray, plateau_mm: float, size: float, fade_mm: float = 2
     return np.sign(s_mm) * source
 
 
-def apply_defect(design: np.ndarray, printed: np.ndarray, site: tuple[int, int], kind: str, size: float,
-                 length_mm: float, cell_mm: float, mm_per_unit: float, offset_mm: float = 2.5) -> tuple[np.ndarray, PlannedDefect]:
+def apply_defect(
+    design: np.ndarray,
+    printed: np.ndarray,
+    site: tuple[int, int],
+    kind: str,
+    size: float,
+    length_mm: float,
+    cell_mm: float,
+    mm_per_unit: float,
+    offset_mm: float = 2.5,
+) -> tuple[np.ndarray, PlannedDefect]:
     """``printed`` with one defect at ``site`` (row, col) of the design; returns the new print and
     the defect as planned (its centre where the change is)."""
     m = design.shape[0]
@@ -134,7 +143,9 @@ def apply_defect(design: np.ndarray, printed: np.ndarray, site: tuple[int, int],
         out = printed * (1.0 - size * window)
     elif kind == "displaced":
         shift = size / cell_mm * _box(t, length_mm) * _fade(s, width, 2.0 + abs(size))
-        out = ndimage.map_coordinates(printed, [rr - shift * across[0], cc - shift * across[1]], order=1, mode="nearest")
+        out = ndimage.map_coordinates(
+            printed, [rr - shift * across[0], cc - shift * across[1]], order=1, mode="nearest"
+        )
     elif kind in ("too_wide", "too_narrow"):
         back = (s - _source(s, width, size)) / cell_mm * _box(t, length_mm)
         out = ndimage.map_coordinates(printed, [rr - back * across[0], cc - back * across[1]], order=1, mode="nearest")

@@ -121,7 +121,9 @@ def load_design(spec: str, run_dir: Path, cfg: Mapping[str, Any], m: int) -> tup
                                     "units, config or none")
         return load_height_field(spec, resolution=m), spec
     if (cfg.get("data") or {}).get("printed"):  # synthetic data of another print: the config is its design
-        return build_heights(cfg, base_dir=_launch_dir(run_dir)).numpy(), "the run's height_field (data.printed's design)"
+        return build_heights(
+            cfg, base_dir=_launch_dir(run_dir)
+        ).numpy(), "the run's height_field (data.printed's design)"
     truth = run_dir / "ground_truth.npy"
     if truth.is_file():
         return _heights(truth, f"{RUN_FIX}, or pass --design none or a design file"), str(truth)

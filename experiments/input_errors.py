@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import functools
 import os
-from typing import Callable, TypeVar
+from typing import TypeVar
+from collections.abc import Callable
 
 # What the config, file and shape checks raise on bad input (each with a message naming the
 # value and the fix).

@@ -62,7 +62,9 @@ def latest_runs(store: TrackingStore, experiment: str, key: Callable[[Any], Hash
     client = store.client()
     found = client.get_experiment_by_name(experiment)
     if found is None:
-        raise SystemExit(f"no '{experiment}' experiment in {store.uri or store.directory}; run without --table-only first")
+        raise SystemExit(
+            f"no '{experiment}' experiment in {store.uri or store.directory}; run without --table-only first"
+        )
     runs = client.search_runs([found.experiment_id], "attributes.status = 'FINISHED'",
                               order_by=["attributes.start_time DESC"])
     if not runs:

@@ -143,18 +143,26 @@ def write_outputs(cases: dict, out: Path) -> None:
         writer = csv.DictWriter(handle, fieldnames=list(rows[0]) if rows else ["scene"])
         writer.writeheader()
         writer.writerows(rows)
-    lines = ["# Defects against the design: recall, false alarms, place and size", "",
-             "`python -m experiments.reproduce_defects`; `experiment=design` on exact caustics (wavefront triangles) of "
-             "prints with planned defects (experiments/defect_prints.py). A planned defect counts as found when a "
-             f"reported defect lies within {MATCH_MM:g} mm plus half its length of its centre; every reported defect "
-             "that found none is a false alarm.", ""]
+    lines = [
+        "# Defects against the design: recall, false alarms, place and size",
+        "",
+        "`python -m experiments.reproduce_defects`; `experiment=design` on exact caustics (wavefront triangles) of "
+        "prints with planned defects (experiments/defect_prints.py). A planned defect counts as found when a "
+        f"reported defect lies within {MATCH_MM:g} mm plus half its length of its centre; every reported defect "
+        "that found none is a false alarm.",
+        "",
+    ]
     for delta in sorted({r["delta"] for r in rows} | set(alarms)):
         chosen = [r for r in rows if r["delta"] == delta]
         prints = len(alarms[delta])
-        lines += [f"## {100 * delta:g}% noise: {prints} prints, {sum(alarms[delta])} false alarm(s) "
-                  f"({sum(alarms[delta]) / max(prints, 1):.2f} per print)", "",
-                  "| kind | size | planned | found, right kind | found, other kind | position error mm (mean) | size error (mean) |",
-                  "|---|---|---|---|---|---|---|"]
+        lines += [
+            f"## {100 * delta:g}% noise: {prints} prints, {sum(alarms[delta])} false alarm(s) "
+            f"({sum(alarms[delta]) / max(prints, 1):.2f} per print)",
+            "",
+            "| kind | size | planned | found, right kind | found, other kind "
+            "| position error mm (mean) | size error (mean) |",
+            "|---|---|---|---|---|---|---|",
+        ]
         groups = defaultdict(list)
         for r in chosen:
             groups[(r["kind"], label(r))].append(r)
@@ -195,7 +203,8 @@ def smallest_found(rows: list[dict]) -> str:
     for kind in sorted({r["kind"] for r in rows}):
         found = [r for r in rows if r["kind"] == kind and r["found"] and r["kind_found"] == kind]
         if found:
-            parts.append(f"{kind} {label(min(found, key=lambda r: (abs(r['size']) * r['length_mm'] if kind != 'excess' else r['size'])))}")
+            smallest = min(found, key=lambda r: abs(r["size"]) * r["length_mm"] if kind != "excess" else r["size"])
+            parts.append(f"{kind} {label(smallest)}")
         else:
             parts.append(f"{kind} none")
     return "Smallest found: " + "; ".join(parts) + "."
@@ -236,7 +245,10 @@ def main(argv: list[str] | None = None) -> None:
         deltas = [float(x) for x in args.deltas.split(",")]
         files = {scene: make_prints(scene, prints, args.seed) for scene in args.scenes.split(",")}
         # every print at 5% noise first (the targets), then the first ones at the other levels
-        for levels, count in (([d for d in deltas if d == 0.05], len(PRINTS)), ([d for d in deltas if d != 0.05], SHORT)):
+        for levels, count in (
+            ([d for d in deltas if d == 0.05], len(PRINTS)),
+            ([d for d in deltas if d != 0.05], SHORT),
+        ):
             for scene, chosen in files.items():
                 if levels:
                     run_sweep(store, EXPERIMENT, ["experiment=design", f"scene={scene}",

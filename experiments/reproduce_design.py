@@ -86,8 +86,18 @@ def main(argv: list[str] | None = None) -> None:
     args = parser.parse_args(argv)
     store = tracking_store(args)
     if not args.table_only:
-        run_sweep(store, EXPERIMENT, [f"design_method={','.join(METHODS)}", f"target.image={','.join(args.targets)}",
-                                      f"seconds={args.seconds:g}"], args.overrides, args.launcher, app="experiments.design")
+        run_sweep(
+            store,
+            EXPERIMENT,
+            [
+                f"design_method={','.join(METHODS)}",
+                f"target.image={','.join(args.targets)}",
+                f"seconds={args.seconds:g}",
+            ],
+            args.overrides,
+            args.launcher,
+            app="experiments.design",
+        )
     cases = collect(store)
     if not cases:
         raise SystemExit(f"no finished design runs in {store.uri or store.directory}")

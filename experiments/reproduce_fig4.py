@@ -71,12 +71,16 @@ def run(store: TrackingStore, high: int, low: int, seed: int, overrides: list[st
                     path = Path(tmp) / "caustic.npy"
                     np.save(path, image.astype(np.float32))
                     tracker.log_artifact(path)
-            print(f"{name}, {photons} photons: intrinsic noise {noise:.4f}, {seconds:.0f} s for two renders", flush=True)
+            print(
+                f"{name}, {photons} photons: intrinsic noise {noise:.4f}, {seconds:.0f} s for two renders", flush=True
+            )
 
 
 def build(store: TrackingStore, out: Path) -> None:
     """fig4.png (every render in colour) and fig4.md (photons, intrinsic noise) from the store."""
-    chosen, client = latest_runs(store, EXPERIMENT, key=lambda r: (r.data.tags.get("scene"), r.data.tags.get("photons")))
+    chosen, client = latest_runs(
+        store, EXPERIMENT, key=lambda r: (r.data.tags.get("scene"), r.data.tags.get("photons"))
+    )
     cases = sorted(chosen.items(), key=lambda item: (SCENES.index(item[0][0]), -int(item[0][1])))
     fig = Figure(figsize=(4.2 * len(cases), 4.4))
     lines = ["| scene | photons | intrinsic noise | seconds (two renders) |", "|---|---|---|---|"]

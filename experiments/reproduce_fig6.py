@@ -68,8 +68,10 @@ def write_table(cases: dict[tuple[str, str], dict], out: Path) -> None:
         writer = csv.DictWriter(f, fieldnames=list(rows[0]))
         writer.writeheader()
         writer.writerows(rows)
-    lines = ["| method | scene | rel. dis. | rel. err. | rel. err. (d) | #iter | run time (s) | paper: dis. | paper: err. |",
-             "|---|---|---|---|---|---|---|---|---|"]
+    lines = [
+        "| method | scene | rel. dis. | rel. err. | rel. err. (d) | #iter | run time (s) | paper: dis. | paper: err. |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
     lines += [f"| {r['method']} | {r['scene']} | {r['rel_dis']:.4f} | {r['rel_err']:.4f} | {r['rel_err_d']:.4f} "
               f"| {r['iterations']} | {r['run_time_s']:.1f} | {r['paper_rel_dis']:.4f} | {r['paper_rel_err']:.4f} |"
               for r in rows]
@@ -89,7 +91,9 @@ def write_figure(cases: dict[tuple[str, str], dict], out: Path) -> None:
         truth = present[0][1]["ground_truth"]
         panels = [("input caustic", present[0][1]["caustic_target"].sum(axis=0), True)]
         panels += [(f"{name} caustic", c["caustic_predicted"].sum(axis=0), True) for name, c in present]
-        panels += [("ground truth", truth, False)] + [(f"{name} surface", c["height_field"], False) for name, c in present]
+        panels += [("ground truth", truth, False)] + [
+            (f"{name} surface", c["height_field"], False) for name, c in present
+        ]
         top = max(float(image.max()) for _, image, caustic in panels if not caustic)
         for col, (title, image, caustic) in enumerate(panels):
             ax = fig.add_subplot(len(labels), columns, columns * row + col + 1)

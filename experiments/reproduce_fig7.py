@@ -69,9 +69,13 @@ def write_table(cases: dict[tuple[str, str], dict], out: Path) -> None:
     lines = ["| case | scene | photons at the end | rel. dis. | rel. err. | rel. err. (d) | #iter | photon-traces (G) "
              "| run time (s) | s / iteration |",
              "|---|---|---|---|---|---|---|---|---|---|"]
-    lines += [f"| {r['case']} | {r['scene']} | {r['photons']:,} | {r['rel_dis']:.4f} | {r['rel_err']:.4f} | {r['rel_err_d']:.4f} "
-              f"| {r['iterations']} | {'' if r['photon_traces'] is None else format(r['photon_traces'] / 1e9, '.3f')} "
-              f"| {r['run_time_s']:.0f} | {r['s_per_iteration']:.2f} |" for r in rows]
+    lines += [
+        f"| {r['case']} | {r['scene']} | {r['photons']:,} | {r['rel_dis']:.4f} | {r['rel_err']:.4f} "
+        f"| {r['rel_err_d']:.4f} "
+        f"| {r['iterations']} | {'' if r['photon_traces'] is None else format(r['photon_traces'] / 1e9, '.3f')} "
+        f"| {r['run_time_s']:.0f} | {r['s_per_iteration']:.2f} |"
+        for r in rows
+    ]
     lines.append(f"\nThe paper (Fig. 7): relative error {PAPER_ERROR} through the lenses, run time 2.05 min without "
                  "them and 8.55 min with them (4.2x).")
     (out / "fig7.md").write_text("\n".join(lines) + "\n")
@@ -102,13 +106,21 @@ def write_figure(cases: dict[tuple[str, str], dict], out: Path) -> None:
 
 def main(argv: list[str] | None = None) -> None:
     parser = reproduction_parser(__doc__.splitlines()[0])
-    parser.add_argument("--experiment", default=EXPERIMENT,
-                        help="the MLflow experiment of the runs (e.g. 'starts': the same cases run by reproduce_starts)")
+    parser.add_argument(
+        "--experiment",
+        default=EXPERIMENT,
+        help="the MLflow experiment of the runs (e.g. 'starts': the same cases run by reproduce_starts)",
+    )
     args = parser.parse_args(argv)
     store = tracking_store(args)
     if not args.table_only:
-        run_sweep(store, args.experiment, ["experiment=m2v1", f"operator={','.join(CASES)}", f"scene={','.join(SCENES)}",
-                                      f"receiver.z={RECEIVER_Z}"], args.overrides, args.launcher)
+        run_sweep(
+            store,
+            args.experiment,
+            ["experiment=m2v1", f"operator={','.join(CASES)}", f"scene={','.join(SCENES)}", f"receiver.z={RECEIVER_Z}"],
+            args.overrides,
+            args.launcher,
+        )
     cases = collect(store, args.experiment)
     if not cases:
         raise SystemExit(f"no finished Fig. 7 runs in {store.uri or store.directory}")

@@ -209,16 +209,24 @@ def calibration_study(scene: str, work: Path, store: TrackingStore, overrides: l
     # without a gain; the joint run takes the values as they are and estimates the gain.
     joint = _run([*data, "data.brightness=as_is", "calibration.params=[gain,screen_distance]"], work / scene, store,
                  "joint")
-    return {"scene": scene, "true_distance": true_distance, "start_distance": DISTANCE_ERROR * true_distance,
-            "fixed_error": error_against(truth, work / scene / "fixed", cfg),
-            "true_distance_error": error_against(truth, work / scene / "fixed_true_distance", cfg),
-            "true_distance_discrepancy": told_truth["rel_discrepancy"],
-            "distance_at_bound": joint["calibration_screen_distance_at_bound"],
-            "joint_error": error_against(truth, work / scene / "joint", cfg),
-            "fixed_discrepancy": fixed["rel_discrepancy"], "joint_discrepancy": joint["rel_discrepancy"],
-            "distance": joint["calibration_screen_distance"], "distance_std": joint.get("calibration_screen_distance_std"),
-            "gain": joint["calibration_gain"], "gain_std": joint["calibration_gain_std"],
-            "fixed_iterations": fixed["iterations"], "joint_iterations": joint["iterations"]}
+    return {
+        "scene": scene,
+        "true_distance": true_distance,
+        "start_distance": DISTANCE_ERROR * true_distance,
+        "fixed_error": error_against(truth, work / scene / "fixed", cfg),
+        "true_distance_error": error_against(truth, work / scene / "fixed_true_distance", cfg),
+        "true_distance_discrepancy": told_truth["rel_discrepancy"],
+        "distance_at_bound": joint["calibration_screen_distance_at_bound"],
+        "joint_error": error_against(truth, work / scene / "joint", cfg),
+        "fixed_discrepancy": fixed["rel_discrepancy"],
+        "joint_discrepancy": joint["rel_discrepancy"],
+        "distance": joint["calibration_screen_distance"],
+        "distance_std": joint.get("calibration_screen_distance_std"),
+        "gain": joint["calibration_gain"],
+        "gain_std": joint["calibration_gain_std"],
+        "fixed_iterations": fixed["iterations"],
+        "joint_iterations": joint["iterations"],
+    }
 
 
 def screen_study(scene: str, sigma_px: float, source: str, work: Path, store: TrackingStore, overrides: list[str],
@@ -278,10 +286,13 @@ def calibration_table(rows: list[dict[str, Any]]) -> str:
     lines = ["| scene | true distance | told | rel. err. told / true distance | rel. dis. told / true distance | "
              "rel. err. joint | rel. dis. joint | recovered distance (std at fixed heights) | "
              f"recovered gain (true {TRUE_GAIN}) |", "|---|---|---|---|---|---|---|---|---|"]
-    lines += [f"| {r['scene']} | {r['true_distance']:.4f} | {r['start_distance']:.4f} | {r['fixed_error']:.4f} / "
-              f"{r['true_distance_error']:.4f} | {r['fixed_discrepancy']:.4f} / {r['true_distance_discrepancy']:.4f} | "
-              f"{r['joint_error']:.4f} | {r['joint_discrepancy']:.4f} | {_distance(r)} | {r['gain']:.4f} ± {r['gain_std']:.4f} |"
-              for r in rows]
+    lines += [
+        f"| {r['scene']} | {r['true_distance']:.4f} | {r['start_distance']:.4f} | {r['fixed_error']:.4f} / "
+        f"{r['true_distance_error']:.4f} | {r['fixed_discrepancy']:.4f} / {r['true_distance_discrepancy']:.4f} | "
+        f"{r['joint_error']:.4f} | {r['joint_discrepancy']:.4f} | {_distance(r)} "
+        f"| {r['gain']:.4f} ± {r['gain_std']:.4f} |"
+        for r in rows
+    ]
     return "\n".join(lines) + "\n"
 
 

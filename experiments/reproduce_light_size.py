@@ -9,7 +9,8 @@ the disc with exact pixel coverage, none of the model's photons, footprints or e
 the reconstruction's receiver, with ``--delta`` relative Gaussian noise (seeded).
 Each fit is a ``data=stack`` run of two file shots, from ``initial=auto``'s transport start (the
 configured height field gives the mask and the volume; it is the truth, so it is not offered as the
-design start); every other argument is a Hydra override of conf/reconstruct.yaml. Writes light_size.json and the runs into --work.
+design start); every other argument is a Hydra override of conf/reconstruct.yaml. Writes light_size.json and
+the runs into --work.
 """
 
 from __future__ import annotations
@@ -61,11 +62,24 @@ def _reconstruct(overrides: list[str], photos: list[Path], screens: list[float],
     shots = ", ".join(f"{{screen_distance: {s}, image: '{p}'}}" for s, p in zip(screens, photos))
     extra = ["calibration.params=[light_size]"] if calibrate else []
     # The configured height field is the truth: the data must not offer it as the print's design start.
-    cfg = reconstruct_config([*overrides, "~initial.candidates.design", "data=stack", f"data.shots=[{shots}]",
-                              "++data.common.source=file",
-                              f"data.common.delta={delta}", "++data.common.mask=design", f"++data.common.volume={volume!r}",
-                              "++data.common.brightness=as_is", "light.shape=disc", f"light.size={size_mm}mm",
-                              "tracking.experiment=light_size", "defects.enabled=off", *extra])
+    cfg = reconstruct_config(
+        [
+            *overrides,
+            "~initial.candidates.design",
+            "data=stack",
+            f"data.shots=[{shots}]",
+            "++data.common.source=file",
+            f"data.common.delta={delta}",
+            "++data.common.mask=design",
+            f"++data.common.volume={volume!r}",
+            "++data.common.brightness=as_is",
+            "light.shape=disc",
+            f"light.size={size_mm}mm",
+            "tracking.experiment=light_size",
+            "defects.enabled=off",
+            *extra,
+        ]
+    )
     run_reconstruction(cfg, run_dir, run_dir.parent)
 
 

@@ -56,8 +56,11 @@ def runs_of(metrics: dict) -> str:
     """Each start an ``auto`` run tried: 'name: [error /] discrepancy (iterations, noise level reached?)'."""
     names = [k[len("start_"):-len("_reached_noise_level")] for k in metrics if k.endswith("_reached_noise_level")]
     error = {n: f"{metrics[f'start_{n}_rel_error']:.4f} / " if f"start_{n}_rel_error" in metrics else "" for n in names}
-    return "; ".join(f"{n}: {error[n]}{metrics[f'start_{n}_rel_discrepancy']:.4f} ({metrics[f'start_{n}_iterations']} it., "
-                     f"{'noise level' if metrics[f'start_{n}_reached_noise_level'] else 'short of it'})" for n in names)
+    return "; ".join(
+        f"{n}: {error[n]}{metrics[f'start_{n}_rel_discrepancy']:.4f} ({metrics[f'start_{n}_iterations']} it., "
+        f"{'noise level' if metrics[f'start_{n}_reached_noise_level'] else 'short of it'})"
+        for n in names
+    )
 
 
 def write_table(cases: dict[tuple[str, str, str], dict], out: Path) -> None:
@@ -74,8 +77,11 @@ def write_table(cases: dict[tuple[str, str, str], dict], out: Path) -> None:
         writer = csv.DictWriter(f, fieldnames=list(rows[0]))
         writer.writeheader()
         writer.writerows(rows)
-    lines = ["| setup | scene | start (chosen) | rel. err. | rel. dis. | rel. err. (d) | #iter | stopped by "
-             "| volume ratio | wall time (s) | runs of auto: [error /] dis. |", "|---|---|---|---|---|---|---|---|---|---|---|"]
+    lines = [
+        "| setup | scene | start (chosen) | rel. err. | rel. dis. | rel. err. (d) | #iter | stopped by "
+        "| volume ratio | wall time (s) | runs of auto: [error /] dis. |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
     lines += [f"| {r['setup']} | {r['scene']} | {r['start']}"
               + (f" ({r['chosen']})" if r["chosen"] != r["start"] else "")
               + f" | {r['rel_err']:.4f} | {r['rel_dis']:.4f} | {r['rel_err_d']:.4f} | {r['iterations']} "

@@ -56,16 +56,20 @@ def write_table(runs: list, client, out: Path) -> list[dict]:
     def fmt(v, spec):
         return "" if v is None else format(v, spec)
 
-    lines = ["| method | stop | run time (min) | rel. dis. | rel. err. | rel. err. (d) | volume ratio | #iter (returned) "
-             "| photon-traces (G) | tau_dis | paper: time | paper: dis. | paper: err. | paper: #iter |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    lines = [
+        "| method | stop | run time (min) | rel. dis. | rel. err. | rel. err. (d) | volume ratio | #iter (returned) "
+        "| photon-traces (G) | tau_dis | paper: time | paper: dis. | paper: err. | paper: #iter |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
     for r in rows:
-        lines.append(f"| {r['method']} | {r['stop']} | {r['run_time_min']:.2f} | {r['rel_dis']:.4f} | {r['rel_err']:.4f} "
-                     f"| {r['rel_err_d']:.4f} | {fmt(r['volume_ratio'], '.3f')} | {r['iter']} ({r['returned_iter']}) "
-                     f"| {fmt(r['photon_traces'] and r['photon_traces'] / 1e9, '.3f')} | {r['tau_dis']} "
-                     f"| {fmt(r['paper_run_time_min'], '.2f')} "
-                     f"| {fmt(r['paper_rel_dis'], '.4f')} | {fmt(r['paper_rel_err'], '.4f')} "
-                     f"| {fmt(r['paper_iter'], 'd')} |")
+        lines.append(
+            f"| {r['method']} | {r['stop']} | {r['run_time_min']:.2f} | {r['rel_dis']:.4f} | {r['rel_err']:.4f} "
+            f"| {r['rel_err_d']:.4f} | {fmt(r['volume_ratio'], '.3f')} | {r['iter']} ({r['returned_iter']}) "
+            f"| {fmt(r['photon_traces'] and r['photon_traces'] / 1e9, '.3f')} | {r['tau_dis']} "
+            f"| {fmt(r['paper_run_time_min'], '.2f')} "
+            f"| {fmt(r['paper_rel_dis'], '.4f')} | {fmt(r['paper_rel_err'], '.4f')} "
+            f"| {fmt(r['paper_iter'], 'd')} |"
+        )
     (out / "table1.md").write_text("\n".join(lines) + "\n")
     return rows
 

@@ -21,7 +21,8 @@ for a point light). ``footprint_radius`` follows from ``footprint_px``:
 
 An extended light (operators/scene.py, ``light.shape: disc | square``) emits each channel's
 photons from its K emission points (:func:`source_points`: the R2 sequence shifted by the seed,
-put onto the source by operators/light_source.py) in K consecutive segments of the same aim sequence: photon j of a channel leaves source
+put onto the source by operators/light_source.py) in K consecutive segments of the same aim sequence: photon j
+of a channel leaves source
 point floor(j K / N_c). Every segment covers the square (a stretch of a Kronecker sequence is
 itself evenly spread); each photon carries a point light's photon's flux (cell A / N_c) and, with
 ``footprint_px: cell``, the footprint of its segment's cell (area K A / N_c: each segment's
@@ -108,7 +109,9 @@ class LightEmitter:
         # point), and the blur of the patch each stands for (module docstring).
         self.offsets = source_points(scene.light, self.sources, tuple(rng.random(2)))
         residual = patch_variance(scene.light, self.sources) if scene.light.extended else 0.0
-        spread = receiver_spread(scene.light, scene.substrate.thickness, float(np.mean(scene.indices)), -scene.receiver.z)
+        spread = receiver_spread(
+            scene.light, scene.substrate.thickness, float(np.mean(scene.indices)), -scene.receiver.z
+        )
         # The patches' blur on the receiver: standard deviation per axis, scene units.
         self.source_blur_sigma = math.sqrt(residual) * spread
         half = scene.substrate.half_width

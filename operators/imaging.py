@@ -13,7 +13,8 @@ G'(d)^* g = F'(d)^* (gain * K^T g) for the gradient. Where F renders on a finer 
 block-averages (operators/supersample.py: F = A F_fine), the blur acts on the fine receiver,
 G = gain A K_fine F_fine: a blur below a pixel applied after the pixels' averaging cannot be told
 from a wider one (a 0.5-pixel spot fits best as 0.59 px and leaves a 13% misfit on sharp lines),
-while on a 4 x finer grid it is found to 1% (docs/method.md, "Screen and camera"). The scene it was built for, the gain and the
+while on a 4 x finer grid it is found to 1% (docs/method.md, "Screen and camera"). The scene it was built for,
+the gain and the
 blur's width can be changed (joint calibration of the setup, framework/lab/calibration.py,
 which takes dG/dsigma = gain (dK/dsigma) F(d) from the same render): the wrapped operator is
 rebuilt for a new scene; ``revision`` counts the changes so that cached renders of an earlier

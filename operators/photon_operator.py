@@ -25,8 +25,18 @@ from operators.gaussian_blur import ScreenBlur
 from operators.scene import Scene
 from operators.splat.splat import footprint_metric, splat_photons_vjp
 
-__all__ = ["PIXEL_SETTINGS", "PIXEL_BOX_R2", "ImageOperator", "NothingRunning", "PhotonOperator", "RenderFunction", "WrappingOperator", "backward_through_splat",
-           "check_setting_keys", "filter_radius_px"]
+__all__ = [
+    "PIXEL_SETTINGS",
+    "PIXEL_BOX_R2",
+    "ImageOperator",
+    "NothingRunning",
+    "PhotonOperator",
+    "RenderFunction",
+    "WrappingOperator",
+    "backward_through_splat",
+    "check_setting_keys",
+    "filter_radius_px",
+]
 
 # Settings given in receiver pixels: a render at another receiver resolution scales them.
 PIXEL_SETTINGS = ("footprint_px", "min_footprint_px", "max_pixel_radius")
@@ -44,7 +54,9 @@ def filter_radius_px(min_footprint_px: float, pixel_integration: bool) -> float:
     return (min_footprint_px ** 2 + (PIXEL_BOX_R2 if pixel_integration else 0.0)) ** 0.5
 
 
-def check_setting_keys(settings: dict[str, Any], settings_class: type, plugin: str, extra: tuple[str, ...] = ()) -> None:
+def check_setting_keys(
+    settings: dict[str, Any], settings_class: type, plugin: str, extra: tuple[str, ...] = ()
+) -> None:
     """Refuse a key of the ``operator`` group that is not a field of ``settings_class`` (photons and
     seed come from the run) or one of ``extra``, naming the keys the plugin takes."""
     fields = {f.name for f in dataclasses.fields(settings_class)} - {"photons", "seed"}
@@ -110,7 +122,7 @@ class ImageOperator(ABC):
     def output_shape(self) -> tuple[int, int, int]:
         """(c, n, n) of the images it renders."""
 
-    def variant(self, photons: int, seed: int, resolution: int) -> "ImageOperator":
+    def variant(self, photons: int, seed: int, resolution: int) -> ImageOperator:
         """The same physics with another sampling (photons, seed, an n = resolution receiver):
         synthetic data and the photon budget need it; an operator of one fixed sampling has none."""
         raise NotImplementedError(f"{type(self).__name__} has no variant; synthetic data need an operator that can "

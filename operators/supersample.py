@@ -116,7 +116,9 @@ class SupersampledOperator(WrappingOperator):
 
     def variant(self, photons: int, seed: int, resolution: int) -> SupersampledOperator:
         """The same supersampling of the fine operator's variant for an n = ``resolution`` output."""
-        coarse = dataclasses.replace(self.scene, receiver=dataclasses.replace(self.scene.receiver, resolution=resolution))
+        coarse = dataclasses.replace(
+            self.scene, receiver=dataclasses.replace(self.scene.receiver, resolution=resolution)
+        )
         return SupersampledOperator(self.fine.variant(photons, seed, resolution * self.factor), coarse, self.factor)
 
     def exact_variant(self, photons: int, seed: int, resolution: int) -> Any:

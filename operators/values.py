@@ -72,7 +72,9 @@ def checked_whole(value: Any, key: str, least: int | None = None, most: int | No
     ok = is_number(value) and math.isfinite(value) and int(value) == value
     ok = ok and (least is None or value >= least) and (most is None or value <= most)
     if not ok:
-        bounds = " and ".join(b for b in ("" if least is None else f">= {least}", "" if most is None else f"<= {most}") if b)
+        bounds = " and ".join(
+            b for b in ("" if least is None else f">= {least}", "" if most is None else f"<= {most}") if b
+        )
         phrase = must or ("must be an integer" + (f" {bounds}" if bounds else ""))
         raise ValueError(f"{key}={value!r} {phrase}" + (f", e.g. {example}" if example else ""))
     return int(value)

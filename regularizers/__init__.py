@@ -9,7 +9,8 @@ The plugins (declared as entry points in pyproject.toml; kind ``regularizer`` un
 - ``l1_design``  :class:`PixelL1DesignBounds` alpha ||d - c||_1 + bounds, c the print's design
 - ``volume_v1``  :class:`VolumeHeuristic`    the paper's volume heuristic eq. (8) (kind ``post_step``)
 - ``volume_v2``  :class:`VolumeSlabL1Bounds` eq. (7) plus an exact volume slab constraint (a prox)
-- ``volume_hold`` :class:`VolumeHold`       the projection onto bounds, mask and a narrow volume band (kind ``post_step``)
+- ``volume_hold`` :class:`VolumeHold`       the projection onto bounds, mask and a narrow volume band
+  (kind ``post_step``)
 """
 
 from .base import CoefficientRegularizer, CoefficientTransform, PostStepUpdate, Regularizer, RegularizerContext

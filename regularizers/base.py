@@ -45,7 +45,9 @@ class RegularizerContext:
             raise ValueError(f"mask must be a 2-D torch.Tensor (m, m), got {shape}; pass one mask image")
         if self.mask.dtype != torch.bool:
             raise ValueError(f"mask has dtype {self.mask.dtype}, expected torch.bool; pass mask > 0.5 or mask.bool()")
-        checked_number(self.pixel_area, "pixel_area", above=0.0, unit="the area of one height-field sample", example="(2/m)**2")
+        checked_number(
+            self.pixel_area, "pixel_area", above=0.0, unit="the area of one height-field sample", example="(2/m)**2"
+        )
         if self.design is not None and (not isinstance(self.design, torch.Tensor)
                                         or tuple(self.design.shape) != tuple(self.mask.shape)):
             shape = tuple(self.design.shape) if isinstance(self.design, torch.Tensor) else type(self.design).__name__
@@ -60,7 +62,7 @@ class RegularizerContext:
                 )
 
     @classmethod
-    def full(cls, m: int, volume: float | None = None, pixel_area: float = 1.0) -> "RegularizerContext":
+    def full(cls, m: int, volume: float | None = None, pixel_area: float = 1.0) -> RegularizerContext:
         """Context whose mask is True everywhere on an m x m grid (no area constraint)."""
         return cls(mask=torch.ones(m, m, dtype=torch.bool), volume=volume, pixel_area=pixel_area)
 

@@ -37,7 +37,9 @@ class PixelL1DesignBounds(Regularizer):
     smooth = False
 
     def __init__(self, alpha: float = 2e-3, p1: float = 0.0, p2: float = 0.3) -> None:
-        self.alpha = checked_number(alpha, "alpha", least=0.0, unit="the weight of the deviation from the design", example="2e-3")
+        self.alpha = checked_number(
+            alpha, "alpha", least=0.0, unit="the weight of the deviation from the design", example="2e-3"
+        )
         self.p1, self.p2 = checked_bounds(p1, p2)
 
     def _design_for(self, d: torch.Tensor) -> torch.Tensor:

@@ -56,7 +56,7 @@ class VolumeBand:
     @property
     def band(self) -> tuple[float, float]:
         """(q1, q2) in scene units (sum of heights)."""
-        self.ctx  # raises if not set up
+        _ = self.ctx  # raises if not set up
         assert self._q is not None
         return self._q
 
@@ -88,7 +88,9 @@ class VolumeHeuristic(VolumeBand, PostStepUpdate):
         r_v: Window radius r_V >= 0 in pixels (official 2).
     """
 
-    needs_volume = True  # the run's checks refuse measured data without data.volume (framework/reconstruction/run_checks.py)
+    needs_volume = (
+        True  # the run's checks refuse measured data without data.volume (framework/reconstruction/run_checks.py)
+    )
 
     def __init__(self, gamma: float = 0.1, v_eps: float = 0.25, r_v: int = 2) -> None:
         self.gamma = checked_number(gamma, "gamma", least=0.0, unit="the heuristic strength", example="0.1 (the paper)")

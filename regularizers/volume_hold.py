@@ -38,7 +38,9 @@ class VolumeHold(VolumeBand, PostStepUpdate):
 
     length_keys = ("p1", "p2")  # may be given with a unit, e.g. '0.4 mm' (framework/core/plugin_config.py)
 
-    needs_volume = True  # the run's checks refuse measured data without data.volume (framework/reconstruction/run_checks.py)
+    needs_volume = (
+        True  # the run's checks refuse measured data without data.volume (framework/reconstruction/run_checks.py)
+    )
 
     holds_volume = True  # a stack's calibrated distance moves without a factor on the heights (calibration.py)
 

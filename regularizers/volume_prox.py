@@ -56,7 +56,9 @@ class VolumeSlabL1Bounds(VolumeBand, Regularizer):
 
     length_keys = ("p1", "p2")  # may be given with a unit, e.g. '0.4 mm' (framework/core/plugin_config.py)
 
-    needs_volume = True  # the run's checks refuse measured data without data.volume (framework/reconstruction/run_checks.py)
+    needs_volume = (
+        True  # the run's checks refuse measured data without data.volume (framework/reconstruction/run_checks.py)
+    )
 
     has_prox = True
     smooth = False

@@ -159,7 +159,9 @@ class WaveletL1(CoefficientRegularizer):
     smooth = False
 
     def __init__(self, alpha_w: float = 1e-2, wavelet: str = "db3", levels: int = 3) -> None:
-        self.alpha_w = checked_number(alpha_w, "alpha_w", least=0.0, unit="the wavelet L1 weight", example="1e-2 (the paper)")
+        self.alpha_w = checked_number(
+            alpha_w, "alpha_w", least=0.0, unit="the wavelet L1 weight", example="1e-2 (the paper)"
+        )
         self.wavelet = wavelet
         self.levels = int(levels)
         self._transform: WaveletTransform | None = None

@@ -12,9 +12,20 @@ from pathlib import Path
 
 import numpy as np
 
-from framework.core.contracts.checks import (BASES, ContractViolation, check_base, check_data_source, check_operator, check_post_step,
-                                             check_regularizer, check_solver, check_start, check_stopping,
-                                             example_settings, smooth_bump)
+from framework.core.contracts.checks import (
+    BASES,
+    ContractViolation,
+    check_base,
+    check_data_source,
+    check_operator,
+    check_post_step,
+    check_regularizer,
+    check_solver,
+    check_start,
+    check_stopping,
+    example_settings,
+    smooth_bump,
+)
 from framework.core.contracts.data_source import DataRequest, ShotStack
 from framework.core.contracts.start import StartRequest
 from framework.core.data import ReconstructionData
@@ -47,8 +58,13 @@ def known_problem() -> Problem:
     truth = smooth_bump(M, 0.05).to(operator.dtype)
     grid = HeightGrid(M, scene.substrate.half_width, scene.substrate.thickness)
     mask = mask_from_height_field(truth.double(), 1e-3, 0.05)
-    data = ReconstructionData(target=operator.render(truth), mask=mask, volume=float(truth.double().sum()) * grid.cell_area,
-                              delta=0.01, ground_truth=truth.double())
+    data = ReconstructionData(
+        target=operator.render(truth),
+        mask=mask,
+        volume=float(truth.double().sum()) * grid.cell_area,
+        delta=0.01,
+        ground_truth=truth.double(),
+    )
     return Problem(operator, data, grid, scene)
 
 
@@ -81,7 +97,9 @@ def test_a_plugin_without_its_base_fails(own_registrations) -> None:
             return None
 
     register("data", "duck")(DuckData)
-    with pytest.raises(ContractViolation, match="data/duck: .*not a subclass of framework.core.contracts.data_source.DataSource"):
+    with pytest.raises(
+        ContractViolation, match="data/duck: .*not a subclass of framework.core.contracts.data_source.DataSource"
+    ):
         check_base("data", "duck")
 
 
@@ -98,7 +116,9 @@ def test_every_regularizer_keeps_the_contract(name) -> None:
 
 @pytest.mark.parametrize("name", available("post_step"))
 def test_every_post_step_keeps_the_contract(name) -> None:
-    check_post_step(build_plugin("post_step", name, example_settings("post_step", name), "post_step"), who=f"post_step/{name}")
+    check_post_step(
+        build_plugin("post_step", name, example_settings("post_step", name), "post_step"), who=f"post_step/{name}"
+    )
 
 
 def test_the_test_suites_operator_keeps_the_contract() -> None:
@@ -146,8 +166,9 @@ def test_the_example_regularizer_keeps_the_contract_and_its_prox_is_the_closed_f
 def test_the_example_data_source_keeps_the_contract_and_refuses_bad_archives(known_problem, tmp_path) -> None:
     target, mask = known_problem.data.target.double().numpy(), known_problem.data.mask.numpy()
     np.savez(tmp_path / "caustic.npz", caustic=target[0], mask=mask)
-    request = DataRequest(known_problem.operator, known_problem.grid, lambda: known_problem.data.ground_truth.clone(), 0,
-                          tmp_path)
+    request = DataRequest(
+        known_problem.operator, known_problem.grid, lambda: known_problem.data.ground_truth.clone(), 0, tmp_path
+    )
     source = NpzData("caustic.npz", delta=0.02, volume=known_problem.data.volume)
     check_data_source(source, request, who="data/npz")
     assert torch.equal(source.load(request).target.double(), known_problem.data.target.double())
@@ -247,7 +268,13 @@ def test_a_broken_plugin_of_each_kind_fails_the_contract(known_problem) -> None:
     with pytest.raises(ContractViolation, match="is not the minimiser"):
         check_regularizer(_NoShrink(alpha=0.1), who="regularizer/no_shrink")
     with pytest.raises(ContractViolation, match="does not solve a known problem"):  # a step far too small
-        check_solver(lambda: build_plugin("solver", "gradient_descent", {"step_size": {"name": "constant", "tau": 1e-9}},
-                                          "solver"), known_problem, iterations=5, who="solver/timid")
+        check_solver(
+            lambda: build_plugin(
+                "solver", "gradient_descent", {"step_size": {"name": "constant", "tau": 1e-9}}, "solver"
+            ),
+            known_problem,
+            iterations=5,
+            who="solver/timid",
+        )
     with pytest.raises(ContractViolation, match="does not stop a run that converges"):
         check_stopping(lambda: _NeverStops(patience=2), who="stopping/never")

@@ -36,7 +36,17 @@ NEEDS = {("solver", "gradient_descent"): ["experiment=m1"], ("solver", "gradient
          ("data", "file"): ["data.image=caustic.npy"],
          ("data", "photo"): ["data.photo=photo.npy", "data.corners=[[0,63],[63,63],[63,0],[0,0]]"],
          ("initial", "file"): ["initial.path=start.npy"], ("experiment", "design"): ["data.printed=start.npy"]}
-GROUPS = ["scene", "operator", "reconstruct_operator", "data", "solver", "stopping", "tracking", "experiment", "initial"]
+GROUPS = [
+    "scene",
+    "operator",
+    "reconstruct_operator",
+    "data",
+    "solver",
+    "stopping",
+    "tracking",
+    "experiment",
+    "initial",
+]
 OPTIONS = [(group, path.stem) for group in GROUPS for path in sorted((CONF / group).glob("*.yaml"))]
 
 
@@ -44,11 +54,12 @@ OPTIONS = [(group, path.stem) for group in GROUPS for path in sorted((CONF / gro
 def test_every_config_group_option_composes_and_builds(tmp_path, group, option):
     choice = f"operator={option}" if group == "reconstruct_operator" else f"{group}={option}"
     with initialize_config_dir(config_dir=str(CONF), version_base=None):
-        cfg = OmegaConf.to_container(compose("reconstruct", overrides=[*SMALL, choice, *NEEDS.get((group, option), [])]),
-                                     resolve=True)
+        cfg = OmegaConf.to_container(
+            compose("reconstruct", overrides=[*SMALL, choice, *NEEDS.get((group, option), [])]), resolve=True
+        )
     np.save(tmp_path / "start.npy", np.zeros((32, 32)))
     parts = Reconstruction.from_config(cfg, tmp_path)  # every plugin built and checked, nothing rendered
-    channels = len(cfg["wavelengths"]) * len((cfg["data"].get("shots") or [None]))  # a stack: every shot's
+    channels = len(cfg["wavelengths"]) * len(cfg["data"].get("shots") or [None])  # a stack: every shot's
     assert callable(parts.start) and parts.operator.output_shape == (channels, 64, 64)
     assert parts.max_iter >= 1 and [type(rule).__name__ for rule in parts.stopping] == [
         {"morozov": "MorozovStopping", "stagnation": "StagnationStopping"}[name] for name in cfg.get("stopping") or {}]
@@ -65,30 +76,67 @@ STEP = {"name": "constant", "tau": 1e-3}
 # Every built-in registry key with a small config (and the arguments the framework supplies).
 MINIMAL = {
     ("operator", "height_field"): ({}, {"scene": Scene(receiver=Receiver(resolution=16)), "photons": 100, "seed": 0}),
-    ("operator", "mesh_scene"): ({"elements": [{"name": "lens", "shape": "lens", "position": [0, 0, 1.15], "params": {
-        "radius": 1.0, "thickness": 0.3, "front_radius": 4.0, "back_radius": 4.0}}]},
-        {"scene": Scene(receiver=Receiver(resolution=16)), "photons": 100, "seed": 0}),
+    ("operator", "mesh_scene"): (
+        {
+            "elements": [
+                {
+                    "name": "lens",
+                    "shape": "lens",
+                    "position": [0, 0, 1.15],
+                    "params": {"radius": 1.0, "thickness": 0.3, "front_radius": 4.0, "back_radius": 4.0},
+                }
+            ]
+        },
+        {"scene": Scene(receiver=Receiver(resolution=16)), "photons": 100, "seed": 0},
+    ),
     ("solver", "gradient_descent"): ({"step_size": STEP}, {}),
-    ("solver", "landweber_pixel"): ({"step_size": STEP, "regularizers": {"l1_bounds": {}},
-                                     "post_steps": {"volume_v1": {}}}, {}),
-    ("solver", "landweber_wavelet"): ({"step_size": STEP, "wavelet_regularizer": {"name": "l1_wavelet", "levels": 1},
-                                       "preconditioner": {"name": "sobolev"}}, {}),
+    ("solver", "landweber_pixel"): (
+        {"step_size": STEP, "regularizers": {"l1_bounds": {}}, "post_steps": {"volume_v1": {}}},
+        {},
+    ),
+    ("solver", "landweber_wavelet"): (
+        {
+            "step_size": STEP,
+            "wavelet_regularizer": {"name": "l1_wavelet", "levels": 1},
+            "preconditioner": {"name": "sobolev"},
+        },
+        {},
+    ),
     ("solver", "schwartzburg"): ({"outer_tolerance": 0.5}, {}),
     ("design", "schwartzburg"): ({"outer_tolerance": 0.5}, {}),
-    ("design", "design_lbfgs"): ({}, {}), ("design", "design_adam"): ({"lr": 1e-3}, {}),
-    ("solver", "gauss_newton"): ({"step_size": STEP, "regularizers": {"l1_bounds": {}},
-                                  "post_steps": {"volume_hold": {}}, "gauss_newton": {"cg_iterations": 2}}, {}),
-    ("regularizer", "bounds"): ({}, {}), ("regularizer", "l1_bounds"): ({}, {}), ("regularizer", "l1_pixel"): ({}, {}),
-    ("regularizer", "l1_wavelet"): ({}, {}), ("regularizer", "volume_v2"): ({}, {}), ("regularizer", "l1_design"): ({}, {}),
-    ("post_step", "volume_v1"): ({}, {}), ("post_step", "volume_hold"): ({}, {}),
-    ("step_size", "constant"): ({"tau": 0.1}, {}), ("step_size", "backtracking"): ({"tau": 0.1}, {}),
+    ("design", "design_lbfgs"): ({}, {}),
+    ("design", "design_adam"): ({"lr": 1e-3}, {}),
+    ("solver", "gauss_newton"): (
+        {
+            "step_size": STEP,
+            "regularizers": {"l1_bounds": {}},
+            "post_steps": {"volume_hold": {}},
+            "gauss_newton": {"cg_iterations": 2},
+        },
+        {},
+    ),
+    ("regularizer", "bounds"): ({}, {}),
+    ("regularizer", "l1_bounds"): ({}, {}),
+    ("regularizer", "l1_pixel"): ({}, {}),
+    ("regularizer", "l1_wavelet"): ({}, {}),
+    ("regularizer", "volume_v2"): ({}, {}),
+    ("regularizer", "l1_design"): ({}, {}),
+    ("post_step", "volume_v1"): ({}, {}),
+    ("post_step", "volume_hold"): ({}, {}),
+    ("step_size", "constant"): ({"tau": 0.1}, {}),
+    ("step_size", "backtracking"): ({"tau": 0.1}, {}),
     ("preconditioner", "sobolev"): ({}, {}),
-    ("stopping", "morozov"): ({"tau_dis": 1.05}, {}), ("stopping", "stagnation"): ({}, {}),
-    ("data", "synthetic"): ({}, {}), ("data", "file"): ({"image": "caustic.npy"}, {}),
+    ("stopping", "morozov"): ({"tau_dis": 1.05}, {}),
+    ("stopping", "stagnation"): ({}, {}),
+    ("data", "synthetic"): ({}, {}),
+    ("data", "file"): ({"image": "caustic.npy"}, {}),
     ("data", "photo"): ({"photo": "photo.npy", "corners": [[0, 63], [63, 63], [63, 0], [0, 0]]}, {}),
     ("data", "stack"): ({"shots": [{"offset": 0.0}, {"offset": 0.15}]}, {}),
-    ("initial", "zero"): ({}, {}), ("initial", "design"): ({}, {}), ("initial", "file"): ({"path": "start.npy"}, {}),
-    ("initial", "transport"): ({}, {}), ("initial", "auto"): ({"candidates": {"zero": {}, "transport": {}}}, {}),
+    ("initial", "zero"): ({}, {}),
+    ("initial", "design"): ({}, {}),
+    ("initial", "file"): ({"path": "start.npy"}, {}),
+    ("initial", "transport"): ({}, {}),
+    ("initial", "auto"): ({"candidates": {"zero": {}, "transport": {}}}, {}),
 }
 
 

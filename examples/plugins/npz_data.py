@@ -31,7 +31,10 @@ class NpzData(DataSource):
     def __init__(self, path: str | None = None, delta: float = 0.05, volume: float | None = None) -> None:
         if not path:
             raise ValueError("data=npz needs data.path=<archive .npz with arrays caustic and mask>")
-        self.path, self.delta = path, checked_number(delta, "data.delta", above=0.0, below=1.0, example="0.05 (5% noise)")
+        self.path, self.delta = (
+            path,
+            checked_number(delta, "data.delta", above=0.0, below=1.0, example="0.05 (5% noise)"),
+        )
         self.volume = None if volume is None else checked_number(volume, "data.volume", above=0.0,
                                                                  unit="scene units^3, or null")
 
@@ -39,12 +42,15 @@ class NpzData(DataSource):
         """(caustic (c, n, n) float64, mask (m, m) bool), read and checked against the request."""
         path = Path(self.path) if Path(self.path).is_absolute() else request.base_dir / self.path
         if not path.is_file():
-            raise FileNotFoundError(f"data.path={str(path)!r} does not exist; write it with np.savez(path, caustic=..., "
-                                    "mask=...)")
+            raise FileNotFoundError(
+                f"data.path={str(path)!r} does not exist; write it with np.savez(path, caustic=..., mask=...)"
+            )
         with np.load(path) as archive:
             missing = [key for key in ("caustic", "mask") if key not in archive.files]
             if missing:
-                raise ValueError(f"data.path={str(path)!r} lacks the array(s) {', '.join(missing)}; save caustic and mask")
+                raise ValueError(
+                    f"data.path={str(path)!r} lacks the array(s) {', '.join(missing)}; save caustic and mask"
+                )
             caustic = torch.from_numpy(np.asarray(archive["caustic"], dtype=np.float64))
             mask = torch.from_numpy(np.asarray(archive["mask"]) > 0)
         caustic = caustic[None] if caustic.ndim == 2 else caustic

@@ -33,7 +33,7 @@ class MetricsHistory(Callback):
     """
 
     def __init__(self) -> None:
-        self.records: list["IterationRecord"] = []
+        self.records: list[IterationRecord] = []
 
     def on_start(self, solver) -> None:  # noqa: D102
         self.records = list(solver.history)

@@ -15,7 +15,8 @@ import pickle
 import zipfile
 from collections.abc import Mapping
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Sequence
+from typing import TYPE_CHECKING, Any
+from collections.abc import Sequence
 
 import numpy as np
 import torch
@@ -52,7 +53,7 @@ def _set_rng_state(state: dict[str, Any]) -> None:
         torch.cuda.set_rng_state_all(state["cuda"])
 
 
-def save_checkpoint(solver: "IterativeSolver", path: str | os.PathLike[str],
+def save_checkpoint(solver: IterativeSolver, path: str | os.PathLike[str],
                     run: Mapping[str, str] | None = None) -> Path:
     """Write the solver's state to ``path`` atomically (temporary file + ``os.replace``), with
     ``run``, the fingerprint of the run it belongs to (framework/reconstruction/run_identity.py), if given.
@@ -93,7 +94,7 @@ def load_checkpoint(path: str | os.PathLike[str]) -> dict[str, Any]:
     return payload
 
 
-def restore(solver: "IterativeSolver", path: str | os.PathLike[str], restore_rng: bool = True) -> "IterativeSolver":
+def restore(solver: IterativeSolver, path: str | os.PathLike[str], restore_rng: bool = True) -> IterativeSolver:
     """Load the checkpoint at ``path`` into ``solver`` (built with the same configuration)."""
     payload = load_checkpoint(path)
     solver.load_state_dict(payload["solver_state"])
@@ -103,11 +104,11 @@ def restore(solver: "IterativeSolver", path: str | os.PathLike[str], restore_rng
 
 
 def resume(
-    solver: "IterativeSolver",
+    solver: IterativeSolver,
     path: str | os.PathLike[str],
     max_iter: int,
-    callbacks: Sequence["Callback"] = (),
-) -> "RunResult":
+    callbacks: Sequence[Callback] = (),
+) -> RunResult:
     """Restore ``solver`` from ``path`` and continue to the absolute cap ``max_iter``.
 
     With the same configuration and cap, the result equals that of an uninterrupted run.

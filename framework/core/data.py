@@ -12,7 +12,7 @@ Noise is added after resampling, so delta is the noise level of the data the sol
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Callable
+from collections.abc import Callable
 
 import torch
 import torch.nn.functional as F

@@ -11,7 +11,8 @@ from __future__ import annotations
 
 import inspect
 from collections.abc import Mapping
-from typing import Any, Callable
+from typing import Any
+from collections.abc import Callable
 
 from framework.core.registry import declared, lookup
 from framework.core.units import scene_length

@@ -108,17 +108,24 @@ class PrintConstraints:
         cx = np.abs(d[:, 2:] - 2 * d[:, 1:-1] + d[:, :-2]) / h ** 2
         cy = np.abs(d[2:, :] - 2 * d[1:-1, :] + d[:-2, :]) / h ** 2
         outside = d[~self._allowed(d.shape)]
-        return {"max_height": float(d.max()), "min_height": float(d.min()),
-                "max_slope": float(np.hypot(gx, gy).max()), "max_curvature": float(max(cx.max(), cy.max())),
-                "volume": float(d.sum()) * h ** 2, "outside_mask": float(np.abs(outside).max()) if outside.size else 0.0}
+        return {
+            "max_height": float(d.max()),
+            "min_height": float(d.min()),
+            "max_slope": float(np.hypot(gx, gy).max()),
+            "max_curvature": float(max(cx.max(), cy.max())),
+            "volume": float(d.sum()) * h**2,
+            "outside_mask": float(np.abs(outside).max()) if outside.size else 0.0,
+        }
 
     def holds(self, d: np.ndarray, rtol: float = 1e-9) -> dict[str, bool]:
         """Whether each limit holds, to ``rtol`` of its value (rounding)."""
         f = self.measure(d)
-        out = {"heights": f["min_height"] >= -rtol * self.max_height and f["max_height"] <= self.max_height * (1 + rtol),
-               "slope": f["max_slope"] <= self.max_slope * (1 + rtol),
-               "feature_size": f["max_curvature"] <= self.max_curvature * (1 + rtol),
-               "mask": f["outside_mask"] <= rtol * self.max_height}
+        out = {
+            "heights": f["min_height"] >= -rtol * self.max_height and f["max_height"] <= self.max_height * (1 + rtol),
+            "slope": f["max_slope"] <= self.max_slope * (1 + rtol),
+            "feature_size": f["max_curvature"] <= self.max_curvature * (1 + rtol),
+            "mask": f["outside_mask"] <= rtol * self.max_height,
+        }
         if self.volume is not None:
             out["volume"] = abs(f["volume"] - self.volume) <= 1e-6 * self.volume
         return out

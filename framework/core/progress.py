@@ -33,7 +33,7 @@ _STATUS = _Status()
 def on_terminal(stream: TextIO | None = None) -> bool:
     """Whether ``stream`` (default: stderr) is a terminal, where tqdm's bars show progress."""
     stream = sys.stderr if stream is None else stream
-    return bool(getattr(stream, "isatty", lambda: False)())
+    return stream.isatty()
 
 
 def report(text: str) -> None:
@@ -77,7 +77,7 @@ class Heartbeat:
                 text = _STATUS.text or self.label
             print(f"[{time.perf_counter() - self._began:.0f} s] {text}", file=self.stream, flush=True)
 
-    def __enter__(self) -> "Heartbeat":
+    def __enter__(self) -> Heartbeat:
         self._began = time.perf_counter()
         report(self.label)
         if self.active:

@@ -21,7 +21,8 @@ caustic-design method, ``sfc-design``'s ``design_method.solver``).
 from __future__ import annotations
 
 from importlib.metadata import EntryPoint, entry_points
-from typing import Any, Callable, TypeVar
+from typing import Any, TypeVar
+from collections.abc import Callable
 
 T = TypeVar("T")
 

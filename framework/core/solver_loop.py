@@ -2,7 +2,8 @@
 
 Stopping rules, logging, progress and checkpoints are :class:`Callback` objects
 (:mod:`framework.core.callbacks`); ``run`` only enforces the iteration cap and asks the solver whether
-it has finished (:meth:`IterativeSolver.finished`, e.g. a direct method after its one step). The cap is *absolute*: ``run(max_iter)`` stops when
+it has finished (:meth:`IterativeSolver.finished`, e.g. a direct method after its one step). The cap is
+*absolute*: ``run(max_iter)`` stops when
 ``solver.iteration == max_iter``, so a solver restored from a checkpoint and run with the same
 cap finishes exactly where an uninterrupted run would.
 """
@@ -11,14 +12,23 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from dataclasses import asdict, dataclass, field
-from typing import Any, ClassVar, Sequence
+from typing import Any, ClassVar
+from collections.abc import Sequence
 
 import torch
 from torch import Tensor
 
 from operators.values import checked_whole
 
-__all__ = ["Callback", "IterationRecord", "RunResult", "SolverState", "IterativeSolver", "IterationFailed", "returned_iterate"]
+__all__ = [
+    "Callback",
+    "IterationRecord",
+    "RunResult",
+    "SolverState",
+    "IterativeSolver",
+    "IterationFailed",
+    "returned_iterate",
+]
 
 
 class IterationFailed(RuntimeError):
@@ -120,14 +130,14 @@ class Callback:
     stop_reason: str | None = None
     stop_accepts_iterate: bool = False
 
-    def on_start(self, solver: "IterativeSolver") -> None:
+    def on_start(self, solver: IterativeSolver) -> None:
         """Called once before the first iteration of ``run``."""
 
-    def on_iteration(self, solver: "IterativeSolver", record: IterationRecord) -> bool | None:
+    def on_iteration(self, solver: IterativeSolver, record: IterationRecord) -> bool | None:
         """Called after each iteration; return True to stop (set ``stop_reason`` first)."""
         return None
 
-    def on_end(self, solver: "IterativeSolver", result: RunResult) -> None:
+    def on_end(self, solver: IterativeSolver, result: RunResult) -> None:
         """Called once when ``run`` ends normally (not on an exception)."""
 
     def best_iterate(self) -> tuple[Tensor, int] | None:

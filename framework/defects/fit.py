@@ -216,7 +216,12 @@ def _feature_start(misfit: Misfit, base: torch.Tensor, frame: Frame, model: str,
 
 
 # Simplex steps and limits of each model's parameters; a drop's volume and radius as logarithms.
-STEPS = {"modulation": (1.0, 1.0, 0.25), "shift": (1.0, 1.0, 0.7), "width": (1.0, 1.0, 0.2), "blob": (1.0, 1.0, 0.7, 0.3)}
+STEPS = {
+    "modulation": (1.0, 1.0, 0.25),
+    "shift": (1.0, 1.0, 0.7),
+    "width": (1.0, 1.0, 0.2),
+    "blob": (1.0, 1.0, 0.7, 0.3),
+}
 LIMITS = {"modulation": ((-40, 40), (0.5, 80), (-1.5, 1.0)), "shift": ((-40, 40), (0.5, 80), (-8.0, 8.0)),
           "width": ((-40, 40), (0.5, 80), (-0.8, 2.0)),
           "blob": ((-1e9, 1e9), (-1e9, 1e9), (-60.0, 0.0), (math.log(0.5), math.log(8.0)))}

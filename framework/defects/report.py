@@ -91,8 +91,19 @@ def save_defect_figure(path: Path, deviation_mm: np.ndarray, design_mm: np.ndarr
     ax.set_title(f"{len(defects)} defect(s) (evidence >= {min_evidence:.0f}); design outline in black")
     table_ax.axis("off")
     if defects:
-        rows = [[str(i), NAMES[d.kind], f"({d.x_mm:.1f}, {d.y_mm:.1f})", f"{d.length_mm:.1f}", f"{d.size:+.2f}",
-                 f"{d.peak_mm:+.2f}", f"{d.volume_mm3:+.2f}", f"{d.confidence:.3f}"] for i, d in enumerate(defects, start=1)]
+        rows = [
+            [
+                str(i),
+                NAMES[d.kind],
+                f"({d.x_mm:.1f}, {d.y_mm:.1f})",
+                f"{d.length_mm:.1f}",
+                f"{d.size:+.2f}",
+                f"{d.peak_mm:+.2f}",
+                f"{d.volume_mm3:+.2f}",
+                f"{d.confidence:.3f}",
+            ]
+            for i, d in enumerate(defects, start=1)
+        ]
         table = table_ax.table(cellText=rows[:20], colLabels=["#", "kind", "at (mm)", "length mm", "size", "peak mm",
                                                               "volume mm3", "confidence"], loc="center",
                                colWidths=[0.05, 0.2, 0.17, 0.11, 0.09, 0.1, 0.13, 0.13])

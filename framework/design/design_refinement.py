@@ -8,7 +8,8 @@ Both minimise the design objective
 
 f the problem's data term (1/2 ||F(d) - b||^2 / (||b||^2 a), framework/core/objective.py) against
 the energy-normalised target, P the printing limits' squared relative violations
-(:meth:`framework.core.print_constraints.PrintConstraints.penalty`; none on a problem without limits). The limits hold exactly only
+(:meth:`framework.core.print_constraints.PrintConstraints.penalty`; none on a problem without limits). The
+limits hold exactly only
 after the design pipeline's final projection (framework/design/design_run.py); the penalty keeps
 that projection small.
 

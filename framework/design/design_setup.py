@@ -88,9 +88,12 @@ def _constraints(cfg: Mapping[str, Any], m: int, half_width: float, mm: float, b
     volume = spec.get("volume")
     constraints = PrintConstraints(
         max_height=_length(spec.get("max_height", "10 mm"), mm, "constraints.max_height"),
-        max_slope=spec.get("max_slope", 0.5), min_feature=_length(spec.get("min_feature"), mm, "constraints.min_feature"),
-        volume=None if volume is None else scene_volume(volume, mm, "constraints.volume"), mask=mask,
-        spacing=2.0 * half_width / (m - 1))
+        max_slope=spec.get("max_slope", 0.5),
+        min_feature=_length(spec.get("min_feature"), mm, "constraints.min_feature"),
+        volume=None if volume is None else scene_volume(volume, mm, "constraints.volume"),
+        mask=mask,
+        spacing=2.0 * half_width / (m - 1),
+    )
     constraints.check_grid(m)
     return constraints
 
@@ -108,8 +111,10 @@ def prepare_design(cfg: Mapping[str, Any], base_dir: Path | None = None) -> Desi
         raise ValueError(f"light.shape={scene.light.shape}: sfc-design designs for a point light (the light's "
                          "position); give light.shape=point (a flash's size blurs what the design casts)")
     if scene.receiver.resolution != resolution:
-        raise ValueError(f"receiver.resolution={scene.receiver.resolution} differs from target.resolution={resolution}; "
-                         "set only target.resolution")
+        raise ValueError(
+            f"receiver.resolution={scene.receiver.resolution} differs from target.resolution={resolution}; "
+            "set only target.resolution"
+        )
     m = int(to_plain(cfg.get("height_field") or {}).get("resolution", resolution))
     through_optics = has_elements(build_operator(cfg, scene, mm=mm))
     shadow = (lit_half_width(cfg, scene, mm, np.zeros((m, m)), int(cfg.get("seed", 0))) if through_optics

@@ -81,7 +81,11 @@ def _text_image(text: str, resolution: int) -> np.ndarray:
 def built_in_target(name: str, resolution: int, text: str = "SfC") -> np.ndarray:
     """The built-in target ``name`` (:data:`BUILT_IN_TARGETS`) as (resolution, resolution), rows +y."""
     if name == "grace_hopper":
-        grey = np.asarray(_sample_data("grace_hopper.jpg").convert("RGB"), dtype=np.float64) / 255.0 @ np.asarray(LUMINANCE)
+        grey = (
+            np.asarray(_sample_data("grace_hopper.jpg").convert("RGB"), dtype=np.float64)
+            / 255.0
+            @ np.asarray(LUMINANCE)
+        )
         return _square_resized(grey, resolution)
     if name == "logo":
         rgba = np.asarray(_sample_data("logo2.png").convert("RGBA"), dtype=np.float64) / 255.0
@@ -126,7 +130,9 @@ def _file_image(path: Path, channel: str, resolution: int) -> tuple[np.ndarray, 
         with Image.open(path) as img:
             array = np.asarray(img)
     except (UnidentifiedImageError, OSError) as error:
-        raise ValueError(f"{path} cannot be read as an image ({str(error)[:80]}); save it again as PNG/JPG/TIFF") from None
+        raise ValueError(
+            f"{path} cannot be read as an image ({str(error)[:80]}); save it again as PNG/JPG/TIFF"
+        ) from None
     scale = float(np.iinfo(array.dtype).max) if np.issubdtype(array.dtype, np.integer) else 1.0
     array = array.astype(np.float64) / scale
     if array.ndim == 3:

@@ -139,9 +139,12 @@ class SchwartzburgDesign(IterativeSolver):
     def checked_settings(mass_tolerance: float, black_level: float, smoothness: float, outer_tolerance: float,
                          power_tolerance: float, source: str) -> dict[str, Any]:
         """The settings, each checked (a ValueError names the bad one)."""
-        for name, value, low, high in (("mass_tolerance", mass_tolerance, 0.0, 1.0), ("black_level", black_level, 0.0, 1.0),
-                                       ("outer_tolerance", outer_tolerance, 0.0, 1.0),
-                                       ("power_tolerance", power_tolerance, 0.0, 1.0)):
+        for name, value, low, high in (
+            ("mass_tolerance", mass_tolerance, 0.0, 1.0),
+            ("black_level", black_level, 0.0, 1.0),
+            ("outer_tolerance", outer_tolerance, 0.0, 1.0),
+            ("power_tolerance", power_tolerance, 0.0, 1.0),
+        ):
             checked_number(value, f"solver.{name}", above=low, below=high, must=f"must lie in ({low}, {high})")
         if source not in SOURCES:
             raise ValueError(f"solver.source={source!r}; use {' or '.join(SOURCES)}")

@@ -30,7 +30,15 @@ from PIL import Image
 
 from operators.values import checked_whole
 
-__all__ = ["load_height_field", "save_height_field", "resample", "load_npy", "read_npy", "validate_heights", "IMAGE_SUFFIXES"]
+__all__ = [
+    "load_height_field",
+    "save_height_field",
+    "resample",
+    "load_npy",
+    "read_npy",
+    "validate_heights",
+    "IMAGE_SUFFIXES",
+]
 
 IMAGE_SUFFIXES = (".png", ".tif", ".tiff")
 NPY_FIX = "save the heights again with numpy.save"

@@ -7,7 +7,8 @@ origin='lower' and PNG files are written with their rows flipped (+y up).
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING, Sequence
+from typing import TYPE_CHECKING
+from collections.abc import Sequence
 
 import numpy as np
 from PIL import Image

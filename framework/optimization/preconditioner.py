@@ -23,7 +23,8 @@ from __future__ import annotations
 
 import math
 from abc import ABC, abstractmethod
-from typing import Any, Sequence
+from typing import Any
+from collections.abc import Sequence
 
 import numpy as np
 import scipy.fft
@@ -152,7 +153,9 @@ class SobolevPreconditioner(GradientPreconditioner):
 
     def _filter(self, m: int) -> np.ndarray:
         if self._spacing is None:
-            raise RuntimeError("SobolevPreconditioner.setup(context) must be called before use (it needs the grid spacing)")
+            raise RuntimeError(
+                "SobolevPreconditioner.setup(context) must be called before use (it needs the grid spacing)"
+            )
         if m not in self._filters:
             cells = self.length / self._spacing
             lam = neumann_laplacian_eigenvalues(m)

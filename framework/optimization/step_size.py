@@ -12,7 +12,8 @@ from __future__ import annotations
 import math
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Any
+from collections.abc import Callable
 
 from operators.values import checked_number, is_number
 
@@ -179,7 +180,11 @@ class BacktrackingStep(StepSizePolicy):
         if not float(tau_max) >= self.tau0:
             raise ValueError(f"tau_max ({tau_max!r}) must be >= tau ({tau!r})")
         self.shrink, self.grow = float(shrink), float(grow)
-        self.sufficient_decrease, self.max_trials, self.tau_max = float(sufficient_decrease), int(max_trials), float(tau_max)
+        self.sufficient_decrease, self.max_trials, self.tau_max = (
+            float(sufficient_decrease),
+            int(max_trials),
+            float(tau_max),
+        )
         self.tau = self.tau0
 
     @property

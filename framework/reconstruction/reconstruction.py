@@ -40,7 +40,9 @@ from framework.stack.shot_report import save_shot_record, shot_metrics
 from framework.tracking.mlflow_tracker import MlflowTracker, local_store_uri
 
 CALIBRATION_STATE = "calibration.json"
-LINE_SEARCH_PHOTONS = 1 << 18  # per shot and hypothesis of a stack's line search (framework/reconstruction/feature_search.py)
+LINE_SEARCH_PHOTONS = (
+    1 << 18
+)  # per shot and hypothesis of a stack's line search (framework/reconstruction/feature_search.py)
 FIRST_FIT_CALIBRATION = "first_fit_calibration.json"  # a stack's first shot's gain, fitted before the stack
 # Refits at most: runs of a start again after one whose calibration moved what the heights absorb.
 MAX_REFITS = 2

@@ -15,7 +15,7 @@ if TYPE_CHECKING:
     from framework.core.problem import Problem
 
 
-def save_reconstruction_figures(output_dir: Path, heights: torch.Tensor, problem: "Problem",
+def save_reconstruction_figures(output_dir: Path, heights: torch.Tensor, problem: Problem,
                                 prediction: torch.Tensor, history: dict[str, list[float]]) -> None:
     """Write heights.png, centre_slice.png, caustics.png and convergence.png into ``output_dir``:
     ``heights`` (m, m) and ``prediction`` (c, n, n) against the problem's data (caustics.png: one
@@ -53,7 +53,10 @@ def save_reconstruction_figures(output_dir: Path, heights: torch.Tensor, problem
     fig = Figure(figsize=(10, 4.2 * len(shots)))
     for row, shot in enumerate(shots):
         rh = shot.half_width
-        images = (shot.target.cpu().double().numpy().sum(axis=0), shot.predicted.detach().cpu().double().numpy().sum(axis=0))
+        images = (
+            shot.target.cpu().double().numpy().sum(axis=0),
+            shot.predicted.detach().cpu().double().numpy().sum(axis=0),
+        )
         where = "" if len(shots) == 1 else f"{shot.label}, screen {shot.setup['screen_distance']:.4g}: "
         for k, (title, image) in enumerate(zip(("target caustic", "predicted caustic"), images)):
             ax = fig.add_subplot(len(shots), 2, 2 * row + k + 1)

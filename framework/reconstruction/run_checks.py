@@ -21,7 +21,15 @@ from framework.files.image_io import resolve_path
 from framework.reconstruction.run_identity import check_resumable
 from framework.tracking.mlflow_tracker import KNOWN_SCHEMES, check_tracking_server
 
-__all__ = ["check_creatable_directory", "check_tracking_target", "height_bounds", "check_volume", "check_volume_known", "checked_resume", "CHECKPOINT"]
+__all__ = [
+    "check_creatable_directory",
+    "check_tracking_target",
+    "height_bounds",
+    "check_volume",
+    "check_volume_known",
+    "checked_resume",
+    "CHECKPOINT",
+]
 
 CHECKPOINT = "checkpoint.pt"
 
@@ -55,9 +63,11 @@ def check_volume(volume: float | None, mask: torch.Tensor, cell_area: float, bou
     mean = volume / area
     lower, upper = bounds
     if upper is not None and mean > upper:
-        raise ValueError(f"data.volume={volume:.4g} scene units^3 needs a mean height of {mean:.4g} over the printed "
-                         f"area ({area:.4g} units^2), above the height bound p2={upper:g}: check the value and its unit "
-                         "(scene units^3, or a string such as '1.7 mm3'), the mask, or raise the bound")
+        raise ValueError(
+            f"data.volume={volume:.4g} scene units^3 needs a mean height of {mean:.4g} over the printed "
+            f"area ({area:.4g} units^2), above the height bound p2={upper:g}: check the value and its unit "
+            "(scene units^3, or a string such as '1.7 mm3'), the mask, or raise the bound"
+        )
     if mean < lower:
         raise ValueError(f"data.volume={volume:.4g} scene units^3 gives a mean height of {mean:.4g} over the printed "
                          f"area, below the height bound p1={lower:g}: check the value, its unit and the mask")
@@ -73,8 +83,12 @@ def check_volume_known(cfg: Mapping[str, Any], facts: PrintFacts) -> None:
     if facts.volume is not None or facts.volume_at_load:
         return
     solver = cfg.get("solver") or {}
-    needing = [f"solver.{group}.{name}" for group, kind in (("regularizers", "regularizer"), ("post_steps", "post_step"))
-               for name in dict(solver.get(group) or {}) if declared(kind, name, "needs_volume", False)]
+    needing = [
+        f"solver.{group}.{name}"
+        for group, kind in (("regularizers", "regularizer"), ("post_steps", "post_step"))
+        for name in dict(solver.get(group) or {})
+        if declared(kind, name, "needs_volume", False)
+    ]
     if needing:
         raise ValueError(f"{' and '.join(needing)} need{'s' if len(needing) == 1 else ''} the deposited volume: set "
                          "data.volume=... (scene units^3 or e.g. '1.7 mm3'), or leave "

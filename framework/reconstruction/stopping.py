@@ -80,7 +80,7 @@ class MorozovStopping(StoppingRule):
         return self.tau_dis * self.delta
 
     def on_start(self, solver) -> None:  # noqa: D102 (the solver's volume band, unless one was given)
-        self.threshold  # refuses a rule without delta before the first iteration
+        _ = self.threshold  # refuses a rule without delta before the first iteration
         if self.volume_band is None:
             self.volume_band = solver.volume_band()
 

@@ -90,9 +90,11 @@ def run_verdict(rel_discrepancy: float, delta: float, tau_dis: float, returned_i
             warnings.append(sentence)
     for label, discrepancy, shot_delta in shots:
         if discrepancy > SHOT_FIT_FACTOR * shot_delta:
-            sentence = (f"{label} is not explained: its own discrepancy {discrepancy:.4g} = "
-                        f"{discrepancy / shot_delta:.2f} x its noise level {shot_delta:g} (more than {SHOT_FIT_FACTOR:g} x); "
-                        "check its setup (screen distance or offset, light) or raise its weight.")
+            sentence = (
+                f"{label} is not explained: its own discrepancy {discrepancy:.4g} = "
+                f"{discrepancy / shot_delta:.2f} x its noise level {shot_delta:g} (more than {SHOT_FIT_FACTOR:g} x); "
+                "check its setup (screen distance or offset, light) or raise its weight."
+            )
             lines.append(sentence)
             warnings.append(sentence)
     if never_calibrated:

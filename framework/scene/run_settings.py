@@ -3,7 +3,8 @@
 ``RunSettings.parse(cfg)`` turns the composed (Hydra) config into plain values: the plugins'
 length settings in scene units (``with_scene_lengths``), the unit, the seed, the method, the
 checkpoint cadence, the tracking target, the run's tags and what the pipeline needs to know of
-the plugin groups (whether the configured height field is a design, Morozov's factor). The pipeline passes these down instead of the raw config; each plugin group still goes
+the plugin groups (whether the configured height field is a design, Morozov's factor). The pipeline passes
+these down instead of the raw config; each plugin group still goes
 to its plugin, which checks its own keys.
 """
 

@@ -46,8 +46,19 @@ from operators.scene import Light, Receiver, Scene, Substrate
 from operators.stack import StackOperator
 from operators.values import checked_number, checked_whole, is_number
 
-__all__ = ["SceneSetup", "build_scene", "build_heights", "build_operator", "build_stack", "operator_builder", "heights_from_spec", "height_grid",
-           "screen_settings", "screen_sigma", "to_plain"]
+__all__ = [
+    "SceneSetup",
+    "build_scene",
+    "build_heights",
+    "build_operator",
+    "build_stack",
+    "operator_builder",
+    "heights_from_spec",
+    "height_grid",
+    "screen_settings",
+    "screen_sigma",
+    "to_plain",
+]
 
 SCENE_KEYS: dict[str, tuple[str, ...]] = {
     "light": ("position", "power", "shape", "size", "points"),

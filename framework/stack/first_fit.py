@@ -39,7 +39,11 @@ def fit_first_shot(problem: Problem, d0: torch.Tensor, make_solver: Callable[[Pr
     result = solver.run(max_iter, callbacks)
     d, _ = returned_iterate(result, stopping)
     fidelity = shot.fidelity
-    return d, {"first_fit_shot": float(index), "first_fit_iterations": float(result.iterations),
-               "first_fit_rel_discrepancy": fidelity.relative_discrepancy(shot.operator.render(d)),
-               "first_fit_renders": float(fidelity.renders), "first_fit_gradient_passes": float(fidelity.gradient_passes),
-               "first_fit_photon_traces": float(fidelity.photon_traces)}
+    return d, {
+        "first_fit_shot": float(index),
+        "first_fit_iterations": float(result.iterations),
+        "first_fit_rel_discrepancy": fidelity.relative_discrepancy(shot.operator.render(d)),
+        "first_fit_renders": float(fidelity.renders),
+        "first_fit_gradient_passes": float(fidelity.gradient_passes),
+        "first_fit_photon_traces": float(fidelity.photon_traces),
+    }

@@ -68,7 +68,9 @@ def shot_metrics(problem: Problem, prediction: torch.Tensor) -> dict[str, float]
     total = sum(misfits) or 1.0
     out: dict[str, float] = {}
     for i, (shot, misfit, data) in enumerate(zip(shots, misfits, problem.data.shots)):
-        out[f"shot{i}_rel_discrepancy"] = math.sqrt(misfit / shot.setup["weight"] / weighted_norm_sq(shot.target, shot.weights))
+        out[f"shot{i}_rel_discrepancy"] = math.sqrt(
+            misfit / shot.setup["weight"] / weighted_norm_sq(shot.target, shot.weights)
+        )
         out[f"shot{i}_misfit_share"] = misfit / total
         out[f"shot{i}_delta"] = data.delta
         out.update({f"shot{i}_{key}": value for key, value in shot.setup.items()})

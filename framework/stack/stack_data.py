@@ -168,8 +168,10 @@ class StackData(ShotStack):
     def _requests(self, request: DataRequest) -> list[DataRequest]:
         shots = request.operator.shots
         if len(shots) != len(self.sources):
-            raise ValueError("data=stack needs the stacked operator of its shots (framework/reconstruction/reconstruction.py "
-                             "builds it from data.shots)")
+            raise ValueError(
+                "data=stack needs the stacked operator of its shots (framework/reconstruction/reconstruction.py "
+                "builds it from data.shots)"
+            )
         return [dataclasses.replace(request, operator=shot, seed=request.seed + i * SHOT_SEED_STRIDE,
                                     output_dir=None if request.output_dir is None or len(shots) == 1
                                     else request.output_dir / f"shot{i}")
@@ -196,9 +198,11 @@ class StackData(ShotStack):
                  for i, s in enumerate(self.sources) if isinstance(s, FileData)]
         for i, size in sizes[1:]:
             if size != sizes[0][1]:
-                raise ValueError(f"data.shots[{i}].image is {size[0]}x{size[1]} px but data.shots[{sizes[0][0]}].image is "
-                                 f"{sizes[0][1][0]}x{sizes[0][1][1]}; images of one stack must frame the receiver "
-                                 "alike: resample them, or use source: photo with each photo's corners")
+                raise ValueError(
+                    f"data.shots[{i}].image is {size[0]}x{size[1]} px but data.shots[{sizes[0][0]}].image is "
+                    f"{sizes[0][1][0]}x{sizes[0][1][1]}; images of one stack must frame the receiver "
+                    "alike: resample them, or use source: photo with each photo's corners"
+                )
 
     def load(self, request: DataRequest) -> ReconstructionData:
         """Every shot's data from its own source in its own setup, stacked (:func:`stacked_data`)."""
@@ -213,4 +217,6 @@ class StackData(ShotStack):
             start = max(range(len(distances)), key=lambda i: distances[i])
         nearest = min(range(len(distances)), key=lambda i: distances[i])
         first = nearest if self.first_fit != "none" and len(shots) > 1 else None
-        return stacked_data(shots, weights, int(start), first, line_search=first is not None and self.first_fit == "lines")
+        return stacked_data(
+            shots, weights, int(start), first, line_search=first is not None and self.first_fit == "lines"
+        )

@@ -72,7 +72,9 @@ def _truncate(text: str, limit: int) -> str:
     return text if len(text) <= limit else text[: limit - len(_TRUNCATED)] + _TRUNCATED
 
 
-def flatten_params(params: Mapping[str, Any], sep: str = ".", max_value_length: int = MAX_PARAM_VALUE_LENGTH) -> dict[str, str]:
+def flatten_params(
+    params: Mapping[str, Any], sep: str = ".", max_value_length: int = MAX_PARAM_VALUE_LENGTH
+) -> dict[str, str]:
     """Flatten a nested mapping into MLflow params: keys joined with ``sep``, values as strings.
 
     Lists and other leaves become ``str(value)``; values longer than ``max_value_length`` are
@@ -91,7 +93,9 @@ def flatten_params(params: Mapping[str, Any], sep: str = ".", max_value_length: 
                 walk(value, name)
                 continue
             if len(name) > MAX_KEY_LENGTH:
-                raise ValueError(f"param key {name[:60]!r}... has {len(name)} characters; MLflow allows {MAX_KEY_LENGTH}")
+                raise ValueError(
+                    f"param key {name[:60]!r}... has {len(name)} characters; MLflow allows {MAX_KEY_LENGTH}"
+                )
             out[name] = _truncate(str(value), max_value_length)
 
     if not isinstance(params, Mapping):
@@ -221,7 +225,7 @@ class MlflowTracker:
         self._client: Any = None
 
     # -- lifecycle -----------------------------------------------------------------------------
-    def __enter__(self) -> "MlflowTracker":
+    def __enter__(self) -> MlflowTracker:
         from mlflow.tracking import MlflowClient
         from mlflow.utils.mlflow_tags import MLFLOW_PARENT_RUN_ID
 
@@ -281,7 +285,7 @@ class MlflowTracker:
         self._client.set_terminated(self.run_id, status=status)
         return False  # re-raise any exception
 
-    def child(self, run_name: str | None = None, **kwargs: Any) -> "MlflowTracker":
+    def child(self, run_name: str | None = None, **kwargs: Any) -> MlflowTracker:
         """A tracker for a nested run under this (active) run, in the same store and experiment."""
         self._require_run()
         return MlflowTracker(
@@ -322,7 +326,7 @@ class MlflowTracker:
         for i in range(0, len(items), 1000):
             self._client.log_batch(self.run_id, metrics=items[i : i + 1000])
 
-    def log_data(self, data: "ReconstructionData", cfg: Mapping[str, Any]) -> None:
+    def log_data(self, data: ReconstructionData, cfg: Mapping[str, Any]) -> None:
         """Log the run's input data as an MLflow dataset in context "reconstruction" (see
         :func:`data_dataset`)."""
         from mlflow.entities import Dataset, DatasetInput, InputTag
@@ -347,7 +351,7 @@ class MlflowTracker:
             raise FileNotFoundError(f"artefact directory {directory} does not exist")
         self._client.log_artifacts(self.run_id, str(directory), artifact_path)
 
-    def metrics_callback(self, every: int = 1, step_offset: int = 0) -> "MlflowMetricsCallback":
+    def metrics_callback(self, every: int = 1, step_offset: int = 0) -> MlflowMetricsCallback:
         """A solver callback logging every ``every``-th iteration's record to this run, at step
         ``step_offset`` + iteration (a run from a second start continues the first one's steps)."""
         return MlflowMetricsCallback(self, every=every, step_offset=step_offset)
@@ -372,12 +376,12 @@ class MlflowMetricsCallback(Callback):
         self.tracker, self.every, self.step_offset = tracker, every, int(step_offset)
         self._last_logged = -1
 
-    def on_iteration(self, solver: "IterativeSolver", record: "IterationRecord") -> None:  # noqa: D102
+    def on_iteration(self, solver: IterativeSolver, record: IterationRecord) -> None:  # noqa: D102
         if record.iteration % self.every == 0:
             self.tracker.log_metrics(record.metrics(), step=self.step_offset + record.iteration)
             self._last_logged = record.iteration
 
-    def on_end(self, solver: "IterativeSolver", result: "RunResult") -> None:  # noqa: D102
+    def on_end(self, solver: IterativeSolver, result: RunResult) -> None:  # noqa: D102
         last = result.last
         if last is not None and last.iteration != self._last_logged:
             self.tracker.log_metrics(last.metrics(), step=self.step_offset + last.iteration)

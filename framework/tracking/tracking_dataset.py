@@ -33,7 +33,7 @@ def dataset_digest(arrays: Mapping[str, np.ndarray], values: Mapping[str, Any]) 
     return sha.hexdigest()[:16]
 
 
-def _data_arrays(data: "ReconstructionData") -> dict[str, np.ndarray]:
+def _data_arrays(data: ReconstructionData) -> dict[str, np.ndarray]:
     """The caustic target (c, n, n), the mask (m, m) and, if known, the volume (1,) as numpy arrays."""
     arrays = {"caustic": data.target.detach().cpu().numpy(), "mask": data.mask.detach().cpu().numpy()}
     if data.volume is not None:
@@ -48,7 +48,7 @@ def _synthetic_description(cfg: Mapping[str, Any]) -> dict[str, Any]:
             "seed": cfg.get("seed", 0)}
 
 
-def data_dataset(data: "ReconstructionData", cfg: Mapping[str, Any]) -> "NumpyDataset":
+def data_dataset(data: ReconstructionData, cfg: Mapping[str, Any]) -> NumpyDataset:
     """The run's input data as an MLflow numpy dataset (features caustic, mask and volume).
 
     Synthetic data (with a ground truth): named ``synthetic:<shape or file>``, a code source

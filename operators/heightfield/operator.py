@@ -97,7 +97,9 @@ class CausticOperator(PhotonOperator):
         return not self.settings.fresnel
 
     @classmethod
-    def from_config(cls, scene: Scene, photons: int, seed: int, **settings: Any) -> CausticOperator | SupersampledOperator:
+    def from_config(
+        cls, scene: Scene, photons: int, seed: int, **settings: Any
+    ) -> CausticOperator | SupersampledOperator:
         """The operator for ``scene`` from the config's ``operator`` group (the fields of
         :class:`OperatorSettings` but photons and seed, which the run gives, and ``supersample``:
         rendered that many times finer and block-averaged, operators/supersample.py, footprints

@@ -94,8 +94,10 @@ def render(d: np.ndarray, sc: FusedScene, shifts: np.ndarray, indices: np.ndarra
         raise ValueError(f"images must be float32 or float64, not {out.dtype}")
     _check(d, out, 4, shifts=shifts, indices=indices, hit_t=hit_t)
     if out.shape[1] != shifts.shape[0] or out.shape[2] != out.shape[3] or hit_t.size not in (0, stop - start):
-        raise ValueError(f"images {out.shape} must be square, one channel per emission shift ({shifts.shape[0]}); hit_t "
-                         f"{hit_t.shape} must be empty or hold stop - start = {stop - start} photons")
+        raise ValueError(
+            f"images {out.shape} must be square, one channel per emission shift ({shifts.shape[0]}); hit_t "
+            f"{hit_t.shape} must be empty or hold stop - start = {stop - start} photons"
+        )
     reached = ctypes.c_double(0.0)
     status = _KERNELS.function("sfc_hf_render")(
         d.ctypes.data, d.shape[0], ctypes.byref(_scene(sc)), shifts.ctypes.data, indices.ctypes.data, start, stop,
@@ -112,9 +114,16 @@ def vjp(d: np.ndarray, sc: FusedScene, shifts: np.ndarray, indices: np.ndarray, 
     (threads, m, m) float64, one thread per gradient; ``padded`` (c, n + 2 pad, n + 2 pad)
     float64; ``hit_t`` replayed unless empty."""
     _check(d, out, 3, shifts=shifts, indices=indices, padded=padded, hit_t=hit_t)
-    if out.dtype != np.float64 or out.shape[1:] != d.shape or padded.shape[0] != shifts.shape[0] or hit_t.size not in (0, stop - start):
-        raise ValueError(f"gradients {out.dtype} {out.shape} must be float64 (threads, *{d.shape}), the padded image {padded.shape} "
-                         f"one channel per emission shift ({shifts.shape[0]}), hit_t empty or stop - start long")
+    if (
+        out.dtype != np.float64
+        or out.shape[1:] != d.shape
+        or padded.shape[0] != shifts.shape[0]
+        or hit_t.size not in (0, stop - start)
+    ):
+        raise ValueError(
+            f"gradients {out.dtype} {out.shape} must be float64 (threads, *{d.shape}), the padded image {padded.shape} "
+            f"one channel per emission shift ({shifts.shape[0]}), hit_t empty or stop - start long"
+        )
     status = _KERNELS.function("sfc_hf_vjp")(
         d.ctypes.data, d.shape[0], ctypes.byref(_scene(sc)), shifts.ctypes.data, indices.ctypes.data, start, stop,
         padded.ctypes.data, padded.shape[1] - 2 * pad, pad, out.ctypes.data, out.shape[0], _pointer(hit_t),

@@ -112,12 +112,32 @@ class FusedTracer:
         :meth:`render` recorded for these photons and these heights, replayed instead of searched."""
         _check_contiguous(d=d, padded=padded, out=out)
         if self.compiled:
-            trace_compiled.vjp(d, self.constants(d, start), self.shifts, self.indices, start, stop, padded, self.gather_pad,
-                               out, NO_HITS if hit_t is None else hit_t)
+            trace_compiled.vjp(
+                d,
+                self.constants(d, start),
+                self.shifts,
+                self.indices,
+                start,
+                stop,
+                padded,
+                self.gather_pad,
+                out,
+                NO_HITS if hit_t is None else hit_t,
+            )
             return
         with nb.parallel_chunksize(1):
-            vjp_photons(d, self.constants(d, start), self.shifts, self.indices, start, stop, padded, self.gather_pad, out,
-                        NO_HITS if hit_t is None else hit_t)
+            vjp_photons(
+                d,
+                self.constants(d, start),
+                self.shifts,
+                self.indices,
+                start,
+                stop,
+                padded,
+                self.gather_pad,
+                out,
+                NO_HITS if hit_t is None else hit_t,
+            )
 
 
 def _check_contiguous(**arrays: np.ndarray) -> None:

@@ -33,7 +33,8 @@ def trace_substrate(heights: torch.Tensor, scene: Scene, batch: PhotonBatch, gla
 
     ``glass_index`` (c,) is the refractive index per channel. A photon that meets a side wall is
     refracted out of it or totally reflected back in (with ``substrate.walls: absorbing`` it is
-    lost); photons totally reflected at the bottom carry zero flux. With ``fresnel`` the flux is weighted by the unpolarised
+    lost); photons totally reflected at the bottom carry zero flux. With ``fresnel`` the flux is weighted by
+    the unpolarised
     Fresnel transmittance of both interfaces; otherwise (the paper's choice) no loss.
     """
     grid = HeightFieldGrid(scene.substrate.thickness, scene.substrate.half_width, heights.shape[0])

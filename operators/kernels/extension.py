@@ -5,7 +5,8 @@ numba: :mod:`operators.kernels.simd`) and the whole height-field photon kernels 
 (``heightfield_photons.c``, called from the host: :mod:`operators.heightfield.trace_compiled`; its
 splat and gather also for photons that other tracers computed: :mod:`operators.splat.compiled`) and
 the mesh-scene event kernels (``mesh_events.c``: :mod:`operators.mesh.events_compiled`), all
-compiled at install; the photon kernels twice, for any x86-64 CPU and for AVX2 + FMA, so neither waits for a JIT. Where it was not built (no C compiler at
+compiled at install; the photon kernels twice, for any x86-64 CPU and for AVX2 + FMA, so neither waits for a
+JIT. Where it was not built (no C compiler at
 install) or was built from other sources (its ``sfc_abi_version`` differs from
 :data:`ABI_VERSION`), :func:`load` returns None and the numba kernels do its work.
 """

@@ -44,7 +44,9 @@ def _reflect_adjoint(w, dwu, dwv, n, dnu, dnv, g_r, g_ru, g_rv):
     g_cv = -2.0 * dot(g_rv, n)
     g_c = -2.0 * (dot(g_r, n) + dot(g_ru, dnu) + dot(g_rv, dnv))
     g_w = axpy(g_c, n, axpy(g_cu, dnu, axpy(g_cv, dnv, g_r)))
-    g_n = axpy(-2.0 * c, g_r, axpy(-2.0 * cu, g_ru, axpy(-2.0 * cv, g_rv, axpy(g_c, w, axpy(g_cu, dwu, scale(g_cv, dwv))))))
+    g_n = axpy(
+        -2.0 * c, g_r, axpy(-2.0 * cu, g_ru, axpy(-2.0 * cv, g_rv, axpy(g_c, w, axpy(g_cu, dwu, scale(g_cv, dwv)))))
+    )
     return (g_w, axpy(g_cu, n, g_ru), axpy(g_cv, n, g_rv), g_n, axpy(g_cu, w, scale(-2.0 * c, g_ru)),
             axpy(g_cv, w, scale(-2.0 * c, g_rv)))
 

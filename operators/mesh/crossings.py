@@ -16,7 +16,7 @@ solid thinner than the tolerance does.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 import trimesh

@@ -17,7 +17,8 @@ in mm, operators/mesh/elements.py).
 from __future__ import annotations
 
 import math
-from typing import Annotated, Callable
+from typing import Annotated
+from collections.abc import Callable
 
 import numpy as np
 import trimesh

@@ -30,7 +30,8 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Mapping, Sequence
+from typing import Any
+from collections.abc import Callable, Mapping, Sequence
 
 import numpy as np
 import trimesh
@@ -138,7 +139,9 @@ def load_mesh(path: str | Path, what: str | None = None) -> trimesh.Trimesh:
     try:
         mesh = trimesh.load(path, force="mesh", process=False)
     except Exception as error:  # noqa: BLE001 - trimesh raises many kinds for unreadable files
-        raise ValueError(f"{path} is not a readable mesh ({type(error).__name__}: {error}); use OBJ, STL or PLY") from None
+        raise ValueError(
+            f"{path} is not a readable mesh ({type(error).__name__}: {error}); use OBJ, STL or PLY"
+        ) from None
     if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
         raise ValueError(f"{path} holds no triangles; use an OBJ, STL or PLY triangle mesh")
     bad = ~np.isfinite(mesh.vertices).all(axis=1)
@@ -292,7 +295,9 @@ def _check_closed(mesh: trimesh.Trimesh, what: str) -> None:
         open_edges = int(len(trimesh.grouping.group_rows(mesh.edges_sorted, require_count=1)))
         raise ValueError(f"{what} is not closed ({open_edges} edges with one face); an element must be a closed solid")
     if not mesh.is_winding_consistent:
-        raise ValueError(f"{what} has faces wound inconsistently; fix their orientation (e.g. trimesh.repair.fix_winding)")
+        raise ValueError(
+            f"{what} has faces wound inconsistently; fix their orientation (e.g. trimesh.repair.fix_winding)"
+        )
     if not mesh.volume > 0:
         raise ValueError(f"{what} has inward normals (signed volume {mesh.volume:.4g}); flip its faces")
 

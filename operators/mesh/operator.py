@@ -26,7 +26,8 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Any, Sequence
+from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 import torch
@@ -80,7 +81,8 @@ class MeshSceneOperator(PhotonOperator):
             raise ValueError(f"element {inside.name} (z {low:.4g} .. {high:.4g}) overlaps the substrate "
                              f"(z 0 .. {top:g}); move it above or below")
         self.dtype = DTYPES[settings.dtype]
-        self.emitter = LightEmitter(self._aimed_scene(), settings.photons, settings.seed, settings.footprint_px, self.dtype)
+        aimed = self._aimed_scene()
+        self.emitter = LightEmitter(aimed, settings.photons, settings.seed, settings.footprint_px, self.dtype)
         with progress.step("building the ray-intersection structures"):
             self.intersector = MeshIntersector(self.elements)
         self._lowest_element = min((e.z_range[0] for e in self.elements), default=math.inf)
@@ -99,8 +101,9 @@ class MeshSceneOperator(PhotonOperator):
     def example_settings(cls) -> dict[str, Any]:
         """Settings for the plugin contract checks (framework/core/contracts/checks.py): one lens above the
         print, double precision, rendered on a 2 x finer receiver (operators/supersample.py)."""
-        return {"dtype": "float64", "supersample": 2, "elements": [{"name": "lens", "shape": "lens", "position": [0, 0, 1.15], "params": {
-            "radius": 1.0, "thickness": 0.3, "front_radius": 4.0, "back_radius": 4.0}}]}
+        lens = {"radius": 1.0, "thickness": 0.3, "front_radius": 4.0, "back_radius": 4.0}
+        element = {"name": "lens", "shape": "lens", "position": [0, 0, 1.15], "params": lens}
+        return {"dtype": "float64", "supersample": 2, "elements": [element]}
 
     @property
     def conserves_energy(self) -> bool:
@@ -119,8 +122,10 @@ class MeshSceneOperator(PhotonOperator):
                                                            "operator.aperture_half_width")
         check_setting_keys(settings, MeshSceneSettings, "mesh_scene", extra=("elements", "supersample"))
         built = make_elements(elements, mm_per_unit=scene.mm_per_unit)
-        return build_supersampled(lambda fine, given: cls(fine, built, MeshSceneSettings(photons=photons, seed=seed, **given)),
-                                  scene, settings, MeshSceneSettings)
+        def build(fine: Scene, given: dict[str, Any]) -> MeshSceneOperator:
+            return cls(fine, built, MeshSceneSettings(photons=photons, seed=seed, **given))
+
+        return build_supersampled(build, scene, settings, MeshSceneSettings)
 
     def variant(self, photons: int, seed: int, resolution: int) -> MeshSceneOperator:
         """The same scene with another sampling (:meth:`PhotonOperator.resampled`)."""
@@ -154,7 +159,9 @@ class MeshSceneOperator(PhotonOperator):
         top = self.scene.substrate.thickness + float(heights.max())
         inside = self._element_within(top)
         if inside is not None:
-            raise PrintReachesElement(f"the print reaches z={top:.4g}, into element {inside.name} (from z={inside.z_range[0]:.4g})")
+            raise PrintReachesElement(
+                f"the print reaches z={top:.4g}, into element {inside.name} (from z={inside.z_range[0]:.4g})"
+            )
 
     def render(self, heights: torch.Tensor, progress: bool = False) -> torch.Tensor:
         """Irradiance (c, n, n), W per scene unit^2, without a graph; :attr:`losses` holds the
@@ -323,7 +330,8 @@ class MeshSceneOperator(PhotonOperator):
                     medium=torch.full((n,), AIR, dtype=torch.int64))
         half = self.scene.substrate.half_width
         with torch.no_grad():
-            before, landed = self._follow(ray, batch.channel, torch.zeros(2, 2, dtype=torch.float64), stop_on_entry=True)
+            no_jet = torch.zeros(2, 2, dtype=torch.float64)
+            before, landed = self._follow(ray, batch.channel, no_jet, stop_on_entry=True)
         top = landed & (before.position[2] - self.scene.substrate.thickness).abs().lt(1e-9) \
             & (before.position[:2].abs() <= half).all(0)
         return Arrivals(before.position[:2, top].T.numpy(), before.direction[:, top].T.numpy(),
@@ -353,7 +361,8 @@ class MeshSceneOperator(PhotonOperator):
         surface = Surface(HeightFieldGrid(scene.substrate.thickness, scene.substrate.half_width, heights.shape[0]),
                            heights, scene.substrate.thickness + float(heights.max()) + 1e-9)
         # The tracer's own dtype is the operator's; these paths are traced in float64.
-        (table, dtype), self.index_table, self.dtype = (self.index_table, self.dtype), self.index_table.double(), torch.float64
+        table, dtype = self.index_table, self.dtype
+        self.index_table, self.dtype = self.index_table.double(), torch.float64
         n = ray.flux.shape[0]
         alive = torch.ones(n, dtype=torch.bool)
         reached = torch.zeros(n, dtype=torch.bool)

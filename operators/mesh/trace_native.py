@@ -279,8 +279,16 @@ class NativeMeshTracer:
                 # The photons traced from the prefix, their splat arguments into a buffer of this
                 # chunk (or, if not kept, of all).
                 log = self._buffers.log(k, stop - start, settings.max_depth) if keep else None
-                splat = self._trace(d, chunk, sc, False, losses, self._buffers.splat(k if keep_splat else 0, stop - start),
-                                    log, start=chunk.state)
+                splat = self._trace(
+                    d,
+                    chunk,
+                    sc,
+                    False,
+                    losses,
+                    self._buffers.splat(k if keep_splat else 0, stop - start),
+                    log,
+                    start=chunk.state,
+                )
                 seen.append(log)
                 if keep_splat:
                     splats.append((splat, chunk.status))

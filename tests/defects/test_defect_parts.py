@@ -47,8 +47,9 @@ def test_the_defect_models_change_the_design_by_their_volume() -> None:
     blob = apply_model(design, frame, "blob", (20.0, 20.0, 1e-4, 2.0), area) - design
     assert float(blob.sum()) * area == pytest.approx(1e-4, rel=1e-3)  # a drop well inside the grid
     removed = design - apply_model(design, frame, "modulation", (0.0, 6.0, 1.0), area)
-    assert float(removed.min()) >= 0.0 and float(removed[25:40, 32].max()) == pytest.approx(float(design[25:40, 32].max()),
-                                                                                             rel=0.05)
+    assert float(removed.min()) >= 0.0 and float(removed[25:40, 32].max()) == pytest.approx(
+        float(design[25:40, 32].max()), rel=0.05
+    )
     shifted = apply_model(design, frame, "shift", (0.0, 100.0, 2.0), area)  # the whole band moved 2 samples
     assert torch.allclose(shifted[:, 34], design[:, 32], atol=1e-12)
 

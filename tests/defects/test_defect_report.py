@@ -116,7 +116,9 @@ def test_defects_on_without_a_design_and_bad_settings_are_refused(tmp_path) -> N
         Reconstruction.from_config(compose_reconstruct([*SMALL, "experiment=m2v1", "defects.enabled=sometimes"],
                                                         tmp_path), tmp_path)
     with pytest.raises(ValueError, match="defects.grow=5.0 exceeds defects.z_min=3.0"):
-        Reconstruction.from_config(compose_reconstruct([*SMALL, "experiment=m2v1", "defects.grow=5.0"], tmp_path), tmp_path)
+        Reconstruction.from_config(
+            compose_reconstruct([*SMALL, "experiment=m2v1", "defects.grow=5.0"], tmp_path), tmp_path
+        )
 
 
 def test_a_drop_that_focuses_before_the_screen_is_found_from_the_photo(tmp_path) -> None:

@@ -49,7 +49,9 @@ def _ssim_by_scipy(image: np.ndarray, target: np.ndarray) -> float:
 
         mu_a, mu_b = blur(a), blur(b)
         var_a, var_b, cov = blur(a * a) - mu_a ** 2, blur(b * b) - mu_b ** 2, blur(a * b) - mu_a * mu_b
-        values.append(np.mean((2 * mu_a * mu_b + c1) * (2 * cov + c2) / ((mu_a ** 2 + mu_b ** 2 + c1) * (var_a + var_b + c2))))
+        values.append(
+            np.mean((2 * mu_a * mu_b + c1) * (2 * cov + c2) / ((mu_a**2 + mu_b**2 + c1) * (var_a + var_b + c2)))
+        )
     return float(np.mean(values))
 
 
@@ -63,7 +65,9 @@ def test_ssim_is_wang_et_als_and_its_gradient_is_the_finite_difference(n):
     (grad,) = torch.autograd.grad(ssim_tensor(x, torch.from_numpy(target)), x)
     direction = torch.from_numpy(rng.normal(0.0, 1.0, image.shape))
     step = 1e-6
-    difference = (ssim(image + step * direction.numpy(), target) - ssim(image - step * direction.numpy(), target)) / (2 * step)
+    difference = (ssim(image + step * direction.numpy(), target) - ssim(image - step * direction.numpy(), target)) / (
+        2 * step
+    )
     assert difference == pytest.approx(float((grad * direction).sum()), rel=1e-6)
 
 

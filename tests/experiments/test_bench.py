@@ -33,12 +33,48 @@ def test_a_bad_mesh_footprint_ends_in_one_line_before_any_timing(value, capsys):
 
 @pytest.mark.slow
 def test_bench_prints_the_promised_figures(capsys):
-    main(["--photons", "200000", "--grad-photons", "30000", "--splat-photons", "3000", "--chunk-size", "8192",
-          "--reference-photons", "20000", "--stage-photons", "0", "--mesh-photons", "20000",
-          "--mesh-footprint", "cell", "--stack-photons", "20000", "--fidelity-photons", "20000", "--fidelity-bias-photons", "40000",
-          "--fidelity-reference-photons", "40000", "--wavefront-vertices", "257", "--fidelity-resolutions", "48",
-          "--wall-vertices", "129", "--scale-sizes", "16", "32", "--scale-per-pixel", "2", "--scale-solve-sizes",
-          "--reconstruction-overrides", *SMALL_RUN])
+    main(
+        [
+            "--photons",
+            "200000",
+            "--grad-photons",
+            "30000",
+            "--splat-photons",
+            "3000",
+            "--chunk-size",
+            "8192",
+            "--reference-photons",
+            "20000",
+            "--stage-photons",
+            "0",
+            "--mesh-photons",
+            "20000",
+            "--mesh-footprint",
+            "cell",
+            "--stack-photons",
+            "20000",
+            "--fidelity-photons",
+            "20000",
+            "--fidelity-bias-photons",
+            "40000",
+            "--fidelity-reference-photons",
+            "40000",
+            "--wavefront-vertices",
+            "257",
+            "--fidelity-resolutions",
+            "48",
+            "--wall-vertices",
+            "129",
+            "--scale-sizes",
+            "16",
+            "32",
+            "--scale-per-pixel",
+            "2",
+            "--scale-solve-sizes",
+            "--reconstruction-overrides",
+            *SMALL_RUN,
+        ]
+    )
     report = json.loads(capsys.readouterr().out)
     assert report["forward_photons_per_s"] > 0 and report["forward_backward_photons_per_s"] > 0
     plain = report["without_avx2_kernels"]
@@ -72,7 +108,11 @@ def test_bench_prints_the_promised_figures(capsys):
     for scene in ("height_field", "two_lenses"):
         entry = fidelity[f"{scene}_48px"]
         assert entry["exact_seconds"] > 0
-        assert set(entry) - {"exact_seconds"} == {"paper_splat_5px", "cell_footprints", "cell_footprints_supersampled_4x"}
+        assert set(entry) - {"exact_seconds"} == {
+            "paper_splat_5px",
+            "cell_footprints",
+            "cell_footprints_supersampled_4x",
+        }
         for design in ("paper_splat_5px", "cell_footprints", "cell_footprints_supersampled_4x"):
             figures = entry[design]
             assert 0 < figures["bias"] < 1 and 0 < figures["noise_at_budget"] < 1

@@ -146,28 +146,43 @@ def test_bad_photo_input_is_refused_before_the_run_opens(refused, overrides, nam
     assert named in refused([*PHOTO, *overrides])
 
 
-@pytest.mark.parametrize("overrides, named", [
-    (["data=file", "data.image=a_directory"], "is a directory"),
-    (["data=file", "data.image=caustic.npy"], "solver.post_steps.volume_v1 and solver.post_steps.volume_hold need the deposited volume"),
-    (["data=file", "data.image=truncated.npy"], "truncated.npy is corrupt or truncated"),
-    (["data=file", "data.image=caustic.npy", "wavelengths=[0.5,0.6]"], "set wavelengths"),
-    (["tracking.uri=foo://bar"], "unknown scheme 'foo'"),
-    (["tracking.store_dir=caustic.npy/mlruns"], "is a file, not a directory"),
-    (["resume=missing.pt"], "resume='missing.pt'"),
-    (["height_field.path=3"], "height_field.path=3"),
-    (["height_field.resolution=100000"], "height_field.resolution=100000"),
-    (["receiver.resolution=100000"], "receiver.resolution=100000"),
-    (["seed=-1"], "seed=-1"),
-    (["calibration.params=5"], "calibration.params=5"),
-    (["solver.regularizers.l1_bounds.p2=7.5kg"], "solver.regularizers.l1_bounds.p2='7.5kg' must be a number"),
-])
+@pytest.mark.parametrize(
+    "overrides, named",
+    [
+        (["data=file", "data.image=a_directory"], "is a directory"),
+        (
+            ["data=file", "data.image=caustic.npy"],
+            "solver.post_steps.volume_v1 and solver.post_steps.volume_hold need the deposited volume",
+        ),
+        (["data=file", "data.image=truncated.npy"], "truncated.npy is corrupt or truncated"),
+        (["data=file", "data.image=caustic.npy", "wavelengths=[0.5,0.6]"], "set wavelengths"),
+        (["tracking.uri=foo://bar"], "unknown scheme 'foo'"),
+        (["tracking.store_dir=caustic.npy/mlruns"], "is a file, not a directory"),
+        (["resume=missing.pt"], "resume='missing.pt'"),
+        (["height_field.path=3"], "height_field.path=3"),
+        (["height_field.resolution=100000"], "height_field.resolution=100000"),
+        (["receiver.resolution=100000"], "receiver.resolution=100000"),
+        (["seed=-1"], "seed=-1"),
+        (["calibration.params=5"], "calibration.params=5"),
+        (["solver.regularizers.l1_bounds.p2=7.5kg"], "solver.regularizers.l1_bounds.p2='7.5kg' must be a number"),
+    ],
+)
 def test_bad_input_elsewhere_is_refused_before_the_run_opens(refused, overrides, named) -> None:
     assert named in refused(overrides)
 
 
 def test_plugin_lengths_are_taken_in_millimetres_too(inputs, tmp_path) -> None:
-    cfg = compose_reconstruct([*SMALL, "solver.regularizers.l1_bounds.p2=7.5mm", "solver.preconditioner.length=[3mm,0.06]",
-                               "data.mask_threshold=0.025mm", "initial=transport", "initial.p2=5mm"], tmp_path)
+    cfg = compose_reconstruct(
+        [
+            *SMALL,
+            "solver.regularizers.l1_bounds.p2=7.5mm",
+            "solver.preconditioner.length=[3mm,0.06]",
+            "data.mask_threshold=0.025mm",
+            "initial=transport",
+            "initial.p2=5mm",
+        ],
+        tmp_path,
+    )
     parts = Reconstruction.from_config(cfg, inputs)  # 25 mm per scene unit
     assert parts.settings.cfg["solver"]["regularizers"]["l1_bounds"]["p2"] == pytest.approx(0.3)
     assert parts.settings.cfg["solver"]["preconditioner"]["length"] == pytest.approx([0.12, 0.06])
@@ -273,8 +288,11 @@ def _leaves(node, path=()):
         yield path
 
 
-@pytest.mark.parametrize("extra", [[], PHOTO + ["data.volume=0.01", "data.mask=mask.npy", "height_field.resolution=32"]],
-                         ids=["synthetic", "photo"])
+@pytest.mark.parametrize(
+    "extra",
+    [[], PHOTO + ["data.volume=0.01", "data.mask=mask.npy", "height_field.resolution=32"]],
+    ids=["synthetic", "photo"],
+)
 def test_random_corruptions_never_end_in_a_traceback(inputs, tmp_path, monkeypatch, extra) -> None:
     monkeypatch.setattr(CausticOperator, "render", _no_render)
     valid = compose_reconstruct([*SMALL, *extra], tmp_path)

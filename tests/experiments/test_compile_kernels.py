@@ -19,8 +19,13 @@ def test_a_group_compiles_into_numbas_cache_and_exits_zero():
 
 
 def test_an_unknown_group_is_refused_in_one_line():
-    done = subprocess.run([sys.executable, "-m", "experiments.compile_kernels", "lenses"], cwd=ROOT, capture_output=True,
-                          text=True, timeout=120)
+    done = subprocess.run(
+        [sys.executable, "-m", "experiments.compile_kernels", "lenses"],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert done.returncode == 2
     assert done.stderr.strip().splitlines() == [
         "unknown kernel group(s) lenses: choose from heightfield, mesh, wavefront"]

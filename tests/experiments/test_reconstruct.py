@@ -134,7 +134,9 @@ def test_an_auto_run_interrupted_in_its_second_start_resumes_there(tmp_path, mon
     monkeypatch.setattr(MetricsHistory, "on_iteration", original)
     resumed = run_reconstruction(compose_reconstruct(base, tmp_path), tmp_path / "cut", tmp_path)  # resume: auto
     assert resumed["start"] == full["start"] and resumed["start_zero_iterations"] == 4
-    assert np.array_equal(np.load(tmp_path / "full" / "height_field.npy"), np.load(tmp_path / "cut" / "height_field.npy"))
+    assert np.array_equal(
+        np.load(tmp_path / "full" / "height_field.npy"), np.load(tmp_path / "cut" / "height_field.npy")
+    )
 
 
 @pytest.mark.slow

@@ -16,9 +16,29 @@ TINY = ["receiver.resolution=32", "height_field.resolution=16", "solver.max_iter
 @pytest.mark.slow
 def test_screens_and_lab_studies_are_run_and_tabulated(tmp_path):
     out = tmp_path / "out"
-    main(["--part", "screens", "--scenes", "bump", "--screen-sets", "0.05", "0.05,0.2", "--total-photons", "32768", "--store",
-          str(tmp_path / "mlruns"), "--work", str(tmp_path / "work"), "--out", str(out), "--overrides", *TINY,
-          "+data.common.reference_photons=32768", "+data.common.reference_resolution=32"])
+    main(
+        [
+            "--part",
+            "screens",
+            "--scenes",
+            "bump",
+            "--screen-sets",
+            "0.05",
+            "0.05,0.2",
+            "--total-photons",
+            "32768",
+            "--store",
+            str(tmp_path / "mlruns"),
+            "--work",
+            str(tmp_path / "work"),
+            "--out",
+            str(out),
+            "--overrides",
+            *TINY,
+            "+data.common.reference_photons=32768",
+            "+data.common.reference_resolution=32",
+        ]
+    )
     rows = list(csv.DictReader(open(out / "stack_screens.csv")))
     assert [(r["screens"], int(r["photons_per_shot"])) for r in rows] == [("0.05", 32768), ("0.05 + 0.2", 16384)]
     assert rows[1]["first_fit_iterations"] == "2" and len(rows[1]["shot_discrepancies"].split(" / ")) == 2

@@ -11,8 +11,15 @@ import pytest
 import trimesh
 from PIL import Image
 
-from framework.files.mm_outputs import (MESH_FORMATS, PRINTED, deviation_report, export_outputs, glass_mesh, read_height_png,
-                              write_height_png)
+from framework.files.mm_outputs import (
+    MESH_FORMATS,
+    PRINTED,
+    deviation_report,
+    export_outputs,
+    glass_mesh,
+    read_height_png,
+    write_height_png,
+)
 
 H, W, MM = 0.1, 1.0, 25.0  # substrate thickness and half width (scene units), mm per scene unit
 

@@ -1,4 +1,5 @@
-"""Photo import (framework/lab/photo_import.py, photo_geometry.py, photo_synthesis.py): geometry, linearisation, dark/flat/saturation, refusals."""
+"""Photo import (framework/lab/photo_import.py, photo_geometry.py, photo_synthesis.py): geometry,
+linearisation, dark/flat/saturation, refusals."""
 
 from __future__ import annotations
 

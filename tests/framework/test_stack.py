@@ -102,8 +102,10 @@ def test_calibration_recovers_the_distance_and_every_gain_from_a_stack_with_know
     target = torch.cat([g * _at(truth_base, z).render(truth) for g, z in zip(true_gains, DISTANCES)])
     model = make_operator(photons=1 << 17, resolution=48)
     told = 1.1 * DISTANCES[0]  # the configured distance 10% off; the second shot is 0.15 farther
-    shots = [ImagingOperator(lambda scene: CausticOperator(scene, model.settings), _at(model, told + z - DISTANCES[0]).scene)
-             for z in DISTANCES]
+    shots = [
+        ImagingOperator(lambda scene: CausticOperator(scene, model.settings), _at(model, told + z - DISTANCES[0]).scene)
+        for z in DISTANCES
+    ]
     calibration = JointCalibration(StackOperator(shots), ["gain", "screen_distance"], scene=_at(model, told).scene)
     assert calibration.params == ["gain_0", "gain_1", "screen_distance"]
     calibration.setup(target, None, 0.05, tmp_path / "calibration.json")
@@ -185,8 +187,10 @@ def _distance_told_too_far(tmp_path, volume_held: bool) -> tuple[torch.Tensor, J
     target = torch.cat([_at(truth_base, z).render(truth) for z in DISTANCES])
     model = make_operator(photons=1 << 17, resolution=48)
     told = 1.1 * DISTANCES[0]
-    shots = [ImagingOperator(lambda scene: CausticOperator(scene, model.settings), _at(model, told + z - DISTANCES[0]).scene)
-             for z in DISTANCES]
+    shots = [
+        ImagingOperator(lambda scene: CausticOperator(scene, model.settings), _at(model, told + z - DISTANCES[0]).scene)
+        for z in DISTANCES
+    ]
     calibration = JointCalibration(StackOperator(shots), ["screen_distance"], scene=_at(model, told).scene,
                                    volume_held=volume_held)
     calibration.setup(target, None, 0.05, tmp_path / "calibration.json")

@@ -158,12 +158,18 @@ def test_bad_inputs_get_one_line_each():
         TransportStart(photons=16384)(request(empty))
     dark = data.target.clone()
     dark[:, 8:56, 8:56] = 0.0  # no light anywhere near the lens's reach
-    unlit = Problem(problem.operator, ReconstructionData(dark, data.mask, data.volume, 0.05), problem.grid, problem.scene)
+    unlit = Problem(
+        problem.operator, ReconstructionData(dark, data.mask, data.volume, 0.05), problem.grid, problem.scene
+    )
     with pytest.raises(ValueError, match="no light within reach of the masked region"):
         TransportStart(photons=16384)(request(unlit))
     cells = int(data.mask.sum())
-    heavy = Problem(problem.operator, ReconstructionData(data.target, data.mask, 2 * cells * 0.3 * problem.grid.cell_area,
-                                                         0.05), problem.grid, problem.scene)
+    heavy = Problem(
+        problem.operator,
+        ReconstructionData(data.target, data.mask, 2 * cells * 0.3 * problem.grid.cell_area, 0.05),
+        problem.grid,
+        problem.scene,
+    )
     with pytest.raises(ValueError, match="unreachable .* check volume"):
         TransportStart(photons=16384)(request(heavy))
     for key, value in (("reach", 2.0), ("photons", 0), ("p2", -1.0)):

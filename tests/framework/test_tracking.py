@@ -9,8 +9,14 @@ from framework.core.callbacks import GroundTruthError
 from framework.reconstruction.stopping import MorozovStopping
 from framework.core.data import ReconstructionData
 from framework.reconstruction.solvers import GradientDescent
-from framework.tracking.mlflow_tracker import (EXPERIMENT_KIND, EXPERIMENT_KIND_TAG, MlflowTracker, check_tracking_server,
-                                code_version_tags, flatten_params)
+from framework.tracking.mlflow_tracker import (
+    EXPERIMENT_KIND,
+    EXPERIMENT_KIND_TAG,
+    MlflowTracker,
+    check_tracking_server,
+    code_version_tags,
+    flatten_params,
+)
 from framework.tracking.tracking_dataset import data_dataset
 from tests.framework.toy import DTYPE, make_problem
 

@@ -41,7 +41,9 @@ def test_bad_units_are_refused(cfg, match) -> None:
         mm_per_unit(cfg)
 
 
-@pytest.mark.parametrize("value, match", [("2.5 inch", "'2.5 inch'"), ("mm", "'mm'"), ("2 mm3", "'2 mm3'"), (True, "True")])
+@pytest.mark.parametrize(
+    "value, match", [("2.5 inch", "'2.5 inch'"), ("mm", "'mm'"), ("2 mm3", "'2 mm3'"), (True, "True")]
+)
 def test_bad_lengths_are_refused(value, match) -> None:
     with pytest.raises(ValueError, match=match):
         scene_length(value, 25.0, "substrate.thickness")

@@ -179,7 +179,9 @@ def test_the_default_model_follows_a_discs_exact_caustic() -> None:
     heights = torch.from_numpy(make_shape("print_lines", 128))
     model = configured_model("receiver.z=-0.2", "light.shape=disc", "light.size=20mm")
     exact = ExtendedLightReference(model.scene, vertices=769).render(heights)
-    assert receiver_spread(model.scene.light, 0.1, 1.457, 0.2) * model.scene.light.size > model.scene.receiver.pixel_size
+    assert (
+        receiver_spread(model.scene.light, 0.1, 1.457, 0.2) * model.scene.light.size > model.scene.receiver.pixel_size
+    )
     assert relative(model.render(heights.float()), exact) < 0.035
     point = configured_model("receiver.z=-0.2").render(heights.float())
     assert relative(point, exact) > 0.06

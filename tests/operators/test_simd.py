@@ -58,7 +58,7 @@ def _photons(count: int, resolution: int, seed: int, axes=SMALL):
     (a_lo, a_hi), (b_lo, b_hi), _ = axes
     a, b, angle = rng.uniform(a_lo, a_hi, count), rng.uniform(b_lo, b_hi, count), rng.uniform(0, np.pi, count)
     c, s = np.cos(angle), np.sin(angle)
-    metric = np.stack([c * c / a ** 2 + s * s / b ** 2, c * s * (1 / a ** 2 - 1 / b ** 2), s * s / a ** 2 + c * c / b ** 2])
+    metric = np.stack([c * c / a**2 + s * s / b**2, c * s * (1 / a**2 - 1 / b**2), s * s / a**2 + c * c / b**2])
     flux = rng.uniform(0.1, 1.0, count)
     channel = rng.integers(0, 2, count)
     return pos, metric, flux, channel

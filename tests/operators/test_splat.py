@@ -133,7 +133,9 @@ def test_fixed_box_and_general_paths_agree_with_the_reference():
     metric = torch.stack([radius ** -2, torch.zeros(count, dtype=torch.float64), radius ** -2])
     flux = torch.rand(count, generator=g, dtype=torch.float64) + 0.1
     channel = torch.zeros(count, dtype=torch.int64)
-    fits = [_fits_fixed_box(*footprint_box(*pos[:, k].tolist(), *metric[:, k].tolist()), 0, n - 1) for k in range(count)]
+    fits = [
+        _fits_fixed_box(*footprint_box(*pos[:, k].tolist(), *metric[:, k].tolist()), 0, n - 1) for k in range(count)
+    ]
     assert 40 <= sum(fits) <= count - 40, sum(fits)  # both paths taken
     native = splat_photons(pos, metric, flux, channel, 1, n)
     reference = splat_photons_reference(pos, metric, flux, channel, 1, n)

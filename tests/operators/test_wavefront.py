@@ -21,7 +21,9 @@ from tests.operators.conftest import bump
 LIGHT_Z, H, S = 10.0, 0.1, -0.05  # the default scene's light height, substrate thickness, receiver plane
 
 
-def _scene(resolution: int, half_width: float, wavelengths: tuple[float, ...] = (0.633,), walls: str = "clear") -> Scene:
+def _scene(
+    resolution: int, half_width: float, wavelengths: tuple[float, ...] = (0.633,), walls: str = "clear"
+) -> Scene:
     return Scene(light=Light(), substrate=Substrate(walls=walls), wavelengths=wavelengths,
                  receiver=Receiver(z=S, resolution=resolution, half_width=half_width))
 
@@ -37,7 +39,9 @@ def _supersampled_coverage(t: np.ndarray, n: int, per_pixel: int) -> np.ndarray:
     y, x = np.meshgrid(axis, axis, indexing="ij")
     sides = [(t[(k + 1) % 3, 0] - t[k, 0]) * (y - t[k, 1]) - (t[(k + 1) % 3, 1] - t[k, 1]) * (x - t[k, 0])
              for k in range(3)]
-    inside = ((sides[0] >= 0) & (sides[1] >= 0) & (sides[2] >= 0)) | ((sides[0] <= 0) & (sides[1] <= 0) & (sides[2] <= 0))
+    inside = ((sides[0] >= 0) & (sides[1] >= 0) & (sides[2] >= 0)) | (
+        (sides[0] <= 0) & (sides[1] <= 0) & (sides[2] <= 0)
+    )
     return inside.reshape(n, per_pixel, n, per_pixel).sum(axis=(1, 3)) / per_pixel ** 2
 
 
@@ -233,7 +237,9 @@ def test_energy_of_a_flat_slab_on_a_large_receiver():
     scene = _scene(64, 1.3, walls="absorbing")
     n, d, half = scene.indices[0], LIGHT_Z - H, 1.0
     square = _solid_angle_of_square(half, d) / (4.0 * math.pi)
-    assert _solid_angle_within(lambda p: half / math.cos(p), half, d) / (4.0 * math.pi) == pytest.approx(square, rel=1e-13)
+    assert _solid_angle_within(lambda p: half / math.cos(p), half, d) / (4.0 * math.pi) == pytest.approx(
+        square, rel=1e-13
+    )
 
     def stretch(rho):
         return 1.0 + H / math.sqrt(n * n * (rho * rho + d * d) - rho * rho)
@@ -334,7 +340,9 @@ def test_the_grids_solid_angles_and_fluxes_by_row_blocks_equal_the_whole_grid_fo
     x, y = (axis - light[0])[None, :], (axis - light[1])[:, None]
     x0, x1, y0, y1 = x[:, :-1], x[:, 1:], y[:-1], y[1:]
     dz = 0.1 - light[2]
-    omega = np.stack([triangle_solid_angle(x0, y0, x1, y0, x1, y1, dz), triangle_solid_angle(x0, y0, x1, y1, x0, y1, dz)])
+    omega = np.stack(
+        [triangle_solid_angle(x0, y0, x1, y0, x1, y1, dz), triangle_solid_angle(x0, y0, x1, y1, x0, y1, dz)]
+    )
     assert np.array_equal(grid_solid_angles(k, 1.0, 0.1, light), omega)
     rng = np.random.default_rng(k)
     path = np.where(rng.random((k, k)) < 0.1, 0.0, np.where(rng.random((k, k)) < 0.05, 2.0, 1.0))

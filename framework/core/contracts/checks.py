@@ -22,7 +22,8 @@ plugin with required settings declares an example of them in a classmethod
 - initial (:func:`check_start`): a start of the grid's shape and the operator's dtype, finite,
   the same twice, its phases named;
 - data (:func:`check_data_source`): ``check`` and ``load`` agree on the printed area and on the
-  volume where ``check`` knows it, the target has the operator's shape, the noise level lies in (0, 1), the same data twice.
+  volume where ``check`` knows it, the target has the operator's shape, the noise level lies in (0, 1), the
+  same data twice.
 
 Before any of these, :func:`check_base`: the registered object derives from its kind's base.
 
@@ -32,7 +33,8 @@ A failed check raises :class:`ContractViolation` naming the plugin and the check
 from __future__ import annotations
 
 import math
-from typing import Any, Callable
+from typing import Any
+from collections.abc import Callable
 
 import torch
 
@@ -49,8 +51,20 @@ from operators.photon_operator import ImageOperator
 from operators.scene import Receiver, Scene
 from regularizers import PostStepUpdate, Regularizer, RegularizerContext
 
-__all__ = ["BASES", "ContractViolation", "check_base", "example_settings", "check_operator", "check_regularizer", "check_post_step",
-           "check_solver", "check_stopping", "check_start", "check_data_source", "smooth_bump"]
+__all__ = [
+    "BASES",
+    "ContractViolation",
+    "check_base",
+    "example_settings",
+    "check_operator",
+    "check_regularizer",
+    "check_post_step",
+    "check_solver",
+    "check_stopping",
+    "check_start",
+    "check_data_source",
+    "smooth_bump",
+]
 
 
 class ContractViolation(AssertionError):
@@ -319,15 +333,20 @@ def check_start(start: Start, request: StartRequest, who: str = "initial") -> No
     results = [start(request) for _ in range(2)]
     d = results[0].d
     problem = request.problem
-    _require(tuple(d.shape) == problem.grid.shape and d.dtype == problem.operator.dtype, who,
-             f"gives {tuple(d.shape)} {d.dtype}; the grid is {problem.grid.shape}, the operator's dtype {problem.operator.dtype}")
+    _require(
+        tuple(d.shape) == problem.grid.shape and d.dtype == problem.operator.dtype,
+        who,
+        f"gives {tuple(d.shape)} {d.dtype}; the grid is {problem.grid.shape}, "
+        f"the operator's dtype {problem.operator.dtype}",
+    )
     _require(bool(torch.isfinite(d).all()), who, "gives non-finite heights")
     _require(torch.equal(d, results[1].d), who, "gives another start the second time")
 
 
 def check_data_source(source: DataSource, request: DataRequest, who: str = "data") -> None:
     """Check a data plugin on a request: ``check`` and ``load`` agree on the printed area and on
-    the volume where ``check`` knows it, the target has the operator's shape and is finite, delta lies in (0, 1), the same twice."""
+    the volume where ``check`` knows it, the target has the operator's shape and is finite, delta lies in (0,
+    1), the same twice."""
     _require(isinstance(source, DataSource), who, f"is a {type(source).__name__} without check and load")
     facts = source.check(request)
     _require(tuple(facts.mask.shape) == request.grid.shape and facts.mask.dtype == torch.bool, who,

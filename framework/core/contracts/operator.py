@@ -100,7 +100,7 @@ class Operator(Protocol):
         """F(d) with autograd (forward by ``render``, backward by ``vjp``)."""
         ...
 
-    def variant(self, photons: int, seed: int, resolution: int) -> "Operator":
+    def variant(self, photons: int, seed: int, resolution: int) -> Operator:
         """The same physics with another sampling (photons, seed, an n = resolution receiver):
         the independent reference renders of synthetic data."""
         ...

@@ -9,7 +9,7 @@ loop takes) and returns a :data:`SolverBuilder`; once the data and the start are
 
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 from torch import Tensor
 

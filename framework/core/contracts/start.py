@@ -13,7 +13,7 @@ from __future__ import annotations
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
+from collections.abc import Callable
 
 from torch import Tensor
 
@@ -68,7 +68,7 @@ class Start(ABC):
     def check(self, base_dir: Path) -> None:
         """Check what the start reads (files), before the run opens; a bad one raises naming the key."""
 
-    def phases(self) -> list[tuple[str, "Start"]]:
+    def phases(self) -> list[tuple[str, Start]]:
         """(name, start) of every candidate the solver runs from, in order: this start alone."""
         return [(self.name, self)]
 

@@ -20,7 +20,8 @@ their meaning and the line search finds tau near gamma.
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import Any, Callable
+from typing import Any
+from collections.abc import Callable
 
 import torch
 from torch import Tensor

@@ -8,7 +8,8 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from typing import Any, Sequence
+from typing import Any
+from collections.abc import Sequence
 
 from torch import Tensor
 
@@ -65,7 +66,10 @@ class GradientDescent(ProximalGradientSolver):
     @staticmethod
     def example_settings() -> dict[str, Any]:
         """Settings of the contract checks (framework/core/contracts/checks.py)."""
-        return {"step_size": {"name": "backtracking", "tau": 5e-3}, "preconditioner": {"name": "sobolev", "length": [0.25]}}
+        return {
+            "step_size": {"name": "backtracking", "tau": 5e-3},
+            "preconditioner": {"name": "sobolev", "length": [0.25]},
+        }
 
     @classmethod
     def from_config(cls, step_size: Mapping[str, Any], preconditioner: Mapping[str, Any] | None = None,

@@ -20,7 +20,8 @@ import dataclasses
 import math
 import time
 from collections.abc import Mapping
-from typing import Any, Sequence
+from typing import Any
+from collections.abc import Sequence
 
 import torch
 from torch import Tensor
@@ -93,8 +94,10 @@ class ProximalGradientSolver(IterativeSolver):
         self.regularizers = check_regularizers(regularizers, self.name)
         self.post_steps = check_post_steps(post_steps, self.name)
         if preconditioner is not None and not isinstance(preconditioner, GradientPreconditioner):
-            raise ValueError(f"{self.name}: preconditioner {type(preconditioner).__name__} is not a GradientPreconditioner "
-                             "(framework/optimization/preconditioner.py)")
+            raise ValueError(
+                f"{self.name}: preconditioner {type(preconditioner).__name__} is not a GradientPreconditioner "
+                "(framework/optimization/preconditioner.py)"
+            )
         self.preconditioner = preconditioner
         self.two_metric_from = check_two_metric_from(two_metric_from)
         self.momentum_from = check_momentum_from(momentum_from)

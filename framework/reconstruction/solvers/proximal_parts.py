@@ -5,7 +5,8 @@ of the parts and settings handed to it directly, each a one-line ValueError nami
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import Any, Sequence
+from typing import Any
+from collections.abc import Sequence
 
 from framework.core.plugin_config import build_plugin, build_plugin_map, split_name
 from framework.optimization.preconditioner import check_stage_index

@@ -7,7 +7,8 @@ trial's proximal point, and returns (the accepted choice or None, forward evalua
 
 from __future__ import annotations
 
-from typing import Any, Callable
+from typing import Any
+from collections.abc import Callable
 
 import torch
 from torch import Tensor

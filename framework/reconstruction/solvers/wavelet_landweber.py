@@ -26,7 +26,8 @@ The step-size policy chooses tau_w; the pixel prox step follows it with the fixe
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import Any, Sequence
+from typing import Any
+from collections.abc import Sequence
 
 import torch
 from torch import Tensor
@@ -84,11 +85,15 @@ class WaveletLandweber(ProximalGradientSolver):
     ) -> None:
         checked_number(pixel_step_ratio, "pixel_step_ratio", above=0.0, unit="tau_p / tau_w")
         if not isinstance(wavelet, CoefficientTransform):
-            raise ValueError("landweber_wavelet needs a wavelet transform (a CoefficientTransform, regularizers/base.py); "
-                             f"got {type(wavelet).__name__}")
+            raise ValueError(
+                "landweber_wavelet needs a wavelet transform (a CoefficientTransform, regularizers/base.py); "
+                f"got {type(wavelet).__name__}"
+            )
         if not isinstance(wavelet_regularizer, CoefficientRegularizer):
-            raise ValueError("landweber_wavelet needs a wavelet regulariser (a CoefficientRegularizer with "
-                             f"prox_coefficients(w, step), regularizers/base.py); got {type(wavelet_regularizer).__name__}")
+            raise ValueError(
+                "landweber_wavelet needs a wavelet regulariser (a CoefficientRegularizer with "
+                f"prox_coefficients(w, step), regularizers/base.py); got {type(wavelet_regularizer).__name__}"
+            )
         self.wavelet = wavelet
         self.wavelet_regularizer = wavelet_regularizer
         self.pixel_step_ratio = float(pixel_step_ratio)
@@ -100,8 +105,12 @@ class WaveletLandweber(ProximalGradientSolver):
     @staticmethod
     def example_settings() -> dict[str, Any]:
         """Settings of the contract checks (framework/core/contracts/checks.py)."""
-        return {"step_size": {"name": "backtracking", "tau": 5e-3}, "wavelet_regularizer": {"name": "l1_wavelet", "levels": 2},
-                "preconditioner": {"name": "sobolev", "length": [0.25]}, "quasi_newton": {"memory": 8, "from_stage": 0}}
+        return {
+            "step_size": {"name": "backtracking", "tau": 5e-3},
+            "wavelet_regularizer": {"name": "l1_wavelet", "levels": 2},
+            "preconditioner": {"name": "sobolev", "length": [0.25]},
+            "quasi_newton": {"memory": 8, "from_stage": 0},
+        }
 
     @classmethod
     def from_config(cls, step_size: Mapping[str, Any], wavelet_regularizer: Mapping[str, Any],
@@ -127,8 +136,16 @@ class WaveletLandweber(ProximalGradientSolver):
         def build(problem, d0: Tensor) -> WaveletLandweber:
             parts = fresh_parts()  # every run from a start with its own step size and preconditioner stage
             pixel = parts.pop("regularizers")
-            return cls(problem.fidelity, d0, wavelet=shrink.transform_for(problem.grid.shape), wavelet_regularizer=shrink,
-                       pixel_regularizers=pixel, pixel_step_ratio=pixel_step_ratio, context=problem.context, **parts)
+            return cls(
+                problem.fidelity,
+                d0,
+                wavelet=shrink.transform_for(problem.grid.shape),
+                wavelet_regularizer=shrink,
+                pixel_regularizers=pixel,
+                pixel_step_ratio=pixel_step_ratio,
+                context=problem.context,
+                **parts,
+            )
 
         return build
 

@@ -40,7 +40,9 @@ class AutoStart(Start):
         if "auto" in specs:
             raise ValueError("initial.candidates may not contain auto itself")
         self.candidates: list[tuple[str, Any]] = [
-            (name, build_plugin("initial", name, params, f"initial.candidates.{name}")) for name, params in specs.items()]
+            (name, build_plugin("initial", name, params, f"initial.candidates.{name}"))
+            for name, params in specs.items()
+        ]
 
     @staticmethod
     def example_settings() -> dict[str, Any]:

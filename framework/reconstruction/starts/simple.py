@@ -28,7 +28,9 @@ class ZeroStart(Start):
     name = "zero"
 
     def __call__(self, request: StartRequest) -> StartResult:
-        return StartResult(torch.zeros(request.problem.grid.shape, dtype=request.problem.operator.dtype), name=self.name)
+        return StartResult(
+            torch.zeros(request.problem.grid.shape, dtype=request.problem.operator.dtype), name=self.name
+        )
 
 
 class DesignStart(Start):
@@ -64,7 +66,9 @@ class FileStart(Start):
         """The file, which must exist (checked before the run opens)."""
         file = resolve_path(self.path, base_dir)
         if not file.is_file():
-            raise FileNotFoundError(f"initial.path={self.path!r}: {file} does not exist; give a .npy or .png height field")
+            raise FileNotFoundError(
+                f"initial.path={self.path!r}: {file} does not exist; give a .npy or .png height field"
+            )
         return file
 
     def __call__(self, request: StartRequest) -> StartResult:

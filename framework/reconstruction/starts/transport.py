@@ -45,8 +45,8 @@ from regularizers.volume_prox import VolumeSlabL1Bounds
 __all__ = ["TransportStart", "masked_sources", "exit_directions", "fit_masked_surface"]
 
 FD_STEP = 1e-6  # finite-difference step of the Newton solve's Jacobian (direction components)
-NOISE_SIGMAS = 3.0
-LANDING_TOLERANCE_PX = 0.5  # a ray landing farther than this from its goal counts as unreached  # goal pixels within this many noise standard deviations of zero are black
+NOISE_SIGMAS = 3.0  # goal pixels within this many noise standard deviations of zero are black
+LANDING_TOLERANCE_PX = 0.5  # a ray landing farther than this from its goal counts as unreached
 
 
 def light_path_of(operator: Any) -> LightPath:
@@ -207,9 +207,18 @@ class TransportStart(Start):
         checked_number(smoothness, "initial.smoothness", 0.0)
         if not (isinstance(p1, (int, float)) and isinstance(p2, (int, float)) and 0.0 <= p1 < p2 < math.inf):
             raise ValueError(f"initial.p1={p1!r}, initial.p2={p2!r} must satisfy 0 <= p1 < p2 (scene units)")
-        self.photons, self.reach, self.black_level, self.smoothness = photons, float(reach), float(black_level), float(smoothness)
+        self.photons, self.reach, self.black_level, self.smoothness = (
+            photons,
+            float(reach),
+            float(black_level),
+            float(smoothness),
+        )
         self.p1, self.p2, self.volume_tolerance = float(p1), float(p2), float(volume_tolerance)
-        self.outer_iterations, self.newton_steps, self.mass_tolerance = outer_iterations, newton_steps, float(mass_tolerance)
+        self.outer_iterations, self.newton_steps, self.mass_tolerance = (
+            outer_iterations,
+            newton_steps,
+            float(mass_tolerance),
+        )
 
     def __call__(self, request: StartRequest) -> StartResult:
         started = time.perf_counter()
@@ -302,7 +311,9 @@ class TransportStart(Start):
         if context.volume is None:
             return lambda d: torch.where(torch.from_numpy(mask), d.clamp(self.p1, self.p2), torch.zeros_like(d))
         band = VolumeSlabL1Bounds(alpha=0.0, p1=self.p1, p2=self.p2, v_eps=self.volume_tolerance)
-        band.setup(RegularizerContext(mask=torch.from_numpy(mask), volume=context.volume, pixel_area=context.pixel_area))
+        band.setup(
+            RegularizerContext(mask=torch.from_numpy(mask), volume=context.volume, pixel_area=context.pixel_area)
+        )
         return lambda d: band.prox(d, 1.0)
 
 
