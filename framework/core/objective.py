@@ -181,8 +181,9 @@ class DataFidelity:
         """
         self._check_d(d)
         known = self._last_forward
-        fresh = known is not None and known[1] == self._revision() and torch.equal(known[0], d)
-        rendered = known[2] if fresh else None
+        rendered = None
+        if known is not None and known[1] == self._revision() and torch.equal(known[0], d):
+            rendered = known[2]
         if with_grad:
             self.count_passes(renders=int(rendered is None), gradients=1)
             grad, image = self._loss_and_grad(d, rendered)

@@ -114,7 +114,7 @@ def with_scene_lengths(cfg: Mapping[str, Any], mm_per_unit: float) -> dict[str, 
             node[key] = node = dict(node[key])
         else:
             if last == "*":
-                if isinstance(node, Mapping):
+                if isinstance(node, dict):
                     node.update({name: _converted(kind, name, dict(params), mm_per_unit, f"{'.'.join(parents)}.{name}")
                                  for name, params in node.items() if isinstance(params, Mapping)})
             elif isinstance(node.get(last), Mapping) and isinstance(node[last].get("name"), str):

@@ -147,7 +147,7 @@ class PrintConstraints:
         if self.mask is not None:
             outside = ~torch.as_tensor(self.mask, dtype=torch.bool, device=d.device)
             terms.append(d[outside] / self.max_height)
-        total = sum((t ** 2).sum() for t in terms)
+        total = torch.stack([(t ** 2).sum() for t in terms]).sum() if terms else d.new_zeros(())
         if self.volume is not None:
             total = total + ((d.sum() * h ** 2 - self.volume) / self.volume) ** 2 * d.numel()
         return total
@@ -193,7 +193,7 @@ class PrintConstraints:
             dual = rho * np.linalg.norm(stack.T @ (z_new - z))
             u = v - z_new
             z = z_new
-            if max(primal, dual) <= ADMM_TOLERANCE * max(np.linalg.norm(x), 1e-300):
+            if max(primal, dual) <= ADMM_TOLERANCE * max(float(np.linalg.norm(x)), 1e-300):
                 break
         return self._pulled_inside(x.reshape(m, m), allowed.reshape(m, m))
 

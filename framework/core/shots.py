@@ -48,19 +48,21 @@ class ShotSetup:
             raise ValueError(f"{where}: the screen would lie {distance:.4g} below the substrate's bottom (configured "
                              f"{-base.receiver.z:.4g} + offset {self.offset:.4g}), i.e. inside or above the glass; "
                              "give an offset or screen_distance that keeps it below (> 0)")
-        light = tuple(p + o for p, o in zip(base.light.position, self.light_offset))
+        (x, y, z), (dx, dy, dz) = base.light.position, self.light_offset
+        light = (x + dx, y + dy, z + dz)
         if not light[2] > base.substrate.thickness:
             raise ValueError(f"{where}: the light would sit at z = {light[2]:.4g}, not above the substrate's top "
                              f"(z = {base.substrate.thickness:.4g}); check light / light_offset")
-        receiver = dataclasses.replace(base.receiver, z=-distance, **(
-            {} if self.receiver_half_width is None else {"half_width": self.receiver_half_width}))
+        half_width = base.receiver.half_width if self.receiver_half_width is None else self.receiver_half_width
+        receiver = dataclasses.replace(base.receiver, z=-distance, half_width=half_width)
         return dataclasses.replace(base, light=dataclasses.replace(base.light, position=light), receiver=receiver)
 
 
 def _triple(value: Any, where: str, mm: float) -> tuple[float, float, float]:
     if not isinstance(value, (list, tuple)) or len(value) != 3:
         raise ValueError(f"{where}={value!r} must be [x, y, z] (scene units or e.g. '2 mm')")
-    return tuple(scene_length(v, mm, f"{where}[{i}]") for i, v in enumerate(value))  # type: ignore[return-value]
+    x, y, z = (scene_length(v, mm, f"{where}[{i}]") for i, v in enumerate(value))
+    return (x, y, z)
 
 
 def shot_setup(spec: Mapping[str, Any], where: str, base: Scene, mm: float) -> ShotSetup:
@@ -76,7 +78,8 @@ def shot_setup(spec: Mapping[str, Any], where: str, base: Scene, mm: float) -> S
         raise ValueError(f"{where} gives both light and light_offset; give one (light_offset: from light.position)")
     light_offset = (0.0, 0.0, 0.0)
     if spec.get("light") is not None:
-        light_offset = tuple(p - q for p, q in zip(_triple(spec["light"], f"{where}.light", mm), base.light.position))
+        (x, y, z), (x0, y0, z0) = _triple(spec["light"], f"{where}.light", mm), base.light.position
+        light_offset = (x - x0, y - y0, z - z0)
     elif spec.get("light_offset") is not None:
         light_offset = _triple(spec["light_offset"], f"{where}.light_offset", mm)
     half = spec.get("receiver_half_width")
@@ -88,4 +91,4 @@ def shot_setup(spec: Mapping[str, Any], where: str, base: Scene, mm: float) -> S
     weight = checked_number(spec.get("weight", 1.0), f"{where}.weight")
     if not gain > 0.0 or not weight > 0.0:
         raise ValueError(f"{where}: gain={gain} and weight={weight} must both be > 0")
-    return ShotSetup(offset, light_offset, half, gain, weight)  # type: ignore[arg-type]
+    return ShotSetup(offset, light_offset, half, gain, weight)

@@ -188,7 +188,9 @@ def _check_gradient(operator: Any, heights: torch.Tensor, probe: _Probe, who: st
     _, grad, _ = operator.loss_and_grad(heights, target)
     _require(tuple(grad.shape) == tuple(heights.shape), who,
              f"loss_and_grad gives a gradient of shape {tuple(grad.shape)} for heights {tuple(heights.shape)}")
-    loss = lambda image: 0.5 * float(((image - target.double()) ** 2).sum())  # noqa: E731
+    def loss(image: torch.Tensor) -> float:
+        return 0.5 * float(((image - target.double()) ** 2).sum())
+
     numeric = (loss(probe.plus) - loss(probe.minus)) / (2.0 * probe.eps)
     analytic = probe.along(grad)
     _require(probe.close(numeric, analytic), who,
