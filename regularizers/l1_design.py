@@ -28,7 +28,8 @@ class PixelL1DesignBounds(Regularizer):
 
     Args:
         alpha: Weight >= 0 of the L1 deviation (same unit as l1_bounds' alpha).
-        p1, p2: Height bounds on the mask, scene units.
+        p1: Lower height bound on the mask, scene units.
+        p2: Upper height bound on the mask, scene units.
     """
 
     length_keys = ("p1", "p2")

@@ -33,7 +33,9 @@ def backtrack(evaluate: Callable[[float], tuple[float, Any]], bound: Callable[[f
     Args:
         evaluate: tau -> (objective value, the trial) (the trial: whatever the solver keeps).
         bound: (tau, trial) -> the largest objective value the test accepts at that step.
-        tau, shrink, max_trials: The first step, its factor after a rejection, the trials at most.
+        tau: The first step.
+        shrink: The step's factor after a rejection.
+        max_trials: The trials at most.
 
     Returns:
         (the accepted tau, its trial, the trials spent); :class:`LineSearchFailed` after

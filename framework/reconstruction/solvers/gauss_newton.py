@@ -63,7 +63,8 @@ class GaussNewtonLandweber(PixelLandweber):
             iterations per direction at most, their stopping residual relative to the gradient,
             the initial Levenberg-Marquardt factor mu, and the largest height change of the
             forward difference (scene units).
-        Other arguments as :class:`PixelLandweber` (``quasi_newton`` is not used).
+
+    The other arguments are :class:`PixelLandweber`'s (``quasi_newton`` is not used).
     """
 
     name = "gauss_newton"

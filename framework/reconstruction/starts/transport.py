@@ -183,7 +183,8 @@ class TransportStart(Start):
             region's flat-glass light are not given any of it.
         black_level: Goal pixels below this fraction of the brightest get no transport site.
         smoothness: Weight of the squared Laplacian against the slope misfit (dimensionless).
-        p1, p2: Bounds of the heights (scene units) on the mask.
+        p1: Lower bound of the heights on the mask, scene units.
+        p2: Upper bound of the heights on the mask, scene units.
         volume_tolerance: With a known volume, the start's masked heights sum to it within this
             relative band.
         outer_iterations: Rounds of steps 4-5 (the arriving light is taken at the new heights).
