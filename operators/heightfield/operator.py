@@ -182,7 +182,7 @@ class CausticOperator(PhotonOperator):
         replaying = cache.replayable(d, self)  # hits a stack's other shot recorded for these heights
         if not replaying:
             cache.start_render(self)
-        for start, stop in tqdm(self.chunks(), desc="photons", unit="chunk", disable=not progress):
+        for start, stop in tqdm(self.chunks(), desc="photons", unit="chunk", disable=None if progress else True):
             known = cache.hits(d, start, stop) if replaying else None
             self.fused.render(d, start, stop, out, hit_t=known if replaying else cache.slot(start, stop),
                               replay=known is not None)
@@ -227,7 +227,7 @@ class CausticOperator(PhotonOperator):
         image = torch.zeros(self.output_shape, dtype=self.dtype, device=self.device)
         d_gpu = torch.from_numpy(d).to(self.device)
         launches = [(start, stop) for a, b in self.emitter.segments() for start, stop in self.gpu.launches(a, b)]
-        for start, stop in tqdm(launches, desc="photons", unit="launch", disable=not progress):
+        for start, stop in tqdm(launches, desc="photons", unit="launch", disable=None if progress else True):
             self.gpu.render(self.fused.constants(d, start), d_gpu, start, stop, image)
         return self.source_blur.apply(image / self.pixel_area)
 

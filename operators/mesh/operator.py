@@ -174,7 +174,7 @@ class MeshSceneOperator(PhotonOperator):
         image = torch.zeros(self.output_shape, dtype=self.dtype)
         self.losses = dict.fromkeys(LOSSES, 0.0)
         with torch.no_grad():
-            for start, stop in tqdm(self.chunks(), desc="photons", unit="chunk", disable=not progress):
+            for start, stop in tqdm(self.chunks(), desc="photons", unit="chunk", disable=None if progress else True):
                 pos, metric, flux, channel, losses = self.trace(heights.detach().to(self.dtype), start, stop)
                 image += splat_photons(pos, metric, flux, channel, self.scene.channels, self.scene.receiver.resolution)
                 for key, value in losses.items():
