@@ -81,8 +81,6 @@ class ImageOperator(ABC):
 
     Attributes:
         dtype: The dtype of its images and gradients (set by the subclass).
-        photons: Photons a pass traces (set by the subclass; 0 for an operator without photons).
-        pixel_area: The area of a receiver pixel, scene units^2 (set by the subclass).
         conserves_energy: False unless a subclass knows that a print only moves light.
         revision: 0: the setup never changes (an operator whose setup does counts it up).
         has_light_path: False unless a subclass offers ``arrivals`` and ``land_from_bottom``
@@ -97,8 +95,6 @@ class ImageOperator(ABC):
     """
 
     dtype: torch.dtype
-    photons: int
-    pixel_area: float
     conserves_energy: bool = False
     revision: int = 0
     has_light_path: bool = False

@@ -284,6 +284,10 @@ class _Identity(ImageOperator):
     def vjp(self, heights: torch.Tensor, grad_image: torch.Tensor) -> torch.Tensor:
         return grad_image.reshape(self.m, self.m).to(self.dtype)
 
+    def variant(self, photons: int, seed: int, resolution: int) -> _Identity:
+        """The same map on a ``resolution`` x ``resolution`` receiver (it has no sampling)."""
+        return _Identity(resolution)
+
 
 class _Converging(IterativeSolver):
     """Halves the residual of d = d_true each iteration: the discrepancy falls geometrically to 0."""
