@@ -27,19 +27,21 @@ __all__ = ["checked_app", "override_error"]
 # Hydra's own flags that take the next argument, and those after which no run starts.
 FLAGS_WITH_VALUE = ("--config-path", "-cp", "--config-name", "-cn", "--config-dir", "-cd", "--experimental-rerun")
 CUSTOM_CONFIG = ("--config-path", "-cp", "--config-name", "-cn", "--config-dir", "-cd")
+# Hydra's flags that print (the config, help, the search path) instead of running: Hydra reads those lines.
+NO_RUN = ("--cfg", "-c", "--info", "-i", "--help", "-h", "--hydra-help", "--shell-completion", "-sc", "--package", "-p")
 OWN_SEARCH_PATH = "hydra.searchpath"  # configs of the user's own (Hydra checks those; the compose API sees only conf/)
 VALUE_KEYS = ("image", "path", "file", "name", "tau")  # the key a bare value most likely meant, in this order
 MAX_OPTIONS = 12
 
 
 def _overrides(argv: Sequence[str]) -> list[str] | None:
-    """The overrides of a command line, or None where it chooses its own config (then Hydra checks,
-    as it does where the overrides add a config search path)."""
+    """The overrides of a command line, or None where it chooses its own config or asks Hydra to print
+    instead of run (then Hydra checks, as it does where the overrides add a config search path)."""
     out, skip = [], False
     for token in argv:
         if skip:
             skip = False
-        elif token in CUSTOM_CONFIG:
+        elif token in CUSTOM_CONFIG or token in NO_RUN:
             return None
         elif token in FLAGS_WITH_VALUE:
             skip = True
@@ -141,6 +143,9 @@ def _value_for_section(base: DictConfig, overrides: list[str]) -> str | None:
 def override_error(config_name: str, overrides: list[str]) -> str | None:
     """The one-line explanation of what is wrong with ``overrides`` of conf/<config_name>.yaml
     (without ``error:``), or None where they compose."""
+    bare = next((o for o in overrides if "=" not in o and not o.startswith("~")), None)
+    if bare is not None:
+        return f"{bare} has no value; give it as {bare}=<value> (or ~{bare} to remove the key)"
     try:
         combinations = list(_combinations(overrides))
     except OverrideParseException as error:

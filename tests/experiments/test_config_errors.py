@@ -24,6 +24,7 @@ MISTYPED = [
     ("reconstruct", ["hydra/launcher=paralel"], "not an option of hydra/launcher", "did you mean parallel?"),
     ("simulate", ["scene=gausian"], "scene=gausian is not an option of scene", "did you mean gaussian?"),
     ("reconstruct", ["data=photos"], "data=photos is not an option of data", "did you mean photo?"),
+    ("reconstruct", ["solver.max_iter"], "solver.max_iter has no value", "give it as solver.max_iter=<value>"),
 ]
 
 
@@ -42,6 +43,14 @@ def test_a_mistyped_override_is_named_with_its_fix(config, overrides, names, fix
 ])
 def test_overrides_that_compose_pass(config, overrides):
     assert override_error(config, overrides) is None
+
+
+def test_hydras_own_flags_are_left_to_hydra():
+    from experiments.config_errors import _overrides
+
+    assert _overrides(["-m", "scene=a,b", "--cfg", "job", "x=1"]) is None  # prints the config, runs nothing
+    assert _overrides(["-m", "scene=a,b", "--config-dir", "/mine", "x=1"]) is None  # a config of one's own
+    assert _overrides(["-m", "scene=a,b", "--experimental-rerun", "pickle", "x=1"]) == ["scene=a,b", "x=1"]
 
 
 def test_the_command_exits_with_the_one_line_before_any_run(tmp_path):
