@@ -3,10 +3,10 @@ docs/design.md).
 
 Examples::
 
-    sfc-design                                             # grace_hopper, the default method (sfc), 5 minutes
+    sfc-design                             # grace_hopper, the default method (sfc), 5 minutes
     sfc-design target.image=logo.png target.width="60 mm" receiver.z="-200 mm"
-    sfc-design design_method=schwartzburg                         # a baseline: the transport design alone
-    sfc-design design_method=adam            # a baseline: Adam from flat glass (Mitsuba 3 tutorial)
+    sfc-design design_method=schwartzburg  # a baseline: the transport design alone
+    sfc-design design_method=adam          # a baseline: Adam from flat glass (Mitsuba 3 tutorial)
 
 Writes into the Hydra run directory: height_field.npy (scene units), height_field_mm.npy/.png,
 glass.stl and glass.obj (mm), caustic.npy/target.npy, preview_<f>x.npy/.png, design.png,

@@ -17,12 +17,12 @@ from typing import Any
 import torch
 
 from framework.core.callbacks import Checkpointer, GroundTruthError, MetricsHistory, ProgressBar
-from framework.core.progress import report
 from framework.core.checkpoint import resume as resume_solver
 from framework.core.contracts.operator import Operator
 from framework.core.contracts.start import Start, StartRequest, StartResult
 from framework.core.objective import DataFidelity
 from framework.core.problem import Problem
+from framework.core.progress import report
 from framework.core.solver_loop import Callback, RunResult, returned_iterate
 from framework.defects.defect_stage import report_defects
 from framework.files.image_io import resolve_path
@@ -40,9 +40,8 @@ from framework.stack.shot_report import save_shot_record, shot_metrics
 from framework.tracking.mlflow_tracker import MlflowTracker, local_store_uri
 
 CALIBRATION_STATE = "calibration.json"
-LINE_SEARCH_PHOTONS = (
-    1 << 18
-)  # per shot and hypothesis of a stack's line search (framework/reconstruction/feature_search.py)
+# Photons per shot and hypothesis of a stack's line search (framework/reconstruction/feature_search.py).
+LINE_SEARCH_PHOTONS = 1 << 18
 FIRST_FIT_CALIBRATION = "first_fit_calibration.json"  # a stack's first shot's gain, fitted before the stack
 # Refits at most: runs of a start again after one whose calibration moved what the heights absorb.
 MAX_REFITS = 2

@@ -18,9 +18,8 @@ def test_the_graph_sees_the_known_arrows():
     graph = import_graph(ROOT)
     assert "framework.core.registry" in graph["framework.core.plugin_config"]
     assert "operators.scene" in graph["framework.scene.scene_config"]
-    assert (
-        "framework.reconstruction.starts.auto" in graph["framework.reconstruction.starts"]
-    )  # a relative import of a package
+    # a relative import of a package
+    assert "framework.reconstruction.starts.auto" in graph["framework.reconstruction.starts"]
 
 
 def test_a_circle_and_an_arrow_against_the_rooms_are_found():

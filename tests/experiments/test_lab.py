@@ -29,9 +29,8 @@ def test_a_photo_reconstructs_as_well_as_the_render_it_shows(tmp_path) -> None:
                       REFERENCE_PHOTONS)
     assert row["import_error"] < 0.02  # the rectified, linearised, flat-fielded photo against the render
     assert row["weighted_out"] > 0  # its saturated pixels left the fit
-    assert (
-        row["photo_error"] <= 1.4 * row["clean_error"] and row["photo_error"] < 0.01
-    )  # the bump: 0.0053 against 0.0041
+    # the bump: 0.0053 against 0.0041
+    assert row["photo_error"] <= 1.4 * row["clean_error"] and row["photo_error"] < 0.01
 
 
 @pytest.mark.slow

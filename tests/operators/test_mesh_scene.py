@@ -53,9 +53,8 @@ def test_the_plain_scene_is_the_height_field_operator_with_its_side_walls_light(
     emitted = float(mesh.emitter.batch(0, mesh.photons).flux.sum())
     extra = float(image.sum() - blackened.sum()) * mesh.pixel_area
     assert extra > 0.002 * emitted  # measured: 0.32% of the light, all of it in the rim
-    assert (
-        mesh.losses["missed_receiver"] > 0.005 * emitted
-    )  # measured 0.95%: the slab's shadow is wider than the receiver
+    # measured 0.95%: the slab's shadow is wider than the receiver
+    assert mesh.losses["missed_receiver"] > 0.005 * emitted
 
 
 def test_the_plain_scene_under_a_disc_is_the_height_field_operator_s_and_elements_refuse_it():
