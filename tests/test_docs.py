@@ -1,5 +1,5 @@
 """The manual says what the code holds: the keys page is made from conf/, and the reference names
-every module of the plugin contracts, the regularisers and the solvers."""
+every module of the plugin contracts, the operators, the regularisers and the solvers."""
 
 from __future__ import annotations
 
@@ -9,9 +9,10 @@ from pathlib import Path
 from experiments.config_reference import Key, config_keys, main
 
 ROOT = Path(__file__).resolve().parents[1]
-# Where the public classes and functions of the contracts, regularisers and solvers live.
+# Where the public classes and functions of the contracts, operators, regularisers and solvers live
+# (operators/ with its subpackages).
 DOCUMENTED = ("framework/core/contracts", "regularizers", "framework/reconstruction/solvers",
-              "framework/reconstruction/starts", "framework/optimization")
+              "framework/reconstruction/starts", "framework/optimization", "operators/**")
 
 
 def test_the_keys_page_is_made_from_the_configs():
@@ -38,10 +39,10 @@ seed: 0
                                  Key("seed", "0", "")]
 
 
-def test_the_reference_names_every_module_of_the_contracts_regularisers_and_solvers():
+def test_the_reference_names_every_module_of_the_contracts_operators_regularisers_and_solvers():
     named = {m for page in (ROOT / "docs" / "reference").glob("*.md")
              for m in re.findall(r"^::: ([\w.]+)$", page.read_text(), flags=re.M)}
     modules = {path.relative_to(ROOT).with_suffix("").as_posix().replace("/", ".")
-               for folder in DOCUMENTED for path in (ROOT / folder).glob("*.py")
+               for folder in DOCUMENTED for path in ROOT.glob(f"{folder}/*.py")
                if not path.name.startswith("_")}
     assert modules - named == set()
