@@ -31,7 +31,6 @@ from typing import Any
 
 import torch
 
-import conf
 from experiments.timing import best_seconds
 from framework.scene.printed_shapes import make_shape
 
@@ -49,15 +48,12 @@ def configured_operator(scene_name: str, resolution: int, photons: int, seed: in
                         scene_overrides: tuple[str, ...] = ()) -> Any:
     """The operator of ``conf/operator/<scene_name>.yaml`` with ``design``'s footprint settings and
     ``scene_overrides`` (Hydra overrides of the scene, e.g. ``receiver.z=-0.2``)."""
-    from hydra import compose, initialize_config_dir
-    from omegaconf import OmegaConf
-
+    from experiments.configs import app_config
     from framework.scene.scene_config import build_operator, build_scene
 
     overrides = [f"operator={scene_name}", f"photons={photons}", f"seed={seed}", f"receiver.resolution={resolution}",
                  *[f"operator.{key}={value}" for key, value in design.items()], *scene_overrides]
-    with initialize_config_dir(config_dir=conf.DIRECTORY, version_base=None):
-        cfg = OmegaConf.to_container(compose("simulate", overrides=overrides), resolve=True)
+    cfg = app_config("simulate", overrides)
     return build_operator(cfg, build_scene(cfg))
 
 

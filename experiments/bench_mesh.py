@@ -9,7 +9,6 @@ import math
 import numpy as np
 import torch
 
-import conf
 from experiments.timing import best_seconds
 from operators.emission import CELL_FOOTPRINT, check_footprint
 
@@ -31,16 +30,12 @@ def mesh_scene_operators(photons: int, footprint_px: float | str, supersample: i
     two_lenses.yaml; with the C event kernels, the numba ones, and the torch tracer that both are
     tested against), each from its config with the same photons, footprint and receiver
     (``supersample`` x finer, operators/supersample.py)."""
-    from hydra import compose, initialize_config_dir
-    from omegaconf import OmegaConf
-
+    from experiments.configs import app_config
     from framework.scene.scene_config import build_operator, build_scene
 
     def configured(name: str, *extra: str) -> object:
-        with initialize_config_dir(config_dir=conf.DIRECTORY, version_base=None):
-            cfg = OmegaConf.to_container(compose("simulate", overrides=[
-                f"operator={name}", f"photons={photons}", f"operator.footprint_px={footprint_px}",
-                f"operator.supersample={supersample}", *extra]), resolve=True)
+        cfg = app_config("simulate", [f"operator={name}", f"photons={photons}", f"operator.footprint_px={footprint_px}",
+                                      f"operator.supersample={supersample}", *extra])
         return build_operator(cfg, build_scene(cfg))
 
     return {"height_field": configured("height_field"),

@@ -19,13 +19,9 @@ from pathlib import Path
 from typing import Any
 from collections.abc import Sequence
 
-from hydra import compose, initialize_config_dir
-
-import conf
+from experiments.configs import reconstruct_config
 from framework.reconstruction.reconstruction import run_reconstruction
-from framework.scene.scene_config import to_plain
 
-CONFIG_DIR = conf.DIRECTORY
 
 # The solver before momentum and the photon budget (docs/performance.md, "Fewer photon-traces").
 EARLIER_SOLVER = ("solver.momentum_from=null", "photon_budget.start=null")
@@ -37,9 +33,7 @@ KEPT = ("iterations", "renders", "gradient_passes", "photon_traces", "photons_pe
 def run_once(overrides: Sequence[str], workdir: Path, name: str) -> dict[str, Any]:
     """One reconstruction with ``overrides`` in ``workdir / name`` (its own MLflow store); the
     figures it reports (:data:`KEPT`), renders and passes per iteration."""
-    with initialize_config_dir(config_dir=CONFIG_DIR, version_base=None):
-        cfg = to_plain(compose("reconstruct", overrides=[*overrides, f"tracking.store_dir={workdir / 'mlruns'}",
-                                                          "compile_in_background=false"]))
+    cfg = reconstruct_config([*overrides, f"tracking.store_dir={workdir / 'mlruns'}", "compile_in_background=false"])
     began = time.perf_counter()
     with contextlib.redirect_stdout(sys.stderr):  # the run's verdict lines; stdout carries the JSON report
         metrics = run_reconstruction(cfg, workdir / name, workdir)

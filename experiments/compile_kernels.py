@@ -37,15 +37,11 @@ def _heightfield() -> None:
 
 def _mesh() -> None:
     """The mesh-scene operator's numba event kernels (render and gradient through the paper's lenses)."""
-    from hydra import compose, initialize_config_dir
+    from experiments.configs import app_config
+    from framework.scene.scene_config import build_heights, build_operator, build_scene
 
-    from experiments.configs import CONF
-    from framework.scene.scene_config import build_heights, build_operator, build_scene, to_plain
-
-    with initialize_config_dir(config_dir=CONF, version_base=None):
-        cfg = to_plain(compose("simulate", overrides=[
-            "operator=two_lenses", "operator.kernels=numba", "photons=256", "receiver.resolution=8",
-            "height_field.resolution=8", "operator.dtype=float64"]))
+    cfg = app_config("simulate", ["operator=two_lenses", "operator.kernels=numba", "photons=256",
+                                  "receiver.resolution=8", "height_field.resolution=8", "operator.dtype=float64"])
     op = build_operator(cfg, build_scene(cfg))
     d = build_heights(cfg).double()
     op.render(d)

@@ -10,13 +10,15 @@ from hydra import compose, initialize_config_dir
 import conf
 from framework.scene.scene_config import to_plain
 
-CONF = conf.DIRECTORY
+def app_config(name: str, overrides: list[str]) -> dict[str, Any]:
+    """The plain config of conf/<name>.yaml (reconstruct, design, simulate) with ``overrides``."""
+    with initialize_config_dir(config_dir=conf.DIRECTORY, version_base=None):
+        return to_plain(compose(name, overrides=overrides))
 
 
 def reconstruct_config(overrides: list[str]) -> dict[str, Any]:
     """The plain config of conf/reconstruct.yaml with ``overrides``."""
-    with initialize_config_dir(config_dir=CONF, version_base=None):
-        return to_plain(compose("reconstruct", overrides=overrides))
+    return app_config("reconstruct", overrides)
 
 
 def chooses_start(overrides: list[str]) -> bool:

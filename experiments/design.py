@@ -30,10 +30,8 @@ from framework.design.design_run import run_design
 from framework.design.design_setup import prepare_design
 from framework.scene.scene_config import to_plain
 
-CONFIG_DIR = conf.DIRECTORY
 
-
-@hydra.main(version_base=None, config_path=CONFIG_DIR, config_name="design")
+@hydra.main(version_base=None, config_path=conf.DIRECTORY, config_name="design")
 @one_line_input_errors
 def app(cfg: DictConfig) -> None:
     """Hydra entry point: check everything, design, print the verdict and where the files went."""

@@ -33,10 +33,8 @@ from framework.core.progress import Heartbeat
 from framework.reconstruction.reconstruction import run_reconstruction
 from framework.scene.scene_config import to_plain
 
-CONFIG_DIR = conf.DIRECTORY
 
-
-@hydra.main(version_base=None, config_path=CONFIG_DIR, config_name="reconstruct")
+@hydra.main(version_base=None, config_path=conf.DIRECTORY, config_name="reconstruct")
 @one_line_input_errors
 def app(cfg: DictConfig) -> None:
     """Hydra entry point: one reconstruction per job; multirun jobs share an MLflow sweep id."""

@@ -19,25 +19,20 @@ import time
 from pathlib import Path
 
 import numpy as np
-from hydra import compose, initialize_config_dir
 from matplotlib.figure import Figure
-from omegaconf import OmegaConf
 
-import conf
+from experiments.configs import app_config
 from experiments.mlflow_store import TrackingStore, artifact, latest_runs, reproduction_parser, tracking_store
 from framework.scene.scene_config import build_heights, build_operator, build_scene
 from framework.tracking.mlflow_tracker import MlflowTracker
 
 EXPERIMENT = "fig4"
 SCENES = ("two_lenses", "prism_lens_array")
-CONF = conf.DIRECTORY
 
 
 def render_pair(operator_name: str, photons: int, seed: int, overrides: list[str]) -> tuple[np.ndarray, float, float]:
     """The mean of two renders with independent photons (c, n, n), their intrinsic noise and seconds."""
-    with initialize_config_dir(config_dir=CONF, version_base=None):
-        cfg = OmegaConf.to_container(compose("simulate", overrides=[f"operator={operator_name}", f"photons={photons}",
-                                                                    *overrides]), resolve=True)
+    cfg = app_config("simulate", [f"operator={operator_name}", f"photons={photons}", *overrides])
     scene = build_scene(cfg)
     heights = build_heights(cfg)
     first = build_operator({**cfg, "seed": seed}, scene)

@@ -29,9 +29,6 @@ from framework.scene.scene_config import build_heights, build_operator, build_sc
 
 # Absolute, so that the installed console script finds the configs too (a relative
 # "../conf" would be looked up as the package "conf", which is not installed).
-CONFIG_DIR = conf.DIRECTORY
-
-
 def simulate(cfg: DictConfig, output_dir: Path, base_dir: Path | None = None) -> dict[str, float]:
     """Render the configured scene and write the outputs into ``output_dir``; returns run figures."""
     scene = build_scene(cfg)
@@ -59,7 +56,7 @@ def simulate(cfg: DictConfig, output_dir: Path, base_dir: Path | None = None) ->
             "photons_per_s": operator.photons / max(seconds, 1e-12)}
 
 
-@hydra.main(version_base=None, config_path=CONFIG_DIR, config_name="simulate")
+@hydra.main(version_base=None, config_path=conf.DIRECTORY, config_name="simulate")
 @one_line_input_errors
 def app(cfg: DictConfig) -> None:
     """Hydra entry point: simulate, then report where the files went, the power and the speed."""
