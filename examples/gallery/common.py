@@ -1,17 +1,18 @@
-"""What the gallery scripts share: a small reconstruction config composed from conf/ and a figure of
-height fields side by side."""
+"""What the gallery scripts share: a small reconstruction config composed from conf/, a figure of
+height fields side by side, a reconstruction drawn against its truth, and the command line."""
 
 from __future__ import annotations
 
+import argparse
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-from hydra import compose, initialize_config_dir
 from matplotlib.figure import Figure
 
-import conf
-from framework.scene.scene_config import to_plain
+from experiments.configs import app_config
+from framework.reconstruction.reconstruction import run_reconstruction
 
 # A small problem that still runs the real operator: 64 x 64 heights and receiver pixels.
 SMALL = ["receiver.resolution=64", "height_field.resolution=64", "data.reference_resolution=128"]
@@ -19,8 +20,7 @@ SMALL = ["receiver.resolution=64", "height_field.resolution=64", "data.reference
 
 def config(name: str, overrides: list[str], store: Path) -> dict[str, Any]:
     """The plain config of conf/<name>.yaml with ``overrides``, logging to the MLflow store ``store``."""
-    with initialize_config_dir(config_dir=conf.DIRECTORY, version_base=None):
-        return to_plain(compose(name, overrides=[*overrides, f"tracking.store_dir={store}"]))
+    return app_config(name, [*overrides, f"tracking.store_dir={store}"])
 
 
 def heights_figure(panels: dict[str, np.ndarray], out: Path, title: str) -> Path:
@@ -40,3 +40,20 @@ def heights_figure(panels: dict[str, np.ndarray], out: Path, title: str) -> Path
     out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out, dpi=100)
     return out
+
+
+def truth_against_reconstruction(cfg: dict[str, Any], work: Path, figure: Path, label: str) -> Path:
+    """Run the reconstruction ``cfg`` (synthetic data) into ``work``/run and draw its result beside the
+    truth, ``label`` and the run's iterations, discrepancy and error in the title; returns ``figure``."""
+    metrics = run_reconstruction(cfg, work / "run", work)
+    truth, result = np.load(work / "run" / "ground_truth.npy"), np.load(work / "run" / "height_field.npy")
+    title = (f"{label}{metrics['method']}: {metrics['iterations']} iterations, discrepancy "
+             f"{metrics['discrepancy_over_delta']:.2f} x the noise level, error {metrics['rel_error']:.4f}")
+    return heights_figure({"truth": truth, "reconstruction": result}, figure, title)
+
+
+def command_line(main: Callable[[Path], Path], doc: str) -> None:
+    """Run a gallery script's ``main`` on the --out folder of its command line and say what it wrote."""
+    parser = argparse.ArgumentParser(description=doc.split("\n\n")[0])
+    parser.add_argument("--out", type=Path, default=Path("figures"), help="folder of the figure and the runs")
+    print(f"wrote {main(parser.parse_args().out)}")

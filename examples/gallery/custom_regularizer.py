@@ -7,12 +7,11 @@ paper's M2V0 (L1 and bounds, no volume term) on the same data.
 
 from __future__ import annotations
 
-import argparse
 from pathlib import Path
 
 import numpy as np
 
-from examples.gallery.common import SMALL, config, heights_figure
+from examples.gallery.common import SMALL, command_line, config, heights_figure
 from examples.plugins.l2_regularizer import PixelL2
 from framework.core.registry import available, register
 from framework.reconstruction.reconstruction import run_reconstruction
@@ -40,6 +39,4 @@ def main(out: Path) -> Path:
 
 
 if __name__ == "__main__":
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--out", type=Path, default=Path("figures"), help="folder of the figure and the runs")
-    print(f"wrote {main(parser.parse_args().out)}")
+    command_line(main, __doc__)

@@ -8,13 +8,12 @@ designed heights and their caustic rendered independently.
 
 from __future__ import annotations
 
-import argparse
 from pathlib import Path
 
 import numpy as np
 from matplotlib.figure import Figure
 
-from examples.gallery.common import config
+from examples.gallery.common import command_line, config
 from framework.design.design_run import run_design
 from framework.design.design_setup import prepare_design
 
@@ -46,6 +45,4 @@ def main(out: Path) -> Path:
 
 
 if __name__ == "__main__":
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--out", type=Path, default=Path("figures"), help="folder of the figure and the run")
-    print(f"wrote {main(parser.parse_args().out)}")
+    command_line(main, __doc__)
