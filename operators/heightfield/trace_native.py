@@ -91,12 +91,12 @@ class FusedTracer:
         _check_contiguous(d=d, out=out)
         if replay and hit_t is None:
             raise ValueError("replay needs the recorded hits (hit_t)")
+        arguments = (d, self.constants(d, start), self.shifts, self.indices, start, stop, out, self.capacity, splat,
+                     NO_HITS if hit_t is None else hit_t, replay)
         if self.compiled:
-            return trace_compiled.render(d, self.constants(d, start), self.shifts, self.indices, start, stop, out,
-                                         self.capacity, splat, NO_HITS if hit_t is None else hit_t, replay)
+            return trace_compiled.render(*arguments)
         with nb.parallel_chunksize(1):
-            return render_photons(d, self.constants(d, start), self.shifts, self.indices, start, stop, out,
-                                  self.capacity, splat, NO_HITS if hit_t is None else hit_t, replay)
+            return render_photons(*arguments)
 
     def pad_gradient(self, grad_image: np.ndarray, divisor: float = 1.0) -> np.ndarray:
         """The adjoint image G / divisor (c, n, n) as :meth:`vjp` takes it: float64 with a zero
@@ -111,33 +111,13 @@ class FusedTracer:
         start .. stop-1, G>, ``padded`` = :meth:`pad_gradient` (G). ``hit_t``: the hits that
         :meth:`render` recorded for these photons and these heights, replayed instead of searched."""
         _check_contiguous(d=d, padded=padded, out=out)
+        arguments = (d, self.constants(d, start), self.shifts, self.indices, start, stop, padded, self.gather_pad,
+                     out, NO_HITS if hit_t is None else hit_t)
         if self.compiled:
-            trace_compiled.vjp(
-                d,
-                self.constants(d, start),
-                self.shifts,
-                self.indices,
-                start,
-                stop,
-                padded,
-                self.gather_pad,
-                out,
-                NO_HITS if hit_t is None else hit_t,
-            )
+            trace_compiled.vjp(*arguments)
             return
         with nb.parallel_chunksize(1):
-            vjp_photons(
-                d,
-                self.constants(d, start),
-                self.shifts,
-                self.indices,
-                start,
-                stop,
-                padded,
-                self.gather_pad,
-                out,
-                NO_HITS if hit_t is None else hit_t,
-            )
+            vjp_photons(*arguments)
 
 
 def _check_contiguous(**arrays: np.ndarray) -> None:
