@@ -54,13 +54,12 @@ def _combinations(overrides: list[str]) -> Iterator[list[str]]:
     """``overrides`` with each sweep (``a=1,2``, ``range(..)``, ``glob(..)``) given its values in turn,
     the others at their first value: every value is composed once."""
     parsed = OverridesParser.create().parse_overrides(overrides)
-    first = [next(iter(o.sweep_string_iterator())) if o.is_sweep_override() else o.input_line for o in parsed]
-    first = [f"{o.get_key_element()}={v}" if o.is_sweep_override() else v for o, v in zip(parsed, first)]
+    values = [list(o.sweep_string_iterator()) if o.is_sweep_override() else [] for o in parsed]
+    first = [f"{o.get_key_element()}={v[0]}" if v else o.input_line for o, v in zip(parsed, values)]
     yield first
-    for index, override in enumerate(parsed):
-        if override.is_sweep_override():
-            for value in list(override.sweep_string_iterator())[1:]:
-                yield [*first[:index], f"{override.get_key_element()}={value}", *first[index + 1 :]]
+    for index, (override, sweep) in enumerate(zip(parsed, values)):
+        for value in sweep[1:]:
+            yield [*first[:index], f"{override.get_key_element()}={value}", *first[index + 1 :]]
 
 
 def _compose(config_name: str, overrides: list[str]) -> DictConfig:
@@ -161,8 +160,11 @@ def override_error(config_name: str, overrides: list[str]) -> str | None:
                 return _unknown_key(config_name, combination, found.group(1))
             return " ".join(str(error).split())
         groups = _group_keys(composed)
+        values = [o for o in combination if _key(o) not in groups]
+        if not values:  # only options of config groups chosen: no value that could meet a section
+            continue
         chosen = [o for o in combination if _key(o) in groups]
-        problem = _value_for_section(_compose(config_name, chosen), [o for o in combination if _key(o) not in groups])
+        problem = _value_for_section(_compose(config_name, chosen), values)
         if problem is not None:
             return problem
     return None
