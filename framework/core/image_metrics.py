@@ -58,7 +58,7 @@ def _blur(v: Tensor) -> Tensor:
         index = torch.arange(-radius, n + radius, device=v.device) % (2 * n)
         index = torch.where(index >= n, 2 * n - 1 - index, index)
         padded = v.index_select(dim, index)
-        v = torch.stack([window[k] * padded.narrow(dim, k, n) for k in range(2 * radius + 1)]).sum(0)
+        v = sum((window[k] * padded.narrow(dim, k, n) for k in range(2 * radius + 1)), torch.zeros_like(v))
     return v
 
 

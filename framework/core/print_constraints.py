@@ -147,7 +147,7 @@ class PrintConstraints:
         if self.mask is not None:
             outside = ~torch.as_tensor(self.mask, dtype=torch.bool, device=d.device)
             terms.append(d[outside] / self.max_height)
-        total = torch.stack([(t ** 2).sum() for t in terms]).sum() if terms else d.new_zeros(())
+        total = sum(((t ** 2).sum() for t in terms), d.new_zeros(()))
         if self.volume is not None:
             total = total + ((d.sum() * h ** 2 - self.volume) / self.volume) ** 2 * d.numel()
         return total
