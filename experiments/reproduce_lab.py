@@ -41,8 +41,8 @@ from PIL import Image
 from experiments.calibrate_screen import calibrate
 from experiments.configs import known_print, reconstruct_config
 from experiments.mlflow_store import TrackingStore
-from framework.core.callbacks import GroundTruthError
 from framework.core.data import resample_image
+from framework.core.truth import height_errors
 from framework.lab.calibration import with_setup
 from framework.lab.photo_synthesis import synthesize_photo
 from framework.reconstruction.parts import Reconstruction
@@ -180,9 +180,9 @@ def with_noise(image: np.ndarray, delta: float, seed: int) -> np.ndarray:
 
 
 def error_against(truth: torch.Tensor, run_dir: Path, cfg: dict[str, Any]) -> float:
-    """The run's relative error of h + d against h + d_true (framework/core/callbacks.py, GroundTruthError)."""
+    """The run's relative error of h + d against h + d_true (framework/core/truth.py, height_errors)."""
     d = torch.from_numpy(np.load(run_dir / "height_field.npy"))
-    return GroundTruthError(truth, float(cfg["substrate"]["thickness"])).errors(d)["rel_error"]
+    return height_errors(d, truth, float(cfg["substrate"]["thickness"]))["rel_error"]
 
 
 def calibration_study(scene: str, work: Path, store: TrackingStore, overrides: list[str],

@@ -5,12 +5,12 @@ deliberately broken operator, regulariser, solver and stopping rule fail them.""
 
 from __future__ import annotations
 
-import pytest
-import torch
-
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
+import pytest
+import torch
 
 from framework.core.contracts.checks import (
     BASES,
@@ -27,7 +27,7 @@ from framework.core.contracts.checks import (
     smooth_bump,
 )
 from framework.core.contracts.data_source import DataRequest, ShotStack
-from framework.core.contracts.start import StartRequest
+from framework.core.contracts.start import StartRequest, StartResult
 from framework.core.data import ReconstructionData
 from operators.stack import StackOperator
 from framework.core.masks import mask_from_height_field
@@ -35,6 +35,7 @@ from framework.core.problem import HeightGrid, Problem
 from framework.reconstruction.stopping import StagnationStopping
 from framework.core.plugin_config import build_plugin
 from framework.core.registry import KINDS, available, declared, register
+from framework.reconstruction.feature_search import SearchedLines
 from operators.scene import Receiver, Scene
 from regularizers import PixelL1
 from examples.plugins.exact_step_solver import ExactStepSolver
@@ -63,9 +64,18 @@ def known_problem() -> Problem:
         mask=mask,
         volume=float(truth.double().sum()) * grid.cell_area,
         delta=0.01,
-        ground_truth=truth.double(),
     )
     return Problem(operator, data, grid, scene)
+
+
+def _truth() -> torch.Tensor:
+    """The known problem's heights (m, m), float64: what its data were rendered from."""
+    return smooth_bump(M, 0.05).double()
+
+
+def _start_request(problem: Problem, directory: Path) -> StartRequest:
+    """A start's request on the known problem, whose data carry a design (the truth 10% lower)."""
+    return StartRequest(replace(problem, data=replace(problem.data, design=0.9 * _truth())), directory)
 
 
 def _operator_maker(name: str, photons: int = 20_000):
@@ -145,7 +155,7 @@ def test_the_test_suites_solver_keeps_the_contract(known_problem) -> None:
 
 
 def test_the_test_suites_start_and_stopping_rule_keep_the_contract(known_problem, tmp_path) -> None:
-    request = StartRequest(known_problem, lambda: known_problem.data.ground_truth.clone(), tmp_path)
+    request = _start_request(known_problem, tmp_path)
     check_start(MaskMeanStart(), request, who="initial/mask_mean")
     check_stopping(lambda: SmallChangeStopping(1e-9), who="stopping/small_change")
 
@@ -166,9 +176,7 @@ def test_the_example_regularizer_keeps_the_contract_and_its_prox_is_the_closed_f
 def test_the_example_data_source_keeps_the_contract_and_refuses_bad_archives(known_problem, tmp_path) -> None:
     target, mask = known_problem.data.target.double().numpy(), known_problem.data.mask.numpy()
     np.savez(tmp_path / "caustic.npz", caustic=target[0], mask=mask)
-    request = DataRequest(
-        known_problem.operator, known_problem.grid, lambda: known_problem.data.ground_truth.clone(), 0, tmp_path
-    )
+    request = DataRequest(known_problem.operator, known_problem.grid, _truth, 0, tmp_path)
     source = NpzData("caustic.npz", delta=0.02, volume=known_problem.data.volume)
     check_data_source(source, request, who="data/npz")
     assert torch.equal(source.load(request).target.double(), known_problem.data.target.double())
@@ -199,7 +207,7 @@ def _start_settings(name: str, directory: Path) -> dict:
 @pytest.mark.parametrize("name", available("initial"))
 def test_every_start_keeps_the_contract(name, known_problem, tmp_path) -> None:
     start = build_plugin("initial", name, _start_settings(name, tmp_path), "initial")
-    request = StartRequest(known_problem, lambda: known_problem.data.ground_truth.clone(), tmp_path)
+    request = _start_request(known_problem, tmp_path)
     check_start(start, request, who=f"initial/{name}")
 
 
@@ -226,7 +234,7 @@ def test_every_data_source_keeps_the_contract(name, known_problem, tmp_path) -> 
     if isinstance(source, ShotStack):  # the run renders through the stacked operator of the shots' setups
         operator = StackOperator([type(operator)(setup.scene(known_problem.scene, "shot"), operator.settings)
                                   for setup in source.setups(known_problem.scene, 25.0)])
-    request = DataRequest(operator, known_problem.grid, lambda: known_problem.data.ground_truth.clone(), 0, tmp_path)
+    request = DataRequest(operator, known_problem.grid, _truth, 0, tmp_path)
     check_data_source(source, request, who=f"data/{name}")
 
 
@@ -258,6 +266,23 @@ class _NeverStops(StagnationStopping):
     def on_iteration(self, solver, record):
         super().on_iteration(solver, record)
         return None
+
+
+class _QuietDesignReader(MaskMeanStart):
+    """A start that reads the print's design without declaring it (``reads_design`` stays False)."""
+
+    def __call__(self, request: StartRequest) -> StartResult:
+        return StartResult(request.design().to(request.problem.operator.dtype), name="quiet")
+
+
+def test_a_start_that_reads_the_design_declares_it_and_so_does_the_line_search_wrapping_it(
+        known_problem, tmp_path) -> None:
+    request = _start_request(known_problem, tmp_path)
+    with pytest.raises(ContractViolation, match="declares reads_design=False but refuses data without a design"):
+        check_start(_QuietDesignReader(), request, who="initial/quiet")
+    design = build_plugin("initial", "design", {}, "initial")
+    searched = SearchedLines(design, request)
+    assert searched.reads_design and not SearchedLines(MaskMeanStart(), request).reads_design
 
 
 def test_a_broken_plugin_of_each_kind_fails_the_contract(known_problem) -> None:

@@ -35,7 +35,8 @@ NEEDS = {("solver", "gradient_descent"): ["experiment=m1"], ("solver", "gradient
          ("solver", "landweber_wavelet"): ["experiment=m3v1"], ("solver", "schwartzburg"): ["experiment=schwartzburg"],
          ("data", "file"): ["data.image=caustic.npy"],
          ("data", "photo"): ["data.photo=photo.npy", "data.corners=[[0,63],[63,63],[63,0],[0,0]]"],
-         ("initial", "file"): ["initial.path=start.npy"], ("experiment", "design"): ["data.printed=start.npy"]}
+         ("initial", "file"): ["initial.path=start.npy"], ("experiment", "design"): ["data.printed=start.npy"],
+         ("initial", "design"): ["data.printed=start.npy"]}
 GROUPS = [
     "scene",
     "operator",

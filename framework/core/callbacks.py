@@ -11,12 +11,12 @@ from collections import defaultdict
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-import torch
 from torch import Tensor
 
 from framework.core.checkpoint import save_checkpoint
 from framework.core.progress import report
 from framework.core.solver_loop import Callback
+from framework.core.truth import GroundTruth
 from operators.values import checked_whole, described
 
 if TYPE_CHECKING:
@@ -137,38 +137,27 @@ class Checkpointer(Callback):
 
 
 class GroundTruthError(Callback):
-    """Adds the relative height errors to each record (for simulated data with known d_true).
-
-    ``rel_error``   = ||(h + d) - (h + d_true)|| / ||h + d_true||  (the paper's / official definition,
-    relative to the total height including the substrate thickness h);
-    ``rel_error_d`` = ||d - d_true|| / ||d_true||  (relative to the printed part alone).
+    """Adds the relative height errors against the ground truth of synthetic data to each record
+    (``rel_error``, ``rel_error_d``: framework/core/truth.py, :func:`height_errors`).
 
     Args:
-        d_true: Ground-truth height field (m, m), scene units.
+        truth: The sealed ground truth (m, m).
         substrate_thickness: h >= 0, scene units (official default 0.1).
     """
 
     order = -100
 
-    def __init__(self, d_true: Tensor, substrate_thickness: float) -> None:
-        if not isinstance(d_true, Tensor) or d_true.ndim != 2:
-            raise ValueError(f"d_true must be an (m, m) tensor, got {described(d_true)}")
+    def __init__(self, truth: GroundTruth, substrate_thickness: float) -> None:
+        if not isinstance(truth, GroundTruth):
+            raise ValueError(f"truth must be a GroundTruth (framework/core/truth.py), got {described(truth)}")
         h = float(substrate_thickness)
         if not (math.isfinite(h) and h >= 0.0):
             raise ValueError(f"substrate_thickness h must be finite and >= 0, got {substrate_thickness!r}")
-        self.d_true, self.h = d_true.detach(), h
-        self._norm_total = float(torch.linalg.vector_norm((h + self.d_true).double()))
-        self._norm_d = float(torch.linalg.vector_norm(self.d_true.double()))
-        if self._norm_total == 0.0:
-            raise ValueError("h + d_true is zero everywhere; the relative error is undefined")
+        self.truth, self.h = truth, h
 
     def errors(self, d: Tensor) -> dict[str, float]:
-        """Both relative errors of the height field d (same shape as d_true)."""
-        if tuple(d.shape) != tuple(self.d_true.shape):
-            raise ValueError(f"d has shape {tuple(d.shape)}, d_true {tuple(self.d_true.shape)}")
-        diff = float(torch.linalg.vector_norm((d - self.d_true.to(d.device)).double()))
-        # (h + d) - (h + d_true) = d - d_true; only the normalisation differs.
-        return {"rel_error": diff / self._norm_total, "rel_error_d": diff / self._norm_d if self._norm_d else math.inf}
+        """Both relative errors of the height field d (m, m)."""
+        return self.truth.errors(d, self.h)
 
     def on_iteration(self, solver, record) -> None:  # noqa: D102
         record.extras.update(self.errors(solver.d))

@@ -11,13 +11,14 @@ Noise is added after resampling, so delta is the noise level of the data the sol
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from collections.abc import Callable
 
 import torch
 import torch.nn.functional as F
 
 from framework.core.masks import mask_from_height_field
+from framework.core.truth import GroundTruth
 from operators.values import checked_number
 
 
@@ -28,7 +29,8 @@ class ReconstructionData:
     target: b^delta (c, n, n); mask: printed area (m, m) bool; volume: deposited volume in scene
     units^3 (None if unknown); delta: relative noise level for the discrepancy principle;
     weights (c, n, n) in [0, 1]: pixels the fit uses (None: all; a photo's saturated pixels get 0);
-    ground_truth (m, m), clean (c, n, n) and intrinsic_noise: synthetic data only; left_out:
+    ground_truth (sealed, framework/core/truth.py) and intrinsic_noise: synthetic data only, the
+    truth taken off before the data reach a problem (:meth:`without_truth`); left_out:
     receiver pixels at weight 0 by reason (e.g. ``saturated``, ``unlit``), for the run's report;
     source: the file the measured data were read from (the run logs it as the dataset's source);
     design: the print's design (m, m), scene units, when one was given (None: no design, or synthetic
@@ -45,8 +47,7 @@ class ReconstructionData:
     volume: float | None
     delta: float
     weights: torch.Tensor | None = None
-    ground_truth: torch.Tensor | None = None
-    clean: torch.Tensor | None = None
+    ground_truth: GroundTruth | None = None
     intrinsic_noise: float | None = None
     left_out: dict[str, int] = field(default_factory=dict)
     source: str | None = None
@@ -55,6 +56,10 @@ class ReconstructionData:
     start_shot: int = 0
     first_fit_shot: int | None = None
     line_search: bool = False
+
+    def without_truth(self) -> ReconstructionData:
+        """These data, and every shot's, without the ground truth: what a problem carries."""
+        return replace(self, ground_truth=None, shots=tuple(shot.without_truth() for shot in self.shots))
 
 
 def weighted_norm_sq(image: torch.Tensor, weights: torch.Tensor | None) -> float:
@@ -108,7 +113,7 @@ def synthetic_data(ground_truth: torch.Tensor, render_a: Callable[[torch.Tensor]
     return ReconstructionData(
         target=clean + noise, mask=mask_from_height_field(truth if design is None else design.double(),
                                                           mask_threshold, mask_dilation),
-        volume=float(truth.sum()) * pixel_area, delta=delta, ground_truth=truth, clean=clean,
+        volume=float(truth.sum()) * pixel_area, delta=delta, ground_truth=GroundTruth(truth),
         intrinsic_noise=intrinsic, design=None if design is None else design.double())
 
 

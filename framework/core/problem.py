@@ -9,7 +9,7 @@ method traces its own rays), the operator itself.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import cached_property
 
 from framework.core.contracts.operator import Operator
@@ -64,8 +64,8 @@ class Problem:
 
     Attributes:
         operator: The forward model F: heights (m, m) -> image (c, n, n).
-        data: Target b^delta (c, n, n), mask, volume, noise level, and for synthetic data the
-            ground truth.
+        data: Target b^delta (c, n, n), mask, volume, noise level, the print's design where the
+            data carry one; never the ground truth of synthetic data (framework/core/truth.py).
         grid: Geometry of the heights.
         scene: Light, substrate, receiver, material and wavelengths (operators/scene.py).
         constraints: A design's printing limits (framework/core/print_constraints.py), which the
@@ -82,12 +82,18 @@ class Problem:
         if tuple(self.data.mask.shape) != self.grid.shape:
             raise ValueError(f"the mask has shape {tuple(self.data.mask.shape)} but the height field is "
                              f"{self.grid.shape}; the mask must match the height field")
+        if self.data.ground_truth is not None or any(shot.ground_truth is not None for shot in self.data.shots):
+            raise ValueError("a problem never carries the ground truth of synthetic data: build it from "
+                             "data.without_truth() and keep the truth for the metrics (framework/core/truth.py)")
 
     def shot(self, index: int) -> Problem:
         """Shot ``index`` of a stack (framework/stack/stack_data.py) alone, through its own
-        operator and scene."""
+        operator and scene, with the stack's design."""
         operator = self.operator.shots[index]
-        return Problem(operator, self.data.shots[index], self.grid, operator.scene)
+        shot = self.data.shots[index]
+        if shot.design is None and self.data.design is not None:
+            shot = replace(shot, design=self.data.design)
+        return Problem(operator, shot, self.grid, operator.scene)
 
     def for_start(self) -> Problem:
         """The problem a start reads: this one, or for a stack of shots the one shot

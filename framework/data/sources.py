@@ -89,7 +89,7 @@ class SyntheticData(DataSource):
         """The printed heights (m, m), float64: ``printed`` on the reconstruction's grid, else the
         configured height field."""
         if self.printed is None:
-            return request.design()
+            return request.configured_heights()
         file = resolve_path(self.printed, request.base_dir)
         if not file.is_file():
             raise FileNotFoundError(f"data.printed={self.printed!r}: {file} does not exist; give the printed "
@@ -105,7 +105,8 @@ class SyntheticData(DataSource):
         """The printed area of the design (with ``printed``) or of the ground truth (its volume,
         known exactly once loaded, is not checked)."""
         self.printed_heights(request)
-        return PrintFacts(mask_from_height_field(request.design(), self.mask_threshold, self.mask_dilation), None,
+        heights = request.configured_heights()
+        return PrintFacts(mask_from_height_field(heights, self.mask_threshold, self.mask_dilation), None,
                           volume_at_load=True)
 
     def load(self, request: DataRequest) -> ReconstructionData:
@@ -113,7 +114,7 @@ class SyntheticData(DataSource):
         deterministic) and add the noise."""
         operator = request.operator
         truth = self.printed_heights(request).to(operator.dtype)
-        design = None if self.printed is None else request.design().double()
+        design = None if self.printed is None else request.configured_heights().double()
         make = operator.exact_variant if self.reference == "exact" else operator.variant
         first = make(self.reference_photons, request.seed + 1000, self.reference_resolution)
         second = None if first.deterministic else make(
@@ -161,7 +162,7 @@ class KnownPrint(DataSource):
         if self.mask in (None, "none"):
             return torch.ones(m, m, dtype=torch.bool)
         if self.mask == "design":
-            return mask_from_height_field(request.design(), self.mask_threshold, self.mask_dilation)
+            return mask_from_height_field(request.configured_heights(), self.mask_threshold, self.mask_dilation)
         return load_mask(resolve_path(self.mask, request.base_dir), m)
 
     def deposited_volume(self, request: DataRequest) -> float | None:

@@ -99,7 +99,7 @@ def _start(setup: DesignSetup, method: Mapping[str, Any], deadline: float | None
     if has_elements(operator):  # the light's own path through the elements (the reconstructions' start)
         start = build_plugin("initial", "transport", {"reach": THROUGH_OPTICS_REACH, "p1": 0.0,
                                                        "p2": setup.constraints.max_height}, "initial")
-        found = start(StartRequest(problem, lambda: zeros, Path.cwd(), deadline))
+        found = start(StartRequest(problem, Path.cwd(), deadline))
         d, first = found.d.detach().double().cpu().numpy(), found.metrics
     else:  # flat bottom to screen: Schwartzburg's transport design
         transport = build_plugin("design", "schwartzburg", dict(method.get("transport") or {}),

@@ -78,8 +78,7 @@ def _coarse_data(data: ReconstructionData, m: int, n: int) -> ReconstructionData
 
     return replace(data, target=resample_image(data.target, n),
                    weights=None if data.weights is None else resample_image(data.weights, n).clamp(0.0, 1.0),
-                   mask=_coarse_mask(data.mask, m), ground_truth=heights(data.ground_truth),
-                   clean=None if data.clean is None else resample_image(data.clean, n), design=heights(data.design))
+                   mask=_coarse_mask(data.mask, m), design=heights(data.design))
 
 
 def coarser_problem(problem: Problem, m: int, n: int, photons: int, seed: int) -> Problem:

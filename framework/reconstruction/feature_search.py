@@ -217,6 +217,11 @@ class SearchedLines(Start):
     start: Any
     request: StartRequest
 
+    @property
+    def reads_design(self) -> bool:  # type: ignore[override]
+        """Whether the wrapped start reads the print's design."""
+        return bool(self.start.reads_design)
+
     def __call__(self, _: StartRequest) -> StartResult:
         """The start on the nearest shot, whatever shot the run's own request reads."""
         return self.start(self.request)

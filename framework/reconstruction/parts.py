@@ -152,6 +152,10 @@ class Reconstruction:
         if defects.enabled == "on" and not _has_design(cfg):
             raise ValueError("defects.enabled=on needs the print's design: give height_field.path (the design) with "
                              "data=file or data=photo, or data.printed with synthetic data; or defects.enabled=auto")
+        if start.reads_design and len(start.phases()) == 1 and not _has_design(cfg):
+            raise ValueError(f"initial={start.name} reads the print's design, and synthetic data of the configured "
+                             "height field carry none (those heights are the answer): give data.printed=<print> "
+                             "(the configured field is then its design), or choose initial=transport, zero or file")
         return cls(settings, setup, data_source, make_solver, stopping, start, max_iter,
                    run_fingerprint(cfg, base_dir), calibration, defects, coarse_to_fine)
 
@@ -169,7 +173,7 @@ class Reconstruction:
         check_volume(facts.volume, facts.mask, self.grid.cell_area, height_bounds(self.settings.cfg),
                      2.0 * float(self.scene.substrate.half_width))
         if self.settings.design_given:
-            request.design()
+            request.configured_heights()
         return checked_resume(self.settings.resume, output_dir, base_dir, self.fingerprint)
 
     def data_request(self, base_dir: Path, output_dir: Path | None = None) -> DataRequest:
@@ -181,8 +185,15 @@ class Reconstruction:
 
 def _has_design(cfg: Mapping[str, Any]) -> bool:
     """Whether the run's data will carry the print's design: synthetic data of another print
-    (data.printed), or measured data with a design (framework/scene/run_settings.py)."""
+    (data.printed; for a stack, on a synthetic shot), or measured data with a design
+    (framework/scene/run_settings.py)."""
     data = cfg.get("data") or {}
-    if data.get("name") == "synthetic":
+    if data.get("name") == "stack":
+        common = data.get("common") or {}
+        shots = [{**common, **shot} for shot in data.get("shots") or [] if isinstance(shot, Mapping)]
+        synthetic = [shot for shot in shots if shot.get("source", "synthetic") == "synthetic"]
+        if synthetic:
+            return any(bool(shot.get("printed")) for shot in synthetic)
+    elif data.get("name") == "synthetic":
         return bool(data.get("printed"))
     return design_given(cfg)

@@ -88,10 +88,7 @@ def _coarse_levels(parts: Reconstruction, problem: Problem, name: str, start: St
         share = (n_level / n) ** 2  # the same photons per receiver pixel as the run's
         photons = (max(1, int(start_photons * share)), max(1, int(cap * share)))
         coarse.append((coarser_problem(problem, m_level, n_level, photons[1], parts.settings.seed), photons))
-    first = coarse[0][0]
-    design = request.design
-    computed = start(replace(request, problem=first,
-                             design=lambda: resample_heights(design(), first.grid.resolution)))
+    computed = start(replace(request, problem=coarse[0][0]))  # its data carry the design resampled
     d, shaped, metrics = computed.d.to(problem.operator.dtype), computed.shaped, {}
     for level, photons in coarse:
         began, m_level = time.perf_counter(), level.grid.resolution
@@ -188,14 +185,16 @@ def _run_starts(parts: Reconstruction, problem: Problem, request: StartRequest, 
                 ) -> tuple[list[PhaseOutcome], bool, int]:
     """Run the solver from each of the start's phases in turn (continuing an interrupted run's own
     phase from ``checkpoint``) until one reaches the noise level (a stack with
-    ``data.first_fit=lines`` adds one last phase: :class:`SearchedLines`); where that run's calibration
+    ``data.first_fit=lines`` adds one last phase: :class:`SearchedLines` from the first candidate
+    these data can run, never a design the data do not carry); where that run's calibration
     moved a parameter the heights absorb in part (``JointCalibration.needs_refit``), run its start
     again under the calibrated setup, up to ``MAX_REFITS`` times. Returns the finished runs, whether
     there were several starts, and the MLflow steps used."""
     candidates = parts.start.phases()
-    if problem.data.line_search:  # a stack's last resort: the nearest shot's lines searched
+    runnable = [(name, start) for name, start in candidates if not (start.reads_design and problem.data.design is None)]
+    if problem.data.line_search and runnable:  # a stack's last resort: the nearest shot's lines searched
         nearest = replace(request, problem=problem.shot(problem.data.first_fit_shot))
-        candidates = [*candidates, (f"{candidates[0][0]}_lines", SearchedLines(candidates[0][1], nearest))]
+        candidates = [*candidates, (f"{runnable[0][0]}_lines", SearchedLines(runnable[0][1], nearest))]
     finished, first, refits = resumed_phases(output_dir, checkpoint)
     phases = [*candidates, *((f"{candidates[i][0]}_refit", candidates[i][1]) for i in refits)]
     steps = sum(outcome.result.iterations for outcome in finished)
@@ -204,7 +203,7 @@ def _run_starts(parts: Reconstruction, problem: Problem, request: StartRequest, 
         index += 1
         name, start = phases[index]
         if len(candidates) > 1 and start.reads_design and problem.data.design is None:
-            continue  # initial=auto's design candidate: these data have no design
+            continue  # initial=auto's design candidate (or a search from it): these data have no design
         if len(phases) > 1:  # so that a resumed run knows which start its checkpoint belongs to
             torch.save({"done": [outcome.saved() for outcome in finished], "phase": index, "refits": refits},
                        output_dir / PHASES)
@@ -250,28 +249,26 @@ def _reconstruct(parts: Reconstruction, output_dir: Path, base_dir: Path, checkp
         (output_dir / MLFLOW_RUN).write_text(json.dumps({"run_id": tracker.run_id,
                                                          "tracking_uri": tracker.tracking_uri}))
         start = time.perf_counter()
-        data = parts.data_source.load(parts.data_request(base_dir, output_dir))
-        if data.design is None and data.ground_truth is None and settings.design_given:
-            data = replace(data, design=parts.design(base_dir))  # a measured print's design
+        loaded = parts.data_source.load(parts.data_request(base_dir, output_dir))
+        if loaded.design is None and loaded.ground_truth is None and settings.design_given:
+            loaded = replace(loaded, design=parts.design(base_dir))  # a measured print's design
         data_seconds = time.perf_counter() - start
-        tracker.log_data(data, cfg)
+        tracker.log_data(loaded, cfg)
+        # The truth of synthetic data stays here, for the metrics and the evaluation outputs alone
+        # (framework/core/truth.py); everything that shapes the result sees the problem.
+        truth, data = loaded.ground_truth, loaded.without_truth()
         problem = Problem(operator, data, parts.grid, parts.scene)
-        # The design the mm outputs compare with: the print's design when the data carry one, else
-        # the truth of synthetic data (framework/reconstruction/run_checks.py).
-        design = data.design if data.design is not None else data.ground_truth
         calibration = parts.calibration
         if calibration is not None:
             resume_from = None if checkpoint is None else checkpoint.parent / CALIBRATION_STATE
             calibration.setup(data.target, data.weights, data.delta, output_dir / CALIBRATION_STATE, resume_from,
                               goal=settings.tau_dis * data.delta)
-        truth_error = None
-        if data.ground_truth is not None:
-            truth_error = GroundTruthError(data.ground_truth.to(operator.dtype), parts.grid.base)
+        truth_error = None if truth is None else GroundTruthError(truth, parts.grid.base)
         if compiling is not None and compiling.running:
             print("waiting for the gradient kernel to compile (first run after an install; cached afterwards)",
                   flush=True)
             compiling.wait()
-        request = StartRequest(problem.for_start(), lambda: parts.design(base_dir), base_dir)
+        request = StartRequest(problem.for_start(), base_dir)
         report(f"reconstruction ({method}): computing the start")
         finished, several, steps = _run_starts(parts, problem, request, output_dir, checkpoint, tracker, truth_error)
         # The last run that reached the noise level (a refit's setup is the calibrated one), else the
@@ -298,7 +295,7 @@ def _reconstruct(parts: Reconstruction, output_dir: Path, base_dir: Path, checkp
             **start_metrics, **(calibration.report() if calibration else {})}
         shots = shot_metrics(problem, prediction)
         metrics.update(shots)
-        metrics.update(save_outputs(output_dir, d, prediction, data, parts.grid, settings.mm_per_unit, design))
+        metrics.update(save_outputs(output_dir, d, prediction, data, parts.grid, settings.mm_per_unit, truth))
         save_shot_record(output_dir, shots, len(data.shots))
         metrics.update(report_verdict(metrics["rel_discrepancy"], data, settings.tau_dis, chosen.returned_iteration,
                                       result.stop_reason, volume, shots,
@@ -312,7 +309,7 @@ def _reconstruct(parts: Reconstruction, output_dir: Path, base_dir: Path, checkp
             metrics.update(defects.metrics())
             metrics["verdict"] += " " + " ".join(defects.lines)
         (output_dir / "metrics.json").write_text(json.dumps(metrics, indent=2))
-        save_reconstruction_figures(output_dir, d, problem, prediction, chosen.history)
+        save_reconstruction_figures(output_dir, d, problem, prediction, chosen.history, truth)
         tracker.log_metrics({k: float(v) for k, v in metrics.items() if isinstance(v, (int, float)) and v is not None},
                             step=steps)  # the summary (flags as 0/1): last step, not 0
         tracker.set_tags({"stop_reason": result.stop_reason, "stopped_by": result.stopped_by, "start": chosen.name,

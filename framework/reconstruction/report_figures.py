@@ -13,17 +13,19 @@ from framework.stack.shot_report import shots_of
 
 if TYPE_CHECKING:
     from framework.core.problem import Problem
+    from framework.core.truth import GroundTruth
 
 
 def save_reconstruction_figures(output_dir: Path, heights: torch.Tensor, problem: Problem,
-                                prediction: torch.Tensor, history: dict[str, list[float]]) -> None:
+                                prediction: torch.Tensor, history: dict[str, list[float]],
+                                ground_truth: GroundTruth | None = None) -> None:
     """Write heights.png, centre_slice.png, caustics.png and convergence.png into ``output_dir``:
     ``heights`` (m, m) and ``prediction`` (c, n, n) against the problem's data (caustics.png: one
-    row per shot of a stack, framework/stack/shot_report.py)."""
+    row per shot of a stack, framework/stack/shot_report.py), beside the ground truth of synthetic
+    data where given."""
     from matplotlib.figure import Figure  # imported when the figures are drawn, not before the run starts
     d = heights.detach().cpu().double().numpy()
-    data = problem.data
-    truth = None if data.ground_truth is None else data.ground_truth.cpu().numpy()
+    truth = None if ground_truth is None else ground_truth.read().cpu().numpy()
     half = problem.grid.half_width
     extent = problem.grid.extent
 

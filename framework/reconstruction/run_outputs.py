@@ -13,6 +13,7 @@ import torch
 
 from framework.core.data import ReconstructionData
 from framework.core.problem import HeightGrid
+from framework.core.truth import GroundTruth
 from framework.files.mm_outputs import export_outputs
 from framework.reconstruction.verdict import run_verdict
 
@@ -20,17 +21,20 @@ __all__ = ["save_outputs", "report_verdict"]
 
 
 def save_outputs(output_dir: Path, d: torch.Tensor, prediction: torch.Tensor, data: ReconstructionData,
-                 grid: HeightGrid, mm_per_unit: float, design: torch.Tensor | None) -> dict[str, Any]:
-    """Write height_field.npy (float64, scene units), the target, predicted (and weights, ground
-    truth) caustics as .npy, and the mm outputs (export/); returns the ``deviation_*`` metrics
-    against ``design`` (none without a design, which is then said on stdout)."""
+                 grid: HeightGrid, mm_per_unit: float, truth: GroundTruth | None) -> dict[str, Any]:
+    """Write height_field.npy (float64, scene units), the target, predicted (and weights) caustics
+    and the ground truth of synthetic data (``truth``) as .npy, and the mm outputs (export/);
+    returns the ``deviation_*`` metrics against the print's design, or for synthetic data of the
+    configured print against its truth (none without either, which is then said on stdout)."""
     np.save(output_dir / "height_field.npy", d.cpu().numpy().astype(np.float64))
     np.save(output_dir / "caustic_target.npy", data.target.cpu().numpy().astype(np.float32))
     np.save(output_dir / "caustic_predicted.npy", prediction.detach().cpu().numpy().astype(np.float32))
     if data.weights is not None:
         np.save(output_dir / "caustic_weights.npy", data.weights.cpu().numpy().astype(np.float32))
-    if data.ground_truth is not None:
-        np.save(output_dir / "ground_truth.npy", data.ground_truth.cpu().numpy().astype(np.float64))
+    truth_heights = None if truth is None else truth.read()
+    if truth_heights is not None:
+        np.save(output_dir / "ground_truth.npy", truth_heights.cpu().numpy().astype(np.float64))
+    design = data.design if data.design is not None else truth_heights
     exported = export_outputs(output_dir / "export", d.cpu().numpy(), grid.half_width, grid.base, mm_per_unit,
                               design=None if design is None else design.cpu().numpy())
     if design is None:

@@ -39,10 +39,10 @@ SHOT_SEED_STRIDE = 100_000  # shot i's reference renders and noise draw from see
 
 def stacked_data(shots: Sequence[ReconstructionData], weights: Sequence[float], start_shot: int,
                  first_fit_shot: int | None = None, line_search: bool = False) -> ReconstructionData:
-    """The data of a stack from its shots' data: targets (and clean images) scaled by sqrt(w_i)
-    and stacked along the channel axis, pixel weights stacked, the noise level
-    delta = sqrt(sum w_i delta_i^2 ||b_i||^2 / sum w_i ||b_i||^2), the print's mask and volume,
-    the truth and the source of shot 0 (or the first that has one)."""
+    """The data of a stack from its shots' data: targets scaled by sqrt(w_i) and stacked along the
+    channel axis, pixel weights stacked, the noise level
+    delta = sqrt(sum w_i delta_i^2 ||b_i||^2 / sum w_i ||b_i||^2), the print's mask and volume of
+    shot 0, the truth and the design of the first shot that has one, every shot's source."""
     scales = [math.sqrt(w) for w in weights]
     norms = [w * weighted_norm_sq(s.target, s.weights) for s, w in zip(shots, weights)]
     delta = math.sqrt(sum(n * s.delta ** 2 for n, s in zip(norms, shots)) / sum(norms))
@@ -50,9 +50,7 @@ def stacked_data(shots: Sequence[ReconstructionData], weights: Sequence[float], 
     if any(s.weights is not None for s in shots):
         pixel_weights = torch.cat([torch.ones_like(s.target) if s.weights is None else s.weights.to(s.target)
                                    for s in shots])
-    clean = intrinsic = None
-    if all(s.clean is not None for s in shots):
-        clean = torch.cat([s.clean * k for s, k in zip(shots, scales)])
+    intrinsic = None
     if all(s.intrinsic_noise is not None for s in shots):
         intrinsic = math.sqrt(sum(n * s.intrinsic_noise ** 2 for n, s in zip(norms, shots)) / sum(norms))
     left_out: dict[str, int] = {}
@@ -61,10 +59,11 @@ def stacked_data(shots: Sequence[ReconstructionData], weights: Sequence[float], 
             left_out[reason] = left_out.get(reason, 0) + count
     sources = [s.source for s in shots if s.source]
     truth = next((s.ground_truth for s in shots if s.ground_truth is not None), None)
+    design = next((s.design for s in shots if s.design is not None), None)
     first = shots[0]
     return ReconstructionData(
         target=torch.cat([s.target * k for s, k in zip(shots, scales)]), mask=first.mask, volume=first.volume,
-        delta=delta, weights=pixel_weights, ground_truth=truth, clean=clean, intrinsic_noise=intrinsic,
+        delta=delta, weights=pixel_weights, ground_truth=truth, intrinsic_noise=intrinsic, design=design,
         left_out=left_out, source="; ".join(sources) if sources else None, shots=tuple(shots), start_shot=start_shot,
         first_fit_shot=first_fit_shot, line_search=line_search)
 

@@ -130,7 +130,7 @@ def test_a_drop_that_focuses_before_the_screen_is_found_from_the_photo(tmp_path)
     np.save(tmp_path / "printed.npy", printed)
     cfg = compose_reconstruct([*SMALL, f"data.printed={tmp_path / 'printed.npy'}"], tmp_path)
     parts = Reconstruction.from_config(cfg, tmp_path)
-    data = parts.data_source.load(parts.data_request(tmp_path, tmp_path / "data"))
+    data = parts.data_source.load(parts.data_request(tmp_path, tmp_path / "data")).without_truth()
     problem = Problem(parts.operator, data, parts.grid, parts.scene)
     report = report_defects(problem, data.design, parts.defects, 0, 25.0, tmp_path)
     assert [defect.kind for defect in report.defects] == ["excess"]

@@ -6,6 +6,7 @@ import json
 import math
 import subprocess
 import sys
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -70,14 +71,18 @@ def test_resume_continues_an_interrupted_run_to_the_same_result(tmp_path):
 def test_starts_from_zero_design_or_file(tmp_path):
     cfg = compose_reconstruct([*SMALL, *BUMP], tmp_path)
     parts = Reconstruction.from_config(cfg, tmp_path)
-    problem = Problem(parts.operator, parts.data_source.load(parts.data_request(tmp_path)), parts.grid, parts.scene)
+    design = 0.8 * build_heights(cfg)  # a design the data carry (the print is the configured bump)
+    data = replace(parts.data_source.load(parts.data_request(tmp_path)).without_truth(), design=design)
+    problem = Problem(parts.operator, data, parts.grid, parts.scene)
 
     def start(spec: dict) -> torch.Tensor:
-        return build_start(spec)(StartRequest(problem, lambda: build_heights(cfg), tmp_path)).d
+        return build_start(spec)(StartRequest(problem, tmp_path)).d
 
     assert torch.equal(start({"name": "zero"}), torch.zeros(32, 32))
     half = start({"name": "design", "scale": 0.5}).double()
-    assert torch.allclose(half, 0.5 * build_heights(cfg), atol=1e-7) and float(half.max()) > 0.02
+    assert torch.allclose(half, 0.5 * design, atol=1e-7) and float(half.max()) > 0.015
+    with pytest.raises(ValueError, match="these data carry no design of the print"):
+        build_start({"name": "design"})(StartRequest(replace(problem, data=replace(data, design=None)), tmp_path))
     np.save(tmp_path / "start.npy", np.full((16, 16), 0.01))
     from_file = start({"name": "file", "path": "start.npy", "scale": 2.0}).double()
     assert from_file.shape == (32, 32) and torch.allclose(from_file, torch.full((32, 32), 0.02, dtype=torch.float64))
@@ -141,12 +146,19 @@ def test_an_auto_run_interrupted_in_its_second_start_resumes_there(tmp_path, mon
 
 @pytest.mark.slow
 def test_a_start_from_half_the_design_beats_the_flat_start(tmp_path):
+    # The print is the configured bump 10% taller, so the design (the configured bump) is not the answer.
     # The starts alone: the held volume would lift half the design to its volume in the first step.
-    base = [*SMALL, *BUMP, "solver.max_iter=6", "~solver.post_steps.volume_hold"]
+    np.save(tmp_path / "printed.npy", 1.1 * build_heights(compose_reconstruct([*SMALL, *BUMP], tmp_path)).numpy())
+    base = [*SMALL, *BUMP, "solver.max_iter=6", "~solver.post_steps.volume_hold", "data.printed=printed.npy",
+            "defects.enabled=off"]
     flat = run_reconstruction(compose_reconstruct(base, tmp_path), tmp_path / "flat", tmp_path)
     half = run_reconstruction(compose_reconstruct([*base, "initial=design", "initial.scale=0.5"], tmp_path),
                               tmp_path / "half", tmp_path)
+    assert 0.5 < half["start_design_initial_rel_error_d"] < 0.6, half  # 1 - 0.5 / 1.1
     assert half["rel_error_d"] < 0.5 * flat["rel_error_d"], (half, flat)
+    # Synthetic data of the configured heights carry no design: the design start is refused before the run.
+    with pytest.raises(ValueError, match="initial=design reads the print's design"):
+        run_reconstruction(compose_reconstruct([*SMALL, *BUMP, "initial=design"], tmp_path), tmp_path / "no", tmp_path)
 
 
 @pytest.mark.slow

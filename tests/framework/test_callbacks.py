@@ -6,6 +6,7 @@ import torch
 
 from framework.core.solver_loop import Callback
 from framework.core.callbacks import Checkpointer, GroundTruthError, MetricsHistory, ProgressBar
+from framework.core.truth import GroundTruth
 from framework.reconstruction.stopping import MorozovStopping, StagnationStopping
 from framework.reconstruction.solvers import GradientDescent, IterationRecord, IterativeSolver
 from tests.framework.toy import DTYPE, make_problem
@@ -84,7 +85,7 @@ def test_morozov_refuses_bad_parameters(delta, tau_dis, match):
 def test_ground_truth_error_uses_the_papers_definition_and_runs_before_other_callbacks():
     data, op, A, b, d_true, L = make_problem()
     h = 0.1
-    gt = GroundTruthError(d_true, substrate_thickness=h)
+    gt = GroundTruthError(GroundTruth(d_true), substrate_thickness=h)
     hist = MetricsHistory()
     bar = ProgressBar(disable=True)
     solver = GradientDescent(data, torch.zeros(8, 8, dtype=DTYPE), 1.0 / L)
@@ -98,7 +99,9 @@ def test_ground_truth_error_uses_the_papers_definition_and_runs_before_other_cal
     assert len(cols["rel_discrepancy"]) == 5 and len(cols["rel_error"]) == 5
     assert hist["iteration"] == [1.0, 2.0, 3.0, 4.0, 5.0]
     with pytest.raises(ValueError, match="substrate_thickness"):
-        GroundTruthError(d_true, -1.0)
+        GroundTruthError(GroundTruth(d_true), -1.0)
+    with pytest.raises(ValueError, match="GroundTruth"):
+        GroundTruthError(d_true, h)  # the bare heights: the truth reaches the metrics sealed
 
 
 def test_progress_bar_runs_with_postfix(capsys):

@@ -46,8 +46,7 @@ def _problem(m: int, n: int) -> Problem:
     target = torch.rand((1, n, n), generator=torch.Generator().manual_seed(0), dtype=torch.float64) + 0.5
     mask = torch.zeros((m, m), dtype=torch.bool)
     mask[:, m // 2] = True  # a stroke one sample wide
-    data = ReconstructionData(target=target, mask=mask, volume=0.01, delta=0.05,
-                              ground_truth=torch.zeros((m, m), dtype=torch.float64))
+    data = ReconstructionData(target=target, mask=mask, volume=0.01, delta=0.05)
     return Problem(operator, data, HeightGrid(m, 1.0, 0.1), scene)
 
 

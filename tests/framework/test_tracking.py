@@ -6,6 +6,7 @@ import pytest
 import torch
 
 from framework.core.callbacks import GroundTruthError
+from framework.core.truth import GroundTruth
 from framework.reconstruction.stopping import MorozovStopping
 from framework.core.data import ReconstructionData
 from framework.reconstruction.solvers import GradientDescent
@@ -53,7 +54,7 @@ def test_run_is_found_again_with_params_metric_history_and_artefact(store, tmp_p
     params = {"solver": {"name": "gradient_descent", "tau": 1.0 / L}, "scene": {"m": 8}}
     with MlflowTracker("toy", run_name="m1", store_dir=store, params=params,
                        tags={"method": "M1", "scene": "toy"}, sweep_id="sweep-1") as tracker:
-        result = solver.run(6, [GroundTruthError(d_true, 0.1), tracker.metrics_callback()])
+        result = solver.run(6, [GroundTruthError(GroundTruth(d_true), 0.1), tracker.metrics_callback()])
         tracker.log_artifacts(tmp_path / "run_dir")
     client = _client(store)
     run = client.get_run(tracker.run_id)
@@ -145,8 +146,8 @@ def test_code_version_is_unknown_outside_a_repository_or_without_git(tmp_path, m
 def _data(seed: int = 0, truth: bool = True, source: str | None = None) -> ReconstructionData:
     target = torch.rand(1, 8, 8, generator=torch.Generator().manual_seed(seed), dtype=torch.float64)
     mask = torch.ones(4, 4, dtype=torch.bool)
-    return ReconstructionData(target, mask, volume=0.01, delta=0.05,
-                              ground_truth=torch.zeros(4, 4, dtype=torch.float64) if truth else None, source=source)
+    return ReconstructionData(target, mask, volume=0.01, delta=0.05, source=source,
+                              ground_truth=GroundTruth(torch.zeros(4, 4, dtype=torch.float64)) if truth else None)
 
 
 SYNTHETIC = {"data": {"name": "synthetic", "delta": 0.05}, "height_field": {"shape": "bump", "path": None}, "seed": 3}

@@ -33,6 +33,7 @@ A failed check raises :class:`ContractViolation` naming the plugin and the check
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from typing import Any
 from collections.abc import Callable
 
@@ -347,6 +348,16 @@ def check_start(start: Start, request: StartRequest, who: str = "initial") -> No
     )
     _require(bool(torch.isfinite(d).all()), who, "gives non-finite heights")
     _require(torch.equal(d, results[1].d), who, "gives another start the second time")
+    # What it reads, as declared: data without a design refuse a start that reads one, and run any other.
+    bare = replace(request, problem=replace(problem, data=replace(problem.data, design=None)))
+    try:
+        start(bare)
+        read = False
+    except ValueError:
+        read = True
+    behaves = "refuses" if read else "runs on"
+    _require(read == bool(start.reads_design), who,
+             f"declares reads_design={start.reads_design!r} but {behaves} data without a design")
 
 
 def check_data_source(source: DataSource, request: DataRequest, who: str = "data") -> None:

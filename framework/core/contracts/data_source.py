@@ -35,8 +35,9 @@ class DataRequest:
     Attributes:
         operator: The reconstruction's forward operator (its ``variant`` renders references).
         grid: The height grid of the reconstruction.
-        design: Returns the configured height field (m, m), float64, scene units: the ground
-            truth of synthetic data, the print's design for measured data.
+        configured_heights: Returns the configured height field (m, m), float64, scene units: the
+            print that synthetic data render (their ground truth, which leaves the source sealed:
+            framework/core/truth.py), the design of a measured print (``data.mask=design``).
         seed: The run's seed (reference renders and noise derive their seeds from it).
         base_dir: Directory against which relative file names are resolved.
         output_dir: The run directory, for what a source shows of its work (figures, logs).
@@ -45,7 +46,7 @@ class DataRequest:
 
     operator: Operator
     grid: HeightGrid
-    design: Callable[[], torch.Tensor]
+    configured_heights: Callable[[], torch.Tensor]
     seed: int
     base_dir: Path
     output_dir: Path | None = None
@@ -78,7 +79,8 @@ class DataSource(ABC):
 
     @abstractmethod
     def load(self, request: DataRequest) -> ReconstructionData:
-        """The target image, mask, volume and noise level (and, for synthetic data, the truth)."""
+        """The target image, mask, volume and noise level (and, for synthetic data, the truth as a
+        :class:`framework.core.truth.GroundTruth`)."""
 
 
 class ShotStack(DataSource):

@@ -13,7 +13,6 @@ from __future__ import annotations
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
 from pathlib import Path
-from collections.abc import Callable
 
 from torch import Tensor
 
@@ -24,20 +23,30 @@ __all__ = ["Start", "StartRequest", "StartResult"]
 
 @dataclass(frozen=True)
 class StartRequest:
-    """What a start may use.
+    """What a start may use: the problem (never the ground truth of synthetic data,
+    framework/core/truth.py) and the design the data carry.
 
     Attributes:
-        problem: The operator, data (target, mask, volume, noise level), grid and scene.
-        design: Builds the configured height field (m, m) (with synthetic data the ground truth).
+        problem: The operator, data (target, mask, volume, noise level, design), grid and scene.
         base_dir: Directory relative paths are resolved against.
         deadline: A ``time.perf_counter()`` value by which a start that can stop early (a
             transport's Newton) ends and says so; None: none.
     """
 
     problem: Problem
-    design: Callable[[], Tensor]
     base_dir: Path
     deadline: float | None = None
+
+    def design(self) -> Tensor:
+        """A copy of the print's design (m, m), scene units, as the data carry it; a ValueError
+        for data without one (synthetic data of the configured height field carry none: those
+        heights are the answer)."""
+        design = self.problem.data.design
+        if design is None:
+            raise ValueError("these data carry no design of the print: a start that reads it needs a measured "
+                             "print's height_field.path=<design> or synthetic data of another print "
+                             "(data.printed=<print>); choose initial=transport, zero or file")
+        return design.clone()
 
 
 @dataclass
@@ -59,7 +68,7 @@ class Start(ABC):
     Attributes:
         name: The start's name in metrics and logs (``start_<name>_*``).
         reads_design: True for a start that reads the print's design (``initial=auto`` skips it
-            where the data carry none).
+            where the data carry none; a start that wraps another declares what that one reads).
     """
 
     name: str = "start"

@@ -34,9 +34,10 @@ class ZeroStart(Start):
 
 
 class DesignStart(Start):
-    """The configured height field times ``scale`` (with ``data=file`` the print's design, with
-    synthetic data the ground truth). Plugin ``initial/design``. Among ``initial=auto``'s candidates it
-    is tried only when the data carry a design (``reads_design``): never the truth of synthetic data."""
+    """The print's design as the data carry it (a measured print's ``height_field.path``, the
+    configured height field of synthetic data of another print, ``data.printed``) times ``scale``.
+    Plugin ``initial/design``. Data without a design refuse it (:meth:`StartRequest.design`), and
+    ``initial=auto`` skips it there (``reads_design``): never the truth of synthetic data."""
 
     name = "design"
     reads_design = True
