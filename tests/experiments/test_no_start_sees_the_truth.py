@@ -26,7 +26,7 @@ from tests.experiments.conftest import SMALL, compose_reconstruct
 
 SCENE = ["scene=print_lines", "solver.max_iter=2", "defects.enabled=off"]
 STACK = ["data=stack", "+data.common.reference_photons=200000", "+data.common.reference_resolution=128"]
-NEAR_ZERO = 1e-3  # a start this close to the print (relative error of its heights) has seen it
+NEAR_ZERO = 1e-3  # a start this close to the print (relative error of its printed heights, rel_error_d) has seen it
 
 
 def _starts_seen(monkeypatch) -> dict[str, torch.Tensor]:
@@ -48,7 +48,7 @@ def start_leaks(metrics: dict, seen: dict[str, torch.Tensor], truth: torch.Tenso
     measures it) within :data:`NEAR_ZERO` of the print, or a start from a design the data do not
     carry. Empty when no start saw it."""
     leaks = [f"{key} = {value:.2e}" for key, value in metrics.items()
-             if key.startswith("start_") and "_initial_rel_error" in key and value <= NEAR_ZERO]
+             if key.startswith("start_") and key.endswith("_initial_rel_error_d") and value <= NEAR_ZERO]
     leaks += [f"start {name}: {errors['rel_error_d']:.2e} from the print"
               for name, d in seen.items() if (errors := height_errors(d, truth, base))["rel_error_d"] <= NEAR_ZERO]
     leaks += [f"start {name} read a design" for name in seen if name.startswith("design")]
@@ -103,7 +103,7 @@ def test_no_start_of_any_data_source_or_first_fit_sees_the_truth(case, tmp_path,
     assert seen, "no start ran"
     assert start_leaks(metrics, seen, truth, float(base["substrate"]["thickness"])) == []
     if measured is None:  # synthetic data report every start's initial error, and none is 0
-        reported = {k: v for k, v in metrics.items() if k.startswith("start_") and k.endswith("_initial_rel_error")}
+        reported = {k: v for k, v in metrics.items() if k.startswith("start_") and k.endswith("_initial_rel_error_d")}
         assert len(reported) == len(seen) and min(reported.values()) > NEAR_ZERO, reported
     if "data.first_fit=lines" in overrides:  # the search ran, from the transport start, not the design
         assert metrics["start_transport_lines_feature_search_renders"] > 0, metrics
@@ -131,6 +131,6 @@ def test_the_sweep_catches_a_start_planted_to_read_the_truth(tmp_path, monkeypat
                                "+initial.candidates={zero: {}, peek: {}}", "solver.max_iter=1"], tmp_path)
     metrics = run_reconstruction(cfg, tmp_path / "run", tmp_path)
     leaks = start_leaks(metrics, seen, truth, float(base["substrate"]["thickness"]))
-    assert "start_peek_initial_rel_error = 0.00e+00" in leaks  # as the run reports it
+    assert "start_peek_initial_rel_error_d = 0.00e+00" in leaks  # as the run reports it
     assert any(leak.startswith("start peek: ") for leak in leaks)  # as the test measures it (float32 heights)
     assert not any("zero" in leak for leak in leaks)
