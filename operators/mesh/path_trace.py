@@ -25,7 +25,9 @@ from operators.values import checked_number, checked_whole
 __all__ = ["TracedImage", "trace_mesh"]
 
 MAX_BOUNCES = 12  # faces a ray meets at most (a ray still in the glass after them is dropped)
-NUDGE = 1e-6  # how far a ray leaves a face before its next query (mesh units)
+# How far off a face, along its normal and times the mesh's extent, a ray starts its next query:
+# Embree works in float32, so a ray started closer may meet the face it has just left.
+NUDGE = 1e-5
 
 
 @dataclass(frozen=True)
@@ -54,12 +56,15 @@ def trace_mesh(mesh_path: str | Path, light: tuple[float, float, float], index: 
         mesh_path: A closed triangle mesh (.stl, .obj, .ply), faces oriented outward.
         light: The point light (x, y, z), mesh units.
         index: The glass's refractive index.
-        aim_half, aim_z: The rays aim at uniform points of [-aim_half, aim_half]^2 on z = aim_z
+        aim_half: The rays aim at uniform points of [-aim_half, aim_half]^2 on z = ``aim_z``
             (cover the whole glass seen from the light, or light is missed).
-        receiver_z, receiver_half, pixels: The receiver plane z = receiver_z, the square
-            [-receiver_half, receiver_half]^2 on it in pixels x pixels.
-        rays, batches: Rays per batch and batches (memory grows with ``rays``).
+        aim_z: The aim plane's height.
+        receiver_z: The receiver plane z = receiver_z.
+        receiver_half: The square [-receiver_half, receiver_half]^2 on it that is binned ...
+        pixels: ... into pixels x pixels.
+        rays: Rays per batch (memory grows with it).
         seed: Seeds the aim points.
+        batches: Batches of ``rays`` rays.
         power: The light's power, W, radiated evenly over the sphere.
     """
     import trimesh
@@ -73,6 +78,7 @@ def trace_mesh(mesh_path: str | Path, light: tuple[float, float, float], index: 
         raise ValueError(f"{mesh_path} is not a closed mesh; the tracer needs the glass as a solid")
     query = RayMeshIntersector(mesh)
     normals = np.asarray(mesh.face_normals)
+    nudge = NUDGE * float(np.ptp(mesh.bounds, axis=0).max())
     walls = np.abs(normals[:, 2]) < 1e-9
     source = np.asarray(light, dtype=np.float64)
     rng = np.random.default_rng(seed)
@@ -104,7 +110,8 @@ def trace_mesh(mesh_path: str | Path, light: tuple[float, float, float], index: 
             reflected = direction[idx] + 2.0 * ci[:, None] * facing
             turned = np.where(total[:, None], reflected, refracted)
             direction[idx] = turned / np.linalg.norm(turned, axis=1, keepdims=True)
-            origin[idx] = points + NUDGE * direction[idx]
+            # back on the side it came from after a total reflection, through the face after a refraction
+            origin[idx] = points + (nudge * np.where(total, 1.0, -1.0))[:, None] * facing
             entered += float(flux[idx[entering & ~hit_once[idx]]].sum())
             hit_once[idx] = True
             met_wall[idx] |= walls[faces]

@@ -86,6 +86,9 @@ def test_the_light_through_a_ramp_is_what_its_whole_top_subtends(tmp_path) -> No
                         seed=1, batches=2)
     top = _solid_angle(seen, wide) / (4 * math.pi)
     assert traced.entered == pytest.approx(top, rel=3e-3)
+    # All of it lands, the rim's light too: it meets the +x wall, is totally reflected and leaves
+    # through the bottom (a ray restarted on the face it has just left would be lost here).
+    assert traced.image.sum() == pytest.approx(traced.entered, rel=1e-5) and traced.dropped == 0.0
     square = trace_mesh(path, scene.light.position, scene.indices[0], W, H, scene.receiver.z, 1.5, 32, RAYS,
                         seed=1, batches=2)
     flat = 4 * math.atan(1.0 / (dz * math.sqrt(2 + dz ** 2))) / (4 * math.pi)
