@@ -27,7 +27,7 @@ from framework.reconstruction.coarse_to_fine import CoarseToFineSettings
 from framework.reconstruction.run_checks import (check_tracking_target, check_volume, check_volume_known,
                                                  checked_resume, height_bounds)
 from framework.reconstruction.run_identity import run_fingerprint
-from framework.scene.run_settings import RunSettings, design_given
+from framework.scene.run_settings import RunSettings, design_given, stack_shots
 from framework.scene.scene_config import SceneSetup
 from operators.scene import Scene
 from operators.values import checked_whole
@@ -189,9 +189,7 @@ def _has_design(cfg: Mapping[str, Any]) -> bool:
     (framework/scene/run_settings.py)."""
     data = cfg.get("data") or {}
     if data.get("name") == "stack":
-        common = data.get("common") or {}
-        shots = [{**common, **shot} for shot in data.get("shots") or [] if isinstance(shot, Mapping)]
-        synthetic = [shot for shot in shots if shot.get("source", "synthetic") == "synthetic"]
+        synthetic = [shot for shot in stack_shots(data) if shot.get("source", "synthetic") == "synthetic"]
         if synthetic:
             return any(bool(shot.get("printed")) for shot in synthetic)
     elif data.get("name") == "synthetic":

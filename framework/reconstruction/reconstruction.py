@@ -190,8 +190,11 @@ def _run_starts(parts: Reconstruction, problem: Problem, request: StartRequest, 
     moved a parameter the heights absorb in part (``JointCalibration.needs_refit``), run its start
     again under the calibrated setup, up to ``MAX_REFITS`` times. Returns the finished runs, whether
     there were several starts, and the MLflow steps used."""
+    def lacks_design(start: Start) -> bool:  # a start that reads the design, on data that carry none
+        return start.reads_design and problem.data.design is None
+
     candidates = parts.start.phases()
-    runnable = [(name, start) for name, start in candidates if not (start.reads_design and problem.data.design is None)]
+    runnable = [(name, start) for name, start in candidates if not lacks_design(start)]
     if problem.data.line_search and runnable:  # a stack's last resort: the nearest shot's lines searched
         nearest = replace(request, problem=problem.shot(problem.data.first_fit_shot))
         candidates = [*candidates, (f"{runnable[0][0]}_lines", SearchedLines(runnable[0][1], nearest))]
@@ -202,7 +205,7 @@ def _run_starts(parts: Reconstruction, problem: Problem, request: StartRequest, 
     while index + 1 < len(phases):
         index += 1
         name, start = phases[index]
-        if len(candidates) > 1 and start.reads_design and problem.data.design is None:
+        if len(candidates) > 1 and lacks_design(start):
             continue  # initial=auto's design candidate (or a search from it): these data have no design
         if len(phases) > 1:  # so that a resumed run knows which start its checkpoint belongs to
             torch.save({"done": [outcome.saved() for outcome in finished], "phase": index, "refits": refits},

@@ -19,7 +19,14 @@ from framework.core.units import mm_per_unit
 from framework.scene.scene_config import to_plain
 from operators.values import checked_number, checked_whole
 
-__all__ = ["PhotonBudgetSettings", "RunSettings", "TrackingSettings", "design_given"]
+__all__ = ["PhotonBudgetSettings", "RunSettings", "TrackingSettings", "design_given", "stack_shots"]
+
+
+def stack_shots(data: Mapping[str, Any]) -> list[dict[str, Any]]:
+    """The shots of a ``data=stack`` config group, each with the keys of ``data.common`` it does
+    not set itself (framework/stack/stack_data.py)."""
+    common = data.get("common") or {}
+    return [{**common, **shot} for shot in data.get("shots") or [] if isinstance(shot, Mapping)]
 
 
 def design_given(cfg: Mapping[str, Any]) -> bool:
@@ -29,9 +36,7 @@ def design_given(cfg: Mapping[str, Any]) -> bool:
     (framework/stack/stack_data.py) counts when one of its shots does."""
     data = cfg.get("data") or {}
     if data.get("name") == "stack":
-        common = data.get("common") or {}
-        shots = [{**common, **shot} for shot in data.get("shots") or [] if isinstance(shot, Mapping)]
-        data = next((shot for shot in shots if shot.get("source", "synthetic") == "synthetic"
+        data = next((shot for shot in stack_shots(data) if shot.get("source", "synthetic") == "synthetic"
                      or shot.get("mask") == "design"), {})
         data = {**data, "name": data.get("source", "synthetic")} if data else {}
     if data.get("name") == "synthetic":
