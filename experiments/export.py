@@ -22,7 +22,6 @@ import argparse
 import json
 import os
 import shutil
-import sys
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -31,7 +30,7 @@ import numpy as np
 import yaml
 from omegaconf import OmegaConf
 
-from experiments.input_errors import one_line_input_errors
+from experiments.input_errors import run_command
 from framework.core.units import mm_per_unit
 from framework.defects.fit import Defect
 from framework.defects.report import defect_lines
@@ -55,6 +54,9 @@ def parser() -> argparse.ArgumentParser:
                         "initial=design); none; or a .npy/.png height field in scene units")
     p.add_argument("--format", nargs="+", default=["stl"], choices=MESH_FORMATS, dest="formats",
                    help="mesh formats of the glass (default: stl)")
+    p.add_argument("--refine", type=int, default=1, metavar="K",
+                   help="the mesh's top samples the surface K times per sample spacing (default 1: the samples; "
+                        "finer facets cast less of their pattern on a far screen)")
     p.add_argument("--out", type=Path, help="output directory (default: RUN_DIR/export)")
     p.add_argument("--mm-per-unit", type=float, help="mm per scene unit (default: the run's units.mm_per_unit)")
     return p
@@ -146,7 +148,7 @@ def export_run(args: argparse.Namespace) -> None:
     design, source = load_design(args.design, run_dir, cfg, d.shape[0])
     out = _output_dir(args.out, "--out") if args.out else _output_dir(run_dir / "export", "output directory")
     result = export_outputs(out, d, substrate.half_width, substrate.thickness, scale, design=design,
-                            formats=args.formats)
+                            formats=args.formats, refine=args.refine)
     print(f"{scale:g} mm per scene unit; design: {source}")
     for path in result["files"]:
         print(f"wrote {path}")
@@ -177,14 +179,7 @@ def copy_defect_report(run_dir: Path, out: Path) -> None:
 def main(argv: Sequence[str] | None = None) -> None:
     """Console entry point: an input error ends in its one line (experiments/input_errors.py) and
     exit status 2."""
-    args = parser().parse_args(argv)
-    try:
-        one_line_input_errors(export_run)(args)
-    except SystemExit as stop:
-        if not isinstance(stop.code, str):
-            raise
-        print(stop.code, file=sys.stderr)
-        raise SystemExit(INPUT_ERROR_STATUS) from None
+    run_command(export_run, parser().parse_args(argv), INPUT_ERROR_STATUS)
 
 
 if __name__ == "__main__":

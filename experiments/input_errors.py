@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import functools
 import os
+import sys
 from typing import TypeVar
 from collections.abc import Callable
 
@@ -36,3 +37,15 @@ def one_line(error: BaseException) -> str:
     """The message of an input error on one line (str() of a KeyError quotes it; args[0] does not)."""
     message = error.args[0] if isinstance(error, KeyError) and error.args else error
     return " ".join(str(message).split())
+
+
+def run_command(task: Callable[[Config], None], args: Config, status: int) -> None:
+    """Run a command-line app's ``task`` on its parsed ``args``: an input error prints its one line
+    (:func:`one_line_input_errors`) on stderr and exits with ``status``."""
+    try:
+        one_line_input_errors(task)(args)
+    except SystemExit as stop:
+        if not isinstance(stop.code, str):
+            raise
+        print(stop.code, file=sys.stderr)
+        raise SystemExit(status) from None

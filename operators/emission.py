@@ -1,10 +1,16 @@
 """Photon emission from the light (a point, or emission points over a disc or a square) toward the
 substrate's top square.
 
-Photons of channel k aim at points q_j (j = 0 .. N_c - 1) of the square [-W, W]^2 at z = h,
+Photons of channel k aim at points q_j (j = 0 .. N_c - 1) of the square [-A, A]^2 at z = h,
 placed by the R2 low-discrepancy sequence (Roberts 2018; generator 1/g, 1/g^2 with g the plastic
 number) shifted by a random offset per channel (Cranley-Patterson rotation, drawn from the seed):
-any photon count, any chunking, and lower noise than independent random points.
+any photon count, any chunking, and lower noise than independent random points. A is fixed by
+the scene: the substrate's half width W, unless ``substrate.edge_height`` says the top may stand
+raised at the square's edge. The rays aimed at the square's edge then meet the raised top inside
+it, and the rim beyond them would be dark, so A reaches far enough that rays from every emission
+point cover a top that high (:func:`aim_half_width`); a ray that passes beside the block is lost
+(docs/method.md, "The substrate's side walls"). :meth:`LightEmitter.dark_rim` measures the rim a
+top higher than that leaves dark.
 
 Each photon carries the flux of its cell of the square, Phi = P / (4 pi c) * A_cell cos(theta) / r^2
 (P the light power split evenly over the c channels), and direction differentials that map the
@@ -36,6 +42,7 @@ spread), which the operators apply to their images (a Gaussian integrated over e
 
 from __future__ import annotations
 
+import logging
 import math
 from dataclasses import dataclass
 
@@ -46,6 +53,7 @@ from operators.light_source import moment_matched, onto_source, patch_variance, 
 from operators.scene import Light, Scene
 from operators.values import checked_number, checked_whole
 
+LOG = logging.getLogger(__name__)
 PLASTIC_NUMBER = 1.324717957244746
 CELL_FOOTPRINT = "cell"  # footprint_px setting: footprints the size of the photon's emission cell
 R2_STEP = (1.0 / PLASTIC_NUMBER, 1.0 / PLASTIC_NUMBER ** 2)
@@ -62,6 +70,40 @@ def source_points(light: Light, count: int, shift: tuple[float, float]) -> np.nd
     k = np.arange(count, dtype=np.float64)
     u, v = np.mod(shift[0] + k * R2_STEP[0], 1.0), np.mod(shift[1] + k * R2_STEP[1], 1.0)
     return moment_matched(onto_source(light, u, v), light, patch_variance(light, count))
+
+
+AIM_QUANTUM = 1.0 / 1024.0  # the aim square's growth is rounded up to this share of W
+NARROW_RIM = 0.1  # a dark rim narrower than this share of the height grid's spacing goes unreported
+
+
+def crossing_reach(scene: Scene, x: np.ndarray, y: np.ndarray, d: np.ndarray, offsets: np.ndarray) -> float:
+    """The farthest |x| or |y| (scene units) at which rays from every emission point (the light's
+    position plus ``offsets`` (K, 2)) through the top points (x, y, h + d) (arrays of one shape)
+    cross the plane z = h: a point raised by d is met by the ray aimed (l_z - h) / (l_z - h - d)
+    times as far from the emission point; at least W."""
+    half, h = scene.substrate.half_width, scene.substrate.thickness
+    lx, ly, lz = scene.light.position
+    stretch = (lz - h) / (lz - h - d)
+    reach = half
+    for sx in (lx + float(offsets[:, 0].min()), lx + float(offsets[:, 0].max())):
+        reach = max(reach, float(np.abs(sx + (x - sx) * stretch).max()))
+    for sy in (ly + float(offsets[:, 1].min()), ly + float(offsets[:, 1].max())):
+        reach = max(reach, float(np.abs(sy + (y - sy) * stretch).max()))
+    return reach
+
+
+def aim_half_width(scene: Scene, offsets: np.ndarray) -> float:
+    """The half width A >= W of the square on z = h the photons aim at: W where
+    ``substrate.edge_height`` is 0; else twice as far beyond W as the rays that reach a top
+    standing ``edge_height`` above the substrate along the whole edge of the square, from every
+    emission point (``offsets`` (K, 2) from the light's position), rounded up to AIM_QUANTUM W (the
+    margin covers the interpolated surface between samples)."""
+    half, raised = scene.substrate.half_width, scene.substrate.edge_height
+    if raised <= 0.0:
+        return half
+    edge = np.array([-half, half])
+    reach = crossing_reach(scene, edge, edge, np.full(2, raised), offsets)
+    return half * (1.0 + math.ceil(2.0 * (reach - half) / (AIM_QUANTUM * half)) * AIM_QUANTUM)
 
 
 def check_footprint(value: object) -> float | str:
@@ -114,14 +156,44 @@ class LightEmitter:
         )
         # The patches' blur on the receiver: standard deviation per axis, scene units.
         self.source_blur_sigma = math.sqrt(residual) * spread
-        half = scene.substrate.half_width
-        self.cell_area = (2.0 * half) ** 2 / self.per_channel
+        self.footprint_px = footprint_px
+        self.aim_half = aim_half_width(scene, self.offsets)
+        self.cell_area = (2.0 * self.aim_half) ** 2 / self.per_channel
         if footprint_px == CELL_FOOTPRINT:
             self.footprint_radius = math.sqrt(self.sources * self.cell_area / math.pi)
         else:
             lz = scene.light.position[2]
             drop = (lz - scene.substrate.thickness) / (lz - scene.receiver.z)
             self.footprint_radius = footprint_px * scene.receiver.pixel_size * drop
+
+    def dark_rim(self, heights: np.ndarray) -> tuple[float, float]:
+        """The top of ``heights`` (m, m) over [-W, W]^2 that no photon's ray reaches: the rim's
+        width beyond the aim square's rays and the ``substrate.edge_height`` that would light it
+        (scene units); (0, 0) for a rim narrower than NARROW_RIM of the grid's spacing."""
+        heights = np.asarray(heights, dtype=np.float64)
+        raised = heights > 0.0
+        if not raised.any():
+            return 0.0, 0.0
+        half, m = self.scene.substrate.half_width, heights.shape[0]
+        rows, cols = np.nonzero(raised)
+        coords = np.linspace(-half, half, m)
+        reach = crossing_reach(self.scene, coords[cols], coords[rows], heights[rows, cols], self.offsets)
+        rim = (reach - self.aim_half) * half / reach  # its width on the top: rays fan out by reach / W
+        if rim <= NARROW_RIM * 2.0 * half / (m - 1):
+            return 0.0, 0.0
+        drop = self.scene.light.position[2] - self.scene.substrate.thickness
+        return rim, drop * (1.0 - half / reach)  # a top this high along the edge is met out to ``reach``
+
+    def warn_dark_rim(self, heights: np.ndarray) -> bool:
+        """Log one line where ``heights`` (m, m) leave a dark rim (:meth:`dark_rim`), naming the
+        fix; True if it did."""
+        rim, needed = self.dark_rim(heights)
+        if rim > 0.0:
+            mm = self.scene.mm_per_unit
+            LOG.warning("the top stands raised at the square's edge: a rim %.3g mm wide there gets no light "
+                        "(substrate.edge_height=%.4g covers %.3g mm); give substrate.edge_height=%.4g or more",
+                        rim * mm, self.scene.substrate.edge_height, self.scene.substrate.edge_height * mm, needed)
+        return rim > 0.0
 
     @property
     def total(self) -> int:
@@ -153,7 +225,8 @@ class LightEmitter:
 
     def batch(self, start: int, stop: int) -> PhotonBatch:
         """Photons with global indices start .. stop-1 (channel-major order), all from one
-        emission point (within one of :meth:`segments`)."""
+        emission point (within one of :meth:`segments`), aimed at the square [-A, A]^2 on z = h
+        (A = :attr:`aim_half`)."""
         source = self.source_of(start)
         last = stop - 1
         if self.sources > 1 and stop > start and (self.source_of(last) != source
@@ -166,7 +239,7 @@ class LightEmitter:
         shift = self.shifts[channel]
         u = torch.frac(shift[:, 0] + j * R2_STEP[0])
         v = torch.frac(shift[:, 1] + j * R2_STEP[1])
-        half = self.scene.substrate.half_width
+        half = self.aim_half
         cast = dict(dtype=self.dtype, device=self.device)
         targets = torch.stack([(2.0 * half) * u.to(**cast) - half, (2.0 * half) * v.to(**cast) - half,
                                torch.full_like(u, self.scene.substrate.thickness, **cast)])

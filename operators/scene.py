@@ -80,15 +80,22 @@ class Substrate:
 
     ``walls``: ``clear`` (a cut block: light that meets a side wall refracts out of it or is
     totally reflected back in, docs/method.md, "The substrate's side walls") or ``absorbing``
-    (blackened or frosted edges: that light is lost, the paper's assumption)."""
+    (blackened or frosted edges: that light is lost, the paper's assumption).
+
+    ``edge_height``: how high (scene units, above the substrate) the top may stand at the square's
+    edge with all of it lit. The photons aim at a square just wide enough (operators/emission.py,
+    ``aim_half_width``); 0 aims at the substrate's own square, right for prints that leave the edges
+    flat, while a top raised at the edge keeps a dark rim there."""
 
     thickness: float = 0.1
     half_width: float = 1.0
     walls: str = "clear"
+    edge_height: float = 0.0
 
     def __post_init__(self) -> None:
         checked_number(self.thickness, "substrate.thickness", above=0.0, unit="scene units")
         checked_number(self.half_width, "substrate.half_width", above=0.0, unit="scene units")
+        checked_number(self.edge_height, "substrate.edge_height", least=0.0, unit="scene units above the substrate")
         if self.walls not in WALLS:
             raise ValueError(f"substrate.walls={self.walls!r} must be one of {', '.join(WALLS)}")
 

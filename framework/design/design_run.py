@@ -232,7 +232,10 @@ def design_verdict(metrics: Mapping[str, float], setup: DesignSetup, stop_reason
     """The run's verdict, one line each: the match, the printing limits, how the run ended."""
     c, mm = setup.constraints, setup.mm
     lines = [f"matches the target to {metrics['relative_l2']:.1%} (relative L2 after energy normalisation), "
-             f"SSIM {metrics['ssim']:.2f}, rendered independently (exact wavefront renderer or fresh photons)",
+             f"SSIM {metrics['ssim']:.2f}, rendered independently of the design's photons (the exact wavefront "
+             "renderer, or fresh photons through optical elements), which shares the model's surface and its walls' "
+             "optics; the glass as cut, traced ray by ray through glass.stl: python -m experiments.trace_design",
+             _edge_line(setup),
              f"max slope {metrics['printed_max_slope']:.3f} within {c.max_slope:g}; heights 0 to "
              f"{metrics['printed_max_height'] * mm:.3f} mm within {c.max_height * mm:.3g} mm"]
     if c.min_feature is not None:
@@ -261,12 +264,23 @@ def design_verdict(metrics: Mapping[str, float], setup: DesignSetup, stop_reason
     return lines
 
 
+def _edge_line(setup: DesignSetup) -> str:
+    """What the design assumed of the light along the square's edge (docs/design.md, "The glass's edge")."""
+    raised = setup.scene.substrate.edge_height * setup.mm
+    if raised > 0.0:
+        return (f"designed with the light of the whole top and its side walls: a top up to {raised:.3g} mm high "
+                "along the square's edge is lit (substrate.edge_height)")
+    return ("designed with the light of the substrate's own square (substrate.edge_height=0): right where the top "
+            "stays on the substrate along the edge (constraints.edge_margin), else its rim is dark in the model")
+
+
 def _save(output_dir: Path, setup: DesignSetup, heights: np.ndarray, caustic: np.ndarray, metrics: Mapping[str, float],
           verdict: list[str], history: MetricsHistory) -> None:
     np.save(output_dir / "height_field.npy", heights)
     np.save(output_dir / "caustic.npy", caustic.astype(np.float32))
     np.save(output_dir / "target.npy", setup.target.numpy().astype(np.float32))
-    export_outputs(output_dir, heights, setup.grid.half_width, setup.grid.base, setup.mm, formats=("stl", "obj"))
+    export_outputs(output_dir, heights, setup.grid.half_width, setup.grid.base, setup.mm, formats=("stl", "obj"),
+                   refine=setup.mesh_refine)
     save_design_figure(output_dir / "design.png", setup, heights, caustic, metrics, history)
     (output_dir / "metrics.json").write_text(json.dumps(dict(metrics), indent=2))
     (output_dir / "verdict.txt").write_text("\n".join(verdict) + "\n")

@@ -24,7 +24,7 @@ from framework.design.design_target import DesignTarget, load_target, paraxial_s
 from framework.files.image_io import load_mask
 from framework.scene.scene_config import build_operator, build_scene, to_plain
 from operators.scene import Scene
-from operators.values import checked_number
+from operators.values import checked_number, checked_whole
 
 __all__ = ["DesignSetup", "method_settings", "prepare_design"]
 
@@ -48,6 +48,7 @@ class DesignSetup:
         model_noise: The relative discrepancy that the operator's own render noise explains: two
             renders of flat glass with photon seeds seed and seed + 1 differ by sqrt(2) times it.
         flat_discrepancy: ||F(0) - target|| / ||target||, flat glass's relative discrepancy.
+        mesh_refine: Points per height spacing at which glass.stl/.obj sample the surface.
     """
 
     scene: Scene
@@ -60,6 +61,7 @@ class DesignSetup:
     mm: float
     model_noise: float
     flat_discrepancy: float
+    mesh_refine: int = 1
 
     @property
     def problem(self) -> Problem:
@@ -70,6 +72,12 @@ class DesignSetup:
         return Problem(self.operator, data, self.grid, self.scene, self.constraints)
 
 
+def edge_margin(cfg: Mapping[str, Any]) -> bool:
+    """Whether ``constraints.edge_margin`` keeps the top on the substrate along the square's edge."""
+    margin = (to_plain(cfg.get("constraints")) or {}).get("edge_margin")
+    return margin is not None and scene_length(margin, mm_per_unit(cfg), "constraints.edge_margin") > 0.0
+
+
 def _length(value: Any, mm: float, where: str) -> float | None:
     return None if value is None else scene_length(value, mm, where)
 
@@ -77,7 +85,7 @@ def _length(value: Any, mm: float, where: str) -> float | None:
 def _constraints(cfg: Mapping[str, Any], m: int, half_width: float, mm: float, base_dir: Path | None
                  ) -> PrintConstraints:
     spec = dict(to_plain(cfg.get("constraints")) or {})
-    allowed = ("max_height", "max_slope", "min_feature", "volume", "mask")
+    allowed = ("max_height", "max_slope", "min_feature", "volume", "mask", "edge_margin")
     unknown = [k for k in spec if k not in allowed]
     if unknown:
         raise ValueError(f"unknown key constraints.{unknown[0]}; allowed: {', '.join(allowed)}")
@@ -85,6 +93,15 @@ def _constraints(cfg: Mapping[str, Any], m: int, half_width: float, mm: float, b
     if spec.get("mask") is not None:
         path = Path(str(spec["mask"])).expanduser()
         mask = load_mask(path if path.is_absolute() or base_dir is None else base_dir / path, m).numpy()
+    margin = _length(spec.get("edge_margin"), mm, "constraints.edge_margin")
+    if margin is not None and margin > 0.0:  # the top stays on the substrate within the margin of the square's edge
+        s = np.linspace(-half_width, half_width, m)
+        inner = np.abs(s) <= half_width - margin
+        if not inner.any():
+            raise ValueError(f"constraints.edge_margin={spec['edge_margin']!r} leaves no glass to print on (the "
+                             f"square's half side is {half_width * mm:.3g} mm); give a smaller margin")
+        band = inner[:, None] & inner[None, :]
+        mask = band if mask is None else mask & band
     volume = spec.get("volume")
     constraints = PrintConstraints(
         max_height=_length(spec.get("max_height", "10 mm"), mm, "constraints.max_height"),
@@ -126,6 +143,9 @@ def prepare_design(cfg: Mapping[str, Any], base_dir: Path | None = None) -> Desi
     scene = replace(scene, receiver=replace(scene.receiver, half_width=half))
     grid = HeightGrid(m, scene.substrate.half_width, scene.substrate.thickness)
     constraints = _constraints(cfg, m, grid.half_width, mm, base_dir)
+    if (cfg.get("substrate") or {}).get("edge_height") is None:  # every design the limits allow is lit to its edge
+        raised = 0.0 if edge_margin(cfg) else constraints.max_height
+        scene = replace(scene, substrate=replace(scene.substrate, edge_height=raised))
     if not through_optics:  # through lenses the deflection's reach has no closed form: not checked
         _check_reach(target, scene, constraints.max_slope)
     _check_method(cfg)
@@ -156,7 +176,10 @@ def prepare_design(cfg: Mapping[str, Any], base_dir: Path | None = None) -> Desi
     noise = float(torch.linalg.vector_norm(flat - second.render(zeros).double())) / (
         math.sqrt(2.0) * float(torch.linalg.vector_norm(image)))
     flat_discrepancy = float(torch.linalg.vector_norm(flat - image)) / float(torch.linalg.vector_norm(image))
-    return DesignSetup(scene, operator, image, target.source, constraints, grid, notes, mm, noise, flat_discrepancy)
+    refine = checked_whole(cfg.get("mesh_refine", 1), "mesh_refine", 1, must="must be an integer >= 1 (points per "
+                           "height spacing of the exported mesh's top)")
+    return DesignSetup(scene, operator, image, target.source, constraints, grid, notes, mm, noise, flat_discrepancy,
+                       refine)
 
 
 def _padded_to_shadow(image: np.ndarray, scene: Scene, shadow: float) -> tuple[torch.Tensor, Scene]:

@@ -18,7 +18,8 @@ from PIL import Image, PngImagePlugin
 
 from framework.core.units import mm_per_unit as checked_mm_per_unit
 from framework.files.plotting import label_xy_axes, save_figure
-from operators.values import checked_number
+from operators.heightfield.catmull_rom import refinement_matrix
+from operators.values import checked_number, checked_whole
 
 if TYPE_CHECKING:
     import trimesh
@@ -49,19 +50,30 @@ def _heights(d: np.ndarray, name: str) -> np.ndarray:
     return d
 
 
-def glass_mesh(d: np.ndarray, half_width: float, thickness: float, mm_per_unit: float) -> trimesh.Trimesh:
+def glass_mesh(d: np.ndarray, half_width: float, thickness: float, mm_per_unit: float,
+               refine: int = 1) -> trimesh.Trimesh:
     """The printed glass (substrate + print) as a closed, outward-facing triangle mesh in mm.
 
-    Top: the samples at z = h + d and one vertex per cell centre at the mean of the cell's four
-    corners, four triangles per cell, so the top integrates like the trapezoid rule. Bottom: the
-    plane z = 0 as a fan from (0, 0, 0). Walls: two vertical triangles per boundary segment.
-    The volume is (2 W)^2 h + trapezoid integral of d (times mm_per_unit^3), to rounding.
+    Top: the operators' surface (operators/heightfield/catmull_rom.py) at ``refine`` points per
+    cell along each axis (1: the samples themselves) at z = h + d, and one vertex per fine cell's
+    centre at the mean of its four corners, four triangles per fine cell, so the top integrates
+    like the trapezoid rule. Bottom: the plane z = 0 as a fan from (0, 0, 0). Walls: two vertical
+    triangles per boundary segment. The volume is (2 W)^2 h + trapezoid integral of the top's
+    points (times mm_per_unit^3), to rounding.
 
     Args:
         d: Heights (m, m), m >= 2, scene units; h + d > 0 everywhere.
         half_width: W, scene units. thickness: h, scene units. mm_per_unit: mm per scene unit.
+        refine: Points per cell of the samples' grid, >= 1: the facets' pitch is the grid's over
+            ``refine`` (finer facets cast less of their pattern on a far screen).
     """
     d = _heights(d, "d")
+    refine = checked_whole(refine, "refine", 1, must="must be an integer >= 1 (points per cell of the heights' grid)")
+    centres = None
+    if refine > 1:  # the surface at the fine grid's points and at its cells' centres
+        matrix = refinement_matrix(d.shape[0], 2 * refine)
+        dense = matrix @ d @ matrix.T
+        d, centres = dense[::2, ::2], dense[1::2, 1::2]
     w = checked_number(half_width, "half_width", above=0.0, unit="scene units")
     scale = _scale(mm_per_unit)
     top = checked_number(thickness, "thickness", unit="scene units") + d
@@ -75,7 +87,8 @@ def glass_mesh(d: np.ndarray, half_width: float, thickness: float, mm_per_unit: 
     mid = (s[:-1] + s[1:]) / 2.0
     x, y = np.meshgrid(s, s)  # [row, col] = [y, x]
     cx, cy = np.meshgrid(mid, mid)
-    cz = (top[:-1, :-1] + top[:-1, 1:] + top[1:, 1:] + top[1:, :-1]) / 4.0
+    cz = ((top[:-1, :-1] + top[:-1, 1:] + top[1:, 1:] + top[1:, :-1]) / 4.0 if centres is None
+          else centres + (top - d)[:-1, :-1])
     index = np.arange(m * m).reshape(m, m)
     # Each cell's corners counter-clockwise seen from above (+x right, +y up), and its centre vertex.
     ring = np.stack([index[:-1, :-1], index[:-1, 1:], index[1:, 1:], index[1:, :-1]], axis=-1).reshape(-1, 4)
@@ -209,11 +222,13 @@ def save_deviation_figure(path: str | Path, d: np.ndarray, design: np.ndarray, h
 
 
 def export_outputs(out_dir: str | Path, d: np.ndarray, half_width: float, thickness: float, mm_per_unit: float,
-                   design: np.ndarray | None = None, formats: Sequence[str] = ("stl",)) -> dict[str, Any]:
+                   design: np.ndarray | None = None, formats: Sequence[str] = ("stl",), refine: int = 1
+                   ) -> dict[str, Any]:
     """Write the mm outputs of heights d (m, m, scene units) into ``out_dir``.
 
     Files: height_field_mm.npy (float64, mm), height_field_mm.png (16-bit, :func:`write_height_png`),
-    glass.<format> per format of ``MESH_FORMATS`` (:func:`glass_mesh`) and, with a ``design`` (m, m,
+    glass.<format> per format of ``MESH_FORMATS`` (:func:`glass_mesh`, ``refine`` points per cell)
+    and, with a ``design`` (m, m,
     scene units), deviation.json (:func:`deviation_report`) and deviation.png.
 
     Returns:
@@ -223,7 +238,7 @@ def export_outputs(out_dir: str | Path, d: np.ndarray, half_width: float, thickn
     unknown = [f for f in formats if f not in MESH_FORMATS]
     if unknown:
         raise ValueError(f"unknown mesh format {unknown[0]!r}; use one or more of {', '.join(MESH_FORMATS)}")
-    mesh = glass_mesh(d, half_width, thickness, mm_per_unit)  # checks d, the lengths and mm_per_unit
+    mesh = glass_mesh(d, half_width, thickness, mm_per_unit, refine)  # checks d, the lengths, mm_per_unit, refine
     report = {} if design is None else deviation_report(d, design, half_width, mm_per_unit)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)

@@ -62,7 +62,7 @@ __all__ = [
 
 SCENE_KEYS: dict[str, tuple[str, ...]] = {
     "light": ("position", "power", "shape", "size", "points"),
-    "substrate": ("thickness", "half_width", "walls"),
+    "substrate": ("thickness", "half_width", "walls", "edge_height"),
     "receiver": ("z", "resolution", "half_width"),
 }
 SCREEN_KEYS = ("psf", "sigma")
@@ -108,7 +108,8 @@ def build_scene(cfg: Mapping[str, Any], mm: float | None = None) -> Scene:
     if "points" in light:
         light["points"] = checked_whole(light["points"], "light.points")
     substrate = {k: v if k == "walls" else scene_length(v, mm, f"substrate.{k}")
-                 for k, v in _group(cfg, "substrate", SCENE_KEYS["substrate"]).items()}
+                 for k, v in _group(cfg, "substrate", SCENE_KEYS["substrate"]).items()
+                 if not (k == "edge_height" and v is None)}  # null: the command's own choice (sfc-design's limit)
     receiver = _group(cfg, "receiver", SCENE_KEYS["receiver"])
     receiver = {k: checked_whole(v, f"receiver.{k}") if k == "resolution" else scene_length(v, mm, f"receiver.{k}")
                 for k, v in receiver.items()}

@@ -181,3 +181,19 @@ def scatter_patch(grad: np.ndarray, ix: int, iy: int, patch: np.ndarray) -> None
         r = clamped_node(iy - 1 + a, m)
         for b in range(4):
             grad[r, clamped_node(ix - 1 + b, m)] += patch[a, b]
+
+
+def refinement_matrix(m: int, k: int) -> np.ndarray:
+    """(k (m - 1) + 1, m): the surface's values at k points per cell along one axis (the grid
+    lines and k - 1 points between each pair) as weights of the m samples, borders replicated as
+    the kernels do; S on the fine grid is R d R^T."""
+    fine = np.arange(k * (m - 1) + 1) / k
+    cell = np.minimum(fine.astype(np.int64), m - 2)
+    s = fine - cell
+    s2, s3 = s * s, s * s * s
+    weights = 0.5 * np.stack([-s3 + 2.0 * s2 - s, 3.0 * s3 - 5.0 * s2 + 2.0, -3.0 * s3 + 4.0 * s2 + s, s3 - s2], 1)
+    matrix = np.zeros((fine.size, m))
+    rows = np.arange(fine.size)
+    for a in range(4):
+        np.add.at(matrix, (rows, np.clip(cell - 1 + a, 0, m - 1)), weights[:, a])
+    return matrix

@@ -35,7 +35,8 @@ class FusedScene(NamedTuple):
     bracket the surface, zstart: plane where the hit search starts Newton (HeightFieldGrid.z_planes);
     slope_x, slope_y: bounds on the surface's slopes (HeightFieldGrid.slope_bounds);
     per_channel: photons per channel; flux_scale: P / (4 pi c) A_cell (l_z - h), so
-    flux = flux_scale / r^3; radius: emission footprint radius on z = h;
+    flux = flux_scale / r^3; radius: emission footprint radius on z = h; aim_half: half width
+    of the square on z = h the photons aim at (operators/emission.py, ``aim_half_width``);
     receiver_z, receiver_half: receiver plane and half width; to_px: pixels per scene unit;
     min_px, max_px: footprint pixel filter and cut-off radii (pixels); fresnel: Fresnel weights;
     simd: the CPU kernels take the splat, its gather, the jets and the hit adjoint from the AVX2
@@ -65,6 +66,7 @@ class FusedScene(NamedTuple):
     fresnel: bool
     simd: bool
     clear_walls: bool
+    aim_half: float
 
 
 _jit = nb.njit(cache=True, inline="always", fastmath=FAST_MATH, error_model="numpy")
@@ -79,8 +81,8 @@ def emit(index, sc, shifts):
     v = shifts[c, 1] + j * R2_STEP[1]
     u -= math.floor(u)
     v -= math.floor(v)
-    dx = (2.0 * sc.half) * u - sc.half - sc.light_x
-    dy = (2.0 * sc.half) * v - sc.half - sc.light_y
+    dx = (2.0 * sc.aim_half) * u - sc.aim_half - sc.light_x
+    dy = (2.0 * sc.aim_half) * v - sc.aim_half - sc.light_y
     dz = sc.base - sc.light_z
     inv_r = 1.0 / math.sqrt(dx * dx + dy * dy + dz * dz)
     w = (dx * inv_r, dy * inv_r, dz * inv_r)

@@ -140,6 +140,7 @@ class CausticOperator(PhotonOperator):
         self.device = torch.device(self.settings.device)
         self.emitter = LightEmitter(scene, self.settings.photons, self.settings.seed,
                                     self.settings.footprint_px, self.dtype, self.device)
+        self._rim_reported = False  # a top raised beyond the aim square's reach is reported once
         self.glass_index = torch.tensor(scene.indices, dtype=self.dtype, device=self.device)
         self.fused = FusedTracer(scene, self.emitter,
                                  filter_radius_px(self.settings.min_footprint_px, self.settings.pixel_integration),
@@ -169,6 +170,8 @@ class CausticOperator(PhotonOperator):
     def _check(self, heights: torch.Tensor) -> None:
         validate_heights(heights, self.scene.substrate.thickness)
         self.scene.check_heights_below_light(float(heights.max()))
+        if not self._rim_reported:
+            self._rim_reported = self.emitter.warn_dark_rim(to_numpy(heights))
 
     def render(self, heights: torch.Tensor, progress: bool = False) -> torch.Tensor:
         """Irradiance (c, n, n) by the fused native path (on the GPU with ``device: cuda``), no

@@ -27,6 +27,8 @@ LOST = 0
 # Walls a photon may meet per axis before the bottom: a path that would cross the block's full
 # width (|bottom point| > 3 W, a nearly horizontal ray) is lost.
 FOLD_LIMIT = 3.0
+# A top hit beyond this times W (rounding aside) lies outside the block: the ray passed beside it.
+BESIDE = 1.0 + 1e-12
 
 _jit = nb.njit(cache=True, inline="always", fastmath=FAST_MATH, error_model="numpy")
 
@@ -46,7 +48,9 @@ def leaving_plane(p1, w1, eta, half, clear):
     mirror x -> fx x + ox, y -> fy y + oy that total reflections at the walls apply to the landing
     point (fx, fy = +-1); ``lost``: absorbed by a wall (or crossing the block); ``code`` the
     path's code, the module's encoding of the folds and the exit (the caller sets LOST for a
-    photon lost here or later)."""
+    photon lost here or later). A photon whose top hit p1 lies outside the square (aimed beyond
+    it, operators/emission.py: it met the surface's flat continuation, so it passed beside the
+    block) is lost."""
     tb = -p1[2] / away_from_zero(w1[2])
     bx = p1[0] + tb * w1[0]
     by = p1[1] + tb * w1[1]
@@ -59,7 +63,10 @@ def leaving_plane(p1, w1, eta, half, clear):
     exit_y = cross_y and e2 * (1.0 - w1[1] * w1[1]) < 1.0
     tx = (sx * half - p1[0]) * w1[0] / max(w1[0] * w1[0], 1e-300)
     ty = (sy * half - p1[1]) * w1[1] / max(w1[1] * w1[1], 1e-300)
-    lost = (not clear and (cross_x or cross_y)) or abs(bx) > FOLD_LIMIT * half or abs(by) > FOLD_LIMIT * half
+    # A ray aimed beyond the square that meets the surface's flat continuation outside it passed beside the block.
+    beside = abs(p1[0]) > BESIDE * half or abs(p1[1]) > BESIDE * half
+    lost = (beside or (not clear and (cross_x or cross_y)) or abs(bx) > FOLD_LIMIT * half
+            or abs(by) > FOLD_LIMIT * half)
     fold_x = cross_x
     fold_y = cross_y
     exit_code = 0

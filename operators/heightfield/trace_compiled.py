@@ -17,7 +17,7 @@ import numpy as np
 from operators.emission import R2_STEP
 from operators.heightfield.intersect_native import MAX_MARCH_STEPS, NEWTON_ITERATIONS, SETTLE
 from operators.heightfield.kernels_native import FusedScene
-from operators.heightfield.side_walls import FOLD_LIMIT
+from operators.heightfield.side_walls import BESIDE, FOLD_LIMIT
 from operators.kernels import extension
 from operators.optics.reference import GRAZING
 from operators.splat.native import FAR_PX
@@ -26,10 +26,10 @@ from operators.splat.splat import MAX_DIFFERENTIAL_PX
 _INTS = {"per_channel", "fresnel", "simd", "clear_walls", "max_march_steps", "newton_iterations"}
 # The C struct sfc_scene: FusedScene's fields, then the constants the numba kernels import.
 _FIELDS = (*FusedScene._fields, "r2_u", "r2_v", "grazing", "max_differential_px", "settle", "max_march_steps",
-           "newton_iterations", "far_px", "fold_limit")
+           "newton_iterations", "far_px", "fold_limit", "beside")
 _CONSTANTS = dict(r2_u=R2_STEP[0], r2_v=R2_STEP[1], grazing=GRAZING, max_differential_px=MAX_DIFFERENTIAL_PX,
                   settle=SETTLE, max_march_steps=MAX_MARCH_STEPS, newton_iterations=NEWTON_ITERATIONS, far_px=FAR_PX,
-                  fold_limit=FOLD_LIMIT)
+                  fold_limit=FOLD_LIMIT, beside=BESIDE)
 
 
 class SceneStruct(ctypes.Structure):

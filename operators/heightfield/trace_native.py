@@ -50,7 +50,7 @@ class FusedTracer:
             light_x=float(light.position[0]), light_y=float(light.position[1]), light_z=float(light.position[2]),
             half=float(sub.half_width), base=float(sub.thickness), per_channel=int(emitter.per_channel),
             flux_scale=light.power / (4.0 * math.pi * scene.channels) * emitter.cell_area
-            * (light.position[2] - sub.thickness),
+            * (light.position[2] - sub.thickness), aim_half=float(emitter.aim_half),
             radius=float(emitter.footprint_radius), receiver_z=float(rec.z), receiver_half=float(rec.half_width),
             to_px=rec.resolution / (2.0 * rec.half_width), min_px=float(filter_px),
             max_px=float(max_pixel_radius), fresnel=bool(fresnel), simd=self.simd,

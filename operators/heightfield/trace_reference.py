@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import torch
 
 from operators.emission import PhotonBatch
-from operators.heightfield.side_walls import FOLD_LIMIT, LOST
+from operators.heightfield.side_walls import BESIDE, FOLD_LIMIT, LOST
 from operators.heightfield.surface import HeightFieldGrid, intersect_height_field
 from operators.optics.reference import (away_from_zero, fresnel_transmittance, height_field_normal,
                                         height_field_normal_differential, refract, transfer)
@@ -84,7 +84,7 @@ def leaving_faces(position: torch.Tensor, direction: torch.Tensor, n_glass: torc
     the block through, as :func:`operators.heightfield.side_walls.leaving_plane` for one photon:
     (normal (3, N), offset (N,): the plane normal . p = offset, mirror (2, N) of +-1 and shift
     (2, N): the landing (x, y) -> mirror (x, y) + shift of the walls' total reflections, walled
-    (N,): lost at a wall). No gradient flows through the choice."""
+    (N,): lost at a wall, or beside the block). No gradient flows through the choice."""
     with torch.no_grad():
         half = substrate.half_width
         along = -position[2] / away_from_zero(direction[2])
@@ -105,7 +105,8 @@ def leaving_faces(position: torch.Tensor, direction: torch.Tensor, n_glass: torc
         offset = torch.where(exit_x | exit_y, -half, 0.0).to(position.dtype)
         mirror = torch.where(fold, -1.0, 1.0).to(position.dtype)
         shift = torch.where(fold, 2.0 * half * side, 0.0).to(position.dtype)
-        walled = (bottom.abs() > FOLD_LIMIT * half).any(0)
+        # A top hit outside the square (aimed beyond it, operators/emission.py): the ray passed beside the block.
+        walled = (bottom.abs() > FOLD_LIMIT * half).any(0) | (position[:2].abs() > BESIDE * half).any(0)
         if substrate.walls != "clear":
             walled = walled | crosses.any(0)
     return normal, offset, mirror, shift, walled

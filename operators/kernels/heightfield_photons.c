@@ -75,8 +75,8 @@ static inline SFC_INLINE emitted emit(const sfc_scene *sc, const double *shifts,
     double u = shifts[2 * e.c] + j * sc->r2_u, v = shifts[2 * e.c + 1] + j * sc->r2_v;
     u -= floor(u);
     v -= floor(v);
-    const double dx = (2.0 * sc->half) * u - sc->half - sc->light_x;
-    const double dy = (2.0 * sc->half) * v - sc->half - sc->light_y;
+    const double dx = (2.0 * sc->aim_half) * u - sc->aim_half - sc->light_x;
+    const double dy = (2.0 * sc->aim_half) * v - sc->aim_half - sc->light_y;
     const double dz = sc->base - sc->light_z;
     const double inv_r = 1.0 / sqrt(dx * dx + dy * dy + dz * dz);
     e.w = v3(dx * inv_r, dy * inv_r, dz * inv_r);
@@ -102,7 +102,7 @@ typedef struct {
 } optics;
 
 /* The face through which a photon at p1 in the glass along w1 leaves the block and the mirror
- * of its landing (leaving_plane in operators/heightfield/side_walls.py): sets o->n2, o->fx,
+ * of its landing, or that it is lost (leaving_plane in operators/heightfield/side_walls.py): sets o->n2, o->fx,
  * o->fy, o->code (optics_state sets 0 for a lost photon) and returns the plane's offset c2
  * (n2 . p = c2); *ox, *oy the mirror's shifts, *walled 1 where a wall loses it. Flags are doubles 0 / 1 combined by arithmetic and the
  * comparisons are selects, so that GCC vectorises the loops over a packet. */
@@ -125,7 +125,9 @@ static inline SFC_INLINE double leaving_plane(const sfc_scene *sc, vec3 p1, vec3
     const double fold_y = cross_y * (1.0 - via_y) * (1.0 - via_x * (1.0 - y_first));
     const double far = (fabs(bx) > sc->fold_limit * half ? 1.0 : 0.0) + (fabs(by) > sc->fold_limit * half ? 1.0 : 0.0);
     const double absorbed = sc->clear_walls ? 0.0 : cross_x + cross_y;
-    const double lost = far + absorbed > 0.0 ? 1.0 : 0.0;
+    /* a top hit outside the square: the ray, aimed beyond it, passed beside the block */
+    const double beside = (fabs(p1.x) > sc->beside * half ? 1.0 : 0.0) + (fabs(p1.y) > sc->beside * half ? 1.0 : 0.0);
+    const double lost = far + absorbed + beside > 0.0 ? 1.0 : 0.0;
     o->n2 = v3(-sx * via_x, -sy * via_y, 1.0 - via_x - via_y);
     o->fx = 1.0 - 2.0 * fold_x;
     o->fy = 1.0 - 2.0 * fold_y;

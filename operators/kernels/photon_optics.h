@@ -18,6 +18,7 @@ typedef struct {
     int64_t per_channel;
     double flux_scale, radius, receiver_z, receiver_half, to_px, min_px, max_px;
     int64_t fresnel, simd, clear_walls;
+    double aim_half;            /* half width of the square on z = base the photons aim at (operators/emission.py) */
     double r2_u, r2_v;          /* emission's R2 sequence steps (operators/emission.py) */
     double grazing;             /* optics.reference.GRAZING */
     double max_differential_px; /* splat.splat.MAX_DIFFERENTIAL_PX */
@@ -25,6 +26,7 @@ typedef struct {
     int64_t max_march_steps, newton_iterations;
     double far_px;              /* splat.native.FAR_PX */
     double fold_limit;          /* heightfield.side_walls.FOLD_LIMIT */
+    double beside;              /* heightfield.side_walls.BESIDE */
 } sfc_scene;
 
 typedef struct { double x, y, z; } vec3;

@@ -172,6 +172,14 @@ class WavefrontRenderer:
         self.glass_index = torch.tensor(scene.indices, dtype=torch.float64)
         self.last_budget: FluxBudget | None = None
         self._omega: np.ndarray | None = None
+        # The aim grid covers the emitter's aim square (operators/emission.py) with ``vertices`` points
+        # per side over the substrate's square and whole spacings beyond it, so that a grid line runs
+        # along the square's edge, where rays part into those that enter the top and those beside it.
+        half = float(scene.substrate.half_width)
+        spacing = 2.0 * half / (self.vertices - 1)
+        beyond = math.ceil((self.emitter.aim_half - half) / spacing - 1e-9)
+        self.vertices += 2 * beyond
+        self.aim_half = half + beyond * spacing
 
     @staticmethod
     def default_vertices(scene: Scene) -> int:
@@ -196,17 +204,18 @@ class WavefrontRenderer:
         return self.scene.light.power / (4.0 * math.pi * self.scene.channels)
 
     def grid_solid_angles(self) -> np.ndarray:
-        """Solid angles (2, K-1, K-1) (sr) of the grid's aim triangles (computed once)."""
+        """Solid angles (2, K-1, K-1) (sr) of the grid's aim triangles over the aim square
+        [-A, A]^2 (A = :attr:`aim_half`; computed once)."""
         if self._omega is None:
             light = self.scene.light.position
-            self._omega = grid_solid_angles(self.vertices, float(self.scene.substrate.half_width),
-                                            float(self.scene.substrate.thickness),
+            self._omega = grid_solid_angles(self.vertices, self.aim_half, float(self.scene.substrate.thickness),
                                             (float(light[0]), float(light[1]), float(light[2])))
         return self._omega
 
     def aim_coordinates(self, index: np.ndarray) -> np.ndarray:
-        """Aim coordinates x_j = -W + 2 W j / (K - 1) (scene units) of grid indices ``index``."""
-        half = self.scene.substrate.half_width
+        """Aim coordinates x_j = -A + 2 A j / (K - 1) (scene units) of grid indices ``index``, A =
+        :attr:`aim_half`."""
+        half = self.aim_half
         return -half + (2.0 * half) * index / (self.vertices - 1)
 
     def trace(self, heights: torch.Tensor, aim: np.ndarray, channel: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -307,6 +316,7 @@ class WavefrontRenderer:
         validate_heights(heights, self.scene.substrate.thickness)
         self.scene.check_heights_below_light(float(heights.max()))
         d = heights.detach().to(device="cpu", dtype=torch.float64).contiguous()
+        self.emitter.warn_dark_rim(d.numpy())
         n = self.scene.receiver.resolution
         scale = self._channel_scale()
         omega = self.grid_solid_angles()

@@ -16,6 +16,7 @@ from PIL import Image
 
 from framework.design.design_run import CHECKPOINT, run_design
 from framework.design.design_setup import prepare_design
+from operators.heightfield.catmull_rom import refinement_matrix
 from tests.design.conftest import SMALL, compose_design
 from tests.python_subprocess import ROOT
 
@@ -87,9 +88,18 @@ def test_a_design_writes_printable_files_logs_to_mlflow_and_resumes(tmp_path):
     mesh = trimesh.load(run / "glass.stl")
     assert mesh.is_watertight
     mm, heights = 25.0, np.load(run / "height_field.npy")
-    x = np.linspace(-1.0, 1.0, heights.shape[0])
-    expected = (2.0 * mm) ** 2 * 0.1 * mm + np.trapezoid(np.trapezoid(heights, x), x) * mm ** 3
-    assert mesh.volume == pytest.approx(expected, rel=1e-6)  # substrate + print (trapezoid rule), mm^3
+    # The top samples the model's surface twice per spacing (mesh_refine 2), each fine cell split into
+    # four triangles about the surface at its centre: area (sum of corners / 6 + centre / 3) per cell.
+    m, refine = heights.shape[0], 2
+    fine = refinement_matrix(m, 2 * refine) @ heights @ refinement_matrix(m, 2 * refine).T
+    corners, centres = fine[::2, ::2], fine[1::2, 1::2]
+    cell_sum = corners[:-1, :-1] + corners[:-1, 1:] + corners[1:, :-1] + corners[1:, 1:]
+    area = (2.0 / ((m - 1) * refine)) ** 2
+    expected = (2.0 * mm) ** 2 * 0.1 * mm + area * float((cell_sum / 6.0 + centres / 3.0).sum()) * mm ** 3
+    assert mesh.volume == pytest.approx(expected, rel=1e-6)  # substrate + print, mm^3
+    x = np.linspace(-1.0, 1.0, m)
+    samples = (2.0 * mm) ** 2 * 0.1 * mm + np.trapezoid(np.trapezoid(heights, x), x) * mm ** 3
+    assert mesh.volume == pytest.approx(samples, rel=1e-3)  # the samples' trapezoid rule, to the surface's bulge
     assert first.metrics["relative_l2"] < 0.5 and first.verdict[0].startswith("matches the target to")
     assert json.loads((run / "metrics.json").read_text())["iterations"] == first.metrics["iterations"]
 

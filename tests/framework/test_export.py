@@ -194,3 +194,23 @@ def test_other_bad_inputs_name_the_value(tmp_path):
     Image.fromarray(np.zeros((4, 4), dtype=np.uint16)).save(tmp_path / "plain.png")
     with pytest.raises(ValueError, match=r"has no PNG text key 'mm_per_count'"):
         read_height_png(tmp_path / "plain.png")
+
+
+def test_a_refined_mesh_samples_the_models_surface_between_the_samples():
+    """refine=3: the top's grid vertices are the operators' Catmull-Rom surface (its scalar kernel)
+    at three points per spacing, through every sample; the mesh stays closed; refine 0 is refused."""
+    from operators.heightfield.catmull_rom import axis_weights, contract, load_patch
+
+    d = np.random.default_rng(3).random((6, 6)) * 0.05
+    mesh = glass_mesh(d, W, H, MM, refine=3)
+    assert mesh.is_watertight
+    fine = np.linspace(-W, W, 16)
+    spacing, wx, wy, patch = 2.0 * W / 5, np.zeros((4, 4)), np.zeros((4, 4)), np.zeros((4, 4))
+    tops = np.asarray(mesh.vertices)[:16 * 16, 2].reshape(16, 16) / MM
+    for i, y in enumerate(fine):
+        for j, x in enumerate(fine):
+            load_patch(d, axis_weights(x, -W, spacing, 6, 0, wx), axis_weights(y, -W, spacing, 6, 0, wy), patch)
+            assert tops[i, j] == pytest.approx(H + contract(patch, wx, 0, wy, 0), abs=1e-12)
+    np.testing.assert_allclose(tops[::3, ::3], H + d, atol=1e-12)
+    with pytest.raises(ValueError, match="refine=0"):
+        glass_mesh(d, W, H, MM, refine=0)
