@@ -7,13 +7,18 @@ noise), and the height-field operator (substrate.edge_height covering the top, a
 dark) and the exact wavefront renderer are compared with it over the whole receiver. Prints one
 row per case (docs/method.md, "Glass raised at its edge").
 
-    python -m experiments.bench_raised_edge            # about 2 min on 2 cores
+    python -m experiments.bench_raised_edge            # about 3 min on 2 cores
+    python -m experiments.bench_raised_edge --heights RUN/height_field.npy --refine 2 --pixels 64
+
+``--heights`` takes height fields (.npy, scene units: an sfc-design run's height_field.npy) instead
+of the ramp and the dome.
 """
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
+import functools
 import tempfile
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -48,10 +53,10 @@ def scene_for(screen: float, half: float, pixels: int, edge_height: float) -> Sc
                  receiver=Receiver(z=screen, resolution=pixels, half_width=half))
 
 
-def compare(shape: Callable[[int], np.ndarray], screen: float, half: float, args: argparse.Namespace,
+def compare(heights: np.ndarray, screen: float, half: float, args: argparse.Namespace,
             folder: Path) -> dict[str, float]:
-    """The case's distances (relative L2 over the receiver) from the traced mesh."""
-    heights = shape(args.samples)
+    """The distances (relative L2 over the receiver) of heights (m, m) on the screen at ``screen``
+    from their traced mesh."""
     path = folder / "glass.stl"
     glass_mesh(heights, HALF, THICKNESS, 1.0, refine=args.refine).export(path)
     scene = scene_for(screen, half, args.pixels, float(heights.max()))
@@ -75,17 +80,22 @@ def compare(shape: Callable[[int], np.ndarray], screen: float, half: float, args
 def main(argv: Sequence[str] | None = None) -> None:
     p = argparse.ArgumentParser(prog="python -m experiments.bench_raised_edge", description=__doc__.split("\n\n")[0])
     p.add_argument("--samples", type=int, default=32, help="height samples per side (default 32)")
-    p.add_argument("--refine", type=int, default=4, help="mesh points per height spacing (default 4)")
+    p.add_argument("--refine", type=int, default=8, help="mesh points per height spacing (default 8)")
     p.add_argument("--pixels", type=int, default=32, help="receiver pixels per side (default 32)")
     p.add_argument("--rays", type=int, default=1 << 24, help="traced rays in all (default 16777216)")
     p.add_argument("--photons", type=int, default=1 << 21, help="the model's photons (default 2097152)")
+    p.add_argument("--heights", type=Path, nargs="+", help="height fields (.npy, scene units) instead of the ramp "
+                                                          "and the dome")
     args = p.parse_args(argv)
+    prints: list[tuple[str, Callable[[], np.ndarray]]] = (
+        [(str(path), functools.partial(np.load, path)) for path in args.heights] if args.heights
+        else [(shape.__name__, functools.partial(shape, args.samples)) for shape in (ramp, dome)])
     print("| print | screen | tracer noise | model | exact renderer | model, rim dark |\n|---|---|---|---|---|---|")
     with tempfile.TemporaryDirectory() as folder:
-        for shape in (ramp, dome):
+        for name, heights in prints:
             for screen, half, label in ((-0.05, 1.05, "1.25 mm"), (-4.0, 2.0, "100 mm")):
-                f = compare(shape, screen, half, args, Path(folder))
-                print(f"| {shape.__name__} | {label} | {f['noise']:.2%} | {f['model']:.2%} | {f['exact']:.2%} | "
+                f = compare(heights(), screen, half, args, Path(folder))
+                print(f"| {name} | {label} | {f['noise']:.2%} | {f['model']:.2%} | {f['exact']:.2%} | "
                       f"{f['dark_rim']:.2%} |", flush=True)
 
 

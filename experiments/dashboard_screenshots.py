@@ -31,6 +31,7 @@ WINDOW = (1600, 1000)
 # Virtual time before the screenshot. The pages' timers (auto-refresh) run it out fast, in about 6 s of
 # real time here; 30 s of it sometimes shot the metric charts before they had fetched their data.
 RENDER_BUDGET_MS = 300_000
+SHOTS = 3  # renders of a page before a page that lacks its runs or metrics is refused
 NAMES = ("mlflow_runs.png", "mlflow_metrics.png")
 MAX_RUNS_CHECKED = 20  # the run names a page must show, at most (the newest finished runs)
 
@@ -177,7 +178,13 @@ def take_screenshots(
             shots = []
             for page, name in zip(pages(server, experiment, run_name), names):
                 print(page.url.replace(server, "<server>"), flush=True)
-                check_page(shoot(browser, page.url, out_dir / name), page.url, page.shows, page.shows_one_of)
+                for attempt in range(SHOTS):  # on a loaded machine the charts may not have their data yet
+                    try:
+                        check_page(shoot(browser, page.url, out_dir / name), page.url, page.shows, page.shows_one_of)
+                        break
+                    except RuntimeError:
+                        if attempt == SHOTS - 1:
+                            raise
                 shots.append(out_dir / name)
             return shots
 

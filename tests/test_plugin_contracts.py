@@ -36,7 +36,7 @@ from framework.reconstruction.stopping import StagnationStopping
 from framework.core.plugin_config import build_plugin
 from framework.core.registry import KINDS, available, declared, register
 from framework.reconstruction.feature_search import SearchedLines
-from operators.scene import Receiver, Scene
+from operators.scene import Receiver, Scene, Substrate
 from regularizers import PixelL1
 from examples.plugins.exact_step_solver import ExactStepSolver
 from examples.plugins.l2_regularizer import PixelL2
@@ -47,7 +47,8 @@ from examples.plugins.small_change_stopping import SmallChangeStopping
 from framework.optimization.preconditioner import GradientPreconditioner
 from framework.optimization.step_size import StepSizePolicy
 
-SCENE = Scene(receiver=Receiver(resolution=32))
+# The rim of a top raised up to 0.05 along the square's edge is lit (the contract's raised-edge checks).
+SCENE = Scene(substrate=Substrate(edge_height=0.05), receiver=Receiver(resolution=32))
 M = 32  # height samples per side of the known problem
 
 

@@ -9,7 +9,8 @@ plugin with required settings declares an example of them in a classmethod
   (framework/core/contracts/operator.py), the declared output shape and dtype, finite non-negative
   images, determinism under a seed, the adjoint identity of the linearisation
   <vjp(d, w), v> = <w, F'(d) v> and the gradient of ``loss_and_grad`` against central finite
-  differences, the power on the receiver unchanged by a small print when ``conserves_energy``,
+  differences (on a bump, and on a bump over a ramp raised along an edge, whose light crosses the
+  rim and meets the side walls), the power on the receiver unchanged by a small print when ``conserves_energy``,
   and bad heights refused (wrong shape, NaN) with a ValueError;
 - regularizer (:func:`check_regularizer`): ``prox`` is the minimiser of step R(x) + 1/2 ||x - d||^2
   (no nearby point does better), its result lies where R is finite, and ``value`` is finite there;
@@ -108,6 +109,13 @@ def smooth_bump(m: int, height: float = 0.02, width: float = 0.3) -> torch.Tenso
     return height * torch.exp(-(x ** 2 + y ** 2) / (2.0 * width ** 2))
 
 
+def raised_edge(m: int, rise: float = 0.02) -> torch.Tensor:
+    """A ramp (m, m), float64, scene units, from 0 at x = -1 to ``rise`` at x = 1: a top that
+    stands raised along the +x edge of the square."""
+    axis = torch.linspace(-1.0, 1.0, m, dtype=torch.float64)
+    return (0.5 * rise * (axis + 1.0)).expand(m, m).clone()
+
+
 def check_operator(make: Callable[[int], Any], m: int = 16, who: str = "operator") -> None:
     """Check an operator plugin built by ``make(seed)`` on heights of an m x m grid."""
     operator = make(0)
@@ -126,6 +134,10 @@ def check_operator(make: Callable[[int], Any], m: int = 16, who: str = "operator
     probe = _Probe(operator, bump)
     _check_adjoint(operator, bump, probe, who)
     _check_gradient(operator, bump, probe, who)
+    edge = bump + raised_edge(m).to(dtype)  # light through a raised rim and off the side walls
+    edge_probe = _Probe(operator, edge)
+    _check_adjoint(operator, edge, edge_probe, f"{who} (a top raised at the +x edge)")
+    _check_gradient(operator, edge, edge_probe, f"{who} (a top raised at the +x edge)")
     if operator.conserves_energy:
         power = [float(operator.render(d).double().sum()) * operator.pixel_area for d in (flat, bump)]
         _require(power[0] > 0 and abs(power[1] - power[0]) <= 0.02 * power[0], who,
