@@ -270,8 +270,9 @@ def _edge_line(setup: DesignSetup) -> str:
     if raised > 0.0:
         return (f"designed with the light of the whole top and its side walls: a top up to {raised:.3g} mm high "
                 "along the square's edge is lit (substrate.edge_height)")
-    return ("designed with the light of the substrate's own square (substrate.edge_height=0): right where the top "
-            "stays on the substrate along the edge (constraints.edge_margin), else its rim is dark in the model")
+    return ("designed with the light of the substrate's own square (substrate.edge_height=0): right where the "
+            "top stays on the substrate along the edge (constraints.edge_margin or mask), else its rim is dark in "
+            "the model")
 
 
 def _save(output_dir: Path, setup: DesignSetup, heights: np.ndarray, caustic: np.ndarray, metrics: Mapping[str, float],

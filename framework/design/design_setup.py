@@ -72,10 +72,11 @@ class DesignSetup:
         return Problem(self.operator, data, self.grid, self.scene, self.constraints)
 
 
-def edge_margin(cfg: Mapping[str, Any]) -> bool:
-    """Whether ``constraints.edge_margin`` keeps the top on the substrate along the square's edge."""
-    margin = (to_plain(cfg.get("constraints")) or {}).get("edge_margin")
-    return margin is not None and scene_length(margin, mm_per_unit(cfg), "constraints.edge_margin") > 0.0
+def _edge_unprinted(constraints: PrintConstraints) -> bool:
+    """Whether the limits keep the top on the substrate along the whole edge of the square: the
+    mask (``constraints.mask``, cut by ``constraints.edge_margin``) allows no sample there."""
+    mask = constraints.mask
+    return mask is not None and not (mask[0].any() or mask[-1].any() or mask[:, 0].any() or mask[:, -1].any())
 
 
 def _length(value: Any, mm: float, where: str) -> float | None:
@@ -144,7 +145,7 @@ def prepare_design(cfg: Mapping[str, Any], base_dir: Path | None = None) -> Desi
     grid = HeightGrid(m, scene.substrate.half_width, scene.substrate.thickness)
     constraints = _constraints(cfg, m, grid.half_width, mm, base_dir)
     if (cfg.get("substrate") or {}).get("edge_height") is None:  # every design the limits allow is lit to its edge
-        raised = 0.0 if edge_margin(cfg) else constraints.max_height
+        raised = 0.0 if _edge_unprinted(constraints) else constraints.max_height
         scene = replace(scene, substrate=replace(scene.substrate, edge_height=raised))
     if not through_optics:  # through lenses the deflection's reach has no closed form: not checked
         _check_reach(target, scene, constraints.max_slope)

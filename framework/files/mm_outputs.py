@@ -56,10 +56,12 @@ def glass_mesh(d: np.ndarray, half_width: float, thickness: float, mm_per_unit: 
 
     Top: the operators' surface (operators/heightfield/catmull_rom.py) at ``refine`` points per
     cell along each axis (1: the samples themselves) at z = h + d, and one vertex per fine cell's
-    centre at the mean of its four corners, four triangles per fine cell, so the top integrates
-    like the trapezoid rule. Bottom: the plane z = 0 as a fan from (0, 0, 0). Walls: two vertical
-    triangles per boundary segment. The volume is (2 W)^2 h + trapezoid integral of the top's
-    points (times mm_per_unit^3), to rounding.
+    centre, four triangles per fine cell. With refine 1 the centre is the mean of the cell's four
+    corners, so the top integrates like the trapezoid rule and the volume is (2 W)^2 h + the
+    trapezoid integral of d (times mm_per_unit^3), to rounding; with refine > 1 it is the surface
+    at the centre, and each fine cell holds its area times (corners' sum / 6 + centre / 3).
+    Bottom: the plane z = 0 as a fan from (0, 0, 0). Walls: two vertical triangles per boundary
+    segment.
 
     Args:
         d: Heights (m, m), m >= 2, scene units; h + d > 0 everywhere.
@@ -76,7 +78,8 @@ def glass_mesh(d: np.ndarray, half_width: float, thickness: float, mm_per_unit: 
         d, centres = dense[::2, ::2], dense[1::2, 1::2]
     w = checked_number(half_width, "half_width", above=0.0, unit="scene units")
     scale = _scale(mm_per_unit)
-    top = checked_number(thickness, "thickness", unit="scene units") + d
+    base = checked_number(thickness, "thickness", unit="scene units")
+    top = base + d
     if top.min() <= 0.0:
         i, j = np.unravel_index(np.argmin(top), top.shape)
         raise ValueError(f"glass top h + d = {top[i, j]:.6g} <= 0 at d[{i}, {j}]={d[i, j]:.6g} "
@@ -88,7 +91,7 @@ def glass_mesh(d: np.ndarray, half_width: float, thickness: float, mm_per_unit: 
     x, y = np.meshgrid(s, s)  # [row, col] = [y, x]
     cx, cy = np.meshgrid(mid, mid)
     cz = ((top[:-1, :-1] + top[:-1, 1:] + top[1:, 1:] + top[1:, :-1]) / 4.0 if centres is None
-          else centres + (top - d)[:-1, :-1])
+          else base + centres)
     index = np.arange(m * m).reshape(m, m)
     # Each cell's corners counter-clockwise seen from above (+x right, +y up), and its centre vertex.
     ring = np.stack([index[:-1, :-1], index[:-1, 1:], index[1:, 1:], index[1:, :-1]], axis=-1).reshape(-1, 4)

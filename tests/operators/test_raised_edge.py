@@ -21,9 +21,8 @@ from operators.heightfield.operator import CausticOperator, OperatorSettings
 from operators.mesh.path_trace import trace_mesh
 from operators.scene import Substrate
 from operators.wavefront.renderer import WavefrontRenderer
-from tests.operators.test_gradients import directional_check
 from tests.operators.test_path_trace import _solid_angle
-from tests.operators.test_side_walls import H, LIGHT_Z, W, slab_scene
+from tests.operators.test_side_walls import H, LIGHT_Z, W, assert_native_matches_reference, slab_scene
 
 RISE = 0.2  # the ramp's height at the +x edge (5 mm on the paper's 25 mm unit), 0 at the -x edge
 
@@ -103,13 +102,7 @@ def test_a_raised_edge_renders_and_differentiates_as_the_torch_reference(kernels
         photons=20_000, dtype="float64", footprint_px=3.0, min_footprint_px=1.0, kernels=kernels))
     axis = np.linspace(-W, W, 16)
     heights = ramp(16) + torch.from_numpy(0.02 * np.exp(-8 * (axis[:, None] ** 2 + axis[None, :] ** 2)))
-    fused, reference = op.render(heights), op.render_reference(heights)
-    assert torch.allclose(fused, reference, rtol=1e-10, atol=1e-10 * float(reference.abs().max()))
-    weights = torch.randn(op.output_shape, dtype=torch.float64, generator=torch.Generator().manual_seed(5))
-    vjp, autograd = op.vjp(heights, weights), op.vjp_reference(heights, weights)
-    assert float((vjp - autograd).abs().max()) <= 1e-9 * float(autograd.abs().max())
-    numeric, analytic = directional_check(op, heights, weights, seed=6, eps=1e-7)
-    assert abs(numeric - analytic) <= 2e-5 * abs(analytic), (numeric, analytic)
+    assert_native_matches_reference(op, heights)
 
 
 @pytest.mark.slow
