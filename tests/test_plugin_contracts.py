@@ -27,6 +27,7 @@ from framework.core.contracts.checks import (
     smooth_bump,
 )
 from framework.core.contracts.data_source import DataRequest, ShotStack
+from framework.core.contracts.representation_checks import check_representation
 from framework.core.contracts.start import StartRequest, StartResult
 from framework.core.data import ReconstructionData
 from operators.stack import StackOperator
@@ -90,6 +91,22 @@ OWN_BASES = {**BASES, "step_size": StepSizePolicy, "preconditioner": GradientPre
 def test_caustic_design_has_its_own_kind() -> None:
     assert set(available("design")) == {"schwartzburg", "design_lbfgs", "design_adam"}
     assert "design_lbfgs" not in available("solver") and "schwartzburg" in available("solver")  # also a reconstruction
+
+
+def _bead_design(m: int) -> torch.Tensor:
+    """Two crossing beads 0.03 high and about 0.15 wide (scene units) on the m x m grid over [-1, 1]^2."""
+    axis = torch.linspace(-1.0, 1.0, m, dtype=torch.float64)
+    y, x = torch.meshgrid(axis, axis, indexing="ij")
+    along_x = torch.exp(-(y - 0.2) ** 2 / (2 * 0.06**2)) * (x.abs() < 0.7)
+    along_y = torch.exp(-(x + 0.1) ** 2 / (2 * 0.06**2)) * (y.abs() < 0.7)
+    return 0.03 * (along_x + along_y).double()
+
+
+@pytest.mark.parametrize("name", available("representation"))
+def test_every_representation_keeps_the_contract(name, known_problem) -> None:
+    problem = replace(known_problem, data=replace(known_problem.data, design=_bead_design(M)))
+    make = build_plugin("representation", name, example_settings("representation", name), "representation")
+    check_representation(make, problem, who=f"representation/{name}")
 
 
 @pytest.mark.parametrize("kind", KINDS)

@@ -89,6 +89,7 @@ class RunResult:
     elapsed_s: float
     accepted: bool = False
     solver_metrics: dict[str, Any] = field(default_factory=dict)
+    fitted: Any = None
 
     @property
     def last(self) -> IterationRecord | None:
@@ -228,6 +229,11 @@ class IterativeSolver(ABC):
         deposited volume), or None; Morozov's rule accepts only iterates inside it."""
         return None
 
+    def fitted(self) -> Any:
+        """What the solver fitted besides the heights (a representation and its parameters,
+        framework/reconstruction/solvers/parametric_fit.py), or None."""
+        return None
+
     def run_metrics(self) -> dict[str, Any]:
         """What sums up this solver's run for the run's metrics.json (e.g. the iterations after
         which a coarse-to-fine schedule refined); nothing by default."""
@@ -280,6 +286,7 @@ class IterativeSolver(ABC):
             elapsed_s=self.state.elapsed_s,
             accepted=accepted,
             solver_metrics=self.run_metrics(),
+            fitted=self.fitted(),
         )
         for cb in ordered:
             cb.on_end(self, result)

@@ -49,6 +49,10 @@ class DefectSettings:
     evaluations: int = 40
     tolerance: float = 0.05
     tolerance_mm: float = 0.1
+    track_height: float = 0.15
+    track_width: float = 0.2
+    track_offset_mm: float = 0.3
+    min_drop_mm3: float = 0.1
 
     def within_tolerance(self, defect: Defect) -> bool:
         """Whether a defect is within the print's tolerance: a height or width change of less than

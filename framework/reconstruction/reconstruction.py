@@ -38,6 +38,7 @@ from framework.reconstruction.verdict import volume_report
 from framework.stack.first_fit import fit_first_shot
 from framework.stack.shot_report import save_shot_record, shot_metrics
 from framework.tracking.mlflow_tracker import MlflowTracker, local_store_uri
+from framework.tracks.track_report import fitted_tracks, report_tracks, track_tolerances, tracks_verdict
 
 CALIBRATION_STATE = "calibration.json"
 # Photons per shot and hypothesis of a stack's line search (framework/reconstruction/feature_search.py).
@@ -303,8 +304,19 @@ def _reconstruct(parts: Reconstruction, output_dir: Path, base_dir: Path, checkp
         metrics.update(report_verdict(metrics["rel_discrepancy"], data, settings.tau_dis, chosen.returned_iteration,
                                       result.stop_reason, volume, shots,
                                       calibration.never_updated() if calibration else ()))
-        reports_defects = data.design is not None and parts.defects.enabled != "off"
-        if reports_defects and data.shots:
+        tracks = fitted_tracks(result.fitted)
+        reports_defects = (data.design is not None or tracks is not None) and parts.defects.enabled != "off"
+        if tracks is not None:
+            lines = tracks_verdict(tracks[0], tracks[1])
+            for line in lines:
+                print(f"verdict: {line}", flush=True)
+            metrics["verdict"] += " " + " ".join(lines)
+        if reports_defects and tracks is not None:
+            report("reconstruction: the defects read from the tracks")
+            track_report = report_tracks(problem, tracks[0], tracks[1], track_tolerances(parts.defects), output_dir)
+            metrics.update(track_report.metrics())
+            metrics["verdict"] += " " + " ".join(track_report.lines)
+        elif reports_defects and data.shots:
             print("no defect report: it reads one photo; reconstruct a single shot for it", flush=True)
         elif reports_defects:
             report("reconstruction: the defect report against the design")

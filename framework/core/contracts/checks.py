@@ -24,7 +24,9 @@ plugin with required settings declares an example of them in a classmethod
   the same twice, its phases named;
 - data (:func:`check_data_source`): ``check`` and ``load`` agree on the printed area and on the
   volume where ``check`` knows it, the target has the operator's shape, the noise level lies in (0, 1), the
-  same data twice.
+  same data twice;
+- representation (framework/core/contracts/representation_checks.py): shapes, a start inside its bounds, its stages,
+  and its vjp and its prior's gradient against central differences (the adjoint identity).
 
 Before any of these, :func:`check_base`: the registered object derives from its kind's base.
 
@@ -42,6 +44,7 @@ import torch
 
 from framework.core.contracts.data_source import DataRequest, DataSource
 from framework.core.contracts.operator import missing_members
+from framework.core.contracts.representation import Representation
 from framework.core.contracts.solver import SolverBuilder
 from framework.core.contracts.start import Start, StartRequest
 from framework.core.contracts.stopping import StoppingRule
@@ -82,7 +85,7 @@ def _require(condition: bool, who: str, what: str) -> None:
 # bases in framework/optimization/, checked by tests/test_plugin_contracts.py).
 BASES: dict[str, type] = {"operator": ImageOperator, "data": DataSource, "initial": Start, "solver": IterativeSolver,
                           "design": IterativeSolver, "stopping": StoppingRule, "regularizer": Regularizer,
-                          "post_step": PostStepUpdate}
+                          "post_step": PostStepUpdate, "representation": Representation}
 
 
 def check_base(kind: str, name: str, base: type | None = None) -> None:

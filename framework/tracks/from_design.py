@@ -1,0 +1,272 @@
+"""A print's tracks from its design height field: the skeleton of its beads as paths, then the
+profiles that draw the design best.
+
+1. The printed area (heights above ``floor`` of the local peak) is thinned to its skeleton
+   (scikit-image's skeletonize); the skeleton's branches between its ends and junctions become
+   polylines, spurs shorter than ``spur_mm`` are dropped, and at each junction the two branches
+   that continue each other most straightly are joined (two beads that cross stay two tracks).
+2. Each track starts with the design's height along its path and the width of a Gaussian bead of
+   the cross-section's area; then every profile (height, width, offset, shape) is fitted to the
+   design's heights by least squares (L-BFGS-B over the representation's exact gradient,
+   framework/tracks/track_heights.py), so the nominal tracks redraw the design. A tool path given
+   with a design keeps its paths and takes its profiles and bead shapes from the design the same way
+   (:func:`profiles_drawing`): the design knows how the glass lies, the tool path where.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+import torch
+from scipy import ndimage, optimize
+from skimage.morphology import skeletonize
+
+from framework.tracks.geometry import resampled_path
+from framework.tracks.track_heights import TrackHeights, TrackSettings
+from framework.tracks.track_set import SECTION_REACH, SECTION_SAMPLES, Track, TrackSet
+
+__all__ = ["tracks_from_design", "skeleton_paths", "profiles_drawing", "measured_sections"]
+
+NEIGHBOURS = [(dr, dc) for dr in (-1, 0, 1) for dc in (-1, 0, 1) if dr or dc]
+
+
+def _branches(skeleton: np.ndarray) -> list[list[tuple[int, int]]]:
+    """The skeleton's branches: pixel chains between nodes (ends, junctions), each node shared."""
+    on = {(int(r), int(c)) for r, c in zip(*np.nonzero(skeleton))}
+
+    def neighbours(p: tuple[int, int]) -> list[tuple[int, int]]:
+        return [(p[0] + dr, p[1] + dc) for dr, dc in NEIGHBOURS if (p[0] + dr, p[1] + dc) in on]
+
+    nodes = {p for p in on if len(neighbours(p)) != 2}
+    seen: set[frozenset[tuple[int, int]]] = set()
+    branches: list[list[tuple[int, int]]] = []
+    for node in nodes:
+        for first in neighbours(node):
+            chain, previous, here = [node, first], node, first
+            while here not in nodes:
+                onward = [q for q in neighbours(here) if q != previous and q not in chain[-3:]]
+                if not onward:
+                    break
+                previous, here = here, onward[0]
+                chain.append(here)
+            key = frozenset(chain)
+            if key not in seen:
+                seen.add(key)
+                branches.append(chain)
+    loops = on - {p for chain in branches for p in chain}
+    while loops:  # closed rings have no node: start anywhere
+        start = loops.pop()
+        chain, previous, here = [start], (-1, -1), start
+        while True:
+            onward = [q for q in neighbours(here) if q != previous and q in loops]
+            if not onward:
+                break
+            previous, here = here, onward[0]
+            loops.discard(here)
+            chain.append(here)
+        if len(chain) > 2:
+            branches.append([*chain, start])
+    return branches
+
+
+def _direction(chain: np.ndarray, at_end: bool, reach: int = 6) -> np.ndarray:
+    """The unit direction a chain leaves its first (or last) point with, over ``reach`` pixels."""
+    part = chain[::-1] if at_end else chain
+    step = part[min(reach, len(part) - 1)] - part[0]
+    return step / max(float(np.hypot(*step)), 1e-12)
+
+
+def _joined(chains: list[np.ndarray]) -> list[np.ndarray]:
+    """Chains joined through junctions: at each shared end, the pair that continues most straightly
+    (an angle under 45 degrees) becomes one chain; repeated until no pair joins."""
+    chains = [c for c in chains if len(c) >= 2]
+    while True:
+        best = None
+        for i, a in enumerate(chains):
+            for j in range(i + 1, len(chains)):
+                b = chains[j]
+                for end_a in (False, True):
+                    for end_b in (False, True):
+                        pa, pb = (a[-1] if end_a else a[0]), (b[-1] if end_b else b[0])
+                        if np.any(pa != pb) or np.array_equal(a[0], a[-1]):
+                            continue
+                        straight = -float(np.dot(_direction(a, end_a), _direction(b, end_b)))
+                        if straight > math.cos(math.pi / 4) and (best is None or straight > best[0]):
+                            best = (straight, i, j, end_a, end_b)
+        if best is None:
+            return chains
+        _, i, j, end_a, end_b = best
+        a = chains[i] if end_a else chains[i][::-1]
+        b = chains[j][::-1] if end_b else chains[j]
+        chains = [c for k, c in enumerate(chains) if k not in (i, j)] + [np.concatenate([a, b[1:]])]
+
+
+def _collapsed(chains: list[np.ndarray], nodes: dict[tuple, int], cell_mm: float, link_mm: float
+               ) -> list[np.ndarray]:
+    """Short links between two junctions removed and their junctions made one point (their mean):
+    beads crossing at a slant thin to two junctions joined by a link, not to one."""
+    parent: dict[tuple, tuple] = {}
+
+    def root(p: tuple) -> tuple:
+        while parent.get(p, p) != p:
+            p = parent[p]
+        return p
+
+    links = [c for c in chains if len(c) * cell_mm < link_mm and min(nodes[tuple(c[0])], nodes[tuple(c[-1])]) > 1
+             and tuple(c[0]) != tuple(c[-1])]
+    for link in links:
+        parent[root(tuple(link[0]))] = root(tuple(link[-1]))
+    members: dict[tuple, list[tuple]] = {}
+    for point in parent:
+        members.setdefault(root(point), []).append(point)
+    centre = {p: np.mean([*group, r], axis=0) for r, group in members.items() for p in [*group, r]}
+    out = []
+    for chain in chains:
+        if any(chain is link for link in links):
+            continue
+        chain = chain.copy()
+        for end in (0, -1):
+            if tuple(chain[end]) in centre:
+                chain[end] = centre[tuple(chain[end])]
+        out.append(chain)
+    return out
+
+
+def skeleton_paths(design_mm: np.ndarray, cell_mm: float, floor: float = 0.2, spur_mm: float = 1.0,
+                   smooth_mm: float = 0.5) -> list[np.ndarray]:
+    """The bead paths (k, 2) in mm (x, y from the grid's centre) of a design (m, m) in mm."""
+    peak = float(design_mm.max())
+    if not peak > 0.0:
+        raise ValueError("the design has no printed height; tracks need beads to follow")
+    local = ndimage.maximum_filter(design_mm, size=2 * max(1, int(round(2.0 / cell_mm))) + 1)
+    printed = (design_mm > floor * local) & (design_mm > 0.05 * peak)
+    chains = [np.asarray(c, dtype=np.float64) for c in _branches(skeletonize(printed))]
+    nodes: dict[tuple, int] = {}
+    for chain in chains:
+        for end in (tuple(chain[0]), tuple(chain[-1])):
+            nodes[end] = nodes.get(end, 0) + 1
+    kept = [c for c in chains if len(c) * cell_mm >= spur_mm or min(nodes[tuple(c[0])], nodes[tuple(c[-1])]) > 1]
+    kept = _collapsed(kept, nodes, cell_mm, link_mm=1.5)
+    m = design_mm.shape[0]
+    paths = []
+    for chain in _joined(kept):
+        if len(chain) * cell_mm < spur_mm:
+            continue
+        width = max(1, int(round(smooth_mm / cell_mm)))
+        smoothed = ndimage.uniform_filter1d(chain, size=2 * width + 1, axis=0, mode="nearest")
+        smoothed[0], smoothed[-1] = chain[0], chain[-1]
+        centre = (m - 1) / 2.0
+        paths.append(np.stack([(smoothed[:, 1] - centre) * cell_mm, (smoothed[:, 0] - centre) * cell_mm], axis=1))
+    if not paths:
+        raise ValueError("the design's skeleton has no branch longer than spur_mm; is it a print of beads?")
+    return paths
+
+
+def _first_guess(design_mm: np.ndarray, path: np.ndarray, cell_mm: float, name: str) -> Track:
+    """Height along the path from the design; width: the median full width at half height across it."""
+    m = design_mm.shape[0]
+    centre = (m - 1) / 2.0
+    rows, cols = path[:, 1] / cell_mm + centre, path[:, 0] / cell_mm + centre
+    height = np.maximum(ndimage.map_coordinates(design_mm, [rows, cols], order=1), 1e-3)
+    tangent = np.gradient(path, axis=0)
+    tangent /= np.maximum(np.hypot(*tangent.T), 1e-12)[:, None]
+    across = np.linspace(-3.0, 3.0, int(round(6.0 / (0.5 * cell_mm))) + 1)  # mm
+    r = rows[:, None] + across[None] * tangent[:, 0:1] / cell_mm  # the normal (-t_y, t_x) in (row, col)
+    c = cols[:, None] - across[None] * tangent[:, 1:2] / cell_mm
+    profile = ndimage.map_coordinates(design_mm, [r, c], order=1)
+    above = profile >= 0.5 * height[:, None]
+    width = float(np.median(np.count_nonzero(above, axis=1))) * (across[1] - across[0])
+    width = max(width, 2.0 * cell_mm)
+    return Track(name, path, height, np.full(height.size, width), np.zeros(height.size))
+
+
+def tracks_from_design(design: np.ndarray, half_width: float, mm_per_unit: float, settings: TrackSettings,
+                       iterations: int = 300) -> TrackSet:
+    """The tracks whose beads draw the design (m, m) (scene units on [-W, W]^2) best (module docstring)."""
+    m = design.shape[0]
+    cell_mm = 2.0 * half_width * mm_per_unit / (m - 1)
+    design_mm = np.asarray(design, dtype=np.float64) * mm_per_unit
+    paths = skeleton_paths(design_mm, cell_mm)
+    guess = TrackSet(tuple(_first_guess(design_mm, p, cell_mm, f"track {i + 1}") for i, p in enumerate(paths)))
+    return profiles_drawing(guess, design, half_width, mm_per_unit, settings, iterations)
+
+
+def profiles_drawing(tracks: TrackSet, design: np.ndarray, half_width: float, mm_per_unit: float,
+                     settings: TrackSettings, iterations: int = 300) -> TrackSet:
+    """The tracks (their paths kept) with the cross-sections and profiles that draw the design (m, m,
+    scene units) best: the power-cap profiles fitted first, then each bead's own section measured
+    from the design (:func:`measured_sections`) and the profiles fitted again with it."""
+    family = _least_squares(tracks, design, half_width, mm_per_unit, settings, iterations)
+    cell_mm = 2.0 * half_width * mm_per_unit / (design.shape[0] - 1)
+    measured = measured_sections(family, np.asarray(design, dtype=np.float64) * mm_per_unit, cell_mm)
+    return _least_squares(measured, design, half_width, mm_per_unit, settings, iterations)
+
+
+def measured_sections(tracks: TrackSet, design_mm: np.ndarray, cell_mm: float) -> TrackSet:
+    """Each track with its own cross-section: the design across the path at v = 2 r / width of each
+    knot (both sides averaged, over the knot's height), the median over the knots one width and more
+    from the path's ends and two widths and more from every other track, made 1 at v = 0,
+    non-increasing, and stretched so that it falls to 1/2 at v = 1. A track with no such knot keeps
+    its power cap."""
+    m = design_mm.shape[0]
+    centre = (m - 1) / 2.0
+    v = np.linspace(0.0, SECTION_REACH, SECTION_SAMPLES)
+    dense = [resampled_path(t.path, 0.25) for t in tracks.tracks]
+    out = []
+    for index, track in enumerate(tracks.tracks):
+        arcs = track.knot_arcs()
+        along = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(dense[index], axis=0).T))])
+        samples = []
+        for k, arc in enumerate(arcs):
+            width = track.width[k]
+            if arc < width or arc > arcs[-1] - width or track.height[k] <= 0.0:
+                continue
+            i = int(np.clip(np.searchsorted(along, arc), 1, len(along) - 1))
+            point, tangent = dense[index][i], dense[index][i] - dense[index][i - 1]
+            tangent = tangent / max(float(np.hypot(*tangent)), 1e-12)
+            others = [np.min(np.hypot(*(p - point).T)) for j, p in enumerate(dense) if j != index]
+            if others and min(others) < 2.0 * width + float(np.max(track.width)):
+                continue
+            normal = np.array([-tangent[1], tangent[0]])
+            centre_mm = point + track.offset[k] * normal
+            sides = []
+            for sign in (1.0, -1.0):
+                xy = centre_mm[None] + sign * (v * width / 2.0)[:, None] * normal[None]
+                where = [xy[:, 1] / cell_mm + centre, xy[:, 0] / cell_mm + centre]
+                sides.append(ndimage.map_coordinates(design_mm, where, order=1))
+            samples.append(0.5 * (sides[0] + sides[1]) / track.height[k])
+        if not samples:
+            out.append(track)
+            continue
+        section = np.median(np.asarray(samples), axis=0)
+        section = np.minimum.accumulate(np.clip(section / section[0], 0.0, 1.0))
+        half = float(np.interp(0.5, section[::-1], v[::-1]))  # where it falls to 1/2
+        stretched = np.interp(v * half, v, section, right=0.0)
+        out.append(replace(track, section=stretched, width=track.width * half))
+    return replace(tracks, tracks=tuple(out))
+
+
+def _least_squares(tracks: TrackSet, design: np.ndarray, half_width: float, mm_per_unit: float,
+                     settings: TrackSettings, iterations: int = 300) -> TrackSet:
+    """The tracks (their paths and sections kept) with the profiles and shapes that draw the design
+    (m, m, scene units) best: least squares over the representation's exact gradient (L-BFGS-B)."""
+    m = design.shape[0]
+    beads_only = TrackSettings(**{**settings.__dict__, "residual_mm": 0.0})
+    representation = TrackHeights(tracks, m, half_width, mm_per_unit, beads_only)
+    target = torch.from_numpy(np.asarray(design, dtype=np.float64))
+    scale = representation.scale()
+
+    def objective(z: np.ndarray) -> tuple[float, np.ndarray]:
+        theta = torch.from_numpy(z) * scale
+        misfit = representation.heights(theta) - target
+        grad = representation.vjp(theta, misfit) * scale
+        return 0.5 * float(torch.sum(misfit**2)), grad.numpy()
+
+    lower, upper = representation.bounds()
+    z0 = (representation.initial() / scale).numpy()
+    bounds = list(zip((lower / scale).numpy(), (upper / scale).numpy()))
+    found = optimize.minimize(objective, z0, jac=True, method="L-BFGS-B", bounds=bounds,
+                              options={"maxiter": iterations})
+    return representation.track_set(torch.from_numpy(found.x) * scale)

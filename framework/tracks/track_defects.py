@@ -1,0 +1,164 @@
+"""Defects read from fitted tracks against their nominal profiles: where each bead is interrupted,
+too low or high, too wide or narrow, displaced, and where glass lies off the beads (a drop).
+
+Per knot of each track, the fitted height, width and offset are compared with the nominal ones
+(the tool path's or the design's): a change beyond its tolerance is a deviation of that kind, the
+largest one (in tolerances) names the knot; runs of neighbouring knots of one kind are one defect,
+placed at the run's middle on the fitted bead, as long as the run. Glass the residual grid holds
+off the beads, in a connected blob of at least ``min_drop_mm3``, is excess material.
+
+The confidence of each defect comes from the fit's curvature along it: with v the change of the
+parameters the defect makes (fitted minus nominal over its knots) and c = v^T H v the data term's
+curvature along v (one gradient difference), the change is z = sqrt(N a c) / delta of its own
+standard deviations (N pixels, a the cell area, delta the noise level: the data term's unit,
+framework/core/objective.py); a defect under ``z_min`` is not reported.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import ndimage
+
+from framework.defects.fit import Defect
+from framework.tracks.geometry import resampled_path
+from framework.tracks.track_set import Track, TrackSet
+
+__all__ = ["TrackTolerances", "KnotRun", "deviation_runs", "track_defects", "drop_defects"]
+
+
+@dataclass(frozen=True)
+class TrackTolerances:
+    """What counts as a deviation: relative height and width changes, a shift in mm, the share of
+    the nominal height below which a bead is interrupted, the smallest drop (mm^3) and confidence."""
+
+    height: float = 0.15
+    width: float = 0.2
+    offset_mm: float = 0.3
+    interrupted: float = 0.3
+    min_drop_mm3: float = 0.1
+    z_min: float = 3.0
+
+
+@dataclass(frozen=True)
+class KnotRun:
+    """A run of knots [first, last] of one track deviating by one kind."""
+
+    track: int
+    kind: str
+    first: int
+    last: int
+
+
+def _kinds(nominal: Track, fitted: Track, tol: TrackTolerances) -> list[str]:
+    """Each knot's deviation kind ('' within tolerance)."""
+    ratio_h = fitted.height / np.maximum(nominal.height, 1e-9)
+    ratio_w = fitted.width / np.maximum(nominal.width, 1e-9)
+    scores = np.stack([np.abs(ratio_h - 1.0) / tol.height, np.abs(ratio_w - 1.0) / tol.width,
+                       np.abs(fitted.offset - nominal.offset) / tol.offset_mm])
+    kinds = []
+    for k in range(nominal.knots):
+        if ratio_h[k] < tol.interrupted:
+            kinds.append("interruption")
+            continue
+        which = int(np.argmax(scores[:, k]))
+        if scores[which, k] <= 1.0:
+            kinds.append("")
+        elif which == 0:
+            kinds.append("too_low" if ratio_h[k] < 1.0 else "too_high")
+        elif which == 1:
+            kinds.append("too_narrow" if ratio_w[k] < 1.0 else "too_wide")
+        else:
+            kinds.append("displaced")
+    return kinds
+
+
+def deviation_runs(nominal: TrackSet, fitted: TrackSet, tol: TrackTolerances) -> list[KnotRun]:
+    """The runs of knots deviating by one kind, track by track."""
+    runs = []
+    for index, (a, b) in enumerate(zip(nominal.tracks, fitted.tracks)):
+        kinds = _kinds(a, b, tol)
+        start = 0
+        for k in range(1, len(kinds) + 1):
+            if k == len(kinds) or kinds[k] != kinds[start]:
+                if kinds[start]:
+                    runs.append(KnotRun(index, kinds[start], start, k - 1))
+                start = k
+    return runs
+
+
+def _place(track: Track, run: KnotRun) -> tuple[float, float, float]:
+    """(x, y, length) in mm of a run on the fitted bead (its offset applied)."""
+    arcs = track.knot_arcs()
+    spacing = arcs[1] - arcs[0]
+    middle = 0.5 * (arcs[run.first] + arcs[run.last])
+    path = resampled_path(track.path, 0.05)
+    along = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(path, axis=0).T))])
+    i = int(np.clip(np.searchsorted(along, middle), 1, len(path) - 1))
+    tangent = path[i] - path[i - 1]
+    tangent /= max(float(np.hypot(*tangent)), 1e-12)
+    offset = float(np.interp(middle, arcs, track.offset))
+    x, y = path[i] + offset * np.array([-tangent[1], tangent[0]])
+    return float(x), float(y), float((run.last - run.first + 1) * spacing)
+
+
+def _size(nominal: Track, fitted: Track, run: KnotRun) -> tuple[float, float, float]:
+    """(size as the report measures it, peak height change mm, volume change mm^3) of a run."""
+    span = slice(run.first, run.last + 1)
+    spacing = nominal.knot_arcs()[1]
+    if run.kind in ("interruption", "too_low", "too_high"):
+        size = float(np.mean(1.0 - fitted.height[span] / nominal.height[span]))
+    elif run.kind in ("too_wide", "too_narrow"):
+        size = float(np.mean(fitted.width[span] / nominal.width[span] - 1.0))
+    else:
+        size = float(np.mean(fitted.offset[span] - nominal.offset[span]))
+    change = fitted.height[span] - nominal.height[span]
+    peak = float(change[np.argmax(np.abs(change))])
+    area = lambda t: t.height[span] * t.width[span]  # noqa: E731 (the same factor for both shapes aside)
+    volume = float(np.sum(area(fitted) - area(nominal)) * spacing)
+    return size, peak, volume
+
+
+def track_defects(nominal: TrackSet, fitted: TrackSet, tol: TrackTolerances,
+                  confidence: Callable[[KnotRun], float]) -> list[Defect]:
+    """The beads' defects (module docstring); ``confidence(run)``: the change's z."""
+    defects = []
+    for run in deviation_runs(nominal, fitted, tol):
+        z = confidence(run)
+        if z < tol.z_min:
+            continue
+        a, b = nominal.tracks[run.track], fitted.tracks[run.track]
+        x, y, length = _place(b, run)
+        size, peak, volume = _size(a, b, run)
+        defects.append(Defect(run.kind, x, y, length, size, peak, volume, evidence=z * z, confidence=z,
+                              model=f"track:{a.name}", params=(float(run.first), float(run.last))))
+    return defects
+
+
+def drop_defects(residual_mm: np.ndarray, cell_mm: float, tol: TrackTolerances,
+                 confidence: Callable[[np.ndarray], float]) -> list[Defect]:
+    """Excess material: connected blobs of the residual (m, m, mm) above a tenth of its peak holding
+    at least ``min_drop_mm3`` with a confidence (``confidence(blob)``, blob (m, m) bool) of
+    ``z_min`` at least; centre, diameter, volume and peak in mm."""
+    peak = float(residual_mm.max())
+    if not peak > 0.0:
+        return []
+    labels, count = ndimage.label(residual_mm > 0.1 * peak)
+    defects = []
+    m = residual_mm.shape[0]
+    for label in range(1, count + 1):
+        blob = labels == label
+        volume = float(residual_mm[blob].sum()) * cell_mm**2
+        z = confidence(blob) if volume >= tol.min_drop_mm3 else 0.0
+        if z < tol.z_min:
+            continue
+        rows, cols = np.nonzero(blob)
+        weights = residual_mm[rows, cols]
+        x = (float(np.average(cols, weights=weights)) - (m - 1) / 2) * cell_mm
+        y = (float(np.average(rows, weights=weights)) - (m - 1) / 2) * cell_mm
+        diameter = 2.0 * np.sqrt(blob.sum() / np.pi) * cell_mm
+        defects.append(Defect("excess", x, y, float(diameter), volume, float(residual_mm[blob].max()), volume,
+                              evidence=z * z, confidence=z, model="residual", params=()))
+    return defects

@@ -1,0 +1,90 @@
+"""Tracks drawn onto the heights grid against independent truths: the bead family's area and
+half-height width by quadrature and by reading the rendered grid, the volume of a drawn bead, and
+a design drawn as melted glass (experiments/fibre_print.py) turned back into its tool path."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+from scipy import integrate
+
+from experiments.fibre_print import TOOLPATH, polyline_distance, draw_beads
+from framework.tracks.from_design import tracks_from_design
+from framework.tracks.track_heights import TrackHeights, TrackSettings
+from framework.tracks.track_set import Track, TrackSet, bead_area_factor
+
+MM = 25.0  # mm per scene unit; the grid spans [-25, 25] mm
+
+
+def _profile(v: float, shape: float) -> float:
+    """The power cap at v = 2 r / width (framework/tracks/track_set.py), written out again."""
+    p = 1.0 / shape
+    c2 = 1.0 / (1.0 - 2.0 ** (-1.0 / p))
+    return max(0.0, 1.0 - v * v / c2) ** p
+
+
+@pytest.mark.parametrize("shape", [0.02, 0.5, 1.0, 2.0, 3.0])
+def test_the_bead_family_has_its_half_height_at_the_width_and_its_area_in_closed_form(shape) -> None:
+    assert _profile(1.0, shape) == pytest.approx(0.5, rel=1e-12)
+    area = integrate.quad(lambda v: _profile(v, shape), -20.0, 20.0, limit=400, points=[-1.0, 1.0])[0] / 2.0
+    assert bead_area_factor(shape) == pytest.approx(area, rel=1e-6)
+
+
+def test_a_drawn_bead_has_its_height_width_and_volume() -> None:
+    track = Track("line", np.array([[-15.0, 0.0], [15.0, 0.0]]), np.array([0.5]), np.array([1.2]), np.array([0.0]),
+                  shape=1.5)
+    rep = TrackHeights(TrackSet((track,)), 513, 1.0, MM, TrackSettings(residual_mm=0.0))
+    d = rep.heights(rep.initial()).numpy() * MM
+    column = d[:, 256]  # x = 0, across the bead
+    assert column.max() == pytest.approx(0.5, rel=1e-3)
+    axis = np.linspace(-25.0, 25.0, 513)
+    above = axis[column >= 0.25]
+    assert above.max() - above.min() == pytest.approx(1.2, abs=2 * 50.0 / 512)
+    cell = 50.0 / 512
+    # Body and two round ends (a solid of revolution of the half profile: 2 pi int r z(r) dr)
+    ends = 2 * math.pi * 0.5 * integrate.quad(lambda r: r * _profile(2 * r / 1.2, 1.5), 0.0, 5.0)[0]
+    expected = 0.5 * 1.2 * bead_area_factor(1.5) * 30.0 + ends
+    assert d.sum() * cell**2 == pytest.approx(expected, rel=5e-3)
+    assert track.volume() == pytest.approx(0.5 * 1.2 * bead_area_factor(1.5) * 30.0, rel=1e-12)
+
+
+def _length(points: list[tuple[float, float]]) -> float:
+    return float(np.sum(np.hypot(*np.diff(np.asarray(points), axis=0).T)))
+
+
+def test_a_design_of_melted_beads_gives_back_its_tool_path() -> None:
+    m = 256
+    design = draw_beads(m) / MM  # circular segments, not the model's family
+    found = tracks_from_design(design, 1.0, MM, TrackSettings())
+    # The two layers of the wall are one bead in a height field: five tracks besides it.
+    planned = [t for t in TOOLPATH if t[0] != "wall_top"]
+    assert len(found.tracks) == len(planned)
+    for name, points, width, height in planned:
+        best = min(found.tracks, key=lambda t: float(np.median(polyline_distance(t.path[:, 0], t.path[:, 1], points))))
+        gap = polyline_distance(best.path[:, 0], best.path[:, 1], points)
+        assert np.median(gap) < 0.15 and best.length > 0.9 * _length(points), name  # the skeleton on the tool path
+        layers = 2 if name == "wall" else 1
+        assert np.median(best.height) == pytest.approx(layers * height, rel=0.1), name
+        assert np.median(best.width) == pytest.approx(width, rel=0.15), name
+    rep = TrackHeights(found, m, 1.0, MM, TrackSettings(residual_mm=0.0))
+    drawn = rep.heights(rep.initial()).numpy()
+    assert np.linalg.norm(drawn - design) / np.linalg.norm(design) < 0.1
+
+
+def test_the_vjp_is_the_adjoint_of_the_drawing_with_drops_and_residual() -> None:
+    from framework.tracks.track_set import Drop
+
+    arc = np.stack([8 * np.cos(np.linspace(0, 3, 40)), 8 * np.sin(np.linspace(0, 3, 40))], axis=1)
+    tracks = TrackSet((Track("arc", arc, np.linspace(0.3, 0.6, 9), np.array([0.8]), np.array([0.1]), 1.0),),
+                      (Drop(3.0, -4.0, 0.6, 0.2),))
+    rep = TrackHeights(tracks, 128, 1.0, MM, TrackSettings(residual_mm=4.0))
+    theta = rep.initial() + 0.01 * rep.scale() * torch.randn(rep.size, generator=torch.Generator().manual_seed(3),
+                                                             dtype=torch.float64)
+    g = torch.randn(128, 128, generator=torch.Generator().manual_seed(4), dtype=torch.float64)
+    v = torch.randn(rep.size, generator=torch.Generator().manual_seed(5), dtype=torch.float64) * rep.scale()
+    eps = 1e-6
+    moved = (rep.heights(theta + eps * v) - rep.heights(theta - eps * v)) / (2 * eps)
+    assert float(torch.sum(moved * g)) == pytest.approx(float(torch.sum(v * rep.vjp(theta, g))), rel=1e-6)
