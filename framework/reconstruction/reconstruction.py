@@ -307,7 +307,7 @@ def _reconstruct(parts: Reconstruction, output_dir: Path, base_dir: Path, checkp
         tracks = fitted_tracks(result.fitted)
         reports_defects = (data.design is not None or tracks is not None) and parts.defects.enabled != "off"
         if tracks is not None:
-            lines = tracks_verdict(tracks[0], tracks[1])
+            lines = tracks_verdict(tracks[0], tracks[1], output_dir)
             for line in lines:
                 print(f"verdict: {line}", flush=True)
             metrics["verdict"] += " " + " ".join(lines)

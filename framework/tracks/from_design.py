@@ -259,10 +259,10 @@ def _least_squares(tracks: TrackSet, design: np.ndarray, half_width: float, mm_p
     scale = representation.scale()
 
     def objective(z: np.ndarray) -> tuple[float, np.ndarray]:
-        theta = torch.from_numpy(z) * scale
-        misfit = representation.heights(theta) - target
-        grad = representation.vjp(theta, misfit) * scale
-        return 0.5 * float(torch.sum(misfit**2)), grad.numpy()
+        theta = (torch.from_numpy(z) * scale).requires_grad_(True)
+        value = 0.5 * torch.sum((representation.drawn(theta) - target) ** 2)  # one pass, value and gradient
+        (grad,) = torch.autograd.grad(value, theta)
+        return float(value.detach()), (grad * scale).numpy()
 
     lower, upper = representation.bounds()
     z0 = (representation.initial() / scale).numpy()

@@ -34,7 +34,7 @@ def tracks_builder(toolpath: str | None = None, width_mm: float | None = None, h
                           fibre_diameter_mm: float | None = None, knot_mm: float = 1.0, max_offset_mm: float = 1.5,
                           width_range: tuple[float, float] | list[float] = (0.25, 2.5), height_factor: float = 3.0,
                           residual_mm: float = 1.0, smoothness: float = 1.0e-4,
-                          residual_sparsity: float = 1.0e-3) -> Any:
+                          residual_sparsity: float = 1.0e-2) -> Any:
     """The ``representation`` group's keys for tracks: ``toolpath`` (a .csv or G-code file, mm,
     framework/tracks/toolpath.py; with a design too, its profiles and shapes are fitted to the
     design; null: the skeleton of the data's design, framework/tracks/from_design.py), the G-code's

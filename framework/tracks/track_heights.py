@@ -54,7 +54,7 @@ class TrackSettings:
     height_factor: float = 3.0
     residual_mm: float = 1.0
     smoothness: float = 1.0e-4
-    residual_sparsity: float = 1.0e-3
+    residual_sparsity: float = 1.0e-2
 
 
 @dataclass(frozen=True)
@@ -238,6 +238,10 @@ class TrackHeights(Representation):
             d = d + F.interpolate(coarse, size=self.shape, mode="bilinear", align_corners=True)[0, 0]
         return d
 
+    def drawn(self, theta: Tensor) -> Tensor:
+        """R(theta) (m, m) with torch's autograd graph (for a caller's own loss)."""
+        return self._render(theta)
+
     def heights(self, theta: Tensor) -> Tensor:
         with torch.no_grad():
             return self._render(theta.to(self.dtype))
@@ -271,13 +275,13 @@ class TrackHeights(Representation):
 
     # -- reading a fit ------------------------------------------------------------------------------
     def track_set(self, theta: Tensor) -> TrackSet:
-        """The fitted print (mm) at theta."""
+        """The fitted print (mm) at theta (the shapes kept in SHAPE_RANGE against float32 rounding)."""
         values = theta.detach().cpu().double().numpy() * self.mm
         tracks = []
         for track, layout in zip(self.nominal.tracks, self._layouts):
             k, s = layout.knots, layout.start
             tracks.append(replace(track, height=values[s:s + k], width=values[s + k:s + 2 * k],
-                                  offset=values[s + 2 * k:s + 3 * k], shape=float(values[s + 3 * k] / self.mm)))
+                                  offset=values[s + 2 * k:s + 3 * k], shape=float(np.clip(values[s + 3 * k] / self.mm, *SHAPE_RANGE))))
         drops = tuple(Drop(*(float(v) for v in values[j:j + 4]))
                       for j in range(self.drops_start, self.residual_start, 4))
         return TrackSet(tuple(tracks), drops)

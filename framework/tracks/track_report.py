@@ -1,6 +1,7 @@
-"""The report of a tracks fit: tracks.json (the fitted beads, mm), tracks_nominal.json, and the
-defects read from the tracks against their nominal profiles (framework/tracks/track_defects.py)
-as defects.json / defects.csv / defects.png and ``verdict:`` lines.
+"""The report of a tracks fit: tracks.json (the fitted beads, mm) and tracks_nominal.json
+(:func:`tracks_verdict`), and the defects read from the tracks against their nominal profiles
+(framework/tracks/track_defects.py) as defects.json / defects.csv / defects.png and ``verdict:``
+lines.
 
 A defect's evidence is what the photo loses when the defect is undone: the run's knots set back to
 their nominal values, rendered once, the misfit's growth in pixel noise variances (the secant
@@ -41,9 +42,12 @@ def track_tolerances(settings: Any) -> TrackTolerances:
                            z_min=settings.z_min)
 
 
-def tracks_verdict(representation: TrackHeights, theta: torch.Tensor) -> list[str]:
-    """What the run fitted, in one sentence."""
+def tracks_verdict(representation: TrackHeights, theta: torch.Tensor, output_dir: Path) -> list[str]:
+    """Write the fitted tracks (tracks.json, mm) and the nominal ones (tracks_nominal.json) into
+    ``output_dir``; what the run fitted, in one sentence."""
     fitted = representation.track_set(theta)
+    fitted.save(output_dir / "tracks.json")
+    representation.nominal.save(output_dir / "tracks_nominal.json")
     source = representation.source
     return [f"Fitted as {len(fitted.tracks)} tracks ({source}) with a residual grid of "
             f"{representation.settings.residual_mm:g} mm; the beads' heights "
@@ -82,8 +86,6 @@ def report_tracks(problem: Problem, representation: TrackHeights, theta: torch.T
     began = time.perf_counter()
     mm = representation.mm
     nominal, fitted = representation.nominal, representation.track_set(theta)
-    fitted.save(output_dir / "tracks.json")
-    nominal.save(output_dir / "tracks_nominal.json")
     target = problem.data.target
     pixels = int(target.numel() if problem.data.weights is None else (problem.data.weights > 0).sum())
     variance = (problem.data.delta * float(torch.linalg.vector_norm(target))) ** 2 / max(pixels, 1)

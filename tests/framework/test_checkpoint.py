@@ -84,3 +84,30 @@ def test_checkpoint_errors_are_clear(tmp_path):
     small = GradientDescent(data, torch.zeros(4, 4, dtype=DTYPE), 1.0 / L)
     with pytest.raises(ValueError, match="shape"):
         restore(small, tmp_path / "gd.pt")
+
+
+def test_a_parametric_fit_of_tracks_resumes_bit_for_bit(tmp_path):
+    import numpy as np
+
+    from framework.reconstruction.solvers.parametric_fit import ParametricFit
+    from framework.tracks.track_heights import TrackHeights, TrackSettings
+    from framework.tracks.track_set import Track, TrackSet
+
+    m = 16
+    data, *_ = make_problem(m=m, n=18)
+    tracks = TrackSet((Track("line", np.array([[-15.0, 3.0], [15.0, 3.0]]), np.full(7, 2.0), np.full(7, 4.0),
+                             np.zeros(7)),))
+
+    def build():
+        rep = TrackHeights(tracks, m, 1.0, 25.0, TrackSettings(knot_mm=5.0, residual_mm=10.0), DTYPE)
+        return ParametricFit(data, rep, memory=4)
+
+    full = build().run(8)
+    path = tmp_path / "tracks.pt"
+    first = build()
+    with pytest.raises(KeyboardInterrupt):
+        first.run(8, [Checkpointer(path, every=3), InterruptAt(4)])
+    resumed = resume(build(), path, 8, [])
+    assert torch.equal(resumed.d, full.d)
+    assert [r.objective for r in resumed.history] == [r.objective for r in full.history]
+    assert full.history[-1].objective < full.history[0].objective

@@ -88,3 +88,11 @@ def test_the_vjp_is_the_adjoint_of_the_drawing_with_drops_and_residual() -> None
     eps = 1e-6
     moved = (rep.heights(theta + eps * v) - rep.heights(theta - eps * v)) / (2 * eps)
     assert float(torch.sum(moved * g)) == pytest.approx(float(torch.sum(v * rep.vjp(theta, g))), rel=1e-6)
+
+
+def test_a_float32_fit_at_a_bound_reads_back_as_tracks() -> None:
+    track = Track("line", np.array([[-10.0, 0.0], [10.0, 0.0]]), np.array([0.5]), np.array([1.0]), np.array([0.0]))
+    rep = TrackHeights(TrackSet((track,)), 64, 1.0, MM, TrackSettings(residual_mm=0.0), dtype=torch.float32)
+    lower, _ = rep.bounds()
+    fitted = rep.track_set(lower.clone())  # every parameter at its lower bound, in float32
+    assert fitted.tracks[0].shape >= 0.02 and np.all(fitted.tracks[0].height == 0.0)
