@@ -36,7 +36,8 @@ NEEDS = {("solver", "gradient_descent"): ["experiment=m1"], ("solver", "gradient
          ("data", "file"): ["data.image=caustic.npy"],
          ("data", "photo"): ["data.photo=photo.npy", "data.corners=[[0,63],[63,63],[63,0],[0,0]]"],
          ("initial", "file"): ["initial.path=start.npy"], ("experiment", "design"): ["data.printed=start.npy"],
-         ("initial", "design"): ["data.printed=start.npy"], ("solver", "tracks"): ["experiment=tracks", "data.printed=start.npy"],
+         ("initial", "design"): ["data.printed=start.npy"],
+         ("solver", "tracks"): ["experiment=tracks", "data.printed=start.npy"],
          ("experiment", "tracks"): ["data.printed=start.npy"]}
 GROUPS = [
     "scene",

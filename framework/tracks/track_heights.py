@@ -280,8 +280,9 @@ class TrackHeights(Representation):
         tracks = []
         for track, layout in zip(self.nominal.tracks, self._layouts):
             k, s = layout.knots, layout.start
+            shape = float(np.clip(values[s + 3 * k] / self.mm, *SHAPE_RANGE))
             tracks.append(replace(track, height=values[s:s + k], width=values[s + k:s + 2 * k],
-                                  offset=values[s + 2 * k:s + 3 * k], shape=float(np.clip(values[s + 3 * k] / self.mm, *SHAPE_RANGE))))
+                                  offset=values[s + 2 * k:s + 3 * k], shape=shape))
         drops = tuple(Drop(*(float(v) for v in values[j:j + 4]))
                       for j in range(self.drops_start, self.residual_start, 4))
         return TrackSet(tuple(tracks), drops)
