@@ -48,7 +48,7 @@ def tracks_builder(toolpath: str | None = None, width_mm: float | None = None, h
     low, high = (float(v) for v in width_range)
     if not 0.0 < low < 1.0 < high:
         raise ValueError(f"solver.representation.width_range={list(width_range)} must be [low < 1, high > 1] "
-                         "(factors of the widest nominal bead), e.g. [0.25, 2.5]")
+                         "(factors of each bead's nominal width), e.g. [0.25, 2.5]")
     settings = TrackSettings(knot_mm, max_offset_mm, (low, high), height_factor, residual_mm, smoothness,
                              residual_sparsity)
     given = None if toolpath is None else read_toolpath(Path(toolpath).expanduser(), width_mm, height_mm,

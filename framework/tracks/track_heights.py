@@ -41,7 +41,7 @@ class TrackSettings:
     Attributes:
         knot_mm: Spacing of the profiles' knots along each path.
         max_offset_mm: The farthest a bead may move across its path.
-        width_range: (low, high) factors of the widest nominal width a bead's width may take.
+        width_range: (low, high) factors of its own nominal widths a bead's width may take.
         height_factor: The highest a bead may rise, times the highest nominal height.
         residual_mm: Spacing of the residual grid's samples (0: no residual grid).
         smoothness: Weight of the profiles' first differences (in their scales), relative to the data term.
@@ -167,8 +167,8 @@ class TrackHeights(Representation):
         return out
 
     def bounds(self) -> tuple[Tensor, Tensor]:
-        """Heights in [0, height_factor x the highest nominal]; widths in width_range x the widest
-        nominal (and at least each track's narrowest); offsets within max_offset_mm of the nominal;
+        """Heights in [0, height_factor x the highest nominal]; each track's widths in width_range x
+        its own nominal ones (half a cell at least); offsets within max_offset_mm of the nominal;
         shapes in SHAPE_RANGE; drops near their start; the residual near the printed area."""
         settings, w = self.settings, self.width_bounds
         offset, top = settings.max_offset_mm / self.mm, settings.height_factor * self.highest
@@ -177,7 +177,9 @@ class TrackHeights(Representation):
         start = self.initial()
         for track, layout in zip(self.nominal.tracks, self._layouts):
             k, s = layout.knots, layout.start
-            lower[s + k:s + 2 * k] = min(w[0], float(track.width.min()) / self.mm)
+            narrowest, widest = float(track.width.min()) / self.mm, float(track.width.max()) / self.mm
+            lower[s + k:s + 2 * k] = min(max(settings.width_range[0] * narrowest, 0.5 * self.cell), narrowest)
+            upper[s + k:s + 2 * k] = settings.width_range[1] * widest
             upper[s:s + k] = max(top, float(track.height.max()) / self.mm)
             lower[s + 2 * k:s + 3 * k] += start[s + 2 * k:s + 3 * k]
             upper[s + 2 * k:s + 3 * k] += start[s + 2 * k:s + 3 * k]
