@@ -32,7 +32,7 @@ class SearchSettings:
     """Knots per window, the windows searched at most and the misfit excess that calls for a search."""
 
     knots: int = 4
-    max_windows: int = 24
+    max_windows: int = 16
     min_excess: float = 1.0
 
 
