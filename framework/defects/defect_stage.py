@@ -24,7 +24,7 @@ from framework.core.problem import Problem
 from framework.defects.fit import Defect
 from framework.defects.information import column_norms, height_uncertainty, pixel_noise, pixels_used
 from framework.defects.pursuit import Search, find_defects
-from framework.defects.report import defect_lines, save_defect_figure, save_defect_table
+from framework.defects.report import defect_lines, kind_counts, save_defect_figure, save_defect_table
 from operators.values import checked_number, checked_whole
 
 __all__ = ["DefectSettings", "DefectReport", "evidence_needed", "report_defects"]
@@ -98,9 +98,7 @@ class DefectReport:
     lines: list[str]
 
     def metrics(self) -> dict[str, Any]:
-        counts = {f"defects_{kind}": sum(d.kind == kind for d in self.defects)
-                  for kind in sorted({d.kind for d in self.defects})}
-        return {"defects_count": len(self.defects), **counts, "defects_candidates": self.candidates,
+        return {**kind_counts(self.defects), "defects_candidates": self.candidates,
                 "defects_evidence_needed": self.evidence_needed, "defects_within_tolerance": self.within_tolerance,
                 "defects_sigma_median_mm": float(np.median(self.sigma_mm))}
 

@@ -14,10 +14,16 @@ import numpy as np
 
 from framework.defects.fit import Defect
 
-__all__ = ["describe", "defect_lines", "save_defect_table", "save_defect_figure"]
+__all__ = ["describe", "defect_lines", "kind_counts", "save_defect_table", "save_defect_figure"]
 
 NAMES = {"interruption": "interruption", "too_low": "too low", "too_high": "too high", "excess": "excess material",
          "too_wide": "too wide", "too_narrow": "too narrow", "displaced": "displaced"}
+
+
+def kind_counts(defects: list[Defect]) -> dict[str, int]:
+    """``defects_count`` and ``defects_<kind>`` for each kind reported (a run's metrics)."""
+    counts = {f"defects_{kind}": sum(d.kind == kind for d in defects) for kind in sorted({d.kind for d in defects})}
+    return {"defects_count": len(defects), **counts}
 
 
 def describe(defect: Defect) -> str:

@@ -23,7 +23,7 @@ import torch
 from scipy import ndimage, optimize
 from skimage.morphology import skeletonize
 
-from framework.tracks.geometry import resampled_path
+from framework.tracks.geometry import frame_at, resampled_path
 from framework.tracks.track_heights import TrackHeights, TrackSettings
 from framework.tracks.track_set import SECTION_REACH, SECTION_SAMPLES, Track, TrackSet
 
@@ -217,19 +217,15 @@ def measured_sections(tracks: TrackSet, design_mm: np.ndarray, cell_mm: float) -
     out = []
     for index, track in enumerate(tracks.tracks):
         arcs = track.knot_arcs()
-        along = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(dense[index], axis=0).T))])
         samples = []
         for k, arc in enumerate(arcs):
             width = track.width[k]
             if arc < width or arc > arcs[-1] - width or track.height[k] <= 0.0:
                 continue
-            i = int(np.clip(np.searchsorted(along, arc), 1, len(along) - 1))
-            point, tangent = dense[index][i], dense[index][i] - dense[index][i - 1]
-            tangent = tangent / max(float(np.hypot(*tangent)), 1e-12)
+            point, normal = frame_at(dense[index], arc)
             others = [np.min(np.hypot(*(p - point).T)) for j, p in enumerate(dense) if j != index]
             if others and min(others) < 2.0 * width + float(np.max(track.width)):
                 continue
-            normal = np.array([-tangent[1], tangent[0]])
             centre_mm = point + track.offset[k] * normal
             sides = []
             for sign in (1.0, -1.0):

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["PathSamples", "path_samples", "resampled_path", "path_length"]
+__all__ = ["PathSamples", "path_samples", "resampled_path", "path_length", "frame_at"]
 
 # Pixels per block of the nearest-segment search (bounds its memory: block x segments doubles).
 BLOCK = 4096
@@ -24,6 +24,16 @@ BLOCK = 4096
 def path_length(points: np.ndarray) -> float:
     """The polyline's length (its units)."""
     return float(np.sum(np.hypot(*np.diff(points, axis=0).T)))
+
+
+def frame_at(points: np.ndarray, arc: float) -> tuple[np.ndarray, np.ndarray]:
+    """The polyline's vertex at (or first past) arc length ``arc`` and the unit normal to the left of
+    the segment that ends there, each (2,)."""
+    along = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(points, axis=0).T))])
+    i = int(np.clip(np.searchsorted(along, arc), 1, len(points) - 1))
+    tangent = points[i] - points[i - 1]
+    tangent = tangent / max(float(np.hypot(*tangent)), 1e-12)
+    return points[i], np.array([-tangent[1], tangent[0]])
 
 
 def resampled_path(points: np.ndarray, spacing: float) -> np.ndarray:

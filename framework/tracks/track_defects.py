@@ -23,7 +23,7 @@ import numpy as np
 from scipy import ndimage
 
 from framework.defects.fit import Defect
-from framework.tracks.geometry import resampled_path
+from framework.tracks.geometry import frame_at, resampled_path
 from framework.tracks.track_set import Track, TrackSet
 
 __all__ = ["TrackTolerances", "KnotRun", "deviation_runs", "track_defects", "drop_defects"]
@@ -94,13 +94,8 @@ def _place(track: Track, run: KnotRun) -> tuple[float, float, float]:
     arcs = track.knot_arcs()
     spacing = arcs[1] - arcs[0]
     middle = 0.5 * (arcs[run.first] + arcs[run.last])
-    path = resampled_path(track.path, 0.05)
-    along = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(path, axis=0).T))])
-    i = int(np.clip(np.searchsorted(along, middle), 1, len(path) - 1))
-    tangent = path[i] - path[i - 1]
-    tangent /= max(float(np.hypot(*tangent)), 1e-12)
-    offset = float(np.interp(middle, arcs, track.offset))
-    x, y = path[i] + offset * np.array([-tangent[1], tangent[0]])
+    point, normal = frame_at(resampled_path(track.path, 0.05), middle)
+    x, y = point + float(np.interp(middle, arcs, track.offset)) * normal
     return float(x), float(y), float((run.last - run.first + 1) * spacing)
 
 

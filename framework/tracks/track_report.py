@@ -21,7 +21,8 @@ import torch
 
 from framework.core.problem import Problem
 from framework.defects.fit import Defect
-from framework.defects.report import defect_lines, save_defect_figure, save_defect_table
+from framework.defects.information import pixel_noise
+from framework.defects.report import defect_lines, kind_counts, save_defect_figure, save_defect_table
 from framework.tracks.track_defects import KnotRun, TrackTolerances, drop_defects, track_defects
 from framework.tracks.track_heights import TrackHeights
 
@@ -66,18 +67,14 @@ class TrackReport:
     seconds: float
 
     def metrics(self) -> dict[str, Any]:
-        counts = {f"defects_{kind}": sum(d.kind == kind for d in self.defects)
-                  for kind in sorted({d.kind for d in self.defects})}
-        return {"defects_count": len(self.defects), **counts, "defects_from": "tracks",
-                "defects_time_s": self.seconds}
+        return {**kind_counts(self.defects), "defects_from": "tracks", "defects_time_s": self.seconds}
 
 
 def _misfit(problem: Problem, d: torch.Tensor) -> float:
-    """||F(d) - b||_W^2."""
-    image = problem.operator.render(d.to(problem.operator.dtype))
-    residual = image - problem.data.target.to(image)
-    weights = problem.data.weights
-    return float(torch.sum(residual**2 if weights is None else weights.to(image) * residual**2))
+    """||F(d) - b||_W^2, by the problem's data term (framework/core/objective.py)."""
+    fidelity = problem.fidelity
+    discrepancy = fidelity.evaluate(d.to(problem.operator.dtype), with_grad=False).rel_discrepancy
+    return discrepancy**2 * fidelity.target_norm_sq
 
 
 def report_tracks(problem: Problem, representation: TrackHeights, theta: torch.Tensor, tolerances: TrackTolerances,
@@ -86,9 +83,7 @@ def report_tracks(problem: Problem, representation: TrackHeights, theta: torch.T
     began = time.perf_counter()
     mm = representation.mm
     nominal, fitted = representation.nominal, representation.track_set(theta)
-    target = problem.data.target
-    pixels = int(target.numel() if problem.data.weights is None else (problem.data.weights > 0).sum())
-    variance = (problem.data.delta * float(torch.linalg.vector_norm(target))) ** 2 / max(pixels, 1)
+    variance = pixel_noise(problem.data.target, problem.data.delta, problem.data.weights) ** 2
     at_fit = _misfit(problem, representation.heights(theta))
     start = representation.initial()
 

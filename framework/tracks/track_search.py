@@ -107,14 +107,6 @@ def search_tracks(theta: Tensor, windows: list[Window], slices: Callable[[int], 
     return theta, changes
 
 
-def residual_per_pixel(image: Tensor, target: Tensor, weights: Tensor | None) -> np.ndarray:
-    """(n * n,) the weighted squared residual per receiver pixel, summed over channels."""
-    squared = (image - target.to(image)) ** 2
-    if weights is not None:
-        squared = squared * weights.to(image)
-    return squared.sum(dim=0).reshape(-1).detach().cpu().double().numpy()
-
-
 def windows_of(paths_pixels: list[tuple[int, np.ndarray, np.ndarray]], knots_per_window: int) -> list[Window]:
     """Windows of ``knots_per_window`` knots along each track, overlapping by half; ``paths_pixels``:
     per track its knot count, each heights sample's knot position (p,) and flat receiver pixel (p,)."""

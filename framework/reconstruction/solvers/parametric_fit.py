@@ -26,6 +26,7 @@ from framework.core.contracts.solver import SolverBuilder
 from framework.core.objective import DataFidelity
 from framework.core.plugin_config import build_plugin, split_name
 from framework.core.solver_loop import IterationFailed, IterationRecord, IterativeSolver
+from framework.defects.information import pixel_noise
 from framework.optimization.quasi_newton import LbfgsMemory
 from framework.optimization.step_size import LineSearchFailed, backtrack
 from framework.core.contracts.representation import Representation, SearchContext
@@ -172,7 +173,7 @@ class ParametricFit(IterativeSolver):
         squared = (evaluation.image - target.to(evaluation.image)) ** 2
         if weights is not None:
             squared = squared * weights.to(squared)
-        noise = self.delta**2 * self.data.target_norm_sq / int(target[0].numel())
+        noise = pixel_noise(target, self.delta, weights) ** 2 * target.shape[0]  # over the channels, as the residual
         context = SearchContext(lambda theta: self._evaluate(theta, with_grad=False)[0],
                                 squared.sum(dim=0).reshape(-1).detach().cpu().double().numpy(), noise,
                                 self.receiver[0], self.receiver[1])
