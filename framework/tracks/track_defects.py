@@ -4,8 +4,9 @@ too low or high, too wide or narrow, displaced, and where glass lies off the bea
 Per knot of each track, the fitted height, width and offset are compared with the nominal ones
 (the tool path's or the design's): a change beyond its tolerance is a deviation of that kind, the
 largest one (in tolerances) names the knot; runs of neighbouring knots of one kind are one defect,
-placed at the run's middle on the fitted bead, as long as the run. Glass the residual grid holds
-off the beads, in a connected blob of at least ``min_drop_mm3``, is excess material.
+placed at the run's middle on the fitted bead, as long as the run. Excess material is a drop the
+global search placed off the beads (framework/tracks/track_search.py), or glass the residual grid
+holds in a connected blob, of at least ``min_drop_mm3`` either.
 
 The confidence of each defect comes from the fit's curvature along it: with v the change of the
 parameters the defect makes (fitted minus nominal over its knots) and c = v^T H v the data term's
@@ -24,9 +25,9 @@ from scipy import ndimage
 
 from framework.defects.fit import Defect
 from framework.tracks.geometry import frame_at, resampled_path
-from framework.tracks.track_set import Track, TrackSet
+from framework.tracks.track_set import Drop, Track, TrackSet
 
-__all__ = ["TrackTolerances", "KnotRun", "deviation_runs", "track_defects", "drop_defects"]
+__all__ = ["TrackTolerances", "KnotRun", "deviation_runs", "track_defects", "drop_defects", "placed_drop_defects"]
 
 
 @dataclass(frozen=True)
@@ -156,4 +157,18 @@ def drop_defects(residual_mm: np.ndarray, cell_mm: float, tol: TrackTolerances,
         diameter = 2.0 * np.sqrt(blob.sum() / np.pi) * cell_mm
         defects.append(Defect("excess", x, y, float(diameter), volume, float(residual_mm[blob].max()), volume,
                               evidence=z * z, confidence=z, model="residual", params=()))
+    return defects
+
+
+def placed_drop_defects(drops: list[Drop], tol: TrackTolerances, confidence: Callable[[int], float]) -> list[Defect]:
+    """Excess material: the drops (mm) of at least ``min_drop_mm3`` with a confidence
+    (``confidence(i)`` of drop i) of ``z_min`` at least; the diameter at half height."""
+    defects = []
+    for i, drop in enumerate(drops):
+        z = confidence(i) if drop.volume() >= tol.min_drop_mm3 else 0.0
+        if z < tol.z_min:
+            continue
+        diameter = 2.0 * drop.radius * np.sqrt(2.0 * np.log(2.0))
+        defects.append(Defect("excess", drop.x, drop.y, float(diameter), drop.volume(), drop.height, drop.volume(),
+                              evidence=z * z, confidence=z, model="drop", params=(drop.radius, drop.height)))
     return defects

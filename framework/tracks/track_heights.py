@@ -24,13 +24,15 @@ from torch import Tensor
 
 from framework.core.contracts.representation import Representation, SearchContext
 from framework.tracks.geometry import PathSamples, path_samples, resampled_path
-from framework.tracks.track_search import SearchSettings, Window, search_tracks, windows_of
+from framework.tracks.track_search import (DropSite, SearchSettings, TrackMoves, Window, misfit_peaks, search_tracks,
+                                           windows_of)
 from framework.tracks.track_set import SECTION_REACH, SECTION_SAMPLES, SHAPE_RANGE, Drop, Track, TrackSet
 
 __all__ = ["TrackSettings", "TrackHeights"]
 
 LN2 = math.log(2.0)
 TAIL = 1.6  # the bead is drawn out to TAIL x its widest allowed width (a Gaussian's exp(-ln 2 (2 TAIL)^2) < 1e-3)
+DROP_MM = 3.0  # a drop's light is sought within DROP_MM / 2 of its residual node; drop sites DROP_MM apart
 EDGE = 1e-4  # the bead's edge is rounded over 1 - v^2 / c^2 < EDGE (an ellipse's slope stays finite there)
 
 
@@ -46,6 +48,8 @@ class TrackSettings:
         residual_mm: Spacing of the residual grid's samples (0: no residual grid).
         smoothness: Weight of the profiles' first differences (in their scales), relative to the data term.
         residual_sparsity: Weight of the residual grid's smoothed L1 norm, relative to the data term.
+        spare_drops: Drops the global search may place where the photo shows glass off the beads (0: none;
+            docs/results.md, "Prints of beads").
     """
 
     knot_mm: float = 1.0
@@ -55,6 +59,7 @@ class TrackSettings:
     residual_mm: float = 1.0
     smoothness: float = 1.0e-4
     residual_sparsity: float = 1.0e-2
+    spare_drops: int = 0
 
 
 @dataclass(frozen=True)
@@ -132,7 +137,8 @@ class TrackHeights(Representation):
                                          None if track.section is None else _tensor(track.section, dtype)))
             start += 3 * track.knots + 1
         self.drops_start = start
-        self.residual_start = start + 4 * len(self.nominal.drops)
+        self.spare_start = start + 4 * len(self.nominal.drops)  # drop slots the search may place, parked at 0 high
+        self.residual_start = self.spare_start + 4 * settings.spare_drops
         self.residual_side = 0 if settings.residual_mm <= 0 else max(
             2, int(round(2.0 * self.half_width * self.mm / settings.residual_mm)) + 1)
         self.size = self.residual_start + self.residual_side**2
@@ -156,6 +162,7 @@ class TrackHeights(Representation):
         parts = [v for t in self.nominal.tracks for v in self._track_values(t)]
         parts += [np.array([d.x, d.y, d.radius, d.height]) / np.array([self.mm, self.mm, self.mm, self.mm])
                   for d in self.nominal.drops]
+        parts += [np.array([-self.half_width, -self.half_width, self.cell, 0.0])] * self.settings.spare_drops
         parts.append(np.zeros(self.residual_side**2))
         return _tensor(np.concatenate(parts), self.dtype)
 
@@ -169,7 +176,8 @@ class TrackHeights(Representation):
     def bounds(self) -> tuple[Tensor, Tensor]:
         """Heights in [0, height_factor x the highest nominal]; each track's widths in width_range x
         its own nominal ones (half a cell at least); offsets within max_offset_mm of the nominal;
-        shapes in SHAPE_RANGE; drops near their start; the residual near the printed area."""
+        shapes in SHAPE_RANGE; drops near their start, spare ones anywhere; the residual near the
+        printed area."""
         settings, w = self.settings, self.width_bounds
         offset, top = settings.max_offset_mm / self.mm, settings.height_factor * self.highest
         lower = self._per_track((0.0, w[0], -offset, SHAPE_RANGE[0]))
@@ -188,6 +196,9 @@ class TrackHeights(Representation):
             x, y = drop.x / self.mm, drop.y / self.mm
             lower[j:j + 4] = torch.tensor([x - near, y - near, self.cell, 0.0], dtype=self.dtype)
             upper[j:j + 4] = torch.tensor([x + near, y + near, w[1], top], dtype=self.dtype)
+        for j in range(self.spare_start, self.residual_start, 4):
+            lower[j:j + 4] = torch.tensor([-self.half_width, -self.half_width, self.cell, 0.0], dtype=self.dtype)
+            upper[j:j + 4] = torch.tensor([self.half_width, self.half_width, w[1], top], dtype=self.dtype)
         residual = top * self._residual_free.to(self.dtype)
         lower[self.residual_start:], upper[self.residual_start:] = -residual, residual
         return lower, upper
@@ -195,8 +206,7 @@ class TrackHeights(Representation):
     def scale(self) -> Tensor:
         widest = self.width_bounds[1] / self.settings.width_range[1]
         out = self._per_track((self.highest, widest, 0.5 * widest, 1.0))
-        for i in range(len(self.nominal.drops)):
-            j = self.drops_start + 4 * i
+        for j in range(self.drops_start, self.residual_start, 4):
             out[j:j + 4] = torch.tensor([widest, widest, widest, self.highest], dtype=self.dtype)
         out[self.residual_start:] = 0.25 * self.highest
         return out
@@ -230,7 +240,7 @@ class TrackHeights(Representation):
             bead = ((inside.clamp(min=0.0) + EDGE) ** power - edge) / ((1.0 + EDGE) ** power - edge)
             flat = flat.index_add(0, layout.index, height * bead)
         d = flat.reshape(m, m)
-        if self.nominal.drops:
+        if self.residual_start > self.drops_start:
             axis = torch.linspace(-self.half_width, self.half_width, m, dtype=theta.dtype)
             for j in range(self.drops_start, self.residual_start, 4):
                 x, y, radius, height = theta[j:j + 4]
@@ -277,7 +287,8 @@ class TrackHeights(Representation):
 
     # -- reading a fit ------------------------------------------------------------------------------
     def track_set(self, theta: Tensor) -> TrackSet:
-        """The fitted print (mm) at theta (the shapes kept in SHAPE_RANGE against float32 rounding)."""
+        """The fitted print (mm) at theta (the shapes kept in SHAPE_RANGE against float32 rounding); the
+        spare drops the search placed among its drops."""
         values = theta.detach().cpu().double().numpy() * self.mm
         tracks = []
         for track, layout in zip(self.nominal.tracks, self._layouts):
@@ -285,9 +296,16 @@ class TrackHeights(Representation):
             shape = float(np.clip(values[s + 3 * k] / self.mm, *SHAPE_RANGE))
             tracks.append(replace(track, height=values[s:s + k], width=values[s + k:s + 2 * k],
                                   offset=values[s + 2 * k:s + 3 * k], shape=shape))
-        drops = tuple(Drop(*(float(v) for v in values[j:j + 4]))
-                      for j in range(self.drops_start, self.residual_start, 4))
+        slots = range(self.drops_start, self.residual_start, 4)
+        drops = tuple(Drop(*(float(v) for v in values[j:j + 4])) for j in slots
+                      if j < self.spare_start or values[j + 3] > 0.0)
         return TrackSet(tuple(tracks), drops)
+
+    def placed_drops(self, theta: Tensor) -> list[tuple[int, Drop]]:
+        """The drops the search placed (spare slots above 0 high): (their index in theta, the drop in mm)."""
+        values = theta.detach().cpu().double().numpy()
+        return [(j, Drop(*(float(v) * self.mm for v in values[j:j + 4])))
+                for j in range(self.spare_start, self.residual_start, 4) if values[j + 3] > 0.0]
 
     def residual(self, theta: Tensor) -> Tensor:
         """The residual grid's contribution to the heights (m, m), scene units (zeros without one)."""
@@ -297,12 +315,39 @@ class TrackHeights(Representation):
         return F.interpolate(coarse.to(self.dtype), size=self.shape, mode="bilinear", align_corners=True)[0, 0]
 
     def search(self, theta: Tensor, context: SearchContext) -> tuple[Tensor, list[str]]:
-        """Each track's worst-explained windows searched over alternative cross-sections
-        (framework/tracks/track_search.py)."""
+        """Each track's worst-explained windows searched over alternative cross-sections, and glass
+        tried at the misfit's peaks (framework/tracks/track_search.py)."""
         windows = self._search_windows(context.receiver_half_width, context.receiver_pixels)
         widths = [float(t.width.mean()) / self.mm for t in self.nominal.tracks]
-        return search_tracks(theta, windows, self.profile_slices, widths.__getitem__, self.clipped,
-                             context.objective, context.residual, context.noise_variance, self.search_settings)
+        bead = float(np.mean([t.height.mean() for t in self.nominal.tracks])) / self.mm
+        settings = self.search_settings
+        moves = TrackMoves(self.profile_slices, widths, [f * bead for f in settings.drop_heights],
+                           [f * float(np.mean(widths)) for f in settings.drop_radii])
+        free = [j for j in range(self.spare_start, self.residual_start, 4) if float(theta[j + 3]) <= 0.0]
+
+        def drops(misfit: np.ndarray) -> list[DropSite]:
+            return self._drop_sites(misfit / context.noise_variance, context.receiver_half_width,
+                                    context.receiver_pixels, free[:settings.drop_sites])
+
+        return search_tracks(theta, windows, drops, moves, self.clipped, context.objective, context.pixel_misfit,
+                             context.penalty, context.noise_variance, settings)
+
+    def _drop_sites(self, excess: np.ndarray, receiver_half_width: float, pixels: int, slots: list[int]
+                    ) -> list[DropSite]:
+        """The highest peaks of the pixels' misfit (n * n,) in noise variances, smoothed over DROP_MM / 4,
+        at least DROP_MM apart, one per free drop slot (their indices in theta); each with the pixels
+        within DROP_MM / 2."""
+        pitch = 2.0 * receiver_half_width / pixels
+        reach = DROP_MM / self.mm / pitch  # pixels
+        smooth = ndimage.gaussian_filter(excess.reshape(pixels, pixels), 0.25 * reach)
+        centres = -receiver_half_width + (np.arange(pixels) + 0.5) * pitch
+        sites = []
+        for slot, peak in zip(slots, misfit_peaks(smooth, max(1, int(round(reach))), len(slots))):
+            row, col = divmod(peak, pixels)
+            x, y = float(centres[col]), float(centres[row])
+            near = np.hypot(centres[None, :] - x, centres[:, None] - y) <= 0.5 * DROP_MM / self.mm
+            sites.append(DropSite(slot, x, y, np.flatnonzero(near)))
+        return sites
 
     def _search_windows(self, receiver_half_width: float, pixels: int) -> list[Window]:
         key = (receiver_half_width, pixels)
@@ -336,4 +381,4 @@ class TrackHeights(Representation):
 
     def summary(self, theta: Tensor) -> dict[str, Any]:
         return {"representation": "tracks", "parameters": self.size, "tracks": len(self.nominal.tracks),
-                "drops": len(self.nominal.drops), "residual_grid": self.residual_side}
+                "drops": len(self.track_set(theta).drops), "residual_grid": self.residual_side}

@@ -23,7 +23,7 @@ from framework.core.problem import Problem
 from framework.defects.fit import Defect
 from framework.defects.information import pixel_noise
 from framework.defects.report import defect_lines, kind_counts, save_defect_figure, save_defect_table
-from framework.tracks.track_defects import KnotRun, TrackTolerances, drop_defects, track_defects
+from framework.tracks.track_defects import KnotRun, TrackTolerances, drop_defects, placed_drop_defects, track_defects
 from framework.tracks.track_heights import TrackHeights
 
 __all__ = ["TrackReport", "report_tracks", "fitted_tracks", "track_tolerances", "tracks_verdict"]
@@ -103,7 +103,15 @@ def report_tracks(problem: Problem, representation: TrackHeights, theta: torch.T
         reverted[representation.residual_indices(blob)] = 0.0
         return gain(reverted)
 
+    placed = representation.placed_drops(theta)
+
+    def placed_confidence(i: int) -> float:
+        reverted = theta.clone()
+        reverted[placed[i][0] + 3] = 0.0
+        return gain(reverted)
+
     defects = track_defects(nominal, fitted, tolerances, confidence)
+    defects += placed_drop_defects([drop for _, drop in placed], tolerances, placed_confidence)
     cell_mm = representation.cell * mm
     defects += drop_defects(representation.residual(theta).cpu().numpy() * mm, cell_mm, tolerances, drop_confidence)
     defects.sort(key=lambda d: -d.confidence)

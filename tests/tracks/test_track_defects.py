@@ -1,6 +1,6 @@
 """Defects read from tracks against their nominal profiles: each kind found at its place with its
 size; changes within the tolerances and below the confidence are not reported; a blob of glass off
-the beads is excess material of its volume."""
+the beads, or a drop the search placed, is excess material of its volume."""
 
 from __future__ import annotations
 
@@ -71,3 +71,17 @@ def test_a_blob_off_the_beads_is_excess_of_its_volume() -> None:
     assert (drop.x_mm, drop.y_mm) == pytest.approx((3.0, -2.0), abs=0.05)
     assert drop.size == pytest.approx(volume, rel=0.02)
     assert drop_defects(blob, cell, TrackTolerances(min_drop_mm3=2 * volume), lambda where: 5.0) == []
+
+
+def test_a_placed_drop_is_excess_of_its_volume_when_the_photo_confirms_it() -> None:
+    from framework.tracks.track_defects import placed_drop_defects
+    from framework.tracks.track_set import Drop
+
+    drops = [Drop(3.0, -4.0, 0.5, 0.4), Drop(8.0, 8.0, 0.2, 0.1), Drop(-6.0, 2.0, 0.6, 0.3)]
+    found = placed_drop_defects(drops, TrackTolerances(), lambda i: (50.0, 50.0, 2.0)[i])
+    # the second holds 0.025 mm^3 (under min_drop_mm3), the third is under z_min
+    assert len(found) == 1
+    defect = found[0]
+    assert defect.kind == "excess" and (defect.x_mm, defect.y_mm) == (3.0, -4.0)
+    assert defect.volume_mm3 == pytest.approx(2.0 * np.pi * 0.25 * 0.4)
+    assert defect.length_mm == pytest.approx(2.355 * 0.5, rel=1e-3)

@@ -30,13 +30,15 @@ class SearchContext:
 
     Attributes:
         objective: theta -> the solver's objective (one render).
-        residual: (n * n,) the squared residual per receiver pixel at the current theta (channels summed).
-        noise_variance: The squared noise expected per receiver pixel.
+        pixel_misfit: theta -> (n * n,) each receiver pixel's share of the objective's data term (one render).
+        penalty: theta -> the objective's other terms (the priors, the volume; no caustic render).
+        noise_variance: Each receiver pixel's expected share of the data term at the noise level.
         receiver_half_width: The receiver's half width (scene units); receiver_pixels: n.
     """
 
     objective: Callable[[Tensor], float]
-    residual: np.ndarray
+    pixel_misfit: Callable[[Tensor], np.ndarray]
+    penalty: Callable[[Tensor], float]
     noise_variance: float
     receiver_half_width: float
     receiver_pixels: int

@@ -19,6 +19,7 @@ import time
 from collections.abc import Mapping
 from typing import Any
 
+import numpy as np
 import torch
 from torch import Tensor
 
@@ -168,15 +169,22 @@ class ParametricFit(IterativeSolver):
 
     def _search(self) -> bool:
         """The representation's global search from theta; whether it changed theta."""
-        evaluation = self.data.evaluate(self.state.d, with_grad=False)
         target, weights = self.data.target, self.data.weights
-        squared = (evaluation.image - target.to(evaluation.image)) ** 2
-        if weights is not None:
-            squared = squared * weights.to(squared)
-        noise = pixel_noise(target, self.delta, weights) ** 2 * target.shape[0]  # over the channels, as the residual
-        context = SearchContext(lambda theta: self._evaluate(theta, with_grad=False)[0],
-                                squared.sum(dim=0).reshape(-1).detach().cpu().double().numpy(), noise,
-                                self.receiver[0], self.receiver[1])
+        unit = 0.5 / (self.data.target_norm_sq * self.data.cell_area)  # a squared residual's share of the data term
+        noise = unit * pixel_noise(target, self.delta, weights) ** 2 * target.shape[0]  # channels summed
+
+        def pixel_misfit(theta: Tensor) -> np.ndarray:
+            image = self.data.evaluate(self.representation.heights(theta), with_grad=False).image
+            squared = (image - target.to(image)) ** 2
+            if weights is not None:
+                squared = squared * weights.to(squared)
+            return unit * squared.sum(dim=0).reshape(-1).detach().cpu().double().numpy()
+
+        def penalty(theta: Tensor) -> float:
+            return self.representation.prior(theta)[0] + self._volume_term(self.representation.heights(theta))[0]
+
+        context = SearchContext(lambda theta: self._evaluate(theta, with_grad=False)[0], pixel_misfit, penalty,
+                                noise, self.receiver[0], self.receiver[1])
         theta, changes = self.representation.search(self.theta, context)
         self.search_changes += changes
         if not changes:
