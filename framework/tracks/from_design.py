@@ -246,10 +246,10 @@ def measured_sections(tracks: TrackSet, design_mm: np.ndarray, cell_mm: float) -
 
 def _least_squares(tracks: TrackSet, design: np.ndarray, half_width: float, mm_per_unit: float,
                      settings: TrackSettings, iterations: int = 300) -> TrackSet:
-    """The tracks (their paths and sections kept) with the profiles and shapes that draw the design
-    (m, m, scene units) best: least squares over the representation's exact gradient (L-BFGS-B)."""
+    """The tracks (their paths and sections kept, no gaps opened) with the profiles and shapes that draw
+    the design (m, m, scene units) best: least squares over the representation's exact gradient (L-BFGS-B)."""
     m = design.shape[0]
-    beads_only = TrackSettings(**{**settings.__dict__, "residual_mm": 0.0})
+    beads_only = TrackSettings(**{**settings.__dict__, "residual_mm": 0.0, "gaps": 0, "spare_drops": 0})
     representation = TrackHeights(tracks, m, half_width, mm_per_unit, beads_only)
     target = torch.from_numpy(np.asarray(design, dtype=np.float64))
     scale = representation.scale()

@@ -34,7 +34,7 @@ def tracks_builder(toolpath: str | None = None, width_mm: float | None = None, h
                           fibre_diameter_mm: float | None = None, knot_mm: float = 1.0, max_offset_mm: float = 1.5,
                           width_range: tuple[float, float] | list[float] = (0.25, 2.5), height_factor: float = 3.0,
                           residual_mm: float = 1.0, smoothness: float = 1.0e-4,
-                          residual_sparsity: float = 1.0e-2, spare_drops: int = 0) -> Any:
+                          residual_sparsity: float = 1.0e-2, spare_drops: int = 0, gaps: int = 0) -> Any:
     """The ``representation`` group's keys for tracks: ``toolpath`` (a .csv or G-code file, mm,
     framework/tracks/toolpath.py; with a design too, its profiles and shapes are fitted to the
     design; null: the skeleton of the data's design, framework/tracks/from_design.py), the G-code's
@@ -50,8 +50,9 @@ def tracks_builder(toolpath: str | None = None, width_mm: float | None = None, h
         raise ValueError(f"solver.representation.width_range={list(width_range)} must be [low < 1, high > 1] "
                          "(factors of each bead's nominal width), e.g. [0.25, 2.5]")
     checked_whole(spare_drops, "solver.representation.spare_drops", 0)
+    checked_whole(gaps, "solver.representation.gaps", 0)
     settings = TrackSettings(knot_mm, max_offset_mm, (low, high), height_factor, residual_mm, smoothness,
-                             residual_sparsity, spare_drops)
+                             residual_sparsity, spare_drops, gaps)
     given = None if toolpath is None else read_toolpath(Path(toolpath).expanduser(), width_mm, height_mm,
                                                          fibre_diameter_mm)
 

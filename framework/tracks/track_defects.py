@@ -1,18 +1,17 @@
 """Defects read from fitted tracks against their nominal profiles: where each bead is interrupted,
 too low or high, too wide or narrow, displaced, and where glass lies off the beads (a drop).
 
-Per knot of each track, the fitted height, width and offset are compared with the nominal ones
-(the tool path's or the design's): a change beyond its tolerance is a deviation of that kind, the
-largest one (in tolerances) names the knot; runs of neighbouring knots of one kind are one defect,
-placed at the run's middle on the fitted bead, as long as the run. Excess material is a drop the
-global search placed off the beads (framework/tracks/track_search.py), or glass the residual grid
-holds in a connected blob, of at least ``min_drop_mm3`` either.
+A gap the fit opened in a track is an interruption of its length. Per knot of each track, the
+fitted height, width and offset are compared with the nominal ones (the tool path's or the
+design's): a change beyond its tolerance is a deviation of that kind, the largest one (in
+tolerances) names the knot; runs of neighbouring knots of one kind are one defect, placed at the
+run's middle on the fitted bead, as long as the run. Excess material is a drop the global search
+placed off the beads (framework/tracks/track_search.py), or glass the residual grid holds in a
+connected blob, of at least ``min_drop_mm3`` either.
 
-The confidence of each defect comes from the fit's curvature along it: with v the change of the
-parameters the defect makes (fitted minus nominal over its knots) and c = v^T H v the data term's
-curvature along v (one gradient difference), the change is z = sqrt(N a c) / delta of its own
-standard deviations (N pixels, a the cell area, delta the noise level: the data term's unit,
-framework/core/objective.py); a defect under ``z_min`` is not reported.
+Each defect comes with a confidence z, the standard deviations of the change the photo confirms
+(framework/tracks/track_report.py: the misfit's growth when the defect is undone, in pixel noise
+variances, square-rooted); a defect under ``z_min`` is not reported.
 """
 
 from __future__ import annotations
@@ -25,9 +24,10 @@ from scipy import ndimage
 
 from framework.defects.fit import Defect
 from framework.tracks.geometry import frame_at, resampled_path
-from framework.tracks.track_set import Drop, Track, TrackSet
+from framework.tracks.track_set import GAP_EDGE_MM, Drop, Track, TrackSet
 
-__all__ = ["TrackTolerances", "KnotRun", "deviation_runs", "track_defects", "drop_defects", "placed_drop_defects"]
+__all__ = ["TrackTolerances", "KnotRun", "deviation_runs", "track_defects", "drop_defects", "placed_drop_defects",
+           "gap_defects"]
 
 
 @dataclass(frozen=True)
@@ -171,4 +171,25 @@ def placed_drop_defects(drops: list[Drop], tol: TrackTolerances, confidence: Cal
         diameter = 2.0 * drop.radius * np.sqrt(2.0 * np.log(2.0))
         defects.append(Defect("excess", drop.x, drop.y, float(diameter), drop.volume(), drop.height, drop.volume(),
                               evidence=z * z, confidence=z, model="drop", params=(drop.radius, drop.height)))
+    return defects
+
+
+def gap_defects(fitted: TrackSet, opened: list[tuple[int, float, float]], tol: TrackTolerances,
+                confidence: Callable[[int], float]) -> list[Defect]:
+    """Interruptions: the gaps the fit opened, each (track index, centre's arc length mm, length mm),
+    of 2 GAP_EDGE_MM at least and a confidence (``confidence(i)`` of gap i) of ``z_min`` at least;
+    placed on the fitted bead, the glass missing as its volume."""
+    defects = []
+    for i, (index, centre, length) in enumerate(opened):
+        z = confidence(i) if length >= 2.0 * GAP_EDGE_MM else 0.0
+        if z < tol.z_min:
+            continue
+        track = fitted.tracks[index]
+        arcs = track.knot_arcs()
+        point, normal = frame_at(resampled_path(track.path, 0.05), centre)
+        x, y = point + float(np.interp(centre, arcs, track.offset)) * normal
+        height = float(np.interp(centre, arcs, track.height))
+        missing = height * float(np.interp(centre, arcs, track.width)) * track.area_factor() * length
+        defects.append(Defect("interruption", float(x), float(y), length, 1.0, -height, -missing, evidence=z * z,
+                              confidence=z, model=f"gap:{track.name}", params=(centre, length)))
     return defects

@@ -1,13 +1,14 @@
 """Tracks as a representation: the beads' profiles, the drops and a coarse residual grid rendered
 onto the heights grid, d = R(theta), with the exact vector-Jacobian product.
 
-theta holds, in scene units, for each track its height, width and offset at its knots and its
-cross-section's shape, then each drop's (x, y, radius, height), then a residual grid of
-(m_r, m_r) samples spread over the heights grid by bilinear interpolation (what beads cannot
-express: sagging, smeared glass). The paths stay fixed; the samples near them and their path
-coordinates are computed once (framework/tracks/geometry.py), so a render is a gather, an
-elementwise bead formula and a scatter-add, and J^T g is the same computation's reverse pass
-(torch autograd: exact, no finite differences).
+theta holds, in scene units, for each track its height, width and offset at its knots, its
+cross-section's shape and its gaps (centre's arc length, length; a closed gap is 0 long), then
+each drop's (x, y, radius, height), then a residual grid of (m_r, m_r) samples spread over the
+heights grid by bilinear interpolation (what beads cannot express: sagging, smeared glass). The
+paths stay fixed; the samples near them and their path coordinates are computed once
+(framework/tracks/geometry.py), so a render is a gather, an elementwise bead formula and a
+scatter-add, and J^T g is the same computation's reverse pass (torch autograd: exact, no finite
+differences).
 """
 
 from __future__ import annotations
@@ -24,15 +25,16 @@ from torch import Tensor
 
 from framework.core.contracts.representation import Representation, SearchContext
 from framework.tracks.geometry import PathSamples, path_samples, resampled_path
-from framework.tracks.track_search import (DropSite, SearchSettings, TrackMoves, Window, misfit_peaks, search_tracks,
-                                           windows_of)
-from framework.tracks.track_set import SECTION_REACH, SECTION_SAMPLES, SHAPE_RANGE, Drop, Track, TrackSet
+from framework.tracks.search_sites import DropSite, Window, drop_sites, pixels_beneath, windows_of
+from framework.tracks.track_search import SearchSettings, TrackMoves, search_tracks
+from framework.tracks.track_set import (GAP_EDGE_MM, SECTION_REACH, SECTION_SAMPLES, SHAPE_RANGE, Drop, Track,
+                                       TrackSet)
 
 __all__ = ["TrackSettings", "TrackHeights"]
 
 LN2 = math.log(2.0)
 TAIL = 1.6  # the bead is drawn out to TAIL x its widest allowed width (a Gaussian's exp(-ln 2 (2 TAIL)^2) < 1e-3)
-DROP_MM = 3.0  # a drop's light is sought within DROP_MM / 2 of its residual node; drop sites DROP_MM apart
+DROP_MM = 3.0  # drop sites at least DROP_MM apart, each judged on the receiver pixels within DROP_MM / 2
 EDGE = 1e-4  # the bead's edge is rounded over 1 - v^2 / c^2 < EDGE (an ellipse's slope stays finite there)
 
 
@@ -50,6 +52,7 @@ class TrackSettings:
         residual_sparsity: Weight of the residual grid's smoothed L1 norm, relative to the data term.
         spare_drops: Drops the global search may place where the photo shows glass off the beads (0: none;
             docs/results.md, "Prints of beads").
+        gaps: Gaps (interruptions) each track may open, besides its nominal ones.
     """
 
     knot_mm: float = 1.0
@@ -60,6 +63,7 @@ class TrackSettings:
     smoothness: float = 1.0e-4
     residual_sparsity: float = 1.0e-2
     spare_drops: int = 0
+    gaps: int = 0
 
 
 @dataclass(frozen=True)
@@ -68,6 +72,7 @@ class _Layout:
 
     start: int
     knots: int
+    gaps: int
     samples: PathSamples
     index: Tensor
     left: Tensor
@@ -75,6 +80,12 @@ class _Layout:
     u: Tensor
     beyond: Tensor
     section: Tensor | None
+    arc: Tensor  # (p,) the samples' arc lengths along the path
+
+    @property
+    def gap_start(self) -> int:
+        """The index in theta of its first gap's centre (each gap: centre, length)."""
+        return self.start + 3 * self.knots + 1
 
 
 def _tensor(array: np.ndarray, dtype: torch.dtype) -> Tensor:
@@ -117,6 +128,7 @@ class TrackHeights(Representation):
         self.dtype, self.settings = dtype, settings
         self.half_width, self.mm = float(half_width), float(mm_per_unit)
         self.cell = 2.0 * self.half_width / (resolution - 1)
+        self.gap_edge = max(GAP_EDGE_MM / float(mm_per_unit), 0.25 * self.cell)
         self.nominal = tracks.with_knot_spacing(settings.knot_mm)
         widest = max(float(t.width.max()) for t in self.nominal.tracks) / self.mm
         self.highest = max(float(t.height.max()) for t in self.nominal.tracks) / self.mm
@@ -131,11 +143,13 @@ class TrackHeights(Representation):
             spacing = samples.length / (track.knots - 1)
             position = np.clip(samples.s / spacing, 0.0, track.knots - 1.0)
             left = np.minimum(np.floor(position).astype(np.int64), track.knots - 2)
-            self._layouts.append(_Layout(start, track.knots, samples, torch.from_numpy(samples.index),
+            gaps = len(track.gaps) + settings.gaps
+            self._layouts.append(_Layout(start, track.knots, gaps, samples, torch.from_numpy(samples.index),
                                          torch.from_numpy(left), _tensor(position - left, dtype),
                                          _tensor(samples.u, dtype), _tensor(samples.beyond, dtype),
-                                         None if track.section is None else _tensor(track.section, dtype)))
-            start += 3 * track.knots + 1
+                                         None if track.section is None else _tensor(track.section, dtype),
+                                         _tensor(samples.s, dtype)))
+            start += 3 * track.knots + 1 + 2 * gaps
         self.drops_start = start
         self.spare_start = start + 4 * len(self.nominal.drops)  # drop slots the search may place, parked at 0 high
         self.residual_start = self.spare_start + 4 * settings.spare_drops
@@ -156,7 +170,11 @@ class TrackHeights(Representation):
 
     # -- parameters -------------------------------------------------------------------------------
     def _track_values(self, track: Track) -> list[np.ndarray]:
-        return [track.height / self.mm, track.width / self.mm, track.offset / self.mm, np.array([track.shape])]
+        """Its parameters: profiles, shape, then its gaps (its nominal ones, then closed ones at its middle:
+        a length below 0 cuts nothing and has no gradient, so only the global search opens a gap)."""
+        closed = [(0.5 * track.length, -GAP_EDGE_MM)] * self.settings.gaps
+        gaps = np.array([*track.gaps, *closed], dtype=np.float64).reshape(-1) / self.mm
+        return [track.height / self.mm, track.width / self.mm, track.offset / self.mm, np.array([track.shape]), gaps]
 
     def initial(self) -> Tensor:
         parts = [v for t in self.nominal.tracks for v in self._track_values(t)]
@@ -166,22 +184,24 @@ class TrackHeights(Representation):
         parts.append(np.zeros(self.residual_side**2))
         return _tensor(np.concatenate(parts), self.dtype)
 
-    def _per_track(self, values: tuple[float, float, float, float]) -> Tensor:
+    def _per_track(self, values: tuple[float, float, float, float, float, float]) -> Tensor:
+        """Every track's (height, width, offset, shape, gap centre, gap length) entries set to ``values``."""
         out = torch.empty(self.size, dtype=self.dtype)
         for layout in self._layouts:
-            k, s = layout.knots, layout.start
-            out[s:s + k], out[s + k:s + 2 * k], out[s + 2 * k:s + 3 * k], out[s + 3 * k] = values
+            k, s, g = layout.knots, layout.start, layout.gap_start
+            out[s:s + k], out[s + k:s + 2 * k], out[s + 2 * k:s + 3 * k], out[s + 3 * k] = values[:4]
+            out[g:g + 2 * layout.gaps:2], out[g + 1:g + 2 * layout.gaps:2] = values[4:]
         return out
 
     def bounds(self) -> tuple[Tensor, Tensor]:
         """Heights in [0, height_factor x the highest nominal]; each track's widths in width_range x
         its own nominal ones (half a cell at least); offsets within max_offset_mm of the nominal;
-        shapes in SHAPE_RANGE; drops near their start, spare ones anywhere; the residual near the
-        printed area."""
+        shapes in SHAPE_RANGE; gaps on their path; drops near their start, spare ones anywhere; the
+        residual near the printed area."""
         settings, w = self.settings, self.width_bounds
         offset, top = settings.max_offset_mm / self.mm, settings.height_factor * self.highest
-        lower = self._per_track((0.0, w[0], -offset, SHAPE_RANGE[0]))
-        upper = self._per_track((top, w[1], offset, SHAPE_RANGE[1]))
+        lower = self._per_track((0.0, w[0], -offset, SHAPE_RANGE[0], 0.0, -GAP_EDGE_MM / self.mm))
+        upper = self._per_track((top, w[1], offset, SHAPE_RANGE[1], 0.0, 0.0))
         start = self.initial()
         for track, layout in zip(self.nominal.tracks, self._layouts):
             k, s = layout.knots, layout.start
@@ -191,6 +211,7 @@ class TrackHeights(Representation):
             upper[s:s + k] = max(top, float(track.height.max()) / self.mm)
             lower[s + 2 * k:s + 3 * k] += start[s + 2 * k:s + 3 * k]
             upper[s + 2 * k:s + 3 * k] += start[s + 2 * k:s + 3 * k]
+            upper[layout.gap_start:layout.gap_start + 2 * layout.gaps] = track.length / self.mm
         for i, drop in enumerate(self.nominal.drops):
             j, near = self.drops_start + 4 * i, settings.max_offset_mm / self.mm
             x, y = drop.x / self.mm, drop.y / self.mm
@@ -205,7 +226,7 @@ class TrackHeights(Representation):
 
     def scale(self) -> Tensor:
         widest = self.width_bounds[1] / self.settings.width_range[1]
-        out = self._per_track((self.highest, widest, 0.5 * widest, 1.0))
+        out = self._per_track((self.highest, widest, 0.5 * widest, 1.0, widest, widest))
         for j in range(self.drops_start, self.residual_start, 4):
             out[j:j + 4] = torch.tensor([widest, widest, widest, self.highest], dtype=self.dtype)
         out[self.residual_start:] = 0.25 * self.highest
@@ -229,6 +250,12 @@ class TrackHeights(Representation):
 
             height, width, offset = along(s), along(s + k), along(s + 2 * k)
             shape = theta[s + 3 * k]
+            g = layout.gap_start
+            for centre, length in theta[g:g + 2 * layout.gaps].reshape(-1, 2):  # cut: 1 inside a gap, 0 outside
+                length = length.clamp(min=0.0)
+                cut = (torch.sigmoid((layout.arc - centre + 0.5 * length) / self.gap_edge)
+                       - torch.sigmoid((layout.arc - centre - 0.5 * length) / self.gap_edge))
+                height = height * (1.0 - cut)
             squared = 4.0 * ((layout.u - offset) ** 2 + layout.beyond**2) / width**2  # v^2 = (2 r / width)^2
             if layout.section is not None:
                 flat = flat.index_add(0, layout.index, height * _sampled(layout.section, squared))
@@ -294,8 +321,10 @@ class TrackHeights(Representation):
         for track, layout in zip(self.nominal.tracks, self._layouts):
             k, s = layout.knots, layout.start
             shape = float(np.clip(values[s + 3 * k] / self.mm, *SHAPE_RANGE))
+            g = layout.gap_start
+            gaps = tuple((float(c), float(n)) for c, n in values[g:g + 2 * layout.gaps].reshape(-1, 2) if n > 0.0)
             tracks.append(replace(track, height=values[s:s + k], width=values[s + k:s + 2 * k],
-                                  offset=values[s + 2 * k:s + 3 * k], shape=shape))
+                                  offset=values[s + 2 * k:s + 3 * k], shape=shape, gaps=gaps))
         slots = range(self.drops_start, self.residual_start, 4)
         drops = tuple(Drop(*(float(v) for v in values[j:j + 4])) for j in slots
                       if j < self.spare_start or values[j + 3] > 0.0)
@@ -321,55 +350,39 @@ class TrackHeights(Representation):
         widths = [float(t.width.mean()) / self.mm for t in self.nominal.tracks]
         bead = float(np.mean([t.height.mean() for t in self.nominal.tracks])) / self.mm
         settings = self.search_settings
+        spacings = [layout.samples.length / (layout.knots - 1) for layout in self._layouts]
         moves = TrackMoves(self.profile_slices, widths, [f * bead for f in settings.drop_heights],
-                           [f * float(np.mean(widths)) for f in settings.drop_radii])
+                           [f * float(np.mean(widths)) for f in settings.drop_radii], spacings,
+                           lambda track: self.gap_slots(track) if context.earlier else [])
         free = [j for j in range(self.spare_start, self.residual_start, 4) if float(theta[j + 3]) <= 0.0]
 
         def drops(misfit: np.ndarray) -> list[DropSite]:
-            return self._drop_sites(misfit / context.noise_variance, context.receiver_half_width,
-                                    context.receiver_pixels, free[:settings.drop_sites])
+            return drop_sites(misfit / context.noise_variance, context.receiver_half_width, context.receiver_pixels,
+                              free[:settings.drop_sites], DROP_MM / self.mm)
 
         return search_tracks(theta, windows, drops, moves, self.clipped, context.objective, context.pixel_misfit,
                              context.penalty, context.noise_variance, settings)
 
-    def _drop_sites(self, excess: np.ndarray, receiver_half_width: float, pixels: int, slots: list[int]
-                    ) -> list[DropSite]:
-        """The highest peaks of the pixels' misfit (n * n,) in noise variances, smoothed over DROP_MM / 4,
-        at least DROP_MM apart, one per free drop slot (their indices in theta); each with the pixels
-        within DROP_MM / 2."""
-        pitch = 2.0 * receiver_half_width / pixels
-        reach = DROP_MM / self.mm / pitch  # pixels
-        smooth = ndimage.gaussian_filter(excess.reshape(pixels, pixels), 0.25 * reach)
-        centres = -receiver_half_width + (np.arange(pixels) + 0.5) * pitch
-        sites = []
-        for slot, peak in zip(slots, misfit_peaks(smooth, max(1, int(round(reach))), len(slots))):
-            row, col = divmod(peak, pixels)
-            x, y = float(centres[col]), float(centres[row])
-            near = np.hypot(centres[None, :] - x, centres[:, None] - y) <= 0.5 * DROP_MM / self.mm
-            sites.append(DropSite(slot, x, y, np.flatnonzero(near)))
-        return sites
-
     def _search_windows(self, receiver_half_width: float, pixels: int) -> list[Window]:
         key = (receiver_half_width, pixels)
         if self._windows is None or self._windows[0] != key:
-            m = self.shape[0]
-            per_track = []
-            for layout in self._layouts:
-                rows, cols = np.divmod(layout.samples.index, m)
-                x, y = -self.half_width + cols * self.cell, -self.half_width + rows * self.cell
-                pitch = 2.0 * receiver_half_width / pixels
-                pc = np.clip(np.floor((x + receiver_half_width) / pitch).astype(int), 0, pixels - 1)
-                pr = np.clip(np.floor((y + receiver_half_width) / pitch).astype(int), 0, pixels - 1)
-                position = (layout.left.numpy() + layout.frac.numpy())
-                per_track.append((layout.knots, position, pr * pixels + pc))
+            per_track = [(layout.knots, layout.left.numpy() + layout.frac.numpy(),
+                          pixels_beneath(layout.samples.index, self.shape[0], self.half_width, receiver_half_width,
+                                         pixels)) for layout in self._layouts]
             self._windows = (key, windows_of(per_track, self.search_settings.knots))
         return self._windows[1]
 
     def profile_slices(self, track: int) -> tuple[slice, slice, slice]:
-        """Where track ``track``'s height, width and offset knots sit in theta."""
+        """Where track ``track``'s height, width and offset knots sit in theta (its gaps: :meth:`gap_slots`)."""
         layout = self._layouts[track]
         k, s = layout.knots, layout.start
         return slice(s, s + k), slice(s + k, s + 2 * k), slice(s + 2 * k, s + 3 * k)
+
+    def gap_slots(self, track: int) -> list[int]:
+        """The indices in theta of the centres (each followed by its length) of the gaps track ``track``
+        may open beyond its nominal ones."""
+        layout = self._layouts[track]
+        return [layout.gap_start + 2 * j for j in range(len(self.nominal.tracks[track].gaps), layout.gaps)]
 
     def residual_indices(self, where: np.ndarray) -> Tensor:
         """The indices in theta of the residual samples nearest the heights samples ``where`` (m, m) bool."""

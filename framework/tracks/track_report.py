@@ -23,7 +23,8 @@ from framework.core.problem import Problem
 from framework.defects.fit import Defect
 from framework.defects.information import pixel_noise
 from framework.defects.report import defect_lines, kind_counts, save_defect_figure, save_defect_table
-from framework.tracks.track_defects import KnotRun, TrackTolerances, drop_defects, placed_drop_defects, track_defects
+from framework.tracks.track_defects import (KnotRun, TrackTolerances, drop_defects, gap_defects, placed_drop_defects,
+                                           track_defects)
 from framework.tracks.track_heights import TrackHeights
 
 __all__ = ["TrackReport", "report_tracks", "fitted_tracks", "track_tolerances", "tracks_verdict"]
@@ -110,7 +111,18 @@ def report_tracks(problem: Problem, representation: TrackHeights, theta: torch.T
         reverted[placed[i][0] + 3] = 0.0
         return gain(reverted)
 
+    values = theta.detach().cpu().double().numpy()
+    opened = [(k, j) for k in range(len(nominal.tracks))
+              for j in representation.gap_slots(k) if values[j + 1] > 0.0]
+
+    def gap_confidence(i: int) -> float:
+        reverted = theta.clone()
+        reverted[opened[i][1] + 1] = 0.0
+        return gain(reverted)
+
     defects = track_defects(nominal, fitted, tolerances, confidence)
+    defects += gap_defects(fitted, [(k, values[j] * mm, values[j + 1] * mm) for k, j in opened], tolerances,
+                           gap_confidence)
     defects += placed_drop_defects([drop for _, drop in placed], tolerances, placed_confidence)
     cell_mm = representation.cell * mm
     defects += drop_defects(representation.residual(theta).cpu().numpy() * mm, cell_mm, tolerances, drop_confidence)

@@ -8,7 +8,8 @@ slope). So each window tries, from its current values: offsets moved by +-0.5 an
 the height times 0.1 (an interruption), 0.6 and 1.4, the width times 0.7 and 1.4, and the width
 times 0.6 and 1.6 with the height divided by the same factor (the same glass as a thin tall or a
 wide low bead). The change is full on the window's inner knots and half on its two end knots.
-And each inner knot alone down to 0 high: a gap as short as two knots at its base.
+And where the track has a closed gap left, that gap opened 1, 2 or 3 knot spacings long at the
+window's middle or half a spacing either side (an interruption with its sharp ends).
 
 Then glass off the beads: a drop is a lens of its own whose light a screen sees past its focus
 too, so the residual grid's gradient never grows it (a bilinear bump has flat facets and focuses
@@ -32,10 +33,11 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
-from scipy import ndimage
 from torch import Tensor
 
-__all__ = ["Window", "DropSite", "TrackMoves", "SearchSettings", "search_tracks", "misfit_peaks"]
+from framework.tracks.search_sites import DropSite, Window
+
+__all__ = ["TrackMoves", "SearchSettings", "search_tracks"]
 
 
 @dataclass(frozen=True)
@@ -50,35 +52,6 @@ class SearchSettings:
     drop_sites: int = 4
     drop_heights: tuple[float, ...] = (0.2, 0.4, 0.8)
     drop_radii: tuple[float, ...] = (0.4, 0.8)
-
-
-@dataclass(frozen=True)
-class Window:
-    """Knots [first, last] of track ``track``, with the receiver pixels beneath them."""
-
-    track: int
-    first: int
-    last: int
-    pixels: np.ndarray  # flat indices into an (n, n) receiver image
-
-
-@dataclass(frozen=True)
-class DropSite:
-    """Where glass off the beads may sit: the free drop slot it would take (its index in theta), its
-    place (x, y, scene units) and the receiver pixels around it."""
-
-    slot: int
-    x: float
-    y: float
-    pixels: np.ndarray
-
-
-def misfit_peaks(excess: np.ndarray, spacing: int, count: int) -> list[int]:
-    """The flat indices of the ``count`` highest local maxima of the (n, n) map ``excess`` (a pixel's
-    misfit in noise variances, smoothed), at least ``spacing`` pixels apart, above 1."""
-    peaks = (excess == ndimage.maximum_filter(excess, size=2 * spacing + 1)) & (excess > 1.0)
-    flat = np.flatnonzero(peaks)
-    return [int(i) for i in flat[np.argsort(excess.reshape(-1)[flat])[::-1]][:count]]
 
 
 def _drop_alternatives(theta: Tensor, site: DropSite, heights: list[float], radii: list[float],
@@ -99,17 +72,22 @@ Site = Window | DropSite
 @dataclass(frozen=True)
 class TrackMoves:
     """What the search changes: each track's (height, width, offset) slices of theta and nominal
-    width (scene units), and the drops' heights and radii tried (scene units)."""
+    width, the drops' heights and radii tried, each track's knot spacing (scene units) and the
+    indices in theta of the gaps it may open (each a centre, then a length)."""
 
     slices: Callable[[int], tuple[slice, slice, slice]]
     widths: list[float]
     drop_heights: list[float]
     drop_radii: list[float]
+    spacings: list[float]
+    gaps: Callable[[int], list[int]]
 
     def alternatives(self, theta: Tensor, site: Site, clip: Callable[[Tensor], Tensor]) -> list[tuple[str, Tensor]]:
         if isinstance(site, DropSite):
             return _drop_alternatives(theta, site, self.drop_heights, self.drop_radii, clip)
-        return _alternatives(theta, self.slices(site.track), site, self.widths[site.track], clip)
+        out = _alternatives(theta, self.slices(site.track), site, self.widths[site.track], clip)
+        closed = [g for g in self.gaps(site.track) if float(theta[g + 1]) <= 0.0]
+        return out + (_gap_alternatives(theta, closed[0], site, self.spacings[site.track], clip) if closed else [])
 
     @staticmethod
     def where(site: Site) -> str:
@@ -144,10 +122,20 @@ def _alternatives(theta: Tensor, slices: tuple[slice, slice, slice], window: Win
     out += [changed(f"height x{f}", height=f) for f in (0.1, 0.6, 1.4)]
     out += [changed(f"width x{f}", width=f) for f in (0.7, 1.4)]
     out += [changed(f"width x{f}, height / {f}", width=f, height=1.0 / f) for f in (0.6, 1.6)]
-    for knot in span[1:-1]:  # a short gap: one inner knot down to 0 (an interruption two knots long at its base)
-        gap = theta.clone()
-        gap[heights.start + knot] = 0.0
-        out.append((f"a gap at knot {knot}", clip(gap)))
+    return out
+
+
+def _gap_alternatives(theta: Tensor, slot: int, window: Window, spacing: float, clip: Callable[[Tensor], Tensor]
+                      ) -> list[tuple[str, Tensor]]:
+    """The closed gap at ``slot`` opened 1, 2 or 3 knot spacings long at the window's middle or half a
+    spacing either side of it."""
+    middle = 0.5 * (window.first + window.last) * spacing
+    out = []
+    for shift in (-0.5, 0.0, 0.5):
+        for knots in (1.0, 2.0, 3.0):
+            gap = theta.clone()
+            gap[slot], gap[slot + 1] = middle + shift * spacing, knots * spacing
+            out.append((f"a gap {knots:g} knots long", clip(gap)))
     return out
 
 
@@ -239,16 +227,3 @@ def search_tracks(theta: Tensor, windows: list[Window], drops: Callable[[np.ndar
             if kept:
                 misfit = pixel_misfit(theta)
     return theta, changes
-
-
-def windows_of(paths_pixels: list[tuple[int, np.ndarray, np.ndarray]], knots_per_window: int) -> list[Window]:
-    """Windows of ``knots_per_window`` knots along each track, overlapping by half; ``paths_pixels``:
-    per track its knot count, each heights sample's knot position (p,) and flat receiver pixel (p,)."""
-    windows = []
-    stride = max(1, knots_per_window // 2)
-    for track, (knots, position, pixels) in enumerate(paths_pixels):
-        for first in range(0, max(knots - stride, 1), stride):
-            last = min(first + knots_per_window, knots - 1)
-            near = (position >= first - 0.5) & (position <= last + 0.5)
-            windows.append(Window(track, first, last, np.unique(pixels[near])))
-    return windows

@@ -15,8 +15,10 @@ flat-lying melted bead), 2 an ellipse (a half cylinder), 3 flatter still, toward
 A track may instead carry its own cross-section (``section``: the design's bead as measured from
 the design's heights, framework/tracks/from_design.py), height over peak sampled at
 v = 0 .. SECTION_REACH; the profiles then scale and move that section, and ``shape`` is unused.
-Profiles are piecewise linear between knots equally spaced along the path; a height of 0 over an
-interval is an interruption. Drops are round Gaussian blobs.
+Profiles are piecewise linear between knots equally spaced along the path. An interruption is a
+gap: an interval of the path (its centre's arc length and its length) where the bead is cut, its
+ends sharp to GAP_EDGE_MM (a bead's melted end is round over about its height, not ramped over a
+knot spacing). Drops are round Gaussian blobs.
 """
 
 from __future__ import annotations
@@ -32,11 +34,12 @@ import numpy as np
 from framework.tracks.geometry import path_length
 
 __all__ = ["Track", "Drop", "TrackSet", "bead_area_factor", "SHAPE_RANGE", "DEFAULT_SHAPE", "SECTION_REACH",
-           "SECTION_SAMPLES"]
+           "SECTION_SAMPLES", "GAP_EDGE_MM"]
 
 DEFAULT_SHAPE = 1.0  # a parabola: a bead's shape where nothing says otherwise
 SECTION_REACH, SECTION_SAMPLES = 4.0, 161  # a measured section's samples over v = 2 r / width in [0, 4]
 SHAPE_RANGE = (0.02, 3.0)  # the bead family: Gaussian (0) .. parabola (1) .. ellipse (2) .. flat-topped
+GAP_EDGE_MM = 0.1  # a gap's ends: the logistic's scale along the path
 
 
 def bead_area_factor(shape: float) -> float:
@@ -71,6 +74,7 @@ class Track:
         layers: Beads laid on top of each other along this path (their heights summed here).
         section: (SECTION_SAMPLES,) the bead's own cross-section over v in [0, SECTION_REACH]
             (1 at v = 0, 1/2 at v = 1), or None: the power cap of ``shape``.
+        gaps: The interruptions, each (arc length of its centre, length), mm.
     """
 
     name: str
@@ -81,6 +85,7 @@ class Track:
     shape: float = DEFAULT_SHAPE
     layers: int = 1
     section: np.ndarray | None = None
+    gaps: tuple[tuple[float, float], ...] = ()
 
     def __post_init__(self) -> None:
         path = np.asarray(self.path, dtype=np.float64)
@@ -92,6 +97,10 @@ class Track:
             object.__setattr__(self, key, _profile(getattr(self, key), knots, f"{self.name}'s {key}"))
         if np.any(self.height < 0.0) or np.any(self.width <= 0.0):
             raise ValueError(f"{self.name}: heights must be >= 0 mm and widths > 0 mm")
+        object.__setattr__(self, "gaps", tuple((float(c), float(n)) for c, n in self.gaps))
+        if any(n < 0.0 or not 0.0 <= c <= self.length for c, n in self.gaps):
+            raise ValueError(f"{self.name}: a gap's centre must lie on the path (0-{self.length:.3g} mm) and its "
+                             "length be >= 0 mm")
         if not SHAPE_RANGE[0] <= self.shape <= SHAPE_RANGE[1]:
             raise ValueError(f"{self.name}: shape={self.shape} lies outside {SHAPE_RANGE} "
                              "(0 Gaussian, 1 parabola, 2 ellipse)")
@@ -116,9 +125,11 @@ class Track:
                        offset=np.interp(new, old, self.offset))
 
     def volume(self) -> float:
-        """The bead's volume, mm^3 (its cross-section's area integrated along the path; round ends aside)."""
+        """The bead's volume, mm^3 (its cross-section's area integrated along the path, less its gaps;
+        round ends aside)."""
         area = self.height * self.width * self.area_factor()
-        return float(np.trapezoid(area, self.knot_arcs()))
+        cut = sum(float(np.interp(c, self.knot_arcs(), area)) * n for c, n in self.gaps)
+        return float(np.trapezoid(area, self.knot_arcs())) - cut
 
     def area_factor(self) -> float:
         """The cross-section's area / (height * width)."""
@@ -130,7 +141,7 @@ class Track:
         return {"section": None if self.section is None else self.section.tolist(),
                 "name": self.name, "path_mm": self.path.tolist(), "height_mm": self.height.tolist(),
                 "width_mm": self.width.tolist(), "offset_mm": self.offset.tolist(), "shape": self.shape,
-                "layers": self.layers}
+                "layers": self.layers, "gaps_mm": [list(g) for g in self.gaps]}
 
 
 @dataclass(frozen=True)
@@ -181,7 +192,8 @@ class TrackSet:
         raw = json.loads(Path(path).read_text())
         tracks = tuple(Track(t["name"], np.array(t["path_mm"]), np.array(t["height_mm"]), np.array(t["width_mm"]),
                              np.array(t["offset_mm"]), float(t["shape"]), int(t.get("layers", 1)),
-                             None if t.get("section") is None else np.array(t["section"]))
+                             None if t.get("section") is None else np.array(t["section"]),
+                             tuple(tuple(g) for g in t.get("gaps_mm", [])))
                        for t in raw["tracks"])
         drops = tuple(Drop(d["x_mm"], d["y_mm"], d["radius_mm"], d["height_mm"]) for d in raw.get("drops", []))
         return cls(tracks, drops)

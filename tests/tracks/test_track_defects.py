@@ -85,3 +85,16 @@ def test_a_placed_drop_is_excess_of_its_volume_when_the_photo_confirms_it() -> N
     assert defect.kind == "excess" and (defect.x_mm, defect.y_mm) == (3.0, -4.0)
     assert defect.volume_mm3 == pytest.approx(2.0 * np.pi * 0.25 * 0.4)
     assert defect.length_mm == pytest.approx(2.355 * 0.5, rel=1e-3)
+
+
+def test_an_opened_gap_is_an_interruption_at_its_place_and_length() -> None:
+    from framework.tracks.track_defects import gap_defects
+
+    fitted = TrackSet((_line(0.0), _line(6.0)))
+    opened = [(1, 12.0, 2.0), (0, 30.0, 0.1)]  # a 2 mm gap 12 mm along the second line; one too short to count
+    found = gap_defects(fitted, opened, TrackTolerances(), lambda i: 40.0)
+    assert len(found) == 1
+    defect = found[0]
+    assert defect.kind == "interruption" and defect.length_mm == 2.0
+    assert (defect.x_mm, defect.y_mm) == pytest.approx((-8.0, 6.0), abs=0.06)
+    assert defect.volume_mm3 == pytest.approx(-0.5 * 0.8 * fitted.tracks[1].area_factor() * 2.0)

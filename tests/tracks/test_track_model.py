@@ -5,6 +5,7 @@ a design drawn as melted glass (experiments/fibre_print.py) turned back into its
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -74,13 +75,28 @@ def test_a_design_of_melted_beads_gives_back_its_tool_path() -> None:
     assert np.linalg.norm(drawn - design) / np.linalg.norm(design) < 0.1
 
 
+def test_a_gap_cuts_its_length_out_of_the_bead(tmp_path) -> None:
+    track = Track("line", np.array([[-15.0, 0.0], [15.0, 0.0]]), np.array([0.5]), np.array([1.2]), np.array([0.0]),
+                  gaps=((15.0, 3.0),))  # 3 mm around x = 0
+    whole = TrackHeights(TrackSet((replace(track, gaps=()),)), 513, 1.0, MM, TrackSettings(residual_mm=0.0))
+    cut = TrackHeights(TrackSet((track,)), 513, 1.0, MM, TrackSettings(residual_mm=0.0))
+    d, full = (r.heights(r.initial()).numpy() * MM for r in (cut, whole))
+    assert d[:, 256].max() < 1e-6 and d[:, 256 + 31].max() == pytest.approx(0.5, rel=1e-3)  # x = 0 and 3 mm
+    cell = 50.0 / 512
+    missing = 0.5 * 1.2 * bead_area_factor(1.0) * 3.0  # the logistic ends cut exactly the gap's length
+    assert (full.sum() - d.sum()) * cell**2 == pytest.approx(missing, rel=5e-3)
+    assert replace(track, gaps=()).volume() - track.volume() == pytest.approx(missing, rel=1e-12)
+    TrackSet((track,)).save(tmp_path / "tracks.json")
+    assert TrackSet.load(tmp_path / "tracks.json").tracks[0].gaps == ((15.0, 3.0),)
+
+
 def test_the_vjp_is_the_adjoint_of_the_drawing_with_drops_and_residual() -> None:
     from framework.tracks.track_set import Drop
 
     arc = np.stack([8 * np.cos(np.linspace(0, 3, 40)), 8 * np.sin(np.linspace(0, 3, 40))], axis=1)
-    tracks = TrackSet((Track("arc", arc, np.linspace(0.3, 0.6, 9), np.array([0.8]), np.array([0.1]), 1.0),),
-                      (Drop(3.0, -4.0, 0.6, 0.2),))
-    rep = TrackHeights(tracks, 128, 1.0, MM, TrackSettings(residual_mm=4.0))
+    tracks = TrackSet((Track("arc", arc, np.linspace(0.3, 0.6, 9), np.array([0.8]), np.array([0.1]), 1.0,
+                             gaps=((10.0, 2.0),)),), (Drop(3.0, -4.0, 0.6, 0.2),))
+    rep = TrackHeights(tracks, 128, 1.0, MM, TrackSettings(residual_mm=4.0, gaps=1, spare_drops=1))
     theta = rep.initial() + 0.01 * rep.scale() * torch.randn(rep.size, generator=torch.Generator().manual_seed(3),
                                                              dtype=torch.float64)
     g = torch.randn(128, 128, generator=torch.Generator().manual_seed(4), dtype=torch.float64)

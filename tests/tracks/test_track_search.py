@@ -71,3 +71,28 @@ def test_the_search_places_a_drop_off_the_beads() -> None:
     drop = placed[0][1]
     assert np.hypot(drop.x - 6.0, drop.y - 8.0) < 0.5  # within a receiver pixel and a half (0.39 mm)
     assert objective(found) < 0.5 * objective(theta)
+
+
+def test_a_later_search_opens_a_sharp_gap_where_the_bead_is_interrupted() -> None:
+    from dataclasses import replace
+
+    nominal = _line(np.zeros(41), np.full(41, 0.5))
+    truth = TrackHeights(TrackSet((replace(nominal.tracks[0], gaps=((24.0, 2.0),)),)), M, 1.0, MM,
+                         TrackSettings(residual_mm=0.0))
+    target = truth.heights(truth.initial())
+    rep = TrackHeights(nominal, M, 1.0, MM, TrackSettings(residual_mm=0.0, gaps=1))
+
+    def objective(theta: torch.Tensor) -> float:
+        return float(torch.sum((rep.heights(theta) - target) ** 2))
+
+    def misfit(theta: torch.Tensor) -> np.ndarray:
+        return ((rep.heights(theta) - target) ** 2).reshape(-1).numpy()
+
+    theta = rep.initial()
+    assert rep.track_set(theta).tracks[0].gaps == ()  # a closed gap cuts nothing
+    first, _ = rep.search(theta, SearchContext(objective, misfit, lambda theta: 0.0, 1e-12, 1.0, M, earlier=0))
+    assert rep.track_set(first).tracks[0].gaps == ()  # the first search leaves gaps to later ones
+    found, changes = rep.search(theta, SearchContext(objective, misfit, lambda theta: 0.0, 1e-12, 1.0, M, earlier=1))
+    (centre, length), = rep.track_set(found).tracks[0].gaps
+    assert abs(centre - 24.0) <= 0.5 and abs(length - 2.0) <= 0.5, (centre, length, changes)
+    assert objective(found) < 0.2 * objective(theta)

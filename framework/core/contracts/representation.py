@@ -34,6 +34,7 @@ class SearchContext:
         penalty: theta -> the objective's other terms (the priors, the volume; no caustic render).
         noise_variance: Each receiver pixel's expected share of the data term at the noise level.
         receiver_half_width: The receiver's half width (scene units); receiver_pixels: n.
+        earlier: The searches this fit made before this one (0: the first, from the start).
     """
 
     objective: Callable[[Tensor], float]
@@ -42,6 +43,7 @@ class SearchContext:
     noise_variance: float
     receiver_half_width: float
     receiver_pixels: int
+    earlier: int = 0
 
 
 class Representation(ABC):

@@ -184,7 +184,7 @@ class ParametricFit(IterativeSolver):
             return self.representation.prior(theta)[0] + self._volume_term(self.representation.heights(theta))[0]
 
         context = SearchContext(lambda theta: self._evaluate(theta, with_grad=False)[0], pixel_misfit, penalty,
-                                noise, self.receiver[0], self.receiver[1])
+                                noise, self.receiver[0], self.receiver[1], self.searched - 1)
         theta, changes = self.representation.search(self.theta, context)
         self.search_changes += changes
         if not changes:
