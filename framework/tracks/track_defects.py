@@ -90,14 +90,18 @@ def deviation_runs(nominal: TrackSet, fitted: TrackSet, tol: TrackTolerances) ->
     return runs
 
 
+def _on_bead(track: Track, arc: float) -> tuple[float, float]:
+    """(x, y) in mm of the fitted bead's centre at arc length ``arc`` (its offset applied)."""
+    point, normal = frame_at(resampled_path(track.path, 0.05), arc)
+    x, y = point + float(np.interp(arc, track.knot_arcs(), track.offset)) * normal
+    return float(x), float(y)
+
+
 def _place(track: Track, run: KnotRun) -> tuple[float, float, float]:
-    """(x, y, length) in mm of a run on the fitted bead (its offset applied)."""
+    """(x, y, length) in mm of a run on the fitted bead."""
     arcs = track.knot_arcs()
-    spacing = arcs[1] - arcs[0]
-    middle = 0.5 * (arcs[run.first] + arcs[run.last])
-    point, normal = frame_at(resampled_path(track.path, 0.05), middle)
-    x, y = point + float(np.interp(middle, arcs, track.offset)) * normal
-    return float(x), float(y), float((run.last - run.first + 1) * spacing)
+    x, y = _on_bead(track, 0.5 * (arcs[run.first] + arcs[run.last]))
+    return x, y, float((run.last - run.first + 1) * (arcs[1] - arcs[0]))
 
 
 def _size(nominal: Track, fitted: Track, run: KnotRun) -> tuple[float, float, float]:
@@ -185,11 +189,9 @@ def gap_defects(fitted: TrackSet, opened: list[tuple[int, float, float]], tol: T
         if z < tol.z_min:
             continue
         track = fitted.tracks[index]
-        arcs = track.knot_arcs()
-        point, normal = frame_at(resampled_path(track.path, 0.05), centre)
-        x, y = point + float(np.interp(centre, arcs, track.offset)) * normal
-        height = float(np.interp(centre, arcs, track.height))
-        missing = height * float(np.interp(centre, arcs, track.width)) * track.area_factor() * length
-        defects.append(Defect("interruption", float(x), float(y), length, 1.0, -height, -missing, evidence=z * z,
+        x, y = _on_bead(track, centre)
+        height = float(np.interp(centre, track.knot_arcs(), track.height))
+        missing = track.section_area(centre) * length
+        defects.append(Defect("interruption", x, y, length, 1.0, -height, -missing, evidence=z * z,
                               confidence=z, model=f"gap:{track.name}", params=(centre, length)))
     return defects

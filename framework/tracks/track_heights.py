@@ -325,10 +325,8 @@ class TrackHeights(Representation):
             gaps = tuple((float(c), float(n)) for c, n in values[g:g + 2 * layout.gaps].reshape(-1, 2) if n > 0.0)
             tracks.append(replace(track, height=values[s:s + k], width=values[s + k:s + 2 * k],
                                   offset=values[s + 2 * k:s + 3 * k], shape=shape, gaps=gaps))
-        slots = range(self.drops_start, self.residual_start, 4)
-        drops = tuple(Drop(*(float(v) for v in values[j:j + 4])) for j in slots
-                      if j < self.spare_start or values[j + 3] > 0.0)
-        return TrackSet(tuple(tracks), drops)
+        drops = tuple(Drop(*(float(v) for v in values[j:j + 4])) for j in range(self.drops_start, self.spare_start, 4))
+        return TrackSet(tuple(tracks), drops + tuple(drop for _, drop in self.placed_drops(theta)))
 
     def placed_drops(self, theta: Tensor) -> list[tuple[int, Drop]]:
         """The drops the search placed (spare slots above 0 high): (their index in theta, the drop in mm)."""

@@ -128,8 +128,12 @@ class Track:
         """The bead's volume, mm^3 (its cross-section's area integrated along the path, less its gaps;
         round ends aside)."""
         area = self.height * self.width * self.area_factor()
-        cut = sum(float(np.interp(c, self.knot_arcs(), area)) * n for c, n in self.gaps)
+        cut = sum(self.section_area(c) * n for c, n in self.gaps)
         return float(np.trapezoid(area, self.knot_arcs())) - cut
+
+    def section_area(self, arc: float) -> float:
+        """The cross-section's area (mm^2) at arc length ``arc`` (mm), linear between the knots."""
+        return float(np.interp(arc, self.knot_arcs(), self.height * self.width * self.area_factor()))
 
     def area_factor(self) -> float:
         """The cross-section's area / (height * width)."""
