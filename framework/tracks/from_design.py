@@ -134,6 +134,28 @@ def _collapsed(chains: list[np.ndarray], nodes: dict[tuple, int], cell_mm: float
     return out
 
 
+def _valleys(design: np.ndarray) -> np.ndarray:
+    """Where the design (m, m) curves up more than it curves down (smoothed over one sample): the
+    troughs between beads, the outer flanks of their tails, a dip along a bead. Left out of the
+    printed area where it is below half the local peak, they keep two beads whose tails overlap
+    apart; exactly flat parts (a flat-topped bead) stay in."""
+    smooth = ndimage.gaussian_filter(np.asarray(design, dtype=np.float64), 1.0)
+    d_rr, d_cc = ndimage.gaussian_filter(smooth, 1.0, order=(2, 0)), ndimage.gaussian_filter(smooth, 1.0, order=(0, 2))
+    d_rc = ndimage.gaussian_filter(smooth, 1.0, order=(1, 1))
+    mean, spread = 0.5 * (d_rr + d_cc), np.sqrt(0.25 * (d_rr - d_cc) ** 2 + d_rc**2)
+    upward, downward = mean + spread, mean - spread  # the Hessian's eigenvalues
+    return upward > np.maximum(np.abs(downward), 1e-4 * float(np.max(design)))
+
+
+def _degrees(chains: list[np.ndarray]) -> dict[tuple, int]:
+    """How many chains end at each chain end (pixel): 1 at a free end, 3 or more at a junction."""
+    degrees: dict[tuple, int] = {}
+    for chain in chains:
+        for end in (tuple(chain[0]), tuple(chain[-1])):
+            degrees[end] = degrees.get(end, 0) + 1
+    return degrees
+
+
 def skeleton_paths(design_mm: np.ndarray, cell_mm: float, floor: float = 0.2, spur_mm: float = 1.0,
                    smooth_mm: float = 0.5) -> list[np.ndarray]:
     """The bead paths (k, 2) in mm (x, y from the grid's centre) of a design (m, m) in mm."""
@@ -142,12 +164,20 @@ def skeleton_paths(design_mm: np.ndarray, cell_mm: float, floor: float = 0.2, sp
         raise ValueError("the design has no printed height; tracks need beads to follow")
     local = ndimage.maximum_filter(design_mm, size=2 * max(1, int(round(2.0 / cell_mm))) + 1)
     printed = (design_mm > floor * local) & (design_mm > 0.05 * peak)
+    printed &= ~(_valleys(design_mm) & (design_mm < 0.5 * local))
     chains = [np.asarray(c, dtype=np.float64) for c in _branches(skeletonize(printed))]
-    nodes: dict[tuple, int] = {}
-    for chain in chains:
-        for end in (tuple(chain[0]), tuple(chain[-1])):
-            nodes[end] = nodes.get(end, 0) + 1
-    kept = [c for c in chains if len(c) * cell_mm >= spur_mm or min(nodes[tuple(c[0])], nodes[tuple(c[-1])]) > 1]
+    half_width = ndimage.distance_transform_edt(printed) * cell_mm  # mm to the printed area's edge
+    nodes = _degrees(chains)
+
+    def spur(chain: np.ndarray) -> bool:  # a short branch with a free end: a fork where a wide bead ends
+        ends = [tuple(chain[0]), tuple(chain[-1])]
+        if min(nodes[e] for e in ends) > 1:
+            return False
+        junction = max(ends, key=lambda e: nodes[e])
+        return len(chain) * cell_mm < max(spur_mm, 2.0 * float(half_width[int(junction[0]), int(junction[1])]))
+
+    kept = [c for c in chains if not spur(c)]
+    nodes = _degrees(kept)
     kept = _collapsed(kept, nodes, cell_mm, link_mm=1.5)
     m = design_mm.shape[0]
     paths = []
@@ -157,11 +187,49 @@ def skeleton_paths(design_mm: np.ndarray, cell_mm: float, floor: float = 0.2, sp
         width = max(1, int(round(smooth_mm / cell_mm)))
         smoothed = ndimage.uniform_filter1d(chain, size=2 * width + 1, axis=0, mode="nearest")
         smoothed[0], smoothed[-1] = chain[0], chain[-1]
+        free = [nodes.get(tuple(chain[end])) == 1 and not np.array_equal(chain[0], chain[-1]) for end in (0, -1)]
         centre = (m - 1) / 2.0
-        paths.append(np.stack([(smoothed[:, 1] - centre) * cell_mm, (smoothed[:, 0] - centre) * cell_mm], axis=1))
+        path = np.stack([(smoothed[:, 1] - centre) * cell_mm, (smoothed[:, 0] - centre) * cell_mm], axis=1)
+        paths.append(_ends_extended(path, free, design_mm, cell_mm))
     if not paths:
         raise ValueError("the design's skeleton has no branch longer than spur_mm; is it a print of beads?")
     return paths
+
+
+def _ends_extended(path: np.ndarray, free: list[bool], design_mm: np.ndarray, cell_mm: float,
+                   inner_mm: float = 1.0, aim_mm: float = 3.0, level: float = 0.97, reach_mm: float = 5.0
+                   ) -> np.ndarray:
+    """The path (k, 2) in mm with each free end (``free``: first, last) cut back by ``inner_mm``
+    and carried on straight, in the direction of its last ``aim_mm``, while the design's height
+    stays at ``level`` of the height where it was cut. Thinning stops short of a bead's end by about
+    half its width and bends there (a wide bead's end thins to a fork whose spurs are dropped); the
+    drawn bead's round end then starts where the design's starts to fall
+    (framework/tracks/geometry.py, ``beyond``)."""
+    m = design_mm.shape[0]
+    centre = (m - 1) / 2.0
+
+    def height(xy: np.ndarray) -> np.ndarray:
+        return ndimage.map_coordinates(design_mm, [xy[:, 1] / cell_mm + centre, xy[:, 0] / cell_mm + centre],
+                                       order=1, mode="constant")
+
+    along = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(path, axis=0).T))])
+    aim = min(aim_mm, 0.5 * along[-1])
+    if aim <= inner_mm + cell_mm:
+        return path
+    steps = np.arange(0.0, reach_mm + inner_mm, 0.5 * cell_mm)
+
+    def tip(arc_inner: float, arc_aim: float) -> np.ndarray:
+        inner = np.array([np.interp(arc_inner, along, path[:, 0]), np.interp(arc_inner, along, path[:, 1])])
+        behind = np.array([np.interp(arc_aim, along, path[:, 0]), np.interp(arc_aim, along, path[:, 1])])
+        direction = (inner - behind) / max(float(np.hypot(*(inner - behind))), 1e-12)
+        ahead = height(inner[None] + steps[:, None] * direction[None])
+        falls = np.nonzero(ahead < level * ahead[0])[0]
+        return inner + steps[max(int(falls[0]) - 1, 0) if falls.size else -1] * direction
+
+    keep = (along > (inner_mm if free[0] else -1.0)) & (along < (along[-1] - inner_mm if free[1] else np.inf))
+    head = [tip(inner_mm, aim)] if free[0] else []
+    tail = [tip(along[-1] - inner_mm, along[-1] - aim)] if free[1] else []
+    return np.concatenate([np.asarray(head).reshape(-1, 2), path[keep], np.asarray(tail).reshape(-1, 2)])
 
 
 def _first_guess(design_mm: np.ndarray, path: np.ndarray, cell_mm: float, name: str) -> Track:

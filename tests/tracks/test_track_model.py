@@ -75,6 +75,39 @@ def test_a_design_of_melted_beads_gives_back_its_tool_path() -> None:
     assert np.linalg.norm(drawn - design) / np.linalg.norm(design) < 0.1
 
 
+def _segment_beads(m: int, beads: list[tuple[tuple[float, float], tuple[float, float], float, float]]) -> np.ndarray:
+    """Gaussian beads (heights h exp(-r^2 / 2 sigma^2) at distance r from a segment, so with round
+    ends), in scene units on the (m, m) grid; each bead (start mm, end mm, height mm, full width at
+    half height mm)."""
+    axis = np.linspace(-MM, MM, m)
+    x, y = np.meshgrid(axis, axis)
+    design = np.zeros((m, m))
+    for start, end, height, width in beads:
+        a, b = np.asarray(start), np.asarray(end)
+        t = np.clip(((x - a[0]) * (b - a)[0] + (y - a[1]) * (b - a)[1]) / float(np.sum((b - a) ** 2)), 0.0, 1.0)
+        r2 = (x - a[0] - t * (b - a)[0]) ** 2 + (y - a[1] - t * (b - a)[1]) ** 2
+        sigma = width / (2.0 * math.sqrt(2.0 * math.log(2.0)))
+        design += height * np.exp(-r2 / (2.0 * sigma**2))
+    return design / MM
+
+
+def test_wide_beads_whose_tails_meet_stay_apart_and_reach_their_ends() -> None:
+    beads = [((-6.0, -15.0), (-6.0, 15.0), 1.5, 5.0), ((6.0, -15.0), (6.0, 15.0), 1.0, 5.0),
+             ((-20.0, 18.0), (-10.0, 18.0), 0.8, 1.2)]
+    design = _segment_beads(128, beads)
+    found = tracks_from_design(design, 1.0, MM, TrackSettings())
+    assert len(found.tracks) == len(beads)  # no bridge through the tails, no fork at a wide end
+    for start, end, _, width in beads:
+        points = [start, end]
+        best = min(found.tracks, key=lambda t: float(np.median(polyline_distance(t.path[:, 0], t.path[:, 1], points))))
+        assert np.median(polyline_distance(best.path[:, 0], best.path[:, 1], points)) < 0.2
+        ends = [float(np.min(np.hypot(*(best.path[[0, -1]] - np.asarray(p)).T))) for p in points]
+        assert max(ends) < 0.1 * width + 0.4, (start, ends)  # the path runs to the bead's end, not half a width short
+    rep = TrackHeights(found, 128, 1.0, MM, TrackSettings(residual_mm=0.0))
+    drawn = rep.heights(rep.initial()).numpy()
+    assert np.linalg.norm(drawn - design) / np.linalg.norm(design) < 0.05
+
+
 def test_a_gap_cuts_its_length_out_of_the_bead(tmp_path) -> None:
     track = Track("line", np.array([[-15.0, 0.0], [15.0, 0.0]]), np.array([0.5]), np.array([1.2]), np.array([0.0]),
                   gaps=((15.0, 3.0),))  # 3 mm around x = 0
