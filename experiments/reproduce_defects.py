@@ -1,15 +1,17 @@
 """The defect benchmark: prints with defects of known kind, place and size made from every built-in
 design (experiments/defect_prints.py), and prints equal to their design, reconstructed with
-``experiment=design`` from their exact caustics (wavefront triangles, not the model's splats) at 2%, 5%
-and 10% noise, as multiruns into one MLflow experiment; then the table and the figure from the store:
+``experiment=design`` (or ``--method tracks``: ``experiment=tracks``, the beads along each design's
+skeleton) from their exact caustics (wavefront triangles, not the model's splats) at 2%, 5% and 10% noise, as multiruns into one MLflow experiment; then the table and the figure from the store:
 recall by kind and size, false alarms per print, the smallest defect found per kind and noise, the
 errors of the found defects' places and sizes.
 
     python -m experiments.reproduce_defects                      # everything (about 65 min on 2 cores)
     python -m experiments.reproduce_defects --scenes print_lines --deltas 0.05
     python -m experiments.reproduce_defects --table-only
+    python -m experiments.reproduce_defects --method tracks --scenes print_lines,oblique_lines --deltas 0.05
 
-Writes defects.md, defects.csv and defects.png into --out (default docs/results); the prints and
+Writes defects.md, defects.csv and defects.png (defects_tracks.* with --method tracks) into --out
+(default docs/results); the prints and
 their planned defects into --prints (default outputs/defect_prints).
 """
 
@@ -30,7 +32,9 @@ from experiments.mlflow_store import (TrackingStore, artifact, latest_runs, repr
                                       tracking_store)
 from framework.scene.scene_config import build_heights
 
-EXPERIMENT = "defects"
+# --method: (MLflow experiment, the runs' preset, the outputs' file stem)
+METHODS = {"design": ("defects", "experiment=design", "defects"),
+           "tracks": ("defects_tracks", "experiment=tracks", "defects_tracks")}
 SCENES = ("print_lines", "oblique_lines", "bump", "gaussian", "letter_a")
 MATCH_MM = 3.0  # a reported defect within this distance (plus half the planned length) of a planned one found it
 SPACING_MM = 14.0  # planned defects of one print at least this far apart
@@ -76,9 +80,9 @@ def case_of(run) -> tuple[str, str, float]:
     return run.data.tags.get("scene", ""), Path(params.get("data.printed", "")).name, float(params.get("data.delta", 0))
 
 
-def collect(store: TrackingStore, prints: Path) -> dict[tuple[str, str, float], dict]:
+def collect(store: TrackingStore, prints: Path, experiment: str) -> dict[tuple[str, str, float], dict]:
     """Per case: the latest finished run's defects.json and metrics, and the planned defects."""
-    chosen, client = latest_runs(store, EXPERIMENT, key=case_of)
+    chosen, client = latest_runs(store, experiment, key=case_of)
     out = {}
     for key, run in sorted(chosen.items()):
         plan = prints / Path(key[1]).with_suffix(".json").name
@@ -130,23 +134,25 @@ def label(row: dict) -> str:
     return f"{100 * size:+.0f}%"
 
 
-def write_outputs(cases: dict, out: Path) -> None:
-    """defects.csv (one row per planned defect), defects.md (recall by kind and size per noise level,
-    false alarms per print, errors of place and size) and defects.png."""
-    rows, alarms = [], defaultdict(list)
+def write_outputs(cases: dict, out: Path, method: str = "design") -> None:
+    """<stem>.csv (one row per planned defect), <stem>.md (recall by kind and size per noise level,
+    false alarms per print, errors of place and size, the heights' error) and <stem>.png."""
+    _, preset, stem = METHODS[method]
+    rows, alarms, heights = [], defaultdict(list), defaultdict(list)
     for (scene, name, delta), case in cases.items():
         matched, false = match(case)
         alarms[delta].append(false)
+        heights[delta].append(float(case["metrics"].get("rel_error_d", float("nan"))))
         for row in matched:
             rows.append({"scene": scene, "print": name, "delta": delta, **row})
-    with open(out / "defects.csv", "w", newline="") as handle:
+    with open(out / f"{stem}.csv", "w", newline="") as handle:
         writer = csv.DictWriter(handle, fieldnames=list(rows[0]) if rows else ["scene"])
         writer.writeheader()
         writer.writerows(rows)
     lines = [
         "# Defects against the design: recall, false alarms, place and size",
         "",
-        "`python -m experiments.reproduce_defects`; `experiment=design` on exact caustics (wavefront triangles) of "
+        f"`python -m experiments.reproduce_defects --method {method}`; `{preset}` on exact caustics (wavefront triangles) of "
         "prints with planned defects (experiments/defect_prints.py). A planned defect counts as found when a "
         f"reported defect lies within {MATCH_MM:g} mm plus half its length of its centre; every reported defect "
         "that found none is a false alarm.",
@@ -174,9 +180,11 @@ def write_outputs(cases: dict, out: Path) -> None:
             lines.append(f"| {kind} | {size} | {len(group)} | {len(right)} | "
                          f"{', '.join(sorted(r['kind_found'] for r in other)) or 0} | {pos:.2f} | "
                          f"{np.mean(err) if err else float('nan'):.2f} |")
-        lines += ["", key_class_recall(chosen), smallest_found(chosen), ""]
-    (out / "defects.md").write_text("\n".join(lines))
-    write_figure(rows, out)
+        lines += ["", key_class_recall(chosen), smallest_found(chosen),
+                  f"Heights' relative error (d) over the prints: median {np.nanmedian(heights[delta]):.3f}, "
+                  f"largest {np.nanmax(heights[delta]):.3f}.", ""]
+    (out / f"{stem}.md").write_text("\n".join(lines))
+    write_figure(rows, out / f"{stem}.png")
 
 
 KEY_CLASSES = {  # the defects a print engineer must not miss, as (name, test of a planned defect)
@@ -210,7 +218,7 @@ def smallest_found(rows: list[dict]) -> str:
     return "Smallest found: " + "; ".join(parts) + "."
 
 
-def write_figure(rows: list[dict], out: Path) -> None:
+def write_figure(rows: list[dict], path: Path) -> None:
     """Recall (right kind) by kind at each noise level."""
     kinds = sorted({r["kind"] for r in rows})
     deltas = sorted({r["delta"] for r in rows})
@@ -228,7 +236,7 @@ def write_figure(rows: list[dict], out: Path) -> None:
     ax.set_ylim(0, 1.05)
     ax.legend()
     fig.tight_layout()
-    fig.savefig(out / "defects.png", dpi=110)
+    fig.savefig(path, dpi=110)
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -238,7 +246,10 @@ def main(argv: list[str] | None = None) -> None:
                                                                    f"{SHORT} at the others")
     parser.add_argument("--prints", type=Path, default=Path("outputs/defect_prints"), help="where the prints go")
     parser.add_argument("--seed", type=int, default=0, help="seed of the defects' places")
+    parser.add_argument("--method", choices=sorted(METHODS), default="design",
+                        help="design: M2D (experiment=design); tracks: M2T along each design's skeleton")
     args = parser.parse_args(argv)
+    experiment, preset, stem = METHODS[args.method]
     store = tracking_store(args)
     prints = args.prints.resolve()
     if not args.table_only:
@@ -251,16 +262,16 @@ def main(argv: list[str] | None = None) -> None:
         ):
             for scene, chosen in files.items():
                 if levels:
-                    run_sweep(store, EXPERIMENT, ["experiment=design", f"scene={scene}",
+                    run_sweep(store, experiment, [preset, f"scene={scene}",
                                                   f"data.printed={','.join(str(f) for f in chosen[:count])}",
                                                   f"data.delta={','.join(str(x) for x in levels)}"],
                               args.overrides, args.launcher)
-    cases = collect(store, prints)
+    cases = collect(store, prints, experiment)
     if not cases:
-        raise SystemExit(f"no finished runs of '{EXPERIMENT}' in {store.uri or store.directory}")
+        raise SystemExit(f"no finished runs of '{experiment}' in {store.uri or store.directory}")
     args.out.mkdir(parents=True, exist_ok=True)
-    write_outputs(cases, args.out)
-    print((args.out / "defects.md").read_text())
+    write_outputs(cases, args.out, args.method)
+    print((args.out / f"{stem}.md").read_text())
 
 
 if __name__ == "__main__":

@@ -9,7 +9,7 @@ import pytest
 import torch
 
 from experiments.defect_prints import apply_defect, feature_sites
-from experiments.reproduce_defects import match, size_error
+from experiments.reproduce_defects import match, size_error, write_outputs
 from framework.core.contracts.checks import check_regularizer
 from framework.scene.design_mesh import heights_from_mesh
 from framework.scene.printed_shapes import make_shape
@@ -127,3 +127,19 @@ def test_the_benchmark_matches_defects_by_place_and_kind() -> None:
     assert rows[0]["size_error"] == pytest.approx(0.2) and rows[0]["position_error_mm"] == pytest.approx(0.3)
     assert not rows[1]["found"] and false_alarms == 1
     assert size_error(planned[1], {"size": 0.6, "length_mm": 1.0}) == pytest.approx(0.2)
+
+
+def test_the_benchmark_table_of_a_method_counts_its_finds_alarms_and_heights(tmp_path) -> None:
+    planned = [{"kind": "excess", "x_mm": 10.0, "y_mm": 0.0, "length_mm": 0.0, "size": 0.5}]
+    cases = {("bump", "bump_1.npy", 0.05): {"planned": planned, "metrics": {"rel_error_d": 0.25},
+                                            "report": {"defects": [{"kind": "excess", "x_mm": 10.5, "y_mm": 0.0,
+                                                                    "length_mm": 0.0, "size": 0.4}]}},
+             ("bump", "bump_2.npy", 0.05): {"planned": [], "metrics": {"rel_error_d": 0.05},
+                                            "report": {"defects": [{"kind": "too_low", "x_mm": 0.0, "y_mm": 0.0,
+                                                                    "length_mm": 3.0, "size": 0.2}]}}}
+    write_outputs(cases, tmp_path, "tracks")
+    table = (tmp_path / "defects_tracks.md").read_text()
+    assert "2 prints, 1 false alarm(s) (0.50 per print)" in table
+    assert "| excess | 0.5 mm3 | 1 | 1 | 0 | 0.50 | 0.20 |" in table
+    assert "median 0.150, largest 0.250" in table and "experiment=tracks" in table
+    assert (tmp_path / "defects_tracks.csv").is_file() and (tmp_path / "defects_tracks.png").is_file()
