@@ -1,7 +1,8 @@
 """The defect benchmark: prints with defects of known kind, place and size made from every built-in
 design (experiments/defect_prints.py), and prints equal to their design, reconstructed with
 ``experiment=design`` (or ``--method tracks``: ``experiment=tracks``, the beads along each design's
-skeleton) from their exact caustics (wavefront triangles, not the model's splats) at 2%, 5% and 10% noise, as multiruns into one MLflow experiment; then the table and the figure from the store:
+skeleton) from their exact caustics (wavefront triangles, not the model's splats) at 2%, 5% and 10% noise,
+as multiruns into one MLflow experiment; then the table and the figure from the store:
 recall by kind and size, false alarms per print, the smallest defect found per kind and noise, the
 errors of the found defects' places and sizes.
 
@@ -152,7 +153,8 @@ def write_outputs(cases: dict, out: Path, method: str = "design") -> None:
     lines = [
         "# Defects against the design: recall, false alarms, place and size",
         "",
-        f"`python -m experiments.reproduce_defects --method {method}`; `{preset}` on exact caustics (wavefront triangles) of "
+        f"`python -m experiments.reproduce_defects --method {method}`; `{preset}` on exact caustics "
+        "(wavefront triangles) of "
         "prints with planned defects (experiments/defect_prints.py). A planned defect counts as found when a "
         f"reported defect lies within {MATCH_MM:g} mm plus half its length of its centre; every reported defect "
         "that found none is a false alarm.",
