@@ -34,11 +34,14 @@ def tracks_builder(toolpath: str | None = None, width_mm: float | None = None, h
                           fibre_diameter_mm: float | None = None, knot_mm: float = 1.0, max_offset_mm: float = 1.5,
                           width_range: tuple[float, float] | list[float] = (0.25, 2.5), height_factor: float = 3.0,
                           residual_mm: float = 1.0, smoothness: float = 1.0e-4,
-                          residual_sparsity: float = 1.0e-2, spare_drops: int = 0, gaps: int = 0) -> Any:
+                          residual_sparsity: float = 1.0e-2, spare_drops: int = 0, gaps: int = 0,
+                          anchored: bool = True) -> Any:
     """The ``representation`` group's keys for tracks: ``toolpath`` (a .csv or G-code file, mm,
     framework/tracks/toolpath.py; with a design too, its profiles and shapes are fitted to the
     design; null: the skeleton of the data's design, framework/tracks/from_design.py), the G-code's
-    bead size where it gives none, and :class:`TrackSettings`.
+    bead size where it gives none, :class:`TrackSettings`, and ``anchored``: with a design, what the
+    nominal beads do not draw of it (design - R(theta_0)) is added to every render, so that the
+    start is the design itself and the beads carry only the print's deviations from it.
     Returns a builder (problem, d0) -> TracksRepresentation."""
     for key, value in (("knot_mm", knot_mm), ("max_offset_mm", max_offset_mm), ("height_factor", height_factor)):
         checked_number(value, f"solver.representation.{key}", above=0.0)
@@ -69,6 +72,10 @@ def tracks_builder(toolpath: str | None = None, width_mm: float | None = None, h
             tracks = tracks_from_design(design.detach().cpu().double().numpy(), grid.half_width, mm, settings)
         source = f"the tool path {Path(toolpath).name}" if toolpath is not None else "the design's skeleton"
         mask = problem.data.mask.detach().cpu().numpy() > 0
-        return TracksRepresentation(tracks, grid.resolution, grid.half_width, mm, settings, d0.dtype, source, mask)
+        representation = TracksRepresentation(tracks, grid.resolution, grid.half_width, mm, settings, d0.dtype, source,
+                                              mask)
+        if anchored and design is not None:
+            representation.correction = design.to(d0.dtype) - representation.heights(representation.initial())
+        return representation
 
     return build

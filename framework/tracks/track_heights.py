@@ -123,6 +123,7 @@ class TrackHeights(Representation):
                  source: str = "given", mask: np.ndarray | None = None,
                  search: SearchSettings | None = None) -> None:
         self.source, self.search_settings = source, search or SearchSettings()
+        self.correction: Tensor | None = None  # (m, m) added to every render: what the beads miss of the design
         self._windows: tuple[tuple[float, int], list[Window]] | None = None
         self.shape = (int(resolution), int(resolution))
         self.dtype, self.settings = dtype, settings
@@ -275,7 +276,7 @@ class TrackHeights(Representation):
         if self.residual_side:
             coarse = theta[self.residual_start:].reshape(1, 1, self.residual_side, self.residual_side)
             d = d + F.interpolate(coarse, size=self.shape, mode="bilinear", align_corners=True)[0, 0]
-        return d
+        return d if self.correction is None else d + self.correction.to(d.dtype)
 
     def drawn(self, theta: Tensor) -> Tensor:
         """R(theta) (m, m) with torch's autograd graph (for a caller's own loss)."""

@@ -1,11 +1,13 @@
 """Tracks drawn onto the heights grid against independent truths: the bead family's area and
 half-height width by quadrature and by reading the rendered grid, the volume of a drawn bead, and
-a design drawn as melted glass (experiments/fibre_print.py) turned back into its tool path."""
+a design drawn as melted glass (experiments/fibre_print.py) turned back into its tool path, beads
+whose tails meet kept apart, and tracks anchored to a design starting at it."""
 
 from __future__ import annotations
 
 import math
 from dataclasses import replace
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -13,7 +15,9 @@ import torch
 from scipy import integrate
 
 from experiments.fibre_print import TOOLPATH, polyline_distance, draw_beads
+from framework.core.problem import HeightGrid
 from framework.tracks.from_design import tracks_from_design
+from framework.tracks.plugin import tracks_builder
 from framework.tracks.track_heights import TrackHeights, TrackSettings
 from framework.tracks.track_set import Track, TrackSet, bead_area_factor
 
@@ -145,3 +149,20 @@ def test_a_float32_fit_at_a_bound_reads_back_as_tracks() -> None:
     lower, _ = rep.bounds()
     fitted = rep.track_set(lower.clone())  # every parameter at its lower bound, in float32
     assert fitted.tracks[0].shape >= 0.02 and np.all(fitted.tracks[0].height == 0.0)
+
+
+def test_anchored_tracks_start_at_the_design_and_keep_their_jacobian() -> None:
+    m = 96
+    design = _segment_beads(m, [((-10.0, -8.0), (10.0, 8.0), 0.9, 1.5), ((-12.0, 10.0), (12.0, 10.0), 0.6, 1.0)])
+    problem = SimpleNamespace(grid=HeightGrid(m, 1.0, 0.1), scene=SimpleNamespace(mm_per_unit=MM),
+                              data=SimpleNamespace(design=torch.from_numpy(design), mask=torch.ones(m, m)))
+    d0 = torch.zeros(m, m, dtype=torch.float64)
+    plain = tracks_builder(anchored=False)(problem, d0)
+    anchored = tracks_builder(anchored=True)(problem, d0)
+    theta = anchored.initial()
+    assert torch.allclose(anchored.heights(theta), torch.from_numpy(design), atol=1e-12)
+    assert not torch.allclose(plain.heights(theta), torch.from_numpy(design), atol=1e-4)  # beads alone miss some
+    g = torch.from_numpy(np.random.default_rng(0).standard_normal((m, m)))
+    moved = theta + 0.01 * plain.scale()
+    assert torch.allclose(anchored.vjp(moved, g), plain.vjp(moved, g))  # a constant added: the same J^T
+    assert torch.allclose(anchored.heights(moved) - plain.heights(moved), anchored.correction)
