@@ -135,13 +135,13 @@ def _collapsed(chains: list[np.ndarray], nodes: dict[tuple, int], cell_mm: float
 
 
 def _valleys(design: np.ndarray) -> np.ndarray:
-    """Where the design (m, m) curves up more than it curves down (smoothed over one sample): the
+    """Where the design (m, m) curves up more than it curves down (smoothed over 1.4 samples): the
     troughs between beads, the outer flanks of their tails, a dip along a bead. Left out of the
     printed area where it is below half the local peak, they keep two beads whose tails overlap
     apart; exactly flat parts (a flat-topped bead) stay in."""
-    smooth = ndimage.gaussian_filter(np.asarray(design, dtype=np.float64), 1.0)
-    d_rr, d_cc = ndimage.gaussian_filter(smooth, 1.0, order=(2, 0)), ndimage.gaussian_filter(smooth, 1.0, order=(0, 2))
-    d_rc = ndimage.gaussian_filter(smooth, 1.0, order=(1, 1))
+    design = np.asarray(design, dtype=np.float64)
+    d_rr, d_cc, d_rc = (ndimage.gaussian_filter(design, math.sqrt(2.0), order=order)
+                        for order in ((2, 0), (0, 2), (1, 1)))
     mean, spread = 0.5 * (d_rr + d_cc), np.sqrt(0.25 * (d_rr - d_cc) ** 2 + d_rc**2)
     upward, downward = mean + spread, mean - spread  # the Hessian's eigenvalues
     return upward > np.maximum(np.abs(downward), 1e-4 * float(np.max(design)))
@@ -196,6 +196,12 @@ def skeleton_paths(design_mm: np.ndarray, cell_mm: float, floor: float = 0.2, sp
     return paths
 
 
+def _design_at(design_mm: np.ndarray, xy: np.ndarray, cell_mm: float) -> np.ndarray:
+    """The design (m, m, mm) at points xy (p, 2) in mm from the grid's centre (bilinear; 0 outside)."""
+    centre = (design_mm.shape[0] - 1) / 2.0
+    return ndimage.map_coordinates(design_mm, [xy[:, 1] / cell_mm + centre, xy[:, 0] / cell_mm + centre], order=1)
+
+
 def _ends_extended(path: np.ndarray, free: list[bool], design_mm: np.ndarray, cell_mm: float,
                    inner_mm: float = 1.0, aim_mm: float = 3.0, level: float = 0.97, reach_mm: float = 5.0
                    ) -> np.ndarray:
@@ -205,13 +211,6 @@ def _ends_extended(path: np.ndarray, free: list[bool], design_mm: np.ndarray, ce
     half its width and bends there (a wide bead's end thins to a fork whose spurs are dropped); the
     drawn bead's round end then starts where the design's starts to fall
     (framework/tracks/geometry.py, ``beyond``)."""
-    m = design_mm.shape[0]
-    centre = (m - 1) / 2.0
-
-    def height(xy: np.ndarray) -> np.ndarray:
-        return ndimage.map_coordinates(design_mm, [xy[:, 1] / cell_mm + centre, xy[:, 0] / cell_mm + centre],
-                                       order=1, mode="constant")
-
     along = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(path, axis=0).T))])
     aim = min(aim_mm, 0.5 * along[-1])
     if aim <= inner_mm + cell_mm:
@@ -222,7 +221,7 @@ def _ends_extended(path: np.ndarray, free: list[bool], design_mm: np.ndarray, ce
         inner = np.array([np.interp(arc_inner, along, path[:, 0]), np.interp(arc_inner, along, path[:, 1])])
         behind = np.array([np.interp(arc_aim, along, path[:, 0]), np.interp(arc_aim, along, path[:, 1])])
         direction = (inner - behind) / max(float(np.hypot(*(inner - behind))), 1e-12)
-        ahead = height(inner[None] + steps[:, None] * direction[None])
+        ahead = _design_at(design_mm, inner[None] + steps[:, None] * direction[None], cell_mm)
         falls = np.nonzero(ahead < level * ahead[0])[0]
         return inner + steps[max(int(falls[0]) - 1, 0) if falls.size else -1] * direction
 
@@ -278,8 +277,6 @@ def measured_sections(tracks: TrackSet, design_mm: np.ndarray, cell_mm: float) -
     from the path's ends and two widths and more from every other track, made 1 at v = 0,
     non-increasing, and stretched so that it falls to 1/2 at v = 1. A track with no such knot keeps
     its power cap."""
-    m = design_mm.shape[0]
-    centre = (m - 1) / 2.0
     v = np.linspace(0.0, SECTION_REACH, SECTION_SAMPLES)
     dense = [resampled_path(t.path, 0.25) for t in tracks.tracks]
     out = []
@@ -295,11 +292,8 @@ def measured_sections(tracks: TrackSet, design_mm: np.ndarray, cell_mm: float) -
             if others and min(others) < 2.0 * width + float(np.max(track.width)):
                 continue
             centre_mm = point + track.offset[k] * normal
-            sides = []
-            for sign in (1.0, -1.0):
-                xy = centre_mm[None] + sign * (v * width / 2.0)[:, None] * normal[None]
-                where = [xy[:, 1] / cell_mm + centre, xy[:, 0] / cell_mm + centre]
-                sides.append(ndimage.map_coordinates(design_mm, where, order=1))
+            sides = [_design_at(design_mm, centre_mm[None] + sign * (v * width / 2.0)[:, None] * normal[None], cell_mm)
+                     for sign in (1.0, -1.0)]
             samples.append(0.5 * (sides[0] + sides[1]) / track.height[k])
         if not samples:
             out.append(track)
