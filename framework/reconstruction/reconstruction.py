@@ -26,6 +26,7 @@ from framework.core.progress import report
 from framework.core.solver_loop import Callback, RunResult, returned_iterate
 from framework.defects.defect_stage import report_defects
 from framework.files.image_io import resolve_path
+from framework.reconstruction.ambiguity_stage import check_ambiguity
 from framework.reconstruction.coarse_to_fine import coarser_problem, resample_heights
 from framework.reconstruction.feature_search import FeatureSearch, SearchedLines
 from framework.reconstruction.parts import Reconstruction
@@ -280,6 +281,10 @@ def _reconstruct(parts: Reconstruction, output_dir: Path, base_dir: Path, checkp
         accepted = [o for o in finished if o.result.accepted]
         chosen = accepted[-1] if accepted else min(finished, key=lambda o: o.rel_discrepancy)
         result, d = chosen.result, chosen.d
+        ambiguity = None
+        if fitted_tracks(result.fitted) is None and data.design is None:  # a free grid, no design to count beads
+            ambiguity = check_ambiguity(parts, problem, d, output_dir)
+            d = d if ambiguity is None else ambiguity.heights.to(d)
         final = final_operator(parts, result)
         prediction = final.render(d)
         volume = volume_report(d, data.volume, parts.grid.cell_area)
@@ -304,6 +309,11 @@ def _reconstruct(parts: Reconstruction, output_dir: Path, base_dir: Path, checkp
         metrics.update(report_verdict(metrics["rel_discrepancy"], data, settings.tau_dis, chosen.returned_iteration,
                                       result.stop_reason, volume, shots,
                                       calibration.never_updated() if calibration else ()))
+        if ambiguity is not None:
+            metrics.update(ambiguity.metrics())
+            for line in ambiguity.lines():
+                print(f"verdict: {line}", flush=True)
+                metrics["verdict"] += " " + line
         tracks = fitted_tracks(result.fitted)
         reports_defects = (data.design is not None or tracks is not None) and parts.defects.enabled != "off"
         if tracks is not None:

@@ -27,7 +27,7 @@ from framework.tracks.geometry import frame_at, resampled_path
 from framework.tracks.track_heights import TrackHeights, TrackSettings
 from framework.tracks.track_set import SECTION_REACH, SECTION_SAMPLES, Track, TrackSet
 
-__all__ = ["tracks_from_design", "skeleton_paths", "profiles_drawing", "measured_sections"]
+__all__ = ["tracks_from_design", "skeleton_tracks", "skeleton_paths", "profiles_drawing", "measured_sections"]
 
 NEIGHBOURS = [(dr, dc) for dr in (-1, 0, 1) for dc in (-1, 0, 1) if dr or dc]
 
@@ -252,12 +252,18 @@ def _first_guess(design_mm: np.ndarray, path: np.ndarray, cell_mm: float, name: 
 def tracks_from_design(design: np.ndarray, half_width: float, mm_per_unit: float, settings: TrackSettings,
                        iterations: int = 300) -> TrackSet:
     """The tracks whose beads draw the design (m, m) (scene units on [-W, W]^2) best (module docstring)."""
-    m = design.shape[0]
+    return profiles_drawing(skeleton_tracks(design, half_width, mm_per_unit), design, half_width, mm_per_unit,
+                            settings, iterations)
+
+
+def skeleton_tracks(heights: np.ndarray, half_width: float, mm_per_unit: float) -> TrackSet:
+    """A height field (m, m, scene units: a design or a fit) as tracks along its skeleton, each with
+    the heights along its path and its median width at half height (no profiles fitted)."""
+    m = heights.shape[0]
     cell_mm = 2.0 * half_width * mm_per_unit / (m - 1)
-    design_mm = np.asarray(design, dtype=np.float64) * mm_per_unit
-    paths = skeleton_paths(design_mm, cell_mm)
-    guess = TrackSet(tuple(_first_guess(design_mm, p, cell_mm, f"track {i + 1}") for i, p in enumerate(paths)))
-    return profiles_drawing(guess, design, half_width, mm_per_unit, settings, iterations)
+    heights_mm = np.asarray(heights, dtype=np.float64) * mm_per_unit
+    paths = skeleton_paths(heights_mm, cell_mm)
+    return TrackSet(tuple(_first_guess(heights_mm, p, cell_mm, f"track {i + 1}") for i, p in enumerate(paths)))
 
 
 def profiles_drawing(tracks: TrackSet, design: np.ndarray, half_width: float, mm_per_unit: float,

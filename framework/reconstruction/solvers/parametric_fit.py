@@ -15,6 +15,7 @@ parameters differ (docs/method.md, "Representations").
 
 from __future__ import annotations
 
+import logging
 import time
 from collections.abc import Mapping
 from typing import Any
@@ -37,6 +38,8 @@ __all__ = ["ParametricFit"]
 
 ARMIJO = 1e-4
 FIRST_MOVE = 0.05  # without curvature pairs, the first trial moves theta by this share of its scales at most
+
+_LOG = logging.getLogger(__name__)
 
 
 class ParametricFit(IterativeSolver):
@@ -187,6 +190,7 @@ class ParametricFit(IterativeSolver):
                                 noise, self.receiver[0], self.receiver[1], self.searched - 1)
         theta, changes = self.representation.search(self.theta, context)
         self.search_changes += changes
+        _LOG.info("global search %d: %s", self.searched, "; ".join(changes) if changes else "nothing changed")
         if not changes:
             return False
         self.theta, self._at = theta, None

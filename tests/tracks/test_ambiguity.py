@@ -1,0 +1,150 @@
+"""Which beads the photos leave undecided (framework/tracks/ambiguity.py, framework/tracks/twins.py):
+ridges side by side found with their distance and midline, the bead between them built with
+their glass, and the verdict's three outcomes and advised screen from known discrepancies and
+images."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from framework.reconstruction.ambiguity_stage import AmbiguitySettings
+from framework.tracks.ambiguity import APART, bead_between, undecided_beads
+from framework.tracks.from_design import skeleton_tracks
+from framework.tracks.track_heights import TrackHeights, TrackSettings
+from framework.tracks.track_set import Track, TrackSet
+from framework.tracks.twins import twin_pairs
+
+MM = 25.0  # mm per scene unit; the grid spans [-25, 25] mm
+M = 128
+
+
+def _line(y: float, height: float, width: float, x0: float = -12.0, x1: float = 12.0) -> Track:
+    return Track(f"y={y}", np.array([[x0, y], [x1, y]]), np.array([height]), np.array([width]), np.array([0.0]))
+
+
+def _drawn(*tracks: Track) -> np.ndarray:
+    rep = TrackHeights(TrackSet(tracks), M, 1.0, MM, TrackSettings(residual_mm=0.0))
+    return rep.heights(rep.initial()).numpy()
+
+
+def test_two_ridges_side_by_side_are_twins_with_their_distance_and_midline() -> None:
+    pairs = twin_pairs(TrackSet((_line(3.0, 0.3, 2.0), _line(8.0, 0.3, 2.0), _line(-15.0, 0.3, 2.0),
+                                 Track("across", np.array([[15.0, -20.0], [15.0, 20.0]]), np.array([0.3]),
+                                       np.array([2.0]), np.array([0.0])))))
+    assert [(p.first, p.second) for p in pairs] == [(0, 1)]  # 18 mm apart is too far, a crossing line never
+    pair = pairs[0]
+    assert pair.separation_mm == pytest.approx(5.0, abs=1e-6)
+    assert np.allclose(pair.midline[:, 1], 5.5)
+    assert pair.midline[:, 0].min() == pytest.approx(-14.5, abs=0.3)  # carried on by half the distance
+    assert pair.midline[:, 0].max() == pytest.approx(14.5, abs=0.3)
+
+
+def test_twins_are_found_in_the_skeleton_of_drawn_ridges() -> None:
+    d = _drawn(_line(3.0, 0.3, 2.0), _line(8.0, 0.3, 2.0))
+    pairs = twin_pairs(skeleton_tracks(d, 1.0, MM))
+    assert len(pairs) == 1
+    assert pairs[0].separation_mm == pytest.approx(5.0, abs=0.4)
+
+
+def test_the_bead_between_twins_holds_their_glass_and_leaves_the_rest() -> None:
+    far = _line(-15.0, 0.5, 2.0)
+    d = _drawn(_line(3.0, 0.3, 2.0), _line(8.0, 0.3, 2.0), far)
+    tracks = skeleton_tracks(d, 1.0, MM)
+    pair = twin_pairs(tracks)[0]
+    out, bead = bead_between(d, tracks, pair, 1.0, 1.0, MM)
+    assert out.sum() == pytest.approx(d.sum(), rel=0.01)  # the same glass
+    axis = np.linspace(-25.0, 25.0, M)
+    column = out[:, M // 2] * MM  # across the lines at x = 0
+    assert axis[np.argmax(column)] == pytest.approx(5.5, abs=0.4)  # the bead on the midline ...
+    assert float(np.mean(bead.height)) > 0.3  # ... taller than either ridge
+    rows = np.abs(axis + 15.0) < 3.0
+    assert np.allclose(out[rows], d[rows])  # the far line untouched
+
+
+def _check(pair_discrepancy: float, bead_discrepancy: float, images_apart_at: float | None = None):
+    d = torch.from_numpy(_drawn(_line(3.0, 0.3, 2.0), _line(8.0, 0.3, 2.0)))
+    bead_heights = torch.full_like(d, 7.0)
+
+    def discrepancy(h: torch.Tensor) -> float:
+        return pair_discrepancy if torch.equal(h, d) else bead_discrepancy
+
+    def refit(h: torch.Tensor) -> tuple[torch.Tensor, float]:
+        return bead_heights, bead_discrepancy
+
+    def render_at(screen_mm: float):
+        differ = images_apart_at is not None and screen_mm >= images_apart_at
+        return lambda h: torch.ones(4) * (1.0 + (0.2 if differ and h is bead_heights else 0.0))
+
+    return undecided_beads(d, discrepancy, refit, render_at, 1.01 * 0.05, 0.05, 1.0, MM, 1.25, (2.5, 5.0, 10.0), 2)
+
+
+def test_a_bead_that_explains_the_photos_clearly_better_replaces_the_ridges() -> None:
+    report = _check(0.06, 0.05)
+    assert [h.outcome for h in report.checked] == ["bead"]
+    assert float(report.heights.max()) == 7.0
+    assert "decided for one bead" in report.lines()[0]
+
+
+@pytest.mark.parametrize("ridges, bead", [(0.0500, 0.0510), (0.08, 0.09)])
+def test_ridges_kept_against_a_bead_above_the_noise_level_or_clearly_worse(ridges, bead) -> None:
+    report = _check(ridges, bead)
+    assert [h.outcome for h in report.checked] == ["pair"]
+    assert "decided for two ridges" in report.lines()[0]
+
+
+def test_pairs_beyond_the_budget_of_fits_are_named_not_fitted() -> None:
+    d = torch.from_numpy(_drawn(_line(-20.0, 0.3, 2.0), _line(-15.0, 0.3, 2.0), _line(10.0, 0.3, 2.0),
+                                _line(15.0, 0.3, 2.0)))
+    fitted = []
+
+    def refit(h: torch.Tensor) -> tuple[torch.Tensor, float]:
+        fitted.append(h)
+        return h, 0.05
+
+    report = undecided_beads(d, lambda h: 0.05, refit, lambda s: lambda h: torch.ones(4), 0.0505, 0.05, 1.0, MM,
+                             1.25, (5.0,), 1)
+    assert len(fitted) == 1 and sorted(h.outcome for h in report.checked) == ["unchecked", "undecided"]
+    assert report.lines()[-1].startswith("Not fitted: 1 more pairs of ridges side by side")
+
+
+def test_both_at_the_noise_level_is_undecided_with_the_nearest_screen_that_tells_them_apart() -> None:
+    report = _check(0.0500, 0.0499, images_apart_at=5.0)
+    (h,) = report.checked
+    assert h.outcome == "undecided" and h.apart_mm == 5.0
+    assert h.apart_ratio == pytest.approx(0.2 / 0.05) and h.apart_ratio >= APART
+    assert "screen 5 mm below the glass tells them apart" in report.lines()[0]
+    never = _check(0.0500, 0.0499, images_apart_at=None)
+    assert never.checked[0].apart_mm is None
+    assert "no screen distance tried tells them apart" in never.lines()[0]
+
+
+def test_a_bead_far_off_before_its_fit_is_rejected_without_one() -> None:
+    calls = []
+
+    def refit(h: torch.Tensor) -> tuple[torch.Tensor, float]:
+        calls.append(h)
+        return h, 0.0
+
+    d = torch.from_numpy(_drawn(_line(3.0, 0.3, 2.0), _line(8.0, 0.3, 2.0)))
+    report = undecided_beads(d, lambda h: 0.05 if torch.equal(h, d) else 0.5, refit, lambda s: lambda h: h,
+                             0.0505, 0.05, 1.0, MM, 1.25, (5.0,), 2)
+    assert not calls and report.checked[0].outcome == "pair"
+    assert "1 more pairs of ridges side by side stay as they are" in report.lines()[-1]
+
+
+def test_a_smooth_print_has_nothing_in_question() -> None:
+    axis = np.linspace(-1.0, 1.0, M)
+    bump = 0.02 * np.exp(-(axis[None] ** 2 + axis[:, None] ** 2) / 0.1)
+    report = undecided_beads(torch.from_numpy(bump), lambda h: 0.05, lambda h: (h, 0.05), lambda s: lambda h: h,
+                             0.0505, 0.05, 1.0, MM, 1.25, (5.0,), 2)
+    assert report.checked == [] and report.lines() == [
+        "No ridges side by side in the heights: no bead's basin is in question."]
+
+
+@pytest.mark.parametrize("cfg, message", [({"pairs": -1}, "ambiguity.pairs"),
+                                          ({"screens_mm": [5, 0]}, "ambiguity.screens_mm")])
+def test_bad_settings_name_the_key(cfg, message) -> None:
+    with pytest.raises(ValueError, match=message):
+        AmbiguitySettings.parse(cfg)
