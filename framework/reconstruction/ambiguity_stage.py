@@ -45,9 +45,10 @@ class AmbiguitySettings:
                    screens)
 
 
-def _refit(parts: Reconstruction, problem: Problem) -> Callable[[Tensor], tuple[Tensor, float]]:
-    """heights -> the run's own solver and stopping rules from them: (the returned heights, their discrepancy)."""
-    def fit(d0: Tensor) -> tuple[Tensor, float]:
+def _refit(parts: Reconstruction, problem: Problem) -> Callable[[Tensor], tuple[Tensor, float, bool]]:
+    """heights -> the run's own solver and stopping rules from them: (the returned heights, their
+    discrepancy, whether a stopping rule ended the fit rather than solver.max_iter)."""
+    def fit(d0: Tensor) -> tuple[Tensor, float, bool]:
         solver = parts.make_solver(problem, d0)
         solver.begin_from_shaped_start()
         stopping = parts.fresh_stopping(problem)
@@ -55,7 +56,7 @@ def _refit(parts: Reconstruction, problem: Problem) -> Callable[[Tensor], tuple[
         result = solver.run(parts.max_iter, [*stopping, *([budget] if budget else []),
                                              ProgressBar(desc=f"{parts.settings.method} from one bead between ridges")])
         d, _ = returned_iterate(result, stopping)
-        return d, problem.fidelity.relative_discrepancy(problem.operator.render(d))
+        return d, problem.fidelity.relative_discrepancy(problem.operator.render(d)), result.stopped_by != "max_iter"
     return fit
 
 

@@ -5,13 +5,13 @@ grid, the transport start) explains the band by two low ridges under the edges
 (framework/tracks/twins.py). Both may explain one photo within its noise. For every pair of
 ridges side by side in a fit's heights, the other hypothesis is built (the pair's glass moved into
 one bead on their midline, the width whose render fits best) and fitted by the run's own solver;
-then:
+then, by the discrepancy principle:
 
-- the bead explains the photos clearly better (its discrepancy ``DECIDES`` lower): the photos
-  decided for it, and it replaces the pair;
-- the bead explains them clearly worse, or the fit reached the noise level and the bead does not:
-  the photos decided for the pair;
-- otherwise both explain them as well: undecided. Both are rendered with the screen at each of
+- the bead reaches the photos' noise level and the run's heights do not: the photos decided for
+  the bead, and it replaces the pair;
+- the run's heights reach it and the bead's fit stalls above it: the photos decided for the pair;
+- both reach it, or neither does (two fits short of the noise level say nothing of which basin is
+  the print's): undecided. Both are rendered with the screen at each of
   ``screens_mm``; the nearest screen where their images differ by ``APART`` times the noise level
   (relative L2 over the receiver, as the discrepancy principle measures) is the second photo to take.
 """
@@ -33,12 +33,12 @@ from framework.tracks.track_heights import TrackHeights, TrackSettings
 from framework.tracks.track_set import DEFAULT_SHAPE, Track, TrackSet
 from framework.tracks.twins import Twins, twin_pairs
 
-__all__ = ["Hypotheses", "AmbiguityReport", "bead_between", "undecided_beads", "APART", "DECIDES"]
+__all__ = ["Hypotheses", "AmbiguityReport", "bead_between", "undecided_beads", "APART", "BEAD_WIDTHS", "SCREENED"]
 
 APART = 3.0  # images that differ by this many times the noise level: a photo tells them apart
-DECIDES = 0.05  # a hypothesis whose discrepancy is this share lower than the other's is decided for
 BEAD_WIDTHS = (0.15, 0.25, 0.4)  # the bead between twins: its width, times their separation, tried
 KNOT_MM = 1.0  # the bead's knots along its path
+SCREENED = 6  # pairs whose bead is rendered at most, the longest first (a noisy fit's skeleton has many short ones)
 PRESCREEN = 3.0  # a bead whose render (before its fit) misses by more than this times the fit's is not fitted
 
 
@@ -77,12 +77,14 @@ def _describe(track: Track) -> str:
 @dataclass
 class AmbiguityReport:
     """Every pair of ridges checked, the heights to return (the run's, or where the photos decided for
-    a bead, that bead's fit), the noise level, the photo's screen distance (mm), the check's seconds."""
+    a bead, that bead's fit), the noise level, the discrepancy principle's goal, the pairs left
+    unchecked beyond SCREENED, the check's seconds."""
 
     checked: list[Hypotheses]
     heights: Tensor
     delta: float
-    screen_mm: float
+    goal: float
+    unscreened: int = 0
     seconds: float = 0.0
 
     def lines(self) -> list[str]:
@@ -105,14 +107,21 @@ class AmbiguityReport:
                 advice = (f"a photo with the screen {h.apart_mm:g} mm below the glass tells them apart (their "
                           f"images differ there by {h.apart_ratio:.1f} x the noise level); add it as a shot "
                           "(data=stack)" if h.apart_mm is not None else "no screen distance tried tells them apart")
-                out.append(f"Undecided ({k}): {pair}, or {bead}, explain the photos alike ({ratios}); the run keeps "
-                           f"the ridges, the bead is height_field_alternative_{k}.npy; {advice}.")
+                alike = ("explain the photos alike" if max(h.pair_discrepancy, h.bead_discrepancy) <= self.goal else
+                         "the bead's fit ran out of iterations above the noise level (raise solver.max_iter)"
+                         if h.pair_discrepancy <= self.goal else
+                         "both fall short of the photos' noise level, so the photos cannot choose")
+                out.append(f"Undecided ({k}): {pair}, or {bead}: {alike} ({ratios}); the run keeps the ridges, the "
+                           f"bead is height_field_alternative_{k}.npy; {advice}.")
         unchecked = [h for h in self.checked if h.outcome == "unchecked"]
         if unchecked:
             places = "; ".join(f"({np.mean(h.bead.path[:, 0]):.1f}, {np.mean(h.bead.path[:, 1]):.1f}) mm"
                                for h in unchecked)
             out.append(f"Not fitted: {len(unchecked)} more pairs of ridges side by side, one bead between them "
                        f"centred at {places} (raise ambiguity.pairs to fit them).")
+        if self.unscreened:
+            out.append(f"{self.unscreened} shorter pairs of ridges side by side not checked (the {SCREENED} longest "
+                       "were).")
         if rejected:
             misses = [h.bead_discrepancy / self.delta for h in rejected]
             out.append(f"{len(rejected)} more pairs of ridges side by side stay as they are: one bead between them "
@@ -169,7 +178,8 @@ def _apart(first: Tensor, second: Tensor, render_at: Callable[[float], Callable[
     return None, 0.0
 
 
-def undecided_beads(d: Tensor, discrepancy: Callable[[Tensor], float], refit: Callable[[Tensor], tuple[Tensor, float]],
+def undecided_beads(d: Tensor, discrepancy: Callable[[Tensor], float],
+                    refit: Callable[[Tensor], tuple[Tensor, float, bool]],
                     render_at: Callable[[float], Callable[[Tensor], Tensor]], goal: float, delta: float,
                     half_width: float, mm_per_unit: float, screen_mm: float, screens_mm: Sequence[float],
                     pairs: int) -> AmbiguityReport:
@@ -179,7 +189,8 @@ def undecided_beads(d: Tensor, discrepancy: Callable[[Tensor], float], refit: Ca
     Args:
         d: The run's heights, scene units.
         discrepancy: heights -> the relative discrepancy against the photos (one render).
-        refit: heights -> (the run's solver's fit from them, its relative discrepancy).
+        refit: heights -> (the run's solver's fit from them, its relative discrepancy, whether it ended
+            by a stopping rule rather than the iteration cap).
         render_at: screen distance (mm) -> heights -> image (the configured setup, its screen moved).
         goal: The discrepancy principle's goal, tau * delta.
         delta: The photos' noise level.
@@ -193,13 +204,14 @@ def undecided_beads(d: Tensor, discrepancy: Callable[[Tensor], float], refit: Ca
     try:
         skeleton = skeleton_tracks(heights, half_width, mm_per_unit)
     except ValueError:  # no branch long enough: no beads
-        return AmbiguityReport([], d, delta, screen_mm)
+        return AmbiguityReport([], d, delta, goal)
     tracks, twins = skeleton, twin_pairs(skeleton)
     if not twins:
-        return AmbiguityReport([], d, delta, screen_mm)
+        return AmbiguityReport([], d, delta, goal)
     current, current_discrepancy = d, discrepancy(d)
+    twins = sorted(twins, key=lambda t: -min(tracks.tracks[t.first].length, tracks.tracks[t.second].length))
     screened = []
-    for pair in twins:  # each pair's bead at the width whose render fits best, before any fit
+    for pair in twins[:SCREENED]:  # each pair's bead at the width whose render fits best, before any fit
         tried = [bead_between(heights, tracks, pair, factor * pair.separation_mm, half_width, mm_per_unit)
                  for factor in BEAD_WIDTHS]
         misses = [discrepancy(torch.from_numpy(h).to(d)) for h, _ in tried]
@@ -215,16 +227,15 @@ def undecided_beads(d: Tensor, discrepancy: Callable[[Tensor], float], refit: Ca
             continue
         fits += 1
         start, _ = bead_between(current.detach().cpu().double().numpy(), tracks, pair, width, half_width, mm_per_unit)
-        fitted, fitted_discrepancy = refit(torch.from_numpy(start).to(d))
+        fitted, fitted_discrepancy, finished = refit(torch.from_numpy(start).to(d))
         h = Hypotheses(ridges, bead, current_discrepancy, fitted_discrepancy,
                        bead_heights=fitted.detach().cpu().double().numpy())
-        if fitted_discrepancy < (1.0 - DECIDES) * current_discrepancy:
+        if fitted_discrepancy <= goal < current_discrepancy:
             h.outcome, current, current_discrepancy = "bead", fitted, fitted_discrepancy
-        elif (fitted_discrepancy > (1.0 + DECIDES) * current_discrepancy
-              or current_discrepancy <= goal < fitted_discrepancy):
+        elif current_discrepancy <= goal < fitted_discrepancy and finished:
             h.outcome = "pair"
         else:
             h.apart_mm, h.apart_ratio = _apart(current, fitted, render_at,
                                                [s for s in screens_mm if s > screen_mm], delta)
         checked.append(h)
-    return AmbiguityReport(checked, current, delta, screen_mm)
+    return AmbiguityReport(checked, current, delta, goal, unscreened=len(twins) - len(screened))
