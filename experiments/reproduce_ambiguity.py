@@ -55,14 +55,6 @@ def _run(out: Path, name: str, overrides: list[str]) -> dict:
     return metrics
 
 
-def _outcome(metrics: dict) -> str:
-    """The check's sentences of the verdict (those after the volume and pixel sentences)."""
-    verdict = metrics.get("verdict", "")
-    marks = ("Undecided", "The photos decided", "No ridges side by side", "Not fitted", "more pairs of ridges")
-    sentences = [s.strip() for s in verdict.replace("). ", ").|").split("|")]
-    return " ".join(s for s in sentences if any(mark in s for mark in marks))
-
-
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("out", type=Path, help="folder for the runs")
@@ -81,7 +73,7 @@ def main(argv: list[str] | None = None) -> None:
                      "discrepancy_over_delta": on["rel_discrepancy"] / on["delta"], "solve_s_on": on["run_time_s"],
                      "solve_s_off": off["run_time_s"], "check_s": on.get("ambiguity_time_s", 0.0),
                      "wall_s_on": on["wall_s"], "wall_s_off": off["wall_s"],
-                     "same_heights": on["rel_error_d"] == off["rel_error_d"], "check": _outcome(on)})
+                     "same_heights": on["rel_error_d"] == off["rel_error_d"], "check": on.get("ambiguity", "")})
     args.results.mkdir(parents=True, exist_ok=True)
     with open(args.results / "ambiguity.csv", "w", newline="") as handle:
         writer = csv.DictWriter(handle, fieldnames=list(rows[0]))

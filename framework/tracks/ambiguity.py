@@ -130,7 +130,9 @@ class AmbiguityReport:
         return out
 
     def metrics(self) -> dict[str, Any]:
-        return {"ambiguity_time_s": self.seconds, "ridge_pairs_checked": len(self.checked),
+        """For metrics.json and MLflow: the sentences, the check's seconds and the pairs by outcome."""
+        return {"ambiguity": " ".join(self.lines()), "ambiguity_time_s": self.seconds,
+                "ridge_pairs_checked": len(self.checked),
                 "ridge_pairs_undecided": sum(h.outcome == "undecided" for h in self.checked),
                 "ridge_pairs_bead": sum(h.outcome == "bead" for h in self.checked)}
 

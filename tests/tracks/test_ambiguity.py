@@ -125,6 +125,7 @@ def test_both_at_the_noise_level_is_undecided_with_the_nearest_screen_that_tells
     assert h.outcome == "undecided" and h.apart_mm == 5.0
     assert h.apart_ratio == pytest.approx(0.2 / 0.05) and h.apart_ratio >= APART
     assert "screen 5 mm below the glass tells them apart" in report.lines()[0]
+    assert report.metrics()["ambiguity"] == " ".join(report.lines()) and report.metrics()["ridge_pairs_undecided"] == 1
     never = _check(0.0500, 0.0499, images_apart_at=None)
     assert never.checked[0].apart_mm is None
     assert "no screen distance tried tells them apart" in never.lines()[0]
