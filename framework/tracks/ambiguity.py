@@ -185,8 +185,8 @@ def undecided_beads(d: Tensor, discrepancy: Callable[[Tensor], float],
                     render_at: Callable[[float], Callable[[Tensor], Tensor]], goal: float, delta: float,
                     half_width: float, mm_per_unit: float, screen_mm: float, screens_mm: Sequence[float],
                     pairs: int) -> AmbiguityReport:
-    """Check every pair of ridges side by side in the fit ``d`` (m, m), at most ``pairs`` (module
-    docstring).
+    """Check the pairs of ridges side by side in the fit ``d`` (m, m): the SCREENED longest rendered
+    with their bead, at most ``pairs`` beads fitted, the likeliest first (module docstring).
 
     Args:
         d: The run's heights, scene units.
