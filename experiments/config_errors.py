@@ -83,10 +83,29 @@ def _unknown_option(error: MissingConfigException) -> str:
     return f"{group}={option} is not an option of {group}; {_did_you_mean(option, options)}options: {_listed(options)}"
 
 
+def _without_unknown(config_name: str, overrides: list[str], key: str) -> tuple[DictConfig, list[str]]:
+    """The config composed without the override of ``key`` nor of any other key it does not have,
+    and those other keys."""
+    others, also = [o for o in overrides if _key(o) != key], []
+    while True:
+        try:
+            return _compose(config_name, others), also
+        except ConfigCompositionException as error:
+            found = re.search(r"Could not override '([^']+)'", str(error))
+            if not found or found.group(1) in also:
+                raise
+            also.append(found.group(1))
+            others = [o for o in others if _key(o) != found.group(1)]
+
+
 def _unknown_key(config_name: str, overrides: list[str], key: str) -> str:
-    """Explain an override of ``key``, which the config does not have."""
-    others = [o for o in overrides if _key(o) != key]
-    base = _compose(config_name, others)
+    """Explain an override of ``key``, which the config does not have (and name any other unknown key)."""
+    base, also = _without_unknown(config_name, overrides, key)
+    return _explained(base, key) + (f"; unknown too: {', '.join(also)}" if also else "")
+
+
+def _explained(base: DictConfig, key: str) -> str:
+    """Why ``key`` is not a key of ``base``, with the keys its section takes."""
     parts = key.split(".")
     node: Any = base
     for depth, part in enumerate(parts[:-1]):

@@ -25,6 +25,8 @@ MISTYPED = [
     ("simulate", ["scene=gausian"], "scene=gausian is not an option of scene", "did you mean gaussian?"),
     ("reconstruct", ["data=photos"], "data=photos is not an option of data", "did you mean photo?"),
     ("reconstruct", ["solver.max_iter"], "solver.max_iter has no value", "give it as solver.max_iter=<value>"),
+    ("reconstruct", ["data.reference_photons=1", "data.reference_resolution=64", "data=stack"],
+     "unknown key data.reference_photons; data takes: common", "unknown too: data.reference_resolution"),
 ]
 
 
