@@ -9,7 +9,6 @@ ambiguity.csv (docs/results.md, "Beads without a design").
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import subprocess
 import sys
@@ -17,6 +16,8 @@ import time
 from pathlib import Path
 
 import numpy as np
+
+from experiments.tables import write_csv
 
 SCENES = ("print_lines", "oblique_lines", "bump", "gaussian", "letter_a")
 MM = 25.0  # mm per scene unit: the grid spans [-25, 25] mm
@@ -75,10 +76,7 @@ def main(argv: list[str] | None = None) -> None:
                      "wall_s_on": on["wall_s"], "wall_s_off": off["wall_s"],
                      "same_heights": on["rel_error_d"] == off["rel_error_d"], "check": on.get("ambiguity", "")})
     args.results.mkdir(parents=True, exist_ok=True)
-    with open(args.results / "ambiguity.csv", "w", newline="") as handle:
-        writer = csv.DictWriter(handle, fieldnames=list(rows[0]))
-        writer.writeheader()
-        writer.writerows(rows)
+    write_csv(args.results / "ambiguity.csv", rows)
     lines = ["| print | rel. err. | err. (d) | dis. / delta | solving s, on / off | check s | wall s, on / off | "
              "same heights | the check |", "|---|---|---|---|---|---|---|---|---|"]
     lines += [f"| {r['print']} | {r['rel_error']:.4f} | {r['rel_error_d']:.3f} | {r['discrepancy_over_delta']:.2f} | "

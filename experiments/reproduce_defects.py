@@ -18,7 +18,6 @@ their planned defects into --prints (default outputs/defect_prints).
 
 from __future__ import annotations
 
-import csv
 import json
 import math
 from collections import defaultdict
@@ -31,6 +30,7 @@ from experiments.configs import reconstruct_config
 from experiments.defect_prints import apply_defect, feature_sites
 from experiments.mlflow_store import (TrackingStore, artifact, latest_runs, reproduction_parser, run_sweep,
                                       tracking_store)
+from experiments.tables import write_csv
 from framework.scene.scene_config import build_heights
 
 # --method: (MLflow experiment, the runs' preset, the outputs' file stem)
@@ -147,10 +147,7 @@ def write_outputs(cases: dict, out: Path, method: str = "design") -> None:
         heights[delta].append(float(case["metrics"].get("rel_error_d", float("nan"))))
         for row in matched:
             rows.append({"scene": scene, "print": name, "delta": delta, **row})
-    with open(out / f"{stem}.csv", "w", newline="") as handle:
-        writer = csv.DictWriter(handle, fieldnames=list(rows[0]) if rows else ["scene"])
-        writer.writeheader()
-        writer.writerows(rows)
+    write_csv(out / f"{stem}.csv", rows, empty_header=["scene"])
     lines = [
         "# Defects against the design: recall, false alarms, place and size",
         "",

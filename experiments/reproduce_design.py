@@ -14,13 +14,13 @@ Writes design.md, design.csv and design.png into --out (default docs/results).
 
 from __future__ import annotations
 
-import csv
 from pathlib import Path
 
 import numpy as np
 from matplotlib.figure import Figure
 
 from experiments.mlflow_store import artifact, latest_runs, reproduction_parser, run_sweep, tracking_store
+from experiments.tables import write_csv
 
 EXPERIMENT = "design"
 TARGETS = ("grace_hopper", "logo", "ring", "text")
@@ -43,10 +43,7 @@ def write_table(cases: dict[tuple[str, str], dict], out: Path) -> None:
              "seconds": c["metrics"]["design_seconds"], "iterations": c["metrics"]["iterations"],
              "max_slope": c["metrics"]["printed_max_slope"], "max_height_mm": 25.0 * c["metrics"]["printed_max_height"]}
             for (t, m), c in cases.items()]
-    with open(out / "design.csv", "w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
-        writer.writeheader()
-        writer.writerows(rows)
+    write_csv(out / "design.csv", rows)
     lines = ["| target | method | rel. L2 | SSIM | seconds | iterations | max slope | max height (mm) |",
              "|---|---|---|---|---|---|---|---|"]
     lines += [f"| {r['target']} | {r['method']} | {r['relative_l2']:.3f} | {r['ssim']:.3f} | {r['seconds']:.0f} | "

@@ -14,7 +14,6 @@ Writes fig6.png, fig6.md and fig6.csv into --out (default docs/results).
 
 from __future__ import annotations
 
-import csv
 from pathlib import Path
 
 import numpy as np
@@ -22,6 +21,7 @@ from matplotlib.figure import Figure
 
 from experiments.mlflow_store import (TrackingStore, artifact, latest_runs, reproduction_parser, run_sweep,
                                       tracking_store)
+from experiments.tables import write_csv
 from framework.files.plotting import show_panel
 
 EXPERIMENT = "fig6"
@@ -64,10 +64,7 @@ def write_table(cases: dict[tuple[str, str], dict], out: Path) -> None:
         rows.append({"method": method, "scene": label, "rel_dis": m["rel_discrepancy"], "rel_err": m["rel_error"],
                      "rel_err_d": m["rel_error_d"], "iterations": m["iterations"],
                      "run_time_s": m["run_time_s"], "paper_rel_dis": paper[0], "paper_rel_err": paper[1]})
-    with open(out / "fig6.csv", "w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
-        writer.writeheader()
-        writer.writerows(rows)
+    write_csv(out / "fig6.csv", rows)
     lines = [
         "| method | scene | rel. dis. | rel. err. | rel. err. (d) | #iter | run time (s) | paper: dis. | paper: err. |",
         "|---|---|---|---|---|---|---|---|---|",

@@ -15,7 +15,6 @@ Writes fig7.png, fig7.md and fig7.csv into --out (default docs/results).
 
 from __future__ import annotations
 
-import csv
 from pathlib import Path
 
 import numpy as np
@@ -23,6 +22,7 @@ from matplotlib.figure import Figure
 
 from experiments.mlflow_store import (TrackingStore, artifact, latest_runs, reproduction_parser, run_sweep,
                                       tracking_store)
+from experiments.tables import write_csv
 from framework.files.plotting import show_panel
 
 EXPERIMENT = "fig7"
@@ -62,10 +62,7 @@ def write_table(cases: dict[tuple[str, str], dict], out: Path) -> None:
                      "rel_err_d": m["rel_error_d"], "iterations": m["iterations"], "run_time_s": m["run_time_s"],
                      "s_per_iteration": m["run_time_s"] / max(m["iterations"], 1),
                      "photons": m["photons_per_iteration"], "photon_traces": m.get("photon_traces")})
-    with open(out / "fig7.csv", "w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
-        writer.writeheader()
-        writer.writerows(rows)
+    write_csv(out / "fig7.csv", rows)
     lines = ["| case | scene | photons at the end | rel. dis. | rel. err. | rel. err. (d) | #iter | photon-traces (G) "
              "| run time (s) | s / iteration |",
              "|---|---|---|---|---|---|---|---|---|---|"]

@@ -21,7 +21,6 @@ files under --work (default outputs/stack).
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 from pathlib import Path
 from typing import Any
@@ -32,6 +31,7 @@ import torch
 from experiments.configs import known_print, reconstruct_config
 from experiments.mlflow_store import TrackingStore
 from experiments.reproduce_lab import error_against, true_caustic, truth_and_volume, with_noise
+from experiments.tables import write_csv
 from framework.core.data import resample_image
 from framework.reconstruction.reconstruction import run_reconstruction
 from framework.stack.stack_data import StackData
@@ -160,10 +160,7 @@ def main(argv: list[str] | None = None) -> None:
                 for scene in args.scenes
                 for s in sets for weighting in (args.weightings if len(s) > 1 else ["equal"])]
         (args.out / "stack_screens.md").write_text(screens_table(rows))
-        with (args.out / "stack_screens.csv").open("w", newline="") as f:
-            writer = csv.DictWriter(f, fieldnames=list(rows[0]))
-            writer.writeheader()
-            writer.writerows(rows)
+        write_csv(args.out / "stack_screens.csv", rows)
         print(screens_table(rows))
     if args.part in ("lab", "all"):
         rows = [lab_study(scene, work / "lab", store, args.overrides, args.reference_photons)

@@ -14,7 +14,6 @@ Writes starts.md, starts.csv and starts.png into --out (default docs/results).
 
 from __future__ import annotations
 
-import csv
 from pathlib import Path
 
 import numpy as np
@@ -22,6 +21,7 @@ from matplotlib.figure import Figure
 
 from experiments.mlflow_store import (TrackingStore, artifact, latest_runs, reproduction_parser, run_sweep,
                                       tracking_store)
+from experiments.tables import write_csv
 from framework.files.plotting import show_panel
 
 EXPERIMENT = "starts"
@@ -73,10 +73,7 @@ def write_table(cases: dict[tuple[str, str, str], dict], out: Path) -> None:
                      "iterations": m["iterations"], "stopped_by": m["stopped_by"],
                      "volume_ratio": m.get("volume_ratio", float("nan")),
                      "wall_s": m.get("start_time_s", 0.0) + m["run_time_s"], "runs": runs_of(m)})
-    with open(out / "starts.csv", "w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
-        writer.writeheader()
-        writer.writerows(rows)
+    write_csv(out / "starts.csv", rows)
     lines = [
         "| setup | scene | start (chosen) | rel. err. | rel. dis. | rel. err. (d) | #iter | stopped by "
         "| volume ratio | wall time (s) | runs of auto: [error /] dis. |",

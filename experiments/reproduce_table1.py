@@ -11,13 +11,13 @@ Writes table1.md, table1.csv and fig5_centre_slices.png into --out (default docs
 
 from __future__ import annotations
 
-import csv
 from pathlib import Path
 
 import numpy as np
 from matplotlib.figure import Figure
 
 from experiments.mlflow_store import artifact, latest_runs, reproduction_parser, run_sweep, tracking_store
+from experiments.tables import write_csv
 from framework.scene.printed_shapes import make_shape
 
 METHODS = ["M2V1", "M3V1", "M1", "M2V0", "M3V0", "M2V2", "M3V2"]
@@ -48,10 +48,7 @@ def write_table(runs: list, client, out: Path) -> list[dict]:
             "tau_dis": params.get("stopping.morozov.tau_dis"), "tau": params.get("solver.step_size.tau"),
             "paper_run_time_min": paper[0], "paper_rel_dis": paper[1], "paper_rel_err": paper[2],
             "paper_iter": paper[3]})
-    with open(out / "table1.csv", "w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
-        writer.writeheader()
-        writer.writerows(rows)
+    write_csv(out / "table1.csv", rows)
 
     def fmt(v, spec):
         return "" if v is None else format(v, spec)

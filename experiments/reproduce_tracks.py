@@ -9,7 +9,6 @@ one line 0.5 mm aside). Writes docs/results/tracks.md and tracks.csv.
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import subprocess
 import sys
@@ -19,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from experiments.fibre_print import planned_defects, write_fibre_print
+from experiments.tables import write_csv
 from framework.scene.printed_shapes import COORDINATE_SCALE, make_shape
 from framework.tracks.from_design import tracks_from_design
 from framework.tracks.track_heights import TrackHeights, TrackSettings
@@ -122,10 +122,7 @@ def main(argv: list[str] | None = None) -> None:
                      "solve_s": metrics["run_time_s"], "defects_s": metrics.get("defects_time_s", float("nan")),
                      "defects": "", "false_reports": "", "thin_lines": ", ".join(f"{p:.2f}" for p in peaks)})
     args.results.mkdir(parents=True, exist_ok=True)
-    with open(args.results / "tracks.csv", "w", newline="") as handle:
-        writer = csv.DictWriter(handle, fieldnames=list(rows[0]))
-        writer.writeheader()
-        writer.writerows(rows)
+    write_csv(args.results / "tracks.csv", rows)
     lines = ["| print | method | heights error | discrepancy | solving s | defect report s | defects | false | "
              "thin lines' peaks |", "|---|---|---|---|---|---|---|---|---|"]
     lines += [f"| {r['print']} | {r['method']} | {r['heights_error']:.3f} | {r['discrepancy']:.3f} | "

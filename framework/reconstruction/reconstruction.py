@@ -281,8 +281,9 @@ def _reconstruct(parts: Reconstruction, output_dir: Path, base_dir: Path, checkp
         accepted = [o for o in finished if o.result.accepted]
         chosen = accepted[-1] if accepted else min(finished, key=lambda o: o.rel_discrepancy)
         result, d = chosen.result, chosen.d
+        tracks = fitted_tracks(result.fitted)
         ambiguity = None
-        if fitted_tracks(result.fitted) is None and data.design is None:  # a free grid, no design to count beads
+        if tracks is None and data.design is None:  # a free grid, no design to count beads
             ambiguity = check_ambiguity(parts, problem, d, output_dir)
             d = d if ambiguity is None else ambiguity.heights.to(d)
         final = final_operator(parts, result)
@@ -314,7 +315,6 @@ def _reconstruct(parts: Reconstruction, output_dir: Path, base_dir: Path, checkp
             for line in ambiguity.lines():
                 print(f"verdict: {line}", flush=True)
                 metrics["verdict"] += " " + line
-        tracks = fitted_tracks(result.fitted)
         reports_defects = (data.design is not None or tracks is not None) and parts.defects.enabled != "off"
         if tracks is not None:
             lines = tracks_verdict(tracks[0], tracks[1], output_dir)
