@@ -8,8 +8,11 @@ flash energy). :class:`ImagingOperator` wraps any operator plugin F into
     G(d) = gain * K * F(d),
 
 K a convolution over the receiver with the point-spread function (a Gaussian integrated over
-each pixel, :class:`ScreenBlur`; zero outside the receiver), and gives its adjoint
-G'(d)^* g = F'(d)^* (gain * K^T g) for the gradient. Where F renders on a finer receiver and
+each pixel, :class:`GaussianBlur`; zero outside the receiver), and gives its adjoint
+G'(d)^* g = F'(d)^* (gain * K^T g) for the gradient. The camera side is one composition of linear
+maps (operators/linear/), :attr:`ImagingOperator.chain`, whose adjoint feeds the wrapped vjp;
+further linear stages on the output pixels (a vignetting, examples/plugins/vignetting_stage.py)
+join it through ``stages``. Where F renders on a finer receiver and
 block-averages (operators/supersample.py: F = A F_fine), the blur acts on the fine receiver,
 G = gain A K_fine F_fine: a blur below a pixel applied after the pixels' averaging cannot be told
 from a wider one (a 0.5-pixel spot fits best as 0.59 px and leaves a 13% misfit on sharp lines),
@@ -23,16 +26,15 @@ setup are not reused.
 
 from __future__ import annotations
 
-import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import torch
 
-from operators.gaussian_blur import ScreenBlur
+from operators.linear import BlockMean, Composition, Gain, GaussianBlur, LinearMap
 from operators.photon_operator import WrappingOperator
 from operators.scene import Scene
-from operators.supersample import SupersampledOperator, block_mean, block_mean_adjoint
+from operators.supersample import SupersampledOperator
 
 __all__ = ["ImagingOperator", "PSF_KINDS"]
 
@@ -51,7 +53,7 @@ def _fine_stage(operator: Any) -> tuple[Any, int]:
 
 
 class ImagingOperator(WrappingOperator):
-    """G(d) = gain * K * F(d): an operator plugin seen through the screen and the camera.
+    """G(d) = gain * S * K * F(d): an operator plugin seen through the screen and the camera.
 
     Args:
         build: Builds the wrapped operator plugin F for a scene (the same settings, photons and
@@ -59,11 +61,16 @@ class ImagingOperator(WrappingOperator):
         scene: The scene to build it for.
         psf_sigma: The screen's Gaussian spot, standard deviation in scene units (0: none).
         gain: Exposure gain (image units per W per scene unit^2).
+        stages: Linear maps S on the output pixels (c, n, n) -> (c, n, n), applied after the
+            pixels' averaging and before the gain, first listed last applied (as ``@`` writes
+            them); none by default.
     """
 
-    def __init__(self, build: Callable[[Scene], Any], scene: Scene, psf_sigma: float = 0.0, gain: float = 1.0) -> None:
+    def __init__(self, build: Callable[[Scene], Any], scene: Scene, psf_sigma: float = 0.0, gain: float = 1.0,
+                 stages: Sequence[LinearMap] = ()) -> None:
         self._build = build
         self.psf_sigma = psf_sigma
+        self.stages = tuple(stages)
         self.scene: Scene | None = None
         self.revision = -1
         self.set_setup(scene, gain)
@@ -71,44 +78,49 @@ class ImagingOperator(WrappingOperator):
     def set_setup(self, scene: Scene, gain: float, psf_sigma: float | None = None) -> None:
         """Rebuild for another scene (light, receiver distance), gain and screen blur (None: the
         current one); counts a revision."""
-        if not (math.isfinite(gain) and gain > 0.0):
-            raise ValueError(f"gain={gain!r} must be a positive finite number")
+        camera = Gain(gain)
         sigma = self.psf_sigma if psf_sigma is None else psf_sigma
         if self.scene != scene:
             self.inner = self._build(scene)
             self.scene = scene
-            self.fine, self.factor = _fine_stage(self.inner)
-            self.blur = ScreenBlur(sigma, self.fine.scene.receiver.pixel_size)
+            self.fine, factor = _fine_stage(self.inner)
+            self.mean = BlockMean(factor)
+            self.blur = GaussianBlur(sigma, self.fine.scene.receiver.pixel_size)
         elif sigma != self.blur.sigma:
-            self.blur = ScreenBlur(sigma, self.fine.scene.receiver.pixel_size)
+            self.blur = GaussianBlur(sigma, self.fine.scene.receiver.pixel_size)
         self.psf_sigma = self.blur.sigma
-        self.gain = float(gain)
+        self.gain = camera.gain
+        self.chain = self._chain(camera, self.mean, self.blur)
         self.revision += 1
 
-    def _blur_of(self, psf_sigma: float | None) -> ScreenBlur:
+    def _chain(self, camera: Gain, mean: BlockMean, blur: GaussianBlur) -> Composition:
+        """gain S A K: the camera side, from the fine receiver to the output pixels."""
+        return Composition([camera, *self.stages, mean, blur])
+
+    @property
+    def factor(self) -> int:
+        """Fine receiver pixels per output pixel side (1: the wrapped operator is not supersampled)."""
+        return self.mean.factor
+
+    def _blur_of(self, psf_sigma: float | None) -> GaussianBlur:
         if psf_sigma is None or psf_sigma == self.blur.sigma:
             return self.blur
-        return ScreenBlur(psf_sigma, self.fine.scene.receiver.pixel_size)
-
-    def _blurred(self, fine: Any, factor: int, blur: ScreenBlur, heights: torch.Tensor, progress: bool = False
-                 ) -> torch.Tensor:
-        """A K_fine F_fine(d) (c, n, n): the fine render blurred, then block-averaged."""
-        return block_mean(blur.apply(fine.render(heights, progress=progress)), factor)
+        return GaussianBlur(psf_sigma, self.fine.scene.receiver.pixel_size)
 
     def render_with(self, scene: Scene, gain: float, heights: torch.Tensor, psf_sigma: float | None = None
                     ) -> torch.Tensor:
-        """gain * K * F(d) (c, n, n) for another setup (the same receiver grid; ``psf_sigma`` None:
+        """gain S A K F(d) (c, n, n) for another setup (the same receiver grid; ``psf_sigma`` None:
         the current blur), leaving this operator's own setup, and its wrapped operator, as they are."""
         fine, factor = (self.fine, self.factor) if scene == self.scene else _fine_stage(self._build(scene))
-        return gain * self._blurred(fine, factor, self._blur_of(psf_sigma), heights)
+        return self._chain(Gain(gain), BlockMean(factor), self._blur_of(psf_sigma)).apply(fine.render(heights))
 
     def render_and_sigma_derivative(self, heights: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """(G(d), dG/dsigma) (c, n, n) each from one render of F(d): gain A K F(d) and
-        gain A (dK/dsigma) F(d), sigma the screen blur's in scene units (joint calibration of
+        """(G(d), dG/dsigma) (c, n, n) each from one render of F(d): gain S A K F(d) and
+        gain S A (dK/dsigma) F(d), sigma the screen blur's in scene units (joint calibration of
         ``psf_sigma``)."""
         caustic = self.fine.render(heights)
-        return (self.gain * block_mean(self.blur.apply(caustic), self.factor),
-                self.gain * block_mean(self.blur.derivative(caustic), self.factor))
+        before_blur = Composition(self.chain.maps[:-1])
+        return self.chain.apply(caustic), before_blur.apply(self.blur.derivative(caustic))
 
     # -- what the framework uses of an operator plugin -------------------------------------------
     @property
@@ -125,20 +137,23 @@ class ImagingOperator(WrappingOperator):
         return tuple(self.inner.output_shape)
 
     def render(self, heights: torch.Tensor, progress: bool = False) -> torch.Tensor:
-        """gain * K * F(d) (c, n, n) (gain A K_fine F_fine(d) for a supersampled F)."""
-        return self.gain * self._blurred(self.fine, self.factor, self.blur, heights, progress)
+        """gain S K F(d) (c, n, n) (gain S A K_fine F_fine(d) for a supersampled F)."""
+        return self.chain.apply(self.fine.render(heights, progress=progress))
 
     def vjp(self, heights: torch.Tensor, grad_image: torch.Tensor) -> torch.Tensor:
-        """F'(d)^* (gain * K^T grad_image) (m, m) (F_fine'(d)^* (gain K_fine^T A^T grad_image))."""
+        """F'(d)^* (chain^T grad_image) (m, m) (F_fine'(d)^* (K_fine^T A^T S^T gain grad_image))."""
         if tuple(grad_image.shape) != self.output_shape:
             raise ValueError(f"grad_image has shape {tuple(grad_image.shape)}, expected {self.output_shape}")
-        return self.fine.vjp(heights, self.gain * self.blur.adjoint(block_mean_adjoint(grad_image, self.factor)))
+        return self.fine.vjp(heights, self.chain.adjoint(grad_image))
+
+    def _around(self, inner: Any) -> ImagingOperator:
+        """The same camera (setup fixed) around another wrapped operator."""
+        return ImagingOperator(lambda scene: inner, self.scene, self.psf_sigma, self.gain, self.stages)
 
     def variant(self, photons: int, seed: int, resolution: int) -> ImagingOperator:
         """The same camera on another sampling of the wrapped operator (the references of
         synthetic data); its setup stays fixed."""
-        inner = self.inner.variant(photons, seed, resolution)
-        return ImagingOperator(lambda scene: inner, self.scene, self.psf_sigma, self.gain)
+        return self._around(self.inner.variant(photons, seed, resolution))
 
     def exact_variant(self, photons: int, seed: int, resolution: int) -> ImagingOperator:
         """The same camera on the wrapped operator's exact references (synthetic data). Through an
@@ -148,4 +163,4 @@ class ImagingOperator(WrappingOperator):
         if self.blur.active and not isinstance(inner, SupersampledOperator):
             fine = self.inner.exact_variant(photons, seed, resolution * EXACT_BLUR_SUPERSAMPLE)
             inner = SupersampledOperator(fine, inner.scene, EXACT_BLUR_SUPERSAMPLE)
-        return ImagingOperator(lambda scene: inner, self.scene, self.psf_sigma, self.gain)
+        return self._around(inner)

@@ -6,8 +6,11 @@ subclass that gives ``render(heights)``, ``vjp(heights, grad_image)``, ``output_
 and its gradient and autograd through ``operator(heights)`` (:class:`RenderFunction`), and
 declares the defaults (no energy conservation claimed, a fixed setup, nothing to warm up).
 :class:`PhotonOperator` adds, for a subclass with ``scene``, ``settings`` (photons, seed,
-chunk_size and the footprints in pixels) and ``emitter``: photon count, image shape, chunks and
-resampled variants. :func:`backward_through_splat` sends an image gradient back through the
+chunk_size and the footprints in pixels) and ``emitter``: photon count, image shape, chunks,
+resampled variants, and ``render``/``vjp`` as the splatted irradiance E(d) of the subclass
+(``render_irradiance``/``vjp_irradiance``) seen through its :attr:`PhotonOperator.image_chain`,
+F(d) = C E(d) and F'(d)^* g = E'(d)^* C^T g, C an extended light's patch blur (operators/linear/).
+:func:`backward_through_splat` sends an image gradient back through the
 splat's adjoint (a gather per photon, no image needed) into whatever a chunk of photons depends on.
 """
 
@@ -21,7 +24,7 @@ from typing import Any
 
 import torch
 
-from operators.gaussian_blur import ScreenBlur
+from operators.linear import GaussianBlur, LinearMap
 from operators.scene import Scene
 from operators.splat.splat import footprint_metric, splat_photons_vjp
 
@@ -233,11 +236,29 @@ class PhotonOperator(ImageOperator):
         return self.scene.receiver.pixel_size ** 2
 
     @property
-    def source_blur(self) -> ScreenBlur:
-        """The blur of an extended light's patches on this receiver (operators/emission.py), which
-        render applies to its image and vjp to the image gradient (it is self-adjoint); none for a
-        point light."""
-        return ScreenBlur(self.emitter.source_blur_sigma, self.scene.receiver.pixel_size)
+    def image_chain(self) -> LinearMap:
+        """C, the linear map from the splatted irradiance to the image: the blur of an extended
+        light's patches on this receiver (operators/emission.py; a delta for a point light)."""
+        return GaussianBlur(self.emitter.source_blur_sigma, self.scene.receiver.pixel_size)
+
+    @abstractmethod
+    def render_irradiance(self, heights: torch.Tensor, progress: bool = False) -> torch.Tensor:
+        """E(d) (c, n, n), W per scene unit^2: the photons splatted onto the receiver, no graph."""
+
+    @abstractmethod
+    def vjp_irradiance(self, heights: torch.Tensor, grad_image: torch.Tensor) -> torch.Tensor:
+        """E'(d)^* grad_image (m, m) for a gradient (c, n, n) of the splatted irradiance."""
+
+    def render(self, heights: torch.Tensor, progress: bool = False) -> torch.Tensor:
+        """F(d) = C E(d) (c, n, n) in the operator's dtype, on the device of ``heights``."""
+        image = self.image_chain.apply(self.render_irradiance(heights, progress))
+        return image.to(dtype=self.dtype, device=heights.device)
+
+    def vjp(self, heights: torch.Tensor, grad_image: torch.Tensor) -> torch.Tensor:
+        """F'(d)^* grad_image = E'(d)^* (C^T grad_image) (m, m)."""
+        if tuple(grad_image.shape) != self.output_shape:
+            raise ValueError(f"grad_image has shape {tuple(grad_image.shape)}, expected {self.output_shape}")
+        return self.vjp_irradiance(heights, self.image_chain.adjoint(grad_image))
 
     @property
     def _to_pixels(self) -> float:

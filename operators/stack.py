@@ -6,7 +6,8 @@ With the operators F_1 .. F_N of the N shots (each (c, n, n)) and per-shot misfi
     S(d) = [sqrt(w_1) F_1(d); ...; sqrt(w_N) F_N(d)]      (N c, n, n),
 
 so that the squared misfit of the stack against the stacked data [sqrt(w_i) b_i] is the weighted
-sum sum_i w_i ||F_i(d) - b_i||^2 and its gradient the weighted sum of the shots' gradients:
+sum sum_i w_i ||F_i(d) - b_i||^2 (the weights W a linear map, operators/linear/shot_weights.py) and
+its gradient the weighted sum of the shots' gradients:
 S'(d)^* [g_1; ...; g_N] = sum_i sqrt(w_i) F_i'(d)^* g_i (docs/method.md, "Several photos").
 A stack of one with weight 1 renders and differentiates exactly as its one operator does. Shots
 whose photons meet the print alike (the height-field operator with the same light: screens at
@@ -16,13 +17,13 @@ shots replay them.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from contextlib import AbstractContextManager
 from typing import Any
 
 import torch
 
+from operators.linear.shot_weights import ShotWeights
 from operators.photon_operator import ImageOperator
 
 __all__ = ["StackOperator"]
@@ -56,10 +57,19 @@ class StackOperator(ImageOperator):
     def reweight(self, weights: Sequence[float]) -> None:
         """Set the shots' misfit weights w_i > 0 (one per shot)."""
         weights = [float(w) for w in weights]
-        if len(weights) != len(self.shots) or not all(math.isfinite(w) and w > 0.0 for w in weights):
+        if len(weights) != len(self.shots):
             raise ValueError(f"stack weights {weights} must be one positive number per shot ({len(self.shots)})")
-        self.weights = weights
-        self.scales = [math.sqrt(w) for w in weights]
+        self.weighting = ShotWeights(weights, int(self.shots[0].output_shape[0]))
+
+    @property
+    def weights(self) -> list[float]:
+        """w_i, the shots' misfit weights."""
+        return self.weighting.weights
+
+    @property
+    def scales(self) -> list[float]:
+        """sqrt(w_i), the shots' image scales."""
+        return self.weighting.scales
 
     def _share_hits(self) -> None:
         """Shots whose photons meet the print alike (the same light and photon pattern; only the
@@ -117,11 +127,11 @@ class StackOperator(ImageOperator):
         """The shots' parts (c, n, n) of a stacked image (N c, n, n)."""
         if tuple(image.shape) != self.output_shape:
             raise ValueError(f"a stacked image has shape {self.output_shape}, got {tuple(image.shape)}")
-        return list(torch.split(image, self.channels_per_shot, dim=0))
+        return self.weighting.blocks(image)
 
     def stack(self, images: Sequence[torch.Tensor]) -> torch.Tensor:
         """The shots' images (c, n, n) each, weighted and stacked (N c, n, n)."""
-        return torch.cat([image * scale for image, scale in zip(images, self.scales)], dim=0)
+        return self.weighting.weighted(images)
 
     def render(self, heights: torch.Tensor, progress: bool = False) -> torch.Tensor:
         """[sqrt(w_i) F_i(d)] (N c, n, n)."""
@@ -130,8 +140,8 @@ class StackOperator(ImageOperator):
     def vjp(self, heights: torch.Tensor, grad_image: torch.Tensor) -> torch.Tensor:
         """sum_i sqrt(w_i) F_i'(d)^* g_i (m, m) for the stacked image gradient [g_i]."""
         total = None
-        for shot, scale, block in zip(self.shots, self.scales, self.blocks(grad_image)):
-            part = shot.vjp(heights, block * scale)
+        for shot, block in zip(self.shots, self.blocks(self.weighting.adjoint(grad_image))):
+            part = shot.vjp(heights, block)
             total = part if total is None else total + part
         return total
 

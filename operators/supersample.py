@@ -11,8 +11,7 @@ at the fine ones.
 
     F(d) = A F_fine(d),   F'(d)^* g = F_fine'(d)^* (A^T g),
 
-A the block mean (c, f n, f n) -> (c, n, n) and A^T its adjoint, which spreads g evenly over each
-block divided by f^2.
+A the block mean (c, f n, f n) -> (c, n, n) (operators/linear/block_mean.py).
 """
 
 from __future__ import annotations
@@ -23,11 +22,12 @@ from typing import Any
 
 import torch
 
+from operators.linear.block_mean import BlockMean
 from operators.photon_operator import PIXEL_SETTINGS, WrappingOperator
 from operators.scene import Scene
 from operators.values import checked_whole, is_number
 
-__all__ = ["SupersampledOperator", "block_mean", "block_mean_adjoint", "build_supersampled", "finer_scene"]
+__all__ = ["SupersampledOperator", "build_supersampled", "finer_scene"]
 
 
 def build_supersampled(make: Callable[[Scene, dict[str, Any]], Any], scene: Scene, settings: dict[str, Any],
@@ -53,22 +53,6 @@ def finer_scene(scene: Scene, factor: int) -> Scene:
     return dataclasses.replace(scene, receiver=receiver)
 
 
-def block_mean(image: torch.Tensor, factor: int) -> torch.Tensor:
-    """The mean of every factor x factor block of ``image`` (c, f n, f n) -> (c, n, n)."""
-    if factor == 1:
-        return image
-    c, rows, cols = image.shape
-    return image.reshape(c, rows // factor, factor, cols // factor, factor).mean(dim=(2, 4))
-
-
-def block_mean_adjoint(grad: torch.Tensor, factor: int) -> torch.Tensor:
-    """The adjoint of :func:`block_mean`: (c, n, n) -> (c, f n, f n), each value spread over its
-    block divided by factor^2."""
-    if factor == 1:
-        return grad
-    return grad.repeat_interleave(factor, dim=-2).repeat_interleave(factor, dim=-1) / float(factor * factor)
-
-
 class SupersampledOperator(WrappingOperator):
     """``fine``, an operator on a receiver ``factor`` times finer than ``scene``'s, seen through the
     block mean (module docstring): images (c, n, n) on ``scene``'s receiver.
@@ -79,11 +63,11 @@ class SupersampledOperator(WrappingOperator):
     """
 
     def __init__(self, fine: Any, scene: Scene, factor: int) -> None:
-        factor = checked_whole(factor, "operator.supersample", 1, must="must be an integer >= 1 (1: no supersampling)")
-        if fine.output_shape[-1] != scene.receiver.resolution * factor:
+        self.mean = BlockMean(factor)
+        if fine.output_shape[-1] != scene.receiver.resolution * self.mean.factor:
             raise ValueError(f"the fine operator renders {fine.output_shape[-1]} pixels, not "
-                             f"{factor} x {scene.receiver.resolution}")
-        self.fine, self.scene, self.factor = fine, scene, int(factor)
+                             f"{self.mean.factor} x {scene.receiver.resolution}")
+        self.fine, self.scene, self.factor = fine, scene, self.mean.factor
 
     @property
     def wrapped(self) -> Any:
@@ -106,13 +90,13 @@ class SupersampledOperator(WrappingOperator):
 
     def render(self, heights: torch.Tensor, progress: bool = False) -> torch.Tensor:
         """The block mean of the fine render (c, n, n), W per scene unit^2."""
-        return block_mean(self.fine.render(heights, progress=progress), self.factor)
+        return self.mean.apply(self.fine.render(heights, progress=progress))
 
     def vjp(self, heights: torch.Tensor, grad_image: torch.Tensor) -> torch.Tensor:
         """F_fine'(d)^* (A^T grad_image) (m, m)."""
         if tuple(grad_image.shape) != self.output_shape:
             raise ValueError(f"grad_image has shape {tuple(grad_image.shape)}, expected {self.output_shape}")
-        return self.fine.vjp(heights, block_mean_adjoint(grad_image, self.factor))
+        return self.fine.vjp(heights, self.mean.adjoint(grad_image))
 
     def variant(self, photons: int, seed: int, resolution: int) -> SupersampledOperator:
         """The same supersampling of the fine operator's variant for an n = ``resolution`` output."""

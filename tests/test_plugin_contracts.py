@@ -27,6 +27,7 @@ from framework.core.contracts.checks import (
     smooth_bump,
 )
 from framework.core.contracts.data_source import DataRequest, ShotStack
+from framework.core.contracts.linear_checks import check_linear_map
 from framework.core.contracts.representation_checks import check_representation
 from framework.core.contracts.start import StartRequest, StartResult
 from framework.core.data import ReconstructionData
@@ -45,6 +46,8 @@ from examples.plugins.mask_mean_start import MaskMeanStart
 from examples.plugins.npz_data import NpzData
 from examples.plugins.shadow_operator import ShadowOperator
 from examples.plugins.small_change_stopping import SmallChangeStopping
+from examples.plugins.vignetting_stage import Vignetting
+from operators.linear import LinearMap, all_linear_maps
 from framework.optimization.preconditioner import GradientPreconditioner
 from framework.optimization.step_size import StepSizePolicy
 
@@ -321,3 +324,18 @@ def test_a_broken_plugin_of_each_kind_fails_the_contract(known_problem) -> None:
         )
     with pytest.raises(ContractViolation, match="does not stop a run that converges"):
         check_stopping(lambda: _NeverStops(patience=2), who="stopping/never")
+
+
+# Every piece operators/ and examples/ define (imported above); the suite's own broken ones are left out.
+LINEAR_PIECES = [piece for piece in all_linear_maps() if not piece.__module__.startswith("tests.")]
+
+
+def test_the_linear_pieces_are_all_found() -> None:
+    names = {piece.__qualname__ for piece in LINEAR_PIECES}
+    assert {"BlockMean", "Composition", "Gain", "GaussianBlur", "PerPixelArea", "ShotWeights", "Vignetting"} <= names
+    assert all(issubclass(piece, LinearMap) for piece in LINEAR_PIECES) and Vignetting.example()[1] == (2, 8, 8)
+
+
+@pytest.mark.parametrize("piece", LINEAR_PIECES, ids=lambda piece: piece.__qualname__)
+def test_every_linear_piece_passes_the_dot_test(piece) -> None:
+    check_linear_map(piece)

@@ -173,13 +173,13 @@ class CausticOperator(PhotonOperator):
         if not self._rim_reported:
             self._rim_reported = self.emitter.warn_dark_rim(to_numpy(heights))
 
-    def render(self, heights: torch.Tensor, progress: bool = False) -> torch.Tensor:
-        """Irradiance (c, n, n) by the fused native path (on the GPU with ``device: cuda``), no
-        autograd graph, on the device of ``heights``; ``progress`` shows a bar over the chunks."""
+    def render_irradiance(self, heights: torch.Tensor, progress: bool = False) -> torch.Tensor:
+        """Splatted irradiance (c, n, n) by the fused native path (on the GPU with ``device: cuda``),
+        no autograd graph; ``progress`` shows a bar over the chunks."""
         self._check(heights)
         d = to_numpy(heights).astype(np.float64)
         if self.gpu is not None:
-            return self._render_gpu(d, progress).to(heights.device)
+            return self._render_gpu(d, progress)
         out = self.fused.image_buffers(np.dtype(self.settings.dtype))
         cache = self.hit_cache
         replaying = cache.replayable(d, self)  # hits a stack's other shot recorded for these heights
@@ -191,15 +191,12 @@ class CausticOperator(PhotonOperator):
                               replay=known is not None)
         if not replaying:
             cache.finish_render(d)
-        return self.source_blur.apply(torch.from_numpy(out.sum(axis=0) / self.pixel_area)).to(heights.device)
+        return torch.from_numpy(out.sum(axis=0) / self.pixel_area)
 
-    def vjp(self, heights: torch.Tensor, grad_image: torch.Tensor) -> torch.Tensor:
-        """F'(d)^* grad_image: the gradient (m, m) of <F(d), grad_image>, by the fused native path."""
+    def vjp_irradiance(self, heights: torch.Tensor, grad_image: torch.Tensor) -> torch.Tensor:
+        """The gradient (m, m) of <E(d), grad_image>, by the fused native path."""
         self._check(heights)
-        if grad_image.shape != self.output_shape:
-            raise ValueError(f"grad_image has shape {tuple(grad_image.shape)}, expected {self.output_shape}")
         d = to_numpy(heights).astype(np.float64)
-        grad_image = self.source_blur.adjoint(grad_image)
         if self.gpu is not None:
             return self._vjp_gpu(d, grad_image).to(self.dtype).to(dtype=heights.dtype, device=heights.device)
         padded = self.fused.pad_gradient(to_numpy(grad_image), self.pixel_area)
@@ -232,7 +229,7 @@ class CausticOperator(PhotonOperator):
         launches = [(start, stop) for a, b in self.emitter.segments() for start, stop in self.gpu.launches(a, b)]
         for start, stop in tqdm(launches, desc="photons", unit="launch", disable=None if progress else True):
             self.gpu.render(self.fused.constants(d, start), d_gpu, start, stop, image)
-        return self.source_blur.apply(image / self.pixel_area)
+        return image / self.pixel_area
 
     def _vjp_gpu(self, d: np.ndarray, grad_image: torch.Tensor) -> torch.Tensor:
         """:meth:`vjp` on the GPU, all photons in one pass (no per-photon memory to bound)."""
@@ -252,13 +249,13 @@ class CausticOperator(PhotonOperator):
         with torch.no_grad():
             for start, stop in self.chunks():
                 image += self.trace_chunk(heights.detach(), start, stop)
-        return self.source_blur.apply(image)
+        return self.image_chain.apply(image)
 
     def vjp_reference(self, heights: torch.Tensor, grad_image: torch.Tensor) -> torch.Tensor:
         """F'(d)^* grad_image by torch autograd through the torch path (the reference for vjp)."""
         self._check(heights)
         leaf = heights.detach().to(self.dtype).requires_grad_(True)
-        g = self.source_blur.adjoint(grad_image.detach().to(dtype=self.dtype, device=self.device)) / self.pixel_area
+        g = self.image_chain.adjoint(grad_image.detach().to(dtype=self.dtype, device=self.device)) / self.pixel_area
         for start, stop in self.chunks():
             with torch.enable_grad():
                 backward_through_splat(*self.splat_inputs(leaf, start, stop), g)

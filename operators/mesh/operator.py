@@ -163,14 +163,13 @@ class MeshSceneOperator(PhotonOperator):
                 f"the print reaches z={top:.4g}, into element {inside.name} (from z={inside.z_range[0]:.4g})"
             )
 
-    def render(self, heights: torch.Tensor, progress: bool = False) -> torch.Tensor:
-        """Irradiance (c, n, n), W per scene unit^2, without a graph; :attr:`losses` holds the
-        flux (W) each kind of loss took."""
+    def render_irradiance(self, heights: torch.Tensor, progress: bool = False) -> torch.Tensor:
+        """Splatted irradiance (c, n, n), W per scene unit^2, without a graph; :attr:`losses` holds
+        the flux (W) each kind of loss took."""
         self._check(heights)
         if self.native is not None:
             image, self.losses = self.native.render(heights.detach().double().cpu().numpy())
-            # A new image: divided in place.
-            return self.source_blur.apply(image.div_(self.pixel_area)).to(self.dtype).to(heights.device)
+            return image.div_(self.pixel_area)  # a new image: divided in place
         image = torch.zeros(self.output_shape, dtype=self.dtype)
         self.losses = dict.fromkeys(LOSSES, 0.0)
         with torch.no_grad():
@@ -179,14 +178,12 @@ class MeshSceneOperator(PhotonOperator):
                 image += splat_photons(pos, metric, flux, channel, self.scene.channels, self.scene.receiver.resolution)
                 for key, value in losses.items():
                     self.losses[key] += value
-        return self.source_blur.apply(image / self.pixel_area).to(heights.device)
+        return image / self.pixel_area
 
-    def vjp(self, heights: torch.Tensor, grad_image: torch.Tensor) -> torch.Tensor:
-        """F'(d)^* grad_image (m, m), by autograd through each chunk's photons in turn."""
+    def vjp_irradiance(self, heights: torch.Tensor, grad_image: torch.Tensor) -> torch.Tensor:
+        """The gradient (m, m) of <E(d), grad_image>, by autograd through each chunk's photons in turn."""
         self._check(heights)
-        if tuple(grad_image.shape) != self.output_shape:
-            raise ValueError(f"grad_image has shape {tuple(grad_image.shape)}, expected {self.output_shape}")
-        g = self.source_blur.adjoint(grad_image.detach().to(self.dtype)) / self.pixel_area
+        g = grad_image.detach().to(self.dtype) / self.pixel_area
         if self.native is not None:
             grad = self.native.vjp(heights.detach().double().cpu().numpy(), g.cpu())
             return torch.from_numpy(grad).to(dtype=heights.dtype, device=heights.device)

@@ -15,7 +15,7 @@ from framework.lab.calibration import JointCalibration
 from framework.reconstruction.reconstruction import run_reconstruction
 from framework.reconstruction.parts import Reconstruction
 from operators.heightfield.operator import CausticOperator
-from operators.gaussian_blur import ScreenBlur
+from operators.linear.gaussian_blur import GaussianBlur
 from operators.imaging import ImagingOperator
 from operators.stack import StackOperator
 from tests.experiments.conftest import SMALL, compose_reconstruct
@@ -32,7 +32,7 @@ def _normal_cdf(x: float) -> float:
 
 @pytest.mark.parametrize("sigma_px", [0.3, 0.5, 1.0, 2.5])
 def test_taps_are_the_gaussian_integrated_over_each_pixel(sigma_px: float) -> None:
-    blur = ScreenBlur(sigma_px * PIXEL, PIXEL)
+    blur = GaussianBlur(sigma_px * PIXEL, PIXEL)
     radius = (blur.profile.numel() - 1) // 2
     assert radius >= 6 * sigma_px  # the taps reach 6 sigma
     raw = [_normal_cdf((k + 0.5) / sigma_px) - _normal_cdf((k - 0.5) / sigma_px) for k in range(-radius, radius + 1)]
@@ -45,7 +45,7 @@ def test_taps_are_the_gaussian_integrated_over_each_pixel(sigma_px: float) -> No
 
 @pytest.mark.parametrize("sigma_px", [1.0, 1.5, 3.0])
 def test_the_kernel_s_variance_is_sigma_squared_plus_the_pixel_box(sigma_px: float) -> None:
-    blur = ScreenBlur(sigma_px * PIXEL, PIXEL)
+    blur = GaussianBlur(sigma_px * PIXEL, PIXEL)
     k = torch.arange(blur.profile.numel(), dtype=torch.float64) - (blur.profile.numel() - 1) // 2
     variance = float((blur.profile * k ** 2).sum())
     assert variance == pytest.approx(sigma_px ** 2 + 1.0 / 12.0, rel=1e-6)  # a box of one pixel convolved
@@ -53,7 +53,7 @@ def test_the_kernel_s_variance_is_sigma_squared_plus_the_pixel_box(sigma_px: flo
 
 @pytest.mark.parametrize("sigma_px", [0.2, 0.5, 1.5])
 def test_the_blur_and_its_derivative_are_self_adjoint(sigma_px: float) -> None:
-    blur = ScreenBlur(sigma_px * PIXEL, PIXEL)
+    blur = GaussianBlur(sigma_px * PIXEL, PIXEL)
     g = torch.Generator().manual_seed(1)
     x, y = (torch.rand(2, N, N, generator=g, dtype=torch.float64) for _ in range(2))
     for forward in (blur.apply, blur.derivative):
@@ -63,10 +63,10 @@ def test_the_blur_and_its_derivative_are_self_adjoint(sigma_px: float) -> None:
 
 
 def test_a_width_far_below_a_pixel_is_no_blur_and_its_derivative_vanishes() -> None:
-    assert not ScreenBlur(0.0, PIXEL).active and not ScreenBlur(0.02 * PIXEL, PIXEL).active
-    assert ScreenBlur(0.1 * PIXEL, PIXEL).active  # 2.9e-7 of the light on each neighbour
+    assert not GaussianBlur(0.0, PIXEL).active and not GaussianBlur(0.02 * PIXEL, PIXEL).active
+    assert GaussianBlur(0.1 * PIXEL, PIXEL).active  # 2.9e-7 of the light on each neighbour
     image = torch.rand(1, N, N, dtype=torch.float64, generator=torch.Generator().manual_seed(2))
-    sizes = [float(ScreenBlur(s * PIXEL, PIXEL).derivative(image).norm()) for s in (0.4, 0.2, 0.1, 0.05)]
+    sizes = [float(GaussianBlur(s * PIXEL, PIXEL).derivative(image).norm()) for s in (0.4, 0.2, 0.1, 0.05)]
     assert sizes[0] > sizes[1] > sizes[2] > sizes[3] >= 0.0 and sizes[2] < 1e-3 * sizes[0]
 
 
@@ -93,7 +93,7 @@ def _photo(sigma_px: float, truth: torch.Tensor) -> torch.Tensor:
     """gain * K(sigma) F_ref(truth) + 1% noise: F_ref a finer render with other photons, area-averaged."""
     reference = make_operator(photons=1 << 17, resolution=N, seed=0).variant(1 << 19, 11, 2 * N).render(truth)
     caustic = F.avg_pool2d(reference.unsqueeze(0), 2).squeeze(0)
-    clean = TRUE_GAIN * ScreenBlur(sigma_px * PIXEL, PIXEL).apply(caustic)
+    clean = TRUE_GAIN * GaussianBlur(sigma_px * PIXEL, PIXEL).apply(caustic)
     noise = torch.randn(clean.shape, generator=torch.Generator().manual_seed(3), dtype=torch.float64)
     return clean + 0.01 * float(clean.norm()) / float(noise.norm()) * noise
 

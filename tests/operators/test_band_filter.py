@@ -1,4 +1,4 @@
-"""operators/band_filter.py: the separable filter against numpy's direct convolution, on both of its
+"""operators/linear/band_filter.py: the separable filter against numpy's direct convolution, on both of its
 paths (conv2d and the banded product), tile edges, several channels and both precisions."""
 
 from __future__ import annotations
@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import torch
 
-from operators.band_filter import CONV_MAX_TAPS, TILE, correlate_axis, separable_correlate
+from operators.linear.band_filter import CONV_MAX_TAPS, TILE, correlate_axis, separable_correlate
 
 
 def _direct(image: np.ndarray, taps: np.ndarray, axis: int) -> np.ndarray:

@@ -9,19 +9,19 @@ import pytest
 import torch
 
 from operators.heightfield.operator import CausticOperator
-from operators.gaussian_blur import ScreenBlur
+from operators.linear.gaussian_blur import GaussianBlur
 from operators.imaging import ImagingOperator
-from operators.supersample import SupersampledOperator, block_mean
+from operators.linear import BlockMean
+from operators.supersample import SupersampledOperator
 from tests.operators.conftest import bump, make_operator
 
 
-def test_blur_is_self_adjoint_and_keeps_interior_energy() -> None:
-    blur = ScreenBlur(sigma=0.05, pixel_size=2.0 / 64)  # 1.6 pixels
-    g = torch.Generator().manual_seed(0)
-    x, y = (torch.rand(2, 64, 64, generator=g, dtype=torch.float64) for _ in range(2))
-    lhs = float((blur.apply(x) * y).sum())
-    rhs = float((x * blur.adjoint(y)).sum())
-    assert abs(lhs - rhs) < 1e-12 * abs(lhs)
+def _mean(image: torch.Tensor, factor: int) -> torch.Tensor:
+    return BlockMean(factor).apply(image)
+
+
+def test_blur_keeps_interior_energy_and_its_width() -> None:
+    blur = GaussianBlur(sigma=0.05, pixel_size=2.0 / 64)  # 1.6 pixels
     point = torch.zeros(1, 64, 64, dtype=torch.float64)
     point[0, 32, 32] = 1.0
     spot = blur.apply(point)[0]
@@ -33,9 +33,9 @@ def test_blur_is_self_adjoint_and_keeps_interior_energy() -> None:
 
 
 def test_no_blur_below_a_pixel_and_bad_sigma() -> None:
-    assert not ScreenBlur(0.0, 0.01).active
+    assert not GaussianBlur(0.0, 0.01).active
     with pytest.raises(ValueError, match="screen.sigma=-1"):
-        ScreenBlur(-1.0, 0.01)
+        GaussianBlur(-1.0, 0.01)
 
 
 def _imaging(gain: float = 1.7, sigma: float = 0.04) -> ImagingOperator:
@@ -88,10 +88,10 @@ def test_a_supersampled_operator_is_blurred_on_its_fine_receiver_then_averaged()
     d = bump(32)
     fine = op.inner.fine.render(d)
     assert op.blur.pixel_size == pytest.approx(op.scene.receiver.pixel_size / 4)
-    expected = 1.3 * block_mean(ScreenBlur(op.psf_sigma, op.scene.receiver.pixel_size / 4).apply(fine), 4)
+    expected = 1.3 * _mean(GaussianBlur(op.psf_sigma, op.scene.receiver.pixel_size / 4).apply(fine), 4)
     assert torch.allclose(op.render(d), expected, rtol=1e-12, atol=0.0)
     # Blurring the averaged pixels instead is a different image: the averaging's box comes first.
-    coarse_blur = 1.3 * ScreenBlur(op.psf_sigma, op.scene.receiver.pixel_size).apply(block_mean(fine, 4))
+    coarse_blur = 1.3 * GaussianBlur(op.psf_sigma, op.scene.receiver.pixel_size).apply(_mean(fine, 4))
     assert float((coarse_blur - expected).norm() / expected.norm()) > 1e-3
 
 
@@ -126,15 +126,15 @@ def test_a_sub_pixel_width_is_found_on_the_fine_receiver_and_not_after_averaging
         sharp[0, i, max(0, j - 60):j + 60] += 1.0
         sharp[0, max(0, i - 40):i + 40, j] += 0.5
     pixel = 1.0 / n
-    photo = block_mean(ScreenBlur(sigma_px * pixel, pixel / f).apply(sharp), f)
-    fine4 = block_mean(sharp, f // 4)
+    photo = _mean(GaussianBlur(sigma_px * pixel, pixel / f).apply(sharp), f)
+    fine4 = _mean(sharp, f // 4)
     widths = [k / 100 * sigma_px for k in range(50, 151)]
 
     def best(render) -> float:
         return min(widths, key=lambda s: float((render(s) - photo).norm()))
 
-    on_fine = best(lambda s: block_mean(ScreenBlur(s * pixel, pixel / 4).apply(fine4), 4))
-    after_averaging = best(lambda s: ScreenBlur(s * pixel, pixel).apply(block_mean(sharp, f)))
+    on_fine = best(lambda s: _mean(GaussianBlur(s * pixel, pixel / 4).apply(fine4), 4))
+    after_averaging = best(lambda s: GaussianBlur(s * pixel, pixel).apply(_mean(sharp, f)))
     assert on_fine == pytest.approx(sigma_px, rel=0.02)
     if sigma_px == 0.5:
         assert abs(after_averaging / sigma_px - 1.0) > 0.1

@@ -14,7 +14,7 @@ from omegaconf import OmegaConf
 
 from framework.scene.scene_config import build_operator, build_scene
 from framework.scene.printed_shapes import make_shape
-from operators.supersample import SupersampledOperator, block_mean, block_mean_adjoint
+from operators.supersample import SupersampledOperator
 from operators.wavefront.renderer import WavefrontRenderer
 from tests.operators.test_wavefront import _pixel_means, _slab_irradiance
 
@@ -39,16 +39,6 @@ def exact_print_lines() -> tuple[torch.Tensor, torch.Tensor]:
     heights = torch.from_numpy(make_shape("print_lines", 128))
     model = configured_model()
     return heights, WavefrontRenderer(model.scene, vertices=2049).render(heights)
-
-
-def test_the_block_mean_and_its_adjoint():
-    generator = torch.Generator().manual_seed(3)
-    fine, coarse = (torch.rand(2, 12, 12, generator=generator, dtype=torch.float64),
-                    torch.rand(2, 3, 3, generator=generator, dtype=torch.float64))
-    assert torch.allclose(block_mean(fine, 4)[1, 2, 0], fine[1, 8:12, 0:4].mean())
-    left = float((block_mean(fine, 4) * coarse).sum())
-    right = float((fine * block_mean_adjoint(coarse, 4)).sum())
-    assert left == pytest.approx(right, rel=1e-14)
 
 
 @pytest.mark.parametrize("shape", ["print_lines", "letter_a"])

@@ -1,6 +1,6 @@
 """A Gaussian spot integrated over each pixel, as a blur of receiver images and its derivative in
 the width: the screen's blur (operators/imaging.py) and the blur of an extended light's patches
-(operators/emission.py, applied by the photon operators)."""
+(operators/emission.py, in the photon operators' image chain, operators/photon_operator.py)."""
 
 from __future__ import annotations
 
@@ -8,10 +8,11 @@ import math
 
 import torch
 
-from operators.band_filter import separable_correlate
+from operators.linear.band_filter import separable_correlate
+from operators.linear.linear_map import LinearMap
 from operators.values import checked_number
 
-__all__ = ["PSF_TRUNCATE", "ScreenBlur", "pixel_integrated_gaussian"]
+__all__ = ["GaussianBlur", "PSF_TRUNCATE", "pixel_integrated_gaussian"]
 
 PSF_TRUNCATE = 6.0  # the blur's taps reach 6 sigma: the Gaussian's mass beyond is 2e-9
 
@@ -44,8 +45,9 @@ def pixel_integrated_gaussian(sigma_px: float, truncate: float = PSF_TRUNCATE
     return p, (dt - p * total_slope) / total
 
 
-class ScreenBlur:
-    """Convolution of receiver images (c, n, n) with the screen's point-spread function.
+class GaussianBlur(LinearMap):
+    """Convolution of receiver images (c, n, n) with a Gaussian spot: the screen's point-spread
+    function, or the patch of an extended light each emission point stands for.
 
     Args:
         sigma: Standard deviation of the Gaussian spot, scene units (0: no blur).
@@ -96,3 +98,7 @@ class ScreenBlur:
             return torch.zeros_like(image)
         p, dp = self.profile, self.profile_derivative / self.pixel_size
         return separable_correlate(image, dp, p) + separable_correlate(image, p, dp)
+
+    @classmethod
+    def example(cls) -> tuple[LinearMap, tuple[int, ...]]:
+        return cls(0.07, 0.05), (2, 16, 16)
