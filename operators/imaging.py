@@ -32,7 +32,7 @@ from typing import Any
 import torch
 
 from operators.linear import BlockMean, Composition, Gain, GaussianBlur, LinearMap
-from operators.photon_operator import WrappingOperator
+from operators.image_operator import WrappingOperator
 from operators.scene import Scene
 from operators.supersample import SupersampledOperator
 

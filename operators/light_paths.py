@@ -4,7 +4,8 @@
 Every operator traces light from the point light, through whatever lies above the print, into the
 printed top, through the substrate, out of its flat bottom (z = 0) and through whatever lies below
 onto the receiver. The printed heights change only what happens between the top and the bottom,
-so an operator that offers a start to be computed from its data exposes the two fixed halves:
+so an operator that offers a start to be computed from its data declares ``has_light_path`` and
+exposes the two fixed halves (operators/image_operator.py):
 
 - ``arrivals(photons)``: where and from which direction its photons meet the plane of the
   substrate top z = h when the print is flat (:class:`Arrivals`);
@@ -19,11 +20,10 @@ through the flat faces of the substrate (numpy, float64).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Protocol, runtime_checkable
 
 import numpy as np
 
-__all__ = ["Arrivals", "LightPath", "refract_down", "flat_exit", "straight_landing"]
+__all__ = ["Arrivals", "refract_down", "flat_exit", "straight_landing"]
 
 
 @dataclass(frozen=True)
@@ -42,20 +42,6 @@ class Arrivals:
     directions: np.ndarray
     flux: np.ndarray
     photon: np.ndarray
-
-
-@runtime_checkable
-class LightPath(Protocol):
-    """What an operator exposes of its light path for a start computed from the data."""
-
-    def arrivals(self, photons: int) -> Arrivals:
-        """``photons`` photons of the operator's light where they meet the flat print's top plane."""
-        ...
-
-    def land_from_bottom(self, points: np.ndarray, directions: np.ndarray) -> np.ndarray:
-        """Receiver points (N, 2) of rays leaving the substrate bottom at ``points`` (N, 2) along
-        unit ``directions`` (N, 3) (in air, going down); NaN where a ray never reaches the receiver."""
-        ...
 
 
 def refract_down(direction: np.ndarray, eta: float) -> np.ndarray:

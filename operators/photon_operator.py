@@ -1,10 +1,5 @@
-"""What the photon operators share: the base of the operator contract around ``render`` and ``vjp``.
+"""What the photon operators share, on the operator contract (operators/image_operator.py).
 
-:class:`ImageOperator` keeps the operator contract (framework/core/contracts/operator.py) for a
-subclass that gives ``render(heights)``, ``vjp(heights, grad_image)``, ``output_shape``,
-``variant`` and its dtype, photons and pixel area: it turns render and vjp into the squared loss
-and its gradient and autograd through ``operator(heights)`` (:class:`RenderFunction`), and
-declares the defaults (no energy conservation claimed, a fixed setup, nothing to warm up).
 :class:`PhotonOperator` adds, for a subclass with ``scene``, ``settings`` (photons, seed,
 chunk_size and the footprints in pixels) and ``emitter``: photon count, image shape, chunks,
 resampled variants, and ``render``/``vjp`` as the splatted irradiance E(d) of the subclass
@@ -17,13 +12,12 @@ splat's adjoint (a gather per photon, no image needed) into whatever a chunk of 
 from __future__ import annotations
 
 import dataclasses
-from abc import ABC, abstractmethod
-from collections.abc import Sequence
-from contextlib import AbstractContextManager, nullcontext
+from abc import abstractmethod
 from typing import Any
 
 import torch
 
+from operators.image_operator import ImageOperator
 from operators.linear import GaussianBlur, LinearMap
 from operators.scene import Scene
 from operators.splat.splat import footprint_metric, splat_photons_vjp
@@ -31,11 +25,7 @@ from operators.splat.splat import footprint_metric, splat_photons_vjp
 __all__ = [
     "PIXEL_SETTINGS",
     "PIXEL_BOX_R2",
-    "ImageOperator",
-    "NothingRunning",
     "PhotonOperator",
-    "RenderFunction",
-    "WrappingOperator",
     "backward_through_splat",
     "check_setting_keys",
     "filter_radius_px",
@@ -67,150 +57,6 @@ def check_setting_keys(
         if key not in fields and key not in extra:
             raise ValueError(f"unknown key operator.{key}; operator/{plugin} takes: "
                              f"{', '.join([*extra, *sorted(fields)])}")
-
-
-class NothingRunning:
-    """What ``warm_up()`` yields when no work goes on in the background."""
-
-    running = False
-
-    def wait(self) -> None:
-        """Nothing to wait for."""
-
-
-class ImageOperator(ABC):
-    """An operator given by ``render(heights)`` and ``vjp(heights, grad_image)``: the squared loss
-    and its gradient in two passes, and autograd through ``operator(heights)``.
-
-    Attributes:
-        dtype: The dtype of its images and gradients (set by the subclass).
-        conserves_energy: False unless a subclass knows that a print only moves light.
-        revision: 0: the setup never changes (an operator whose setup does counts it up).
-        has_light_path: False unless a subclass offers ``arrivals`` and ``land_from_bottom``
-            (operators/light_paths.py).
-        elements: () unless a subclass traces optical elements beside the print (operators/mesh/).
-        gain: 1.0 unless a subclass scales its images by a camera gain (operators/imaging.py).
-        shots: () unless a subclass renders several shots' images (operators/stack.py).
-        shot_count: 1: every pass traces ``photons`` once.
-        deterministic: False unless a render has no sampling noise (two renders are equal).
-        hit_key: None unless operators with equal keys may share where their photons meet the
-            print (:meth:`share_hits`).
-    """
-
-    dtype: torch.dtype
-    conserves_energy: bool = False
-    revision: int = 0
-    has_light_path: bool = False
-    elements: Sequence[Any] = ()
-    gain: float = 1.0
-    shots: Sequence[Any] = ()
-    shot_count: int = 1
-    deterministic: bool = False
-    hit_key: Any = None
-
-    def share_hits(self, other: Any) -> None:
-        """Use ``other``'s hit cache (operators/stack.py); only an operator with a ``hit_key`` has one."""
-        raise ValueError(f"{type(self).__name__} has no hit cache to share (hit_key is None)")
-
-    @abstractmethod
-    def render(self, heights: torch.Tensor, progress: bool = False) -> torch.Tensor:
-        """The image F(d) (c, n, n) of heights d (m, m), without a graph."""
-
-    @abstractmethod
-    def vjp(self, heights: torch.Tensor, grad_image: torch.Tensor) -> torch.Tensor:
-        """F'(d)^* grad_image (m, m)."""
-
-    @property
-    @abstractmethod
-    def output_shape(self) -> tuple[int, int, int]:
-        """(c, n, n) of the images it renders."""
-
-    def variant(self, photons: int, seed: int, resolution: int) -> ImageOperator:
-        """The same physics with another sampling (photons, seed, an n = resolution receiver):
-        synthetic data and the photon budget need it; an operator of one fixed sampling has none."""
-        raise NotImplementedError(f"{type(self).__name__} has no variant; synthetic data need an operator that can "
-                                  "render with another photon count and receiver")
-
-    def exact_variant(self, photons: int, seed: int, resolution: int) -> Any:
-        """A renderer (``render(heights)`` -> (c, resolution, resolution)) of the same physics for
-        the references of synthetic data, free of this operator's own approximations where the
-        operator knows an exact method; here, lacking one, its :meth:`variant`."""
-        return self.variant(photons, seed, resolution)
-
-    def warm_up(self) -> AbstractContextManager[Any]:
-        """Nothing to start in the background: yields :class:`NothingRunning`."""
-        return nullcontext(NothingRunning())
-
-    def loss_and_grad(self, heights: torch.Tensor, target: torch.Tensor, image: torch.Tensor | None = None
-                      ) -> tuple[float, torch.Tensor, torch.Tensor]:
-        """(1/2 ||F(d) - target||^2, its gradient (m, m), F(d)) in two passes of bounded memory;
-        ``image`` = F(d) from an earlier :meth:`render` of these heights skips the first pass."""
-        if image is None:
-            image = self.render(heights)
-        elif image.shape != self.output_shape:
-            raise ValueError(f"image has shape {tuple(image.shape)}, the operator renders {self.output_shape}")
-        if target.shape != image.shape:
-            raise ValueError(f"target has shape {tuple(target.shape)}, the operator renders {tuple(image.shape)}")
-        residual = image - target.to(image)
-        return 0.5 * float((residual.double() ** 2).sum()), self.vjp(heights, residual), image
-
-    def __call__(self, heights: torch.Tensor) -> torch.Tensor:
-        return RenderFunction.apply(heights, self)
-
-
-class WrappingOperator(ImageOperator):
-    """An operator that renders through another one, :attr:`wrapped` (a finer receiver, a camera),
-    and passes on what that one declares: dtype, photons, its light path, elements, shots, hit
-    cache and warm-up. Nothing else is passed on."""
-
-    @property
-    def wrapped(self) -> Any:
-        """The operator rendered through."""
-        raise NotImplementedError
-
-    @property
-    def dtype(self) -> torch.dtype:  # type: ignore[override]
-        return self.wrapped.dtype
-
-    @property
-    def photons(self) -> int:
-        return self.wrapped.photons
-
-    @property
-    def has_light_path(self) -> bool:  # type: ignore[override]
-        return bool(self.wrapped.has_light_path)
-
-    @property
-    def elements(self) -> Sequence[Any]:  # type: ignore[override]
-        return self.wrapped.elements
-
-    @property
-    def shot_count(self) -> int:  # type: ignore[override]
-        return self.wrapped.shot_count
-
-    @property
-    def deterministic(self) -> bool:  # type: ignore[override]
-        return self.wrapped.deterministic
-
-    @property
-    def hit_key(self) -> Any:  # type: ignore[override]
-        return self.wrapped.hit_key
-
-    def share_hits(self, other: Any) -> None:
-        """Share the wrapped operators' hit cache (operators/stack.py)."""
-        self.wrapped.share_hits(other.wrapped if isinstance(other, WrappingOperator) else other)
-
-    def arrivals(self, photons: int) -> Any:
-        """The wrapped operator's light path above the print (operators/light_paths.py)."""
-        return self.wrapped.arrivals(photons)
-
-    def land_from_bottom(self, points: Any, directions: Any) -> Any:
-        """The wrapped operator's light path below the print (operators/light_paths.py)."""
-        return self.wrapped.land_from_bottom(points, directions)
-
-    def warm_up(self) -> AbstractContextManager[Any]:
-        """The wrapped operator's warm-up."""
-        return self.wrapped.warm_up()
 
 
 class PhotonOperator(ImageOperator):
@@ -289,21 +135,6 @@ class PhotonOperator(ImageOperator):
         receiver = dataclasses.replace(self.scene.receiver, resolution=resolution)
         return (dataclasses.replace(self.scene, receiver=receiver),
                 dataclasses.replace(self.settings, photons=photons, seed=seed, **scaled))
-
-
-class RenderFunction(torch.autograd.Function):
-    """F(d) forward by ``operator.render``, backward by ``operator.vjp``."""
-
-    @staticmethod
-    def forward(ctx, heights: torch.Tensor, operator: Any) -> torch.Tensor:
-        ctx.operator = operator
-        ctx.save_for_backward(heights)
-        return operator.render(heights)
-
-    @staticmethod
-    def backward(ctx, grad_image: torch.Tensor):
-        (heights,) = ctx.saved_tensors
-        return ctx.operator.vjp(heights, grad_image), None
 
 
 def backward_through_splat(pos: torch.Tensor, metric: torch.Tensor, flux: torch.Tensor, channel: torch.Tensor,

@@ -24,7 +24,7 @@ from typing import Any
 import torch
 
 from operators.linear.shot_weights import ShotWeights
-from operators.photon_operator import ImageOperator
+from operators.image_operator import ImageOperator
 
 __all__ = ["StackOperator"]
 

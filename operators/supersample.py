@@ -23,7 +23,8 @@ from typing import Any
 import torch
 
 from operators.linear.block_mean import BlockMean
-from operators.photon_operator import PIXEL_SETTINGS, WrappingOperator
+from operators.image_operator import WrappingOperator
+from operators.photon_operator import PIXEL_SETTINGS
 from operators.scene import Scene
 from operators.values import checked_whole, is_number
 

@@ -17,6 +17,7 @@ from typing import ClassVar
 
 import torch
 
+from operators.plugin import Plugin
 from operators.values import checked_number
 
 
@@ -67,7 +68,7 @@ class RegularizerContext:
         return cls(mask=torch.ones(m, m, dtype=torch.bool), volume=volume, pixel_area=pixel_area)
 
 
-class _UsesContext:
+class _UsesContext(Plugin):
     """Mixin: stores the :class:`RegularizerContext` and hands out the mask on the right device."""
 
     _ctx: RegularizerContext | None = None
@@ -109,10 +110,13 @@ class Regularizer(_UsesContext, ABC):
         has_prox: True if :meth:`prox` is implemented exactly (closed form or 1-D root find).
         smooth: True if R is differentiable (a gradient step may be used instead of a prox).
         band: The band (q1, q2) of the height sum the term enforces (a known volume), else None.
+        needs_volume: True if it needs the deposited volume (the run's checks refuse measured
+            data without data.volume, framework/reconstruction/run_checks.py).
     """
 
     has_prox: ClassVar[bool] = False
     smooth: ClassVar[bool] = False
+    needs_volume: ClassVar[bool] = False
     band: tuple[float, float] | None = None
 
     @abstractmethod
@@ -146,9 +150,15 @@ class PostStepUpdate(_UsesContext, ABC):
 
     Attributes:
         band: The band (q1, q2) of the height sum it enforces (a known volume), else None.
+        needs_volume: True if it needs the deposited volume (as a regulariser's).
+        holds_volume: True if it keeps the height sum at the known volume after every step (a
+            stack's calibrated distance then moves without a factor on the heights,
+            framework/lab/calibration.py).
     """
 
     band: tuple[float, float] | None = None
+    needs_volume: ClassVar[bool] = False
+    holds_volume: ClassVar[bool] = False
 
     @abstractmethod
     def __call__(self, d: torch.Tensor) -> torch.Tensor:

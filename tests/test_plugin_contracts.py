@@ -36,7 +36,8 @@ from framework.core.masks import mask_from_height_field
 from framework.core.problem import HeightGrid, Problem
 from framework.reconstruction.stopping import StagnationStopping
 from framework.core.plugin_config import build_plugin
-from framework.core.registry import KINDS, available, declared, register
+from framework.core.plugin_config import plugin_class
+from framework.core.registry import KINDS, available, register
 from framework.reconstruction.feature_search import SearchedLines
 from operators.scene import Receiver, Scene, Substrate
 from regularizers import PixelL1
@@ -134,6 +135,13 @@ def test_a_plugin_without_its_base_fails(own_registrations) -> None:
         check_base("data", "duck")
 
 
+def test_a_plugin_that_is_no_class_is_refused_in_one_line(own_registrations) -> None:
+    register("data", "function")(lambda **settings: None)
+    with pytest.raises(ValueError, match=r"^plugin data/function is <function .*>, not a plugin class: derive it from "
+                                         r"its kind's base \(docs/plugins.md, Kinds\)$"):
+        build_plugin("data", "function", {}, "data")
+
+
 @pytest.mark.parametrize("name", available("operator"))
 def test_every_operator_keeps_the_contract(name) -> None:
     check_operator(_operator_maker(name), who=f"operator/{name}")
@@ -163,7 +171,7 @@ SOLVERS = [("solver", name) for name in available("solver")] + [("design", name)
 def test_every_solver_solves_a_known_problem(kind, name, known_problem) -> None:
     settings = example_settings(kind, name)
     check_solver(lambda: build_plugin(kind, name, settings, kind), known_problem, who=f"{kind}/{name}",
-                 iterations=declared(kind, name, "contract_iterations", 40))
+                 iterations=plugin_class(kind, name).contract_iterations)
 
 
 def test_the_test_suites_solver_keeps_the_contract(known_problem) -> None:
@@ -332,7 +340,7 @@ LINEAR_PIECES = [piece for piece in all_linear_maps() if not piece.__module__.st
 
 def test_the_linear_pieces_are_all_found() -> None:
     names = {piece.__qualname__ for piece in LINEAR_PIECES}
-    assert {"BlockMean", "Composition", "Gain", "GaussianBlur", "PerPixelArea", "ShotWeights", "Vignetting"} <= names
+    assert {"BlockMean", "Composition", "Gain", "GaussianBlur", "ShotWeights", "Vignetting"} <= names
     assert all(issubclass(piece, LinearMap) for piece in LINEAR_PIECES) and Vignetting.example()[1] == (2, 8, 8)
 
 

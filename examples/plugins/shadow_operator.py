@@ -16,7 +16,7 @@ from typing import Any
 import torch
 import torch.nn.functional as F
 
-from operators.photon_operator import ImageOperator
+from operators.image_operator import ImageOperator
 
 
 class ShadowOperator(ImageOperator):

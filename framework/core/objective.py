@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from framework.core.contracts.operator import Operator, missing_members
+from operators.image_operator import ImageOperator
 
 __all__ = [
     "DataEvaluation",
@@ -68,7 +68,7 @@ class DataFidelity:
             gradient is the operator's ``vjp(d, w (F(d) - b))``.
 
     Example:
-        >>> from operators.photon_operator import ImageOperator
+        >>> from operators.image_operator import ImageOperator
         >>> class Identity(ImageOperator):  # F(d) = d on a 2 x 2 receiver
         ...     dtype, photons, pixel_area, output_shape = torch.float64, 0, 1.0, (1, 2, 2)
         ...     def render(self, d, progress=False): return d.reshape(1, 2, 2).clone()
@@ -78,15 +78,14 @@ class DataFidelity:
         1.0
     """
 
-    def __init__(self, operator: Operator, target: Tensor, max_negative_fraction: float = 0.25,
+    def __init__(self, operator: ImageOperator, target: Tensor, max_negative_fraction: float = 0.25,
                  cell_area: float = 1.0, weights: Tensor | None = None) -> None:
         if not (math.isfinite(cell_area) and cell_area > 0.0):
             raise ValueError(f"cell_area={cell_area} must be a positive area (scene units^2)")
         self.cell_area = float(cell_area)
-        missing = missing_members(operator)
-        if missing:
-            raise ValueError(f"operator {type(operator).__name__} lacks {', '.join(missing)} of the operator contract "
-                             "(framework/core/contracts/operator.py)")
+        if not isinstance(operator, ImageOperator):
+            raise ValueError(f"operator {type(operator).__name__} does not keep the operator contract: derive it from "
+                             "operators.image_operator.ImageOperator")
         self.operator = operator
         self.target = self._validated_target(target, operator, max_negative_fraction)
         self.weights = None if weights is None else self._validated_weights(weights, self.target)
@@ -130,7 +129,7 @@ class DataFidelity:
         return self.operator.vjp(d, self.weights.to(image) * (image - self.target.to(image))), image
 
     @staticmethod
-    def _validated_target(target: Tensor, operator: Operator, max_negative_fraction: float) -> Tensor:
+    def _validated_target(target: Tensor, operator: ImageOperator, max_negative_fraction: float) -> Tensor:
         if not isinstance(target, Tensor):
             raise ValueError(f"target must be a torch.Tensor (c, n, n), got {type(target).__name__}")
         if target.ndim != 3 or target.shape[1] != target.shape[2] or target.shape[0] < 1:
@@ -241,7 +240,7 @@ class DataFidelity:
         return math.sqrt(float(torch.sum(self._weighted((image.double() - other.double()) ** 2)))
                          / self.target_norm_sq)
 
-    def use_operator(self, operator: Operator) -> None:
+    def use_operator(self, operator: ImageOperator) -> None:
         """Go on with another operator of the same output shape (e.g. the same physics with other
         photons, framework/reconstruction/photon_budget.py); forgets the last render."""
         if tuple(operator.output_shape) != tuple(self.target.shape):

@@ -1,7 +1,7 @@
 """Building plugins from their config: one set of rules for every kind.
 
-A plugin's config is a mapping of keyword arguments. The plugin object is called with them: its
-``from_config`` classmethod if it has one, else the object itself (a class or a function). The
+A plugin's config is a mapping of keyword arguments. The plugin class is called with them: its
+``from_config`` classmethod if it declares one, else the class itself (operators/plugin.py). The
 keys are checked against that callable's signature first, so an unknown key fails with the list
 of the keys it takes, and the plugin's own checks (types, ranges) raise a ValueError that names
 the value. Arguments the framework supplies (e.g. the scene for an operator) are not config keys.
@@ -14,10 +14,12 @@ from collections.abc import Mapping
 from typing import Any
 from collections.abc import Callable
 
-from framework.core.registry import declared, lookup
+from framework.core.registry import lookup
 from framework.core.units import scene_length
+from operators.plugin import Plugin
 
-__all__ = ["as_mapping", "plugin_factory", "build_plugin", "build_plugin_map", "split_name", "with_scene_lengths"]
+__all__ = ["as_mapping", "plugin_class", "plugin_factory", "build_plugin", "build_plugin_map", "split_name",
+           "with_scene_lengths"]
 
 # Where plugins sit in a reconstruction's config: (kind, path of one plugin's params, or of a
 # {name: params} map when the path ends in "*"). Used to convert their lengths.
@@ -44,12 +46,18 @@ def split_name(spec: Any, where: str) -> tuple[str, dict[str, Any]]:
     return name, params
 
 
+def plugin_class(kind: str, name: str) -> type[Plugin]:
+    """The registered class of plugin ``kind/name``; anything but a :class:`Plugin` is refused."""
+    plugin = lookup(kind, name)
+    if not (isinstance(plugin, type) and issubclass(plugin, Plugin)):
+        raise ValueError(f"plugin {kind}/{name} is {plugin!r}, not a plugin class: derive it from its kind's base "
+                         "(docs/plugins.md, Kinds)")
+    return plugin
+
+
 def plugin_factory(kind: str, name: str) -> Callable[..., Any]:
-    """The callable that builds plugin ``kind/name``: its ``from_config`` or the object itself."""
-    factory = declared(kind, name, "from_config", lookup(kind, name))
-    if not callable(factory):
-        raise ValueError(f"plugin {kind}/{name} is not callable and has no from_config")
-    return factory
+    """The callable that builds plugin ``kind/name``: its ``from_config`` or the class itself."""
+    return plugin_class(kind, name).factory()
 
 
 def _config_keys(factory: Callable[..., Any], supplied: Mapping[str, Any]) -> tuple[list[str], bool]:
@@ -94,7 +102,7 @@ def _length(value: Any, mm: float, where: str) -> Any:
 def _converted(kind: str, name: str, params: dict[str, Any], mm: float, where: str) -> dict[str, Any]:
     """``params`` with the plugin's ``length_keys`` (a class attribute) in scene units."""
     try:
-        keys = declared(kind, name, "length_keys", ())
+        keys = plugin_class(kind, name).length_keys
     except KeyError:
         return params  # an unknown name is refused, with the known names, when the plugin is built
     return {k: _length(v, mm, f"{where}.{k}") if k in keys else v for k, v in params.items()}

@@ -12,7 +12,7 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 from functools import cached_property
 
-from framework.core.contracts.operator import Operator
+from operators.image_operator import ImageOperator
 from framework.core.data import ReconstructionData
 from framework.core.objective import DataFidelity
 from framework.core.print_constraints import PrintConstraints
@@ -72,7 +72,7 @@ class Problem:
             design solvers keep; None for a reconstruction.
     """
 
-    operator: Operator
+    operator: ImageOperator
     data: ReconstructionData
     grid: HeightGrid
     scene: Scene

@@ -87,10 +87,3 @@ def lookup(kind: str, name: str) -> Any:
             raise KeyError(f"unknown {kind} plugin {name!r}; {kind} plugins: {known}")
         _loaded[kind][name] = ep.load()
     return _loaded[kind][name]
-
-
-def declared(kind: str, name: str, attribute: str, default: Any) -> Any:
-    """What plugin ``kind/name`` declares as ``attribute`` (a class-level declaration: a regulariser's
-    ``needs_volume``, a post step's ``holds_volume``, the ``length_keys`` given with units, its
-    ``from_config``), else ``default``: the one place where a plugin's declarations are read."""
-    return getattr(lookup(kind, name), attribute, default)

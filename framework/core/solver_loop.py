@@ -18,6 +18,7 @@ from collections.abc import Sequence
 import torch
 from torch import Tensor
 
+from operators.plugin import Plugin
 from operators.values import checked_whole
 
 __all__ = [
@@ -157,14 +158,20 @@ def returned_iterate(result: RunResult, callbacks: Sequence[Callback]) -> tuple[
     return result.d.detach(), result.iterations
 
 
-class IterativeSolver(ABC):
+class IterativeSolver(Plugin, ABC):
     """Base of all solvers: state, history, ``step()`` and the shared ``run()``.
 
     Subclasses implement :meth:`step` and, if they hold more state than ``state``,
-    :meth:`state_dict` / :meth:`load_state_dict`.
+    :meth:`state_dict` / :meth:`load_state_dict`. A plugin solver (kinds ``solver``, ``design``)
+    also gives ``from_config`` (operators/plugin.py) returning its builder.
+
+    Attributes:
+        contract_iterations: How many iterations the contract check's known problem may take (a
+            solver of many small steps by design declares more).
     """
 
     name: ClassVar[str] = "iterative"
+    contract_iterations: ClassVar[int] = 40
 
     def __init__(self, d0: Tensor) -> None:
         if not isinstance(d0, Tensor) or d0.ndim != 2 or d0.shape[0] != d0.shape[1]:

@@ -17,13 +17,13 @@ import math
 import torch
 import torch.nn.functional as F
 
-from framework.core.contracts.operator import Operator
+from operators.image_operator import ImageOperator
 from operators.values import checked_whole
 
 __all__ = ["column_norms", "pixel_noise", "pixels_used", "height_uncertainty"]
 
 
-def column_norms(operator: Operator, d: torch.Tensor, weights: torch.Tensor | None, probes: int, seed: int,
+def column_norms(operator: ImageOperator, d: torch.Tensor, weights: torch.Tensor | None, probes: int, seed: int,
                  smoothing_px: int = 1) -> torch.Tensor:
     """||w J_j|| for every height sample j, shape (m, m), image units per scene unit of height.
 

@@ -31,12 +31,13 @@ import scipy.fft
 import torch
 from torch import Tensor
 
+from operators.plugin import Plugin
 from operators.values import checked_whole
 
 __all__ = ["GradientPreconditioner", "SobolevPreconditioner", "check_stage_index", "neumann_laplacian_eigenvalues"]
 
 
-class GradientPreconditioner(ABC):
+class GradientPreconditioner(Plugin, ABC):
     """Maps the gradient (m, m) to the step direction (m, m), symmetric positive definite.
 
     The defaults are those of a single fixed metric; a coarse-to-fine schedule overrides them.

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 from typing import Any
 from collections.abc import Callable
 
+from operators.plugin import Plugin
 from operators.values import checked_number, is_number
 
 __all__ = ["StepChoice", "StepSizePolicy", "ConstantStep", "BacktrackingStep", "LineSearchFailed", "as_step_policy",
@@ -68,7 +69,7 @@ class StepChoice:
     forward_evaluations: int
 
 
-class StepSizePolicy(ABC):
+class StepSizePolicy(Plugin, ABC):
     """Chooses tau for each proximal-gradient iteration; its state is saved in checkpoints.
 
     Attributes:

@@ -13,13 +13,12 @@ from typing import Any
 import torch
 
 from framework.core.contracts.data_source import DataRequest, DataSource, ShotStack
-from framework.core.contracts.operator import Operator
+from operators.image_operator import ImageOperator
 from framework.core.contracts.solver import SolverBuilder
 from framework.core.contracts.start import Start
 from framework.core.contracts.stopping import StoppingRule
-from framework.core.plugin_config import as_mapping, build_plugin, split_name
+from framework.core.plugin_config import as_mapping, build_plugin, plugin_class, split_name
 from framework.core.problem import HeightGrid, Problem
-from framework.core.registry import declared
 from framework.defects.defect_stage import DefectSettings
 from framework.files.image_io import resolve_path
 from framework.lab.calibration import JointCalibration
@@ -86,7 +85,7 @@ class Reconstruction:
     _designs: dict[str, torch.Tensor] = field(default_factory=dict, repr=False)
 
     @property
-    def operator(self) -> Operator:
+    def operator(self) -> ImageOperator:
         """The forward-operator plugin."""
         return self.setup.operator
 
@@ -129,7 +128,7 @@ class Reconstruction:
         setup = SceneSetup.parse(cfg, settings.mm_per_unit, imaging=bool(calibration_cfg.get("params")),
                                  shots=data_source.setups if isinstance(data_source, ShotStack) else None)
         post_steps = dict(as_mapping(cfg.get("solver") or {}, "solver").get("post_steps") or {})
-        volume_held = any(declared("post_step", name, "holds_volume", False) for name in post_steps)
+        volume_held = any(plugin_class("post_step", name).holds_volume for name in post_steps)
         calibration = JointCalibration.from_config(setup.operator, calibration_cfg, setup.scene, setup.screen_sigma,
                                                    volume_held)
         solver_name, solver_params = split_name(cfg.get("solver"), "solver")

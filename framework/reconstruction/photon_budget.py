@@ -26,7 +26,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
-from framework.core.contracts.operator import Operator
+from operators.image_operator import ImageOperator
 from framework.core.objective import DataFidelity
 from framework.core.problem import Problem
 from framework.core.solver_loop import Callback, IterationRecord, IterativeSolver
@@ -174,7 +174,7 @@ class PhotonBudget(Callback):
         record.objective = evaluation.value + regularization
 
 
-def budget_photons(parts: Reconstruction, operator: Operator) -> tuple[int, int]:
+def budget_photons(parts: Reconstruction, operator: ImageOperator) -> tuple[int, int]:
     """The photon budget's (start, cap) on ``operator``'s receiver: ``photon_budget.start`` and the
     configured photons, both times the receiver's scale (framework/reconstruction/photon_budget.py,
     ``receiver_scale``)."""

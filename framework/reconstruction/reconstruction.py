@@ -18,7 +18,7 @@ import torch
 
 from framework.core.callbacks import Checkpointer, GroundTruthError, MetricsHistory, ProgressBar
 from framework.core.checkpoint import resume as resume_solver
-from framework.core.contracts.operator import Operator
+from operators.image_operator import ImageOperator
 from framework.core.contracts.start import Start, StartRequest, StartResult
 from framework.core.objective import DataFidelity
 from framework.core.problem import Problem
@@ -57,7 +57,7 @@ def passes(fidelity: DataFidelity) -> dict[str, int]:
             "photon_traces": fidelity.photon_traces}
 
 
-def final_operator(parts: Reconstruction, result: RunResult) -> Operator:
+def final_operator(parts: Reconstruction, result: RunResult) -> ImageOperator:
     """The operator with the photons of the run's last iteration (framework/reconstruction/photon_budget.py)."""
     photons = result.history[-1].extras.get("photons") if result.history else None
     return parts.operator if photons is None else with_photons(parts.operator, int(photons), parts.settings.seed)

@@ -16,7 +16,7 @@ from typing import Any
 import torch
 
 from framework.core.contracts.data_source import PrintFacts
-from framework.core.registry import declared
+from framework.core.plugin_config import plugin_class
 from framework.files.image_io import resolve_path
 from framework.reconstruction.run_identity import check_resumable
 from framework.tracking.mlflow_tracker import KNOWN_SCHEMES, check_tracking_server
@@ -87,7 +87,7 @@ def check_volume_known(cfg: Mapping[str, Any], facts: PrintFacts) -> None:
         f"solver.{group}.{name}"
         for group, kind in (("regularizers", "regularizer"), ("post_steps", "post_step"))
         for name in dict(solver.get(group) or {})
-        if declared(kind, name, "needs_volume", False)
+        if plugin_class(kind, name).needs_volume
     ]
     if needing:
         raise ValueError(f"{' and '.join(needing)} need{'s' if len(needing) == 1 else ''} the deposited volume: set "

@@ -32,7 +32,7 @@ import numpy as np
 import torch
 from omegaconf import DictConfig, ListConfig, OmegaConf
 
-from framework.core.contracts.operator import Operator
+from operators.image_operator import ImageOperator
 from framework.core.plugin_config import build_plugin, split_name
 from framework.core.problem import HeightGrid
 from framework.core.shots import ShotSetup
@@ -208,21 +208,21 @@ def screen_sigma(cfg: Mapping[str, Any], mm: float | None = None) -> float:
     return sigma if psf == "gaussian" else 0.0
 
 
-def operator_builder(cfg: Mapping[str, Any]) -> Callable[[Scene], Operator]:
+def operator_builder(cfg: Mapping[str, Any]) -> Callable[[Scene], ImageOperator]:
     """Builds the operator plugin named by ``operator.name`` for a scene, with ``photons``, ``seed``
     and the rest of the ``operator`` group (which the plugin checks)."""
     name, params = split_name(to_plain(cfg.get("operator")), "operator")
     photons = checked_whole(cfg.get("photons"), "photons")
     seed = checked_whole(cfg.get("seed", 0), "seed", 0, 2 ** 63 - 1, must="must be an integer in [0, 2^63)")
 
-    def build(for_scene: Scene) -> Operator:
+    def build(for_scene: Scene) -> ImageOperator:
         return build_plugin("operator", name, dict(params), "operator", scene=for_scene, photons=photons, seed=seed)
 
     return build
 
 
 def build_operator(cfg: Mapping[str, Any], scene: Scene, imaging: bool = False, mm: float | None = None,
-                   gain: float = 1.0) -> Operator:
+                   gain: float = 1.0) -> ImageOperator:
     """The operator plugin of ``cfg`` (:func:`operator_builder`) for ``scene``, seen through the
     screen (operators/imaging.py) when ``screen.psf`` is set, or always with ``imaging`` (a setup
     that joint calibration may change) or a ``gain`` other than 1."""
@@ -258,7 +258,7 @@ class SceneSetup:
 
     scene: Scene
     grid: HeightGrid
-    operator: Operator
+    operator: ImageOperator
     height_field: dict[str, Any]
     mm_per_unit: float
     screen_sigma: float = 0.0

@@ -1,9 +1,10 @@
 """Where the sources look up a member by name instead of using a declared one: ``__getattr__``
 forwarding, and ``getattr`` / ``hasattr`` with a literal member name (a capability probe).
 
-Plugins declare what they have (framework/core/contracts/, regularizers/base.py; docs/plugins.md);
-the registry reads a plugin's class-level declarations (framework/core/registry.py, ``declared``).
-Objects of other libraries, which declare nothing, are the only other place a member is probed.
+Plugins declare what they have on their kind's base (operators/plugin.py and the bases deriving
+from it: framework/core/contracts/, regularizers/base.py; docs/plugins.md), and the framework reads
+those attributes directly. Objects of other libraries, which declare nothing, are the only place a
+member is probed.
 
     python -m tests.architecture.probes [ROOT]     # prints every probe and forwarding
 """
@@ -18,7 +19,6 @@ from tests.architecture.import_graph import PACKAGES
 
 # (file, member): the probes of other libraries' objects, each with its reason.
 OTHER_LIBRARIES = {
-    ("framework/core/registry.py", None): "the registry reads a plugin's declarations",
     ("framework/files/mm_outputs.py", "text"): "a PIL image's text chunks (absent on some formats)",
     ("framework/lab/photo_import.py", "tag_v2"): "a PIL image's TIFF tags (absent on other formats)",
     ("framework/tracking/mlflow_tracker.py", "__spec__"): "the __main__ module's spec (absent when run as a script)",

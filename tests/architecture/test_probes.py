@@ -10,7 +10,7 @@ from tests.architecture.probes import OTHER_LIBRARIES, probes, unexplained
 ROOT = Path(__file__).resolve().parents[2]
 
 
-def test_no_member_is_probed_or_forwarded_outside_the_registry_and_other_libraries() -> None:
+def test_no_member_is_probed_or_forwarded_outside_other_libraries() -> None:
     assert unexplained(ROOT) == []
 
 

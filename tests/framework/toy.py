@@ -7,7 +7,7 @@ from torch import Tensor
 
 from framework.core.objective import DataFidelity
 from regularizers import CoefficientRegularizer, CoefficientTransform, PostStepUpdate, Regularizer
-from operators.photon_operator import ImageOperator
+from operators.image_operator import ImageOperator
 
 DTYPE = torch.float64
 

@@ -30,6 +30,8 @@ def test_composition_applies_the_last_first_and_flattens() -> None:
     y = _random(2, 4, 4, seed=1)
     assert torch.equal(chain.adjoint(y), blur.adjoint(mean.adjoint(3.0 * y)))
     assert chain.output_shape((2, 8, 8)) == (2, 4, 4)
+    scaled = 2.0 * blur
+    assert isinstance(scaled.maps[0], Gain) and torch.equal(scaled.apply(x), 2.0 * blur.apply(x))
 
 
 def test_the_block_mean_averages_each_block() -> None:

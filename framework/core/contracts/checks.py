@@ -5,8 +5,8 @@ included, found through their entry points); a plugin package may call them from
 plugin with required settings declares an example of them in a classmethod
 ``example_settings() -> dict`` (e.g. the mesh scene's elements).
 
-- operator (:func:`check_operator`): every member of the contract
-  (framework/core/contracts/operator.py), the declared output shape and dtype, finite non-negative
+- operator (:func:`check_operator`): derived from the contract (operators/image_operator.py), the
+  declared output shape and dtype, finite non-negative
   images, determinism under a seed, the adjoint identity of the linearisation
   <vjp(d, w), v> = <w, F'(d) v> and the gradient of ``loss_and_grad`` against central finite
   differences (on a bump, and on a bump over a ramp raised along an edge, whose light crosses the
@@ -43,16 +43,16 @@ from collections.abc import Callable
 import torch
 
 from framework.core.contracts.data_source import DataRequest, DataSource
-from framework.core.contracts.operator import missing_members
 from framework.core.contracts.representation import Representation
 from framework.core.contracts.solver import SolverBuilder
 from framework.core.contracts.start import Start, StartRequest
 from framework.core.contracts.stopping import StoppingRule
 from framework.core.data import ReconstructionData
 from framework.core.problem import HeightGrid, Problem
-from framework.core.registry import declared, lookup
+from framework.core.plugin_config import plugin_class
+from framework.core.registry import lookup
 from framework.core.solver_loop import IterationRecord, IterativeSolver
-from operators.photon_operator import ImageOperator
+from operators.image_operator import ImageOperator
 from operators.scene import Receiver, Scene
 from regularizers import PostStepUpdate, Regularizer, RegularizerContext
 
@@ -95,14 +95,13 @@ def check_base(kind: str, name: str, base: type | None = None) -> None:
     _require(isinstance(plugin, type) and issubclass(plugin, base), who,
              f"is {plugin!r}, not a subclass of {base.__module__}.{base.__qualname__}; derive from it")
     if kind in ("solver", "design"):
-        _require(callable(declared(kind, name, "from_config", None)), who,
+        _require(plugin.from_config is not None, who,
                  "has no from_config(**settings) returning the builder (problem, d0) -> solver")
 
 
 def example_settings(kind: str, name: str) -> dict[str, Any]:
     """The settings plugin ``kind/name`` declares for the contract checks (its ``example_settings()``), else {}."""
-    example = declared(kind, name, "example_settings", None)
-    return dict(example()) if example is not None else {}
+    return dict(plugin_class(kind, name).example_settings())
 
 
 def smooth_bump(m: int, height: float = 0.02, width: float = 0.3) -> torch.Tensor:
@@ -122,8 +121,7 @@ def raised_edge(m: int, rise: float = 0.02) -> torch.Tensor:
 def check_operator(make: Callable[[int], Any], m: int = 16, who: str = "operator") -> None:
     """Check an operator plugin built by ``make(seed)`` on heights of an m x m grid."""
     operator = make(0)
-    missing = missing_members(operator)
-    _require(not missing, who, f"lacks {', '.join(missing)} of the operator contract")
+    _require(isinstance(operator, ImageOperator), who, "does not derive from operators.image_operator.ImageOperator")
     dtype = operator.dtype
     flat = torch.zeros(m, m, dtype=dtype)
     bump = smooth_bump(m).to(dtype) + 1e-3

@@ -18,11 +18,12 @@ from collections.abc import Callable, Sequence
 
 import torch
 
-from framework.core.contracts.operator import Operator
 from framework.core.data import ReconstructionData
 from framework.core.problem import HeightGrid
 from framework.core.shots import ShotSetup
 from framework.core.units import DEFAULT_MM_PER_UNIT
+from operators.image_operator import ImageOperator
+from operators.plugin import Plugin
 from operators.scene import Scene
 
 __all__ = ["DataRequest", "DataSource", "PrintFacts", "ShotStack"]
@@ -44,7 +45,7 @@ class DataRequest:
         mm_per_unit: Millimetres per scene unit (framework/core/units.py), for volumes given in mm3.
     """
 
-    operator: Operator
+    operator: ImageOperator
     grid: HeightGrid
     configured_heights: Callable[[], torch.Tensor]
     seed: int
@@ -69,7 +70,7 @@ class PrintFacts:
     volume_at_load: bool = False
 
 
-class DataSource(ABC):
+class DataSource(Plugin, ABC):
     """Base of the ``data`` plugins: built from its config keys, it produces the data on request."""
 
     @abstractmethod

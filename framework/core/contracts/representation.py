@@ -21,6 +21,8 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from operators.plugin import Plugin
+
 __all__ = ["Representation", "SearchContext"]
 
 
@@ -46,7 +48,7 @@ class SearchContext:
     earlier: int = 0
 
 
-class Representation(ABC):
+class Representation(Plugin, ABC):
     """d = R(theta) on one height grid.
 
     Attributes:

@@ -17,6 +17,7 @@ from pathlib import Path
 from torch import Tensor
 
 from framework.core.problem import Problem
+from operators.plugin import Plugin
 
 __all__ = ["Start", "StartRequest", "StartResult"]
 
@@ -62,7 +63,7 @@ class StartResult:
     shaped: bool = False
 
 
-class Start(ABC):
+class Start(Plugin, ABC):
     """Base of the start plugins.
 
     Attributes:

@@ -13,11 +13,12 @@ from abc import ABC, abstractmethod
 
 from framework.core.problem import Problem
 from framework.core.solver_loop import Callback, IterationRecord, IterativeSolver
+from operators.plugin import Plugin
 
 __all__ = ["StoppingRule"]
 
 
-class StoppingRule(Callback, ABC):
+class StoppingRule(Callback, Plugin, ABC):
     """Base of the stopping rules: a callback with ``setup`` whose ``on_iteration`` is its test."""
 
     @abstractmethod

@@ -6,15 +6,15 @@ where flat glass puts it. So, on the receiver:
 
 1. Source: the flat-glass caustic of the masked region alone, S = F(0) r, where r is the share
    of each pixel's flat-glass light that came through the mask (the operator's photons traced
-   through flat glass: where they meet the top, :meth:`LightPath.arrivals`, and where they land,
-   :meth:`LightPath.land_from_bottom`).
+   through flat glass: where they meet the top, the operator's ``arrivals``, and where they land,
+   its ``land_from_bottom``, operators/image_operator.py).
 2. Goal: the measured caustic minus the bare region's light, G = max(b - F(0) (1 - r), 0), kept
    within ``reach`` of the source's support (elsewhere it is noise), scaled to S's power.
 3. Semi-discrete optimal transport of S onto G's lit pixels (framework/optimization/semi_discrete_transport.py):
    every masked height sample, landing at L_j through flat glass, is sent to the point T_j that
    the transport map gives at L_j (linear between the Laguerre cells' centroids).
 4. The direction inside the glass that lands on T_j, through whatever lies below the substrate
-   (Newton on the operator's own :meth:`LightPath.land_from_bottom`), and the top normal that
+   (Newton on the operator's own ``land_from_bottom``), and the top normal that
    refracts the arriving light into it (Snell).
 5. Heights whose slopes fit those normals (least squares with a small curvature penalty), zero
    outside the mask, summing to the known volume; then projected onto the bounds and the volume
@@ -36,7 +36,8 @@ from scipy.sparse.linalg import factorized
 
 from framework.core.contracts.start import Start, StartRequest, StartResult
 from framework.optimization.semi_discrete_transport import semi_discrete_transport
-from operators.light_paths import LightPath, flat_exit, refract_down
+from operators.image_operator import ImageOperator
+from operators.light_paths import flat_exit, refract_down
 from operators.optics.inverse_refraction import snell_normals
 from operators.values import checked_number, checked_whole
 from regularizers import RegularizerContext
@@ -49,8 +50,9 @@ NOISE_SIGMAS = 3.0  # goal pixels within this many noise standard deviations of 
 LANDING_TOLERANCE_PX = 0.5  # a ray landing farther than this from its goal counts as unreached
 
 
-def light_path_of(operator: Any) -> LightPath:
-    """The operator's :class:`LightPath` (an imaging wrapper passes its inner operator's through)."""
+def light_path_of(operator: ImageOperator) -> ImageOperator:
+    """The operator, when it declares ``has_light_path`` (an imaging wrapper passes its inner
+    operator's through)."""
     if operator.has_light_path:
         return operator
     raise ValueError(f"operator {type(operator).__name__} exposes no light path (arrivals, land_from_bottom); "
@@ -88,7 +90,7 @@ def masked_sources(flat: np.ndarray, landings: np.ndarray, flux: np.ndarray, mas
     return flat * np.clip(share, 0.0, 1.0)
 
 
-def exit_directions(path: LightPath, points: np.ndarray, tops: np.ndarray, targets: np.ndarray, start: np.ndarray,
+def exit_directions(path: ImageOperator, points: np.ndarray, tops: np.ndarray, targets: np.ndarray, start: np.ndarray,
                     index: float, steps: int, tolerance: float = 1e-10) -> tuple[np.ndarray, np.ndarray]:
     """Unit directions w (N, 3) inside the glass from the top points ``points`` (N, 2) at heights
     ``tops`` (N,) above the bottom whose rays, refracted out of the flat bottom and traced by the
@@ -244,7 +246,7 @@ class TransportStart(Start):
             metrics["transport_volume_ratio"] = float(d.sum() * problem.grid.cell_area / problem.data.volume)
         return StartResult(torch.from_numpy(d).to(problem.operator.dtype), metrics, self.name, shaped=True)
 
-    def _plan(self, problem: Any, path: LightPath, arrivals: Any, mask: np.ndarray, deadline: float | None) -> Any:
+    def _plan(self, problem: Any, path: ImageOperator, arrivals: Any, mask: np.ndarray, deadline: float | None) -> Any:
         """Steps 1-3: the masked region's flat-glass light, the goal, and the transport between them
         (its Newton stopped at ``deadline``, a ``time.perf_counter()`` value, if it comes first)."""
         operator, grid, scene, data = problem.operator, problem.grid, problem.scene, problem.data
@@ -279,7 +281,7 @@ class TransportStart(Start):
         return semi_discrete_transport(source + floor, -half, half, np.stack([rx[lit], ry[lit]], axis=1), goal[lit],
                                        self.mass_tolerance, deadline)
 
-    def _heights(self, problem: Any, path: LightPath, arrivals: Any, mask: np.ndarray, plan: Any,
+    def _heights(self, problem: Any, path: ImageOperator, arrivals: Any, mask: np.ndarray, plan: Any,
                  bounds: Any) -> tuple[np.ndarray, np.ndarray]:
         """Steps 4-5: the heights (m, m) that send each masked sample's light to its goal point,
         and each sample's landing error (scene units; NaN where its light is lost)."""
