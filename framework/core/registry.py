@@ -15,8 +15,9 @@ A leaf module: it imports nothing of this project. Plugins come from two places:
 Kinds (what a plugin of each kind is, docs/plugins.md):
 ``operator``, ``solver``, ``regularizer``, ``post_step``, ``step_size``, ``preconditioner``,
 ``stopping``, ``data``, ``initial`` (the start of the iteration) and ``design`` (the solver of a
-caustic-design method, ``sfc-design``'s ``design_method.solver``) and ``representation`` (the heights
-as a function of the parameters a solver fits, framework/core/contracts/representation.py).
+caustic-design method, ``sfc-design``'s ``design_method.solver``), ``representation`` (the heights
+as a function of the parameters a solver fits, framework/core/contracts/representation.py) and
+``stage`` (a feature every reconstruction runs after its solve, framework/core/contracts/stage.py).
 """
 
 from __future__ import annotations
@@ -28,7 +29,7 @@ from collections.abc import Callable
 T = TypeVar("T")
 
 KINDS: tuple[str, ...] = ("operator", "solver", "regularizer", "post_step", "step_size", "preconditioner",
-                          "stopping", "data", "initial", "design", "representation")
+                          "stopping", "data", "initial", "design", "representation", "stage")
 ENTRY_POINT_PREFIX = "shape_from_caustics."
 
 _registered: dict[str, dict[str, Any]] = {kind: {} for kind in KINDS}

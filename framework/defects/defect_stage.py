@@ -1,5 +1,6 @@
 """The defect report of a run whose data carry the print's design (docs/method.md, "Defects against
-the design"; the parts in framework/defects/).
+the design"; the parts in framework/defects/), a stage of the run (:class:`DefectStage`,
+framework/core/contracts/stage.py).
 
 After the run: the uncertainty of every height sample (framework/defects/information.py), the
 evidence a defect needs (:func:`evidence_needed`), then the defects found one after another
@@ -12,6 +13,7 @@ defects.json, defects.csv, defects.png, defect_sigma_mm.npy; returns ``defects_*
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -19,15 +21,19 @@ from typing import Any
 import numpy as np
 import torch
 
+from framework.core.contracts.stage import RunStage, SolvedRun, StageReport
 from framework.core.plugin_config import as_mapping
 from framework.core.problem import Problem
+from framework.core.progress import report
+from framework.scene.run_settings import carries_design
 from framework.defects.fit import Defect
-from framework.defects.information import column_norms, height_uncertainty, pixel_noise, pixels_used
+from framework.core.pixel_noise import pixel_noise, pixels_used
+from framework.defects.information import column_norms, height_uncertainty
 from framework.defects.pursuit import Search, find_defects
 from framework.defects.report import defect_lines, kind_counts, save_defect_figure, save_defect_table
 from operators.values import checked_number, checked_whole
 
-__all__ = ["DefectSettings", "DefectReport", "evidence_needed", "report_defects"]
+__all__ = ["DefectSettings", "DefectReport", "DefectStage", "evidence_needed", "report_defects"]
 
 ENABLED = ("auto", "on", "off")
 
@@ -164,12 +170,43 @@ def report_defects(problem: Problem, d: torch.Tensor, settings: DefectSettings, 
     found, tried = find_defects(d, at_d, design, mask, z_map, misfit, noise, search, norms.double().cpu().numpy())
     defects = [defect for defect in found if not settings.within_tolerance(defect)]
     within = len(found) - len(defects)
-    report = DefectReport(defects, deviation * mm_per_unit, sigma.double().cpu().numpy() * mm_per_unit, tried, needed,
-                          within, defect_lines(defects, needed, within, settings.tolerance, settings.tolerance_mm))
-    save_defect_table(output_dir, defects, settings, report.metrics())
-    np.save(output_dir / "defect_sigma_mm.npy", report.sigma_mm.astype(np.float32))
-    save_defect_figure(output_dir / "defects.png", report.deviation_mm, design.double().cpu().numpy() * mm_per_unit,
-                       defects, grid.half_width * mm_per_unit, needed)
-    for line in report.lines:
+    found_report = DefectReport(defects, deviation * mm_per_unit, sigma.double().cpu().numpy() * mm_per_unit, tried,
+                                needed, within,
+                                defect_lines(defects, needed, within, settings.tolerance, settings.tolerance_mm))
+    save_defect_table(output_dir, defects, settings, found_report.metrics())
+    np.save(output_dir / "defect_sigma_mm.npy", found_report.sigma_mm.astype(np.float32))
+    save_defect_figure(output_dir / "defects.png", found_report.deviation_mm,
+                       design.double().cpu().numpy() * mm_per_unit, defects, grid.half_width * mm_per_unit, needed)
+    for line in found_report.lines:
         print(f"verdict: {line}", flush=True)
-    return report
+    return found_report
+
+
+class DefectStage(RunStage):
+    """The defect report against the design the data carry, after the run's verdict; a stack of
+    photos is told that it reads one photo, and a run that fitted beads leaves it to the tracks'
+    stage (framework/tracks/track_stage.py)."""
+
+    order = 30
+
+    def __init__(self, settings: DefectSettings) -> None:
+        self.settings = settings
+
+    @classmethod
+    def from_config(cls, cfg: Mapping[str, Any]) -> DefectStage | None:
+        settings = DefectSettings.parse(cfg.get("defects"))
+        if settings.enabled == "on" and not carries_design(cfg):
+            raise ValueError("defects.enabled=on needs the print's design: give height_field.path (the design) with "
+                             "data=file or data=photo, or data.printed with synthetic data; or defects.enabled=auto")
+        return None if settings.enabled == "off" else cls(settings)
+
+    def report(self, run: SolvedRun) -> StageReport:
+        data = run.problem.data
+        if data.design is None or run.beads_fitted:
+            return StageReport()
+        if data.shots:
+            print("no defect report: it reads one photo; reconstruct a single shot for it", flush=True)
+            return StageReport()
+        report("reconstruction: the defect report against the design")
+        found = report_defects(run.problem, run.heights, self.settings, run.seed, run.mm_per_unit, run.output_dir)
+        return StageReport(found.metrics(), found.lines)

@@ -12,7 +12,6 @@ screen, small where it is focused. The column norms come from Rademacher probes 
 
 from __future__ import annotations
 
-import math
 
 import torch
 import torch.nn.functional as F
@@ -20,7 +19,7 @@ import torch.nn.functional as F
 from operators.image_operator import ImageOperator
 from operators.values import checked_whole
 
-__all__ = ["column_norms", "pixel_noise", "pixels_used", "height_uncertainty"]
+__all__ = ["column_norms", "height_uncertainty"]
 
 
 def column_norms(operator: ImageOperator, d: torch.Tensor, weights: torch.Tensor | None, probes: int, seed: int,
@@ -52,25 +51,6 @@ def column_norms(operator: ImageOperator, d: torch.Tensor, weights: torch.Tensor
         squares = F.avg_pool2d(squares[None, None], size, stride=1, padding=smoothing_px,
                                count_include_pad=False)[0, 0]
     return squares.sqrt()
-
-
-def pixels_used(target: torch.Tensor, weights: torch.Tensor | None) -> int:
-    """The number of pixels the fit uses (weight > 0; all of ``target``'s without weights)."""
-    return target.numel() if weights is None else int((weights > 0).sum())
-
-
-def pixel_noise(target: torch.Tensor, delta: float, weights: torch.Tensor | None) -> float:
-    """The standard deviation s of white pixel noise whose norm is ``delta`` ||b||_W over the pixels
-    the fit uses (weight > 0): s = delta ||b||_W / sqrt(count)."""
-    if not (math.isfinite(delta) and delta > 0.0):
-        raise ValueError(f"delta={delta!r} must be a positive noise level, e.g. 0.05")
-    squares = target.double() ** 2
-    if weights is None:
-        return delta * math.sqrt(float(squares.sum()) / squares.numel())
-    count = pixels_used(target, weights)
-    if count == 0:
-        raise ValueError("every pixel has weight 0; the photo leaves nothing to fit")
-    return delta * math.sqrt(float((squares * weights.double()).sum()) / count)
 
 
 def height_uncertainty(norms: torch.Tensor, noise: float, cap: float) -> torch.Tensor:

@@ -15,23 +15,24 @@ import torch
 from framework.core.contracts.data_source import DataRequest, DataSource, ShotStack
 from operators.image_operator import ImageOperator
 from framework.core.contracts.solver import SolverBuilder
+from framework.core.contracts.stage import RunStage
 from framework.core.contracts.start import Start
 from framework.core.contracts.stopping import StoppingRule
 from framework.core.plugin_config import as_mapping, build_plugin, plugin_class, split_name
+from framework.core.registry import available
 from framework.core.problem import HeightGrid, Problem
-from framework.defects.defect_stage import DefectSettings
 from framework.files.image_io import resolve_path
 from framework.lab.calibration import JointCalibration
 from framework.reconstruction.coarse_to_fine import CoarseToFineSettings
 from framework.reconstruction.run_checks import (check_tracking_target, check_volume, check_volume_known,
                                                  checked_resume, height_bounds)
 from framework.reconstruction.run_identity import run_fingerprint
-from framework.scene.run_settings import RunSettings, design_given, stack_shots
+from framework.scene.run_settings import RunSettings, carries_design
 from framework.scene.scene_config import SceneSetup
 from operators.scene import Scene
 from operators.values import checked_whole
 
-__all__ = ["Reconstruction", "build_start", "build_stopping"]
+__all__ = ["Reconstruction", "build_stages", "build_start", "build_stopping"]
 
 
 def build_start(spec: Any) -> Start:
@@ -66,7 +67,7 @@ class Reconstruction:
         max_iter: The solver's iteration cap.
         fingerprint: What determines the result (framework/reconstruction/run_identity.py), stored in checkpoints.
         calibration: Joint calibration of the setup (framework/lab/calibration.py), or None.
-        defects: The defect report's settings.
+        stages: The run's stages after the solve (framework/core/contracts/stage.py), in order.
         coarse_to_fine: The coarser grids each start is solved on first
             (framework/reconstruction/coarse_to_fine.py).
     """
@@ -80,7 +81,7 @@ class Reconstruction:
     max_iter: int
     fingerprint: dict[str, str]
     calibration: JointCalibration | None = None
-    defects: DefectSettings = field(default_factory=DefectSettings)
+    stages: list[RunStage] = field(default_factory=list)
     coarse_to_fine: CoarseToFineSettings = field(default_factory=CoarseToFineSettings)
     _designs: dict[str, torch.Tensor] = field(default_factory=dict, repr=False)
 
@@ -143,20 +144,17 @@ class Reconstruction:
             raise ValueError(f"coarse_to_fine.levels={coarse_to_fine.levels} reads one photo; a stack of shots "
                              "runs on its own grid: set coarse_to_fine.levels=1")
         regularizers = (cfg.get("solver") or {}).get("regularizers") or {}
-        if "l1_design" in regularizers and not _has_design(cfg):
+        if "l1_design" in regularizers and not carries_design(cfg):
             raise ValueError("solver.regularizers.l1_design (experiment=design) needs the print's design: give "
                              "height_field.path (the design) with data=file or data=photo, or data.printed (the print) "
                              "with synthetic data")
-        defects = DefectSettings.parse(cfg.get("defects"))
-        if defects.enabled == "on" and not _has_design(cfg):
-            raise ValueError("defects.enabled=on needs the print's design: give height_field.path (the design) with "
-                             "data=file or data=photo, or data.printed with synthetic data; or defects.enabled=auto")
-        if start.reads_design and len(start.phases()) == 1 and not _has_design(cfg):
+        stages = build_stages(cfg)
+        if start.reads_design and len(start.phases()) == 1 and not carries_design(cfg):
             raise ValueError(f"initial={start.name} reads the print's design, and synthetic data of the configured "
                              "height field carry none (those heights are the answer): give data.printed=<print> "
                              "(the configured field is then its design), or choose initial=transport, zero or file")
         return cls(settings, setup, data_source, make_solver, stopping, start, max_iter,
-                   run_fingerprint(cfg, base_dir), calibration, defects, coarse_to_fine)
+                   run_fingerprint(cfg, base_dir), calibration, stages, coarse_to_fine)
 
     def check(self, base_dir: Path, output_dir: Path) -> Path | None:
         """Everything a run needs that the plugins' configs alone do not show, checked without a
@@ -182,15 +180,12 @@ class Reconstruction:
                            self.settings.seed, base_dir, output_dir, self.settings.mm_per_unit)
 
 
-def _has_design(cfg: Mapping[str, Any]) -> bool:
-    """Whether the run's data will carry the print's design: synthetic data of another print
-    (data.printed; for a stack, on a synthetic shot), or measured data with a design
-    (framework/scene/run_settings.py)."""
-    data = cfg.get("data") or {}
-    if data.get("name") == "stack":
-        synthetic = [shot for shot in stack_shots(data) if shot.get("source", "synthetic") == "synthetic"]
-        if synthetic:
-            return any(bool(shot.get("printed")) for shot in synthetic)
-    elif data.get("name") == "synthetic":
-        return bool(data.get("printed"))
-    return design_given(cfg)
+def build_stages(cfg: Mapping[str, Any]) -> list[RunStage]:
+    """Every installed stage (kind ``stage``) that has something to do in a run of ``cfg``, by order."""
+    built = []
+    for name in available("stage"):
+        stage = plugin_class("stage", name)
+        if not issubclass(stage, RunStage):
+            raise ValueError(f"plugin stage/{name} does not derive from framework.core.contracts.stage.RunStage")
+        built.append(stage.from_config(cfg))
+    return sorted((stage for stage in built if stage is not None), key=lambda stage: stage.order)

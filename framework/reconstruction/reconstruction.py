@@ -19,14 +19,13 @@ import torch
 from framework.core.callbacks import Checkpointer, GroundTruthError, MetricsHistory, ProgressBar
 from framework.core.checkpoint import resume as resume_solver
 from operators.image_operator import ImageOperator
+from framework.core.contracts.stage import Refit, SolvedRun
 from framework.core.contracts.start import Start, StartRequest, StartResult
 from framework.core.objective import DataFidelity
 from framework.core.problem import Problem
 from framework.core.progress import report
 from framework.core.solver_loop import Callback, RunResult, returned_iterate
-from framework.defects.defect_stage import report_defects
 from framework.files.image_io import resolve_path
-from framework.reconstruction.ambiguity_stage import check_ambiguity
 from framework.reconstruction.coarse_to_fine import coarser_problem, resample_heights
 from framework.reconstruction.feature_search import FeatureSearch, SearchedLines
 from framework.reconstruction.parts import Reconstruction
@@ -39,7 +38,6 @@ from framework.reconstruction.verdict import volume_report
 from framework.stack.first_fit import fit_first_shot
 from framework.stack.shot_report import save_shot_record, shot_metrics
 from framework.tracking.mlflow_tracker import MlflowTracker, local_store_uri
-from framework.tracks.track_report import fitted_tracks, report_tracks, track_tolerances, tracks_verdict
 
 CALIBRATION_STATE = "calibration.json"
 # Photons per shot and hypothesis of a stack's line search (framework/reconstruction/feature_search.py).
@@ -170,6 +168,21 @@ def _solve_from(parts: Reconstruction, problem: Problem, name: str, start: Start
                         start_seconds, start_metrics, truth_error.errors(d) if truth_error else {})
 
 
+def _refit(parts: Reconstruction, problem: Problem) -> Refit:
+    """The run's own solver, stopping rules and photon budget from other heights (a stage's refit,
+    framework/core/contracts/stage.py)."""
+    def fit(d0: torch.Tensor, label: str) -> tuple[torch.Tensor, float, bool]:
+        solver = parts.make_solver(problem, d0)
+        solver.begin_from_shaped_start()
+        stopping = parts.fresh_stopping(problem)
+        budget = photon_budget(parts, problem)
+        result = solver.run(parts.max_iter, [*stopping, *([budget] if budget else []),
+                                             ProgressBar(desc=f"{parts.settings.method} from {label}")])
+        d, _ = returned_iterate(result, stopping)
+        return d, problem.fidelity.relative_discrepancy(problem.operator.render(d)), result.stopped_by != "max_iter"
+    return fit
+
+
 def run_reconstruction(cfg: Mapping[str, Any], output_dir: Path, base_dir: Path,
                        sweep_id: str | None = None) -> dict[str, Any]:
     """Reconstruct the configured scene into ``output_dir``; returns the metrics written to metrics.json."""
@@ -281,11 +294,11 @@ def _reconstruct(parts: Reconstruction, output_dir: Path, base_dir: Path, checkp
         accepted = [o for o in finished if o.result.accepted]
         chosen = accepted[-1] if accepted else min(finished, key=lambda o: o.rel_discrepancy)
         result, d = chosen.result, chosen.d
-        tracks = fitted_tracks(result.fitted)
-        ambiguity = None
-        if tracks is None and data.design is None:  # a free grid, no design to count beads
-            ambiguity = check_ambiguity(parts, problem, d, output_dir)
-            d = d if ambiguity is None else ambiguity.heights.to(d)
+        solved = SolvedRun(problem, d, result.fitted, _refit(parts, problem), cfg, settings.mm_per_unit,
+                           settings.seed, settings.tau_dis, output_dir)
+        for stage in parts.stages:
+            revised = stage.revise(solved)
+            d = solved.heights = d if revised is None else revised
         final = final_operator(parts, result)
         prediction = final.render(d)
         volume = volume_report(d, data.volume, parts.grid.cell_area)
@@ -310,29 +323,11 @@ def _reconstruct(parts: Reconstruction, output_dir: Path, base_dir: Path, checkp
         metrics.update(report_verdict(metrics["rel_discrepancy"], data, settings.tau_dis, chosen.returned_iteration,
                                       result.stop_reason, volume, shots,
                                       calibration.never_updated() if calibration else ()))
-        if ambiguity is not None:
-            metrics.update(ambiguity.metrics())
-            for line in ambiguity.lines():
-                print(f"verdict: {line}", flush=True)
-                metrics["verdict"] += " " + line
-        reports_defects = (data.design is not None or tracks is not None) and parts.defects.enabled != "off"
-        if tracks is not None:
-            lines = tracks_verdict(tracks[0], tracks[1], output_dir)
-            for line in lines:
-                print(f"verdict: {line}", flush=True)
-            metrics["verdict"] += " " + " ".join(lines)
-        if reports_defects and tracks is not None:
-            report("reconstruction: the defects read from the tracks")
-            track_report = report_tracks(problem, tracks[0], tracks[1], track_tolerances(parts.defects), output_dir)
-            metrics.update(track_report.metrics())
-            metrics["verdict"] += " " + " ".join(track_report.lines)
-        elif reports_defects and data.shots:
-            print("no defect report: it reads one photo; reconstruct a single shot for it", flush=True)
-        elif reports_defects:
-            report("reconstruction: the defect report against the design")
-            defects = report_defects(problem, d, parts.defects, settings.seed, settings.mm_per_unit, output_dir)
-            metrics.update(defects.metrics())
-            metrics["verdict"] += " " + " ".join(defects.lines)
+        for stage in parts.stages:
+            added = stage.report(solved)
+            metrics.update(added.metrics)
+            if added.lines:
+                metrics["verdict"] += " " + " ".join(added.lines)
         (output_dir / "metrics.json").write_text(json.dumps(metrics, indent=2))
         save_reconstruction_figures(output_dir, d, problem, prediction, chosen.history, truth)
         tracker.log_metrics({k: float(v) for k, v in metrics.items() if isinstance(v, (int, float)) and v is not None},

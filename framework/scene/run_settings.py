@@ -19,7 +19,7 @@ from framework.core.units import mm_per_unit
 from framework.scene.scene_config import to_plain
 from operators.values import checked_number, checked_whole
 
-__all__ = ["PhotonBudgetSettings", "RunSettings", "TrackingSettings", "design_given", "stack_shots"]
+__all__ = ["PhotonBudgetSettings", "RunSettings", "TrackingSettings", "carries_design", "design_given", "stack_shots"]
 
 
 def stack_shots(data: Mapping[str, Any]) -> list[dict[str, Any]]:
@@ -44,6 +44,20 @@ def design_given(cfg: Mapping[str, Any]) -> bool:
     initial = cfg.get("initial") or {}
     return bool((cfg.get("height_field") or {}).get("path")) or data.get("mask") == "design" or (
         isinstance(initial, Mapping) and initial.get("name") == "design")
+
+
+def carries_design(cfg: Mapping[str, Any]) -> bool:
+    """Whether the run's data will carry the print's design: synthetic data of another print
+    (data.printed; for a stack, on a synthetic shot), or measured data with a design
+    (framework/scene/run_settings.py)."""
+    data = cfg.get("data") or {}
+    if data.get("name") == "stack":
+        synthetic = [shot for shot in stack_shots(data) if shot.get("source", "synthetic") == "synthetic"]
+        if synthetic:
+            return any(bool(shot.get("printed")) for shot in synthetic)
+    elif data.get("name") == "synthetic":
+        return bool(data.get("printed"))
+    return design_given(cfg)
 
 
 @dataclass(frozen=True)

@@ -118,6 +118,8 @@ class TrackHeights(Representation):
         search: The global search's settings (framework/tracks/track_search.py).
     """
 
+    describes_beads = True
+
     def __init__(self, tracks: TrackSet, resolution: int, half_width: float, mm_per_unit: float,
                  settings: TrackSettings = TrackSettings(), dtype: torch.dtype = torch.float64,
                  source: str = "given", mask: np.ndarray | None = None,

@@ -21,7 +21,7 @@ import torch
 
 from framework.core.problem import Problem
 from framework.defects.fit import Defect
-from framework.defects.information import pixel_noise
+from framework.core.pixel_noise import pixel_noise
 from framework.defects.report import defect_lines, kind_counts, save_defect_figure, save_defect_table
 from framework.tracks.track_defects import (KnotRun, TrackTolerances, drop_defects, gap_defects, placed_drop_defects,
                                            track_defects)

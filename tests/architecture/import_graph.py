@@ -99,14 +99,14 @@ def cycles(graph: dict[str, set[str]]) -> list[list[str]]:
 
 # The rooms of framework/. Shared rooms by level, lowest first: a module imports from its own room
 # and from shared rooms of a lower level. A feature imports the shared rooms and, of the other
-# features, only those FEATURE_USES names (the reconstruction composes the photo workflow, the
-# stack, the defect report, the tracks and the tracker; the design is tracked; tracks report defects).
+# features, only those FEATURE_USES names (the reconstruction composes the photo workflow's
+# calibration, the stack and the tracker; the defect report and the tracks join it as stages,
+# framework/core/contracts/stage.py; the design is tracked; tracks report defects).
 SHARED = {"framework.core": 0, "framework.files": 1, "framework.scene": 2, "framework.data": 2,
           "framework.optimization": 2, "framework.representations": 2}
 FEATURES = ("framework.reconstruction", "framework.design", "framework.lab", "framework.stack",
             "framework.defects", "framework.tracking", "framework.tracks")
-FEATURE_USES = {"framework.reconstruction": {"framework.lab", "framework.stack", "framework.defects",
-                                             "framework.tracking", "framework.tracks"},
+FEATURE_USES = {"framework.reconstruction": {"framework.lab", "framework.stack", "framework.tracking"},
                 "framework.design": {"framework.tracking"},
                 "framework.tracks": {"framework.defects"}}
 

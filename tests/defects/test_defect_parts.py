@@ -13,7 +13,8 @@ from experiments.reproduce_defects import match, size_error, write_outputs
 from framework.core.contracts.checks import check_regularizer
 from framework.scene.design_mesh import heights_from_mesh
 from framework.scene.printed_shapes import make_shape
-from framework.defects.information import column_norms, height_uncertainty, pixel_noise
+from framework.core.pixel_noise import pixel_noise
+from framework.defects.information import column_norms, height_uncertainty
 from framework.defects.models import DROP_ASPECT, Frame, apply_model, drop_volume
 from framework.defects.regions import candidate_regions
 from framework.files.mm_outputs import glass_mesh

@@ -15,7 +15,7 @@ import pytest
 from experiments.defect_prints import apply_defect, feature_sites
 from framework.core.problem import Problem
 from framework.scene.scene_config import build_heights
-from framework.defects.defect_stage import report_defects
+from framework.defects.defect_stage import DefectSettings, report_defects
 from framework.reconstruction.reconstruction import run_reconstruction
 from framework.reconstruction.parts import Reconstruction
 from tests.experiments.conftest import compose_reconstruct
@@ -132,7 +132,7 @@ def test_a_drop_that_focuses_before_the_screen_is_found_from_the_photo(tmp_path)
     parts = Reconstruction.from_config(cfg, tmp_path)
     data = parts.data_source.load(parts.data_request(tmp_path, tmp_path / "data")).without_truth()
     problem = Problem(parts.operator, data, parts.grid, parts.scene)
-    report = report_defects(problem, data.design, parts.defects, 0, 25.0, tmp_path)
+    report = report_defects(problem, data.design, DefectSettings.parse(cfg.get("defects")), 0, 25.0, tmp_path)
     assert [defect.kind for defect in report.defects] == ["excess"]
     found = report.defects[0]
     assert np.hypot(found.x_mm - planned.x_mm, found.y_mm - planned.y_mm) <= CELL_MM

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import torch
 
-from framework.reconstruction.ambiguity_stage import AmbiguitySettings
+from framework.tracks.ambiguity_stage import AmbiguitySettings
 from framework.tracks.ambiguity import APART, BEAD_WIDTHS, SCREENED, bead_between, undecided_beads
 from framework.tracks.from_design import skeleton_tracks
 from framework.tracks.track_heights import TrackHeights, TrackSettings

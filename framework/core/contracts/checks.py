@@ -45,6 +45,7 @@ import torch
 from framework.core.contracts.data_source import DataRequest, DataSource
 from framework.core.contracts.representation import Representation
 from framework.core.contracts.solver import SolverBuilder
+from framework.core.contracts.stage import RunStage
 from framework.core.contracts.start import Start, StartRequest
 from framework.core.contracts.stopping import StoppingRule
 from framework.core.data import ReconstructionData
@@ -85,7 +86,7 @@ def _require(condition: bool, who: str, what: str) -> None:
 # bases in framework/optimization/, checked by tests/test_plugin_contracts.py).
 BASES: dict[str, type] = {"operator": ImageOperator, "data": DataSource, "initial": Start, "solver": IterativeSolver,
                           "design": IterativeSolver, "stopping": StoppingRule, "regularizer": Regularizer,
-                          "post_step": PostStepUpdate, "representation": Representation}
+                          "post_step": PostStepUpdate, "representation": Representation, "stage": RunStage}
 
 
 def check_base(kind: str, name: str, base: type | None = None) -> None:

@@ -14,7 +14,7 @@ from __future__ import annotations
 from abc import ABC, abstractmethod
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -55,11 +55,14 @@ class Representation(Plugin, ABC):
         shape: (m, m), the heights' grid.
         size: p, the number of parameters.
         dtype: The parameters' and heights' dtype.
+        describes_beads: True where the parameters are beads along tracks (their count is then
+            the fit's, not a question for the run's stages; framework/core/contracts/stage.py).
     """
 
     shape: tuple[int, int]
     size: int
     dtype: torch.dtype = torch.float64
+    describes_beads: ClassVar[bool] = False
 
     @abstractmethod
     def initial(self) -> Tensor:

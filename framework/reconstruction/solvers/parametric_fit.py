@@ -28,7 +28,7 @@ from framework.core.contracts.solver import SolverBuilder
 from framework.core.objective import DataFidelity
 from framework.core.plugin_config import build_plugin, split_name
 from framework.core.solver_loop import IterationFailed, IterationRecord, IterativeSolver
-from framework.defects.information import pixel_noise
+from framework.core.pixel_noise import pixel_noise
 from framework.optimization.quasi_newton import LbfgsMemory
 from framework.optimization.step_size import LineSearchFailed, backtrack
 from framework.core.contracts.representation import Representation, SearchContext
