@@ -93,7 +93,7 @@ class RunStage(Plugin, ABC):
 
     @classmethod
     @abstractmethod
-    def from_config(cls, cfg: Mapping[str, Any]) -> RunStage | None:  # type: ignore[override]
+    def from_config(cls, cfg: Mapping[str, Any]) -> RunStage | None:
         """The stage for a run of ``cfg`` (its own group checked; a bad value is a ValueError in one
         line), or None where it has nothing to do in such a run."""
 
