@@ -7,7 +7,7 @@ import contextlib
 from collections.abc import Iterator
 from pathlib import Path
 
-from experiments.mlflow_server import serve
+from experiments.apps.mlflow_server import serve
 
 
 @contextlib.contextmanager

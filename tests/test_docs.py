@@ -6,7 +6,7 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
-from experiments.config_reference import Key, config_keys, main
+from experiments.apps.config_reference import Key, config_keys, main
 
 ROOT = Path(__file__).resolve().parents[1]
 # Where the public classes and functions of the contracts, operators, regularisers and solvers live

@@ -19,7 +19,8 @@ TINY = ["photons=20000", "receiver.resolution=64", "height_field.resolution=32",
 
 
 def run_app(args: list[str], cwd: Path, console_script: bool = True) -> subprocess.CompletedProcess[str]:
-    command = [str(SCRIPT)] if console_script and SCRIPT.exists() else [sys.executable, "-m", "experiments.simulate"]
+    command = ([str(SCRIPT)] if console_script and SCRIPT.exists()
+               else [sys.executable, "-m", "experiments.apps.simulate"])
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     return subprocess.run(command + args, cwd=cwd, env=env, capture_output=True, text=True, timeout=120)
 

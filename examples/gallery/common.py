@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 from matplotlib.figure import Figure
 
-from experiments.configs import app_config
+from experiments.apps.configs import app_config
 from framework.reconstruction.reconstruction import run_reconstruction
 
 # A small problem that still runs the real operator: 64 x 64 heights and receiver pixels.

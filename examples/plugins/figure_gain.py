@@ -15,7 +15,7 @@ from pathlib import Path
 
 from matplotlib.figure import Figure
 
-from experiments.mlflow_store import artifact, latest_runs, reproduction_parser, run_sweep, tracking_store
+from experiments.paper.mlflow_store import artifact, latest_runs, reproduction_parser, run_sweep, tracking_store
 
 EXPERIMENT = "shadow-gain"
 GAINS = (1.0, 4.0)

@@ -2,7 +2,7 @@
 -> its solver within the time budget -> the nearest printable design -> its caustic rendered
 independently at the design distance and the preview distances -> files, verdict, MLflow.
 
-Used by ``sfc-design`` (experiments/design.py). The methods (config group ``design_method``): ``sfc``
+Used by ``sfc-design`` (experiments/apps/design.py). The methods (config group ``design_method``): ``sfc``
 (the transport design, then L-BFGS on the differentiable operator), ``schwartzburg`` (the
 transport design alone) and ``adam`` (Adam from flat glass, the Mitsuba 3 tutorial's method).
 """
@@ -234,7 +234,7 @@ def design_verdict(metrics: Mapping[str, float], setup: DesignSetup, stop_reason
     lines = [f"matches the target to {metrics['relative_l2']:.1%} (relative L2 after energy normalisation), "
              f"SSIM {metrics['ssim']:.2f}, rendered independently of the design's photons (the exact wavefront "
              "renderer, or fresh photons through optical elements), which shares the model's surface and its walls' "
-             "optics; the glass as cut, traced ray by ray through glass.stl: python -m experiments.trace_design",
+             "optics; the glass as cut, traced ray by ray through glass.stl: python -m experiments.paper.trace_design",
              _edge_line(setup),
              f"max slope {metrics['printed_max_slope']:.3f} within {c.max_slope:g}; heights 0 to "
              f"{metrics['printed_max_height'] * mm:.3f} mm within {c.max_height * mm:.3g} mm"]

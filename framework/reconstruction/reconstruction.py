@@ -1,7 +1,7 @@
 """One reconstruction, end to end: its parts built by key (framework/reconstruction/parts.py),
 then data -> problem -> solver -> outputs, tracked in MLflow.
 
-Used by ``sfc-reconstruct`` (experiments/reconstruct.py); kept here so that the app stays thin
+Used by ``sfc-reconstruct`` (experiments/apps/reconstruct.py); kept here so that the app stays thin
 and tests can run a reconstruction without Hydra's command line.
 """
 

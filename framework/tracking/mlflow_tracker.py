@@ -115,7 +115,7 @@ def _git(root: Path, *args: str) -> str | None:
 
 
 def entry_point() -> str:
-    """The running program: the module of ``python -m`` (e.g. ``experiments.reconstruct``), else the
+    """The running program: the module of ``python -m`` (e.g. ``experiments.apps.reconstruct``), else the
     script's file name (e.g. ``sfc-reconstruct``), else "unknown"."""
     spec = getattr(sys.modules.get("__main__"), "__spec__", None)
     if spec is not None and spec.name:

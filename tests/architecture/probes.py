@@ -25,7 +25,7 @@ OTHER_LIBRARIES = {
     ("framework/tracking/mlflow_tracker.py", "reason"): "a urllib error's reason (absent on some errors)",
     ("operators/heightfield/trace_cuda.py", "ENABLE_CUDASIM"): "numba's configuration (absent in old releases)",
     ("operators/heightfield/trace_cuda.py", "implementation"): "numba.cuda's driver (absent without CUDA)",
-    ("experiments/export.py", "problem_mark"): "a YAML error's position (absent on some errors)",
+    ("experiments/apps/export.py", "problem_mark"): "a YAML error's position (absent on some errors)",
 }
 
 

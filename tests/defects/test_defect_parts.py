@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 import torch
 
-from experiments.defect_prints import apply_defect, feature_sites
-from experiments.reproduce_defects import match, size_error, write_outputs
+from experiments.paper.defect_prints import apply_defect, feature_sites
+from experiments.paper.reproduce_defects import match, size_error, write_outputs
 from framework.core.contracts.checks import check_regularizer
 from framework.scene.design_mesh import heights_from_mesh
 from framework.scene.printed_shapes import make_shape
@@ -82,7 +82,7 @@ def test_candidates_keep_peaks_and_merge_near_parts() -> None:
 
 
 def test_the_uncertainty_is_larger_where_the_caustic_sees_less_and_shrinks_with_the_noise(tmp_path) -> None:
-    from experiments.configs import reconstruct_config
+    from experiments.apps.configs import reconstruct_config
     from framework.reconstruction.parts import Reconstruction
 
     cfg = reconstruct_config([f"height_field.resolution={M}", "receiver.resolution=64", "photons=262144"])

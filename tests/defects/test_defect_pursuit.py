@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 import torch
 
-from experiments.defect_prints import apply_defect, feature_sites
+from experiments.paper.defect_prints import apply_defect, feature_sites
 from framework.scene.printed_shapes import make_shape
 from framework.defects.fit import Defect, Fit, fit_candidate, frame_of
 from framework.defects.models import apply_model

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from experiments.defect_prints import apply_defect, feature_sites
+from experiments.paper.defect_prints import apply_defect, feature_sites
 from framework.core.problem import Problem
 from framework.scene.scene_config import build_heights
 from framework.defects.defect_stage import DefectSettings, report_defects

@@ -155,7 +155,7 @@ def test_bad_input_is_refused_in_one_line_before_any_run_opens(tmp_path, overrid
 
 
 def test_the_command_line_says_it_in_one_line_and_opens_no_run(tmp_path):
-    proc = subprocess.run([sys.executable, "-m", "experiments.design", *SMALL, "target.image=missing.png",
+    proc = subprocess.run([sys.executable, "-m", "experiments.apps.design", *SMALL, "target.image=missing.png",
                            f"tracking.store_dir={tmp_path / 'mlruns'}", f"hydra.run.dir={tmp_path / 'run'}"],
                           cwd=tmp_path, env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin"},
                           capture_output=True, text=True, timeout=300)

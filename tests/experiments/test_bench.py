@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 import torch
 
-from experiments.bench import main
-from experiments.bench_scale import growth_exponent
+from experiments.benchmarks.bench import main
+from experiments.benchmarks.bench_scale import growth_exponent
 from tests.python_subprocess import run_json_script
 
 
@@ -180,7 +180,7 @@ def test_the_scale_section_alone_times_every_size_and_stack_in_its_own_process(c
 # profile's bookkeeping runs in seconds, and every stage still does real, measurable work.
 PROFILE = """
 import json, numba, torch
-from experiments.bench import make_operator, heights_print_lines, profile_stages
+from experiments.benchmarks.bench import make_operator, heights_print_lines, profile_stages
 op = make_operator(2000, 3.0, 1000)
 heights = heights_print_lines()
 print(json.dumps(profile_stages(op, heights, torch.zeros(op.output_shape), 300)))

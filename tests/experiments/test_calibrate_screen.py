@@ -1,4 +1,4 @@
-"""sfc-calibrate-screen (experiments/calibrate_screen.py): the screen's blur found by its profile on
+"""sfc-calibrate-screen (experiments/apps/calibrate_screen.py): the screen's blur found by its profile on
 honest data (the exact reference, blurred by the true width), the result files, reruns and verdicts."""
 
 from __future__ import annotations
@@ -7,8 +7,8 @@ import json
 
 import pytest
 
-import experiments.calibrate_screen as calibrate_screen
-from experiments.calibrate_screen import calibrate, main, verdict
+import experiments.apps.calibrate_screen as calibrate_screen
+from experiments.apps.calibrate_screen import calibrate, main, verdict
 
 PIXEL = 2.0 / 64  # the 64-pixel receiver's pixel, scene units
 TRUE_PX = 1.5

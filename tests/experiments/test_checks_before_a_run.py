@@ -21,8 +21,8 @@ import torch
 from omegaconf import OmegaConf
 from PIL import Image
 
-from experiments.input_errors import INPUT_ERRORS, one_line_input_errors
-from experiments.start_checks import CheckBeforeStart, check_launcher, sweep_jobs
+from experiments.apps.input_errors import INPUT_ERRORS, one_line_input_errors
+from experiments.apps.start_checks import CheckBeforeStart, check_launcher, sweep_jobs
 from framework.core.checkpoint import save_checkpoint
 from framework.lab.photo_synthesis import synthesize_photo
 from framework.reconstruction.reconstruction import run_reconstruction
@@ -224,7 +224,7 @@ def test_sweep_jobs_follow_the_basic_sweepers_order() -> None:
 
 @pytest.mark.slow
 def test_a_sweep_with_one_bad_value_starts_no_job(tmp_path) -> None:
-    done = subprocess.run([sys.executable, "-m", "experiments.reconstruct", "-m", *SMALL, "seed=0,1",
+    done = subprocess.run([sys.executable, "-m", "experiments.apps.reconstruct", "-m", *SMALL, "seed=0,1",
                            "data.delta=0.05,1.5", f"hydra.sweep.dir={tmp_path / 'sweep'}",
                            f"tracking.store_dir={tmp_path / 'mlruns'}"],
                           cwd=tmp_path, capture_output=True, text=True, timeout=300)

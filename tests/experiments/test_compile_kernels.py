@@ -1,4 +1,4 @@
-"""``sfc-compile-kernels`` (experiments/compile_kernels.py): its groups run, and a wrong group name is
+"""``sfc-compile-kernels`` (experiments/apps/compile_kernels.py): its groups run, and a wrong group name is
 refused in one line."""
 
 from __future__ import annotations
@@ -6,7 +6,7 @@ from __future__ import annotations
 import subprocess
 import sys
 
-from experiments import compile_kernels
+from experiments.apps import compile_kernels
 from operators.heightfield.precompile import gradient_kernel_cached
 from tests.python_subprocess import ROOT
 
@@ -20,7 +20,7 @@ def test_a_group_compiles_into_numbas_cache_and_exits_zero():
 
 def test_an_unknown_group_is_refused_in_one_line():
     done = subprocess.run(
-        [sys.executable, "-m", "experiments.compile_kernels", "lenses"],
+        [sys.executable, "-m", "experiments.apps.compile_kernels", "lenses"],
         cwd=ROOT,
         capture_output=True,
         text=True,

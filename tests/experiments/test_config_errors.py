@@ -1,4 +1,4 @@
-"""Mistyped overrides are explained in one line with the likely fix (experiments/config_errors.py)."""
+"""Mistyped overrides are explained in one line with the likely fix (experiments/apps/config_errors.py)."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import sys
 
 import pytest
 
-from experiments.config_errors import override_error
+from experiments.apps.config_errors import override_error
 
 MISTYPED = [
     ("design", ["target=my.png"], "target is a section of keys", "e.g. target.image=my.png"),
@@ -48,7 +48,7 @@ def test_overrides_that_compose_pass(config, overrides):
 
 
 def test_hydras_own_flags_are_left_to_hydra():
-    from experiments.config_errors import _overrides
+    from experiments.apps.config_errors import _overrides
 
     assert _overrides(["-m", "scene=a,b", "--cfg", "job", "x=1"]) is None  # prints the config, runs nothing
     assert _overrides(["-m", "scene=a,b", "--config-dir", "/mine", "x=1"]) is None  # a config of one's own
@@ -56,7 +56,7 @@ def test_hydras_own_flags_are_left_to_hydra():
 
 
 def test_the_command_exits_with_the_one_line_before_any_run(tmp_path):
-    done = subprocess.run([sys.executable, "-m", "experiments.reconstruct", "scene=print_line",
+    done = subprocess.run([sys.executable, "-m", "experiments.apps.reconstruct", "scene=print_line",
                            f"hydra.run.dir={tmp_path / 'run'}"], cwd=tmp_path, capture_output=True, text=True,
                           timeout=120)
     assert done.returncode == 1

@@ -1,5 +1,5 @@
 """The MLflow dashboard opened in headless Chromium on a tiny store made here: the pages render the
-runs and their metrics, and the screenshots are taken (experiments/dashboard_screenshots.py).
+runs and their metrics, and the screenshots are taken (experiments/paper/dashboard_screenshots.py).
 
 Without a Chromium binary the browser tests skip, unless SFC_REQUIRE_BROWSER=1 (CI sets it, after
 installing Debian's chromium), where they fail instead.
@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from experiments.dashboard_screenshots import (
+from experiments.paper.dashboard_screenshots import (
     check_page,
     chromium,
     metric_charts_url,
@@ -23,7 +23,7 @@ from experiments.dashboard_screenshots import (
     shoot,
     take_screenshots,
 )
-from experiments.mlflow_server import serve
+from experiments.apps.mlflow_server import serve
 from framework.tracking.mlflow_tracker import MlflowTracker
 
 PNG = b"\x89PNG\r\n\x1a\n"

@@ -15,7 +15,7 @@ import pytest
 import trimesh
 from omegaconf import OmegaConf
 
-from experiments.export import main
+from experiments.apps.export import main
 from framework.scene.printed_shapes import make_shape
 from tests.python_subprocess import ROOT
 
@@ -45,7 +45,7 @@ def box(value: float) -> np.ndarray:
 @pytest.mark.slow
 def test_export_of_a_synthetic_run_in_a_subprocess(tmp_path):
     run = fake_run(tmp_path / "run", box(0.04), box(0.05))
-    proc = subprocess.run([sys.executable, "-m", "experiments.export", str(run), "--format", "stl", "ply"],
+    proc = subprocess.run([sys.executable, "-m", "experiments.apps.export", str(run), "--format", "stl", "ply"],
                           cwd=tmp_path, env=dict(os.environ, PYTHONPATH=str(ROOT)), capture_output=True,
                           text=True, timeout=60)
     assert proc.returncode == 0, proc.stderr

@@ -1,4 +1,4 @@
-"""The lab workflow end to end on synthetic data with a known truth (experiments/reproduce_lab.py):
+"""The lab workflow end to end on synthetic data with a known truth (experiments/paper/reproduce_lab.py):
 a 16-bit photo with perspective, vignetting, gamma, black level, screen blur, saturation and
 noise, imported and reconstructed; and a screen distance 10% off, calibrated with the heights."""
 
@@ -6,8 +6,8 @@ from __future__ import annotations
 
 import pytest
 
-from experiments.mlflow_store import TrackingStore
-from experiments.reproduce_lab import calibration_study, photo_study
+from experiments.paper.mlflow_store import TrackingStore
+from experiments.paper.reproduce_lab import calibration_study, photo_study
 
 # A 2-core budget: 64 x 64 receiver and heights, 2^17 photons per iteration.
 SMALL = ["photons=131072", "receiver.resolution=64", "height_field.resolution=64", "solver.max_iter=60", "initial=zero",

@@ -14,7 +14,7 @@ from tests.experiments.conftest import SMALL
 @pytest.mark.slow
 def test_multirun_logs_one_grouped_mlflow_run_per_job(tmp_path):
     store = tmp_path / "mlruns"
-    cmd = [sys.executable, "-m", "experiments.reconstruct", "-m", "experiment=m1,m2v0", *SMALL,
+    cmd = [sys.executable, "-m", "experiments.apps.reconstruct", "-m", "experiment=m1,m2v0", *SMALL,
            "solver.max_iter=1", f"tracking.store_dir={store}", f"hydra.sweep.dir={tmp_path / 'sweep'}"]
     done = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
     assert done.returncode == 0, done.stderr[-2000:]

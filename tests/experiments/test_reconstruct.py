@@ -266,7 +266,8 @@ def test_stage_changes_come_from_the_records_whoever_asked_for_them():
 
 @pytest.mark.slow
 def test_the_app_refuses_a_bad_value_in_one_line(tmp_path):
-    done = subprocess.run([sys.executable, "-m", "experiments.reconstruct", *SMALL, "stopping.stagnation.patience=0",
+    done = subprocess.run([sys.executable, "-m", "experiments.apps.reconstruct", *SMALL,
+                           "stopping.stagnation.patience=0",
                            f"hydra.run.dir={tmp_path / 'run'}", f"tracking.store_dir={tmp_path / 'mlruns'}"],
                           cwd=tmp_path, capture_output=True, text=True, timeout=300)
     assert done.returncode == 1

@@ -1,4 +1,4 @@
-"""The held-out print of experiments/reproduce_ambiguity.py: three beads of circular section with
+"""The held-out print of experiments/paper/reproduce_ambiguity.py: three beads of circular section with
 their heights and chord widths, read back off the grid."""
 
 from __future__ import annotations
@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from experiments.reproduce_ambiguity import HELD_OUT, MM, held_out_print
+from experiments.paper.reproduce_ambiguity import HELD_OUT, MM, held_out_print
 
 
 def test_the_held_out_beads_have_their_heights_and_widths() -> None:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from experiments.reproduce_fig4 import main, to_rgb
+from experiments.paper.reproduce_fig4 import main, to_rgb
 
 
 @pytest.mark.slow

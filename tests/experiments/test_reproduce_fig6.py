@@ -6,7 +6,7 @@ import csv
 
 import numpy as np
 
-from experiments.reproduce_fig6 import METHODS, SCENES, paper_numbers, write_figure, write_table
+from experiments.paper.reproduce_fig6 import METHODS, SCENES, paper_numbers, write_figure, write_table
 
 
 def fake_case(rng: np.random.Generator, error: float) -> dict:

@@ -7,7 +7,7 @@ import csv
 
 import pytest
 
-from experiments.reproduce_fig7 import main
+from experiments.paper.reproduce_fig7 import main
 
 
 @pytest.mark.slow

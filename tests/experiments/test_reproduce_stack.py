@@ -7,7 +7,7 @@ import csv
 
 import pytest
 
-from experiments.reproduce_stack import main
+from experiments.paper.reproduce_stack import main
 
 TINY = ["receiver.resolution=32", "height_field.resolution=16", "solver.max_iter=2",
         "checkpoint_every=10", "calibration.every=1", "initial=zero"]

@@ -1,4 +1,4 @@
-"""The starts study (experiments/reproduce_starts.py) on a tiny budget: a strong and a weak
+"""The starts study (experiments/paper/reproduce_starts.py) on a tiny budget: a strong and a weak
 caustic from flat glass and from the transport start, logged to MLflow, table and figure rebuilt
 from the store."""
 
@@ -8,7 +8,7 @@ import csv
 
 import pytest
 
-from experiments.reproduce_starts import main
+from experiments.paper.reproduce_starts import main
 
 SCENES = ("gaussian", "print_lines")
 

@@ -13,7 +13,7 @@ import torch
 from mlflow.tracking import MlflowClient
 from PIL import Image
 
-from experiments.reproduce_lab import relative_error_after_scale
+from experiments.paper.reproduce_lab import relative_error_after_scale
 from framework.lab.photo_synthesis import synthesize_photo
 from framework.reconstruction.reconstruction import run_reconstruction
 from framework.reconstruction.parts import Reconstruction

@@ -1,10 +1,10 @@
-"""The lines sfc-reconstruct prints when a run ends (experiments/run_summary.py)."""
+"""The lines sfc-reconstruct prints when a run ends (experiments/apps/run_summary.py)."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
-from experiments.run_summary import SUMMARY_LINES, reconstruction_summary
+from experiments.apps.run_summary import SUMMARY_LINES, reconstruction_summary
 
 
 def test_the_summary_names_the_run_its_fit_its_error_and_where_the_files_are():

@@ -1,4 +1,4 @@
-"""The line each job of a multirun starts with (experiments/sweep_progress.py)."""
+"""The line each job of a multirun starts with (experiments/apps/sweep_progress.py)."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import re
 
 from omegaconf import OmegaConf
 
-from experiments.sweep_progress import SweepProgress
+from experiments.apps.sweep_progress import SweepProgress
 
 
 def _job(num: int, overrides: list[str]) -> object:

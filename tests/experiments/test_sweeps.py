@@ -22,7 +22,7 @@ REPO = Path(__file__).resolve().parents[2]
 
 
 def _sweep(tmp_path: Path, launcher: list[str], store: Path, extra: list[str] = ()) -> subprocess.CompletedProcess:
-    cmd = [sys.executable, "-m", "experiments.reconstruct", "-m", "seed=0,1", *SMALL, "solver.max_iter=2",
+    cmd = [sys.executable, "-m", "experiments.apps.reconstruct", "-m", "seed=0,1", *SMALL, "solver.max_iter=2",
            f"tracking.store_dir={store}", f"hydra.sweep.dir={tmp_path / 'sweep'}", *launcher, *extra]
     env = dict(os.environ, PYTHONPATH=str(REPO))
     return subprocess.run(cmd, capture_output=True, text=True, timeout=600, cwd=tmp_path, env=env)
@@ -76,7 +76,7 @@ def _iteration(checkpoint: Path) -> int:
 
 @pytest.mark.slow
 def test_a_killed_sweep_job_run_again_resumes_and_ends_as_an_uninterrupted_one(tmp_path) -> None:
-    common = [sys.executable, "-m", "experiments.reconstruct", "-m", "seed=3", *SMALL, "solver.max_iter=14",
+    common = [sys.executable, "-m", "experiments.apps.reconstruct", "-m", "seed=3", *SMALL, "solver.max_iter=14",
               "checkpoint_every=2", "stopping=none", f"tracking.store_dir={tmp_path / 'mlruns'}"]
     env = dict(os.environ, PYTHONPATH=str(REPO))
     whole = subprocess.run([*common, f"hydra.sweep.dir={tmp_path / 'whole'}"], capture_output=True, text=True,

@@ -112,7 +112,7 @@ def test_the_model_and_the_exact_renderer_cast_a_raised_edge_as_the_traced_mesh(
     units) below: the default model and the wavefront renderer within 2% over the whole 16-pixel
     receiver (measured 0.7% and 0.8% with three seeds of the tracer); with the rim left dark
     (substrate.edge_height 0) the model is 4.7% off. The
-    ramp at 1.25 mm and a cut dome, at 32 pixels: experiments/bench_raised_edge.py."""
+    ramp at 1.25 mm and a cut dome, at 32 pixels: experiments/benchmarks/bench_raised_edge.py."""
     heights = ramp(32)
     path = tmp_path / "glass.stl"
     glass_mesh(heights.numpy(), W, H, 1.0, refine=4).export(path)

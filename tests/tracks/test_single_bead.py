@@ -1,6 +1,6 @@
 """A single bead fitted as a track from one photo: its height and width come back within 10% from
 a design 20% lower and wider, on an exact caustic (framework's reference renderer, not the track
-model's) of a bead drawn as melted glass lies (experiments/fibre_print.py, a circular segment)."""
+model's) of a bead drawn as melted glass lies (experiments/paper/fibre_print.py, a circular segment)."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from experiments.fibre_print import draw_beads
+from experiments.paper.fibre_print import draw_beads
 from framework.reconstruction.reconstruction import run_reconstruction
 from framework.tracks.track_set import TrackSet
 from tests.experiments.conftest import compose_reconstruct

@@ -1,6 +1,6 @@
 """Tracks drawn onto the heights grid against independent truths: the bead family's area and
 half-height width by quadrature and by reading the rendered grid, the volume of a drawn bead, and
-a design drawn as melted glass (experiments/fibre_print.py) turned back into its tool path, beads
+a design drawn as melted glass (experiments/paper/fibre_print.py) turned back into its tool path, beads
 whose tails meet kept apart, and tracks anchored to a design starting at it."""
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ import pytest
 import torch
 from scipy import integrate
 
-from experiments.fibre_print import TOOLPATH, polyline_distance, draw_beads
+from experiments.paper.fibre_print import TOOLPATH, polyline_distance, draw_beads
 from framework.core.problem import HeightGrid
 from framework.tracks.from_design import tracks_from_design
 from framework.tracks.plugin import tracks_builder
