@@ -26,7 +26,7 @@ from omegaconf import DictConfig
 
 from experiments.apps.input_errors import INPUT_ERRORS, TRACEBACK_VARIABLE, one_line
 from framework.reconstruction.parts import Reconstruction
-from framework.reconstruction.run_checks import check_creatable_directory
+from framework.files.paths import check_creatable_directory
 from framework.scene.scene_config import to_plain
 
 __all__ = ["CheckBeforeStart", "check_launcher", "sweep_jobs"]

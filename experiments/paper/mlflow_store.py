@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from framework.tracking.mlflow_tracker import local_store_uri
+from framework.tracking.tracking_target import local_store_uri
 
 
 @dataclass(frozen=True)

@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from framework.core.contracts.run_log import run_log_class
 from framework.core.callbacks import Checkpointer, MetricsHistory, ProgressBar
 from framework.core.checkpoint import restore
 from framework.core.contracts.start import StartRequest
@@ -34,7 +35,6 @@ from framework.design.design_screen import has_elements
 from framework.design.design_setup import DesignSetup, method_settings, prepare_design
 from framework.files.mm_outputs import export_outputs
 from framework.scene.scene_config import to_plain
-from framework.tracking.mlflow_tracker import MlflowTracker
 from operators.mesh.elements import PrintReachesElement
 from operators.wavefront.renderer import WavefrontRenderer, wavefront_vertices
 
@@ -164,9 +164,10 @@ def run_design(cfg: Mapping[str, Any], output_dir: Path, base_dir: Path | None =
     problem = setup.problem
     name, params = split_name(method["solver"], "design_method.solver")
     checkpoint = output_dir / CHECKPOINT
-    with MlflowTracker(experiment=tracking.get("experiment", "caustic-design"), run_name=method["name"],
-                       store_dir=tracking.get("store_dir", "mlruns"), tracking_uri=tracking.get("uri"),
-                       params=to_plain(cfg), tags={"method": method["name"], "target": setup.source}) as tracker:
+    log = run_log_class(str(tracking.get("name", "mlflow")))
+    with log(experiment=tracking.get("experiment", "caustic-design"), run_name=method["name"],
+             store_dir=tracking.get("store_dir", "mlruns"), tracking_uri=tracking.get("uri"),
+             params=to_plain(cfg), tags={"method": method["name"], "target": setup.source}) as tracker:
         began = time.perf_counter()
         start_metrics: dict[str, float] = {}
         factor = float(cfg.get("model_noise_factor", 1.25))

@@ -14,6 +14,7 @@ import torch
 
 from framework.core.contracts.data_source import DataRequest, DataSource, ShotStack
 from operators.image_operator import ImageOperator
+from framework.core.contracts.run_log import RunLog, run_log_class
 from framework.core.contracts.solver import SolverBuilder
 from framework.core.contracts.stage import RunStage
 from framework.core.contracts.start import Start
@@ -24,7 +25,7 @@ from framework.core.problem import HeightGrid, Problem
 from framework.files.image_io import resolve_path
 from framework.lab.calibration import JointCalibration
 from framework.reconstruction.coarse_to_fine import CoarseToFineSettings
-from framework.reconstruction.run_checks import (check_tracking_target, check_volume, check_volume_known,
+from framework.reconstruction.run_checks import (check_volume, check_volume_known,
                                                  checked_resume, height_bounds)
 from framework.reconstruction.run_identity import run_fingerprint
 from framework.scene.run_settings import RunSettings, carries_design
@@ -66,6 +67,7 @@ class Reconstruction:
         start: The ``initial`` plugin: computes the start d0 (m, m) once the data are loaded.
         max_iter: The solver's iteration cap.
         fingerprint: What determines the result (framework/reconstruction/run_identity.py), stored in checkpoints.
+        run_log: The class of the run's log (``tracking.name``, framework/core/contracts/run_log.py).
         calibration: Joint calibration of the setup (framework/lab/calibration.py), or None.
         stages: The run's stages after the solve (framework/core/contracts/stage.py), in order.
         coarse_to_fine: The coarser grids each start is solved on first
@@ -80,6 +82,7 @@ class Reconstruction:
     start: Start
     max_iter: int
     fingerprint: dict[str, str]
+    run_log: type[RunLog]
     calibration: JointCalibration | None = None
     stages: list[RunStage] = field(default_factory=list)
     coarse_to_fine: CoarseToFineSettings = field(default_factory=CoarseToFineSettings)
@@ -154,7 +157,8 @@ class Reconstruction:
                              "height field carry none (those heights are the answer): give data.printed=<print> "
                              "(the configured field is then its design), or choose initial=transport, zero or file")
         return cls(settings, setup, data_source, make_solver, stopping, start, max_iter,
-                   run_fingerprint(cfg, base_dir), calibration, stages, coarse_to_fine)
+                   run_fingerprint(cfg, base_dir), run_log_class(settings.tracking.name), calibration, stages,
+                   coarse_to_fine)
 
     def check(self, base_dir: Path, output_dir: Path) -> Path | None:
         """Everything a run needs that the plugins' configs alone do not show, checked without a
@@ -163,7 +167,7 @@ class Reconstruction:
         measured print, and the checkpoint to resume from (readable, of this run). Returns that
         checkpoint, or None for a fresh run."""
         tracking = self.settings.tracking
-        check_tracking_target(tracking.uri, resolve_path(tracking.store_dir, base_dir))
+        self.run_log.check_target(tracking.uri, resolve_path(tracking.store_dir, base_dir))
         request = self.data_request(base_dir)
         facts = self.data_source.check(request)
         check_volume_known(self.settings.cfg, facts)

@@ -19,6 +19,7 @@ import torch
 from framework.core.callbacks import Checkpointer, GroundTruthError, MetricsHistory, ProgressBar
 from framework.core.checkpoint import resume as resume_solver
 from operators.image_operator import ImageOperator
+from framework.core.contracts.run_log import RunLog
 from framework.core.contracts.stage import Refit, SolvedRun
 from framework.core.contracts.start import Start, StartRequest, StartResult
 from framework.core.objective import DataFidelity
@@ -37,7 +38,6 @@ from framework.reconstruction.run_phases import PHASES, PhaseOutcome, resumed_ph
 from framework.reconstruction.verdict import volume_report
 from framework.stack.first_fit import fit_first_shot
 from framework.stack.shot_report import save_shot_record, shot_metrics
-from framework.tracking.mlflow_tracker import MlflowTracker, local_store_uri
 
 CALIBRATION_STATE = "calibration.json"
 # Photons per shot and hypothesis of a stack's line search (framework/reconstruction/feature_search.py).
@@ -61,14 +61,15 @@ def final_operator(parts: Reconstruction, result: RunResult) -> ImageOperator:
     return parts.operator if photons is None else with_photons(parts.operator, int(photons), parts.settings.seed)
 
 
-def interrupted_run(output_dir: Path, checkpoint: Path | None, store_dir: Path, uri: str | None) -> str | None:
-    """The MLflow run id of the interrupted job whose own checkpoint this run resumes (same run
-    directory, same tracking store), or None: then a new run starts."""
+def interrupted_run(output_dir: Path, checkpoint: Path | None, log: type[RunLog], store_dir: Path, uri: str | None
+                    ) -> str | None:
+    """The logged run's id of the interrupted job whose own checkpoint this run resumes (same run
+    directory, same target of the run log ``log``), or None: then a new run starts."""
     record = output_dir / MLFLOW_RUN
     if checkpoint is None or checkpoint != output_dir / CHECKPOINT or not record.is_file():
         return None
     saved = json.loads(record.read_text())
-    return saved["run_id"] if saved["tracking_uri"] == (uri or local_store_uri(store_dir)) else None
+    return saved["run_id"] if saved["tracking_uri"] == log.target_uri(uri, store_dir) else None
 
 
 def _coarse_levels(parts: Reconstruction, problem: Problem, name: str, start: Start, request: StartRequest
@@ -109,7 +110,7 @@ def _coarse_levels(parts: Reconstruction, problem: Problem, name: str, start: St
 
 
 def _solve_from(parts: Reconstruction, problem: Problem, name: str, start: Start, request: StartRequest,
-                checkpoint: Path | None, output_dir: Path, tracker: MlflowTracker, steps_before: int,
+                checkpoint: Path | None, output_dir: Path, tracker: RunLog, steps_before: int,
                 truth_error: GroundTruthError | None) -> PhaseOutcome:
     """Run the solver from one start (or continue it from ``checkpoint``) with fresh stopping rules."""
     operator = parts.operator
@@ -196,7 +197,7 @@ def run_reconstruction(cfg: Mapping[str, Any], output_dir: Path, base_dir: Path,
 
 
 def _run_starts(parts: Reconstruction, problem: Problem, request: StartRequest, output_dir: Path,
-                checkpoint: Path | None, tracker: MlflowTracker, truth_error: GroundTruthError | None
+                checkpoint: Path | None, tracker: RunLog, truth_error: GroundTruthError | None
                 ) -> tuple[list[PhaseOutcome], bool, int]:
     """Run the solver from each of the start's phases in turn (continuing an interrupted run's own
     phase from ``checkpoint``) until one reaches the noise level (a stack with
@@ -260,9 +261,10 @@ def _reconstruct(parts: Reconstruction, output_dir: Path, base_dir: Path, checkp
     settings, operator = parts.settings, parts.operator
     method, cfg, tracking = settings.method, settings.cfg, settings.tracking
     store_dir = resolve_path(tracking.store_dir, base_dir)
-    with MlflowTracker(experiment=tracking.experiment, run_name=cfg.get("method"), store_dir=store_dir,
+    with parts.run_log(experiment=tracking.experiment, run_name=cfg.get("method"), store_dir=store_dir,
                        tracking_uri=tracking.uri, params=cfg, tags=settings.tags, sweep_id=sweep_id,
-                       continue_run_id=interrupted_run(output_dir, checkpoint, store_dir, tracking.uri)
+                       continue_run_id=interrupted_run(output_dir, checkpoint, parts.run_log, store_dir,
+                                                       tracking.uri)
                        ) as tracker:
         (output_dir / MLFLOW_RUN).write_text(json.dumps({"run_id": tracker.run_id,
                                                          "tracking_uri": tracker.tracking_uri}))

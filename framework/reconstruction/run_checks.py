@@ -3,12 +3,10 @@ every plugin is built and before the tracker opens or anything is rendered.
 
 - :func:`check_volume`: a known deposited volume the printed area and the height bounds can hold;
 - :func:`checked_resume`: the checkpoint a run continues from, readable and of the same run;
-- :func:`check_tracking_target`, :func:`check_creatable_directory`: where the run's records go.
 """
 
 from __future__ import annotations
 
-import os
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -19,11 +17,8 @@ from framework.core.contracts.data_source import PrintFacts
 from framework.core.plugin_config import plugin_class
 from framework.files.image_io import resolve_path
 from framework.reconstruction.run_identity import check_resumable
-from framework.tracking.mlflow_tracker import KNOWN_SCHEMES, check_tracking_server
 
 __all__ = [
-    "check_creatable_directory",
-    "check_tracking_target",
     "height_bounds",
     "check_volume",
     "check_volume_known",
@@ -113,32 +108,3 @@ def checked_resume(spec: Any, output_dir: Path, base_dir: Path, fingerprint: Map
     if path is not None:
         check_resumable(path, fingerprint, spec)
     return path
-
-
-def check_creatable_directory(path: Path, key: str) -> None:
-    """Refuse a directory ``path`` (config key ``key``) that cannot be created or written: it, or
-    the nearest existing folder above it, is a file or not writable."""
-    existing = path
-    while not existing.exists() and existing != existing.parent:
-        existing = existing.parent
-    if not existing.is_dir():
-        raise ValueError(f"{key}={path}: {existing} is a file, not a directory; give a directory (created if missing)")
-    if not os.access(existing, os.W_OK | os.X_OK):
-        raise ValueError(f"{key}={path}: {existing} cannot be written; give a directory you can write to")
-
-
-def check_tracking_target(uri: str | None, store_dir: Path) -> None:
-    """Refuse, before a run opens, a tracking target that cannot take it: an unknown URI scheme, a
-    server that is not MLflow, or (``uri`` None) a local ``store_dir`` that is a file or lies
-    under one or in a directory that cannot be written."""
-    if uri is not None:
-        if not isinstance(uri, str) or not uri:
-            raise ValueError(f"tracking.uri={uri!r} must be an MLflow tracking URI (e.g. http://host:5000, "
-                             "sqlite:///path/mlflow.db) or null for the local store tracking.store_dir")
-        scheme = uri.split("://", 1)[0].lower() if "://" in uri else ""
-        if scheme and scheme not in KNOWN_SCHEMES:
-            raise ValueError(f"tracking.uri={uri}: unknown scheme {scheme!r}; use one of {', '.join(KNOWN_SCHEMES)} "
-                             "or tracking.uri=null for the local store tracking.store_dir")
-        check_tracking_server(uri)
-        return
-    check_creatable_directory(store_dir, "tracking.store_dir")

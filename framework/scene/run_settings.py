@@ -62,12 +62,14 @@ def carries_design(cfg: Mapping[str, Any]) -> bool:
 
 @dataclass(frozen=True)
 class TrackingSettings:
-    """Where the run is logged: the MLflow ``experiment``, the local store directory ``store_dir``
-    (relative to the launch directory) or the tracking server ``uri``."""
+    """Where the run is logged: the run log plugin ``name`` (kind ``tracker``), the ``experiment``,
+    the local store directory ``store_dir`` (relative to the launch directory) or the tracking
+    server ``uri``."""
 
     experiment: str
     store_dir: str
     uri: str | None
+    name: str = "mlflow"
 
     @classmethod
     def parse(cls, spec: Any) -> TrackingSettings:
@@ -75,7 +77,8 @@ class TrackingSettings:
         store_dir = tracking.get("store_dir")
         if not isinstance(store_dir, str) or not store_dir:
             raise ValueError(f"tracking.store_dir={store_dir!r} must be a directory name for the local MLflow store")
-        return cls(str(tracking.get("experiment", "shape-from-caustics")), store_dir, tracking.get("uri"))
+        return cls(str(tracking.get("experiment", "shape-from-caustics")), store_dir, tracking.get("uri"),
+                   str(tracking.get("name", "mlflow")))
 
 
 @dataclass(frozen=True)

@@ -28,15 +28,15 @@ import os
 import subprocess
 import sys
 import time
-import urllib.error
-import urllib.request
 from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from framework.core.contracts.run_log import RunLog
 from framework.core.solver_loop import Callback
 from framework.tracking.store_template import create_empty_store
 from framework.tracking.tracking_dataset import data_dataset
+from framework.tracking.tracking_target import check_target, check_tracking_server, local_store_uri
 from operators.values import checked_whole
 
 if TYPE_CHECKING:
@@ -44,8 +44,7 @@ if TYPE_CHECKING:
     from framework.core.solver_loop import IterationRecord, IterativeSolver, RunResult
 
 __all__ = ["MlflowTracker", "MlflowMetricsCallback", "flatten_params", "MAX_PARAM_VALUE_LENGTH", "code_version_tags",
-           "check_tracking_server", "KNOWN_SCHEMES", "local_store_uri", "EXPERIMENT_KIND_TAG", "EXPERIMENT_KIND",
-           "DATASET_CONTEXT"]
+           "EXPERIMENT_KIND_TAG", "EXPERIMENT_KIND", "DATASET_CONTEXT"]
 
 # MLflow's limits (mlflow.utils.validation): param values 6000 chars, tag values 8000, keys 250.
 MAX_PARAM_VALUE_LENGTH = 6000
@@ -137,33 +136,6 @@ def code_version_tags(root: Path = REPO_ROOT) -> dict[str, str]:
 
 
 # Tracking URI schemes MLflow stores take (a URI without a scheme is a local file store).
-KNOWN_SCHEMES = ("sqlite", "file", "http", "https", "postgresql", "postgresql+psycopg2", "mysql",
-                 "mysql+pymysql", "mssql", "databricks")
-
-
-def check_tracking_server(uri: str, timeout: float = 5.0) -> None:
-    """Refuse an http(s) tracking URI whose server does not answer, or answers but is not an
-    MLflow server (its ``/health`` must answer OK); other URIs pass."""
-    if not uri.startswith(("http://", "https://")):
-        return
-    fix = "start one (mlflow server --host <host> --port <port>) or set tracking.uri=null for the local store"
-    try:
-        with urllib.request.urlopen(f"{uri.rstrip('/')}/health", timeout=timeout) as answer:
-            body = answer.read(64).decode("utf-8", "replace").strip()
-    except urllib.error.HTTPError as error:
-        raise ValueError(f"tracking.uri={uri} answers but is not an MLflow server (/health: HTTP {error.code}); "
-                         f"{fix}") from None
-    except (urllib.error.URLError, OSError) as error:
-        reason = getattr(error, "reason", error)
-        raise ValueError(f"the MLflow tracking server tracking.uri={uri} does not answer ({reason}); {fix}") from None
-    if body != "OK":
-        raise ValueError(f"tracking.uri={uri} answers but is not an MLflow server (/health: {body[:40]!r}); {fix}")
-
-
-def local_store_uri(store_dir: str | os.PathLike[str]) -> str:
-    """The tracking URI of the local store in ``store_dir``: its SQLite file mlflow.db."""
-    return f"sqlite:///{Path(store_dir).resolve() / 'mlflow.db'}"
-
 @contextlib.contextmanager
 def _store_lock(store_dir: Path) -> Iterator[None]:
     """An exclusive lock on ``store_dir`` (a file lock, so across processes): the first job that
@@ -177,8 +149,9 @@ def _store_lock(store_dir: Path) -> Iterator[None]:
             fcntl.flock(handle, fcntl.LOCK_UN)
 
 
-class MlflowTracker:
-    """One MLflow run as a context manager.
+class MlflowTracker(RunLog):
+    """One MLflow run as a context manager (the run log ``tracking.name=mlflow``,
+    framework/core/contracts/run_log.py).
 
     Args:
         experiment: Experiment name (created if missing).
@@ -223,6 +196,17 @@ class MlflowTracker:
         self.run_id: str | None = None
         self.experiment_id: str | None = None
         self._client: Any = None
+
+    @classmethod
+    def check_target(cls, uri: str | None, store_dir: Path) -> None:
+        """Refuse, before a run opens, a tracking target that cannot take it
+        (framework/tracking/tracking_target.py)."""
+        check_target(uri, store_dir)
+
+    @classmethod
+    def target_uri(cls, uri: str | None, store_dir: Path) -> str:
+        """``uri``, or the local store's in ``store_dir``."""
+        return uri or local_store_uri(store_dir)
 
     # -- lifecycle -----------------------------------------------------------------------------
     def __enter__(self) -> MlflowTracker:

@@ -22,7 +22,7 @@ OTHER_LIBRARIES = {
     ("framework/files/mm_outputs.py", "text"): "a PIL image's text chunks (absent on some formats)",
     ("framework/lab/photo_import.py", "tag_v2"): "a PIL image's TIFF tags (absent on other formats)",
     ("framework/tracking/mlflow_tracker.py", "__spec__"): "the __main__ module's spec (absent when run as a script)",
-    ("framework/tracking/mlflow_tracker.py", "reason"): "a urllib error's reason (absent on some errors)",
+    ("framework/tracking/tracking_target.py", "reason"): "a urllib error's reason (absent on some errors)",
     ("operators/heightfield/trace_cuda.py", "ENABLE_CUDASIM"): "numba's configuration (absent in old releases)",
     ("operators/heightfield/trace_cuda.py", "implementation"): "numba.cuda's driver (absent without CUDA)",
     ("experiments/apps/export.py", "problem_mark"): "a YAML error's position (absent on some errors)",

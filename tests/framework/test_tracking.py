@@ -14,11 +14,11 @@ from framework.tracking.mlflow_tracker import (
     EXPERIMENT_KIND,
     EXPERIMENT_KIND_TAG,
     MlflowTracker,
-    check_tracking_server,
     code_version_tags,
     flatten_params,
 )
 from framework.tracking.tracking_dataset import data_dataset
+from framework.tracking.tracking_target import check_tracking_server
 from tests.framework.toy import DTYPE, make_problem
 
 mlflow = pytest.importorskip("mlflow")

@@ -44,6 +44,7 @@ import torch
 
 from framework.core.contracts.data_source import DataRequest, DataSource
 from framework.core.contracts.representation import Representation
+from framework.core.contracts.run_log import RunLog
 from framework.core.contracts.solver import SolverBuilder
 from framework.core.contracts.stage import RunStage
 from framework.core.contracts.start import Start, StartRequest
@@ -86,7 +87,8 @@ def _require(condition: bool, who: str, what: str) -> None:
 # bases in framework/optimization/, checked by tests/test_plugin_contracts.py).
 BASES: dict[str, type] = {"operator": ImageOperator, "data": DataSource, "initial": Start, "solver": IterativeSolver,
                           "design": IterativeSolver, "stopping": StoppingRule, "regularizer": Regularizer,
-                          "post_step": PostStepUpdate, "representation": Representation, "stage": RunStage}
+                          "post_step": PostStepUpdate, "representation": Representation, "stage": RunStage,
+                          "tracker": RunLog}
 
 
 def check_base(kind: str, name: str, base: type | None = None) -> None:
