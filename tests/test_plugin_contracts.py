@@ -37,6 +37,7 @@ from framework.core.problem import HeightGrid, Problem
 from framework.reconstruction.stopping import StagnationStopping
 from framework.core.plugin_config import build_plugin
 from framework.core.plugin_config import plugin_class
+from framework.core.solver_loop import IterativeSolver
 from framework.core.registry import KINDS, available, register
 from framework.reconstruction.feature_search import SearchedLines
 from operators.scene import Receiver, Scene, Substrate
@@ -171,7 +172,7 @@ SOLVERS = [("solver", name) for name in available("solver")] + [("design", name)
 def test_every_solver_solves_a_known_problem(kind, name, known_problem) -> None:
     settings = example_settings(kind, name)
     check_solver(lambda: build_plugin(kind, name, settings, kind), known_problem, who=f"{kind}/{name}",
-                 iterations=plugin_class(kind, name).contract_iterations)
+                 iterations=plugin_class(kind, name, IterativeSolver).contract_iterations)
 
 
 def test_the_test_suites_solver_keeps_the_contract(known_problem) -> None:

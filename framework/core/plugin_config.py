@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import inspect
 from collections.abc import Mapping
-from typing import Any
+from typing import Any, TypeVar
 from collections.abc import Callable
 
 from framework.core.registry import lookup
@@ -20,6 +20,8 @@ from operators.plugin import Plugin
 
 __all__ = ["as_mapping", "plugin_class", "plugin_factory", "build_plugin", "build_plugin_map", "split_name",
            "with_scene_lengths"]
+
+P = TypeVar("P", bound=Plugin)
 
 # Where plugins sit in a reconstruction's config: (kind, path of one plugin's params, or of a
 # {name: params} map when the path ends in "*"). Used to convert their lengths.
@@ -46,18 +48,21 @@ def split_name(spec: Any, where: str) -> tuple[str, dict[str, Any]]:
     return name, params
 
 
-def plugin_class(kind: str, name: str) -> type[Plugin]:
-    """The registered class of plugin ``kind/name``; anything but a :class:`Plugin` is refused."""
+def plugin_class(kind: str, name: str, base: type[P]) -> type[P]:
+    """The registered class of plugin ``kind/name``; anything but a subclass of ``base`` (the kind's
+    base, or :class:`Plugin` for what every plugin declares) is refused in one line."""
     plugin = lookup(kind, name)
     if not (isinstance(plugin, type) and issubclass(plugin, Plugin)):
         raise ValueError(f"plugin {kind}/{name} is {plugin!r}, not a plugin class: derive it from its kind's base "
                          "(docs/plugins.md, Kinds)")
+    if not issubclass(plugin, base):
+        raise ValueError(f"plugin {kind}/{name} does not derive from {base.__module__}.{base.__qualname__}")
     return plugin
 
 
 def plugin_factory(kind: str, name: str) -> Callable[..., Any]:
     """The callable that builds plugin ``kind/name``: its ``from_config`` or the class itself."""
-    return plugin_class(kind, name).factory()
+    return plugin_class(kind, name, Plugin).factory()
 
 
 def _config_keys(factory: Callable[..., Any], supplied: Mapping[str, Any]) -> tuple[list[str], bool]:
@@ -102,7 +107,7 @@ def _length(value: Any, mm: float, where: str) -> Any:
 def _converted(kind: str, name: str, params: dict[str, Any], mm: float, where: str) -> dict[str, Any]:
     """``params`` with the plugin's ``length_keys`` (a class attribute) in scene units."""
     try:
-        keys = plugin_class(kind, name).length_keys
+        keys = plugin_class(kind, name, Plugin).length_keys
     except KeyError:
         return params  # an unknown name is refused, with the known names, when the plugin is built
     return {k: _length(v, mm, f"{where}.{k}") if k in keys else v for k, v in params.items()}

@@ -18,7 +18,8 @@ Kinds (what a plugin of each kind is, docs/plugins.md):
 caustic-design method, ``sfc-design``'s ``design_method.solver``), ``representation`` (the heights
 as a function of the parameters a solver fits, framework/core/contracts/representation.py) and
 ``stage`` (a feature every reconstruction runs after its solve, framework/core/contracts/stage.py)
-and ``tracker`` (where a run is logged, framework/core/contracts/run_log.py).
+``tracker`` (where a run is logged, framework/core/contracts/run_log.py) and ``calibration`` (the
+setup fitted with the heights, framework/core/contracts/calibration.py).
 """
 
 from __future__ import annotations
@@ -30,7 +31,8 @@ from collections.abc import Callable
 T = TypeVar("T")
 
 KINDS: tuple[str, ...] = ("operator", "solver", "regularizer", "post_step", "step_size", "preconditioner",
-                          "stopping", "data", "initial", "design", "representation", "stage", "tracker")
+                          "stopping", "data", "initial", "design", "representation", "stage", "tracker",
+                          "calibration")
 ENTRY_POINT_PREFIX = "shape_from_caustics."
 
 _registered: dict[str, dict[str, Any]] = {kind: {} for kind in KINDS}

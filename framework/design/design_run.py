@@ -20,13 +20,13 @@ from typing import Any
 import numpy as np
 import torch
 
-from framework.core.contracts.run_log import run_log_class
+from framework.core.contracts.run_log import RunLog
 from framework.core.callbacks import Checkpointer, MetricsHistory, ProgressBar
 from framework.core.checkpoint import restore
 from framework.core.contracts.start import StartRequest
 from framework.core.data import ReconstructionData
 from framework.core.image_metrics import relative_l2, ssim
-from framework.core.plugin_config import build_plugin, split_name
+from framework.core.plugin_config import build_plugin, plugin_class, split_name
 from framework.core.problem import Problem
 from framework.core.progress import phase
 from framework.core.solver_loop import Callback
@@ -164,7 +164,7 @@ def run_design(cfg: Mapping[str, Any], output_dir: Path, base_dir: Path | None =
     problem = setup.problem
     name, params = split_name(method["solver"], "design_method.solver")
     checkpoint = output_dir / CHECKPOINT
-    log = run_log_class(str(tracking.get("name", "mlflow")))
+    log = plugin_class("tracker", str(tracking.get("name", "mlflow")), RunLog)
     with log(experiment=tracking.get("experiment", "caustic-design"), run_name=method["name"],
              store_dir=tracking.get("store_dir", "mlruns"), tracking_uri=tracking.get("uri"),
              params=to_plain(cfg), tags={"method": method["name"], "target": setup.source}) as tracker:

@@ -31,7 +31,7 @@ import torch
 from torch import Tensor
 
 from framework.core.data import weighted_norm_sq
-from framework.core.solver_loop import Callback
+from framework.core.contracts.calibration import SetupCalibration
 from framework.lab.calibrated_setup import PSF, CameraSetup, StackSetup, is_gain, setup_values, with_setup
 from framework.lab.calibration_config import calibration_settings
 from operators.stack import StackOperator
@@ -66,8 +66,9 @@ PSF_PRIOR = 10.0
 PSF_STEP = 2.0
 
 
-class JointCalibration(Callback):
-    """Levenberg-Marquardt updates of setup parameters between height iterations.
+class JointCalibration(SetupCalibration):
+    """Levenberg-Marquardt updates of setup parameters between height iterations (the calibration
+    plugin ``joint``, framework/core/contracts/calibration.py).
 
     Args:
         operator: The operator seen through the camera, or a stack of shots each seen through its

@@ -1,6 +1,6 @@
 """The parts of one reconstruction, each built by its registry key from the config and checked
 before anything is rendered: the scene and operator, the data source, the solver's builder, the
-stopping rules, the start, the joint calibration and the defect report's settings.
+stopping rules, the start, the calibration of the setup, the run's log and its stages.
 """
 
 from __future__ import annotations
@@ -12,9 +12,10 @@ from typing import Any
 
 import torch
 
+from framework.core.contracts.calibration import SetupCalibration
 from framework.core.contracts.data_source import DataRequest, DataSource, ShotStack
 from operators.image_operator import ImageOperator
-from framework.core.contracts.run_log import RunLog, run_log_class
+from framework.core.contracts.run_log import RunLog
 from framework.core.contracts.solver import SolverBuilder
 from framework.core.contracts.stage import RunStage
 from framework.core.contracts.start import Start
@@ -23,7 +24,6 @@ from framework.core.plugin_config import as_mapping, build_plugin, plugin_class,
 from framework.core.registry import available
 from framework.core.problem import HeightGrid, Problem
 from framework.files.image_io import resolve_path
-from framework.lab.calibration import JointCalibration
 from framework.reconstruction.coarse_to_fine import CoarseToFineSettings
 from framework.reconstruction.run_checks import (check_volume, check_volume_known,
                                                  checked_resume, height_bounds)
@@ -32,6 +32,7 @@ from framework.scene.run_settings import RunSettings, carries_design
 from framework.scene.scene_config import SceneSetup
 from operators.scene import Scene
 from operators.values import checked_whole
+from regularizers import PostStepUpdate
 
 __all__ = ["Reconstruction", "build_stages", "build_start", "build_stopping"]
 
@@ -68,7 +69,8 @@ class Reconstruction:
         max_iter: The solver's iteration cap.
         fingerprint: What determines the result (framework/reconstruction/run_identity.py), stored in checkpoints.
         run_log: The class of the run's log (``tracking.name``, framework/core/contracts/run_log.py).
-        calibration: Joint calibration of the setup (framework/lab/calibration.py), or None.
+        calibration: The calibration of the setup (``calibration.name``, framework/core/contracts/calibration.py),
+            or None.
         stages: The run's stages after the solve (framework/core/contracts/stage.py), in order.
         coarse_to_fine: The coarser grids each start is solved on first
             (framework/reconstruction/coarse_to_fine.py).
@@ -83,7 +85,7 @@ class Reconstruction:
     max_iter: int
     fingerprint: dict[str, str]
     run_log: type[RunLog]
-    calibration: JointCalibration | None = None
+    calibration: SetupCalibration | None = None
     stages: list[RunStage] = field(default_factory=list)
     coarse_to_fine: CoarseToFineSettings = field(default_factory=CoarseToFineSettings)
     _designs: dict[str, torch.Tensor] = field(default_factory=dict, repr=False)
@@ -127,14 +129,15 @@ class Reconstruction:
         settings = RunSettings.parse(cfg)
         cfg = settings.cfg
         calibration_cfg = as_mapping(cfg.get("calibration") or {}, "calibration")
+        calibrated_by = plugin_class("calibration", str(calibration_cfg.pop("name", "joint")), SetupCalibration)
         data_name, data_params = split_name(cfg.get("data"), "data")
         data_source = build_plugin("data", data_name, data_params, "data")
         setup = SceneSetup.parse(cfg, settings.mm_per_unit, imaging=bool(calibration_cfg.get("params")),
                                  shots=data_source.setups if isinstance(data_source, ShotStack) else None)
         post_steps = dict(as_mapping(cfg.get("solver") or {}, "solver").get("post_steps") or {})
-        volume_held = any(plugin_class("post_step", name).holds_volume for name in post_steps)
-        calibration = JointCalibration.from_config(setup.operator, calibration_cfg, setup.scene, setup.screen_sigma,
-                                                   volume_held)
+        volume_held = any(plugin_class("post_step", name, PostStepUpdate).holds_volume for name in post_steps)
+        calibration = calibrated_by.from_config(setup.operator, calibration_cfg, setup.scene, setup.screen_sigma,
+                                                volume_held)
         solver_name, solver_params = split_name(cfg.get("solver"), "solver")
         # the loop's cap, not the solver's
         max_iter = checked_whole(solver_params.pop("max_iter", None), "solver.max_iter", least=1)
@@ -157,8 +160,8 @@ class Reconstruction:
                              "height field carry none (those heights are the answer): give data.printed=<print> "
                              "(the configured field is then its design), or choose initial=transport, zero or file")
         return cls(settings, setup, data_source, make_solver, stopping, start, max_iter,
-                   run_fingerprint(cfg, base_dir), run_log_class(settings.tracking.name), calibration, stages,
-                   coarse_to_fine)
+                   run_fingerprint(cfg, base_dir), plugin_class("tracker", settings.tracking.name, RunLog),
+                   calibration, stages, coarse_to_fine)
 
     def check(self, base_dir: Path, output_dir: Path) -> Path | None:
         """Everything a run needs that the plugins' configs alone do not show, checked without a
@@ -186,10 +189,5 @@ class Reconstruction:
 
 def build_stages(cfg: Mapping[str, Any]) -> list[RunStage]:
     """Every installed stage (kind ``stage``) that has something to do in a run of ``cfg``, by order."""
-    built = []
-    for name in available("stage"):
-        stage = plugin_class("stage", name)
-        if not issubclass(stage, RunStage):
-            raise ValueError(f"plugin stage/{name} does not derive from framework.core.contracts.stage.RunStage")
-        built.append(stage.from_config(cfg))
+    built = [plugin_class("stage", name, RunStage).from_config(cfg) for name in available("stage")]
     return sorted((stage for stage in built if stage is not None), key=lambda stage: stage.order)

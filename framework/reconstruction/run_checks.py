@@ -17,6 +17,7 @@ from framework.core.contracts.data_source import PrintFacts
 from framework.core.plugin_config import plugin_class
 from framework.files.image_io import resolve_path
 from framework.reconstruction.run_identity import check_resumable
+from regularizers import PostStepUpdate, Regularizer
 
 __all__ = [
     "height_bounds",
@@ -80,9 +81,10 @@ def check_volume_known(cfg: Mapping[str, Any], facts: PrintFacts) -> None:
     solver = cfg.get("solver") or {}
     needing = [
         f"solver.{group}.{name}"
-        for group, kind in (("regularizers", "regularizer"), ("post_steps", "post_step"))
+        for group, kind, base in (("regularizers", "regularizer", Regularizer),
+                                  ("post_steps", "post_step", PostStepUpdate))
         for name in dict(solver.get(group) or {})
-        if plugin_class(kind, name).needs_volume
+        if plugin_class(kind, name, base).needs_volume
     ]
     if needing:
         raise ValueError(f"{' and '.join(needing)} need{'s' if len(needing) == 1 else ''} the deposited volume: set "

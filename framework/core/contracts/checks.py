@@ -42,6 +42,7 @@ from collections.abc import Callable
 
 import torch
 
+from framework.core.contracts.calibration import SetupCalibration
 from framework.core.contracts.data_source import DataRequest, DataSource
 from framework.core.contracts.representation import Representation
 from framework.core.contracts.run_log import RunLog
@@ -55,6 +56,7 @@ from framework.core.plugin_config import plugin_class
 from framework.core.registry import lookup
 from framework.core.solver_loop import IterationRecord, IterativeSolver
 from operators.image_operator import ImageOperator
+from operators.plugin import Plugin
 from operators.scene import Receiver, Scene
 from regularizers import PostStepUpdate, Regularizer, RegularizerContext
 
@@ -88,7 +90,7 @@ def _require(condition: bool, who: str, what: str) -> None:
 BASES: dict[str, type] = {"operator": ImageOperator, "data": DataSource, "initial": Start, "solver": IterativeSolver,
                           "design": IterativeSolver, "stopping": StoppingRule, "regularizer": Regularizer,
                           "post_step": PostStepUpdate, "representation": Representation, "stage": RunStage,
-                          "tracker": RunLog}
+                          "tracker": RunLog, "calibration": SetupCalibration}
 
 
 def check_base(kind: str, name: str, base: type | None = None) -> None:
@@ -104,7 +106,7 @@ def check_base(kind: str, name: str, base: type | None = None) -> None:
 
 def example_settings(kind: str, name: str) -> dict[str, Any]:
     """The settings plugin ``kind/name`` declares for the contract checks (its ``example_settings()``), else {}."""
-    return dict(plugin_class(kind, name).example_settings())
+    return dict(plugin_class(kind, name, Plugin).example_settings())
 
 
 def smooth_bump(m: int, height: float = 0.02, width: float = 0.3) -> torch.Tensor:

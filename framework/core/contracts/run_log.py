@@ -18,11 +18,10 @@ from types import TracebackType
 from typing import Any
 
 from framework.core.data import ReconstructionData
-from framework.core.plugin_config import plugin_class
 from framework.core.solver_loop import Callback
 from operators.plugin import Plugin
 
-__all__ = ["RunLog", "run_log_class"]
+__all__ = ["RunLog"]
 
 
 class RunLog(Plugin, ABC):
@@ -81,10 +80,3 @@ class RunLog(Plugin, ABC):
     def metrics_callback(self, every: int = 1, step_offset: int = 0) -> Callback:
         """A solver callback logging every ``every``-th iteration at step ``step_offset`` + iteration."""
 
-
-def run_log_class(name: str) -> type[RunLog]:
-    """The run log plugin ``tracking.name`` (kind ``tracker``)."""
-    log = plugin_class("tracker", name)
-    if not issubclass(log, RunLog):
-        raise ValueError(f"plugin tracker/{name} does not derive from framework.core.contracts.run_log.RunLog")
-    return log
