@@ -26,7 +26,7 @@ def test_a_circle_and_an_arrow_against_the_rooms_are_found():
     graph = {"framework.a": {"framework.b"}, "framework.b": {"framework.a"}, "operators.x": {"framework.core.y"},
              "framework.core.registry": {"operators.x"}, "framework.core.y": {"framework.files.z"},
              "framework.files.z": {"framework.core.y"}, "framework.lab.p": {"framework.stack.q", "framework.files.z"},
-             "framework.reconstruction.r": {"framework.lab.p"}, "framework.scene.s": {"framework.data.t"},
+             "framework.reconstruction.r": {"framework.stack.q"}, "framework.scene.s": {"framework.data.t"},
              "framework.stack.q": {}, "framework.data.t": {}, "framework.plugins.u": {}}
     assert cycles(graph) == [["framework.a", "framework.b"], ["framework.core.y", "framework.files.z"]]
     assert upward_arrows(graph) == [("framework.core.registry", "operators.x"),
