@@ -23,6 +23,8 @@ from framework.core.plugin_config import build_plugin
 from framework.core.problem import HeightGrid, Problem
 from framework.reconstruction.parts import Reconstruction
 from framework.core.registry import KINDS, available, register
+from operators.heightfield.operator import CausticOperator, OperatorSettings
+from operators.imaging import ImagingOperator
 from operators.scene import Receiver, Scene
 from examples.plugins.exact_step_solver import ExactStepSolver
 from examples.plugins.shadow_operator import ShadowOperator
@@ -76,6 +78,12 @@ def small_problem() -> Problem:
 
 
 STEP = {"name": "constant", "tau": 1e-3}
+def _camera() -> ImagingOperator:
+    """A camera around a small height-field operator: what joint calibration fits the gain of."""
+    scene = Scene(receiver=Receiver(resolution=16))
+    return ImagingOperator(lambda for_scene: CausticOperator(for_scene, OperatorSettings(photons=4096)), scene)
+
+
 # Every built-in registry key with a small config (and the arguments the framework supplies).
 MINIMAL = {
     ("operator", "height_field"): ({}, {"scene": Scene(receiver=Receiver(resolution=16)), "photons": 100, "seed": 0}),
@@ -144,6 +152,11 @@ MINIMAL = {
     ("representation", "pixels"): ({}, {}),
     ("representation", "wavelets"): ({"levels": 1}, {}),
     ("representation", "tracks"): ({}, {}),
+    ("stage", "ambiguity"): ({}, {"cfg": {}}),
+    ("stage", "tracks"): ({}, {"cfg": {}}),
+    ("stage", "defects"): ({}, {"cfg": {}}),
+    ("tracker", "mlflow"): ({"experiment": "seams"}, {}),
+    ("calibration", "joint"): ({"settings": {"params": ["gain"]}}, {"operator": _camera()}),
 }
 
 

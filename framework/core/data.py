@@ -80,9 +80,9 @@ def resample_image(image: torch.Tensor, resolution: int) -> torch.Tensor:
     return out[0]
 
 
-def validate_delta(delta: float) -> float:
-    """The relative noise level delta as a float; refused unless it lies in (0, 1)."""
-    return checked_number(delta, "data.delta", above=0.0, below=1.0, example="0.05")
+def validate_delta(delta: float, key: str = "data.delta") -> float:
+    """The relative noise level delta (config key ``key``) as a float; refused unless it lies in (0, 1)."""
+    return checked_number(delta, key, above=0.0, below=1.0, example="0.05")
 
 
 def synthetic_data(ground_truth: torch.Tensor, render_a: Callable[[torch.Tensor], torch.Tensor],

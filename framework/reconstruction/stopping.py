@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING
 
 from torch import Tensor
 
+from framework.core.data import validate_delta
 from framework.core.contracts.stopping import StoppingRule
 from operators.values import checked_whole, is_number
 
@@ -17,13 +18,6 @@ if TYPE_CHECKING:
     from framework.core.problem import Problem
 
 __all__ = ["MorozovStopping", "StagnationStopping"]
-
-
-def _checked_delta(delta: float) -> float:
-    delta = float(delta)
-    if not (math.isfinite(delta) and 0.0 < delta < 1.0):
-        raise ValueError(f"delta (relative noise level) must lie in (0, 1), got {delta!r}; 5% noise is 0.05")
-    return delta
 
 
 class MorozovStopping(StoppingRule):
@@ -59,7 +53,7 @@ class MorozovStopping(StoppingRule):
             raise ValueError(
                 f"tau_dis must be > 1 for the discrepancy principle, got {tau_dis!r}; the paper uses 1.01-1.2"
             )
-        self.delta = None if delta is None else _checked_delta(delta)
+        self.delta = None if delta is None else validate_delta(delta, "stopping.morozov.delta")
         self.tau_dis = tau_dis
         self.volume_band = volume_band
 
@@ -70,7 +64,7 @@ class MorozovStopping(StoppingRule):
 
     def setup(self, problem: Problem) -> None:
         """Take the noise level delta from the problem's data."""
-        self.delta = _checked_delta(problem.data.delta)
+        self.delta = validate_delta(problem.data.delta)
 
     @property
     def threshold(self) -> float:

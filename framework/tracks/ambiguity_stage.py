@@ -15,10 +15,11 @@ import numpy as np
 from torch import Tensor
 
 from framework.core.contracts.stage import RunStage, SolvedRun, StageReport
+from framework.core.plugin_config import as_mapping
 from framework.core.progress import report
 from framework.scene.scene_config import build_operator
 from framework.tracks.ambiguity import AmbiguityReport, undecided_beads
-from operators.values import checked_number, checked_whole
+from operators.values import checked_flag, checked_number, checked_whole
 
 __all__ = ["AmbiguitySettings", "AmbiguityStage"]
 
@@ -33,12 +34,19 @@ class AmbiguitySettings:
     screens_mm: tuple[float, ...] = (2.5, 5.0, 10.0, 20.0)
 
     @classmethod
-    def parse(cls, cfg: Mapping[str, Any] | None) -> AmbiguitySettings:
-        cfg = dict(cfg or {})
-        screens = tuple(checked_number(s, "ambiguity.screens_mm", above=0.0)
-                        for s in cfg.get("screens_mm", cls.screens_mm))
-        return cls(bool(cfg.get("enabled", True)), checked_whole(cfg.get("pairs", cls.pairs), "ambiguity.pairs", 0),
-                   screens)
+    def parse(cls, spec: Any) -> AmbiguitySettings:
+        """The ``ambiguity`` group, checked: every bad value is one line naming it."""
+        cfg = as_mapping(spec, "ambiguity")
+        unknown = sorted(set(cfg) - {"enabled", "pairs", "screens_mm"})
+        if unknown:
+            raise ValueError(f"unknown key ambiguity.{unknown[0]}; ambiguity takes enabled, pairs, screens_mm")
+        screens = cfg.get("screens_mm", cls.screens_mm)
+        if not isinstance(screens, (list, tuple)) or not screens:
+            raise ValueError(f"ambiguity.screens_mm={screens!r} must be a list of screen distances in mm, "
+                             "e.g. [2.5, 5, 10, 20]")
+        return cls(checked_flag(cfg.get("enabled", True), "ambiguity.enabled"),
+                   checked_whole(cfg.get("pairs", cls.pairs), "ambiguity.pairs", 0),
+                   tuple(checked_number(s, f"ambiguity.screens_mm[{i}]", above=0.0) for i, s in enumerate(screens)))
 
 
 class AmbiguityStage(RunStage):

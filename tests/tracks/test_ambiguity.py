@@ -154,11 +154,16 @@ def test_a_smooth_print_has_nothing_in_question() -> None:
         "No ridges side by side in the heights: no bead's basin is in question."]
 
 
-@pytest.mark.parametrize("cfg, message", [({"pairs": -1}, "ambiguity.pairs"),
-                                          ({"screens_mm": [5, 0]}, "ambiguity.screens_mm")])
-def test_bad_settings_name_the_key(cfg, message) -> None:
-    with pytest.raises(ValueError, match=message):
+@pytest.mark.parametrize("cfg, message", [({"pairs": -1}, "^ambiguity.pairs=-1"),
+                                          ({"screens_mm": [5, 0]}, r"^ambiguity.screens_mm\[1\]=0"),
+                                          ({"screens_mm": None}, "^ambiguity.screens_mm=None must be a list"),
+                                          ({"enabled": "maybe"}, "^ambiguity.enabled='maybe'"),
+                                          ({"pair": 1}, "^unknown key ambiguity.pair;"),
+                                          ("on", "^ambiguity='on' must be a mapping")])
+def test_bad_settings_name_the_key_in_one_line(cfg, message) -> None:
+    with pytest.raises(ValueError, match=message) as error:
         AmbiguitySettings.parse(cfg)
+    assert "\n" not in str(error.value)
 
 
 def test_only_the_longest_pairs_are_rendered() -> None:
