@@ -2,16 +2,20 @@
 
 The substrate occupies [-W, W]^2 with its flat bottom at z = 0 and its top at z = h + d(x, y);
 a light (a point, a disc or a square) shines on it from above and the receiver plane at z = receiver.z < 0 records the
-caustic. Arrays follow [row, col] = [y, x].
+caustic. Arrays follow [row, col] = [y, x]. :func:`scene_from_groups` reads a scene from the
+plain config groups (light, substrate, receiver, material, wavelengths), lengths given in scene
+units or with a unit.
 """
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
+from typing import Any
 
-from operators.lengths import DEFAULT_MM_PER_UNIT
-from operators.materials import FUSED_SILICA, DispersionCurve, refractive_indices
-from operators.values import checked_number, checked_whole
+from operators.lengths import DEFAULT_MM_PER_UNIT, scene_length
+from operators.materials import FUSED_SILICA, DispersionCurve, material_from_config, refractive_indices
+from operators.values import checked_number, checked_whole, is_number
 
 
 WALLS = ("clear", "absorbing")  # Substrate.walls
@@ -162,3 +166,35 @@ class Scene:
         if self.light.position[2] <= top:
             raise ValueError(f"light.position z={self.light.position[2]} is not above the glass top "
                              f"z={top:.4g}; raise the light or lower the heights")
+
+
+def scene_from_groups(light: Mapping[str, Any], substrate: Mapping[str, Any], receiver: Mapping[str, Any],
+                      material: Any, wavelengths: Any, mm: float) -> Scene:
+    """The scene of the plain config groups (their keys checked by the caller): lengths in scene
+    units or as strings with a unit ('2.5 mm', ``mm`` millimetres per scene unit), ``material`` a
+    name or a dispersion (operators/materials.py; None: fused silica), ``wavelengths`` in um."""
+    light = dict(light)
+    if "position" in light:
+        position = light["position"]
+        if not isinstance(position, (list, tuple)) or len(position) != 3:
+            raise ValueError(f"light.position={position!r} must be [x, y, z], e.g. light.position=[0,0,10]")
+        light["position"] = tuple(scene_length(v, mm, f"light.position[{i}]") for i, v in enumerate(position))
+    if "power" in light:
+        light["power"] = checked_number(light["power"], "light.power", must="must be a number")
+    if "size" in light:
+        light["size"] = scene_length(light["size"], mm, "light.size")
+    if "points" in light:
+        light["points"] = checked_whole(light["points"], "light.points")
+    glass = {k: v if k == "walls" else scene_length(v, mm, f"substrate.{k}") for k, v in substrate.items()
+             if not (k == "edge_height" and v is None)}  # null: the command's own choice (sfc-design's limit)
+    screen = {k: checked_whole(v, f"receiver.{k}") if k == "resolution" else scene_length(v, mm, f"receiver.{k}")
+              for k, v in receiver.items()}
+    if is_number(wavelengths):
+        wavelengths = [wavelengths]
+    if not isinstance(wavelengths, (list, tuple)):
+        raise ValueError(f"wavelengths={wavelengths!r} must be a list in micrometres, e.g. [0.633]")
+    return Scene(light=Light(**light), substrate=Substrate(**glass), receiver=Receiver(**screen),
+                 material=material_from_config(material),
+                 wavelengths=tuple(checked_number(v, f"wavelengths[{i}]", must="must be a number")
+                                   for i, v in enumerate(wavelengths)),
+                 mm_per_unit=mm)

@@ -41,10 +41,9 @@ from framework.files.height_field_io import load_height_field
 from framework.scene.design_mesh import MESH_SUFFIXES, heights_from_mesh
 from framework.scene.printed_shapes import make_shape
 from operators.imaging import PSF_KINDS, ImagingOperator
-from operators.materials import material_from_config
-from operators.scene import Light, Receiver, Scene, Substrate
+from operators.scene import Scene, Substrate, scene_from_groups
 from operators.stack import StackOperator
-from operators.values import checked_number, checked_whole, is_number
+from operators.values import checked_whole
 
 __all__ = [
     "SceneSetup",
@@ -95,34 +94,10 @@ def build_scene(cfg: Mapping[str, Any], mm: float | None = None) -> Scene:
     keys; lengths in scene units or with a unit (framework/core/units.py), ``mm`` millimetres per
     scene unit (None: the config's ``units.mm_per_unit``)."""
     mm = mm_per_unit(cfg) if mm is None else mm
-    light = _group(cfg, "light", SCENE_KEYS["light"])
-    if "position" in light:
-        position = light["position"]
-        if not isinstance(position, (list, tuple)) or len(position) != 3:
-            raise ValueError(f"light.position={position!r} must be [x, y, z], e.g. light.position=[0,0,10]")
-        light["position"] = tuple(scene_length(v, mm, f"light.position[{i}]") for i, v in enumerate(position))
-    if "power" in light:
-        light["power"] = checked_number(light["power"], "light.power", must="must be a number")
-    if "size" in light:
-        light["size"] = scene_length(light["size"], mm, "light.size")
-    if "points" in light:
-        light["points"] = checked_whole(light["points"], "light.points")
-    substrate = {k: v if k == "walls" else scene_length(v, mm, f"substrate.{k}")
-                 for k, v in _group(cfg, "substrate", SCENE_KEYS["substrate"]).items()
-                 if not (k == "edge_height" and v is None)}  # null: the command's own choice (sfc-design's limit)
-    receiver = _group(cfg, "receiver", SCENE_KEYS["receiver"])
-    receiver = {k: checked_whole(v, f"receiver.{k}") if k == "resolution" else scene_length(v, mm, f"receiver.{k}")
-                for k, v in receiver.items()}
-    wavelengths = to_plain(cfg.get("wavelengths", [0.633]))
-    if is_number(wavelengths):
-        wavelengths = [wavelengths]
-    if not isinstance(wavelengths, (list, tuple)):
-        raise ValueError(f"wavelengths={wavelengths!r} must be a list in micrometres, e.g. [0.633]")
-    return Scene(light=Light(**light), substrate=Substrate(**substrate), receiver=Receiver(**receiver),
-                 material=material_from_config(to_plain(cfg.get("material")) or None),
-                 wavelengths=tuple(checked_number(v, f"wavelengths[{i}]", must="must be a number")
-                                   for i, v in enumerate(wavelengths)),
-                 mm_per_unit=mm)
+    return scene_from_groups(_group(cfg, "light", SCENE_KEYS["light"]),
+                             _group(cfg, "substrate", SCENE_KEYS["substrate"]),
+                             _group(cfg, "receiver", SCENE_KEYS["receiver"]), to_plain(cfg.get("material")) or None,
+                             to_plain(cfg.get("wavelengths", [0.633])), mm)
 
 
 MAX_RESOLUTION = 8192  # height samples per side: 8192^2 float64 is 0.5 GB per copy
