@@ -152,6 +152,7 @@ MINIMAL = {
     ("representation", "pixels"): ({}, {}),
     ("representation", "wavelets"): ({"levels": 1}, {}),
     ("representation", "tracks"): ({}, {}),
+    ("stage", "shots"): ({}, {"cfg": {}}),
     ("stage", "ambiguity"): ({}, {"cfg": {}}),
     ("stage", "tracks"): ({}, {"cfg": {}}),
     ("stage", "defects"): ({}, {"cfg": {}}),

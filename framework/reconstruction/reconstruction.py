@@ -20,7 +20,7 @@ from framework.core.callbacks import Checkpointer, GroundTruthError, MetricsHist
 from framework.core.checkpoint import resume as resume_solver
 from operators.image_operator import ImageOperator
 from framework.core.contracts.run_log import RunLog
-from framework.core.contracts.stage import Refit, SolvedRun
+from framework.core.contracts.stage import Refit, Solve, SolvedRun, StartingRun
 from framework.core.contracts.start import Start, StartRequest, StartResult
 from framework.core.objective import DataFidelity
 from framework.core.problem import Problem
@@ -36,13 +36,10 @@ from framework.reconstruction.run_checks import CHECKPOINT
 from framework.reconstruction.run_outputs import report_verdict, save_outputs
 from framework.reconstruction.run_phases import PHASES, PhaseOutcome, resumed_phases
 from framework.reconstruction.verdict import volume_report
-from framework.stack.first_fit import fit_first_shot
-from framework.stack.shot_report import save_shot_record, shot_metrics
 
 CALIBRATION_STATE = "calibration.json"
 # Photons per shot and hypothesis of a stack's line search (framework/reconstruction/feature_search.py).
 LINE_SEARCH_PHOTONS = 1 << 18
-FIRST_FIT_CALIBRATION = "first_fit_calibration.json"  # a stack's first shot's gain, fitted before the stack
 # Refits at most: runs of a start again after one whose calibration moved what the heights absorb.
 MAX_REFITS = 2
 MLFLOW_RUN = "mlflow_run.json"  # the run's MLflow run id, so that a job resumed in its directory logs into it
@@ -126,17 +123,13 @@ def _solve_from(parts: Reconstruction, problem: Problem, name: str, start: Start
         d0 = torch.zeros(parts.grid.shape, dtype=operator.dtype)
     shaped = checkpoint is None and computed.shaped
     searched = checkpoint is None and isinstance(start, SearchedLines)
-    if checkpoint is None and (searched or not shaped) and problem.data.first_fit_shot is not None:
-        def extra(shot: Problem) -> list[Callback]:
-            gain = None if parts.calibration is None else parts.calibration.gain_of_shot(problem.data.first_fit_shot)
-            if gain is not None:
-                gain.setup(shot.data.target, shot.data.weights, shot.data.delta, output_dir / FIRST_FIT_CALIBRATION)
-            return [c for c in (photon_budget(parts, shot), gain) if c is not None]
-
-        d0, first = fit_first_shot(problem, d0, parts.make_solver, parts.fresh_stopping(),
-                                   extra, parts.max_iter, parts.settings.method)
-        start_metrics.update({f"{name}_{k}": v for k, v in first.items()})
-        shaped = True
+    for stage in parts.stages if checkpoint is None else ():
+        begun = stage.begin(StartingRun(problem, d0, shaped, searched, _solve(parts, shaped=False), parts.calibration,
+                                        output_dir))
+        if begun is not None:
+            d0 = begun[0]
+            start_metrics.update({f"{name}_{k}": v for k, v in begun[1].items()})
+            shaped = True
     if searched:
         found, searched_metrics = FeatureSearch(problem, LINE_SEARCH_PHOTONS, parts.settings.seed)(
             d0.detach().cpu().double().numpy())
@@ -169,17 +162,28 @@ def _solve_from(parts: Reconstruction, problem: Problem, name: str, start: Start
                         start_seconds, start_metrics, truth_error.errors(d) if truth_error else {})
 
 
-def _refit(parts: Reconstruction, problem: Problem) -> Refit:
-    """The run's own solver, stopping rules and photon budget from other heights (a stage's refit,
-    framework/core/contracts/stage.py)."""
-    def fit(d0: torch.Tensor, label: str) -> tuple[torch.Tensor, float, bool]:
+def _solve(parts: Reconstruction, shaped: bool) -> Solve:
+    """The run's own solver, fresh stopping rules and photon budget on a problem from heights d0
+    (a stage's solve, framework/core/contracts/stage.py); ``shaped``: d0 holds the print's shape
+    (the solver begins at its finest stage)."""
+    def solve(problem: Problem, d0: torch.Tensor, label: str, extra: list[Callback]
+              ) -> tuple[torch.Tensor, RunResult]:
         solver = parts.make_solver(problem, d0)
-        solver.begin_from_shaped_start()
+        if shaped:
+            solver.begin_from_shaped_start()
         stopping = parts.fresh_stopping(problem)
         budget = photon_budget(parts, problem)
-        result = solver.run(parts.max_iter, [*stopping, *([budget] if budget else []),
-                                             ProgressBar(desc=f"{parts.settings.method} from {label}")])
-        d, _ = returned_iterate(result, stopping)
+        result = solver.run(parts.max_iter, [*stopping, ProgressBar(desc=f"{parts.settings.method} {label}"),
+                                             *([budget] if budget else []), *extra])
+        return returned_iterate(result, stopping)[0], result
+    return solve
+
+
+def _refit(parts: Reconstruction, problem: Problem) -> Refit:
+    """:func:`_solve` from heights that hold the print's shape, with the discrepancy it reaches and
+    whether a stopping rule ended it (the ambiguity check's refit)."""
+    def fit(d0: torch.Tensor, label: str) -> tuple[torch.Tensor, float, bool]:
+        d, result = _solve(parts, shaped=True)(problem, d0, f"from {label}", [])
         return d, problem.fidelity.relative_discrepancy(problem.operator.render(d)), result.stopped_by != "max_iter"
     return fit
 
@@ -318,13 +322,10 @@ def _reconstruct(parts: Reconstruction, output_dir: Path, base_dir: Path, checkp
             **(truth_error.errors(d) if truth_error else {}),
             **volume,
             **start_metrics, **(calibration.report() if calibration else {})}
-        shots = shot_metrics(problem, prediction)
-        metrics.update(shots)
         metrics.update(save_outputs(output_dir, d, prediction, data, parts.grid, settings.mm_per_unit, truth))
-        save_shot_record(output_dir, shots, len(data.shots))
         metrics.update(report_verdict(metrics["rel_discrepancy"], data, settings.tau_dis, chosen.returned_iteration,
-                                      result.stop_reason, volume, shots,
-                                      calibration.never_updated() if calibration else ()))
+                                      result.stop_reason, volume, calibration.never_updated() if calibration else ()))
+        solved.prediction = prediction
         for stage in parts.stages:
             added = stage.report(solved)
             metrics.update(added.metrics)

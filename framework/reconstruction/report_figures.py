@@ -9,7 +9,7 @@ import numpy as np
 import torch
 
 from framework.files.plotting import normalise
-from framework.stack.shot_report import shots_of
+from framework.core.shot_images import shots_of
 
 if TYPE_CHECKING:
     from framework.core.problem import Problem

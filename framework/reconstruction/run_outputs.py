@@ -44,17 +44,12 @@ def save_outputs(output_dir: Path, d: torch.Tensor, prediction: torch.Tensor, da
 
 
 def report_verdict(rel_discrepancy: float, data: ReconstructionData, tau_dis: float, returned_iteration: int,
-                   stop_reason: str, volume: dict[str, Any], shots: dict[str, float] | None = None,
-                   never_calibrated: Sequence[str] = ()) -> dict[str, Any]:
+                   stop_reason: str, volume: dict[str, Any], never_calibrated: Sequence[str] = ()) -> dict[str, Any]:
     """The run's verdict (framework/reconstruction/verdict.py): ``verdict:`` lines on stdout, a
-    ``warning:`` line on stderr for each goal missed; ``shots``: a stack's ``shot<i>_*`` metrics
-    (framework/stack/shot_report.py); ``never_calibrated``: calibrated parameters no update moved.
-    Returns its metrics."""
-    shots = shots or {}
-    fits = [(f"Shot {i} (screen {shots[f'shot{i}_screen_distance']:.4g})", shots[f"shot{i}_rel_discrepancy"],
-             shots[f"shot{i}_delta"]) for i in range(len(data.shots)) if f"shot{i}_delta" in shots]
+    ``warning:`` line on stderr for each goal missed; ``never_calibrated``: calibrated parameters
+    no update moved. Returns its metrics (the stages add theirs, framework/core/contracts/stage.py)."""
     verdict = run_verdict(rel_discrepancy, data.delta, tau_dis, returned_iteration, stop_reason, volume,
-                          data.weights, data.left_out, fits, never_calibrated)
+                          data.weights, data.left_out, never_calibrated)
     for line in verdict.lines:
         print(f"verdict: {line}", flush=True)
     for line in verdict.warnings:

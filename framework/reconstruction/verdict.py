@@ -19,7 +19,6 @@ import torch
 __all__ = ["VOLUME_TOLERANCE", "Verdict", "run_verdict", "volume_report"]
 
 VOLUME_TOLERANCE = 0.02  # |volume / known volume - 1| within which the volume counts as held
-SHOT_FIT_FACTOR = 1.5  # a stack's shot whose own discrepancy exceeds this times its noise level is named
 
 
 def volume_report(d: torch.Tensor, volume: float | None, cell_area: float,
@@ -60,14 +59,13 @@ class Verdict:
 
 def run_verdict(rel_discrepancy: float, delta: float, tau_dis: float, returned_iteration: int, stop_reason: str,
                 volume: Mapping[str, Any], weights: torch.Tensor | None, left_out: Mapping[str, int],
-                shots: Sequence[tuple[str, float, float]] = (), never_calibrated: Sequence[str] = ()) -> Verdict:
+                never_calibrated: Sequence[str] = ()) -> Verdict:
     """The verdict of a run whose returned iterate (``returned_iteration``) has ``rel_discrepancy``
     against data of noise level ``delta`` (goal: at most ``tau_dis`` * delta); ``volume`` is
     :func:`volume_report`'s answer, ``weights`` (c, n, n) the data term's pixel weights,
-    ``left_out`` the data source's counts of weight-0 pixels by reason and ``shots`` a stack's
-    (label, own discrepancy, own noise level) per shot: a shot above :data:`SHOT_FIT_FACTOR` times
-    its noise level is named (the stack may meet its noise level while one photo stays unexplained);
-    ``never_calibrated``: calibrated setup parameters that kept their configured values."""
+    ``left_out`` the data source's counts of weight-0 pixels by reason; ``never_calibrated``:
+    calibrated setup parameters that kept their configured values (a stack's shots are judged by
+    its stage, framework/stack/stack_stage.py)."""
     ratio = rel_discrepancy / delta
     reached = rel_discrepancy <= tau_dis * delta
     lines, warnings = [], []
@@ -87,15 +85,6 @@ def run_verdict(rel_discrepancy: float, delta: float, tau_dis: float, returned_i
                     f"(tolerance {100 * VOLUME_TOLERANCE:g}%).")
         lines.append(sentence)
         if not held:
-            warnings.append(sentence)
-    for label, discrepancy, shot_delta in shots:
-        if discrepancy > SHOT_FIT_FACTOR * shot_delta:
-            sentence = (
-                f"{label} is not explained: its own discrepancy {discrepancy:.4g} = "
-                f"{discrepancy / shot_delta:.2f} x its noise level {shot_delta:g} (more than {SHOT_FIT_FACTOR:g} x); "
-                "check its setup (screen distance or offset, light) or raise its weight."
-            )
-            lines.append(sentence)
             warnings.append(sentence)
     if never_calibrated:
         sentence = (f"Not calibrated: {', '.join(never_calibrated)} kept the configured value; the fit met the noise "

@@ -10,34 +10,26 @@ shot's gain (the geometry waits for the whole stack, which alone can tell it).
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from typing import Any
-
 import torch
 
-from framework.core.callbacks import ProgressBar
-from framework.core.contracts.stopping import StoppingRule
+from framework.core.contracts.stage import Solve
 from framework.core.problem import Problem
-from framework.core.solver_loop import Callback, returned_iterate
+from framework.core.solver_loop import Callback
 
 __all__ = ["fit_first_shot"]
 
 
-def fit_first_shot(problem: Problem, d0: torch.Tensor, make_solver: Callable[[Problem, torch.Tensor], Any],
-                   stopping: list[StoppingRule], extra: Callable[[Problem], list[Callback]], max_iter: int,
-                   label: str) -> tuple[torch.Tensor, dict[str, float]]:
-    """The heights (m, m) that fit the stack's ``data.first_fit_shot`` alone from ``d0``, and what
-    that cost (``first_fit_*``: the shot, iterations, its discrepancy, renders, gradient passes,
-    photon-traces). ``stopping``: fresh rules; ``extra``: the callbacks of a run on one shot (its
-    photon budget, its gain's calibration)."""
+def fit_first_shot(problem: Problem, d0: torch.Tensor, solve: Solve, extra: list[Callback]
+                   ) -> tuple[torch.Tensor, dict[str, float]]:
+    """The heights (m, m) that fit the stack's ``data.first_fit_shot`` alone from ``d0`` by the
+    run's own solver, stopping rules and photon budget (``solve``), and what that cost
+    (``first_fit_*``: the shot, iterations, its discrepancy, renders, gradient passes,
+    photon-traces); ``extra``: further callbacks of that run (its gain's calibration)."""
     index = problem.data.first_fit_shot
+    if index is None:
+        raise ValueError("a first fit needs data with a nearest shot (data.first_fit_shot)")
     shot = problem.shot(index)
-    solver = make_solver(shot, d0)
-    for rule in stopping:
-        rule.setup(shot)
-    callbacks = [*stopping, ProgressBar(desc=f"{label}: shot {index} first"), *extra(shot)]
-    result = solver.run(max_iter, callbacks)
-    d, _ = returned_iterate(result, stopping)
+    d, result = solve(shot, d0, f"shot {index} first", extra)
     fidelity = shot.fidelity
     return d, {
         "first_fit_shot": float(index),

@@ -99,16 +99,15 @@ def cycles(graph: dict[str, set[str]]) -> list[list[str]]:
 
 # The rooms of framework/. Shared rooms by level, lowest first: a module imports from its own room
 # and from shared rooms of a lower level. A feature imports the shared rooms and, of the other
-# features, only those FEATURE_USES names (the reconstruction composes the stack; the defect report
-# and the tracks join it as stages, framework/core/contracts/stage.py, the tracker as its run log,
-# framework/core/contracts/run_log.py, the lab's calibration as framework/core/contracts/calibration.py;
-# tracks report defects).
+# features, only those FEATURE_USES names (tracks report defects). The reconstruction imports no
+# feature: the stack, the defect report and the tracks join it as stages
+# (framework/core/contracts/stage.py), the tracker as its run log (framework/core/contracts/run_log.py),
+# the lab's calibration as framework/core/contracts/calibration.py.
 SHARED = {"framework.core": 0, "framework.files": 1, "framework.scene": 2, "framework.data": 2,
           "framework.optimization": 2, "framework.representations": 2}
 FEATURES = ("framework.reconstruction", "framework.design", "framework.lab", "framework.stack",
             "framework.defects", "framework.tracking", "framework.tracks")
-FEATURE_USES = {"framework.reconstruction": {"framework.stack"},
-                "framework.tracks": {"framework.defects"}}
+FEATURE_USES = {"framework.tracks": {"framework.defects"}}
 
 
 def room(module: str) -> str | None:

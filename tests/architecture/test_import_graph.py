@@ -9,7 +9,7 @@ from __future__ import annotations
 import tomllib
 from pathlib import Path
 
-from tests.architecture.import_graph import cycles, import_graph, unknown_rooms, upward_arrows
+from tests.architecture.import_graph import FEATURES, cycles, import_graph, room, unknown_rooms, upward_arrows
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -26,8 +26,9 @@ def test_a_circle_and_an_arrow_against_the_rooms_are_found():
     graph = {"framework.a": {"framework.b"}, "framework.b": {"framework.a"}, "operators.x": {"framework.core.y"},
              "framework.core.registry": {"operators.x"}, "framework.core.y": {"framework.files.z"},
              "framework.files.z": {"framework.core.y"}, "framework.lab.p": {"framework.stack.q", "framework.files.z"},
-             "framework.reconstruction.r": {"framework.stack.q"}, "framework.scene.s": {"framework.data.t"},
-             "framework.stack.q": {}, "framework.data.t": {}, "framework.plugins.u": {}}
+             "framework.tracks.r": {"framework.defects.q"}, "framework.scene.s": {"framework.data.t"},
+             "framework.stack.q": {}, "framework.data.t": {}, "framework.plugins.u": {},
+             "framework.defects.q": {}}
     assert cycles(graph) == [["framework.a", "framework.b"], ["framework.core.y", "framework.files.z"]]
     assert upward_arrows(graph) == [("framework.core.registry", "operators.x"),
                                     ("framework.core.y", "framework.files.z"),
@@ -41,6 +42,14 @@ def test_no_circle_and_no_arrow_against_the_rooms():
     assert cycles(graph) == []
     assert upward_arrows(graph) == []
     assert unknown_rooms(graph) == []
+
+
+def test_the_reconstruction_imports_no_feature():
+    """Features join a reconstruction as plugins (stages, the run log, the calibration), never by import."""
+    graph = import_graph(ROOT)
+    arrows = sorted((a, b) for a, targets in graph.items() if room(a) == "framework.reconstruction"
+                    for b in targets if room(b) in FEATURES and room(b) != "framework.reconstruction")
+    assert arrows == []
 
 
 def _plugin_modules() -> set[str]:

@@ -15,7 +15,7 @@ from framework.core.objective import DataFidelity
 from framework.lab.calibration import JointCalibration
 from framework.reconstruction.reconstruction import run_reconstruction
 from framework.reconstruction.parts import Reconstruction
-from framework.reconstruction.verdict import run_verdict
+from framework.stack.stack_stage import unexplained_shots
 from operators.heightfield.operator import CausticOperator
 from operators.imaging import ImagingOperator
 from operators.stack import StackOperator
@@ -166,11 +166,10 @@ def test_shots_at_several_screens_share_the_hit_search_and_render_as_alone() -> 
 
 
 def test_the_verdict_names_a_shot_its_heights_do_not_explain() -> None:
-    shots = [("Shot 0 (screen 0.05)", 0.049, 0.05), ("Shot 1 (screen 1)", 0.26, 0.05)]
-    verdict = run_verdict(0.0504, 0.05, 1.01, 95, "discrepancy principle", {}, None, {}, shots)
-    assert verdict.reached_noise_level
-    (warning,) = verdict.warnings
-    assert warning.startswith("Shot 1 (screen 1) is not explained: its own discrepancy 0.26 = 5.20 x its noise level")
+    metrics = {"shot0_rel_discrepancy": 0.049, "shot0_delta": 0.05, "shot0_screen_distance": 0.05,
+               "shot1_rel_discrepancy": 0.26, "shot1_delta": 0.05, "shot1_screen_distance": 1.0}
+    (line,) = unexplained_shots(metrics, 2)
+    assert line.startswith("Shot 1 (screen 1) is not explained: its own discrepancy 0.26 = 5.20 x its noise level")
 
 
 def test_a_shot_s_missing_file_is_named(tmp_path) -> None:

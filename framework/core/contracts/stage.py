@@ -1,15 +1,19 @@
-"""The contract of a run stage (kind ``stage``): a feature that joins every reconstruction after
-its solve, without the run knowing it.
+"""The contract of a run stage (kind ``stage``): a feature that joins every reconstruction
+without the run knowing it.
 
 A reconstruction (framework/reconstruction/reconstruction.py) builds every installed stage from
 the run's config before anything is rendered: ``from_config(cfg)`` reads and checks the stage's
-own config group and returns None where the stage has nothing to do in such a run. After the solver
-has returned its heights, each stage in turn (by its ``order``) may replace them
-(:meth:`RunStage.revise`: the check of undecided beads, framework/tracks/ambiguity_stage.py); the
-run then renders its prediction, writes its outputs and its own verdict, and each stage adds its
-metrics and verdict sentences (:meth:`RunStage.report`: the fitted tracks,
-framework/tracks/track_stage.py; the defects against the design,
-framework/defects/defect_stage.py). A stage prints its own sentences as ``verdict:`` lines.
+own config group and returns None where the stage has nothing to do in such a run. Each stage, in
+turn by its ``order``, then meets the run at three points:
+
+- before each solve from a start, :meth:`RunStage.begin` may solve part of the problem first and
+  hand over other heights to start from (a stack's nearest shot, framework/stack/stack_stage.py);
+- after the solve, :meth:`RunStage.revise` may replace the returned heights (the check of
+  undecided beads, framework/tracks/ambiguity_stage.py);
+- once the run has rendered its prediction and written its outputs and its own verdict,
+  :meth:`RunStage.report` adds metrics and verdict sentences (a stack's shots; the fitted tracks,
+  framework/tracks/track_stage.py; the defects against the design,
+  framework/defects/defect_stage.py). A stage prints its own sentences as ``verdict:`` lines.
 """
 
 from __future__ import annotations
@@ -22,15 +26,44 @@ from typing import Any, ClassVar
 
 from torch import Tensor
 
+from framework.core.contracts.calibration import SetupCalibration
 from framework.core.contracts.representation import Representation
 from framework.core.problem import Problem
+from framework.core.solver_loop import Callback, RunResult
 from operators.plugin import Plugin
 
-__all__ = ["Refit", "RunStage", "SolvedRun", "StageReport"]
+__all__ = ["Refit", "RunStage", "Solve", "SolvedRun", "StageReport", "StartingRun"]
 
 # heights d0 (m, m), a label for the progress bar -> (the returned heights (m, m), their relative
 # discrepancy, whether a stopping rule ended the fit rather than the solver's iteration cap)
 Refit = Callable[[Tensor, str], tuple[Tensor, float, bool]]
+# a problem (the run's, or one shot's), heights d0 (m, m), a label for the progress bar, callbacks
+# besides the run's stopping rules and photon budget -> (the returned heights (m, m), the run)
+Solve = Callable[[Problem, Tensor, str, list[Callback]], tuple[Tensor, RunResult]]
+
+
+@dataclass
+class StartingRun:
+    """What a stage sees of a run about to solve from a start.
+
+    Attributes:
+        problem: The run's problem.
+        heights: The start d0 (m, m), scene units.
+        shaped: Whether the start holds the print's shape (not flat glass).
+        searched: Whether the start is a search across basins made for this problem.
+        solve: The run's own solver, fresh stopping rules and photon budget on a problem
+            (:data:`Solve`).
+        calibration: The run's calibration of the setup, or None.
+        output_dir: The run's directory.
+    """
+
+    problem: Problem
+    heights: Tensor
+    shaped: bool
+    searched: bool
+    solve: Solve
+    calibration: SetupCalibration | None
+    output_dir: Path
 
 
 @dataclass
@@ -49,6 +82,8 @@ class SolvedRun:
         seed: The run's seed.
         tau_dis: Morozov's factor: a fit reaches the noise level at tau_dis * delta.
         output_dir: The run's directory.
+        prediction: The rendered prediction (c, n, n) of the reported heights, set before
+            :meth:`RunStage.report` (None before).
     """
 
     problem: Problem
@@ -60,6 +95,7 @@ class SolvedRun:
     seed: int
     tau_dis: float
     output_dir: Path
+    prediction: Tensor | None = None
 
     @property
     def representation(self) -> Representation | None:
@@ -86,10 +122,16 @@ class RunStage(Plugin, ABC):
     """A feature that joins a reconstruction after its solve (module docstring).
 
     Attributes:
-        order: Stages run by ascending order (the ambiguity check 10, the tracks 20, the defects 30).
+        order: Stages run by ascending order (a stack's shots 5, the ambiguity check 10, the tracks
+            20, the defects 30).
     """
 
     order: ClassVar[int] = 100
+
+    def begin(self, run: StartingRun) -> tuple[Tensor, dict[str, float]] | None:
+        """Other heights (m, m) to start the solve from and what finding them cost (metrics, named
+        without the start's prefix), or None (here: none)."""
+        return None
 
     @classmethod
     @abstractmethod
