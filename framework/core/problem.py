@@ -15,7 +15,6 @@ from functools import cached_property
 from operators.image_operator import ImageOperator
 from framework.core.data import ReconstructionData
 from framework.core.objective import DataFidelity
-from framework.core.print_constraints import PrintConstraints
 from operators.scene import Scene
 from operators.values import checked_whole
 from regularizers import RegularizerContext
@@ -68,15 +67,12 @@ class Problem:
             data carry one; never the ground truth of synthetic data (framework/core/truth.py).
         grid: Geometry of the heights.
         scene: Light, substrate, receiver, material and wavelengths (operators/scene.py).
-        constraints: A design's printing limits (framework/core/print_constraints.py), which the
-            design solvers keep; None for a reconstruction.
     """
 
     operator: ImageOperator
     data: ReconstructionData
     grid: HeightGrid
     scene: Scene
-    constraints: PrintConstraints | None = None
 
     def __post_init__(self) -> None:
         if tuple(self.data.mask.shape) != self.grid.shape:

@@ -8,7 +8,7 @@ Both minimise the design objective
 
 f the problem's data term (1/2 ||F(d) - b||^2 / (||b||^2 a), framework/core/objective.py) against
 the energy-normalised target, P the printing limits' squared relative violations
-(:meth:`framework.core.print_constraints.PrintConstraints.penalty`; none on a problem without limits). The
+(:meth:`framework.design.print_constraints.PrintConstraints.penalty`; none on a problem without limits). The
 limits hold exactly only
 after the design pipeline's final projection (framework/design/design_run.py); the penalty keeps
 that projection small.
@@ -35,6 +35,7 @@ from framework.core.solver_loop import IterationFailed, IterationRecord, Iterati
 from framework.optimization.preconditioner import SobolevPreconditioner
 from framework.optimization.quasi_newton import LbfgsMemory
 from framework.optimization.step_size import LineSearchFailed, backtrack
+from framework.design.print_constraints import DesignProblem, PrintConstraints
 from operators.values import checked_number, checked_whole
 
 if TYPE_CHECKING:
@@ -91,9 +92,14 @@ def _adam_step(objective: _DesignObjective, adam: torch.optim.Adam, heights: tor
     heights.grad = evaluation[1]
     adam.step()
     with torch.no_grad():
-        limits = objective.problem.constraints
+        limits = _limits(objective.problem)
         heights.clamp_(min=0.0, max=None if limits is None else limits.max_height)
     return evaluation, heights.detach().to(d.dtype).clone()
+
+
+def _limits(problem: Problem) -> PrintConstraints | None:
+    """A design problem's printing limits; None for a problem without them (a reconstruction)."""
+    return problem.constraints if isinstance(problem, DesignProblem) else None
 
 
 class _DesignObjective:
@@ -113,7 +119,7 @@ class _DesignObjective:
         else:
             evaluation = self.problem.fidelity.evaluate(d, with_grad=True)
             data_value, data_grad, relative = evaluation.value, evaluation.grad.double(), evaluation.rel_discrepancy
-        limits = self.problem.constraints
+        limits = _limits(self.problem)
         if limits is None:  # a problem without printing limits (a reconstruction): the data term alone
             return data_value, data_grad, data_value, relative
         x = d.detach().double().requires_grad_(True)

@@ -30,6 +30,7 @@ from framework.core.plugin_config import build_plugin, plugin_class, split_name
 from framework.core.problem import Problem
 from framework.core.progress import phase
 from framework.core.solver_loop import Callback
+from framework.design.print_constraints import DesignProblem
 from framework.design.design_report import save_design_figure, save_previews
 from framework.design.design_screen import has_elements
 from framework.design.design_setup import DesignSetup, method_settings, prepare_design
@@ -95,7 +96,7 @@ def _start(setup: DesignSetup, method: Mapping[str, Any], deadline: float | None
         target = target * (float(flat.sum()) / float(target.sum()))  # the same power on the coarse screen
     data = ReconstructionData(target=target, mask=torch.ones(setup.grid.shape, dtype=torch.bool), volume=None,
                               delta=0.0)
-    problem = Problem(operator, data, setup.grid, operator.scene, setup.constraints)
+    problem = DesignProblem(operator, data, setup.grid, operator.scene, setup.constraints)
     if has_elements(operator):  # the light's own path through the elements (the reconstructions' start)
         start = build_plugin("initial", "transport", {"reach": THROUGH_OPTICS_REACH, "p1": 0.0,
                                                        "p2": setup.constraints.max_height}, "initial")

@@ -16,7 +16,7 @@ import torch
 
 from framework.core.data import ReconstructionData
 from framework.core.plugin_config import build_plugin, split_name
-from framework.core.print_constraints import PrintConstraints
+from framework.design.print_constraints import DesignProblem, PrintConstraints
 from framework.core.problem import HeightGrid, Problem
 from framework.core.units import mm_per_unit, scene_length, scene_volume
 from framework.design.design_screen import has_elements, lit_half_width
@@ -69,7 +69,7 @@ class DesignSetup:
         data = ReconstructionData(target=self.target, mask=torch.ones(self.grid.shape, dtype=torch.bool),
                                   volume=self.constraints.volume, delta=min(max(self.model_noise, 1e-9), 0.5),
                                   source=self.source)
-        return Problem(self.operator, data, self.grid, self.scene, self.constraints)
+        return DesignProblem(self.operator, data, self.grid, self.scene, self.constraints)
 
 
 def _edge_unprinted(constraints: PrintConstraints) -> bool:

@@ -14,7 +14,7 @@ from framework.design.design_target import BUILT_IN_TARGETS, load_target
 from scipy.ndimage import gaussian_filter
 
 from framework.core.image_metrics import relative_l2, ssim, ssim_tensor
-from framework.core.print_constraints import PrintConstraints
+from framework.design.print_constraints import PrintConstraints
 from framework.core.plugin_config import build_plugin, split_name
 from framework.design.design_setup import method_settings, prepare_design
 from framework.design.design_refinement import DesignAdam, DesignLBFGS

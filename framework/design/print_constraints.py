@@ -25,9 +25,10 @@ import scipy.sparse as sp
 import torch
 from scipy.sparse.linalg import factorized
 
+from framework.core.problem import Problem
 from operators.values import checked_number
 
-__all__ = ["PrintConstraints"]
+__all__ = ["DesignProblem", "PrintConstraints"]
 
 ADMM_RHO = 16.0  # the splitting's penalty (docs/design.md, "Printability": nearer and faster than 1 at 256 x 256)
 ADMM_ITERATIONS = 400
@@ -220,3 +221,11 @@ class PrintConstraints:
             lam = min(lam, bottom / (bottom - f["min_height"]))
         lam *= 1.0 - 1e-12
         return reference + lam * (d - reference)
+
+
+@dataclass(frozen=True)
+class DesignProblem(Problem):
+    """A caustic-design problem: a :class:`framework.core.problem.Problem` with the printing limits
+    its design solvers keep (framework/design/design_refinement.py)."""
+
+    constraints: PrintConstraints | None = None
