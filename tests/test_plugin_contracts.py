@@ -17,16 +17,15 @@ from framework.core.contracts.checks import (
     ContractViolation,
     check_base,
     check_data_source,
-    check_operator,
     check_post_step,
     check_regularizer,
     check_solver,
     check_start,
     check_stopping,
     example_settings,
-    smooth_bump,
 )
 from framework.core.contracts.data_source import DataRequest, ShotStack
+from framework.core.contracts.operator_checks import check_operator, smooth_bump
 from framework.core.contracts.linear_checks import check_linear_map
 from framework.core.contracts.representation_checks import check_representation
 from framework.core.contracts.start import StartRequest, StartResult

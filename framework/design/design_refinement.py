@@ -35,7 +35,7 @@ from framework.core.solver_loop import IterationFailed, IterationRecord, Iterati
 from framework.optimization.preconditioner import SobolevPreconditioner
 from framework.optimization.quasi_newton import LbfgsMemory
 from framework.optimization.step_size import LineSearchFailed, backtrack
-from framework.design.print_constraints import DesignProblem, PrintConstraints
+from framework.design.print_constraints import printing_limits
 from operators.values import checked_number, checked_whole
 
 if TYPE_CHECKING:
@@ -92,14 +92,10 @@ def _adam_step(objective: _DesignObjective, adam: torch.optim.Adam, heights: tor
     heights.grad = evaluation[1]
     adam.step()
     with torch.no_grad():
-        limits = _limits(objective.problem)
+        limits = printing_limits(objective.problem)
         heights.clamp_(min=0.0, max=None if limits is None else limits.max_height)
     return evaluation, heights.detach().to(d.dtype).clone()
 
-
-def _limits(problem: Problem) -> PrintConstraints | None:
-    """A design problem's printing limits; None for a problem without them (a reconstruction)."""
-    return problem.constraints if isinstance(problem, DesignProblem) else None
 
 
 class _DesignObjective:
@@ -119,7 +115,7 @@ class _DesignObjective:
         else:
             evaluation = self.problem.fidelity.evaluate(d, with_grad=True)
             data_value, data_grad, relative = evaluation.value, evaluation.grad.double(), evaluation.rel_discrepancy
-        limits = _limits(self.problem)
+        limits = printing_limits(self.problem)
         if limits is None:  # a problem without printing limits (a reconstruction): the data term alone
             return data_value, data_grad, data_value, relative
         x = d.detach().double().requires_grad_(True)

@@ -28,7 +28,7 @@ from scipy.sparse.linalg import factorized
 from framework.core.problem import Problem
 from operators.values import checked_number
 
-__all__ = ["DesignProblem", "PrintConstraints"]
+__all__ = ["DesignProblem", "PrintConstraints", "printing_limits"]
 
 ADMM_RHO = 16.0  # the splitting's penalty (docs/design.md, "Printability": nearer and faster than 1 at 256 x 256)
 ADMM_ITERATIONS = 400
@@ -229,3 +229,8 @@ class DesignProblem(Problem):
     its design solvers keep (framework/design/design_refinement.py)."""
 
     constraints: PrintConstraints | None = None
+
+
+def printing_limits(problem: Problem) -> PrintConstraints | None:
+    """A design problem's printing limits; None for a problem without them (a reconstruction)."""
+    return problem.constraints if isinstance(problem, DesignProblem) else None

@@ -51,6 +51,7 @@ from torch import Tensor
 
 from framework.core.solver_loop import IterationFailed, IterationRecord, IterativeSolver
 from framework.optimization.semi_discrete_transport import TransportPlan, semi_discrete_transport
+from framework.design.print_constraints import printing_limits
 from operators.optics.inverse_refraction import flat_magnification, glass_directions, snell_normals
 from operators.values import checked_number
 
@@ -261,7 +262,7 @@ class SchwartzburgDesign(IterativeSolver):
         self._change = float(np.linalg.norm(d_new - d_old) / max(np.linalg.norm(d_new), 1e-300))
         extras["relative_change"] = self._change
         self.state.d = torch.from_numpy(d_new).to(self.state.d)
-        limits = self.problem.constraints
+        limits = printing_limits(self.problem)
         printed = self.state.d if limits is None else self.state.d.clamp(0.0, limits.max_height)
         evaluation = self.problem.fidelity.evaluate(printed, with_grad=False)
         self.state.iteration += 1

@@ -5,13 +5,7 @@ included, found through their entry points); a plugin package may call them from
 plugin with required settings declares an example of them in a classmethod
 ``example_settings() -> dict`` (e.g. the mesh scene's elements).
 
-- operator (:func:`check_operator`): derived from the contract (operators/image_operator.py), the
-  declared output shape and dtype, finite non-negative
-  images, determinism under a seed, the adjoint identity of the linearisation
-  <vjp(d, w), v> = <w, F'(d) v> and the gradient of ``loss_and_grad`` against central finite
-  differences (on a bump, and on a bump over a ramp raised along an edge, whose light crosses the
-  rim and meets the side walls), the power on the receiver unchanged by a small print when ``conserves_energy``,
-  and bad heights refused (wrong shape, NaN) with a ValueError;
+- operator: framework/core/contracts/operator_checks.py;
 - regularizer (:func:`check_regularizer`): ``prox`` is the minimiser of step R(x) + 1/2 ||x - d||^2
   (no nearby point does better), its result lies where R is finite, and ``value`` is finite there;
 - post_step (:func:`check_post_step`): same shape and dtype, finite, the input untouched,
@@ -26,11 +20,13 @@ plugin with required settings declares an example of them in a classmethod
   volume where ``check`` knows it, the target has the operator's shape, the noise level lies in (0, 1), the
   same data twice;
 - representation (framework/core/contracts/representation_checks.py): shapes, a start inside its bounds, its stages,
-  and its vjp and its prior's gradient against central differences (the adjoint identity).
+  and its vjp and its prior's gradient against central differences (the adjoint identity);
+- the image chain's linear pieces (framework/core/contracts/linear_checks.py): the dot test.
 
 Before any of these, :func:`check_base`: the registered object derives from its kind's base.
 
-A failed check raises :class:`ContractViolation` naming the plugin and the check.
+A failed check raises :class:`framework.core.contracts.violation.ContractViolation` naming the
+plugin and the check.
 """
 
 from __future__ import annotations
@@ -47,9 +43,11 @@ from framework.core.contracts.data_source import DataRequest, DataSource
 from framework.core.contracts.representation import Representation
 from framework.core.contracts.run_log import RunLog
 from framework.core.contracts.solver import SolverBuilder
+from framework.core.contracts.operator_checks import smooth_bump
 from framework.core.contracts.stage import RunStage
 from framework.core.contracts.start import Start, StartRequest
 from framework.core.contracts.stopping import StoppingRule
+from framework.core.contracts.violation import ContractViolation, require
 from framework.core.data import ReconstructionData
 from framework.core.problem import HeightGrid, Problem
 from framework.core.plugin_config import plugin_class
@@ -65,24 +63,13 @@ __all__ = [
     "ContractViolation",
     "check_base",
     "example_settings",
-    "check_operator",
     "check_regularizer",
     "check_post_step",
     "check_solver",
     "check_stopping",
     "check_start",
     "check_data_source",
-    "smooth_bump",
 ]
-
-
-class ContractViolation(AssertionError):
-    """A plugin breaks its kind's contract."""
-
-
-def _require(condition: bool, who: str, what: str) -> None:
-    if not condition:
-        raise ContractViolation(f"{who}: {what}")
 
 
 # The base every registered plugin of a kind derives from (step_size and preconditioner: their
@@ -97,124 +84,16 @@ def check_base(kind: str, name: str, base: type | None = None) -> None:
     """The registered plugin ``kind/name`` is a subclass of the kind's base (``base``, or
     :data:`BASES`); a solver also has its ``from_config``."""
     plugin, base, who = lookup(kind, name), base or BASES[kind], f"{kind}/{name}"
-    _require(isinstance(plugin, type) and issubclass(plugin, base), who,
+    require(isinstance(plugin, type) and issubclass(plugin, base), who,
              f"is {plugin!r}, not a subclass of {base.__module__}.{base.__qualname__}; derive from it")
     if kind in ("solver", "design"):
-        _require(plugin.from_config is not None, who,
+        require(plugin.from_config is not None, who,
                  "has no from_config(**settings) returning the builder (problem, d0) -> solver")
 
 
 def example_settings(kind: str, name: str) -> dict[str, Any]:
     """The settings plugin ``kind/name`` declares for the contract checks (its ``example_settings()``), else {}."""
     return dict(plugin_class(kind, name, Plugin).example_settings())
-
-
-def smooth_bump(m: int, height: float = 0.02, width: float = 0.3) -> torch.Tensor:
-    """A Gaussian bump (m, m), float64, scene units, on the grid linspace(-1, 1, m)."""
-    axis = torch.linspace(-1.0, 1.0, m, dtype=torch.float64)
-    y, x = torch.meshgrid(axis, axis, indexing="ij")
-    return height * torch.exp(-(x ** 2 + y ** 2) / (2.0 * width ** 2))
-
-
-def raised_edge(m: int, rise: float = 0.02) -> torch.Tensor:
-    """A ramp (m, m), float64, scene units, from 0 at x = -1 to ``rise`` at x = 1: a top that
-    stands raised along the +x edge of the square."""
-    axis = torch.linspace(-1.0, 1.0, m, dtype=torch.float64)
-    return (0.5 * rise * (axis + 1.0)).expand(m, m).clone()
-
-
-def check_operator(make: Callable[[int], Any], m: int = 16, who: str = "operator") -> None:
-    """Check an operator plugin built by ``make(seed)`` on heights of an m x m grid."""
-    operator = make(0)
-    _require(isinstance(operator, ImageOperator), who, "does not derive from operators.image_operator.ImageOperator")
-    dtype = operator.dtype
-    flat = torch.zeros(m, m, dtype=dtype)
-    bump = smooth_bump(m).to(dtype) + 1e-3
-    image = operator.render(bump)
-    _require(tuple(image.shape) == tuple(operator.output_shape), who,
-             f"render gives shape {tuple(image.shape)}, output_shape says {tuple(operator.output_shape)}")
-    _require(image.dtype == dtype, who, f"render gives dtype {image.dtype}, the operator's dtype is {dtype}")
-    _require(bool(torch.isfinite(image).all()) and float(image.min()) >= 0.0, who,
-             "render gives a negative or non-finite irradiance")
-    _require(torch.equal(make(0).render(bump), image), who, "two operators of one seed render differently")
-    probe = _Probe(operator, bump)
-    _check_adjoint(operator, bump, probe, who)
-    _check_gradient(operator, bump, probe, who)
-    edge = bump + raised_edge(m).to(dtype)  # light through a raised rim and off the side walls
-    edge_probe = _Probe(operator, edge)
-    _check_adjoint(operator, edge, edge_probe, f"{who} (a top raised at the +x edge)")
-    _check_gradient(operator, edge, edge_probe, f"{who} (a top raised at the +x edge)")
-    if operator.conserves_energy:
-        power = [float(operator.render(d).double().sum()) * operator.pixel_area for d in (flat, bump)]
-        _require(power[0] > 0 and abs(power[1] - power[0]) <= 0.02 * power[0], who,
-                 f"the power on the receiver changes from {power[0]:.6g} to {power[1]:.6g} under a small print "
-                 "(declared conserves_energy)")
-    for bad, what in ((torch.zeros(m, m + 1, dtype=dtype), "non-square heights"),
-                      (torch.full((m, m), math.nan, dtype=dtype), "NaN heights")):
-        try:
-            operator.render(bad)
-        except ValueError:
-            continue
-        raise ContractViolation(f"{who}: render accepts {what} instead of raising a ValueError")
-
-
-def _tolerances(dtype: torch.dtype) -> tuple[float, float]:
-    """(finite-difference step, relative tolerance) for an operator of this dtype."""
-    return (1e-6, 1e-4) if dtype == torch.float64 else (1e-3, 5e-2)
-
-
-def _direction(heights: torch.Tensor) -> torch.Tensor:
-    """A smooth random perturbation of heights (m, m), fixed seed."""
-    generator = torch.Generator().manual_seed(1)
-    return (torch.randn(heights.shape, generator=generator, dtype=torch.float64) * smooth_bump(
-        heights.shape[0], 1.0, 0.5)).to(heights.dtype)
-
-
-class _Probe:
-    """The images F(d + e v) and F(d - e v), float64, along a smooth direction v: the central
-    differences both the adjoint and the gradient check compare with."""
-
-    def __init__(self, operator: Any, heights: torch.Tensor) -> None:
-        self.eps, self.tolerance = _tolerances(heights.dtype)
-        self.direction = _direction(heights)
-        self.plus = operator.render(heights + self.eps * self.direction).double()
-        self.minus = operator.render(heights - self.eps * self.direction).double()
-
-    def along(self, grad: torch.Tensor) -> float:
-        """<grad, v>."""
-        return float((grad.double() * self.direction.double()).sum())
-
-    def close(self, a: float, b: float) -> bool:
-        """Whether a and b agree within the relative tolerance."""
-        return abs(a - b) <= self.tolerance * max(abs(a), abs(b), 1e-30)
-
-
-def _check_adjoint(operator: Any, heights: torch.Tensor, probe: _Probe, who: str) -> None:
-    """<vjp(d, w), v> against <w, (F(d + e v) - F(d - e v)) / 2e> for a random image w."""
-    w = torch.rand(operator.output_shape, generator=torch.Generator().manual_seed(2), dtype=torch.float64)
-    pulled = operator.vjp(heights, w.to(operator.dtype))
-    _require(tuple(pulled.shape) == tuple(heights.shape), who,
-             f"vjp gives shape {tuple(pulled.shape)} for heights {tuple(heights.shape)}")
-    left, right = probe.along(pulled), float((w * (probe.plus - probe.minus)).sum()) / (2.0 * probe.eps)
-    _require(probe.close(left, right), who,
-             f"the adjoint identity fails: <vjp(d, w), v> = {left:.8g} but <w, F'(d) v> = {right:.8g} "
-             f"(relative tolerance {probe.tolerance:g})")
-
-
-def _check_gradient(operator: Any, heights: torch.Tensor, probe: _Probe, who: str) -> None:
-    """<grad L(d), v> against (L(d + e v) - L(d - e v)) / 2e for L = 1/2 ||F(d) - target||^2."""
-    target = operator.render(torch.zeros_like(heights)) * 0.9
-    _, grad, _ = operator.loss_and_grad(heights, target)
-    _require(tuple(grad.shape) == tuple(heights.shape), who,
-             f"loss_and_grad gives a gradient of shape {tuple(grad.shape)} for heights {tuple(heights.shape)}")
-    def loss(image: torch.Tensor) -> float:
-        return 0.5 * float(((image - target.double()) ** 2).sum())
-
-    numeric = (loss(probe.plus) - loss(probe.minus)) / (2.0 * probe.eps)
-    analytic = probe.along(grad)
-    _require(probe.close(numeric, analytic), who,
-             f"the gradient's directional derivative {analytic:.8g} differs from finite differences {numeric:.8g} "
-             f"(relative tolerance {probe.tolerance:g})")
 
 
 def _context(m: int) -> RegularizerContext:
@@ -229,39 +108,39 @@ def _context(m: int) -> RegularizerContext:
 def check_regularizer(regularizer: Regularizer, m: int = 16, who: str = "regularizer", trials: int = 30) -> None:
     """Check a regularizer: with ``has_prox``, prox(d, step) minimises step R(x) + 1/2 ||x - d||^2
     (no random nearby point, nor its projection, does better) and R is finite at it."""
-    _require(isinstance(regularizer, Regularizer), who, f"is a {type(regularizer).__name__}, not a Regularizer")
+    require(isinstance(regularizer, Regularizer), who, f"is a {type(regularizer).__name__}, not a Regularizer")
     regularizer.setup(_context(m))
     generator = torch.Generator().manual_seed(0)
     d = 0.2 * torch.rand(m, m, generator=generator, dtype=torch.float64) - 0.05
-    _require(math.isfinite(regularizer.value(regularizer.project(d))), who, "value is not finite at project(d)")
+    require(math.isfinite(regularizer.value(regularizer.project(d))), who, "value is not finite at project(d)")
     if not regularizer.has_prox:
         return
     for step in (1e-3, 1e-1, 10.0):
         x = regularizer.prox(d, step)
         best = step * regularizer.value(x) + 0.5 * float(((x - d) ** 2).sum())
-        _require(math.isfinite(best), who, f"value is not finite at prox(d, {step:g})")
+        require(math.isfinite(best), who, f"value is not finite at prox(d, {step:g})")
         for trial in range(trials):
             scale = 10.0 ** (-1 - trial % 4)
             y = x + scale * torch.randn(m, m, generator=generator, dtype=torch.float64)
             for candidate in (y, regularizer.project(y)):
                 other = step * regularizer.value(candidate) + 0.5 * float(((candidate - d) ** 2).sum())
-                _require(other >= best - 1e-9 * (1.0 + abs(best)), who,
+                require(other >= best - 1e-9 * (1.0 + abs(best)), who,
                          f"prox(d, {step:g}) is not the minimiser: a point {scale:g} away does better "
                          f"({other:.10g} < {best:.10g})")
 
 
 def check_post_step(post_step: PostStepUpdate, m: int = 16, who: str = "post_step") -> None:
     """Check a post-step update: same shape and dtype, finite, the input untouched, deterministic."""
-    _require(isinstance(post_step, PostStepUpdate), who, f"is a {type(post_step).__name__}, not a PostStepUpdate")
+    require(isinstance(post_step, PostStepUpdate), who, f"is a {type(post_step).__name__}, not a PostStepUpdate")
     post_step.setup(_context(m))
     d = smooth_bump(m, 0.05)
     before = d.clone()
     out = post_step(d)
-    _require(out.shape == d.shape and out.dtype == d.dtype, who,
+    require(out.shape == d.shape and out.dtype == d.dtype, who,
              f"gives {tuple(out.shape)} {out.dtype} for {tuple(d.shape)} {d.dtype}")
-    _require(bool(torch.isfinite(out).all()), who, "gives non-finite heights")
-    _require(torch.equal(d, before), who, "modifies its input")
-    _require(torch.equal(post_step(d), out), who, "is not deterministic")
+    require(bool(torch.isfinite(out).all()), who, "gives non-finite heights")
+    require(torch.equal(d, before), who, "modifies its input")
+    require(torch.equal(post_step(d), out), who, "is not deterministic")
 
 
 def check_solver(make: Callable[[], SolverBuilder], problem: Problem, iterations: int = 40, who: str = "solver",
@@ -274,15 +153,15 @@ def check_solver(make: Callable[[], SolverBuilder], problem: Problem, iterations
     results = []
     for _ in range(2):
         solver = make()(problem, start.clone())
-        _require(isinstance(solver, IterativeSolver), who, f"builds a {type(solver).__name__}, not an IterativeSolver")
+        require(isinstance(solver, IterativeSolver), who, f"builds a {type(solver).__name__}, not an IterativeSolver")
         result = solver.run(iterations)
-        _require(bool(torch.isfinite(result.d).all()) and tuple(result.d.shape) == problem.grid.shape, who,
+        require(bool(torch.isfinite(result.d).all()) and tuple(result.d.shape) == problem.grid.shape, who,
                  f"ends with non-finite heights or shape {tuple(result.d.shape)}")
         results.append(result.d)
     last = problem.fidelity.evaluate(results[0], with_grad=False).rel_discrepancy
-    _require(last <= reduction * first, who, f"does not solve a known problem: the relative discrepancy goes from "
+    require(last <= reduction * first, who, f"does not solve a known problem: the relative discrepancy goes from "
              f"{first:.4g} to {last:.4g} in {iterations} iterations (at most {reduction:g} x the start's asked)")
-    _require(torch.equal(results[0], results[1]), who, "two runs on the same problem end differently")
+    require(torch.equal(results[0], results[1]), who, "two runs on the same problem end differently")
 
 
 class _Identity(ImageOperator):
@@ -337,35 +216,35 @@ def check_stopping(make: Callable[[], StoppingRule], m: int = 8, cap: int = 200,
     stops = []
     for _ in range(2):
         rule = make()
-        _require(isinstance(rule, StoppingRule), who, f"is a {type(rule).__name__}, not a StoppingRule")
+        require(isinstance(rule, StoppingRule), who, f"is a {type(rule).__name__}, not a StoppingRule")
         rule.setup(problem)
         result = _Converging(problem, truth).run(cap, [rule])
-        _require(result.stopped_by == type(rule).__name__, who,
+        require(result.stopped_by == type(rule).__name__, who,
                  f"does not stop a run that converges ({result.stop_reason})")
-        _require(bool(result.stop_reason), who, "stops without a reason")
+        require(bool(result.stop_reason), who, "stops without a reason")
         stops.append(result.iterations)
-    _require(stops[0] == stops[1], who, f"stops at iteration {stops[0]}, then at {stops[1]}")
+    require(stops[0] == stops[1], who, f"stops at iteration {stops[0]}, then at {stops[1]}")
 
 
 def check_start(start: Start, request: StartRequest, who: str = "initial") -> None:
     """Check a start plugin on a request: d0 of the grid's shape and the operator's dtype, finite,
     the same twice; its phases named."""
-    _require(isinstance(start, Start), who, f"is a {type(start).__name__}, not a Start")
+    require(isinstance(start, Start), who, f"is a {type(start).__name__}, not a Start")
     phases = start.phases()
-    _require(bool(phases) and all(isinstance(name, str) and name and isinstance(s, Start) for name, s in phases), who,
+    require(bool(phases) and all(isinstance(name, str) and name and isinstance(s, Start) for name, s in phases), who,
              f"phases() gives {phases!r}; a non-empty list of (name, start)")
     start.check(request.base_dir)
     results = [start(request) for _ in range(2)]
     d = results[0].d
     problem = request.problem
-    _require(
+    require(
         tuple(d.shape) == problem.grid.shape and d.dtype == problem.operator.dtype,
         who,
         f"gives {tuple(d.shape)} {d.dtype}; the grid is {problem.grid.shape}, "
         f"the operator's dtype {problem.operator.dtype}",
     )
-    _require(bool(torch.isfinite(d).all()), who, "gives non-finite heights")
-    _require(torch.equal(d, results[1].d), who, "gives another start the second time")
+    require(bool(torch.isfinite(d).all()), who, "gives non-finite heights")
+    require(torch.equal(d, results[1].d), who, "gives another start the second time")
     # What it reads, as declared: data without a design refuse a start that reads one, and run any other.
     bare = replace(request, problem=replace(problem, data=replace(problem.data, design=None)))
     try:
@@ -374,7 +253,7 @@ def check_start(start: Start, request: StartRequest, who: str = "initial") -> No
     except ValueError:
         read = True
     behaves = "refuses" if read else "runs on"
-    _require(read == bool(start.reads_design), who,
+    require(read == bool(start.reads_design), who,
              f"declares reads_design={start.reads_design!r} but {behaves} data without a design")
 
 
@@ -382,16 +261,16 @@ def check_data_source(source: DataSource, request: DataRequest, who: str = "data
     """Check a data plugin on a request: ``check`` and ``load`` agree on the printed area and on
     the volume where ``check`` knows it, the target has the operator's shape and is finite, delta lies in (0,
     1), the same twice."""
-    _require(isinstance(source, DataSource), who, f"is a {type(source).__name__} without check and load")
+    require(isinstance(source, DataSource), who, f"is a {type(source).__name__} without check and load")
     facts = source.check(request)
-    _require(tuple(facts.mask.shape) == request.grid.shape and facts.mask.dtype == torch.bool, who,
+    require(tuple(facts.mask.shape) == request.grid.shape and facts.mask.dtype == torch.bool, who,
              f"check gives a mask {tuple(facts.mask.shape)} {facts.mask.dtype}; the grid is {request.grid.shape} bool")
     data = source.load(request)
-    _require(tuple(data.target.shape) == tuple(request.operator.output_shape), who,
+    require(tuple(data.target.shape) == tuple(request.operator.output_shape), who,
              f"loads a target {tuple(data.target.shape)}; the operator renders {tuple(request.operator.output_shape)}")
-    _require(bool(torch.isfinite(data.target).all()), who, "loads a non-finite target")
-    _require(torch.equal(data.mask, facts.mask), who, "load and check give different printed areas")
-    _require(facts.volume is None or data.volume == facts.volume, who,
+    require(bool(torch.isfinite(data.target).all()), who, "loads a non-finite target")
+    require(torch.equal(data.mask, facts.mask), who, "load and check give different printed areas")
+    require(facts.volume is None or data.volume == facts.volume, who,
              f"load gives the volume {data.volume}, check {facts.volume}")
-    _require(0.0 < data.delta < 1.0, who, f"loads the noise level {data.delta}, not in (0, 1)")
-    _require(torch.equal(source.load(request).target, data.target), who, "loads another target the second time")
+    require(0.0 < data.delta < 1.0, who, f"loads the noise level {data.delta}, not in (0, 1)")
+    require(torch.equal(source.load(request).target, data.target), who, "loads another target the second time")

@@ -8,7 +8,7 @@ from typing import Any
 
 import torch
 
-from framework.core.contracts.checks import _require
+from framework.core.contracts.violation import require
 from framework.core.contracts.representation import Representation
 from framework.core.problem import Problem
 
@@ -24,17 +24,17 @@ def check_representation(make: Callable[[Problem, torch.Tensor], Any], problem: 
     precision."""
     d0 = torch.zeros(problem.grid.shape, dtype=torch.float64)  # double: central differences of 1e-5
     rep = make(problem, d0)
-    _require(isinstance(rep, Representation), who, f"built {type(rep).__name__}, not a Representation")
+    require(isinstance(rep, Representation), who, f"built {type(rep).__name__}, not a Representation")
     theta = rep.initial()
-    _require(tuple(theta.shape) == (rep.size,), who, f"initial() has shape {tuple(theta.shape)}, not ({rep.size},)")
+    require(tuple(theta.shape) == (rep.size,), who, f"initial() has shape {tuple(theta.shape)}, not ({rep.size},)")
     lower, upper = rep.bounds()
-    _require(bool(((lower <= theta) & (theta <= upper)).all()), who, "its start lies outside its bounds")
-    _require(torch.equal(rep.clipped(theta), theta), who, "clipping moves a start inside the bounds")
-    _require(tuple(rep.heights(theta).shape) == problem.grid.shape, who, "heights() do not have the grid's shape")
+    require(bool(((lower <= theta) & (theta <= upper)).all()), who, "its start lies outside its bounds")
+    require(torch.equal(rep.clipped(theta), theta), who, "clipping moves a start inside the bounds")
+    require(tuple(rep.heights(theta).shape) == problem.grid.shape, who, "heights() do not have the grid's shape")
     scale = rep.scale()
-    _require(bool((scale > 0).all()), who, "scale() has a parameter of size <= 0")
+    require(bool((scale > 0).all()), who, "scale() has a parameter of size <= 0")
     for mask in rep.stages():
-        _require(tuple(mask.shape) == (rep.size,) and mask.dtype == torch.bool, who, "a stage is not (p,) bool")
+        require(tuple(mask.shape) == (rep.size,) and mask.dtype == torch.bool, who, "a stage is not (p,) bool")
     generator = torch.Generator().manual_seed(0)
     for trial in range(trials):
         v = torch.randn(rep.size, generator=generator, dtype=theta.dtype) * scale
@@ -42,9 +42,9 @@ def check_representation(make: Callable[[Problem, torch.Tensor], Any], problem: 
         eps = 1e-5
         moved = (rep.heights(theta + eps * v) - rep.heights(theta - eps * v)) / (2 * eps)
         lhs, rhs = float(torch.sum(moved * g)), float(torch.sum(v * rep.vjp(theta, g)))
-        _require(abs(lhs - rhs) <= 1e-5 * (abs(lhs) + abs(rhs)) + 1e-12, who,
+        require(abs(lhs - rhs) <= 1e-5 * (abs(lhs) + abs(rhs)) + 1e-12, who,
                  f"<J v, g> = {lhs:.8g} by central differences but <v, J^T g> = {rhs:.8g} (trial {trial})")
         value_plus, value_minus = rep.prior(theta + eps * v)[0], rep.prior(theta - eps * v)[0]
         slope, along = (value_plus - value_minus) / (2 * eps), float(torch.sum(v * rep.prior(theta)[1]))
-        _require(abs(slope - along) <= 1e-4 * (abs(slope) + abs(along)) + 1e-10, who,
+        require(abs(slope - along) <= 1e-4 * (abs(slope) + abs(along)) + 1e-10, who,
                  f"the prior's slope {slope:.8g} by central differences differs from its gradient's {along:.8g}")
