@@ -103,6 +103,13 @@ class ImageOperator(Plugin, ABC):
         raise NotImplementedError(f"{type(self).__name__} has no variant; synthetic data need an operator that can "
                                   "render with another photon count and receiver")
 
+    def with_photons(self, photons: int, seed: int) -> ImageOperator:
+        """This operator when it traces ``photons``, else its :meth:`variant` with ``photons`` and
+        ``seed``'s pattern on the same receiver (a photon budget's stages, a cheap search)."""
+        if photons == int(self.photons):
+            return self
+        return self.variant(photons, seed, int(self.output_shape[-1]))
+
     def exact_variant(self, photons: int, seed: int, resolution: int) -> Any:
         """A renderer (``render(heights)`` -> (c, resolution, resolution)) of the same physics for
         the references of synthetic data, free of this operator's own approximations where the

@@ -38,7 +38,7 @@ from framework.core.plugin_config import build_plugin
 from framework.core.plugin_config import plugin_class
 from framework.core.solver_loop import IterativeSolver
 from framework.core.registry import KINDS, available, register
-from framework.reconstruction.feature_search import SearchedLines
+from framework.stack.line_search import SearchedLines
 from operators.scene import Receiver, Scene, Substrate
 from regularizers import PixelL1
 from examples.plugins.exact_step_solver import ExactStepSolver

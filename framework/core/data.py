@@ -39,7 +39,7 @@ class ReconstructionData:
     target above stacks theirs along the channel axis; start_shot: the shot a start reads;
     first_fit_shot: the shot a run from flat glass fits alone first (None: none); line_search:
     when every start ends short of the noise level, one more run fits that shot alone and
-    searches its lines across basins before the stack (framework/reconstruction/feature_search.py).
+    searches its lines across basins before the stack (framework/stack/line_search.py).
     """
 
     target: torch.Tensor

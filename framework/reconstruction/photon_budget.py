@@ -32,17 +32,9 @@ from framework.core.problem import Problem
 from framework.core.solver_loop import Callback, IterationRecord, IterativeSolver
 from framework.reconstruction.parts import Reconstruction
 
-__all__ = ["PhotonBudget", "budget_photons", "photon_budget", "photons_needed", "receiver_scale", "render_noise",
-           "with_photons"]
+__all__ = ["PhotonBudget", "budget_photons", "photon_budget", "photons_needed", "receiver_scale", "render_noise"]
 
 SEED_OFFSET = 3000  # the second photon pattern: seed + 3000 (the data's references use + 1000, + 2000)
-
-
-def with_photons(operator: Any, photons: int, seed: int) -> Any:
-    """``operator`` itself when it traces ``photons`` with ``seed``'s pattern, else its variant."""
-    if photons == int(operator.photons):
-        return operator
-    return operator.variant(photons, seed, int(operator.output_shape[-1]))
 
 
 def receiver_scale(operator: Any, photons_resolution: int | None) -> int:
@@ -110,7 +102,7 @@ class PhotonBudget(Callback):
 
     def _use(self, solver: IterativeSolver, photons: int) -> None:
         if photons not in self._operators:
-            self._operators[photons] = with_photons(self.operator, photons, self.seed)
+            self._operators[photons] = self.operator.with_photons(photons, self.seed)
         operator = self._operators[photons]
         self.photons = photons
         if self.fidelity.operator is not operator:

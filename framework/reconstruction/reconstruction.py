@@ -28,9 +28,8 @@ from framework.core.progress import report
 from framework.core.solver_loop import Callback, RunResult, returned_iterate
 from framework.files.image_io import resolve_path
 from framework.reconstruction.coarse_to_fine import coarser_problem, resample_heights
-from framework.reconstruction.feature_search import FeatureSearch, SearchedLines
 from framework.reconstruction.parts import Reconstruction
-from framework.reconstruction.photon_budget import budget_photons, photon_budget, with_photons
+from framework.reconstruction.photon_budget import budget_photons, photon_budget
 from framework.reconstruction.report_figures import save_reconstruction_figures
 from framework.reconstruction.run_checks import CHECKPOINT
 from framework.reconstruction.run_outputs import report_verdict, save_outputs
@@ -38,8 +37,6 @@ from framework.reconstruction.run_phases import PHASES, PhaseOutcome, resumed_ph
 from framework.reconstruction.verdict import volume_report
 
 CALIBRATION_STATE = "calibration.json"
-# Photons per shot and hypothesis of a stack's line search (framework/reconstruction/feature_search.py).
-LINE_SEARCH_PHOTONS = 1 << 18
 # Refits at most: runs of a start again after one whose calibration moved what the heights absorb.
 MAX_REFITS = 2
 MLFLOW_RUN = "mlflow_run.json"  # the run's MLflow run id, so that a job resumed in its directory logs into it
@@ -55,7 +52,7 @@ def passes(fidelity: DataFidelity) -> dict[str, int]:
 def final_operator(parts: Reconstruction, result: RunResult) -> ImageOperator:
     """The operator with the photons of the run's last iteration (framework/reconstruction/photon_budget.py)."""
     photons = result.history[-1].extras.get("photons") if result.history else None
-    return parts.operator if photons is None else with_photons(parts.operator, int(photons), parts.settings.seed)
+    return parts.operator if photons is None else parts.operator.with_photons(int(photons), parts.settings.seed)
 
 
 def interrupted_run(output_dir: Path, checkpoint: Path | None, log: type[RunLog], store_dir: Path, uri: str | None
@@ -122,23 +119,13 @@ def _solve_from(parts: Reconstruction, problem: Problem, name: str, start: Start
     else:
         d0 = torch.zeros(parts.grid.shape, dtype=operator.dtype)
     shaped = checkpoint is None and computed.shaped
-    searched = checkpoint is None and isinstance(start, SearchedLines)
     for stage in parts.stages if checkpoint is None else ():
-        begun = stage.begin(StartingRun(problem, d0, shaped, searched, _solve(parts, shaped=False), parts.calibration,
-                                        output_dir))
+        begun = stage.begin(StartingRun(problem, start, d0, shaped, _solve(parts, shaped=False), parts.calibration,
+                                        output_dir, parts.settings.seed))
         if begun is not None:
             d0 = begun[0]
             start_metrics.update({f"{name}_{k}": v for k, v in begun[1].items()})
             shaped = True
-    if searched:
-        found, searched_metrics = FeatureSearch(problem, LINE_SEARCH_PHOTONS, parts.settings.seed)(
-            d0.detach().cpu().double().numpy())
-        d0 = torch.from_numpy(found).to(operator.dtype)
-        start_metrics.update({f"{name}_{k}": v for k, v in searched_metrics.items()})
-        print(f"line search: {searched_metrics['feature_search_changed']:.0f} of "
-              f"{searched_metrics['feature_search_lines']:.0f} lines remade; the stack's discrepancy "
-              f"{searched_metrics['feature_search_misfit_before']:.4f} -> "
-              f"{searched_metrics['feature_search_misfit_after']:.4f}", flush=True)
     start_seconds = time.perf_counter() - began
     solver = parts.make_solver(problem, d0)
     if shaped:
@@ -205,8 +192,8 @@ def _run_starts(parts: Reconstruction, problem: Problem, request: StartRequest, 
                 ) -> tuple[list[PhaseOutcome], bool, int]:
     """Run the solver from each of the start's phases in turn (continuing an interrupted run's own
     phase from ``checkpoint``) until one reaches the noise level (a stack with
-    ``data.first_fit=lines`` adds one last phase: :class:`SearchedLines` from the first candidate
-    these data can run, never a design the data do not carry); where that run's calibration
+    ``data.first_fit=lines`` adds one last phase through its stage, framework/stack/stack_stage.py:
+    the nearest shot's lines searched from the first candidate these data can run); where that run's calibration
     moved a parameter the heights absorb in part (``JointCalibration.needs_refit``), run its start
     again under the calibrated setup, up to ``MAX_REFITS`` times. Returns the finished runs, whether
     there were several starts, and the MLflow steps used."""
@@ -215,9 +202,7 @@ def _run_starts(parts: Reconstruction, problem: Problem, request: StartRequest, 
 
     candidates = parts.start.phases()
     runnable = [(name, start) for name, start in candidates if not lacks_design(start)]
-    if problem.data.line_search and runnable:  # a stack's last resort: the nearest shot's lines searched
-        nearest = replace(request, problem=problem.shot(problem.data.first_fit_shot))
-        candidates = [*candidates, (f"{runnable[0][0]}_lines", SearchedLines(runnable[0][1], nearest))]
+    candidates += [added for stage in parts.stages for added in stage.phases(problem, runnable, request)]
     finished, first, refits = resumed_phases(output_dir, checkpoint)
     phases = [*candidates, *((f"{candidates[i][0]}_refit", candidates[i][1]) for i in refits)]
     steps = sum(outcome.result.iterations for outcome in finished)

@@ -109,7 +109,7 @@ class StackData(ShotStack):
             (framework/stack/first_fit.py); ``lines``: the same, and when every start ends short
             of the noise level, one run more: the first start computed on the nearest shot, that
             shot fitted alone, every line of its fit searched across basins by the misfit of every
-            shot (framework/reconstruction/feature_search.py), then the stack; ``none``: the whole stack
+            shot (framework/stack/line_search.py), then the stack; ``none``: the whole stack
             from the start.
     """
 

@@ -1,4 +1,4 @@
-"""The per-line search across basins (framework/reconstruction/feature_search.py): a line's
+"""The per-line search across basins (framework/stack/line_search.py): a line's
 cross-section remade at the volume it had, the lines of a height field found with their axes and
 widths, a thin line found from two screens where the start holds it wide and low, and a stack
 run whose starts end short of its noise level searching its near fit's lines last."""
@@ -11,7 +11,7 @@ import torch
 
 from framework.core.data import ReconstructionData
 from framework.core.problem import HeightGrid, Problem
-from framework.reconstruction.feature_search import FeatureSearch, collapsed, line_features
+from framework.stack.line_search import FeatureSearch, collapsed, line_features
 from framework.reconstruction.reconstruction import run_reconstruction
 from tests.experiments.conftest import SMALL, compose_reconstruct
 from operators.stack import StackOperator

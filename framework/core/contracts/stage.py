@@ -6,8 +6,10 @@ the run's config before anything is rendered: ``from_config(cfg)`` reads and che
 own config group and returns None where the stage has nothing to do in such a run. Each stage, in
 turn by its ``order``, then meets the run at three points:
 
+- :meth:`RunStage.phases` may add starts to try after the configured ones (a stack's search of
+  its nearest shot's lines, framework/stack/stack_stage.py);
 - before each solve from a start, :meth:`RunStage.begin` may solve part of the problem first and
-  hand over other heights to start from (a stack's nearest shot, framework/stack/stack_stage.py);
+  hand over other heights to start from (a stack's nearest shot);
 - after the solve, :meth:`RunStage.revise` may replace the returned heights (the check of
   undecided beads, framework/tracks/ambiguity_stage.py);
 - once the run has rendered its prediction and written its outputs and its own verdict,
@@ -28,6 +30,7 @@ from torch import Tensor
 
 from framework.core.contracts.calibration import SetupCalibration
 from framework.core.contracts.representation import Representation
+from framework.core.contracts.start import Start, StartRequest
 from framework.core.problem import Problem
 from framework.core.solver_loop import Callback, RunResult
 from operators.plugin import Plugin
@@ -48,22 +51,25 @@ class StartingRun:
 
     Attributes:
         problem: The run's problem.
+        start: The start the heights came from (a plugin of kind ``initial``, or a phase a stage
+            added).
         heights: The start d0 (m, m), scene units.
         shaped: Whether the start holds the print's shape (not flat glass).
-        searched: Whether the start is a search across basins made for this problem.
         solve: The run's own solver, fresh stopping rules and photon budget on a problem
             (:data:`Solve`).
         calibration: The run's calibration of the setup, or None.
         output_dir: The run's directory.
+        seed: The run's seed.
     """
 
     problem: Problem
+    start: Start
     heights: Tensor
     shaped: bool
-    searched: bool
     solve: Solve
     calibration: SetupCalibration | None
     output_dir: Path
+    seed: int
 
 
 @dataclass
@@ -127,6 +133,12 @@ class RunStage(Plugin, ABC):
     """
 
     order: ClassVar[int] = 100
+
+    def phases(self, problem: Problem, runnable: list[tuple[str, Start]], request: StartRequest
+               ) -> list[tuple[str, Start]]:
+        """Starts (name, start) to try after the configured ones, given those that these data can
+        run (``runnable``) and the request the run's starts read; here none."""
+        return []
 
     def begin(self, run: StartingRun) -> tuple[Tensor, dict[str, float]] | None:
         """Other heights (m, m) to start the solve from and what finding them cost (metrics, named

@@ -27,7 +27,6 @@ from scipy import ndimage
 
 from framework.core.contracts.start import Start, StartRequest, StartResult
 from framework.core.problem import Problem
-from framework.reconstruction.photon_budget import with_photons
 from operators.values import checked_whole
 
 __all__ = ["LineFeature", "line_features", "collapsed", "FeatureSearch", "SearchedLines"]
@@ -162,7 +161,7 @@ class FeatureSearch:
     def __init__(self, problem: Problem, photons: int, seed: int) -> None:
         photons = checked_whole(photons, "feature search photons", 1)
         self.problem = problem
-        self.operator = with_photons(problem.operator, min(photons, int(problem.operator.photons)), seed)
+        self.operator = problem.operator.with_photons(min(photons, int(problem.operator.photons)), seed)
         self.renders = 0
 
     def misfit(self, d: np.ndarray) -> float:
@@ -212,7 +211,7 @@ class FeatureSearch:
 class SearchedLines(Start):
     """A stack's last start (``data.first_fit=lines``): ``start`` computed on the nearest shot
     (``request``), the nearest shot fitted alone from it, its lines searched by every shot's misfit
-    (:class:`FeatureSearch`), then the stack (framework/reconstruction/reconstruction.py)."""
+    (:class:`FeatureSearch`), then the stack (framework/stack/stack_stage.py)."""
 
     start: Any
     request: StartRequest
