@@ -16,7 +16,8 @@ from typing import Any
 import numpy as np
 import torch
 
-__all__ = ["checked_flag", "checked_height_field", "checked_number", "checked_whole", "described", "is_number"]
+__all__ = ["checked_flag", "checked_height_field", "checked_number", "checked_print_heights", "checked_whole",
+           "described", "is_number"]
 
 
 def described(value: object) -> str:
@@ -99,3 +100,21 @@ def checked_height_field(d: Any, key: str = "d") -> torch.Tensor:
         bad = int((~torch.isfinite(d)).sum())
         raise ValueError(f"{key} contains {bad} NaN/inf value(s); check the step size or the gradient behind it")
     return d
+
+
+def checked_print_heights(heights: torch.Tensor, thickness: float) -> torch.Tensor:
+    """``heights`` when they are a finite, square (m, m) height field (m >= 4) whose glass top
+    stays above the substrate bottom (d > -thickness; iterates of M1 may dip below d = 0): what an
+    operator renders; anything else is refused in one line."""
+    if not isinstance(heights, torch.Tensor):
+        raise TypeError(f"heights must be a torch.Tensor, got {type(heights).__name__}")
+    if heights.dim() != 2 or heights.shape[0] != heights.shape[1]:
+        raise ValueError(f"heights must be a square (m, m) array, got shape {tuple(heights.shape)}")
+    if heights.shape[0] < 4:
+        raise ValueError(f"heights resolution {heights.shape[0]} is too small; use m >= 4")
+    if not bool(torch.isfinite(heights).all()):
+        raise ValueError("heights contain NaN or infinite values; clean the height field first")
+    if float(heights.min()) <= -thickness:
+        raise ValueError(f"heights reach {float(heights.min()):.4g}, below the substrate bottom "
+                         f"(d must exceed -thickness = {-thickness}); printed heights are >= 0")
+    return heights

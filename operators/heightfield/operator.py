@@ -31,7 +31,6 @@ from tqdm.auto import tqdm
 
 from operators.emission import LightEmitter
 from operators.heightfield.precompile import BackgroundCompile
-from operators.heightfield.surface import validate_heights
 from operators.heightfield.trace_native import FusedTracer, HitCache
 from operators.heightfield.trace_reference import trace_substrate
 from operators.kernels.numba_settings import to_numpy
@@ -41,7 +40,7 @@ from operators.photon_settings import DTYPES, PhotonSettings
 from operators.scene import Scene
 from operators.splat.splat import splat_photons
 from operators.supersample import SupersampledOperator, build_supersampled
-from operators.values import checked_flag, checked_number
+from operators.values import checked_flag, checked_number, checked_print_heights
 from operators.wavefront.extended import ExtendedLightReference
 from operators.wavefront.renderer import WavefrontRenderer, wavefront_vertices
 
@@ -168,7 +167,7 @@ class CausticOperator(PhotonOperator):
         return image / self.pixel_area
 
     def _check(self, heights: torch.Tensor) -> None:
-        validate_heights(heights, self.scene.substrate.thickness)
+        checked_print_heights(heights, self.scene.substrate.thickness)
         self.scene.check_heights_below_light(float(heights.max()))
         if not self._rim_reported:
             self._rim_reported = self.emitter.warn_dark_rim(to_numpy(heights))

@@ -101,19 +101,3 @@ def intersect_height_field(heights: torch.Tensor, grid: HeightFieldGrid, origin:
     differentiable w.r.t. ``heights`` (m, m) (not w.r.t. the rays).
     """
     return _HeightFieldHit.apply(heights, grid, origin, direction)
-
-
-def validate_heights(heights: torch.Tensor, thickness: float) -> None:
-    """Refuse arrays that are not a finite, square (m, m) height field (m >= 4) whose glass top
-    stays above the substrate bottom (d > -thickness; iterates of M1 may dip below d = 0)."""
-    if not isinstance(heights, torch.Tensor):
-        raise TypeError(f"heights must be a torch.Tensor, got {type(heights).__name__}")
-    if heights.dim() != 2 or heights.shape[0] != heights.shape[1]:
-        raise ValueError(f"heights must be a square (m, m) array, got shape {tuple(heights.shape)}")
-    if heights.shape[0] < 4:
-        raise ValueError(f"heights resolution {heights.shape[0]} is too small; use m >= 4")
-    if not bool(torch.isfinite(heights).all()):
-        raise ValueError("heights contain NaN or infinite values; clean the height field first")
-    if float(heights.min()) <= -thickness:
-        raise ValueError(f"heights reach {float(heights.min()):.4g}, below the substrate bottom "
-                         f"(d must exceed -thickness = {-thickness}); printed heights are >= 0")

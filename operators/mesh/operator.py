@@ -34,7 +34,7 @@ import torch
 from tqdm.auto import tqdm
 
 from operators.emission import CELL_FOOTPRINT, LightEmitter
-from operators.heightfield.surface import HeightFieldGrid, intersect_height_field, validate_heights
+from operators.heightfield.surface import HeightFieldGrid, intersect_height_field
 from operators.light_paths import Arrivals
 from operators.materials import refractive_indices
 from operators.mesh.elements import MeshProgress, OpticalElement, PrintReachesElement, check_layout, make_elements
@@ -50,6 +50,7 @@ from operators.scene import Scene
 from operators.splat.splat import splat_photons
 from operators.supersample import SupersampledOperator, build_supersampled, finer_scene
 from operators.lengths import scene_length
+from operators.values import checked_print_heights
 
 __all__ = ["EXACT_FILTER_PX", "MeshSceneOperator"]
 
@@ -155,7 +156,7 @@ class MeshSceneOperator(PhotonOperator):
         return None
 
     def _check(self, heights: torch.Tensor) -> None:
-        validate_heights(heights, self.scene.substrate.thickness)
+        checked_print_heights(heights, self.scene.substrate.thickness)
         top = self.scene.substrate.thickness + float(heights.max())
         inside = self._element_within(top)
         if inside is not None:

@@ -55,13 +55,12 @@ from operators.emission import LightEmitter
 from operators.heightfield import trace_compiled
 from operators.heightfield.kernels_native import hit_jet, optics_state
 from operators.heightfield.side_walls import LOST
-from operators.heightfield.surface import validate_heights
 from operators.heightfield.trace_native import FusedTracer
 from operators.heightfield.trace_reference import trace_substrate
 from operators.kernels.numba_settings import jit_call, jit_parallel
 from operators.optics.native import ZERO, fresnel
 from operators.scene import Scene
-from operators.values import checked_flag, checked_whole
+from operators.values import checked_flag, checked_print_heights, checked_whole
 from operators.wavefront.coverage import rasterize_grid, rasterize_triangles
 from operators.wavefront.flux import grid_flux, grid_solid_angles, triangle_solid_angle
 
@@ -313,7 +312,7 @@ class WavefrontRenderer:
         printed ``heights`` (m, m) (scene units), on their device; no autograd (traced on the CPU).
         Sets :attr:`last_budget`. ``progress`` is accepted as an operator's render takes it (a
         render takes seconds: nothing to show)."""
-        validate_heights(heights, self.scene.substrate.thickness)
+        checked_print_heights(heights, self.scene.substrate.thickness)
         self.scene.check_heights_below_light(float(heights.max()))
         d = heights.detach().to(device="cpu", dtype=torch.float64).contiguous()
         self.emitter.warn_dark_rim(d.numpy())
