@@ -17,7 +17,7 @@ from framework.core.checkpoint import save_checkpoint
 from framework.core.progress import report
 from framework.core.solver_loop import Callback
 from framework.core.truth import GroundTruth
-from operators.values import checked_whole, described
+from operators.values import checked_number, checked_whole, described
 
 if TYPE_CHECKING:
     from framework.core.solver_loop import IterationRecord
@@ -150,9 +150,7 @@ class GroundTruthError(Callback):
     def __init__(self, truth: GroundTruth, substrate_thickness: float) -> None:
         if not isinstance(truth, GroundTruth):
             raise ValueError(f"truth must be a GroundTruth (framework/core/truth.py), got {described(truth)}")
-        h = float(substrate_thickness)
-        if not (math.isfinite(h) and h >= 0.0):
-            raise ValueError(f"substrate_thickness h must be finite and >= 0, got {substrate_thickness!r}")
+        h = checked_number(substrate_thickness, "substrate_thickness", least=0.0, unit="scene units")
         self.truth, self.h = truth, h
 
     def errors(self, d: Tensor) -> dict[str, float]:

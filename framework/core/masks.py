@@ -7,13 +7,12 @@ print's design, or a mask image (framework/files/image_io.py).
 
 from __future__ import annotations
 
-import math
 from typing import Literal
 
 import torch
 import torch.nn.functional as F
 
-from operators.values import described
+from operators.values import checked_number, described
 
 __all__ = ["mask_from_height_field"]
 
@@ -47,10 +46,8 @@ def mask_from_height_field(
     """
     if not isinstance(d_true, torch.Tensor) or d_true.ndim != 2 or not d_true.is_floating_point():
         raise ValueError(f"d_true must be a floating-point (m, m) tensor, got {described(d_true)}")
-    for name, value in (("threshold", threshold), ("dilation_fraction", dilation_fraction)):
-        if not (math.isfinite(float(value)) and float(value) >= 0.0):
-            raise ValueError(f"{name}={value!r} must be a finite number >= 0 (defaults: threshold 1e-3, "
-                             "dilation_fraction 0.05)")
+    checked_number(threshold, "threshold", least=0.0, example="1e-3")
+    checked_number(dilation_fraction, "dilation_fraction", least=0.0, example="0.05")
     if dilation_fraction > 1.0:
         raise ValueError(f"dilation_fraction={dilation_fraction!r} must be at most 1 (a fraction of the grid's width)")
     if footprint not in ("square", "disk"):

@@ -24,6 +24,7 @@ import torch
 from torch import Tensor
 
 from operators.image_operator import ImageOperator
+from operators.values import checked_number
 
 __all__ = [
     "DataEvaluation",
@@ -80,9 +81,7 @@ class DataFidelity:
 
     def __init__(self, operator: ImageOperator, target: Tensor, max_negative_fraction: float = 0.25,
                  cell_area: float = 1.0, weights: Tensor | None = None) -> None:
-        if not (math.isfinite(cell_area) and cell_area > 0.0):
-            raise ValueError(f"cell_area={cell_area} must be a positive area (scene units^2)")
-        self.cell_area = float(cell_area)
+        self.cell_area = checked_number(cell_area, "cell_area", above=0.0, unit="scene units^2")
         if not isinstance(operator, ImageOperator):
             raise ValueError(f"operator {type(operator).__name__} does not keep the operator contract: derive it from "
                              "operators.image_operator.ImageOperator")

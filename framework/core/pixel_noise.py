@@ -8,6 +8,8 @@ import math
 
 import torch
 
+from operators.values import checked_number
+
 __all__ = ["pixel_noise", "pixels_used"]
 
 
@@ -19,8 +21,7 @@ def pixels_used(target: torch.Tensor, weights: torch.Tensor | None) -> int:
 def pixel_noise(target: torch.Tensor, delta: float, weights: torch.Tensor | None) -> float:
     """The standard deviation s of white pixel noise whose norm is ``delta`` ||b||_W over the pixels
     the fit uses (weight > 0): s = delta ||b||_W / sqrt(count)."""
-    if not (math.isfinite(delta) and delta > 0.0):
-        raise ValueError(f"delta={delta!r} must be a positive noise level, e.g. 0.05")
+    checked_number(delta, "delta", above=0.0, unit="the relative noise level", example="0.05")
     squares = target.double() ** 2
     if weights is None:
         return delta * math.sqrt(float(squares.sum()) / squares.numel())

@@ -18,7 +18,7 @@ import sys
 import torch
 from torch import Tensor
 
-from operators.values import described
+from operators.values import checked_number, described
 
 __all__ = ["GroundTruth", "READERS", "TruthLeak", "height_errors"]
 
@@ -40,9 +40,7 @@ def height_errors(d: Tensor, d_true: Tensor, substrate_thickness: float) -> dict
     """
     if tuple(d.shape) != tuple(d_true.shape):
         raise ValueError(f"d has shape {tuple(d.shape)}, the ground truth {tuple(d_true.shape)}")
-    h = float(substrate_thickness)
-    if not (math.isfinite(h) and h >= 0.0):
-        raise ValueError(f"substrate_thickness h must be finite and >= 0, got {substrate_thickness!r}")
+    h = checked_number(substrate_thickness, "substrate_thickness", least=0.0, unit="scene units")
     truth = d_true.double()
     norm_total = float(torch.linalg.vector_norm(h + truth))
     if norm_total == 0.0:

@@ -32,7 +32,7 @@ import torch
 from torch import Tensor
 
 from operators.plugin import Plugin
-from operators.values import checked_whole
+from operators.values import checked_number, checked_whole
 
 __all__ = ["GradientPreconditioner", "SobolevPreconditioner", "check_stage_index", "neumann_laplacian_eigenvalues"]
 
@@ -109,8 +109,7 @@ class SobolevPreconditioner(GradientPreconditioner):
         if any(b >= a for a, b in zip(lengths, lengths[1:])):
             raise ValueError(f"preconditioner length={length!r}: a schedule must decrease (coarse to fine), "
                              "e.g. [0.125, 0.0625]")
-        if not (math.isfinite(float(order)) and float(order) > 0.0):
-            raise ValueError(f"preconditioner order={order!r} must be positive, e.g. 2")
+        checked_number(order, "preconditioner order", above=0.0, example="2")
         self.lengths = [float(v) for v in lengths]
         self.grid = None if grid is None else checked_whole(grid, "preconditioner grid", least=2, example="128")
         self._scale = 1.0  # grid / m on a finer grid (setup)

@@ -174,8 +174,7 @@ class BacktrackingStep(StepSizePolicy):
         self.tau0 = checked_number(tau, "tau", above=0.0)
         if not 0.0 < float(shrink) < 1.0:
             raise ValueError(f"shrink must lie in (0, 1), got {shrink!r}")
-        if not (math.isfinite(float(grow)) and float(grow) >= 1.0):
-            raise ValueError(f"grow must be a finite number >= 1 (1 = never grow), got {grow!r}")
+        checked_number(grow, "grow", least=1.0, unit="1: never grow")
         if not 0.0 < float(sufficient_decrease) <= 1.0:
             raise ValueError(f"sufficient_decrease must lie in (0, 1], got {sufficient_decrease!r}")
         if int(max_trials) < 1:

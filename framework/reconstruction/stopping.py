@@ -12,7 +12,7 @@ from torch import Tensor
 
 from framework.core.data import validate_delta
 from framework.core.contracts.stopping import StoppingRule
-from operators.values import checked_whole, is_number
+from operators.values import checked_number, checked_whole, is_number
 
 if TYPE_CHECKING:
     from framework.core.problem import Problem
@@ -48,11 +48,8 @@ class MorozovStopping(StoppingRule):
 
     def __init__(self, delta: float | None = None, tau_dis: float = 1.1,
                  volume_band: tuple[float, float] | None = None) -> None:
-        tau_dis = float(tau_dis)
-        if not (math.isfinite(tau_dis) and tau_dis > 1.0):
-            raise ValueError(
-                f"tau_dis must be > 1 for the discrepancy principle, got {tau_dis!r}; the paper uses 1.01-1.2"
-            )
+        tau_dis = checked_number(tau_dis, "tau_dis", above=1.0, unit="the discrepancy principle's factor",
+                                 example="1.01-1.2 (the paper)")
         self.delta = None if delta is None else validate_delta(delta, "stopping.morozov.delta")
         self.tau_dis = tau_dis
         self.volume_band = volume_band

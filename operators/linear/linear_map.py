@@ -16,11 +16,12 @@ subclass); a new piece is checked the moment it is defined.
 from __future__ import annotations
 
 import inspect
-import math
 from abc import ABC, abstractmethod
 from collections.abc import Sequence
 
 import torch
+
+from operators.values import checked_number
 
 __all__ = ["Composition", "Gain", "LinearMap", "all_linear_maps", "dot_test"]
 
@@ -59,9 +60,7 @@ class Gain(LinearMap):
     self-adjoint."""
 
     def __init__(self, gain: float) -> None:
-        if not (math.isfinite(gain) and gain > 0.0):
-            raise ValueError(f"gain={gain!r} must be a positive finite number")
-        self.gain = float(gain)
+        self.gain = checked_number(gain, "gain", above=0.0, unit="image units per W per scene unit^2")
 
     def apply(self, x: torch.Tensor) -> torch.Tensor:
         return self.gain * x

@@ -43,7 +43,7 @@ def test_the_block_mean_averages_each_block() -> None:
 
 
 @pytest.mark.parametrize("make, message", [
-    (lambda: Gain(0.0), r"^gain=0.0 must be a positive finite number$"),
+    (lambda: Gain(0.0), r"^gain=0.0 must be a positive number \(image units per W per scene unit\^2\)$"),
     (lambda: Gain(math.nan), r"^gain=nan must be"),
     (lambda: BlockMean(0), r"^operator.supersample=0"),
     (lambda: ShotWeights([1.0, -2.0], 1), r"^stack weights \[1.0, -2.0\] must be one positive number per shot$"),
