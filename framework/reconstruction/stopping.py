@@ -48,8 +48,8 @@ class MorozovStopping(StoppingRule):
 
     def __init__(self, delta: float | None = None, tau_dis: float = 1.1,
                  volume_band: tuple[float, float] | None = None) -> None:
-        tau_dis = checked_number(tau_dis, "tau_dis", above=1.0, unit="the discrepancy principle's factor",
-                                 example="1.01-1.2 (the paper)")
+        tau_dis = checked_number(tau_dis, "stopping.morozov.tau_dis", above=1.0,
+                                 unit="the discrepancy principle's factor", example="1.01-1.2 (the paper)")
         self.delta = None if delta is None else validate_delta(delta, "stopping.morozov.delta")
         self.tau_dis = tau_dis
         self.volume_band = volume_band

@@ -222,7 +222,7 @@ def test_measured_data_from_files(tmp_path):
     (["+solver.pixel_step_ratio=2"], ValueError, "unknown key solver.pixel_step_ratio"),
     (["experiment=m3v1", "solver.pixel_step_ratio=0"], ValueError, "pixel_step_ratio"),
     (["+stopping.patience={}"], KeyError, "unknown stopping plugin 'patience'"),
-    (["stopping.morozov.tau_dis=1.0"], ValueError, "tau_dis must be > 1"),
+    (["stopping.morozov.tau_dis=1.0"], ValueError, r"stopping.morozov.tau_dis=1.0 must be a number > 1"),
     (["operator.name=mesh"], KeyError, "unknown operator plugin 'mesh'"),
     (["data.name=camera"], KeyError, "unknown data plugin 'camera'"),
     (["data=photo"], ValueError, "data.photo"),
