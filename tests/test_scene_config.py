@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 import torch
 from hydra import compose, initialize_config_dir
-from omegaconf import DictConfig
 
+from experiments.apps.configs import to_plain
 from framework.scene.scene_config import build_heights, build_operator, build_scene
 from framework.scene.printed_shapes import make_shape
 
@@ -23,9 +23,9 @@ OPERATORS = [pytest.param(name, marks=pytest.mark.slow) if name == "prism_lens_a
 SMALL = ["height_field.resolution=16", "receiver.resolution=32", "photons=3000"]
 
 
-def compose_simulate(overrides: list[str]) -> DictConfig:
+def compose_simulate(overrides: list[str]) -> dict[str, Any]:
     with initialize_config_dir(version_base=None, config_dir=str(CONF)):
-        return compose(config_name="simulate", overrides=overrides)
+        return to_plain(compose(config_name="simulate", overrides=overrides))
 
 
 def plain(**groups: Any) -> dict[str, Any]:
@@ -53,10 +53,10 @@ def test_every_config_composes_and_builds(scene_name: str, operator: str) -> Non
     heights = build_heights(cfg)
     op = build_operator(cfg, scene)
     shape = scene_name.removesuffix("_mm")  # print_lines_mm: the same scene with lengths in mm
-    assert cfg.height_field.shape == shape
+    assert cfg["height_field"]["shape"] == shape
     assert heights.shape == (16, 16) and heights.dtype == torch.float64
-    np.testing.assert_array_equal(heights.numpy(), make_shape(shape, 16, **cfg.height_field.params))
-    channels = len(cfg.wavelengths)
+    np.testing.assert_array_equal(heights.numpy(), make_shape(shape, 16, **cfg["height_field"]["params"]))
+    channels = len(cfg["wavelengths"])
     assert op.output_shape == (channels, 32, 32)
     image = op.render(heights)
     assert image.shape == (channels, 32, 32) and bool(torch.isfinite(image).all()) and float(image.sum()) > 0
@@ -69,8 +69,8 @@ def test_defaults_are_the_official_ones() -> None:
     assert scene.substrate.thickness == 0.1
     assert (scene.receiver.z, scene.receiver.resolution) == (-0.05, 512)
     assert scene.wavelengths == (0.633,) and scene.indices[0] == pytest.approx(1.4570, abs=1e-4)
-    assert cfg.height_field.resolution == 128 and cfg.height_field.shape == "print_lines"
-    assert cfg.photons == 4194304 and cfg.seed == 0
+    assert cfg["height_field"]["resolution"] == 128 and cfg["height_field"]["shape"] == "print_lines"
+    assert cfg["photons"] == 4194304 and cfg["seed"] == 0
     op = build_operator(cfg, scene)
     s = op.fine.settings  # the fine operator's: 4 x 4 fine pixels per receiver pixel, footprints in fine pixels
     assert op.factor == 4 and op.output_shape == (1, 512, 512) and op.fine.output_shape == (1, 2048, 2048)

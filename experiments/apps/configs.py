@@ -1,4 +1,5 @@
-"""The plain config of an app's Hydra config (conf/) with overrides, for scripts that run several
+"""Hydra's configs made plain at the commands' edge (the framework reads plain dicts and lists), and
+the plain config of an app's Hydra config (conf/) with overrides, for scripts that run several
 reconstructions in one process."""
 
 from __future__ import annotations
@@ -6,9 +7,16 @@ from __future__ import annotations
 from typing import Any
 
 from hydra import compose, initialize_config_dir
+from omegaconf import DictConfig, ListConfig, OmegaConf
 
 import conf
-from framework.scene.scene_config import to_plain
+
+def to_plain(cfg: Any) -> Any:
+    """A resolved plain-Python copy of an OmegaConf node (dicts and lists); other values unchanged."""
+    if isinstance(cfg, (DictConfig, ListConfig)):
+        return OmegaConf.to_container(cfg, resolve=True)
+    return cfg
+
 
 def app_config(name: str, overrides: list[str]) -> dict[str, Any]:
     """The plain config of conf/<name>.yaml (reconstruct, design, simulate) with ``overrides``."""

@@ -28,7 +28,7 @@ from experiments.apps.input_errors import one_line_input_errors
 from framework.core.progress import Heartbeat
 from framework.design.design_run import run_design
 from framework.design.design_setup import prepare_design
-from framework.scene.scene_config import to_plain
+from experiments.apps.configs import to_plain
 
 
 @hydra.main(version_base=None, config_path=conf.DIRECTORY, config_name="design")

@@ -37,7 +37,8 @@ from framework.defects.report import defect_lines
 from framework.files.height_field_io import load_height_field, read_npy, validate_heights
 from framework.files.mm_outputs import MESH_FORMATS, export_outputs
 from framework.scene.run_settings import design_given
-from framework.scene.scene_config import build_heights, build_scene, to_plain
+from experiments.apps.configs import to_plain
+from framework.scene.scene_config import build_heights, build_scene
 
 INPUT_ERROR_STATUS = 2
 RUN_FIX = "re-run the reconstruction or pass another run directory"

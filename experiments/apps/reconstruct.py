@@ -31,7 +31,7 @@ from experiments.apps.input_errors import one_line_input_errors
 from experiments.apps.run_summary import reconstruction_summary
 from framework.core.progress import Heartbeat
 from framework.reconstruction.reconstruction import run_reconstruction
-from framework.scene.scene_config import to_plain
+from experiments.apps.configs import to_plain
 
 
 @hydra.main(version_base=None, config_path=conf.DIRECTORY, config_name="reconstruct")

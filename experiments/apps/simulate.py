@@ -13,7 +13,9 @@ caustic.png (+y up), height_and_caustic.png and heights.npy (float64 (m, m), sce
 from __future__ import annotations
 
 import time
+from collections.abc import Mapping
 from pathlib import Path
+from typing import Any
 
 import hydra
 import numpy as np
@@ -25,11 +27,12 @@ import conf
 from experiments.apps.config_errors import checked_app
 from experiments.apps.input_errors import one_line_input_errors
 from framework.files.plotting import save_caustic_png, save_height_and_caustic_figure
+from experiments.apps.configs import to_plain
 from framework.scene.scene_config import build_heights, build_operator, build_scene
 
 # Absolute, so that the installed console script finds the configs too (a relative
 # "../conf" would be looked up as the package "conf", which is not installed).
-def simulate(cfg: DictConfig, output_dir: Path, base_dir: Path | None = None) -> dict[str, float]:
+def simulate(cfg: Mapping[str, Any], output_dir: Path, base_dir: Path | None = None) -> dict[str, float]:
     """Render the configured scene and write the outputs into ``output_dir``; returns run figures."""
     scene = build_scene(cfg)
     heights = build_heights(cfg, base_dir=base_dir)
@@ -61,7 +64,7 @@ def simulate(cfg: DictConfig, output_dir: Path, base_dir: Path | None = None) ->
 def app(cfg: DictConfig) -> None:
     """Hydra entry point: simulate, then report where the files went, the power and the speed."""
     output_dir = Path(HydraConfig.get().runtime.output_dir)
-    stats = simulate(cfg, output_dir, base_dir=Path(get_original_cwd()))
+    stats = simulate(to_plain(cfg), output_dir, base_dir=Path(get_original_cwd()))
     print(f"wrote caustic.npy, caustic.png, height_and_caustic.png, heights.npy to {output_dir}")
     print(f"power on the receiver: {stats['power_w']:.6g} W; "
           f"{stats['photons']} photons in {stats['seconds']:.3g} s ({stats['photons_per_s']:.4g} photons/s)")

@@ -27,7 +27,7 @@ from omegaconf import DictConfig
 from experiments.apps.input_errors import INPUT_ERRORS, TRACEBACK_VARIABLE, one_line
 from framework.reconstruction.parts import Reconstruction
 from framework.files.paths import check_creatable_directory
-from framework.scene.scene_config import to_plain
+from experiments.apps.configs import to_plain
 
 __all__ = ["CheckBeforeStart", "check_launcher", "sweep_jobs"]
 

@@ -14,7 +14,7 @@ import torch
 from framework.design.design_screen import has_elements, lit_half_width
 from framework.design.design_target import screen_reach
 from framework.files.plotting import label_xy_axes, save_caustic_png, save_figure
-from framework.scene.scene_config import build_operator, to_plain
+from framework.scene.scene_config import build_operator
 from operators.values import is_number
 
 if TYPE_CHECKING:
@@ -25,7 +25,7 @@ __all__ = ["preview_factors", "save_previews", "save_design_figure"]
 
 def preview_factors(cfg: Mapping[str, Any]) -> list[float]:
     """The configured ``previews``: factors > 0 of the screen distance."""
-    factors = to_plain(cfg.get("previews", [0.5, 2.0])) or []
+    factors = cfg.get("previews", [0.5, 2.0]) or []
     if not isinstance(factors, list) or not all(is_number(f) and f > 0 for f in factors):
         raise ValueError(f"previews={factors!r} must be a list of factors > 0 of the screen distance, e.g. [0.5, 2.0]")
     return [float(f) for f in factors]

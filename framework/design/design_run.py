@@ -35,7 +35,6 @@ from framework.design.design_report import save_design_figure, save_previews
 from framework.design.design_screen import has_elements
 from framework.design.design_setup import DesignSetup, method_settings, prepare_design
 from framework.files.mm_outputs import export_outputs
-from framework.scene.scene_config import to_plain
 from operators.mesh.elements import PrintReachesElement
 from operators.wavefront.renderer import WavefrontRenderer, wavefront_vertices
 
@@ -161,14 +160,14 @@ def run_design(cfg: Mapping[str, Any], output_dir: Path, base_dir: Path | None =
     method = method_settings(cfg)
     seconds, seed = float(cfg["seconds"]), int(cfg.get("seed", 0))
     output_dir.mkdir(parents=True, exist_ok=True)
-    tracking = dict(to_plain(cfg.get("tracking")) or {})
+    tracking = dict(cfg.get("tracking") or {})
     problem = setup.problem
     name, params = split_name(method["solver"], "design_method.solver")
     checkpoint = output_dir / CHECKPOINT
     log = plugin_class("tracker", str(tracking.get("name", "mlflow")), RunLog)
     with log(experiment=tracking.get("experiment", "caustic-design"), run_name=method["name"],
              store_dir=tracking.get("store_dir", "mlruns"), tracking_uri=tracking.get("uri"),
-             params=to_plain(cfg), tags={"method": method["name"], "target": setup.source}) as tracker:
+             params=dict(cfg), tags={"method": method["name"], "target": setup.source}) as tracker:
         began = time.perf_counter()
         start_metrics: dict[str, float] = {}
         factor = float(cfg.get("model_noise_factor", 1.25))

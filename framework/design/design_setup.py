@@ -22,7 +22,7 @@ from framework.core.units import mm_per_unit, scene_length, scene_volume
 from framework.design.design_screen import has_elements, lit_half_width
 from framework.design.design_target import DesignTarget, load_target, paraxial_shadow, screen_reach
 from framework.files.image_io import load_mask
-from framework.scene.scene_config import build_operator, build_scene, to_plain
+from framework.scene.scene_config import build_operator, build_scene
 from operators.scene import Scene
 from operators.values import checked_number, checked_whole
 
@@ -85,7 +85,7 @@ def _length(value: Any, mm: float, where: str) -> float | None:
 
 def _constraints(cfg: Mapping[str, Any], m: int, half_width: float, mm: float, base_dir: Path | None
                  ) -> PrintConstraints:
-    spec = dict(to_plain(cfg.get("constraints")) or {})
+    spec = dict(cfg.get("constraints") or {})
     allowed = ("max_height", "max_slope", "min_feature", "volume", "mask", "edge_margin")
     unknown = [k for k in spec if k not in allowed]
     if unknown:
@@ -120,7 +120,7 @@ def prepare_design(cfg: Mapping[str, Any], base_dir: Path | None = None) -> Desi
     """Read and check the target, the scene, the limits and the method's settings; render flat
     glass to scale the target to the power that reaches the screen."""
     mm = mm_per_unit(cfg)
-    spec = dict(to_plain(cfg.get("target")) or {})
+    spec = dict(cfg.get("target") or {})
     resolution = spec.get("resolution", 256)
     target = load_target(spec.get("image", "grace_hopper"), resolution, base_dir, spec.get("channel", "luminance"),
                          spec.get("text", "SfC"))
@@ -133,7 +133,7 @@ def prepare_design(cfg: Mapping[str, Any], base_dir: Path | None = None) -> Desi
             f"receiver.resolution={scene.receiver.resolution} differs from target.resolution={resolution}; "
             "set only target.resolution"
         )
-    m = int(to_plain(cfg.get("height_field") or {}).get("resolution", resolution))
+    m = int((cfg.get("height_field") or {}).get("resolution", resolution))
     through_optics = has_elements(build_operator(cfg, scene, mm=mm))
     shadow = (lit_half_width(cfg, scene, mm, np.zeros((m, m)), int(cfg.get("seed", 0))) if through_optics
               else paraxial_shadow(scene))
@@ -210,7 +210,7 @@ def _check_reach(target: DesignTarget, scene: Scene, max_slope: float) -> None:
 
 
 def method_settings(cfg: Mapping[str, Any]) -> dict[str, Any]:
-    method = dict(to_plain(cfg.get("design_method")) or {})
+    method = dict(cfg.get("design_method") or {})
     for key in ("name", "start", "solver"):
         if key not in method:
             raise ValueError(f"design_method.{key} is missing; choose one with design_method=sfc|schwartzburg|adam")

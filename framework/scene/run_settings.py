@@ -16,7 +16,6 @@ from typing import Any
 
 from framework.core.plugin_config import as_mapping, with_scene_lengths
 from framework.core.units import mm_per_unit
-from framework.scene.scene_config import to_plain
 from operators.values import checked_number, checked_whole
 
 __all__ = ["PhotonBudgetSettings", "RunSettings", "TrackingSettings", "carries_design", "design_given", "stack_shots"]
@@ -151,7 +150,7 @@ class RunSettings:
     @classmethod
     def parse(cls, cfg: Mapping[str, Any]) -> RunSettings:
         """The settings of ``cfg`` (a DictConfig or a mapping), every run-level value checked."""
-        plain = dict(to_plain(cfg))
+        plain = dict(cfg)
         mm = mm_per_unit(plain)
         plain = with_scene_lengths(plain, mm)
         data = plain.get("data") or {}

@@ -1,4 +1,5 @@
-"""Build the scene, the heights, their grid and the forward operator from a (Hydra) config.
+"""Build the scene, the heights, their grid and the forward operator from a plain config (the
+commands turn Hydra's into one at their edge, experiments/apps/configs.py).
 
 Config layout (top-level keys; see conf/scene/*.yaml and conf/operator/*.yaml)::
 
@@ -30,7 +31,6 @@ from typing import Any
 
 import numpy as np
 import torch
-from omegaconf import DictConfig, ListConfig, OmegaConf
 
 from operators.image_operator import ImageOperator
 from framework.core.plugin_config import build_plugin, split_name
@@ -56,7 +56,6 @@ __all__ = [
     "height_grid",
     "screen_settings",
     "screen_sigma",
-    "to_plain",
 ]
 
 SCENE_KEYS: dict[str, tuple[str, ...]] = {
@@ -69,16 +68,9 @@ HEIGHT_FIELD_KEYS = ("shape", "resolution", "path", "scale", "params")
 DEFAULT_RESOLUTION = 128
 
 
-def to_plain(cfg: Any) -> Any:
-    """A resolved plain-Python copy of an OmegaConf node (dicts and lists); other values unchanged."""
-    if isinstance(cfg, (DictConfig, ListConfig)):
-        return OmegaConf.to_container(cfg, resolve=True)
-    return cfg
-
-
 def _group(cfg: Mapping[str, Any], name: str, allowed: tuple[str, ...]) -> dict[str, Any]:
     """The mapping ``cfg[name]`` (empty if absent) with its keys checked against ``allowed``."""
-    value = to_plain(cfg.get(name))
+    value = cfg.get(name)
     if value is None:
         return {}
     if not isinstance(value, Mapping):
@@ -96,8 +88,8 @@ def build_scene(cfg: Mapping[str, Any], mm: float | None = None) -> Scene:
     mm = mm_per_unit(cfg) if mm is None else mm
     return scene_from_groups(_group(cfg, "light", SCENE_KEYS["light"]),
                              _group(cfg, "substrate", SCENE_KEYS["substrate"]),
-                             _group(cfg, "receiver", SCENE_KEYS["receiver"]), to_plain(cfg.get("material")) or None,
-                             to_plain(cfg.get("wavelengths", [0.633])), mm)
+                             _group(cfg, "receiver", SCENE_KEYS["receiver"]), cfg.get("material") or None,
+                             cfg.get("wavelengths", [0.633]), mm)
 
 
 MAX_RESOLUTION = 8192  # height samples per side: 8192^2 float64 is 0.5 GB per copy
@@ -186,7 +178,7 @@ def screen_sigma(cfg: Mapping[str, Any], mm: float | None = None) -> float:
 def operator_builder(cfg: Mapping[str, Any]) -> Callable[[Scene], ImageOperator]:
     """Builds the operator plugin named by ``operator.name`` for a scene, with ``photons``, ``seed``
     and the rest of the ``operator`` group (which the plugin checks)."""
-    name, params = split_name(to_plain(cfg.get("operator")), "operator")
+    name, params = split_name(cfg.get("operator"), "operator")
     photons = checked_whole(cfg.get("photons"), "photons")
     seed = checked_whole(cfg.get("seed", 0), "seed", 0, 2 ** 63 - 1, must="must be an integer in [0, 2^63)")
 

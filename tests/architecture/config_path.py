@@ -67,11 +67,12 @@ def small_run_calls(directory: Path) -> list[tuple[str, str]]:
     """:func:`config_calls` of a small synthetic reconstruction (two iterations) run in ``directory``."""
     from hydra import compose, initialize_config_dir
 
+    from experiments.apps.configs import to_plain
     from framework.reconstruction.reconstruction import run_reconstruction
 
     conf = Path(__file__).resolve().parents[2] / "conf"
     with initialize_config_dir(config_dir=str(conf), version_base=None):
-        cfg = compose("reconstruct", overrides=[*SMALL_RUN, f"tracking.store_dir={directory}/mlruns"])
+        cfg = to_plain(compose("reconstruct", overrides=[*SMALL_RUN, f"tracking.store_dir={directory}/mlruns"]))
     # A first run, not traced, creates the tracking store (its schema migrations are most of the
     # Python calls a first run makes) and warms the caches; the traced run is the second.
     run_reconstruction(cfg, directory / "first", directory)

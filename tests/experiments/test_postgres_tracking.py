@@ -11,7 +11,7 @@ import pytest
 from hydra import compose, initialize_config_dir
 from mlflow.tracking import MlflowClient
 
-from framework.scene.scene_config import to_plain
+from experiments.apps.configs import to_plain
 from framework.core.solver_loop import IterationRecord
 from framework.tracking.mlflow_tracker import MlflowTracker, flatten_params
 from tests.mlflow_server import mlflow_server

@@ -54,7 +54,7 @@ def test_the_paper_sample_in_millimetres_is_the_scene_in_units() -> None:
 
     from hydra import compose, initialize_config_dir
 
-    from framework.scene.scene_config import to_plain
+    from experiments.apps.configs import to_plain
 
     conf = str(Path(__file__).resolve().parents[2] / "conf")
     with initialize_config_dir(config_dir=conf, version_base=None):
