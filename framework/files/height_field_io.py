@@ -19,7 +19,6 @@ Example:
 
 from __future__ import annotations
 
-import math
 import zipfile
 from pathlib import Path
 
@@ -28,7 +27,7 @@ import torch
 import torch.nn.functional as F
 from PIL import Image
 
-from operators.values import checked_whole
+from operators.values import checked_number, checked_whole
 
 __all__ = [
     "load_height_field",
@@ -135,8 +134,7 @@ def load_height_field(path: str | Path, resolution: int | None = None, scale: fl
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"height field file {str(path)!r} does not exist; check height_field.path")
-    if not (math.isfinite(scale) and scale >= 0.0):
-        raise ValueError(f"scale={scale} must be a finite number >= 0 (scene units), e.g. 1.0")
+    checked_number(scale, "scale", least=0.0, unit="scene units", example="1.0")
     suffix = path.suffix.lower()
     if suffix == ".npy":
         heights = read_npy(path)
@@ -165,8 +163,7 @@ def save_height_field(path: str | Path, heights: np.ndarray | torch.Tensor, scal
     suffix = path.suffix.lower()
     if scale is None:
         scale = 1.0 if suffix == ".npy" or float(d.max(initial=0.0)) == 0.0 else float(d.max())
-    if not (math.isfinite(scale) and scale > 0.0):
-        raise ValueError(f"scale={scale} must be a positive finite number (scene units)")
+    checked_number(scale, "scale", above=0.0, unit="scene units")
     path.parent.mkdir(parents=True, exist_ok=True)
     if suffix == ".npy":
         np.save(path, d / scale)

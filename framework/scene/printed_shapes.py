@@ -24,7 +24,7 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
-from operators.values import checked_whole
+from operators.values import checked_number, checked_whole
 
 __all__ = ["SHAPES", "make_shape", "grid", "g", "G2", "line_v", "line_h", "print_lines_on",
            "flat", "gaussian", "print_lines", "oblique_lines", "bump", "letter_a", "segment_distance"]
@@ -140,8 +140,9 @@ def letter_a(x: np.ndarray, y: np.ndarray, height: float = 0.08, stroke: float =
     ``stroke`` and peak ``height`` (where strokes meet, the higher one counts). The defaults give
     the print lines' peak height (0.08) on narrower strokes (0.05 against 0.083): steeper slopes,
     on lines that are not aligned with the grid."""
-    if not (height >= 0.0 and stroke > 0.0 and size > 0.0):
-        raise ValueError(f"letter_a needs height >= 0, stroke > 0 and size > 0; got {height}, {stroke}, {size}")
+    checked_number(height, "letter_a height", least=0.0)
+    checked_number(stroke, "letter_a stroke", above=0.0)
+    checked_number(size, "letter_a size", above=0.0)
     half, foot = 0.5 * size, 0.36 * size
     bar_y = -0.1 * size
     bar_x = foot * (half - bar_y) / size  # where the crossbar meets the legs
