@@ -84,8 +84,7 @@ def main(argv: list[str] | None = None) -> None:
               f"{r['wall_s_off']:.0f} | {'yes' if r['same_heights'] else 'no'} | {r['check']} |" for r in rows]
     (args.results / "ambiguity.md").write_text(
         "# Undecided beads\n\n`python -m experiments.paper.reproduce_ambiguity OUT`; one photo, exact caustics, "
-        "5% noise "
-        "(docs/results.md, \"Beads without a design\").\n\n" + "\n".join(lines) + "\n")
+        "5% noise (docs/results.md, \"Beads without a design\").\n\n" + "\n".join(lines) + "\n")
     print("\n".join(lines))
 
 

@@ -128,10 +128,9 @@ def main(argv: list[str] | None = None) -> None:
     lines += [f"| {r['print']} | {r['method']} | {r['heights_error']:.3f} | {r['discrepancy']:.3f} | "
               f"{r['solve_s']:.0f} | {_seconds(r['defects_s'])} | {r['defects']} | {r['false_reports']} | "
               f"{r['thin_lines']} |" for r in rows]
-    (args.results / "tracks.md").write_text("# Tracks against the free grid\n\n"
-                                            "`python -m experiments.paper.reproduce_tracks "
-                                            "OUT`; exact caustics, 5% noise (docs/results.md, \"Prints of beads\").\n\n"
-                                            + "\n".join(lines) + "\n")
+    (args.results / "tracks.md").write_text(
+        "# Tracks against the free grid\n\n`python -m experiments.paper.reproduce_tracks OUT`; exact caustics, "
+        "5% noise (docs/results.md, \"Prints of beads\").\n\n" + "\n".join(lines) + "\n")
     print("\n".join(lines))
 
 
