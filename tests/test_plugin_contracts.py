@@ -36,7 +36,7 @@ from framework.core.problem import HeightGrid, Problem
 from framework.reconstruction.stopping import StagnationStopping
 from framework.core.plugin_config import build_plugin
 from framework.core.plugin_config import plugin_class
-from framework.core.solver_loop import IterativeSolver
+from framework.core.solver_loop import IterationRecord, IterativeSolver
 from framework.core.registry import KINDS, available, register
 from framework.stack.line_search import SearchedLines
 from operators.scene import Receiver, Scene, Substrate
@@ -181,6 +181,25 @@ def test_the_test_suites_solver_keeps_the_contract(known_problem) -> None:
                               delta=0.01)
     problem = Problem(shadow, data, HeightGrid(16, 1.0, 0.1), SCENE)
     check_solver(ExactStepSolver.from_config, problem, iterations=1, reduction=1e-6, who="solver/exact_step")
+
+
+class _Jittery(ExactStepSolver):
+    """The exact step plus a draw from torch's global generator: no two runs alike."""
+
+    def step(self) -> IterationRecord:
+        record = super().step()
+        self.state.d = self.state.d + 1e-9 * torch.rand_like(self.state.d)
+        return record
+
+
+def test_a_solver_whose_runs_differ_fails_the_contract() -> None:
+    shadow = ShadowOperator(1, 32, 1.0, 1, 1.0)
+    truth = 0.1 * smooth_bump(16, 1.0)
+    data = ReconstructionData(target=shadow.render(truth), mask=torch.ones(16, 16, dtype=torch.bool), volume=None,
+                              delta=0.01)
+    problem = Problem(shadow, data, HeightGrid(16, 1.0, 0.1), SCENE)
+    with pytest.raises(ContractViolation, match="two runs on the same problem end differently"):
+        check_solver(_Jittery.from_config, problem, iterations=1, who="solver/jittery")
 
 
 def test_the_test_suites_start_and_stopping_rule_keep_the_contract(known_problem, tmp_path) -> None:

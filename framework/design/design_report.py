@@ -14,26 +14,16 @@ import torch
 from framework.design.design_screen import has_elements, lit_half_width
 from framework.design.design_target import screen_reach
 from framework.files.plotting import label_xy_axes, save_caustic_png, save_figure
-from framework.scene.scene_config import build_operator
-from operators.values import is_number
 
 if TYPE_CHECKING:
     from framework.core.callbacks import MetricsHistory
 
-__all__ = ["preview_factors", "save_previews", "save_design_figure"]
+__all__ = ["save_previews", "save_design_figure"]
 
 
-def preview_factors(cfg: Mapping[str, Any]) -> list[float]:
-    """The configured ``previews``: factors > 0 of the screen distance."""
-    factors = cfg.get("previews", [0.5, 2.0]) or []
-    if not isinstance(factors, list) or not all(is_number(f) and f > 0 for f in factors):
-        raise ValueError(f"previews={factors!r} must be a list of factors > 0 of the screen distance, e.g. [0.5, 2.0]")
-    return [float(f) for f in factors]
-
-
-def save_previews(cfg: Mapping[str, Any], setup: Any, heights: np.ndarray, photons: int, seed: int,
-                  output_dir: Path) -> dict[str, float]:
-    """Render the design's caustic on screens at each preview factor times the design distance,
+def save_previews(setup: Any, heights: np.ndarray, photons: int, output_dir: Path) -> dict[str, float]:
+    """Render the design's caustic on screens at each preview factor (``setup.settings.previews``)
+    times the design distance, with seed + 2000 (the run's seed),
     each over the square the glass can light there (the screen reach under the slope limit; through
     optical elements the square the design's light covers there), by
     the operator's independent renderer; writes preview_<f>x.npy/.png. ``setup`` is the run's
@@ -43,17 +33,18 @@ def save_previews(cfg: Mapping[str, Any], setup: Any, heights: np.ndarray, photo
     out: dict[str, float] = {}
     distance = -setup.scene.receiver.z
     lowest = min((e.z_range[0] for e in setup.operator.elements), default=np.inf)
-    for factor in preview_factors(cfg):
+    seed = setup.settings.seed + 2000
+    for factor in setup.settings.previews:
         if -factor * distance >= lowest:
             setup.notes.append(f"no preview at {factor:g}x: that screen (z={-factor * distance:.4g}) would lie at or "
                                f"above the lowest optical element (z={lowest:.4g})")
             continue
         receiver = replace(setup.scene.receiver, z=-factor * distance)
         scene = replace(setup.scene, receiver=receiver)
-        half = (lit_half_width(cfg, scene, setup.mm, heights, seed + 2000) if has_elements(setup.operator)
+        half = (lit_half_width(setup.operator_for, scene, heights, seed) if has_elements(setup.operator)
                 else screen_reach(scene, setup.constraints.max_slope))
         scene = replace(scene, receiver=replace(receiver, half_width=half))
-        renderer = build_operator(cfg, scene, mm=setup.mm).exact_variant(photons, seed + 2000, receiver.resolution)
+        renderer = setup.operator_for(scene).exact_variant(photons, seed, receiver.resolution)
         image = renderer.render(torch.from_numpy(heights)).detach().double().cpu().numpy()
         flat = renderer.render(torch.zeros_like(torch.from_numpy(heights))).detach().double().cpu().numpy()
         label = f"{factor:g}x"

@@ -33,7 +33,7 @@ from framework.core.solver_loop import Callback
 from framework.design.print_constraints import DesignProblem
 from framework.design.design_report import save_design_figure, save_previews
 from framework.design.design_screen import has_elements
-from framework.design.design_setup import DesignSetup, method_settings, prepare_design
+from framework.design.design_setup import DesignSetup, prepare_design
 from framework.files.mm_outputs import export_outputs
 from operators.mesh.elements import PrintReachesElement
 from operators.wavefront.renderer import WavefrontRenderer, wavefront_vertices
@@ -74,18 +74,18 @@ class TimeBudget(Callback):
         return False
 
 
-def _start(setup: DesignSetup, method: Mapping[str, Any], deadline: float | None = None
-           ) -> tuple[torch.Tensor, dict[str, float]]:
+def _start(setup: DesignSetup, deadline: float | None = None) -> tuple[torch.Tensor, dict[str, float]]:
     """The method's start heights: flat glass, or the transport design on a receiver of
     ``design_method.transport_resolution`` pixels (heights on the design grid), projected onto the
     printing limits where it breaks one. The transport design is Schwartzburg's outer iterations
     where the light goes from the flat bottom straight to the screen, and the masked transport
     start (framework/reconstruction/starts/transport.py, the whole glass masked) through optical elements.
     The transport's Newton stops at ``deadline`` (a ``time.perf_counter()`` value) if it comes first."""
+    method = setup.settings.method
     zeros = torch.zeros(setup.grid.shape, dtype=setup.operator.dtype)
-    if method["start"] == "flat":
+    if method.start == "flat":
         return zeros, {}
-    coarse = int(method.get("transport_resolution", setup.scene.receiver.resolution))
+    coarse = method.transport_resolution or setup.scene.receiver.resolution
     operator = setup.operator
     target = setup.target
     if coarse != setup.scene.receiver.resolution:
@@ -102,10 +102,10 @@ def _start(setup: DesignSetup, method: Mapping[str, Any], deadline: float | None
         found = start(StartRequest(problem, Path.cwd(), deadline))
         d, first = found.d.detach().double().cpu().numpy(), found.metrics
     else:  # flat bottom to screen: Schwartzburg's transport design
-        transport = build_plugin("design", "schwartzburg", dict(method.get("transport") or {}),
-                                 "design_method.transport")(problem, zeros)
+        transport = build_plugin("design", "schwartzburg", dict(method.transport), "design_method.transport")(
+            problem, zeros)
         transport.deadline = deadline
-        result = transport.run(int(method.get("transport_iterations", 3)))
+        result = transport.run(method.transport_iterations)
         d, first = result.d.detach().double().cpu().numpy(), result.history[0].extras
     printable = all(setup.constraints.holds(d).values())
     if not printable:  # the refinement starts printable: its penalty then keeps it near the limits
@@ -157,26 +157,25 @@ def run_design(cfg: Mapping[str, Any], output_dir: Path, base_dir: Path | None =
     """Design the glass for ``cfg`` into ``output_dir`` (module docstring); resumes from the run
     directory's checkpoint if one is there."""
     setup = setup or prepare_design(cfg, base_dir)
-    method = method_settings(cfg)
-    seconds, seed = float(cfg["seconds"]), int(cfg.get("seed", 0))
+    settings, method = setup.settings, setup.settings.method
+    seconds, seed, tracking = settings.seconds, settings.seed, settings.tracking
     output_dir.mkdir(parents=True, exist_ok=True)
-    tracking = dict(cfg.get("tracking") or {})
     problem = setup.problem
-    name, params = split_name(method["solver"], "design_method.solver")
+    name, params = split_name(method.solver, "design_method.solver")
     checkpoint = output_dir / CHECKPOINT
-    log = plugin_class("tracker", str(tracking.get("name", "mlflow")), RunLog)
-    with log(experiment=tracking.get("experiment", "caustic-design"), run_name=method["name"],
-             store_dir=tracking.get("store_dir", "mlruns"), tracking_uri=tracking.get("uri"),
-             params=dict(cfg), tags={"method": method["name"], "target": setup.source}) as tracker:
+    log = plugin_class("tracker", tracking.name, RunLog)
+    with log(experiment=tracking.experiment, run_name=method.name, store_dir=tracking.store_dir,
+             tracking_uri=tracking.uri, params=settings.params, tags={"method": method.name, "target": setup.source}
+             ) as tracker:
         began = time.perf_counter()
         start_metrics: dict[str, float] = {}
-        factor = float(cfg.get("model_noise_factor", 1.25))
+        factor = settings.model_noise_factor
         flat_fits = not checkpoint.is_file() and setup.flat_discrepancy <= factor * setup.model_noise
         if checkpoint.is_file() or flat_fits:
             d0 = torch.zeros(setup.grid.shape, dtype=setup.operator.dtype)
         else:
-            phase(f"design: the {method['name']} start (at most {START_SHARE * seconds:.0f} s)")
-            d0, start_metrics = _start(setup, method, began + START_SHARE * seconds)
+            phase(f"design: the {method.name} start (at most {START_SHARE * seconds:.0f} s)")
+            d0, start_metrics = _start(setup, began + START_SHARE * seconds)
         start_seconds = time.perf_counter() - began
         solver = build_plugin("design", name, params, "design_method.solver")(problem, d0)
         if checkpoint.is_file():
@@ -189,12 +188,12 @@ def run_design(cfg: Mapping[str, Any], output_dir: Path, base_dir: Path | None =
         history = MetricsHistory()
         at_noise = build_plugin("stopping", "morozov", {"tau_dis": factor}, "design_method.model_noise_factor")
         at_noise.setup(problem)  # the problem's noise level is the model's own, not a photo's
-        phase(f"design ({method['name']}): refining within the {seconds:.0f} s budget")
-        callbacks = [history, ProgressBar(desc=f"design ({method['name']})", seconds=seconds - start_seconds),
+        phase(f"design ({method.name}): refining within the {seconds:.0f} s budget")
+        callbacks = [history, ProgressBar(desc=f"design ({method.name})", seconds=seconds - start_seconds),
                      TimeBudget(seconds, start_seconds),
                      at_noise, tracker.metrics_callback(),
-                     Checkpointer(checkpoint, every=int(cfg.get("checkpoint_every", 10)))]
-        result = solver.run(0 if flat_fits else int(method.get("max_iter", 100000)), callbacks)
+                     Checkpointer(checkpoint, every=settings.checkpoint_every)]
+        result = solver.run(0 if flat_fits else method.max_iter, callbacks)
         if flat_fits:
             result.stop_reason = "flat glass casts the target to within the operator's own render noise"
         design_seconds = start_seconds + result.elapsed_s
@@ -202,7 +201,7 @@ def run_design(cfg: Mapping[str, Any], output_dir: Path, base_dir: Path | None =
         phase("design: the nearest printable design")
         heights = setup.constraints.project(raw)
         holds = setup.constraints.holds(heights)
-        photons = int(cfg.get("evaluation", {}).get("photons", 4 * setup.operator.photons))
+        photons = settings.evaluation_photons or 4 * setup.operator.photons
         phase(f"design: rendering the printable design independently ({photons} photons)")
         exact = setup.operator.exact_variant(photons, seed + 1000, setup.scene.receiver.resolution)
         caustic, figures = _rendered_figures(setup, heights, exact)
@@ -218,9 +217,9 @@ def run_design(cfg: Mapping[str, Any], output_dir: Path, base_dir: Path | None =
         if "transport_converged" in transport:
             metrics["transport_converged"] = transport["transport_converged"]
             metrics["transport_max_relative_mass_error"] = transport["transport_max_relative_mass_error"]
-        if cfg.get("previews"):
-            phase(f"design: previews at {', '.join(f'{p:g}' for p in cfg['previews'])} x the screen distance")
-        previews = save_previews(cfg, setup, heights, photons, seed, output_dir)
+        if settings.previews:
+            phase(f"design: previews at {', '.join(f'{p:g}' for p in settings.previews)} x the screen distance")
+        previews = save_previews(setup, heights, photons, output_dir)
         metrics.update(previews)
         verdict = design_verdict(metrics, setup, result.stop_reason)
         _save(output_dir, setup, heights, caustic, metrics, verdict, history)

@@ -10,7 +10,7 @@ with light from the axis.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable
 from dataclasses import replace
 from typing import Any
 
@@ -18,7 +18,7 @@ import numpy as np
 import torch
 
 from framework.design.design_target import paraxial_shadow
-from framework.scene.scene_config import build_operator
+from operators.image_operator import ImageOperator
 from operators.scene import Scene
 
 __all__ = ["has_elements", "lit_half_width"]
@@ -33,13 +33,15 @@ def has_elements(operator: Any) -> bool:
     return bool(operator.elements)
 
 
-def lit_half_width(cfg: Mapping[str, Any], scene: Scene, mm: float, heights: np.ndarray, seed: int) -> float:
+def lit_half_width(operator_for: Callable[[Scene], ImageOperator], scene: Scene, heights: np.ndarray,
+                   seed: int) -> float:
     """Half width (scene units) of the centred square that holds every lit pixel of ``heights``
-    (m, m, scene units) rendered by the configured operator (:data:`MEASURING_PHOTONS` photons,
-    ``seed``) on a screen at ``scene``'s receiver plane :data:`WIDE` times the paraxial shadow wide."""
+    (m, m, scene units) rendered by the configured operator (``operator_for`` a scene;
+    :data:`MEASURING_PHOTONS` photons, ``seed``) on a screen at ``scene``'s receiver plane
+    :data:`WIDE` times the paraxial shadow wide."""
     n = scene.receiver.resolution
     wide = replace(scene, receiver=replace(scene.receiver, half_width=WIDE * paraxial_shadow(scene)))
-    operator = build_operator(cfg, wide, mm=mm).variant(MEASURING_PHOTONS, seed, n)
+    operator = operator_for(wide).variant(MEASURING_PHOTONS, seed, n)
     image = operator.render(torch.from_numpy(heights).to(operator.dtype)).detach().double().sum(dim=0).numpy()
     if not image.max() > 0.0:
         raise ValueError(f"no light reaches the screen at receiver.z={scene.receiver.z:g}; check light and receiver.z")

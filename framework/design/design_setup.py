@@ -1,6 +1,7 @@
 """A caustic design's setup, read and checked from the config before any run opens: the target
 scaled to the power that reaches the screen, the scene with the screen widened to flat glass's
-shadow, the printing limits, the method's settings, the model's own render noise.
+shadow, the printing limits, the run's settings (framework/design/design_settings.py), the model's
+own render noise.
 """
 
 from __future__ import annotations
@@ -15,20 +16,20 @@ import numpy as np
 import torch
 
 from framework.core.data import ReconstructionData
-from framework.core.plugin_config import build_plugin, split_name
 from framework.design.print_constraints import DesignProblem, PrintConstraints
 from framework.core.problem import HeightGrid, Problem
 from framework.core.units import mm_per_unit, scene_length, scene_volume
 from framework.design.design_screen import has_elements, lit_half_width
+from framework.design.design_settings import DesignSettings
 from framework.design.design_target import DesignTarget, load_target, paraxial_shadow, screen_reach
 from framework.files.image_io import load_mask
-from framework.scene.scene_config import build_operator, build_scene
+from framework.scene.scene_config import SceneGroups
+from operators.image_operator import ImageOperator
 from operators.scene import Scene
-from operators.values import checked_number, checked_whole
+from operators.values import checked_whole
 
-__all__ = ["DesignSetup", "method_settings", "prepare_design"]
+__all__ = ["DesignSetup", "prepare_design"]
 
-STARTS = ("transport", "flat")
 POWER_TOLERANCE = 0.01  # an absolute target within 1% of the power that reaches the screen is taken as is
 
 
@@ -49,6 +50,9 @@ class DesignSetup:
             renders of flat glass with photon seeds seed and seed + 1 differ by sqrt(2) times it.
         flat_discrepancy: ||F(0) - target|| / ||target||, flat glass's relative discrepancy.
         mesh_refine: Points per height spacing at which glass.stl/.obj sample the surface.
+        settings: The run's settings.
+        groups: The scene groups the scene and the operator were built from (the previews'
+            operators on other screens).
     """
 
     scene: Scene
@@ -61,7 +65,13 @@ class DesignSetup:
     mm: float
     model_noise: float
     flat_discrepancy: float
+    settings: DesignSettings
+    groups: SceneGroups
     mesh_refine: int = 1
+
+    def operator_for(self, scene: Scene) -> ImageOperator:
+        """The configured operator for ``scene`` (another screen, say)."""
+        return self.groups.operator_for(scene)
 
     @property
     def problem(self) -> Problem:
@@ -120,11 +130,13 @@ def prepare_design(cfg: Mapping[str, Any], base_dir: Path | None = None) -> Desi
     """Read and check the target, the scene, the limits and the method's settings; render flat
     glass to scale the target to the power that reaches the screen."""
     mm = mm_per_unit(cfg)
+    settings = DesignSettings.read(cfg)
+    groups = SceneGroups.read(cfg, mm)
     spec = dict(cfg.get("target") or {})
     resolution = spec.get("resolution", 256)
     target = load_target(spec.get("image", "grace_hopper"), resolution, base_dir, spec.get("channel", "luminance"),
                          spec.get("text", "SfC"))
-    scene = build_scene(cfg, mm)
+    scene = groups.scene()
     if scene.light.extended:
         raise ValueError(f"light.shape={scene.light.shape}: sfc-design designs for a point light (the light's "
                          "position); give light.shape=point (a flash's size blurs what the design casts)")
@@ -133,9 +145,9 @@ def prepare_design(cfg: Mapping[str, Any], base_dir: Path | None = None) -> Desi
             f"receiver.resolution={scene.receiver.resolution} differs from target.resolution={resolution}; "
             "set only target.resolution"
         )
-    m = int((cfg.get("height_field") or {}).get("resolution", resolution))
-    through_optics = has_elements(build_operator(cfg, scene, mm=mm))
-    shadow = (lit_half_width(cfg, scene, mm, np.zeros((m, m)), int(cfg.get("seed", 0))) if through_optics
+    m = groups.resolution if "resolution" in groups.height_field else checked_whole(resolution, "target.resolution", 2)
+    through_optics = has_elements(groups.operator_for(scene))
+    shadow = (lit_half_width(groups.operator_for, scene, np.zeros((m, m)), settings.seed) if through_optics
               else paraxial_shadow(scene))
     width = _length(spec.get("width"), mm, "target.width")
     half = shadow if width is None else 0.5 * width
@@ -149,9 +161,8 @@ def prepare_design(cfg: Mapping[str, Any], base_dir: Path | None = None) -> Desi
         scene = replace(scene, substrate=replace(scene.substrate, edge_height=raised))
     if not through_optics:  # through lenses the deflection's reach has no closed form: not checked
         _check_reach(target, scene, constraints.max_slope)
-    _check_method(cfg)
     image, scene = _padded_to_shadow(target.image, scene, shadow)
-    operator = build_operator(cfg, scene, mm=mm)
+    operator = groups.operator_for(scene)
     zeros = torch.zeros(grid.shape, dtype=operator.dtype)
     flat = operator.render(zeros).detach().double()
     power = float(flat.sum())
@@ -173,14 +184,14 @@ def prepare_design(cfg: Mapping[str, Any], base_dir: Path | None = None) -> Desi
         notes.append("the target's brightness is relative: scaled to the power that reaches the screen through "
                      f"the glass ({power * operator.pixel_area:.4g} W)")
     image = image / ratio
-    second = operator.variant(operator.photons, int(cfg.get("seed", 0)) + 1, scene.receiver.resolution)
+    second = operator.variant(operator.photons, settings.seed + 1, scene.receiver.resolution)
     noise = float(torch.linalg.vector_norm(flat - second.render(zeros).double())) / (
         math.sqrt(2.0) * float(torch.linalg.vector_norm(image)))
     flat_discrepancy = float(torch.linalg.vector_norm(flat - image)) / float(torch.linalg.vector_norm(image))
     refine = checked_whole(cfg.get("mesh_refine", 1), "mesh_refine", 1, must="must be an integer >= 1 (points per "
                            "height spacing of the exported mesh's top)")
     return DesignSetup(scene, operator, image, target.source, constraints, grid, notes, mm, noise, flat_discrepancy,
-                       refine)
+                       settings, groups, refine)
 
 
 def _padded_to_shadow(image: np.ndarray, scene: Scene, shadow: float) -> tuple[torch.Tensor, Scene]:
@@ -207,21 +218,3 @@ def _check_reach(target: DesignTarget, scene: Scene, max_slope: float) -> None:
         raise ValueError(f"the target's light reaches {extent:.3g} scene units from the axis but the glass can light "
                          f"only {reach:.3g} (flat glass's shadow plus the deflection of slope {max_slope:g}); lower "
                          "target.width, move the screen (receiver.z) or raise constraints.max_slope")
-
-
-def method_settings(cfg: Mapping[str, Any]) -> dict[str, Any]:
-    method = dict(cfg.get("design_method") or {})
-    for key in ("name", "start", "solver"):
-        if key not in method:
-            raise ValueError(f"design_method.{key} is missing; choose one with design_method=sfc|schwartzburg|adam")
-    return method
-
-
-def _check_method(cfg: Mapping[str, Any]) -> None:
-    method = method_settings(cfg)
-    if method["start"] not in STARTS:
-        raise ValueError(f"design_method.start={method['start']!r} must be one of {', '.join(STARTS)}")
-    name, params = split_name(method["solver"], "design_method.solver")
-    build_plugin("design", name, params, "design_method.solver")
-    seconds = cfg.get("seconds")
-    checked_number(seconds, "seconds", above=0.0, must="must be the design's time budget in seconds > 0", example="300")

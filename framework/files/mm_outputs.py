@@ -9,6 +9,7 @@ Heights d (m, m) are in scene units, sampled at linspace(-W, W, m) in x (columns
 from __future__ import annotations
 
 import json
+from dataclasses import dataclass
 from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -16,7 +17,6 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from PIL import Image, PngImagePlugin
 
-from framework.core.units import mm_per_unit as checked_mm_per_unit
 from framework.files.plotting import label_xy_axes, save_figure
 from operators.heightfield.catmull_rom import refinement_matrix
 from operators.values import checked_number, checked_whole
@@ -24,7 +24,7 @@ from operators.values import checked_number, checked_whole
 if TYPE_CHECKING:
     import trimesh
 
-__all__ = ["MESH_FORMATS", "PNG_KEYS", "PRINTED", "glass_mesh", "write_height_png", "read_height_png",
+__all__ = ["MESH_FORMATS", "PNG_KEYS", "PRINTED", "GlassFrame", "glass_mesh", "write_height_png", "read_height_png",
            "deviation_report", "save_deviation_figure", "export_outputs"]
 
 MESH_FORMATS = ("stl", "obj", "ply")
@@ -33,9 +33,26 @@ PRINTED = 1e-3  # scene units: a sample at least this high counts as printed (fr
 _FULL_COUNT = 65535  # 16-bit grey
 
 
-def _scale(mm_per_unit: float) -> float:
-    """``mm_per_unit`` checked as the config's ``units.mm_per_unit`` (a finite number > 0)."""
-    return checked_mm_per_unit({"units": {"mm_per_unit": mm_per_unit}})
+@dataclass(frozen=True)
+class GlassFrame:
+    """The lengths the heights are exported in, checked once: the grid's half width W and the
+    substrate's thickness h (scene units), and ``mm_per_unit`` (mm per scene unit)."""
+
+    half_width: float
+    thickness: float
+    mm_per_unit: float
+
+    @classmethod
+    def checked(cls, half_width: float, mm_per_unit: float, thickness: float = 0.0) -> GlassFrame:
+        """The frame of these values, or a ValueError naming the first bad one."""
+        return cls(checked_number(half_width, "half_width", above=0.0, unit="scene units"),
+                   checked_number(thickness, "thickness", unit="scene units"),
+                   checked_number(mm_per_unit, "mm_per_unit", above=0.0,
+                                  must="must be a length > 0 in mm per scene unit", example="25"))
+
+    def pitch_mm(self, m: int) -> float:
+        """The sample pitch (mm) of an (m, m) grid over [-W, W]^2."""
+        return 2.0 * self.half_width / (m - 1) * self.mm_per_unit
 
 
 def _heights(d: np.ndarray, name: str) -> np.ndarray:
@@ -69,21 +86,24 @@ def glass_mesh(d: np.ndarray, half_width: float, thickness: float, mm_per_unit: 
         refine: Points per cell of the samples' grid, >= 1: the facets' pitch is the grid's over
             ``refine`` (finer facets cast less of their pattern on a far screen).
     """
-    d = _heights(d, "d")
+    frame = GlassFrame.checked(half_width, mm_per_unit, thickness)
     refine = checked_whole(refine, "refine", 1, must="must be an integer >= 1 (points per cell of the heights' grid)")
+    return _glass_mesh(_heights(d, "d"), frame, refine)
+
+
+def _glass_mesh(d: np.ndarray, frame: GlassFrame, refine: int) -> trimesh.Trimesh:
+    """:func:`glass_mesh` of checked heights (m, m) in ``frame``."""
+    w, base = frame.half_width, frame.thickness
     centres = None
     if refine > 1:  # the surface at the fine grid's points and at its cells' centres
         matrix = refinement_matrix(d.shape[0], 2 * refine)
         dense = matrix @ d @ matrix.T
         d, centres = dense[::2, ::2], dense[1::2, 1::2]
-    w = checked_number(half_width, "half_width", above=0.0, unit="scene units")
-    scale = _scale(mm_per_unit)
-    base = checked_number(thickness, "thickness", unit="scene units")
     top = base + d
     if top.min() <= 0.0:
         i, j = np.unravel_index(np.argmin(top), top.shape)
         raise ValueError(f"glass top h + d = {top[i, j]:.6g} <= 0 at d[{i}, {j}]={d[i, j]:.6g} "
-                         f"(thickness={thickness}): the print would cut through the substrate bottom; heights "
+                         f"(thickness={base}): the print would cut through the substrate bottom; heights "
                          "must satisfy d > -thickness")
     m = d.shape[0]
     s = np.linspace(-w, w, m)
@@ -110,7 +130,7 @@ def glass_mesh(d: np.ndarray, half_width: float, thickness: float, mm_per_unit: 
                                corners[loop] * np.array([1.0, 1.0, 0.0]), np.zeros((1, 3))])
     import trimesh  # imported when a mesh is written (about 1 s), not before the run starts
 
-    return trimesh.Trimesh(vertices=vertices * scale, faces=faces, process=False)
+    return trimesh.Trimesh(vertices=vertices * frame.mm_per_unit, faces=faces, process=False)
 
 
 def write_height_png(path: str | Path, d_mm: np.ndarray, pitch_mm: float) -> Path:
@@ -119,8 +139,12 @@ def write_height_png(path: str | Path, d_mm: np.ndarray, pitch_mm: float) -> Pat
     Grey count c stands for offset_mm + c * mm_per_count mm, offset_mm = min(0, min d_mm), full
     white = max d_mm; the PNG text keys ``PNG_KEYS`` hold both and the sample pitch in mm.
     """
-    d_mm = _heights(d_mm, "d_mm")
     pitch = checked_number(pitch_mm, "pitch_mm", above=0.0, unit="mm")
+    return _write_height_png(Path(path), _heights(d_mm, "d_mm"), pitch)
+
+
+def _write_height_png(path: Path, d_mm: np.ndarray, pitch: float) -> Path:
+    """:func:`write_height_png` of checked heights (mm) and pitch (mm)."""
     offset = min(float(d_mm.min()), 0.0)
     span = float(d_mm.max()) - offset
     step = span / _FULL_COUNT if span > 0.0 else 1.0
@@ -128,7 +152,6 @@ def write_height_png(path: str | Path, d_mm: np.ndarray, pitch_mm: float) -> Pat
     info = PngImagePlugin.PngInfo()
     for key, value in zip(PNG_KEYS, (step, offset, pitch)):
         info.add_text(key, repr(value))
-    path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     Image.fromarray(np.ascontiguousarray(counts[::-1])).save(path, pnginfo=info)
     return path
@@ -162,14 +185,23 @@ def deviation_report(d: np.ndarray, design: np.ndarray, grid_half_width: float,
         the cell area (framework/core/problem.py), in mm^3; volume_ratio: their ratio (None when
         nothing is planned).
     """
-    d = _heights(d, "d")
-    design = _heights(design, "design")
+    frame = GlassFrame.checked(grid_half_width, mm_per_unit)
+    return _deviation_report(*_pair(d, design), frame)
+
+
+def _pair(d: np.ndarray, design: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The heights and their design, checked (:func:`_heights`) and of one shape."""
+    d, design = _heights(d, "d"), _heights(design, "design")
     if design.shape != d.shape:
         raise ValueError(f"design has shape {design.shape}, the reconstruction {d.shape}; resample the design "
                          "to the reconstruction's grid")
-    scale = _scale(mm_per_unit)
-    half = checked_number(grid_half_width, "grid_half_width", above=0.0, unit="scene units")
-    spacing = 2.0 * half / (d.shape[0] - 1)
+    return d, design
+
+
+def _deviation_report(d: np.ndarray, design: np.ndarray, frame: GlassFrame) -> dict[str, float | None]:
+    """:func:`deviation_report` of checked heights in ``frame``."""
+    scale = frame.mm_per_unit
+    spacing = 2.0 * frame.half_width / (d.shape[0] - 1)
     cell_mm3 = spacing ** 2 * scale ** 3
     error = (d - design) * scale
     printed = (np.abs(d) >= PRINTED) | (np.abs(design) >= PRINTED)
@@ -190,10 +222,15 @@ def save_deviation_figure(path: str | Path, d: np.ndarray, design: np.ndarray, h
                           mm_per_unit: float) -> Path:
     """Write the design and the reconstruction (mm), their deviation d - design (um, diverging
     colours centred at 0) and both along the centre row m // 2: heights (m, m) in scene units."""
-    scale = _scale(mm_per_unit)
-    design_mm, d_mm = _heights(design, "design") * scale, _heights(d, "d") * scale
+    frame = GlassFrame.checked(half_width, mm_per_unit)
+    return _save_deviation_figure(Path(path), *_pair(d, design), frame)
+
+
+def _save_deviation_figure(path: Path, d: np.ndarray, design: np.ndarray, frame: GlassFrame) -> Path:
+    """:func:`save_deviation_figure` of checked heights in ``frame``."""
+    design_mm, d_mm = design * frame.mm_per_unit, d * frame.mm_per_unit
     error_um = (d_mm - design_mm) * 1e3
-    w_mm = checked_number(half_width, "half_width", above=0.0, unit="scene units") * scale
+    w_mm = frame.half_width * frame.mm_per_unit
     extent = (-w_mm, w_mm, -w_mm, w_mm)
     low = min(float(design_mm.min()), float(d_mm.min()), 0.0)
     high = max(float(design_mm.max()), float(d_mm.max()), low + 1e-9)
@@ -241,19 +278,23 @@ def export_outputs(out_dir: str | Path, d: np.ndarray, half_width: float, thickn
     unknown = [f for f in formats if f not in MESH_FORMATS]
     if unknown:
         raise ValueError(f"unknown mesh format {unknown[0]!r}; use one or more of {', '.join(MESH_FORMATS)}")
-    mesh = glass_mesh(d, half_width, thickness, mm_per_unit, refine)  # checks d, the lengths, mm_per_unit, refine
-    report = {} if design is None else deviation_report(d, design, half_width, mm_per_unit)
+    frame = GlassFrame.checked(half_width, mm_per_unit, thickness)
+    refine = checked_whole(refine, "refine", 1, must="must be an integer >= 1 (points per cell of the heights' grid)")
+    d = _heights(d, "d")
+    mesh = _glass_mesh(d, frame, refine)
+    if design is not None:
+        d, design = _pair(d, design)
+    report = {} if design is None else _deviation_report(d, design, frame)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    d_mm = np.asarray(d, dtype=np.float64) * float(mm_per_unit)
+    d_mm = d * frame.mm_per_unit
     np.save(out / "height_field_mm.npy", d_mm)
     files = [out / "height_field_mm.npy",
-             write_height_png(out / "height_field_mm.png", d_mm, 2.0 * half_width / (d_mm.shape[0] - 1) * mm_per_unit)]
+             _write_height_png(out / "height_field_mm.png", d_mm, frame.pitch_mm(d.shape[0]))]
     for fmt in formats:
         mesh.export(out / f"glass.{fmt}")
         files.append(out / f"glass.{fmt}")
     if design is not None:
         (out / "deviation.json").write_text(json.dumps(report, indent=2))
-        files += [out / "deviation.json", save_deviation_figure(out / "deviation.png", d, design, half_width,
-                                                                mm_per_unit)]
+        files += [out / "deviation.json", _save_deviation_figure(out / "deviation.png", d, design, frame)]
     return {"deviation": report, "files": files}

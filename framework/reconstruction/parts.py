@@ -25,8 +25,8 @@ from framework.core.registry import available
 from framework.core.problem import HeightGrid, Problem
 from framework.files.image_io import resolve_path
 from framework.reconstruction.coarse_to_fine import CoarseToFineSettings
-from framework.reconstruction.run_checks import (check_volume, check_volume_known,
-                                                 checked_resume, height_bounds)
+from framework.reconstruction.run_checks import (check_volume, check_volume_known, checked_resume,
+                                                 height_bounds, volume_needed_by)
 from framework.reconstruction.run_identity import run_fingerprint
 from framework.scene.run_settings import RunSettings, carries_design
 from framework.scene.scene_config import SceneSetup
@@ -48,11 +48,10 @@ def build_start(spec: Any) -> Start:
     return build_plugin("initial", name, params, "initial")
 
 
-def build_stopping(spec: Any) -> list[StoppingRule]:
-    """The plugins of the ``stopping`` group ``spec``, in config order (fresh ones for every run
-    from a start)."""
-    return [build_plugin("stopping", name, params, f"stopping.{name}")
-            for name, params in as_mapping(spec, "stopping").items()]
+def build_stopping(groups: Mapping[str, Any]) -> list[StoppingRule]:
+    """The plugins of the ``stopping`` groups (name -> settings), in config order (fresh ones for
+    every run from a start)."""
+    return [build_plugin("stopping", name, params, f"stopping.{name}") for name, params in groups.items()]
 
 
 @dataclass
@@ -61,10 +60,14 @@ class Reconstruction:
 
     Attributes:
         settings: The config, parsed once (framework/scene/run_settings.py).
-        setup: The scene, height grid, operator and height-field group (framework/scene/scene_config.py).
+        setup: The scene, height grid, operator and the scene groups they were built from
+            (framework/scene/scene_config.py).
         data_source: The ``data`` plugin.
         make_solver: The solver plugin's builder: (problem, d0) -> solver.
-        stopping: The ``stopping`` plugins, in config order.
+        stopping: The ``stopping`` groups (name -> settings), in config order: each run from a
+            start builds its rules afresh.
+        height_bounds: The bounds (p1, p2) the solver's plugins impose on the heights (scene units).
+        volume_needed_by: The solver's plugins that need the deposited volume (config keys).
         start: The ``initial`` plugin: computes the start d0 (m, m) once the data are loaded.
         max_iter: The solver's iteration cap.
         fingerprint: What determines the result (framework/reconstruction/run_identity.py), stored in checkpoints.
@@ -80,7 +83,9 @@ class Reconstruction:
     setup: SceneSetup
     data_source: DataSource
     make_solver: SolverBuilder
-    stopping: list[StoppingRule]
+    stopping: dict[str, Any]
+    height_bounds: tuple[float, float | None]
+    volume_needed_by: list[str]
     start: Start
     max_iter: int
     fingerprint: dict[str, str]
@@ -108,7 +113,7 @@ class Reconstruction:
     def fresh_stopping(self, problem: Problem | None = None) -> list[StoppingRule]:
         """The configured stopping rules built afresh (each run from a start keeps its own best
         iterate), set up for ``problem`` if one is given."""
-        stopping = build_stopping(self.settings.cfg.get("stopping"))
+        stopping = build_stopping(self.stopping)
         if problem is not None:
             for rule in stopping:
                 rule.setup(problem)
@@ -142,7 +147,8 @@ class Reconstruction:
         # the loop's cap, not the solver's
         max_iter = checked_whole(solver_params.pop("max_iter", None), "solver.max_iter", least=1)
         make_solver = build_plugin("solver", solver_name, solver_params, "solver")
-        stopping = build_stopping(cfg.get("stopping"))
+        stopping = as_mapping(cfg.get("stopping"), "stopping")
+        build_stopping(stopping)  # each rule's settings checked here, before anything is rendered
         start = build_start(cfg.get("initial"))
         start.check(base_dir)
         coarse_to_fine = CoarseToFineSettings.parse(cfg.get("coarse_to_fine"))
@@ -159,7 +165,9 @@ class Reconstruction:
             raise ValueError(f"initial={start.name} reads the print's design, and synthetic data of the configured "
                              "height field carry none (those heights are the answer): give data.printed=<print> "
                              "(the configured field is then its design), or choose initial=transport, zero or file")
-        return cls(settings, setup, data_source, make_solver, stopping, start, max_iter,
+        solver = cfg.get("solver") or {}
+        return cls(settings, setup, data_source, make_solver, stopping, height_bounds(solver),
+                   volume_needed_by(solver), start, max_iter,
                    run_fingerprint(cfg, base_dir), plugin_class("tracker", settings.tracking.name, RunLog),
                    calibration, stages, coarse_to_fine)
 
@@ -173,8 +181,8 @@ class Reconstruction:
         self.run_log.check_target(tracking.uri, resolve_path(tracking.store_dir, base_dir))
         request = self.data_request(base_dir)
         facts = self.data_source.check(request)
-        check_volume_known(self.settings.cfg, facts)
-        check_volume(facts.volume, facts.mask, self.grid.cell_area, height_bounds(self.settings.cfg),
+        check_volume_known(self.volume_needed_by, facts)
+        check_volume(facts.volume, facts.mask, self.grid.cell_area, self.height_bounds,
                      2.0 * float(self.scene.substrate.half_width))
         if self.settings.design_given:
             request.configured_heights()

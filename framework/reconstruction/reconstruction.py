@@ -285,8 +285,8 @@ def _reconstruct(parts: Reconstruction, output_dir: Path, base_dir: Path, checkp
         accepted = [o for o in finished if o.result.accepted]
         chosen = accepted[-1] if accepted else min(finished, key=lambda o: o.rel_discrepancy)
         result, d = chosen.result, chosen.d
-        solved = SolvedRun(problem, d, result.fitted, _refit(parts, problem), cfg, settings.mm_per_unit,
-                           settings.seed, settings.tau_dis, output_dir)
+        solved = SolvedRun(problem, d, result.fitted, _refit(parts, problem), parts.setup.groups.operator_for,
+                           settings.mm_per_unit, settings.seed, settings.tau_dis, output_dir)
         for stage in parts.stages:
             revised = stage.revise(solved)
             d = solved.heights = d if revised is None else revised

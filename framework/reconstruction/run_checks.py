@@ -7,7 +7,7 @@ every plugin is built and before the tracker opens or anything is rendered.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -21,6 +21,7 @@ from regularizers import PostStepUpdate, Regularizer
 
 __all__ = [
     "height_bounds",
+    "volume_needed_by",
     "check_volume",
     "check_volume_known",
     "checked_resume",
@@ -30,10 +31,9 @@ __all__ = [
 CHECKPOINT = "checkpoint.pt"
 
 
-def height_bounds(cfg: Mapping[str, Any]) -> tuple[float, float | None]:
-    """The tightest bounds (p1, p2) on the printed heights (scene units) that the solver's
+def height_bounds(solver: Mapping[str, Any]) -> tuple[float, float | None]:
+    """The tightest bounds (p1, p2) on the printed heights (scene units) that the ``solver`` group's
     regularisers and post-steps impose (keys ``p1``/``p2``); (0, None) without an upper bound."""
-    solver = cfg.get("solver") or {}
     lower, upper = 0.0, None
     for group in ("regularizers", "post_steps"):
         for params in dict(solver.get(group) or {}).values():
@@ -73,19 +73,23 @@ def check_volume(volume: float | None, mask: torch.Tensor, cell_area: float, bou
                          "(scene units^3, or a string such as '1.7 mm3')")
 
 
-def check_volume_known(cfg: Mapping[str, Any], facts: PrintFacts) -> None:
-    """Refuse a run whose regularisers or post-steps need the deposited volume (a plugin class
-    with ``needs_volume = True``) when the data do not know it (nor will once they load)."""
-    if facts.volume is not None or facts.volume_at_load:
-        return
-    solver = cfg.get("solver") or {}
-    needing = [
+def volume_needed_by(solver: Mapping[str, Any]) -> list[str]:
+    """The config keys of the ``solver`` group's regularisers and post-steps that need the
+    deposited volume (a plugin class with ``needs_volume = True``)."""
+    return [
         f"solver.{group}.{name}"
         for group, kind, base in (("regularizers", "regularizer", Regularizer),
                                   ("post_steps", "post_step", PostStepUpdate))
         for name in dict(solver.get(group) or {})
         if plugin_class(kind, name, base).needs_volume
     ]
+
+
+def check_volume_known(needing: Sequence[str], facts: PrintFacts) -> None:
+    """Refuse a run whose plugins ``needing`` the deposited volume (:func:`volume_needed_by`)
+    when the data do not know it (nor will once they load)."""
+    if facts.volume is not None or facts.volume_at_load:
+        return
     if needing:
         raise ValueError(f"{' and '.join(needing)} need{'s' if len(needing) == 1 else ''} the deposited volume: set "
                          "data.volume=... (scene units^3 or e.g. '1.7 mm3'), or leave "

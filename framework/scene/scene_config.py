@@ -50,12 +50,10 @@ __all__ = [
     "build_scene",
     "build_heights",
     "build_operator",
-    "build_stack",
-    "operator_builder",
     "heights_from_spec",
     "height_grid",
-    "screen_settings",
     "screen_sigma",
+    "SceneGroups",
 ]
 
 SCENE_KEYS: dict[str, tuple[str, ...]] = {
@@ -81,27 +79,114 @@ def _group(cfg: Mapping[str, Any], name: str, allowed: tuple[str, ...]) -> dict[
     return dict(value)
 
 
+MAX_RESOLUTION = 8192  # height samples per side: 8192^2 float64 is 0.5 GB per copy
+
+
+@dataclass(frozen=True)
+class SceneGroups:
+    """The scene's config groups, read and checked once, before anything is built.
+
+    Attributes:
+        light, substrate, receiver: Their groups (keys checked; lengths converted where the
+            scene is built, operators/scene.py).
+        material: A name or a dispersion (operators/materials.py); None: fused silica.
+        wavelengths: The wavelengths (um) as configured.
+        height_field: The ``height_field`` group, keys checked.
+        resolution: ``height_field.resolution`` m, in [2, MAX_RESOLUTION].
+        psf: ``screen.psf``. screen_sigma: ``screen.sigma`` in scene units, whatever the psf.
+        operator: The ``operator`` group: the plugin's name and its own settings, which the
+            plugin checks, as it checks ``photons`` (photons per render).
+        seed: The operator's seed.
+        mm_per_unit: Millimetres per scene unit.
+    """
+
+    light: dict[str, Any]
+    substrate: dict[str, Any]
+    receiver: dict[str, Any]
+    material: Any
+    wavelengths: Any
+    height_field: dict[str, Any]
+    resolution: int
+    psf: str
+    screen_sigma: float
+    operator: Any
+    photons: Any
+    seed: int
+    mm_per_unit: float
+
+    @classmethod
+    def read(cls, cfg: Mapping[str, Any], mm: float | None = None) -> SceneGroups:
+        """The groups of ``cfg`` with ``mm`` millimetres per scene unit (None: ``units.mm_per_unit``);
+        a bad key or value fails here, naming it."""
+        mm = mm_per_unit(cfg) if mm is None else mm
+        groups = {name: _group(cfg, name, keys) for name, keys in SCENE_KEYS.items()}
+        height_field = _group(cfg, "height_field", HEIGHT_FIELD_KEYS)
+        screen = _group(cfg, "screen", SCREEN_KEYS)
+        psf = screen.get("psf", "none")
+        if psf not in PSF_KINDS:
+            raise ValueError(f"screen.psf={psf!r}; use {' or '.join(PSF_KINDS)}")
+        sigma = scene_length(screen.get("sigma", 0.0), mm, "screen.sigma")
+        resolution = checked_whole(height_field.get("resolution", DEFAULT_RESOLUTION), "height_field.resolution",
+                                   2, MAX_RESOLUTION, must=f"must lie in [2, {MAX_RESOLUTION}] (samples per side; "
+                                   "128 is the default)")
+        seed = checked_whole(cfg.get("seed", 0), "seed", 0, 2 ** 63 - 1, must="must be an integer in [0, 2^63)")
+        return cls(groups["light"], groups["substrate"], groups["receiver"], cfg.get("material") or None,
+                   cfg.get("wavelengths", [0.633]), height_field, resolution, psf, sigma, cfg.get("operator"),
+                   cfg.get("photons"), seed, mm)
+
+    @property
+    def psf_sigma(self) -> float:
+        """The screen's Gaussian spot (standard deviation, scene units); 0 for none."""
+        if self.psf == "gaussian" and not (math.isfinite(self.screen_sigma) and self.screen_sigma > 0.0):
+            raise ValueError("screen.psf=gaussian needs a finite screen.sigma > 0 (scene units or e.g. '0.1 mm'), "
+                             f"got {self.screen_sigma}")
+        return self.screen_sigma if self.psf == "gaussian" else 0.0
+
+    def scene(self) -> Scene:
+        """Light, substrate, receiver, material and wavelengths (operators/scene.py)."""
+        return scene_from_groups(self.light, self.substrate, self.receiver, self.material, self.wavelengths,
+                                 self.mm_per_unit)
+
+    def grid(self, scene: Scene) -> HeightGrid:
+        """The grid of the reconstructed heights: ``resolution`` samples over the substrate."""
+        return HeightGrid(self.resolution, scene.substrate.half_width, scene.substrate.thickness)
+
+    def operator_for(self, scene: Scene, imaging: bool = False, gain: float = 1.0) -> ImageOperator:
+        """The operator plugin for ``scene``, seen through the screen (operators/imaging.py) when
+        ``screen.psf`` is set, or always with ``imaging`` (a setup that joint calibration may
+        change) or a ``gain`` other than 1."""
+        sigma = self.psf_sigma
+        name, params = split_name(self.operator, "operator")
+
+        def build(for_scene: Scene) -> ImageOperator:
+            return build_plugin("operator", name, dict(params), "operator", scene=for_scene, photons=self.photons,
+                                seed=self.seed)
+
+        if sigma > 0.0 or imaging or gain != 1.0:
+            return ImagingOperator(build, scene, psf_sigma=sigma, gain=gain)
+        return build(scene)
+
+    def stack_for(self, scene: Scene, shots: Sequence[ShotSetup], imaging: bool = False) -> StackOperator:
+        """The stacked operator (operators/stack.py) of the shots' setups (framework/stack/stack_data.py)
+        around ``scene``, each shot's operator as :meth:`operator_for` builds it."""
+        return StackOperator([self.operator_for(shot.scene(scene, f"data.shots[{i}]"), imaging, shot.gain)
+                              for i, shot in enumerate(shots)], [shot.weight for shot in shots])
+
+    def heights(self, base_dir: str | Path | None = None, substrate: Substrate | None = None) -> torch.Tensor:
+        """The configured heights (m, m), float64, scene units (:func:`build_heights`); a glass mesh
+        is read over ``substrate`` (None: the configured one)."""
+        path = self.height_field.get("path")
+        mesh = isinstance(path, str) and Path(path).suffix.lower() in MESH_SUFFIXES
+        if mesh and substrate is None:
+            substrate = self.scene().substrate
+        return heights_from_spec(self.height_field, self.resolution, self.mm_per_unit, base_dir, substrate)
+
+
 def build_scene(cfg: Mapping[str, Any], mm: float | None = None) -> Scene:
     """Scene (light, substrate, receiver, material, wavelengths in um) from the config's top-level
     keys; lengths in scene units or with a unit (framework/core/units.py), ``mm`` millimetres per
     scene unit (None: the config's ``units.mm_per_unit``)."""
-    mm = mm_per_unit(cfg) if mm is None else mm
-    return scene_from_groups(_group(cfg, "light", SCENE_KEYS["light"]),
-                             _group(cfg, "substrate", SCENE_KEYS["substrate"]),
-                             _group(cfg, "receiver", SCENE_KEYS["receiver"]), cfg.get("material") or None,
-                             cfg.get("wavelengths", [0.633]), mm)
-
-
-MAX_RESOLUTION = 8192  # height samples per side: 8192^2 float64 is 0.5 GB per copy
-
-
-def _grid_resolution(spec: Mapping[str, Any]) -> int:
-    """``height_field.resolution`` m, checked: an integer in [2, MAX_RESOLUTION]."""
-    resolution = checked_whole(spec.get("resolution", DEFAULT_RESOLUTION), "height_field.resolution")
-    if not 2 <= resolution <= MAX_RESOLUTION:
-        raise ValueError(f"height_field.resolution={resolution} must lie in [2, {MAX_RESOLUTION}] (samples per side; "
-                         "128 is the default)")
-    return resolution
+    return SceneGroups.read(cfg, mm).scene()
 
 
 def build_heights(cfg: Mapping[str, Any], base_dir: str | Path | None = None) -> torch.Tensor:
@@ -111,19 +196,14 @@ def build_heights(cfg: Mapping[str, Any], base_dir: str | Path | None = None) ->
     ``shape``; ``resolution`` m defaults to 128; ``scale`` multiplies the heights (for images:
     the height of full white, in scene units or e.g. "0.4 mm"); ``params`` go to the shape function.
     """
-    mm = mm_per_unit(cfg)
-    spec = _group(cfg, "height_field", HEIGHT_FIELD_KEYS)
-    path = spec.get("path")
-    mesh = isinstance(path, str) and Path(path).suffix.lower() in MESH_SUFFIXES
-    return heights_from_spec(spec, mm, base_dir, build_scene(cfg, mm).substrate if mesh else None)
+    return SceneGroups.read(cfg).heights(base_dir)
 
 
-def heights_from_spec(spec: Mapping[str, Any], mm: float, base_dir: str | Path | None = None,
+def heights_from_spec(spec: Mapping[str, Any], resolution: int, mm: float, base_dir: str | Path | None = None,
                       substrate: Substrate | None = None) -> torch.Tensor:
-    """:func:`build_heights` of the ``height_field`` group ``spec`` (keys checked) with ``mm``
-    millimetres per scene unit; a glass mesh (.stl/.obj/.ply, framework/scene/design_mesh.py) is read
-    over ``substrate``."""
-    resolution = _grid_resolution(spec)
+    """:func:`build_heights` of the checked ``height_field`` group ``spec`` at ``resolution`` with
+    ``mm`` millimetres per scene unit; a glass mesh (.stl/.obj/.ply, framework/scene/design_mesh.py)
+    is read over ``substrate``."""
     scale = scene_length(spec.get("scale", 1.0), mm, "height_field.scale")
     path = spec.get("path")
     if path is not None and not isinstance(path, str):
@@ -152,59 +232,18 @@ def heights_from_spec(spec: Mapping[str, Any], mm: float, base_dir: str | Path |
 
 def height_grid(cfg: Mapping[str, Any], scene: Scene) -> HeightGrid:
     """The grid of the reconstructed heights: ``height_field.resolution`` samples over the substrate."""
-    spec = _group(cfg, "height_field", HEIGHT_FIELD_KEYS)
-    resolution = _grid_resolution(spec)
-    return HeightGrid(resolution, scene.substrate.half_width, scene.substrate.thickness)
-
-
-def screen_settings(cfg: Mapping[str, Any], mm: float | None = None) -> tuple[str, float]:
-    """(``screen.psf``, ``screen.sigma`` in scene units as configured, whatever the psf)."""
-    screen = _group(cfg, "screen", SCREEN_KEYS)
-    psf = screen.get("psf", "none")
-    if psf not in PSF_KINDS:
-        raise ValueError(f"screen.psf={psf!r}; use {' or '.join(PSF_KINDS)}")
-    return psf, scene_length(screen.get("sigma", 0.0), mm_per_unit(cfg) if mm is None else mm, "screen.sigma")
+    return SceneGroups.read(cfg).grid(scene)
 
 
 def screen_sigma(cfg: Mapping[str, Any], mm: float | None = None) -> float:
     """The screen's Gaussian spot (standard deviation, scene units) from ``screen``; 0 for none."""
-    psf, sigma = screen_settings(cfg, mm)
-    if psf == "gaussian" and not (math.isfinite(sigma) and sigma > 0.0):
-        raise ValueError(f"screen.psf=gaussian needs a finite screen.sigma > 0 (scene units or e.g. '0.1 mm'), "
-                         f"got {sigma}")
-    return sigma if psf == "gaussian" else 0.0
-
-
-def operator_builder(cfg: Mapping[str, Any]) -> Callable[[Scene], ImageOperator]:
-    """Builds the operator plugin named by ``operator.name`` for a scene, with ``photons``, ``seed``
-    and the rest of the ``operator`` group (which the plugin checks)."""
-    name, params = split_name(cfg.get("operator"), "operator")
-    photons = checked_whole(cfg.get("photons"), "photons")
-    seed = checked_whole(cfg.get("seed", 0), "seed", 0, 2 ** 63 - 1, must="must be an integer in [0, 2^63)")
-
-    def build(for_scene: Scene) -> ImageOperator:
-        return build_plugin("operator", name, dict(params), "operator", scene=for_scene, photons=photons, seed=seed)
-
-    return build
+    return SceneGroups.read(cfg, mm).psf_sigma
 
 
 def build_operator(cfg: Mapping[str, Any], scene: Scene, imaging: bool = False, mm: float | None = None,
                    gain: float = 1.0) -> ImageOperator:
-    """The operator plugin of ``cfg`` (:func:`operator_builder`) for ``scene``, seen through the
-    screen (operators/imaging.py) when ``screen.psf`` is set, or always with ``imaging`` (a setup
-    that joint calibration may change) or a ``gain`` other than 1."""
-    build, sigma = operator_builder(cfg), screen_sigma(cfg, mm)
-    if sigma > 0.0 or imaging or gain != 1.0:
-        return ImagingOperator(build, scene, psf_sigma=sigma, gain=gain)
-    return build(scene)
-
-
-def build_stack(cfg: Mapping[str, Any], scene: Scene, shots: Sequence[ShotSetup], imaging: bool = False,
-                mm: float | None = None) -> StackOperator:
-    """The stacked operator (operators/stack.py) of the shots' setups (framework/stack/stack_data.py)
-    around the configured ``scene``, each shot's operator as :func:`build_operator` builds it."""
-    return StackOperator([build_operator(cfg, shot.scene(scene, f"data.shots[{i}]"), imaging, mm, shot.gain)
-                          for i, shot in enumerate(shots)], [shot.weight for shot in shots])
+    """The operator plugin of ``cfg`` for ``scene`` (:meth:`SceneGroups.operator_for`)."""
+    return SceneGroups.read(cfg, mm).operator_for(scene, imaging, gain)
 
 
 @dataclass(frozen=True)
@@ -217,8 +256,7 @@ class SceneSetup:
         grid: The grid of the reconstructed heights.
         operator: The operator plugin (seen through the screen when ``screen.psf`` is set, or with
             ``imaging``).
-        height_field: The ``height_field`` group, keys checked.
-        mm_per_unit: Millimetres per scene unit.
+        groups: The scene groups it was built from.
         screen_sigma: ``screen.sigma`` in scene units, whatever ``screen.psf`` (where joint
             calibration of the blur's width starts, framework/lab/calibration.py).
     """
@@ -226,24 +264,26 @@ class SceneSetup:
     scene: Scene
     grid: HeightGrid
     operator: ImageOperator
-    height_field: dict[str, Any]
-    mm_per_unit: float
+    groups: SceneGroups
     screen_sigma: float = 0.0
 
     @classmethod
     def parse(cls, cfg: Mapping[str, Any], mm: float, imaging: bool = False,
               shots: Callable[[Scene, float], Sequence[ShotSetup]] | None = None) -> SceneSetup:
-        """Build the scene, grid and operator of ``cfg`` with ``mm`` millimetres per scene unit;
-        with ``shots`` (a stack's setups for the configured scene and ``mm``), the stacked operator."""
-        scene = build_scene(cfg, mm)
-        if shots is None:
-            operator = build_operator(cfg, scene, imaging, mm)
-        else:
-            operator = build_stack(cfg, scene, shots(scene, mm), imaging, mm)
-        return cls(scene, height_grid(cfg, scene), operator, _group(cfg, "height_field", HEIGHT_FIELD_KEYS), mm,
-                   screen_settings(cfg, mm)[1])
+        """Read the scene groups of ``cfg`` (:class:`SceneGroups`) with ``mm`` millimetres per scene
+        unit, then build the scene, grid and operator; with ``shots`` (a stack's setups for the
+        configured scene and ``mm``), the stacked operator."""
+        groups = SceneGroups.read(cfg, mm)
+        scene = groups.scene()
+        operator = (groups.operator_for(scene, imaging) if shots is None
+                    else groups.stack_for(scene, shots(scene, mm), imaging))
+        return cls(scene, groups.grid(scene), operator, groups, groups.screen_sigma)
+
+    @property
+    def mm_per_unit(self) -> float:
+        """Millimetres per scene unit."""
+        return self.groups.mm_per_unit
 
     def heights(self, base_dir: str | Path | None = None) -> torch.Tensor:
         """The configured heights (m, m), float64, scene units (:func:`build_heights`)."""
-        return heights_from_spec(self.height_field, self.mm_per_unit, base_dir, self.scene.substrate)
-
+        return self.groups.heights(base_dir, self.scene.substrate)

@@ -17,7 +17,6 @@ from torch import Tensor
 from framework.core.contracts.stage import RunStage, SolvedRun, StageReport
 from framework.core.plugin_config import as_mapping
 from framework.core.progress import report
-from framework.scene.scene_config import build_operator
 from framework.tracks.ambiguity import AmbiguityReport, undecided_beads
 from operators.values import checked_flag, checked_number, checked_whole
 
@@ -76,7 +75,7 @@ class AmbiguityStage(RunStage):
 
         def render_at(screen_mm: float) -> Callable[[Tensor], Tensor]:
             moved = dataclasses.replace(scene, receiver=dataclasses.replace(scene.receiver, z=-screen_mm / mm))
-            return build_operator(run.cfg, moved, mm=mm).render
+            return run.operator_for(moved).render
 
         def refit(d0: Tensor) -> tuple[Tensor, float, bool]:
             return run.refit(d0, "one bead between ridges")

@@ -16,7 +16,7 @@ from scipy.ndimage import gaussian_filter
 from framework.core.image_metrics import relative_l2, ssim, ssim_tensor
 from framework.design.print_constraints import PrintConstraints
 from framework.core.plugin_config import build_plugin, split_name
-from framework.design.design_setup import method_settings, prepare_design
+from framework.design.design_setup import prepare_design
 from framework.design.design_refinement import DesignAdam, DesignLBFGS
 from framework.design.schwartzburg import SchwartzburgDesign
 from operators.optics.inverse_refraction import deflection_angle
@@ -235,8 +235,9 @@ def test_sfcs_lbfgs_turns_a_one_pixel_gradient_into_a_broad_first_step(tmp_path)
     # (I - l^2 Laplace)^-2, l = 0.3 scene units, as its inverse Hessian: a gradient on one height sample
     # becomes a step spread over about l, not a spike (docs/design.md, "Why the smoothing").
     cfg = compose_design([*SMALL, "height_field.resolution=64"], tmp_path)
-    problem = prepare_design(cfg).problem
-    name, params = split_name(method_settings(cfg)["solver"], "design_method.solver")
+    setup = prepare_design(cfg)
+    problem = setup.problem
+    name, params = split_name(setup.settings.method.solver, "design_method.solver")
     solver = build_plugin("design", name, params, "design_method.solver")(problem, torch.zeros(64, 64))
     spike = torch.zeros(64, 64, dtype=torch.float64)
     spike[32, 32] = 1.0

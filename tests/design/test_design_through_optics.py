@@ -15,7 +15,7 @@ import torch
 from framework.design.design_target import paraxial_shadow
 from framework.core.image_metrics import relative_l2
 from framework.design.design_run import _start, run_design
-from framework.design.design_setup import method_settings, prepare_design
+from framework.design.design_setup import prepare_design
 from framework.design.design_screen import WIDE, lit_half_width
 from framework.design.design_refinement import _hellinger, _l2_ssim
 from tests.design.conftest import SMALL, compose_design
@@ -27,7 +27,7 @@ def test_the_measured_shadow_of_flat_glass_is_the_paraxial_one(tmp_path):
     cfg = compose_design([*SMALL, "target.resolution=128", "height_field.resolution=64"], tmp_path)
     setup = prepare_design(cfg)
     scene = replace(setup.scene, receiver=replace(setup.scene.receiver, resolution=128))
-    measured = lit_half_width(cfg, scene, setup.mm, np.zeros((64, 64)), 0)
+    measured = lit_half_width(setup.operator_for, scene, np.zeros((64, 64)), 0)
     wide_pixel = 2.0 * WIDE * paraxial_shadow(scene) / 128
     # The farthest lit pixel's centre plus one pixel: within a pixel and a half of the paraxial rim
     # (the rim's rays meet the glass at 0.1 rad, where the paraxial scale is good to 1e-3).
@@ -82,7 +82,7 @@ def test_the_transport_design_alone_taller_than_the_room_below_the_upper_lens_st
 def test_a_transport_start_beyond_the_limits_is_projected_onto_them(tmp_path):
     cfg = compose_design([*SMALL, "target.image=text", "constraints.max_slope=0.3"], tmp_path)
     setup = prepare_design(cfg)
-    d0, metrics = _start(setup, method_settings(cfg))
+    d0, metrics = _start(setup)
     assert metrics["transport_printable"] == 0.0
     assert all(setup.constraints.holds(d0.double().numpy(), rtol=1e-6).values())  # to the operator's float32
     flat = setup.operator.render(torch.zeros_like(d0)).double().numpy()

@@ -33,6 +33,8 @@ from framework.core.contracts.representation import Representation
 from framework.core.contracts.start import Start, StartRequest
 from framework.core.problem import Problem
 from framework.core.solver_loop import Callback, RunResult
+from operators.image_operator import ImageOperator
+from operators.scene import Scene
 from operators.plugin import Plugin
 
 __all__ = ["Refit", "RunStage", "Solve", "SolvedRun", "StageReport", "StartingRun"]
@@ -83,7 +85,8 @@ class SolvedRun:
             and its parameters), or None.
         refit: The run's own solver, stopping rules and photon budget, run again from other
             heights (:data:`Refit`).
-        cfg: The run's plain config.
+        operator_for: The run's configured operator for another scene (another screen distance,
+            say), not seen through a camera.
         mm_per_unit: Millimetres per scene unit.
         seed: The run's seed.
         tau_dis: Morozov's factor: a fit reaches the noise level at tau_dis * delta.
@@ -96,7 +99,7 @@ class SolvedRun:
     heights: Tensor
     fitted: Any
     refit: Refit
-    cfg: Mapping[str, Any]
+    operator_for: Callable[[Scene], ImageOperator]
     mm_per_unit: float
     seed: int
     tau_dis: float
