@@ -66,7 +66,7 @@ def test_every_config_group_option_composes_and_builds(tmp_path, group, option):
     parts = Reconstruction.from_config(cfg, tmp_path)  # every plugin built and checked, nothing rendered
     channels = len(cfg["wavelengths"]) * len(cfg["data"].get("shots") or [None])  # a stack: every shot's
     assert callable(parts.start) and parts.operator.output_shape == (channels, 64, 64)
-    assert parts.max_iter >= 1 and [type(rule).__name__ for rule in parts.stopping] == [
+    assert parts.max_iter >= 1 and [type(rule).__name__ for rule in parts.fresh_stopping()] == [
         {"morozov": "MorozovStopping", "stagnation": "StagnationStopping"}[name] for name in cfg.get("stopping") or {}]
 
 

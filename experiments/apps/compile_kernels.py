@@ -49,14 +49,27 @@ def _mesh() -> None:
 
 
 def _wavefront() -> None:
-    """The exact wavefront renderer's numba tracer, where the compiled extension is missing (with
-    it the renderer traces in C and this compiles nothing)."""
+    """The exact wavefront renderer's numba tracer and rasterisers: its kernels where the compiled
+    extension is missing, and the reference the C kernels are held to (the test suite compares
+    them); on another core they compile while the mesh group does."""
+    import numpy as np
+
     from operators.heightfield.operator import CausticOperator, OperatorSettings
     from operators.scene import Receiver, Scene
+    from operators.wavefront import coverage
+    from operators.wavefront.renderer import WavefrontRenderer, _trace_native
 
     op = CausticOperator(Scene(receiver=Receiver(resolution=8)), OperatorSettings(photons=64, dtype="float64"))
     bump = 0.01 * torch.exp(-torch.linspace(-1.0, 1.0, 4, dtype=torch.float64) ** 2)  # not flat glass's shortcut
-    op.exact_variant(256, 0, 8).render(bump[:, None] * bump[None, :])
+    d = (bump[:, None] * bump[None, :]).numpy()
+    op.exact_variant(256, 0, 8).render(torch.from_numpy(d))
+    sc = WavefrontRenderer(op.scene, vertices=5).fused.constants(d)
+    aim = np.zeros((2, 2))
+    _trace_native(d, sc, 1.46, aim, np.empty((2, 2)), np.empty(2), np.empty(2))
+    axis = np.linspace(0.0, 4.0, 3)
+    vertices = np.ascontiguousarray(np.stack(np.meshgrid(axis, axis), axis=-1))
+    coverage._rasterize_grid(vertices, np.ones((1, 2, 2)), np.zeros((1, 4, 4)))
+    coverage._rasterize_list(np.array([[[0.0, 0.0], [2.0, 0.0], [0.0, 2.0]]]), np.ones(1), np.zeros((1, 4, 4)))
 
 
 GROUPS: dict[str, Callable[[], None]] = {"heightfield": _heightfield, "mesh": _mesh, "wavefront": _wavefront}

@@ -18,7 +18,7 @@ import numpy as np
 from PIL import Image, PngImagePlugin
 
 from framework.files.plotting import label_xy_axes, save_figure
-from operators.heightfield.catmull_rom import refinement_matrix
+from operators.heightfield.catmull_rom import refined_surface
 from operators.values import checked_number, checked_whole
 
 if TYPE_CHECKING:
@@ -86,19 +86,16 @@ def glass_mesh(d: np.ndarray, half_width: float, thickness: float, mm_per_unit: 
         refine: Points per cell of the samples' grid, >= 1: the facets' pitch is the grid's over
             ``refine`` (finer facets cast less of their pattern on a far screen).
     """
+    d = _heights(d, "d")
     frame = GlassFrame.checked(half_width, mm_per_unit, thickness)
     refine = checked_whole(refine, "refine", 1, must="must be an integer >= 1 (points per cell of the heights' grid)")
-    return _glass_mesh(_heights(d, "d"), frame, refine)
+    return _glass_mesh(*refined_surface(d, refine), frame)
 
 
-def _glass_mesh(d: np.ndarray, frame: GlassFrame, refine: int) -> trimesh.Trimesh:
-    """:func:`glass_mesh` of checked heights (m, m) in ``frame``."""
+def _glass_mesh(d: np.ndarray, centres: np.ndarray | None, frame: GlassFrame) -> trimesh.Trimesh:
+    """:func:`glass_mesh` of checked heights on the facets' grid (k (m - 1) + 1 square) and the
+    surface at those cells' centres (None: the mean of each cell's corners) in ``frame``."""
     w, base = frame.half_width, frame.thickness
-    centres = None
-    if refine > 1:  # the surface at the fine grid's points and at its cells' centres
-        matrix = refinement_matrix(d.shape[0], 2 * refine)
-        dense = matrix @ d @ matrix.T
-        d, centres = dense[::2, ::2], dense[1::2, 1::2]
     top = base + d
     if top.min() <= 0.0:
         i, j = np.unravel_index(np.argmin(top), top.shape)
@@ -278,12 +275,12 @@ def export_outputs(out_dir: str | Path, d: np.ndarray, half_width: float, thickn
     unknown = [f for f in formats if f not in MESH_FORMATS]
     if unknown:
         raise ValueError(f"unknown mesh format {unknown[0]!r}; use one or more of {', '.join(MESH_FORMATS)}")
-    frame = GlassFrame.checked(half_width, mm_per_unit, thickness)
-    refine = checked_whole(refine, "refine", 1, must="must be an integer >= 1 (points per cell of the heights' grid)")
     d = _heights(d, "d")
-    mesh = _glass_mesh(d, frame, refine)
     if design is not None:
         d, design = _pair(d, design)
+    frame = GlassFrame.checked(half_width, mm_per_unit, thickness)
+    refine = checked_whole(refine, "refine", 1, must="must be an integer >= 1 (points per cell of the heights' grid)")
+    mesh = _glass_mesh(*refined_surface(d, refine), frame)
     report = {} if design is None else _deviation_report(d, design, frame)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)

@@ -118,13 +118,13 @@ class SceneGroups:
     def read(cls, cfg: Mapping[str, Any], mm: float | None = None) -> SceneGroups:
         """The groups of ``cfg`` with ``mm`` millimetres per scene unit (None: ``units.mm_per_unit``);
         a bad key or value fails here, naming it."""
-        mm = mm_per_unit(cfg) if mm is None else mm
         groups = {name: _group(cfg, name, keys) for name, keys in SCENE_KEYS.items()}
         height_field = _group(cfg, "height_field", HEIGHT_FIELD_KEYS)
         screen = _group(cfg, "screen", SCREEN_KEYS)
         psf = screen.get("psf", "none")
         if psf not in PSF_KINDS:
             raise ValueError(f"screen.psf={psf!r}; use {' or '.join(PSF_KINDS)}")
+        mm = mm_per_unit(cfg) if mm is None else mm
         sigma = scene_length(screen.get("sigma", 0.0), mm, "screen.sigma")
         resolution = checked_whole(height_field.get("resolution", DEFAULT_RESOLUTION), "height_field.resolution",
                                    2, MAX_RESOLUTION, must=f"must lie in [2, {MAX_RESOLUTION}] (samples per side; "
@@ -169,8 +169,9 @@ class SceneGroups:
     def stack_for(self, scene: Scene, shots: Sequence[ShotSetup], imaging: bool = False) -> StackOperator:
         """The stacked operator (operators/stack.py) of the shots' setups (framework/stack/stack_data.py)
         around ``scene``, each shot's operator as :meth:`operator_for` builds it."""
-        return StackOperator([self.operator_for(shot.scene(scene, f"data.shots[{i}]"), imaging, shot.gain)
-                              for i, shot in enumerate(shots)], [shot.weight for shot in shots])
+        operators = [self.operator_for(shot.scene(scene, f"data.shots[{i}]"), imaging, shot.gain)
+                     for i, shot in enumerate(shots)]
+        return StackOperator(operators, [shot.weight for shot in shots])
 
     def heights(self, base_dir: str | Path | None = None, substrate: Substrate | None = None) -> torch.Tensor:
         """The configured heights (m, m), float64, scene units (:func:`build_heights`); a glass mesh

@@ -197,3 +197,14 @@ def refinement_matrix(m: int, k: int) -> np.ndarray:
     for a in range(4):
         np.add.at(matrix, (rows, np.clip(cell - 1 + a, 0, m - 1)), weights[:, a])
     return matrix
+
+
+def refined_surface(d: np.ndarray, refine: int) -> tuple[np.ndarray, np.ndarray | None]:
+    """The surface of heights d (m, m) at ``refine`` points per cell along each axis, and at the
+    centres of those fine cells: (k (m - 1) + 1 square, k (m - 1) square) with k = refine; for
+    refine 1 the samples themselves and None."""
+    if refine == 1:
+        return d, None
+    matrix = refinement_matrix(d.shape[0], 2 * refine)
+    dense = matrix @ d @ matrix.T
+    return dense[::2, ::2], dense[1::2, 1::2]
