@@ -64,6 +64,7 @@ class ImageOperator(Plugin, ABC):
         deterministic: False unless a render has no sampling noise (two renders are equal).
         hit_key: None unless operators with equal keys may share where their photons meet the
             print (:meth:`share_hits`).
+        has_jvp: False unless a subclass gives the Jacobian-vector product :meth:`jvp`.
     """
 
     dtype: torch.dtype
@@ -79,6 +80,7 @@ class ImageOperator(Plugin, ABC):
     shot_count: int = 1
     deterministic: bool = False
     hit_key: Any = None
+    has_jvp: bool = False
 
     def share_hits(self, other: Any) -> None:
         """Use ``other``'s hit cache (operators/stack.py); only an operator with a ``hit_key`` has one."""
@@ -96,6 +98,11 @@ class ImageOperator(Plugin, ABC):
     @abstractmethod
     def output_shape(self) -> tuple[int, int, int]:
         """(c, n, n) of the images it renders."""
+
+    def jvp(self, heights: torch.Tensor, direction: torch.Tensor) -> torch.Tensor:
+        """F'(d) v (c, n, n): the image's change along a direction v (m, m) of the heights, from an
+        operator that declares ``has_jvp``; this one has none."""
+        raise NotImplementedError(f"{type(self).__name__} has no Jacobian-vector product (has_jvp is False)")
 
     def variant(self, photons: int, seed: int, resolution: int) -> ImageOperator:
         """The same physics with another sampling (photons, seed, an n = resolution receiver):
@@ -152,7 +159,7 @@ class ImageOperator(Plugin, ABC):
 class WrappingOperator(ImageOperator):
     """An operator that renders through another one, :attr:`wrapped` (a finer receiver, a camera),
     and passes on what that one declares: dtype, photons, its light path, elements, shots, hit
-    cache and warm-up. Nothing else is passed on."""
+    cache, whether it has a Jacobian-vector product, and warm-up. Nothing else is passed on."""
 
     @property
     def wrapped(self) -> Any:
@@ -186,6 +193,10 @@ class WrappingOperator(ImageOperator):
     @property
     def hit_key(self) -> Any:  # type: ignore[override]
         return self.wrapped.hit_key
+
+    @property
+    def has_jvp(self) -> bool:  # type: ignore[override]
+        return bool(self.wrapped.has_jvp)
 
     def share_hits(self, other: Any) -> None:
         """Share the wrapped operators' hit cache (operators/stack.py)."""

@@ -146,6 +146,10 @@ class ImagingOperator(WrappingOperator):
             raise ValueError(f"grad_image has shape {tuple(grad_image.shape)}, expected {self.output_shape}")
         return self.fine.vjp(heights, self.chain.adjoint(grad_image))
 
+    def jvp(self, heights: torch.Tensor, direction: torch.Tensor) -> torch.Tensor:
+        """chain F'(d) v (c, n, n)."""
+        return self.chain.apply(self.fine.jvp(heights, direction))
+
     def _around(self, inner: Any) -> ImagingOperator:
         """The same camera (setup fixed) around another wrapped operator."""
         return ImagingOperator(lambda scene: inner, self.scene, self.psf_sigma, self.gain, self.stages)

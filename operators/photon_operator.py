@@ -95,6 +95,17 @@ class PhotonOperator(ImageOperator):
     def vjp_irradiance(self, heights: torch.Tensor, grad_image: torch.Tensor) -> torch.Tensor:
         """E'(d)^* grad_image (m, m) for a gradient (c, n, n) of the splatted irradiance."""
 
+    def jvp_irradiance(self, heights: torch.Tensor, direction: torch.Tensor) -> torch.Tensor:
+        """E'(d) v (c, n, n), for a subclass that declares ``has_jvp``."""
+        raise NotImplementedError(f"{type(self).__name__} has no Jacobian-vector product (has_jvp is False)")
+
+    def jvp(self, heights: torch.Tensor, direction: torch.Tensor) -> torch.Tensor:
+        """F'(d) v = C E'(d) v (c, n, n) in the operator's dtype, on the device of ``heights``."""
+        if tuple(direction.shape) != tuple(heights.shape):
+            raise ValueError(f"the direction has shape {tuple(direction.shape)}, the heights {tuple(heights.shape)}")
+        image = self.image_chain.apply(self.jvp_irradiance(heights, direction))
+        return image.to(dtype=self.dtype, device=heights.device)
+
     def render(self, heights: torch.Tensor, progress: bool = False) -> torch.Tensor:
         """F(d) = C E(d) (c, n, n) in the operator's dtype, on the device of ``heights``."""
         image = self.image_chain.apply(self.render_irradiance(heights, progress))

@@ -137,6 +137,15 @@ class StackOperator(ImageOperator):
         """[sqrt(w_i) F_i(d)] (N c, n, n)."""
         return self.stack([shot.render(heights, progress=progress) for shot in self.shots])
 
+    @property
+    def has_jvp(self) -> bool:  # type: ignore[override]
+        """Whether every shot gives its Jacobian-vector product."""
+        return all(shot.has_jvp for shot in self.shots)
+
+    def jvp(self, heights: torch.Tensor, direction: torch.Tensor) -> torch.Tensor:
+        """[sqrt(w_i) F_i'(d) v] (N c, n, n)."""
+        return self.stack([shot.jvp(heights, direction) for shot in self.shots])
+
     def vjp(self, heights: torch.Tensor, grad_image: torch.Tensor) -> torch.Tensor:
         """sum_i sqrt(w_i) F_i'(d)^* g_i (m, m) for the stacked image gradient [g_i]."""
         total = None

@@ -99,6 +99,10 @@ class SupersampledOperator(WrappingOperator):
             raise ValueError(f"grad_image has shape {tuple(grad_image.shape)}, expected {self.output_shape}")
         return self.fine.vjp(heights, self.mean.adjoint(grad_image))
 
+    def jvp(self, heights: torch.Tensor, direction: torch.Tensor) -> torch.Tensor:
+        """A F_fine'(d) v (c, n, n)."""
+        return self.mean.apply(self.fine.jvp(heights, direction))
+
     def variant(self, photons: int, seed: int, resolution: int) -> SupersampledOperator:
         """The same supersampling of the fine operator's variant for an n = ``resolution`` output."""
         coarse = dataclasses.replace(

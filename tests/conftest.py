@@ -27,17 +27,17 @@ if _WORKERS > 1:
 
 # Tests that run numba kernels (the mesh-scene operator's numba event kernels, the numba build of
 # the height-field kernels, the numba splat, the torch reference path's hit search, the wavefront
-# renderer's numba tracer), matched on their node ids. In a fresh environment each kernel compiles
-# once per process (the mesh kernels take about 2 min, the height-field gradient kernel about
-# 1.5 min): under ``-n auto`` one worker runs all of them (xdist's loadgroup), so each compiles
-# once and the others load it from numba's cache. A test missing here still passes; it only
-# compiles on another worker.
+# renderer's numba tracer, the height-field forward pass), matched on their node ids. In a fresh
+# environment each kernel compiles once per process (the mesh kernels take about 2 min, the
+# height-field gradient kernel about 1.5 min): under ``-n auto`` one worker runs all of them
+# (xdist's loadgroup), so each compiles once and the others load it from numba's cache. A test
+# missing here still passes; it only compiles on another worker.
 NUMBA_KERNEL_TESTS = (
     "tests/operators/test_compiled_kernels.py", "tests/operators/test_fused.py",
     "tests/operators/test_splat.py", "tests/operators/test_simd.py", "tests/operators/test_heightfield_hit.py",
     "tests/operators/test_flat_slab.py", "tests/operators/test_gradients.py", "tests/operators/test_photon_paths.py",
     "tests/operators/test_wavefront.py", "tests/operators/test_precompile.py", "tests/framework/test_starts.py",
-    "tests/operators/test_side_walls.py", "tests/operators/test_flank_bound.py",
+    "tests/operators/test_side_walls.py", "tests/operators/test_flank_bound.py", "tests/operators/test_jvp.py",
     "tests/experiments/test_compile_kernels.py",
     "tests/experiments/test_bench.py",
     # the mesh-scene operator with its numba event kernels (its other tests trace with the C kernels)

@@ -308,6 +308,15 @@ class _AdjointOffByATerm(ShadowOperator):
         return super().vjp(heights, grad_image) + 0.01 * heights
 
 
+class _ForwardOffByAFactor(ShadowOperator):
+    """The shadow operator whose Jacobian-vector product is 1.5 times the image's change."""
+
+    has_jvp = True
+
+    def jvp(self, heights, direction):
+        return 1.5 * (self.render(heights + direction) - self.render(heights))
+
+
 class _NeverStops(StagnationStopping):
     """A stagnation rule that forgets to ask the loop to stop."""
 
@@ -338,6 +347,8 @@ def test_a_broken_plugin_of_each_kind_fails_the_contract(known_problem) -> None:
         check_operator(lambda seed: _OffByATerm.from_config(SCENE, 1, seed), who="operator/off_by_a_term")
     with pytest.raises(ContractViolation, match="adjoint identity fails"):
         check_operator(lambda seed: _AdjointOffByATerm.from_config(SCENE, 1, seed), who="operator/adjoint_off")
+    with pytest.raises(ContractViolation, match="jvp differs from finite differences"):
+        check_operator(lambda seed: _ForwardOffByAFactor.from_config(SCENE, 1, seed), who="operator/forward_off")
     with pytest.raises(ContractViolation, match="is not the minimiser"):
         check_regularizer(_NoShrink(alpha=0.1), who="regularizer/no_shrink")
     with pytest.raises(ContractViolation, match="does not solve a known problem"):  # a step far too small

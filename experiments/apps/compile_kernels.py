@@ -35,6 +35,17 @@ def _heightfield() -> None:
         op.vjp(d, torch.ones(op.output_shape, dtype=op.dtype))
 
 
+def _tangent() -> None:
+    """The height-field operator's forward pass, J v (operators/heightfield/tangent_native.py; numba
+    on every machine: the C kernels have none), both dtypes."""
+    from operators.heightfield.compile_kernels import small_numba_operator
+
+    for dtype in ("float32", "float64"):
+        op = small_numba_operator(dtype)
+        d = torch.zeros(4, 4, dtype=op.dtype)
+        op.jvp(d, torch.ones_like(d))
+
+
 def _mesh() -> None:
     """The mesh-scene operator's numba event kernels (render and gradient through the paper's lenses)."""
     from experiments.apps.configs import app_config
@@ -72,7 +83,8 @@ def _wavefront() -> None:
     coverage._rasterize_list(np.array([[[0.0, 0.0], [2.0, 0.0], [0.0, 2.0]]]), np.ones(1), np.zeros((1, 4, 4)))
 
 
-GROUPS: dict[str, Callable[[], None]] = {"heightfield": _heightfield, "mesh": _mesh, "wavefront": _wavefront}
+GROUPS: dict[str, Callable[[], None]] = {"heightfield": _heightfield, "mesh": _mesh, "wavefront": _wavefront,
+                                         "tangent": _tangent}
 
 
 def _compile_in_process(name: str) -> tuple[str, int, float]:

@@ -205,6 +205,24 @@ class CausticOperator(PhotonOperator):
         return torch.from_numpy(out.sum(axis=0)).to(self.dtype).to(dtype=heights.dtype, device=heights.device)
 
     @property
+    def has_jvp(self) -> bool:  # type: ignore[override]
+        """The CPU kernels give J v (operators/heightfield/tangent_native.py); the GPU's have none yet."""
+        return self.gpu is None
+
+    def jvp_irradiance(self, heights: torch.Tensor, direction: torch.Tensor) -> torch.Tensor:
+        """E'(d) v (c, n, n), the change of the splatted irradiance along a direction v (m, m) of
+        the heights, by the fused native forward pass."""
+        if self.gpu is not None:
+            raise NotImplementedError("the CUDA kernels have no Jacobian-vector product yet; use operator.device=cpu")
+        self._check(heights)
+        d = to_numpy(heights).astype(np.float64)
+        v = np.ascontiguousarray(to_numpy(direction), dtype=np.float64)
+        out = self.fused.image_buffers(np.dtype(self.settings.dtype))
+        for start, stop in self.chunks():
+            self.fused.jvp(d, v, start, stop, out)
+        return torch.from_numpy(out.sum(axis=0) / self.pixel_area)
+
+    @property
     def hit_key(self) -> tuple:
         """What decides where the photons meet the print besides the heights: the light, the
         substrate, the photon pattern, the chunks and the device. Operators with equal keys may

@@ -15,6 +15,7 @@ from operators.heightfield import trace_compiled
 from operators.heightfield.adjoint_native import vjp_photons
 from operators.heightfield.kernels_native import FusedScene, render_photons
 from operators.heightfield.surface import HeightFieldGrid
+from operators.heightfield.tangent_native import jvp_photons
 from operators.kernels.simd import AVAILABLE as SIMD_AVAILABLE
 from operators.scene import Scene
 from operators.splat.native import gather_padding, pad_for_gather
@@ -118,6 +119,18 @@ class FusedTracer:
             return
         with nb.parallel_chunksize(1):
             vjp_photons(*arguments)
+
+
+    def jvp(self, d: np.ndarray, v: np.ndarray, start: int, stop: int, out: np.ndarray) -> None:
+        """Add to ``out`` (threads, c, n, n) the change of the flux per pixel of photons start ..
+        stop-1 when the float64 heights ``d`` (m, m) move along ``v`` (m, m): J v, by the numba
+        kernels (:mod:`operators.heightfield.tangent_native`; the C kernels have no forward pass)."""
+        _check_contiguous(d=d, v=v, out=out)
+        if v.shape != d.shape or v.dtype != np.float64:
+            raise ValueError(f"the direction has shape {v.shape} and dtype {v.dtype}; it must be float64 like the "
+                             f"heights {d.shape}")
+        with nb.parallel_chunksize(1):
+            jvp_photons(d, v, self.constants(d, start), self.shifts, self.indices, start, stop, out, self.capacity)
 
 
 def _check_contiguous(**arrays: np.ndarray) -> None:

@@ -28,4 +28,4 @@ def test_an_unknown_group_is_refused_in_one_line():
     )
     assert done.returncode == 2
     assert done.stderr.strip().splitlines() == [
-        "unknown kernel group(s) lenses: choose from heightfield, mesh, wavefront"]
+        "unknown kernel group(s) lenses: choose from heightfield, mesh, wavefront, tangent"]

@@ -55,6 +55,9 @@ def check_operator(make: Callable[[int], Any], m: int = 16, who: str = "operator
     edge_probe = _Probe(operator, edge)
     _check_adjoint(operator, edge, edge_probe, f"{who} (a top raised at the +x edge)")
     _check_gradient(operator, edge, edge_probe, f"{who} (a top raised at the +x edge)")
+    if operator.has_jvp:
+        _check_jvp(operator, bump, probe, who)
+        _check_jvp(operator, edge, edge_probe, f"{who} (a top raised at the +x edge)")
     if operator.conserves_energy:
         power = [float(operator.render(d).double().sum()) * operator.pixel_area for d in (flat, bump)]
         require(power[0] > 0 and abs(power[1] - power[0]) <= 0.02 * power[0], who,
@@ -110,6 +113,26 @@ def _check_adjoint(operator: Any, heights: torch.Tensor, probe: _Probe, who: str
     require(probe.close(left, right), who,
              f"the adjoint identity fails: <vjp(d, w), v> = {left:.8g} but <w, F'(d) v> = {right:.8g} "
              f"(relative tolerance {probe.tolerance:g})")
+
+
+def _check_jvp(operator: Any, heights: torch.Tensor, probe: _Probe, who: str) -> None:
+    """jvp(d, v) against (F(d + e v) - F(d - e v)) / 2e, and <jvp(d, v), w> against <v, vjp(d, w)>
+    (the same derivatives forward and backward: a tolerance of the arithmetic's, not the difference's)."""
+    pushed = operator.jvp(heights, probe.direction)
+    require(tuple(pushed.shape) == tuple(operator.output_shape) and pushed.dtype == operator.dtype, who,
+            f"jvp gives shape {tuple(pushed.shape)} and dtype {pushed.dtype}, the images are "
+            f"{tuple(operator.output_shape)} {operator.dtype}")
+    numeric = (probe.plus - probe.minus) / (2.0 * probe.eps)
+    error = float(torch.linalg.vector_norm(pushed.double() - numeric)) / max(
+        float(torch.linalg.vector_norm(numeric)), 1e-30)
+    require(error <= probe.tolerance, who, f"jvp differs from finite differences by {error:.3g} relative "
+            f"(tolerance {probe.tolerance:g})")
+    w = torch.rand(operator.output_shape, generator=torch.Generator().manual_seed(3), dtype=torch.float64)
+    left = float((pushed.double() * w).sum())
+    right = probe.along(operator.vjp(heights, w.to(operator.dtype)))
+    exact = 1e-10 if operator.dtype == torch.float64 else 1e-4
+    require(abs(left - right) <= exact * max(abs(left), abs(right), 1e-30), who,
+            f"jvp and vjp disagree: <jvp(d, v), w> = {left:.12g} but <v, vjp(d, w)> = {right:.12g}")
 
 
 def _check_gradient(operator: Any, heights: torch.Tensor, probe: _Probe, who: str) -> None:
