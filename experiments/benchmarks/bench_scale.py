@@ -91,8 +91,10 @@ def scale_report(sizes: tuple[int, ...] = (128, 256, 512), per_pixel: float = 64
         grid[str(m)] = {"photons": photons, **_in_fresh_process(m, 1, photons, footprint_px, chunk_size, repeats)}
     middle = sizes[len(sizes) // 2]
     photons = int(per_pixel * middle * middle)
-    stacks = {str(k): _in_fresh_process(middle, k, photons, footprint_px, chunk_size, repeats)
-              for k in range(1, len(SCREENS) + 1)}
+    # One photo at the middle size is that size's own iteration, measured above.
+    stacks = {"1": {key: value for key, value in grid[str(middle)].items() if key != "photons"}}
+    stacks.update({str(k): _in_fresh_process(middle, k, photons, footprint_px, chunk_size, repeats)
+                   for k in range(2, len(SCREENS) + 1)})
     samples = [float(m * m) for m in sizes]
     return {
         "per_pixel": per_pixel, "scene": "print_lines, m = n, light (0, 0, 10), screen 0.05",

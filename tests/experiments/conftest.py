@@ -9,9 +9,12 @@ from omegaconf import OmegaConf
 
 CONF = str(Path(__file__).resolve().parents[2] / "conf")
 
-# A small problem: 32 x 32 heights, 64 x 64 receiver, few photons; still the real operator.
+# A small problem: 32 x 32 heights, 64 x 64 receiver, few photons; still the real operator. The check of
+# undecided beads (its own stage, half of such a run's time) is left to the tests that ask for it
+# (tests/tracks/test_ambiguity.py).
 SMALL = ["photons=60000", "receiver.resolution=64", "height_field.resolution=32", "data.reference_photons=200000",
-         "data.reference_resolution=128", "operator.footprint_px=3", "checkpoint_every=2", "initial=zero"]
+         "data.reference_resolution=128", "operator.footprint_px=3", "checkpoint_every=2", "initial=zero",
+         "ambiguity.enabled=false"]
 
 
 def compose_reconstruct(overrides: list[str], tmp_path: Path) -> dict:

@@ -183,3 +183,23 @@ def test_only_the_longest_pairs_are_rendered() -> None:
     every = [min(skeleton.tracks[p.first].length, skeleton.tracks[p.second].length) for p in twin_pairs(skeleton)]
     checked = [min(h.pair[0].length, h.pair[1].length) for h in report.checked]
     assert len(every) == 7 and min(checked) > min(every)  # the shortest pair is the one left out
+
+
+def test_the_check_joins_a_reconstruction_of_free_heights_and_reports_in_its_metrics(tmp_path) -> None:
+    # The stage (framework/tracks/ambiguity_stage.py) on a free grid's run of synthetic print_lines,
+    # whose data carry no design: its sentence joins the verdict, its figures the metrics; with
+    # ambiguity.enabled=false the run has neither and the same heights.
+    from framework.reconstruction.reconstruction import run_reconstruction
+    from tests.experiments.conftest import SMALL, compose_reconstruct
+
+    runs = {}
+    for state in ("true", "false"):
+        cfg = compose_reconstruct([*SMALL, "scene=print_lines", "solver.max_iter=3", "defects.enabled=off",
+                                   f"ambiguity.enabled={state}"], tmp_path)
+        runs[state] = run_reconstruction(cfg, tmp_path / state, tmp_path)
+    on, off = runs["true"], runs["false"]
+    assert on["ridge_pairs_checked"] >= 0 and on["ambiguity_time_s"] > 0 and on["ambiguity"]
+    assert on["ambiguity"].split(".")[0] in on["verdict"]
+    assert "ambiguity" not in off and "ridge_pairs_checked" not in off
+    if on["ridge_pairs_bead"] == 0:  # nothing replaced: the check leaves the heights as they are
+        assert on["rel_error_d"] == off["rel_error_d"]
