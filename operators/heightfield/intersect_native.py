@@ -153,6 +153,15 @@ def solve_hits(d, base, ox, oy, oz, dirs, count, x0, spacing, zlo, zstart, zhi, 
             break
 
 
+@nb.njit(cache=True, inline="always", fastmath=FAST_MATH, error_model="numpy")
+def surface_derivatives(patch, wx, wy):
+    """(S_x, S_y, S_xx, S_xy, S_yy, S_xxx, S_xxy, S_xyy, S_yyy) of the surface of the samples
+    ``patch`` (4, 4) at the point of the weight tables of order 3, wx / wy."""
+    return (contract(patch, wx, 1, wy, 0), contract(patch, wx, 0, wy, 1), contract(patch, wx, 2, wy, 0),
+            contract(patch, wx, 1, wy, 1), contract(patch, wx, 0, wy, 2), contract(patch, wx, 3, wy, 0),
+            contract(patch, wx, 2, wy, 1), contract(patch, wx, 1, wy, 2), contract(patch, wx, 0, wy, 3))
+
+
 @nb.njit(cache=True, fastmath=FAST_MATH, error_model="numpy")
 def hit_adjoint_patch(wx, wy, patch, wx_, wy_, wz_, g_t, g_sx, g_sy, g_sxx, g_sxy, g_syy) -> None:
     """Overwrite ``patch`` (the samples around one photon's hit) with the gradient of
@@ -160,15 +169,7 @@ def hit_adjoint_patch(wx, wy, patch, wx_, wy_, wz_, g_t, g_sx, g_sy, g_sxx, g_sx
 
     wx / wy are weight tables of order 3 at the hit, (wx_, wy_, wz_) the ray direction.
     """
-    sx = contract(patch, wx, 1, wy, 0)
-    sy = contract(patch, wx, 0, wy, 1)
-    sxx = contract(patch, wx, 2, wy, 0)
-    sxy = contract(patch, wx, 1, wy, 1)
-    syy = contract(patch, wx, 0, wy, 2)
-    sxxx = contract(patch, wx, 3, wy, 0)
-    sxxy = contract(patch, wx, 2, wy, 1)
-    sxyy = contract(patch, wx, 1, wy, 2)
-    syyy = contract(patch, wx, 0, wy, 3)
+    sx, sy, sxx, sxy, syy, sxxx, sxxy, sxyy, syyy = surface_derivatives(patch, wx, wy)
     # Loss change per unit of t while d is held: the hit point slides along the ray.
     along = (g_t
              + g_sx * (sxx * wx_ + sxy * wy_) + g_sy * (sxy * wx_ + syy * wy_)

@@ -24,6 +24,7 @@ import numpy as np
 
 from operators.heightfield.adjoint_native import optics_adjoint
 from operators.heightfield.catmull_rom import contract, load_patch
+from operators.heightfield.intersect_native import surface_derivatives
 from operators.heightfield.kernels_native import BLOCK, PACKET, hit_cell, load_hit, optics_state, trace_packet
 from operators.kernels.numba_settings import jit_call, jit_inline, jit_parallel
 from operators.splat.native import footprint_usable
@@ -37,15 +38,7 @@ def hit_tangent(wx, wy, patch, vpatch, w):
     """(dt, dS_x, dS_y, dS_xx, dS_xy, dS_yy) at one photon's hit when the heights move along v:
     ``patch`` and ``vpatch`` (4, 4) the samples of d and v around the hit, wx / wy the weight
     tables of order 3 there (:func:`operators.heightfield.kernels_native.hit_cell`), w the ray's direction."""
-    sx = contract(patch, wx, 1, wy, 0)
-    sy = contract(patch, wx, 0, wy, 1)
-    sxx = contract(patch, wx, 2, wy, 0)
-    sxy = contract(patch, wx, 1, wy, 1)
-    syy = contract(patch, wx, 0, wy, 2)
-    sxxx = contract(patch, wx, 3, wy, 0)
-    sxxy = contract(patch, wx, 2, wy, 1)
-    sxyy = contract(patch, wx, 1, wy, 2)
-    syyy = contract(patch, wx, 0, wy, 3)
+    sx, sy, sxx, sxy, syy, sxxx, sxxy, sxyy, syyy = surface_derivatives(patch, wx, wy)
     dt = contract(vpatch, wx, 0, wy, 0) / (w[2] - sx * w[0] - sy * w[1])
     return (dt,
             contract(vpatch, wx, 1, wy, 0) + (sxx * w[0] + sxy * w[1]) * dt,
