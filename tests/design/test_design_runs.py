@@ -144,6 +144,10 @@ def test_a_transport_cut_short_by_the_time_budget_says_so(tmp_path, method):
     ("target.width=20.0", "can light only"),
     ("constraints.max_slope=-1", "constraints.max_slope"),
     ("seconds=0", "time budget"),
+    ("checkpoint_every=0", "^checkpoint_every=0 must be an integer >= 1"),
+    ("previews=[0.5,-2]", r"^previews=\[0.5, -2\] must be a list of factors > 0"),
+    ("+design_method.foo=1", "^unknown key design_method.foo; design_method takes name, start"),
+    ("design_method.transport_iterations=0", "^design_method.transport_iterations=0 must be an integer >= 1"),
 ])
 def test_bad_input_is_refused_in_one_line_before_any_run_opens(tmp_path, override, message):
     _png(tmp_path / "black.png", np.zeros((16, 16)))
