@@ -6,7 +6,8 @@ torch reference path in the same process (side by side: timings on a shared mach
 the same with the numba kernels in place of the C kernels compiled at install
 (``operator.kernels: numba``) and without the AVX2 splat / gather / jet kernels (``operator.simd:
 false``), alternating with them, the time split between tracing and splatting in the fused kernel (a pass
-with the splat switched off against the full pass), the peak memory of a gradient evaluation
+with the splat switched off against the full pass), the Jacobian-vector product beside a render and a
+gradient pass, the peak memory of a gradient evaluation
 with the paper's 8.4 million photons, and the native splat against the straightforward PyTorch
 splat on the same photons, side by side, each in a fresh process so that their peak memories are
 comparable; the mesh-scene operator (plain scene, two lenses) beside the height-field operator (a
@@ -96,6 +97,21 @@ def time_split(op: CausticOperator, heights: torch.Tensor, repeats: int = 5) -> 
         trace_s = min(trace_s, best_seconds(lambda: passes(False), repeats=1))
         full_s = min(full_s, best_seconds(lambda: passes(True), repeats=1))
     return {"trace_s": trace_s, "splat_s": full_s - trace_s, "trace_fraction": trace_s / full_s}
+
+
+def time_jvp(op: CausticOperator, heights: torch.Tensor, repeats: int = 3) -> dict[str, float]:
+    """Seconds of the Jacobian-vector product J v (operators/heightfield/tangent_native.py) along the
+    heights' shift by three rows, beside a render and a gradient pass of the same operator: the
+    best of ``repeats`` alternating runs of each (after a warm-up, numba's compile)."""
+    direction = torch.roll(heights, 3, 0) - heights
+    grad_image = torch.ones(op.output_shape, dtype=op.dtype)
+    op.jvp(heights, direction)
+    jvp_s = render_s = vjp_s = math.inf
+    for _ in range(repeats):
+        render_s = min(render_s, best_seconds(lambda: op.render(heights), repeats=1))
+        vjp_s = min(vjp_s, best_seconds(lambda: op.vjp(heights, grad_image), repeats=1))
+        jvp_s = min(jvp_s, best_seconds(lambda: op.jvp(heights, direction), repeats=1))
+    return {"seconds": jvp_s, "over_render": jvp_s / render_s, "over_gradient_pass": jvp_s / vjp_s}
 
 
 def time_reference(heights: torch.Tensor, target: torch.Tensor, photons: int, footprint_px: float,
@@ -317,6 +333,7 @@ def main(argv: list[str] | None = None) -> None:
                                  "pixel_integration_cost": {"forward": forward_s / point_forward_s,
                                                             "forward_backward": gradient_s / point_gradient_s}},
         "forward_split": time_split(op, heights),
+        "jacobian_vector_product": time_jvp(op, heights),
     }
     big = make_operator(args.grad_photons, args.footprint_px, args.chunk_size)
     t0 = time.perf_counter()

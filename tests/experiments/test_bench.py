@@ -80,6 +80,8 @@ def test_bench_prints_the_promised_figures(capsys):
     point = report["point_sampled_pixels"]
     assert point["forward_photons_per_s"] > 0 and point["pixel_integration_cost"]["forward_backward"] > 0
     assert 0.0 < report["forward_split"]["trace_fraction"] < 1.0
+    jvp = report["jacobian_vector_product"]
+    assert jvp["seconds"] > 0 and jvp["over_render"] > 0 and jvp["over_gradient_pass"] > 0
     reference = report["torch_reference_path"]
     assert reference["forward_photons_per_s"] > 0 and reference["forward_backward_photons_per_s"] > 0
     comparison = report["splat_comparison"]
