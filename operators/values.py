@@ -16,8 +16,8 @@ from typing import Any
 import numpy as np
 import torch
 
-__all__ = ["checked_flag", "checked_height_field", "checked_number", "checked_print_heights", "checked_whole",
-           "described", "is_number"]
+__all__ = ["checked_flag", "checked_height_field", "checked_number", "checked_print_heights", "checked_seed",
+           "checked_whole", "described", "is_number"]
 
 
 def described(value: object) -> str:
@@ -79,6 +79,11 @@ def checked_whole(value: Any, key: str, least: int | None = None, most: int | No
         phrase = must or ("must be an integer" + (f" {bounds}" if bounds else ""))
         raise ValueError(f"{key}={value!r} {phrase}" + (f", e.g. {example}" if example else ""))
     return int(value)
+
+
+def checked_seed(value: Any, key: str = "seed") -> int:
+    """``value`` as a seed of torch's and numpy's generators: an integer in [0, 2^63)."""
+    return checked_whole(value, key, 0, 2 ** 63 - 1, must="must be an integer in [0, 2^63)")
 
 
 def checked_flag(value: Any, key: str) -> bool:

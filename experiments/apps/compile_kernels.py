@@ -16,21 +16,28 @@ import os
 import subprocess
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor, as_completed
+from typing import Any
 
 import torch
 
 __all__ = ["GROUPS", "main"]
 
 
-def _heightfield() -> None:
-    """The height-field operator's fused numba kernels (render and gradient, both dtypes)."""
+def _small_operators() -> Iterator[tuple[Any, torch.Tensor]]:
+    """The height-field operator traced by the numba kernels in each precision, with flat heights
+    of its dtype: their calls compile the kernels with every operator's argument types."""
     from operators.heightfield.compile_kernels import small_numba_operator
 
     for dtype in ("float32", "float64"):
         op = small_numba_operator(dtype)
-        d = torch.zeros(4, 4, dtype=op.dtype)
+        yield op, torch.zeros(4, 4, dtype=op.dtype)
+
+
+def _heightfield() -> None:
+    """The height-field operator's fused numba kernels (render and gradient, both dtypes)."""
+    for op, d in _small_operators():
         op.render(d)
         op.vjp(d, torch.ones(op.output_shape, dtype=op.dtype))
 
@@ -38,11 +45,7 @@ def _heightfield() -> None:
 def _tangent() -> None:
     """The height-field operator's forward pass, J v (operators/heightfield/tangent_native.py; numba
     on every machine: the C kernels have none), both dtypes."""
-    from operators.heightfield.compile_kernels import small_numba_operator
-
-    for dtype in ("float32", "float64"):
-        op = small_numba_operator(dtype)
-        d = torch.zeros(4, 4, dtype=op.dtype)
+    for op, d in _small_operators():
         op.jvp(d, torch.ones_like(d))
 
 

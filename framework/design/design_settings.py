@@ -11,7 +11,7 @@ from typing import Any
 
 from framework.core.plugin_config import as_mapping, build_plugin, split_name
 from framework.scene.run_settings import TrackingSettings
-from operators.values import checked_number, checked_whole, is_number
+from operators.values import checked_number, checked_seed, checked_whole, is_number
 
 __all__ = ["DesignMethod", "DesignSettings", "STARTS"]
 
@@ -98,7 +98,7 @@ class DesignSettings:
         return cls(method,
                    checked_number(cfg.get("seconds"), "seconds", above=0.0,
                                   must="must be the design's time budget in seconds > 0", example="300"),
-                   checked_whole(cfg.get("seed", 0), "seed", 0, 2 ** 63 - 1, must="must be an integer in [0, 2^63)"),
+                   checked_seed(cfg.get("seed", 0)),
                    checked_number(cfg.get("model_noise_factor", 1.25), "model_noise_factor", above=0.0),
                    checked_whole(cfg.get("checkpoint_every", 10), "checkpoint_every", 1),
                    None if photons is None else checked_whole(photons, "evaluation.photons", 1),

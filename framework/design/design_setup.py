@@ -45,7 +45,6 @@ class DesignSetup:
         constraints: The printing limits.
         grid: The height grid.
         notes: What the setup changed and why (e.g. an energy normalisation), one line each.
-        mm: Millimetres per scene unit.
         model_noise: The relative discrepancy that the operator's own render noise explains: two
             renders of flat glass with photon seeds seed and seed + 1 differ by sqrt(2) times it.
         flat_discrepancy: ||F(0) - target|| / ||target||, flat glass's relative discrepancy.
@@ -62,12 +61,16 @@ class DesignSetup:
     constraints: PrintConstraints
     grid: HeightGrid
     notes: list[str]
-    mm: float
     model_noise: float
     flat_discrepancy: float
     settings: DesignSettings
     groups: SceneGroups
     mesh_refine: int = 1
+
+    @property
+    def mm(self) -> float:
+        """Millimetres per scene unit."""
+        return self.groups.mm_per_unit
 
     def operator_for(self, scene: Scene) -> ImageOperator:
         """The configured operator for ``scene`` (another screen, say)."""
@@ -190,7 +193,7 @@ def prepare_design(cfg: Mapping[str, Any], base_dir: Path | None = None) -> Desi
     flat_discrepancy = float(torch.linalg.vector_norm(flat - image)) / float(torch.linalg.vector_norm(image))
     refine = checked_whole(cfg.get("mesh_refine", 1), "mesh_refine", 1, must="must be an integer >= 1 (points per "
                            "height spacing of the exported mesh's top)")
-    return DesignSetup(scene, operator, image, target.source, constraints, grid, notes, mm, noise, flat_discrepancy,
+    return DesignSetup(scene, operator, image, target.source, constraints, grid, notes, noise, flat_discrepancy,
                        settings, groups, refine)
 
 

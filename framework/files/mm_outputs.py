@@ -88,8 +88,12 @@ def glass_mesh(d: np.ndarray, half_width: float, thickness: float, mm_per_unit: 
     """
     d = _heights(d, "d")
     frame = GlassFrame.checked(half_width, mm_per_unit, thickness)
-    refine = checked_whole(refine, "refine", 1, must="must be an integer >= 1 (points per cell of the heights' grid)")
-    return _glass_mesh(*refined_surface(d, refine), frame)
+    return _glass_mesh(*refined_surface(d, _checked_refine(refine)), frame)
+
+
+def _checked_refine(refine: int) -> int:
+    """The mesh's points per cell of the heights' grid, an integer >= 1."""
+    return checked_whole(refine, "refine", 1, must="must be an integer >= 1 (points per cell of the heights' grid)")
 
 
 def _glass_mesh(d: np.ndarray, centres: np.ndarray | None, frame: GlassFrame) -> trimesh.Trimesh:
@@ -279,8 +283,7 @@ def export_outputs(out_dir: str | Path, d: np.ndarray, half_width: float, thickn
     if design is not None:
         d, design = _pair(d, design)
     frame = GlassFrame.checked(half_width, mm_per_unit, thickness)
-    refine = checked_whole(refine, "refine", 1, must="must be an integer >= 1 (points per cell of the heights' grid)")
-    mesh = _glass_mesh(*refined_surface(d, refine), frame)
+    mesh = _glass_mesh(*refined_surface(d, _checked_refine(refine)), frame)
     report = {} if design is None else _deviation_report(d, design, frame)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)

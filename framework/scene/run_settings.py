@@ -16,7 +16,7 @@ from typing import Any
 
 from framework.core.plugin_config import as_mapping, with_scene_lengths
 from framework.core.units import mm_per_unit
-from operators.values import checked_number, checked_whole
+from operators.values import checked_number, checked_seed, checked_whole
 
 __all__ = ["PhotonBudgetSettings", "RunSettings", "TrackingSettings", "carries_design", "design_given", "stack_shots"]
 
@@ -161,7 +161,7 @@ class RunSettings:
         tags = {"method": method, "scene": (plain.get("height_field") or {}).get("shape", "file"),
                 "data": data.get("name"), "operator": (plain.get("operator") or {}).get("name"),
                 "solver": (plain.get("solver") or {}).get("name")}
-        seed = checked_whole(plain.get("seed", 0), "seed", 0, 2 ** 63 - 1, must="must be an integer in [0, 2^63)")
+        seed = checked_seed(plain.get("seed", 0))
         return cls(plain, mm, seed, method,
                    checked_whole(plain.get("checkpoint_every"), "checkpoint_every", least=1),
                    bool(plain.get("compile_in_background", True)), plain.get("resume"),

@@ -43,7 +43,7 @@ from framework.scene.printed_shapes import make_shape
 from operators.imaging import PSF_KINDS, ImagingOperator
 from operators.scene import Scene, Substrate, scene_from_groups
 from operators.stack import StackOperator
-from operators.values import checked_whole
+from operators.values import checked_seed, checked_whole
 
 __all__ = [
     "SceneSetup",
@@ -129,7 +129,7 @@ class SceneGroups:
         resolution = checked_whole(height_field.get("resolution", DEFAULT_RESOLUTION), "height_field.resolution",
                                    2, MAX_RESOLUTION, must=f"must lie in [2, {MAX_RESOLUTION}] (samples per side; "
                                    "128 is the default)")
-        seed = checked_whole(cfg.get("seed", 0), "seed", 0, 2 ** 63 - 1, must="must be an integer in [0, 2^63)")
+        seed = checked_seed(cfg.get("seed", 0))
         return cls(groups["light"], groups["substrate"], groups["receiver"], cfg.get("material") or None,
                    cfg.get("wavelengths", [0.633]), height_field, resolution, psf, sigma, cfg.get("operator"),
                    cfg.get("photons"), seed, mm)
@@ -258,15 +258,12 @@ class SceneSetup:
         operator: The operator plugin (seen through the screen when ``screen.psf`` is set, or with
             ``imaging``).
         groups: The scene groups it was built from.
-        screen_sigma: ``screen.sigma`` in scene units, whatever ``screen.psf`` (where joint
-            calibration of the blur's width starts, framework/lab/calibration.py).
     """
 
     scene: Scene
     grid: HeightGrid
     operator: ImageOperator
     groups: SceneGroups
-    screen_sigma: float = 0.0
 
     @classmethod
     def parse(cls, cfg: Mapping[str, Any], mm: float, imaging: bool = False,
@@ -278,12 +275,18 @@ class SceneSetup:
         scene = groups.scene()
         operator = (groups.operator_for(scene, imaging) if shots is None
                     else groups.stack_for(scene, shots(scene, mm), imaging))
-        return cls(scene, groups.grid(scene), operator, groups, groups.screen_sigma)
+        return cls(scene, groups.grid(scene), operator, groups)
 
     @property
     def mm_per_unit(self) -> float:
         """Millimetres per scene unit."""
         return self.groups.mm_per_unit
+
+    @property
+    def screen_sigma(self) -> float:
+        """``screen.sigma`` in scene units, whatever ``screen.psf`` (where joint calibration of the
+        blur's width starts, framework/lab/calibration.py)."""
+        return self.groups.screen_sigma
 
     def heights(self, base_dir: str | Path | None = None) -> torch.Tensor:
         """The configured heights (m, m), float64, scene units (:func:`build_heights`)."""
