@@ -204,22 +204,33 @@ class DataFidelity:
         rel = self.relative_discrepancy(image)
         return DataEvaluation(value=0.5 * rel * rel / self.cell_area, grad=grad, image=image, rel_discrepancy=rel)
 
-    def curvature_product(self, d: Tensor, image: Tensor, v: Tensor, fd_step: float) -> Tensor:
-        """The Gauss-Newton product J^T W J v / (||b||_W^2 a) (m, m) of the data term at d (m, m),
-        whose render F(d) is ``image``, with a direction v (m, m): J v by the forward difference
-        (F(d + h v) - F(d)) / h of two renders with the same photons (common random numbers),
-        h = ``fd_step`` / max |v| (the largest height change, scene units), then one adjoint pass.
-        Costs one render and one adjoint pass."""
+    def curvature_product(self, d: Tensor, image: Tensor | None, v: Tensor, fd_step: float,
+                          operator: ImageOperator | None = None, exact: bool = False) -> Tensor:
+        """The Gauss-Newton product J^T W J v / (||b||_W^2 a) (m, m) of the data term at d (m, m)
+        with a direction v (m, m), through ``operator`` (default: the data term's; another photon
+        count of the same physics for a cheaper product), whose render at d is ``image``.
+
+        J v is the operator's exact Jacobian-vector product where ``exact`` (it must declare
+        ``has_jvp``; ``image`` may then be None), else the forward difference (F(d + h v) - F(d)) / h
+        of two renders with the same photons (common random numbers), h = ``fd_step`` / max |v|
+        (the largest height change, scene units); then one adjoint pass. Costs a JVP or a render,
+        and an adjoint pass, of ``operator``."""
+        operator = self.operator if operator is None else operator
         scale = float(v.abs().max())
         if not scale > 0.0:
             return torch.zeros_like(d)
-        h = fd_step / scale
-        with torch.no_grad():
-            moved = self.operator(d + h * v).detach()
-        self._check_image(moved)
-        jv = (moved - image) / h
-        product = self.operator.vjp(d, jv if self.weights is None else self.weights.to(jv) * jv)
-        self.count_passes(renders=1, gradients=1)
+        if exact:
+            jv = operator.jvp(d, v).detach()
+        elif image is None:
+            raise ValueError("a forward-difference curvature product needs the operator's render at d")
+        else:
+            h = fd_step / scale
+            with torch.no_grad():
+                moved = operator.render(d + h * v).detach()
+            self._check_image(moved)
+            jv = (moved - image) / h
+        product = operator.vjp(d, jv if self.weights is None else self.weights.to(jv) * jv)
+        self.count_passes(renders=1, gradients=1, photons=int(operator.photons))
         return product.detach() / (self.target_norm_sq * self.cell_area)
 
     def count_passes(self, renders: int, gradients: int, photons: int | None = None) -> None:

@@ -101,6 +101,10 @@ class StepSizePolicy(Plugin, ABC):
     def reset(self) -> None:
         """Forget what earlier iterations learnt about the step (the metric changed)."""
 
+    def start_from(self, tau: float) -> None:
+        """Make ``tau`` (> 0) the next search's first trial: a method that knows its natural step
+        (Gauss-Newton's full step) says so; a policy that does not search ignores it."""
+
     def momentum_trials(self) -> list[float]:
         """The steps a momentum trial tries, in order (framework/reconstruction/solvers/proximal_gradient.py)."""
         return [self.current_step]
@@ -216,6 +220,9 @@ class BacktrackingStep(StepSizePolicy):
     def accepted_elsewhere(self, step: float) -> None:
         """The next search starts from ``grow`` x the accepted step, as after :meth:`select`."""
         self.tau = min(step * self.grow, self.tau_max)
+
+    def start_from(self, tau: float) -> None:  # noqa: D102
+        self.tau = min(float(tau), self.tau_max)
 
     def reset(self) -> None:
         """Start the next search from tau0 again (e.g. after a change of preconditioner, when the

@@ -8,9 +8,9 @@ then three forward steps:
    dt = V / (w_z - S_x w_x - S_y w_y) (the ray meets the moved surface at another t) and each
    derivative of the jet moves by V's own plus the slide along the ray, dS_x = V_x + (S_xx w_x +
    S_xy w_y) dt and so on: the transpose of :func:`operators.heightfield.intersect_native.hit_adjoint_patch`;
-2. the optics: the six splat arguments' changes from the hit's six, row by row of the optics'
-   Jacobian, each row one reverse sweep of :func:`operators.heightfield.adjoint_native.optics_adjoint`
-   (the same hand-written derivatives the gradient uses, so J and J^T agree by construction);
+2. the optics: the six splat arguments' changes from the hit's six in one forward sweep
+   (:func:`optics_tangent`, from the tangents of :mod:`operators.optics.tangent_native`, which cut
+   where the gradient's adjoints cut, so that J and J^T agree);
 3. the splat's own derivative (:func:`operators.splat.tangent_native.splat_tangent`).
 
 All arithmetic is float64; the images may be float32. The C kernels have no forward pass yet:
@@ -22,15 +22,18 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from operators.heightfield.adjoint_native import optics_adjoint
 from operators.heightfield.catmull_rom import contract, load_patch
 from operators.heightfield.intersect_native import surface_derivatives
 from operators.heightfield.kernels_native import BLOCK, PACKET, hit_cell, load_hit, optics_state, trace_packet
 from operators.kernels.numba_settings import jit_call, jit_inline, jit_parallel
+from operators.optics.native import UP, ZERO, fresnel
+from operators.optics.tangent_native import (footprint_metric_tangent, fresnel_tangent, height_field_normal_tangent,
+                                             normal_differential_tangent, plane_distance_tangent, refract_tangent,
+                                             transfer_tangent)
 from operators.splat.native import footprint_usable
 from operators.splat.tangent_native import splat_tangent
 
-__all__ = ["hit_tangent", "jvp_photons"]
+__all__ = ["hit_tangent", "jvp_photons", "optics_tangent"]
 
 
 @jit_inline
@@ -46,6 +49,44 @@ def hit_tangent(wx, wy, patch, vpatch, w):
             contract(vpatch, wx, 2, wy, 0) + (sxxx * w[0] + sxxy * w[1]) * dt,
             contract(vpatch, wx, 1, wy, 1) + (sxxy * w[0] + sxyy * w[1]) * dt,
             contract(vpatch, wx, 0, wy, 2) + (sxyy * w[0] + syyy * w[1]) * dt)
+
+
+@jit_inline
+def optics_tangent(sc, w, dwu, dwv, flux0, t, jet, eta, state, dhit):
+    """The changes (flux, px, py, q00, q01, q11) of a photon's splat arguments
+    (:func:`operators.heightfield.kernels_native.splat_arguments`) when its hit moves by ``dhit``
+    (:func:`hit_tangent`), forward through its :func:`operators.heightfield.kernels_native.optics_state`:
+    the top's refraction, the face it leaves through (a fixed plane), the receiver."""
+    sx, sy, sxx, sxy, syy = jet
+    t_d, sx_d, sy_d, sxx_d, sxy_d, syy_d = dhit
+    top, below, fu, fv = state
+    n1, _, dpu1, dpv1, dnu, dnv, w1, dwu1, dwv1, ci1, ct1 = top
+    _, dist2, _, dpu2, dpv2, w2, dwu2, dwv2, ci2, ct2, dist3, _, _, _, n2, fx, fy, _ = below
+    n1_d = height_field_normal_tangent(sx, sy, sx_d, sy_d)
+    p1_d, dpu1_d, dpv1_d = transfer_tangent(ZERO, ZERO, w, dwu, dwv, t, n1, ZERO, ZERO, ZERO, ZERO, ZERO, ZERO,
+                                            t_d, n1_d)
+    dnu_d = normal_differential_tangent(sxx, sxy, syy, n1, dpu1, sxx_d, sxy_d, syy_d, n1_d, dpu1_d)
+    dnv_d = normal_differential_tangent(sxx, sxy, syy, n1, dpv1, sxx_d, sxy_d, syy_d, n1_d, dpv1_d)
+    w1_d, dwu1_d, dwv1_d, ci1_d, ct1_d = refract_tangent(w, dwu, dwv, n1, dnu, dnv, 1.0 / eta, ZERO, ZERO, ZERO,
+                                                         n1_d, dnu_d, dnv_d)
+    dist2_d = plane_distance_tangent(w1, n2, dist2, p1_d, w1_d)
+    p2_d, dpu2_d, dpv2_d = transfer_tangent(dpu1, dpv1, w1, dwu1, dwv1, dist2, n2, p1_d, dpu1_d, dpv1_d, w1_d, dwu1_d,
+                                            dwv1_d, dist2_d, ZERO)
+    w2_d, dwu2_d, dwv2_d, ci2_d, ct2_d = refract_tangent(w1, dwu1, dwv1, n2, ZERO, ZERO, eta, w1_d, dwu1_d, dwv1_d,
+                                                         ZERO, ZERO, ZERO)
+    dist3_d = plane_distance_tangent(w2, UP, dist3, p2_d, w2_d)
+    p3_d, dpu3_d, dpv3_d = transfer_tangent(dpu2, dpv2, w2, dwu2, dwv2, dist3, UP, p2_d, dpu2_d, dpv2_d, w2_d, dwu2_d,
+                                            dwv2_d, dist3_d, ZERO)
+    flux_d = 0.0
+    if sc.fresnel:
+        t1 = fresnel(ci1, ct1, 1.0 / eta)
+        t2 = fresnel(ci2, ct2, eta)
+        flux_d = flux0 * (fresnel_tangent(ci1, ct1, 1.0 / eta, ci1_d, ct1_d) * t2
+                          + t1 * fresnel_tangent(ci2, ct2, eta, ci2_d, ct2_d))
+    kx, ky = sc.to_px * fx, sc.to_px * fy  # pixels, the walls' mirror undone
+    q00_d, q01_d, q11_d = footprint_metric_tangent(fu[0], fu[1], fv[0], fv[1], sc.min_px, sc.max_px, dpu3_d[0] * kx,
+                                                   dpu3_d[1] * ky, dpv3_d[0] * kx, dpv3_d[1] * ky)
+    return flux_d, p3_d[0] * kx, p3_d[1] * ky, q00_d, q01_d, q11_d
 
 
 @jit_call
@@ -75,12 +116,9 @@ def jvp_range(d, v, sc, shifts, indices, lo, hi, img, capacity) -> None:
             load_patch(v, ix, iy, vpatch)
             dhit = hit_tangent(wx, wy, patch, vpatch, w)
             state = optics_state(sc, w, dwu, dwv, t, jet, eta)
+            changes = optics_tangent(sc, w, dwu, dwv, flux, t, jet, eta, state, dhit)
             for i in range(6):
-                row = optics_adjoint(sc, w, dwu, dwv, flux, t, jet, eta, state, 1.0 if i == 0 else 0.0,
-                                     1.0 if i == 1 else 0.0, 1.0 if i == 2 else 0.0, 1.0 if i == 3 else 0.0,
-                                     1.0 if i == 4 else 0.0, 1.0 if i == 5 else 0.0)
-                tangent[i] = (row[0] * dhit[0] + row[1] * dhit[1] + row[2] * dhit[2] + row[3] * dhit[3]
-                              + row[4] * dhit[4] + row[5] * dhit[5])
+                tangent[i] = changes[i]
             splat_tangent(img, channel[k], px, py, q00, q01, q11, f, tangent, buf)
 
 
