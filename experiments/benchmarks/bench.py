@@ -220,7 +220,7 @@ def scale_section(args: argparse.Namespace) -> dict[str, Any]:
         section.update(scale_report(tuple(args.scale_sizes), args.scale_per_pixel, args.footprint_px, args.chunk_size))
     if args.scale_solve_sizes:
         section["to_noise_level"] = noise_level_report(tuple(args.scale_solve_sizes), args.scale_solve_scene,
-                                                       args.scale_solve_overrides)
+                                                       args.scale_solve_overrides, args.scale_solve_beside)
     return section
 
 
@@ -271,6 +271,9 @@ def main(argv: list[str] | None = None) -> None:
                         help="built-in scene of the scale section's reconstructions")
     parser.add_argument("--scale-solve-overrides", nargs="*", default=[],
                         help="extra sfc-reconstruct overrides for the scale section's reconstructions")
+    parser.add_argument("--scale-solve-beside", nargs="*", default=None,
+                        help="overrides of a second configuration run beside the first at each size, with the "
+                             "ratios, e.g. solver=gauss_newton stopping.stagnation.refine_share=0.25")
     parser.add_argument("--only", choices=("fidelity", "walls", "mesh_scene", "scale"), default=None,
                         help="print only that section (walls: the fidelity section's walls entry; mesh_scene: at "
                              "--mesh-photons, e.g. 262144 and 1048576)")

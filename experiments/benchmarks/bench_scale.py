@@ -107,20 +107,41 @@ def scale_report(sizes: tuple[int, ...] = (128, 256, 512), per_pixel: float = 64
 
 
 def noise_level_report(sizes: Sequence[int] = (128, 256, 512), scene: str = "print_lines",
-                       overrides: Sequence[str] = ()) -> dict[str, Any]:
+                       overrides: Sequence[str] = (), beside: Sequence[str] | None = None) -> dict[str, Any]:
     """``sfc-reconstruct scene=<scene>`` sampled at m = n in ``sizes`` (reference caustic at 2m),
     each in a fresh process, with ``overrides`` on top: iterations, seconds of solving
-    (``run_time_s``), photon-traces, whether it met Morozov's rule, peak memory; the growth
-    exponents of the seconds and photon-traces in m^2 (with two sizes or more)."""
-    runs: dict[str, dict[str, Any]] = {}
+    (``run_time_s``), photon-traces, whether it met Morozov's rule, peak memory; each size's
+    iterations over the smallest size's; the growth exponents of the seconds and photon-traces in
+    m^2 (with two sizes or more). With ``beside`` (more overrides, e.g. another solver), that
+    configuration runs too, right after the first at each size, under ``"beside"``, with the ratios
+    beside / first per size."""
+    configurations = {"runs": list(overrides)}
+    if beside is not None:
+        configurations["beside"] = [*overrides, *beside]
+    runs: dict[str, dict[str, dict[str, Any]]] = {key: {} for key in configurations}
     with tempfile.TemporaryDirectory() as tmp:
         for m in sizes:
             grid = [f"scene={scene}", f"receiver.resolution={m}", f"height_field.resolution={m}",
                     f"data.reference_resolution={2 * m}"]
-            runs[str(m)] = _in_fresh_process([*grid, *overrides], tmp, f"m{m}", target=_solve_worker)
-    report: dict[str, Any] = {"scene": scene, "overrides": list(overrides), "runs": runs}
+            for key, extra in configurations.items():
+                runs[key][str(m)] = _in_fresh_process([*grid, *extra], tmp, f"{key}{m}", target=_solve_worker)
+    report: dict[str, Any] = {"scene": scene, "overrides": list(overrides), **_growth(runs["runs"], sizes)}
+    if beside is not None:
+        report["beside"] = {"overrides": list(beside), **_growth(runs["beside"], sizes)}
+        report["beside_over_runs"] = {
+            str(m): {key: runs["beside"][str(m)][key] / runs["runs"][str(m)][key]
+                     for key in ("iterations", "run_time_s", "photon_traces")} for m in sizes}
+    return report
+
+
+def _growth(runs: dict[str, dict[str, Any]], sizes: Sequence[int]) -> dict[str, Any]:
+    """``runs`` (by m), each size's iterations over the smallest's, and the growth exponents of the
+    seconds and photon-traces in m^2 (with two sizes or more)."""
+    smallest = runs[str(min(sizes))]["iterations"]
+    out: dict[str, Any] = {"runs": runs,
+                           "iterations_over_smallest": {str(m): runs[str(m)]["iterations"] / smallest for m in sizes}}
     if len(sizes) >= 2:
         samples = [float(m * m) for m in sizes]
         for key in ("run_time_s", "photon_traces"):
-            report[f"{key}_exponent_in_samples"] = growth_exponent(samples, [runs[str(m)][key] for m in sizes])
-    return report
+            out[f"{key}_exponent_in_samples"] = growth_exponent(samples, [runs[str(m)][key] for m in sizes])
+    return out

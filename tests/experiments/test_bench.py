@@ -206,3 +206,30 @@ def test_bench_on_cuda_without_a_gpu_is_refused(capsys):
     with pytest.raises(SystemExit):
         main(["--device", "cuda"])
     assert "needs a CUDA GPU" in capsys.readouterr().err
+
+
+def test_a_second_configuration_runs_beside_the_first_at_each_size_with_the_ratios(monkeypatch):
+    """The scale section's ``--scale-solve-beside``: at each size the first configuration, then the
+    second; iterations over the smallest size's, exponents and ratios from the runs' figures."""
+    import experiments.benchmarks.bench_scale as bench_scale
+
+    calls = []
+
+    def fake_run(overrides, workdir, name, target):
+        calls.append(name)
+        m = int(next(o for o in overrides if o.startswith("receiver.resolution=")).split("=")[1])
+        newton = "solver=gauss_newton" in overrides
+        iterations = (20 if newton else 60) * (m // 32)
+        return {"iterations": iterations, "run_time_s": (0.5 if newton else 0.25) * iterations * m * m,
+                "photon_traces": 1000.0 * iterations * m * m}
+
+    monkeypatch.setattr(bench_scale, "_in_fresh_process", fake_run)
+    report = bench_scale.noise_level_report((32, 64), "bump", ["photons=4096"], ["solver=gauss_newton"])
+    assert calls == ["runs32", "beside32", "runs64", "beside64"]
+    assert report["iterations_over_smallest"] == {"32": 1.0, "64": 2.0}
+    assert report["beside"]["overrides"] == ["solver=gauss_newton"]
+    assert report["beside_over_runs"]["64"] == pytest.approx(
+        {"iterations": 1 / 3, "run_time_s": 2 / 3, "photon_traces": 1 / 3})
+    # seconds ~ iterations m^2 = (m^2)^1.5 when the iterations double with m
+    assert report["run_time_s_exponent_in_samples"] == pytest.approx(1.5)
+    assert report["beside"]["photon_traces_exponent_in_samples"] == pytest.approx(1.5)
