@@ -68,7 +68,6 @@ def test_the_curvature_of_a_photon_operator_is_one_symmetric_matrix_exact_or_by_
     """Through the height-field operator: the exact product (its JVP, then its adjoint) is symmetric,
     <u, H v> = <H u, v>, as the Gauss-Newton matrix of one photon pattern must be; the forward
     difference agrees with it; a cheaper operator of fewer photons gives a matrix of its own."""
-    from operators.heightfield.operator import CausticOperator  # noqa: F401  (the operator's kernels)
     from tests.operators.conftest import make_operator
     from tests.operators.test_fused import smooth_random_heights
     from framework.core.objective import DataFidelity

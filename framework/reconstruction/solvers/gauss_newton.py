@@ -31,10 +31,10 @@ import torch
 from torch import Tensor
 
 from framework.core.contracts.solver import SolverBuilder
-from operators.image_operator import ImageOperator
 from framework.core.solver_loop import IterationRecord
 from framework.reconstruction.solvers.pixel_methods import PixelLandweber
 from framework.reconstruction.solvers.proximal_parts import build_parts, check_regularizers
+from operators.image_operator import ImageOperator
 from operators.values import checked_number, checked_seed, checked_whole
 
 __all__ = ["GaussNewtonLandweber", "check_gauss_newton"]
@@ -81,12 +81,13 @@ class GaussNewtonLandweber(PixelLandweber):
 
     Args:
         gauss_newton: ``{cg_iterations, cg_tolerance, damping, fd_step, curvature_share, product,
-            seed}``: conjugate-gradient iterations per direction at most, their stopping residual
-            relative to the gradient, the initial Levenberg-Marquardt factor mu, the largest height
-            change of a forward difference (scene units), the share of the data term's photons the
-            curvature products trace (1: the data term's own operator and render; default 1/8), ``difference``
-            or ``exact`` Jacobian-vector products, and the seed of the curvature's photon patterns
-            (seed + 5000 + the iteration).
+            seed, misfit_share}``: conjugate-gradient iterations per direction at most, their
+            stopping residual relative to the gradient, the initial Levenberg-Marquardt factor mu,
+            the largest height change of a forward difference (scene units), the share of the data
+            term's photons the curvature products trace (default 1/8; 1: the data term's own
+            operator and render), ``difference`` or ``exact`` Jacobian-vector products, the seed of
+            the curvature's photon patterns (seed + 5000 + the iteration), and the inexact Newton
+            rule's rho (None: off).
 
     The other arguments are :class:`PixelLandweber`'s (``quasi_newton`` is not used).
     """
