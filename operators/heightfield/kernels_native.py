@@ -20,7 +20,7 @@ from operators.emission import R2_STEP
 from operators.heightfield.catmull_rom import axis_weights, load_patch, surface_jet_at
 from operators.heightfield.intersect_native import solve_hit, solve_hits
 from operators.heightfield.side_walls import LOST, leaving_plane
-from operators.kernels.numba_settings import FAST_MATH
+from operators.kernels.numba_settings import jit_call, jit_inline, jit_parallel
 from operators.kernels.simd import data_pointer, surface_jets
 from operators.optics.native import (UP, ZERO, away_from_zero, dot, footprint_metric, fresnel, height_field_normal,
                                      normal_differential, refract, transfer)
@@ -69,7 +69,7 @@ class FusedScene(NamedTuple):
     aim_half: float
 
 
-_jit = nb.njit(cache=True, inline="always", fastmath=FAST_MATH, error_model="numpy")
+_jit = jit_inline
 
 
 @_jit
@@ -261,7 +261,7 @@ def trace_packet(d, sc, shifts, indices, first, count, hits, channel, spots, sea
             spots[j, k] = spot[j]
 
 
-@nb.njit(cache=True, fastmath=FAST_MATH, error_model="numpy")
+@jit_call
 def render_range(d, sc, shifts, indices, lo, hi, img, capacity, splat, hit_t, t_first, replay=False) -> float:
     """One thread's share of :func:`render_photons`: photons lo .. hi-1 into its own image ``img``
     (c, n, n), their hits recorded in ``hit_t`` unless it is empty (with ``replay``: read from it
@@ -288,7 +288,7 @@ def render_range(d, sc, shifts, indices, lo, hi, img, capacity, splat, hit_t, t_
 BLOCK = 4096
 
 
-@nb.njit(parallel=True, cache=True, fastmath=FAST_MATH, error_model="numpy")
+@jit_parallel
 def render_photons(d, sc, shifts, indices, start, stop, out, capacity, splat, hit_t, replay=False):
     """Splat photons start .. stop-1 into ``out`` (threads, c, n, n) (flux per pixel, sum over
     axis 0 after). ``d`` (m, m) float64 heights, ``shifts`` (c, 2) emission offsets, ``indices``

@@ -16,9 +16,8 @@ photon that reaches a wall, the paper's assumption.
 
 from __future__ import annotations
 
-import numba as nb
 
-from operators.kernels.numba_settings import FAST_MATH
+from operators.kernels.numba_settings import jit_inline
 from operators.optics.native import away_from_zero
 
 # Path codes (:func:`leaving_plane`): 0 lost; else 1 + fold_x + 3 fold_y + 9 exit, with fold 0
@@ -30,7 +29,7 @@ FOLD_LIMIT = 3.0
 # A top hit beyond this times W (rounding aside) lies outside the block: the ray passed beside it.
 BESIDE = 1.0 + 1e-12
 
-_jit = nb.njit(cache=True, inline="always", fastmath=FAST_MATH, error_model="numpy")
+_jit = jit_inline
 
 
 @_jit

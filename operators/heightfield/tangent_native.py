@@ -101,7 +101,6 @@ def jvp_range(d, v, sc, shifts, indices, lo, hi, img, capacity) -> None:
     search = np.empty((5, PACKET))
     channel = np.empty(PACKET, dtype=np.int64)
     spots = np.empty((6, PACKET))  # per photon: px, py, q00, q01, q11, flux
-    tangent = np.empty(6)  # d (flux, px, py, q00, q01, q11)
     buf = np.empty((2, capacity))
     no_hits = np.empty(0)
     for first in range(lo, hi, PACKET):
@@ -116,9 +115,7 @@ def jvp_range(d, v, sc, shifts, indices, lo, hi, img, capacity) -> None:
             load_patch(v, ix, iy, vpatch)
             dhit = hit_tangent(wx, wy, patch, vpatch, w)
             state = optics_state(sc, w, dwu, dwv, t, jet, eta)
-            changes = optics_tangent(sc, w, dwu, dwv, flux, t, jet, eta, state, dhit)
-            for i in range(6):
-                tangent[i] = changes[i]
+            tangent = optics_tangent(sc, w, dwu, dwv, flux, t, jet, eta, state, dhit)
             splat_tangent(img, channel[k], px, py, q00, q01, q11, f, tangent, buf)
 
 

@@ -13,9 +13,8 @@ from __future__ import annotations
 
 import math
 
-import numba as nb
 
-from operators.kernels.numba_settings import FAST_MATH
+from operators.kernels.numba_settings import jit_inline
 from operators.optics.reference import GRAZING
 from operators.splat.splat import MAX_DIFFERENTIAL_PX
 
@@ -23,7 +22,7 @@ Vec = tuple[float, float, float]
 UP = (0.0, 0.0, 1.0)
 ZERO = (0.0, 0.0, 0.0)
 
-_jit = nb.njit(cache=True, inline="always", fastmath=FAST_MATH, error_model="numpy")
+_jit = jit_inline
 
 
 @_jit

@@ -13,19 +13,15 @@ from __future__ import annotations
 
 import math
 
-import numba as nb
-
-from operators.kernels.numba_settings import FAST_MATH
+from operators.kernels.numba_settings import jit_inline
 from operators.optics.native import (Vec, add, away_from_zero, axpy, dot, footprint_metric_adjoint, fresnel_adjoint,
                                      passes, scale)
 
 __all__ = ["footprint_metric_tangent", "fresnel_tangent", "height_field_normal_tangent",
            "normal_differential_tangent", "plane_distance_tangent", "refract_tangent", "transfer_tangent"]
 
-_jit = nb.njit(cache=True, inline="always", fastmath=FAST_MATH, error_model="numpy")
 
-
-@_jit
+@jit_inline
 def height_field_normal_tangent(sx: float, sy: float, sx_d: float, sy_d: float) -> Vec:
     """Tangent of :func:`operators.optics.native.height_field_normal`."""
     inv = 1.0 / math.sqrt(1.0 + sx * sx + sy * sy)
@@ -33,7 +29,7 @@ def height_field_normal_tangent(sx: float, sy: float, sx_d: float, sy_d: float) 
     return (-sx_d * inv - sx * inv_d, -sy_d * inv - sy * inv_d, inv_d)
 
 
-@_jit
+@jit_inline
 def _moved_differential_tangent(dp: Vec, dw: Vec, dp_d: Vec, dw_d: Vec, w: Vec, n: Vec, dist: float, dist_d: float,
                                 w_d: Vec, n_d: Vec, den: float, den_d: float) -> Vec:
     """Tangent of one transferred differential m - (m . n / den) w, m = D p + dist D w."""
@@ -44,7 +40,7 @@ def _moved_differential_tangent(dp: Vec, dw: Vec, dp_d: Vec, dw_d: Vec, w: Vec, 
     return add(m_d, axpy(c_d, w, scale(c, w_d)))
 
 
-@_jit
+@jit_inline
 def transfer_tangent(dpu: Vec, dpv: Vec, w: Vec, dwu: Vec, dwv: Vec, dist: float, n: Vec,
                      p_d: Vec, dpu_d: Vec, dpv_d: Vec, w_d: Vec, dwu_d: Vec, dwv_d: Vec, dist_d: float, n_d: Vec
                      ) -> tuple[Vec, Vec, Vec]:
@@ -57,7 +53,7 @@ def transfer_tangent(dpu: Vec, dpv: Vec, w: Vec, dwu: Vec, dwv: Vec, dist: float
             _moved_differential_tangent(dpv, dwv, dpv_d, dwv_d, w, n, dist, dist_d, w_d, n_d, den, den_d))
 
 
-@_jit
+@jit_inline
 def plane_distance_tangent(w: Vec, n: Vec, dist: float, p_d: Vec, w_d: Vec) -> float:
     """Tangent of the distance dist = (c - p . n) / away_from_zero(w . n) along w from p to a
     fixed plane n . x = c."""
@@ -65,7 +61,7 @@ def plane_distance_tangent(w: Vec, n: Vec, dist: float, p_d: Vec, w_d: Vec) -> f
     return -(dot(p_d, n) + dist * passes(wn) * dot(w_d, n)) / away_from_zero(wn)
 
 
-@_jit
+@jit_inline
 def _refracted_differential_tangent(w: Vec, dw: Vec, n: Vec, dn: Vec, eta: float, ci: float, ct: float,
                                     ci_d: float, ct_d: float, a: float, a_d: float,
                                     w_d: Vec, dw_d: Vec, n_d: Vec, dn_d: Vec) -> Vec:
@@ -79,7 +75,7 @@ def _refracted_differential_tangent(w: Vec, dw: Vec, n: Vec, dn: Vec, eta: float
     return add(axpy(a_d, dn, scale(a, dn_d)), add(axpy(b_d, n, scale(b, n_d)), scale(eta, dw_d)))
 
 
-@_jit
+@jit_inline
 def refract_tangent(w: Vec, dwu: Vec, dwv: Vec, n: Vec, dnu: Vec, dnv: Vec, eta: float,
                     w_d: Vec, dwu_d: Vec, dwv_d: Vec, n_d: Vec, dnu_d: Vec, dnv_d: Vec):
     """Tangents (w', D_u w', D_v w', cos_i, cos_t) of :func:`operators.optics.native.refract`."""
@@ -96,7 +92,7 @@ def refract_tangent(w: Vec, dwu: Vec, dwv: Vec, n: Vec, dnu: Vec, dnv: Vec, eta:
     return w1_d, dwu1_d, dwv1_d, ci_d, ct_d
 
 
-@_jit
+@jit_inline
 def normal_differential_tangent(sxx: float, sxy: float, syy: float, n: Vec, dp: Vec, sxx_d: float, sxy_d: float,
                                 syy_d: float, n_d: Vec, dp_d: Vec) -> Vec:
     """Tangent of :func:`operators.optics.native.normal_differential`."""
@@ -110,14 +106,14 @@ def normal_differential_tangent(sxx: float, sxy: float, syy: float, n: Vec, dp: 
     return axpy(n_d[2], q, scale(n[2], q_d))
 
 
-@_jit
+@jit_inline
 def fresnel_tangent(ci: float, ct: float, eta: float, ci_d: float, ct_d: float) -> float:
     """Tangent of :func:`operators.optics.native.fresnel` (its adjoint's row)."""
     g_ci, g_ct = fresnel_adjoint(ci, ct, eta, 1.0)
     return g_ci * ci_d + g_ct * ct_d
 
 
-@_jit
+@jit_inline
 def footprint_metric_tangent(ux: float, uy: float, vx: float, vy: float, r0: float, rmax: float,
                              ux_d: float, uy_d: float, vx_d: float, vy_d: float) -> tuple[float, float, float]:
     """Tangents (q00, q01, q11) of :func:`operators.optics.native.footprint_metric` (its adjoint's

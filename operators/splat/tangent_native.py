@@ -24,7 +24,7 @@ __all__ = ["splat_tangent"]
 @jit_inline
 def splat_tangent(img, c, px, py, q00, q01, q11, f, tangent, buf) -> None:
     """Add to channel ``c`` of ``img`` (c, n, n) the derivative of one photon's splat along
-    ``tangent`` (6,) = (d flux, d px, d py, d q00, d q01, d q11). ``buf`` (2, capacity) holds the
+    ``tangent`` = (d flux, d px, d py, d q00, d q01, d q11), six floats. ``buf`` (2, capacity) holds the
     weights and their derivatives over the footprint's bounding box; a photon whose box has more
     pixels than that, or an unusable footprint, adds nothing (as :func:`splat_photon` leaves it out)."""
     if not footprint_usable(f, px, py, q00, q01, q11):
