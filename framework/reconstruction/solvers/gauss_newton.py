@@ -58,21 +58,20 @@ def check_gauss_newton(settings: Any) -> dict[str, float]:
     out["cg_iterations"] = checked_whole(out["cg_iterations"], "solver.gauss_newton.cg_iterations", 1)
     out["seed"] = checked_seed(out["seed"], "solver.gauss_newton.seed")
     if out["misfit_share"] is not None:
-        out["misfit_share"] = checked_number(out["misfit_share"], "solver.gauss_newton.misfit_share", above=0.0)
-        if out["misfit_share"] >= 1.0:
-            raise ValueError(f"solver.gauss_newton.misfit_share={out['misfit_share']!r} must lie in (0, 1) or be null: "
-                             "the share of the relative discrepancy a step may leave by its linear model")
+        out["misfit_share"] = checked_number(
+            out["misfit_share"], "solver.gauss_newton.misfit_share", above=0.0, below=1.0,
+            must="must lie in (0, 1) or be null: the share of the relative discrepancy a step may leave by its "
+                 "linear model")
     if out["product"] not in PRODUCTS:
         raise ValueError(f"solver.gauss_newton.product={out['product']!r} must be one of {', '.join(PRODUCTS)}")
-    out["curvature_share"] = checked_number(out["curvature_share"], "solver.gauss_newton.curvature_share", above=0.0)
-    if out["curvature_share"] > 1.0:
-        raise ValueError(f"solver.gauss_newton.curvature_share={out['curvature_share']!r} must lie in (0, 1]: the "
-                         "share of the data term's photons that the curvature products trace")
-    for key in ("cg_tolerance", "damping", "fd_step"):
+    out["curvature_share"] = checked_number(
+        out["curvature_share"], "solver.gauss_newton.curvature_share", above=0.0, most=1.0,
+        must="must lie in (0, 1]: the share of the data term's photons that the curvature products trace")
+    for key in ("damping", "fd_step"):
         out[key] = checked_number(out[key], f"solver.gauss_newton.{key}", above=0.0)
-    if out["cg_tolerance"] >= 1.0:
-        raise ValueError(f"solver.gauss_newton.cg_tolerance={out['cg_tolerance']!r} must lie in (0, 1): the residual "
-                         "of the linear solve relative to the gradient")
+    out["cg_tolerance"] = checked_number(
+        out["cg_tolerance"], "solver.gauss_newton.cg_tolerance", above=0.0, below=1.0,
+        must="must lie in (0, 1): the residual of the linear solve relative to the gradient")
     return out
 
 
@@ -113,8 +112,8 @@ class GaussNewtonLandweber(PixelLandweber):
         """p / gamma (m, m) on the ``free`` samples (None: all), zero elsewhere."""
         keep = (lambda x: x) if free is None else (lambda x: torch.where(free, x, torch.zeros_like(x)))
         d = self.state.d
-        operator, image = self._curvature_operator(d)
         exact = self.settings["product"] == "exact"
+        operator, image = self._curvature_operator(d, exact)
 
         def curvature(v: Tensor) -> Tensor:
             return keep(self.data.curvature_product(d, image, v, self.settings["fd_step"], operator, exact))
@@ -129,14 +128,13 @@ class GaussNewtonLandweber(PixelLandweber):
         self.full_step = gamma
         return p / gamma
 
-    def _curvature_operator(self, d: Tensor) -> tuple[ImageOperator, Tensor | None]:
+    def _curvature_operator(self, d: Tensor, exact: bool) -> tuple[ImageOperator, Tensor | None]:
         """The operator of this direction's curvature products and its render at d (None for
-        exact products): the data term's own and its image, or with ``curvature_share`` of its
+        ``exact`` products): the data term's own and its image, or with ``curvature_share`` of its
         photons (at least MIN_CURVATURE_PHOTONS) in a pattern of this iteration's own, the same for
         every product of the direction, so that conjugate gradients see one symmetric matrix."""
         operator = self.data.operator
         photons = max(MIN_CURVATURE_PHOTONS, round(int(operator.photons) * self.settings["curvature_share"]))
-        exact = self.settings["product"] == "exact"
         if photons >= int(operator.photons):
             return operator, None if exact else self._current_evaluation().image
         operator = operator.with_photons(photons, self.settings["seed"] + CURVATURE_SEED_OFFSET + self.iteration)
