@@ -15,13 +15,12 @@ from __future__ import annotations
 
 import math
 
-import numba as nb
 import numpy as np
 
-from operators.kernels.numba_settings import FAST_MATH
+from operators.kernels.numba_settings import jit_call
 
 
-@nb.njit(cache=True, fastmath=FAST_MATH, error_model="numpy")
+@jit_call
 def _fill_basis(s: float, k: int, scale: float, w: np.ndarray) -> None:
     """Row k of the weight table: k-th s-derivative of the Catmull-Rom weights times ``scale``."""
     s2 = s * s
@@ -48,7 +47,7 @@ def _fill_basis(s: float, k: int, scale: float, w: np.ndarray) -> None:
         w[3, 3] = scale * 3.0
 
 
-@nb.njit(cache=True, fastmath=FAST_MATH, error_model="numpy")
+@jit_call
 def axis_weights(coord: float, origin: float, spacing: float, m: int, max_order: int, w: np.ndarray) -> int:
     """Fill w[k, :] (k <= max_order) with the weights of the k-th derivative at ``coord``.
 
@@ -67,7 +66,7 @@ def axis_weights(coord: float, origin: float, spacing: float, m: int, max_order:
     return i
 
 
-@nb.njit(cache=True, fastmath=FAST_MATH, error_model="numpy")
+@jit_call
 def _cell(coord: float, origin: float, spacing: float, m: int) -> tuple[int, float, float]:
     """(cell index i, offset s in [0, 1], d/dcoord scale: 1 / spacing on the grid, 0 off it)."""
     g = (coord - origin) / spacing
@@ -77,7 +76,7 @@ def _cell(coord: float, origin: float, spacing: float, m: int) -> tuple[int, flo
     return i, g - i, (1.0 / spacing if inside else 0.0)
 
 
-@nb.njit(cache=True, fastmath=FAST_MATH, error_model="numpy")
+@jit_call
 def _basis(s: float, k: float) -> tuple[float, float, float, float, float, float, float, float]:
     """Catmull-Rom weights at s and their s-derivatives times k (rows 0 and 1 of _fill_basis)."""
     s2 = s * s
@@ -87,7 +86,7 @@ def _basis(s: float, k: float) -> tuple[float, float, float, float, float, float
             k * 0.5 * (-9.0 * s2 + 8.0 * s + 1.0), k * 0.5 * (3.0 * s2 - 2.0 * s))
 
 
-@nb.njit(cache=True, fastmath=FAST_MATH, error_model="numpy")
+@jit_call
 def surface_gradient(d: np.ndarray, x: float, y: float, origin: float, spacing: float
                      ) -> tuple[float, float, float]:
     """(S, S_x, S_y) at (x, y): the same values as axis_weights / load_patch / contract, in
@@ -110,13 +109,13 @@ def surface_gradient(d: np.ndarray, x: float, y: float, origin: float, spacing: 
     return value, slope_x, slope_y
 
 
-@nb.njit(cache=True, fastmath=FAST_MATH, error_model="numpy")
+@jit_call
 def _curvature_basis(s: float, k2: float) -> tuple[float, float, float, float]:
     """Second s-derivatives of the Catmull-Rom weights times k2 (row 2 of _fill_basis)."""
     return k2 * (-3.0 * s + 2.0), k2 * (9.0 * s - 5.0), k2 * (-9.0 * s + 4.0), k2 * (3.0 * s - 1.0)
 
 
-@nb.njit(cache=True, fastmath=FAST_MATH, error_model="numpy")
+@jit_call
 def surface_jet_at(d: np.ndarray, x: float, y: float, origin: float, spacing: float
                    ) -> tuple[float, float, float, float, float]:
     """(S_x, S_y, S_xx, S_xy, S_yy) at (x, y): the values that weight tables (axis_weights,
@@ -147,13 +146,13 @@ def surface_jet_at(d: np.ndarray, x: float, y: float, origin: float, spacing: fl
     return s_x, s_y, s_xx, s_xy, s_yy
 
 
-@nb.njit(cache=True, fastmath=FAST_MATH, error_model="numpy")
+@jit_call
 def clamped_node(i: int, m: int) -> int:
     """The grid index i clamped to 0 .. m - 1 (the edge sample repeats outside the grid)."""
     return min(max(i, 0), m - 1)
 
 
-@nb.njit(cache=True, fastmath=FAST_MATH, error_model="numpy")
+@jit_call
 def load_patch(d: np.ndarray, ix: int, iy: int, patch: np.ndarray) -> None:
     """patch[a, b] = d[iy-1+a, ix-1+b] with replicated borders."""
     m = d.shape[0]
@@ -163,7 +162,7 @@ def load_patch(d: np.ndarray, ix: int, iy: int, patch: np.ndarray) -> None:
             patch[a, b] = d[r, clamped_node(ix - 1 + b, m)]
 
 
-@nb.njit(cache=True, fastmath=FAST_MATH, error_model="numpy")
+@jit_call
 def contract(patch: np.ndarray, wx: np.ndarray, kx: int, wy: np.ndarray, ky: int) -> float:
     """d^(kx+ky) S / dx^kx dy^ky = sum_ab wy[ky, a] wx[kx, b] patch[a, b]."""
     acc = 0.0
@@ -173,7 +172,7 @@ def contract(patch: np.ndarray, wx: np.ndarray, kx: int, wy: np.ndarray, ky: int
     return acc
 
 
-@nb.njit(cache=True, fastmath=FAST_MATH, error_model="numpy")
+@jit_call
 def scatter_patch(grad: np.ndarray, ix: int, iy: int, patch: np.ndarray) -> None:
     """Adjoint of :func:`load_patch`: grad[iy-1+a, ix-1+b] += patch[a, b]."""
     m = grad.shape[0]

@@ -17,27 +17,27 @@ import numpy as np
 
 from operators.heightfield.catmull_rom import (axis_weights, contract, load_patch, scatter_patch, surface_gradient,
                                                surface_jet_at)
-from operators.kernels.numba_settings import FAST_MATH
+from operators.kernels.numba_settings import jit_call, jit_inline, jit_parallel
 
 MAX_MARCH_STEPS = 512
 NEWTON_ITERATIONS = 40
 SETTLE = 1e-8  # Newton step (relative to the z scale) below which the next step is taken unchecked
 
 
-@nb.njit(cache=True, fastmath=FAST_MATH, error_model="numpy")
+@jit_call
 def _needs_march(wx_, wy_, wz_, slope_x, slope_y) -> bool:
     """Whether the gap may rise again along the ray (see :func:`solve_hit`)."""
     return not slope_x * abs(wx_) + slope_y * abs(wy_) < abs(wz_)
 
 
-@nb.njit(cache=True, fastmath=FAST_MATH, error_model="numpy")
+@jit_call
 def _gap(d, base, ox, oy, oz, wx_, wy_, wz_, x0, spacing, t) -> tuple[float, float]:
     """(gap, d gap / dt) at ray parameter t: the ray's height above the surface and its slope."""
     s, sx, sy = surface_gradient(d, ox + t * wx_, oy + t * wy_, x0, spacing)
     return oz + t * wz_ - base - s, wz_ - sx * wx_ - sy * wy_
 
 
-@nb.njit(cache=True, fastmath=FAST_MATH, error_model="numpy")
+@jit_call
 def _newton_update(t, g, slope, lo, hi, settle) -> tuple[float, float, float, bool]:
     """One safeguarded Newton step from t (gap g, its slope) inside the bracket lo .. hi:
     (next t, lo, hi, settled), settled when the step fell below ``settle``."""
@@ -51,14 +51,14 @@ def _newton_update(t, g, slope, lo, hi, settle) -> tuple[float, float, float, bo
     return t_new, lo, hi, abs(t_new - t) <= settle
 
 
-@nb.njit(cache=True, fastmath=FAST_MATH, error_model="numpy")
+@jit_call
 def _tolerances(oz, zhi) -> tuple[float, float]:
     """(gap within rounding, settling step) of the Newton iteration, relative to the z scale."""
     z_scale = abs(oz) + abs(zhi) + 1.0
     return 1e-12 * z_scale, SETTLE * z_scale
 
 
-@nb.njit(cache=True, fastmath=FAST_MATH, error_model="numpy")
+@jit_call
 def solve_hit(d, base, ox, oy, oz, wx_, wy_, wz_, x0, spacing, zlo, zstart, zhi, slope_x, slope_y) -> float:
     """First root of the gap (ray height above the surface): march between the bounding planes
     zhi and zlo in half-cell steps, then Newton safeguarded by bisection inside the bracket,
@@ -103,7 +103,7 @@ def solve_hit(d, base, ox, oy, oz, wx_, wy_, wz_, x0, spacing, zlo, zstart, zhi,
     return t
 
 
-@nb.njit(cache=True, fastmath=FAST_MATH, error_model="numpy")
+@jit_call
 def packet_gaps(d, base, ox, oy, oz, dirs, count, x0, spacing, t, search) -> None:
     """(gap, d gap / dt) (:func:`_gap`) of the rays k < count along dirs[0:3, k] at t[k] whose
     search[2, k] is not 0, into search[3, k] and search[4, k]: independent surface evaluations in
@@ -114,7 +114,7 @@ def packet_gaps(d, base, ox, oy, oz, dirs, count, x0, spacing, t, search) -> Non
                                               t[k])
 
 
-@nb.njit(cache=True, fastmath=FAST_MATH, error_model="numpy")
+@jit_call
 def solve_hits(d, base, ox, oy, oz, dirs, count, x0, spacing, zlo, zstart, zhi, slope_x, slope_y, t_out,
                search) -> None:
     """:func:`solve_hit` for the rays along dirs[0:3, k], k < count, into t_out[k], with the
@@ -153,7 +153,7 @@ def solve_hits(d, base, ox, oy, oz, dirs, count, x0, spacing, zlo, zstart, zhi, 
             break
 
 
-@nb.njit(cache=True, inline="always", fastmath=FAST_MATH, error_model="numpy")
+@jit_inline
 def surface_derivatives(patch, wx, wy):
     """(S_x, S_y, S_xx, S_xy, S_yy, S_xxx, S_xxy, S_xyy, S_yyy) of the surface of the samples
     ``patch`` (4, 4) at the point of the weight tables of order 3, wx / wy."""
@@ -162,7 +162,7 @@ def surface_derivatives(patch, wx, wy):
             contract(patch, wx, 2, wy, 1), contract(patch, wx, 1, wy, 2), contract(patch, wx, 0, wy, 3))
 
 
-@nb.njit(cache=True, fastmath=FAST_MATH, error_model="numpy")
+@jit_call
 def hit_adjoint_patch(wx, wy, patch, wx_, wy_, wz_, g_t, g_sx, g_sy, g_sxx, g_sxy, g_syy) -> None:
     """Overwrite ``patch`` (the samples around one photon's hit) with the gradient of
     g_t t + <g_jet, jet> w.r.t. those samples (add it into the heights with :func:`scatter_patch`).
@@ -183,7 +183,7 @@ def hit_adjoint_patch(wx, wy, patch, wx_, wy_, wz_, g_t, g_sx, g_sy, g_sxx, g_sx
                            + wy[2, a] * g_syy * wx[0, b])
 
 
-@nb.njit(cache=True, fastmath=FAST_MATH, error_model="numpy")
+@jit_call
 def scatter_hit_adjoint(grad, ix, iy, wx, wy, patch, wx_, wy_, wz_, g_t, g_sx, g_sy, g_sxx, g_sxy, g_syy) -> None:
     """Add to grad (m, m) the gradient w.r.t. d of g_t t + <g_jet, jet> at one photon's hit
     (:func:`hit_adjoint_patch`, then scattered into the cell's samples; ``patch`` is overwritten)."""
@@ -191,7 +191,7 @@ def scatter_hit_adjoint(grad, ix, iy, wx, wy, patch, wx_, wy_, wz_, g_t, g_sx, g
     scatter_patch(grad, ix, iy, patch)
 
 
-@nb.njit(parallel=True, cache=True, fastmath=FAST_MATH, error_model="numpy")
+@jit_parallel
 def hit_forward(d, base, origins, dirs, x0, spacing, zlo, zstart, zhi, slope_x, slope_y, t_out, jet_out, nthreads):
     """Fill t_out (N,) and jet_out (5, N) = (S_x, S_y, S_xx, S_xy, S_yy) at the hit of each ray
     origins[:, p] + t dirs[:, p] (:func:`solve_hit`)."""
@@ -208,7 +208,7 @@ def hit_forward(d, base, origins, dirs, x0, spacing, zlo, zstart, zhi, slope_x, 
                 jet_out[k, p] = jet[k]
 
 
-@nb.njit(parallel=True, cache=True, fastmath=FAST_MATH, error_model="numpy")
+@jit_parallel
 def hit_backward(d, origins, dirs, t, grad_t, grad_jet, x0, spacing, nthreads):
     """Gradient (nthreads, m, m) w.r.t. d of <grad_t, t> + <grad_jet, jet>; sum over axis 0."""
     n = dirs.shape[1]

@@ -17,12 +17,11 @@ from typing import Any
 
 import embreex
 import llvmlite.binding as llvm
-import numba as nb
 import numpy as np
 from numba import types
 from numba.extending import intrinsic
 
-from operators.kernels.numba_settings import FAST_MATH
+from operators.kernels.numba_settings import jit_inline
 from operators.kernels.simd import data_pointer
 
 __all__ = ["EmbreeTriangles", "INTERSECT8", "first_face", "ray_buffer", "RAY_FLOATS"]
@@ -114,7 +113,7 @@ def _address(typingctx, array):
     return types.int64(array), codegen
 
 
-_jit = nb.njit(cache=True, inline="always", fastmath=FAST_MATH, error_model="numpy")
+_jit = jit_inline
 
 
 @_jit

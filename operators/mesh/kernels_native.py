@@ -26,7 +26,7 @@ import numba as nb
 
 from operators.heightfield.catmull_rom import surface_jet_at
 from operators.heightfield.intersect_native import solve_hit
-from operators.kernels.numba_settings import FAST_MATH
+from operators.kernels.numba_settings import jit_call, jit_inline, jit_parallel
 from operators.mesh.culling import CLEAR_COS
 from operators.mesh.embree_native import first_face, ray_buffer
 from operators.mesh.intersect_reference import MIN_FACE_DISTANCE, START_OFFSET
@@ -74,9 +74,9 @@ class MeshConstants(NamedTuple):
     max_px: float
 
 
-_jit = nb.njit(cache=True, inline="always", fastmath=FAST_MATH, error_model="numpy")
-_call = nb.njit(cache=True, fastmath=FAST_MATH, error_model="numpy")
-_kernel = nb.njit(parallel=True, cache=True, fastmath=FAST_MATH, error_model="numpy")
+_jit = jit_inline
+_call = jit_call
+_kernel = jit_parallel
 
 
 @_jit

@@ -20,7 +20,7 @@ import numba as nb
 import numpy as np
 from numba.extending import overload
 
-from operators.kernels.numba_settings import FAST_MATH
+from operators.kernels.numba_settings import jit_inline, jit_parallel
 from operators.kernels.simd import (data_pointer, gather_box8, gather_spans, splat_box8_f32, splat_box8_f64,
                                     splat_spans_f32, splat_spans_f64)
 
@@ -28,14 +28,14 @@ from operators.kernels.simd import (data_pointer, gather_box8, gather_spans, spl
 FAR_PX = 1e7
 
 
-@nb.njit(cache=True, inline="always", fastmath=FAST_MATH, error_model="numpy")
+@jit_inline
 def footprint_usable(f, px, py, q00, q01, q11) -> bool:
     """Whether a photon of flux f at pixel (px, py) with metric Q has a finite, positive-definite footprint."""
     return (f != 0.0 and math.isfinite(f) and abs(px) < FAR_PX and abs(py) < FAR_PX
             and q00 > 0.0 and q11 > 0.0 and q00 * q11 - q01 * q01 > 0.0)
 
 
-@nb.njit(cache=True, inline="always", fastmath=FAST_MATH, error_model="numpy")
+@jit_inline
 def footprint_box(px, py, q00, q01, q11) -> tuple[int, int, int, int]:
     """Pixel columns x0 .. x1 and rows y0 .. y1 of the ellipse's bounding box (half extents
     sqrt(q11 / det Q) and sqrt(q00 / det Q))."""
@@ -45,13 +45,13 @@ def footprint_box(px, py, q00, q01, q11) -> tuple[int, int, int, int]:
     return int(math.ceil(px - hx)), int(math.floor(px + hx)), int(math.ceil(py - hy)), int(math.floor(py + hy))
 
 
-@nb.njit(cache=True, inline="always", fastmath=FAST_MATH, error_model="numpy")
+@jit_inline
 def row_terms(q01, q11, ry) -> tuple[float, float]:
     """(b, e) of the footprint's row at offset ``ry`` (pixels): t(rx, ry) = (q00 rx + b) rx + e."""
     return 2.0 * q01 * ry, q11 * ry * ry
 
 
-@nb.njit(cache=True, inline="always", fastmath=FAST_MATH, error_model="numpy")
+@jit_inline
 def falloff(q00, rx, b, e) -> float:
     """1 - t(r) at column offset ``rx`` of a row with terms (b, e) (:func:`row_terms`); the
     Silverman weight is its square where positive."""
@@ -64,7 +64,7 @@ def falloff(q00, rx, b, e) -> float:
 LANES = 8
 
 
-@nb.njit(cache=True, inline="always", fastmath=FAST_MATH, error_model="numpy")
+@jit_inline
 def _fits_fixed_box(x0, x1, y0, y1, lo, hi) -> bool:
     """Whether the bounding box x0 .. x1, y0 .. y1 fits in a LANES x LANES box at (x0, y0) that
     lies in columns and rows lo .. hi."""
@@ -85,7 +85,7 @@ def _fits_spans(x0, x1, y0, y1, lo, hi) -> bool:
     return x0 >= lo and y0 >= lo and y1 <= hi and x1 + SPAN_TAIL <= hi
 
 
-@nb.njit(cache=True, inline="always", fastmath=FAST_MATH, error_model="numpy")
+@jit_inline
 def _box_weights(buf, x0, y0, width, rows, px, py, q00, q01, q11) -> float:
     """Silverman weights max(1 - t, 0)^2 of the ``rows`` x ``width`` pixels from (x0, y0) into
     ``buf`` (row-major); returns their sum. Branch-free and free of per-row square roots."""
@@ -100,7 +100,7 @@ def _box_weights(buf, x0, y0, width, rows, px, py, q00, q01, q11) -> float:
     return s
 
 
-@nb.njit(cache=True, inline="always", fastmath=FAST_MATH, error_model="numpy")
+@jit_inline
 def _deposit(img, c, buf, x0, y0, width, lo, hi, ylo, yhi, scale) -> None:
     """Add ``scale`` times the weights ``buf`` of the box from (x0, y0), ``width`` pixels wide,
     to the pixels lo .. hi, ylo .. yhi of channel ``c`` of ``img``."""
@@ -150,7 +150,7 @@ def _splat_spans_simd_impl(img, c, x0, y0, rows, width, px, py, q00, q01, q11, f
     return impl
 
 
-@nb.njit(cache=True, inline="always", fastmath=FAST_MATH, error_model="numpy")
+@jit_inline
 def splat_photon(img, c, px, py, q00, q01, q11, f, buf, simd) -> None:
     """Add one photon's flux ``f`` into channel ``c`` of ``img`` (c, n, n), rows unit-stride.
 
@@ -187,7 +187,7 @@ def splat_photon(img, c, px, py, q00, q01, q11, f, buf, simd) -> None:
         _deposit(img, c, buf, x0, y0, width, max(x0, 0), min(x1, n - 1), max(y0, 0), min(y1, n - 1), f / s)
 
 
-@nb.njit(parallel=True, cache=True, fastmath=FAST_MATH, error_model="numpy")
+@jit_parallel
 def splat_forward(pos, metric, flux, channel, out, capacity, simd):
     """Accumulate photons into ``out`` (threads, c, n, n) (flux per pixel); sum over axis 0 after.
 
@@ -206,7 +206,7 @@ def splat_forward(pos, metric, flux, channel, out, capacity, simd):
                          flux[p], buf, simd)
 
 
-@nb.njit(cache=True, inline="always", fastmath=FAST_MATH, error_model="numpy")
+@jit_inline
 def gather_photon(padded, pad, c, px, py, q00, q01, q11, f) -> tuple[float, float, float, float, float, float]:
     """One photon's adjoint: gradients of <G, splat> w.r.t. (flux, px, py, q00, q01, q11).
 
@@ -226,7 +226,7 @@ def gather_photon(padded, pad, c, px, py, q00, q01, q11, f) -> tuple[float, floa
     return _gather_result(_gather_box(padded, pad, c, x0, y0, width, rows, px, py, q00, q01, q11), f)
 
 
-@nb.njit(cache=True, inline="always", fastmath=FAST_MATH, error_model="numpy")
+@jit_inline
 def gather_photon_simd(padded, pad, c, px, py, q00, q01, q11, f, simd, sums
                        ) -> tuple[float, float, float, float, float, float]:
     """:func:`gather_photon` with the sums taken by the AVX2 kernels when ``simd`` (only where
@@ -251,7 +251,7 @@ def gather_photon_simd(padded, pad, c, px, py, q00, q01, q11, f, simd, sums
     return _gather_result(_gather_box(padded, pad, c, x0, y0, width, rows, px, py, q00, q01, q11), f)
 
 
-@nb.njit(cache=True, inline="always", fastmath=FAST_MATH, error_model="numpy")
+@jit_inline
 def _gather_plan(padded, pad, px, py, q00, q01, q11, f) -> tuple[int, int, int, int, int]:
     """(x0, y0, width, rows, span) of the pixels :func:`gather_photon` sums over: the fixed
     LANES x LANES box where the footprint's bounding box fits it, else the bounding box cut to
@@ -271,7 +271,7 @@ def _gather_plan(padded, pad, px, py, q00, q01, q11, f) -> tuple[int, int, int, 
     return x0, y0, x1 - x0 + 1, y1 - y0 + 1, y1 - y0 + 1
 
 
-@nb.njit(cache=True, inline="always", fastmath=FAST_MATH, error_model="numpy")
+@jit_inline
 def _gather_result(sums, f) -> tuple[float, float, float, float, float, float]:
     """The gradients (flux, px, py, q00, q01, q11) from the box's sums (:func:`_gather_box`)."""
     s, gw, v0, v1, v2, v3, v4, u0, u1, u2, u3, u4 = sums
@@ -283,7 +283,7 @@ def _gather_result(sums, f) -> tuple[float, float, float, float, float, float]:
             scale * (u3 - mean * v3), scale * (u4 - mean * v4))
 
 
-@nb.njit(cache=True, inline="always", fastmath=FAST_MATH, error_model="numpy")
+@jit_inline
 def _gather_box(padded, pad, c, x0, y0, width, rows, px, py, q00, q01, q11):
     """The sums :func:`gather_photon` needs over the ``rows`` x ``width`` pixels from (x0, y0):
     (s, sum_k G_k w_k, v0 .. v4, u0 .. u4) with v_i = sum_k dw_k / dtheta_i and
@@ -354,7 +354,7 @@ def pad_for_gather(grad_image: np.ndarray, pad: int, divisor: float = 1.0, reuse
 GATHER_BLOCK = 4096  # photons per task of splat_backward's threads
 
 
-@nb.njit(parallel=True, cache=True, fastmath=FAST_MATH, error_model="numpy")
+@jit_parallel
 def splat_backward(pos, metric, flux, channel, padded, pad, g_pos, g_metric, g_flux, simd, threads):
     """Gather the adjoint (see :func:`gather_photon`): gradients of <G, splat(...)> w.r.t.
     pos (2, N), metric (3, N) and flux (N,), written into g_pos, g_metric and g_flux; ``padded``
@@ -374,7 +374,7 @@ def splat_backward(pos, metric, flux, channel, padded, pad, g_pos, g_metric, g_f
                 _gather_into(padded, pad, pos, metric, flux, channel, p, g_pos, g_metric, g_flux, simd, sums)
 
 
-@nb.njit(cache=True, inline="always", fastmath=FAST_MATH, error_model="numpy")
+@jit_inline
 def _gather_into(padded, pad, pos, metric, flux, channel, p, g_pos, g_metric, g_flux, simd, sums) -> None:
     """Photon p's gradients (:func:`gather_photon_simd`) into g_pos, g_metric and g_flux."""
     g = gather_photon_simd(padded, pad, channel[p], pos[0, p], pos[1, p], metric[0, p], metric[1, p],
