@@ -208,9 +208,11 @@ class IterativeSolver(Plugin, ABC):
         """The stage of a coarse-to-fine schedule the solver is in (0 without one)."""
         return 0
 
-    def begin_from_shaped_start(self) -> None:
-        """The start already holds the print's broad shape (a transport, a design, a file): a solver
-        with a coarse-to-fine schedule may begin at a later stage; nothing without one."""
+    def begin_from_shaped_start(self, schedule_from: str | None = None) -> None:
+        """The start already holds the print's broad shape (a transport, a design, a file, a coarser
+        grid's solution): a solver with a coarse-to-fine schedule may begin at a later stage
+        (``schedule_from``: ``first`` or ``finest``; None: the solver's own setting); nothing
+        without one."""
 
     def setup_changed(self) -> None:
         """The forward operator's setup changed (joint calibration, framework/lab/calibration.py,

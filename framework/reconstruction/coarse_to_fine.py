@@ -23,6 +23,7 @@ import torch.nn.functional as F
 from framework.core.data import ReconstructionData, resample_image
 from framework.core.problem import HeightGrid, Problem
 from framework.core.plugin_config import as_mapping
+from framework.reconstruction.solvers.proximal_parts import SHAPED_START_FROM
 from operators.values import checked_whole
 
 __all__ = ["CoarseToFineSettings", "coarser_problem", "resample_heights"]
@@ -31,19 +32,29 @@ __all__ = ["CoarseToFineSettings", "coarser_problem", "resample_heights"]
 @dataclass(frozen=True)
 class CoarseToFineSettings:
     """``coarse_to_fine``: ``levels`` grids in all (1: the run's grid alone; 3: 1/4, 1/2 and the full
-    resolution), none coarser than ``coarsest`` samples (and receiver pixels) a side."""
+    resolution), none coarser than ``coarsest`` samples (and receiver pixels) a side; each level
+    after the coarsest begins the solver's preconditioner schedule at ``fine_levels_from``
+    (``finest``: its last length, as the coarser level placed the broad shape; ``first``: the whole
+    schedule again)."""
 
     levels: int = 1
     coarsest: int = 32
+    fine_levels_from: str = "finest"
 
     @classmethod
     def parse(cls, spec: Any) -> CoarseToFineSettings:
         values = as_mapping(spec or {}, "coarse_to_fine")
-        unknown = sorted(set(values) - {"levels", "coarsest"})
+        unknown = sorted(set(values) - {"levels", "coarsest", "fine_levels_from"})
         if unknown:
-            raise ValueError(f"coarse_to_fine has unknown key(s) {unknown}; its keys are levels and coarsest")
+            raise ValueError(f"coarse_to_fine has unknown key(s) {unknown}; its keys are levels, coarsest and "
+                             "fine_levels_from")
+        begin = values.get("fine_levels_from", "finest")
+        if begin not in SHAPED_START_FROM:
+            raise ValueError(f"coarse_to_fine.fine_levels_from={begin!r} must be one of {', '.join(SHAPED_START_FROM)} "
+                             "(where a finer level's preconditioner schedule begins)")
         return cls(checked_whole(values.get("levels", 1), "coarse_to_fine.levels", 1, 6, example="2"),
-                   checked_whole(values.get("coarsest", 32), "coarse_to_fine.coarsest", least=8, example="32"))
+                   checked_whole(values.get("coarsest", 32), "coarse_to_fine.coarsest", least=8, example="32"),
+                   str(begin))
 
     def resolutions(self, m: int, n: int) -> list[tuple[int, int]]:
         """The coarse levels' (m, n), coarsest first; empty for a single level."""

@@ -152,7 +152,8 @@ class Reconstruction:
         start = build_start(cfg.get("initial"))
         start.check(base_dir)
         coarse_to_fine = CoarseToFineSettings.parse(cfg.get("coarse_to_fine"))
-        if coarse_to_fine.levels > 1 and isinstance(data_source, ShotStack):
+        if isinstance(data_source, ShotStack) and coarse_to_fine.resolutions(
+                setup.grid.resolution, int(setup.operator.output_shape[-1])):
             raise ValueError(f"coarse_to_fine.levels={coarse_to_fine.levels} reads one photo; a stack of shots "
                              "runs on its own grid: set coarse_to_fine.levels=1")
         regularizers = (cfg.get("solver") or {}).get("regularizers") or {}

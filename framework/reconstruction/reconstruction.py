@@ -85,17 +85,18 @@ def _coarse_levels(parts: Reconstruction, problem: Problem, name: str, start: St
         coarse.append((coarser_problem(problem, m_level, n_level, photons[1], parts.settings.seed), photons))
     computed = start(replace(request, problem=coarse[0][0]))  # its data carry the design resampled
     d, shaped, metrics = computed.d.to(problem.operator.dtype), computed.shaped, {}
+    schedule_from = None  # the coarsest level: where the solver's own shaped_start_from says
     for level, photons in coarse:
         began, m_level = time.perf_counter(), level.grid.resolution
         solver = parts.make_solver(level, resample_heights(d, m_level))
         if shaped:
-            solver.begin_from_shaped_start()
+            solver.begin_from_shaped_start(schedule_from)
         stopping = parts.fresh_stopping(level)
         budget = photon_budget(parts, level, photons)
         callbacks: list[Callback] = [*stopping, ProgressBar(desc=f"{parts.settings.method} from {name} at {m_level}")]
         result = solver.run(parts.max_iter, [*callbacks, *([budget] if budget else [])])
         d, _ = returned_iterate(result, stopping)
-        shaped = True
+        shaped, schedule_from = True, parts.coarse_to_fine.fine_levels_from
         metrics.update({f"{name}_level{m_level}_iterations": float(result.iterations),
                         f"{name}_level{m_level}_rel_discrepancy": result.history[-1].rel_discrepancy
                         if result.history else float("nan"),
@@ -119,17 +120,19 @@ def _solve_from(parts: Reconstruction, problem: Problem, name: str, start: Start
     else:
         d0 = torch.zeros(parts.grid.shape, dtype=operator.dtype)
     shaped = checkpoint is None and computed.shaped
+    # heights solved on a coarser grid begin at coarse_to_fine.fine_levels_from
+    schedule_from = parts.coarse_to_fine.fine_levels_from if checkpoint is None and level_metrics else None
     for stage in parts.stages if checkpoint is None else ():
         begun = stage.begin(StartingRun(problem, start, d0, shaped, _solve(parts, shaped=False), parts.calibration,
                                         output_dir, parts.settings.seed))
         if begun is not None:
             d0 = begun[0]
             start_metrics.update({f"{name}_{k}": v for k, v in begun[1].items()})
-            shaped = True
+            shaped, schedule_from = True, None
     start_seconds = time.perf_counter() - began
     solver = parts.make_solver(problem, d0)
     if shaped:
-        solver.begin_from_shaped_start()
+        solver.begin_from_shaped_start(schedule_from)
     stopping = parts.fresh_stopping(problem)
     history = MetricsHistory()
     callbacks: list[Callback] = [history, *stopping, ProgressBar(desc=f"{parts.settings.method} from {name}"),

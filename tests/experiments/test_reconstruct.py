@@ -164,13 +164,19 @@ def test_a_start_from_half_the_design_beats_the_flat_start(tmp_path):
 @pytest.mark.slow
 def test_a_coarse_level_brings_the_bump_the_fine_level_starts_from(tmp_path):
     """coarse_to_fine.levels=2: the bump solved on 16 x 16 heights (a 32 x 32 receiver) first; the
-    32 x 32 run starts from it, far closer to the truth than flat glass (rel_error_d 1)."""
+    32 x 32 run starts from it, far closer to the truth than flat glass (rel_error_d 1), at the
+    finest preconditioner length (fine_levels_from: finest) though flat glass began the coarse level
+    at the first."""
     cfg = compose_reconstruct([*SMALL, *BUMP, "solver.max_iter=30", "coarse_to_fine.levels=2",
                                "coarse_to_fine.coarsest=16"], tmp_path)
     metrics = run_reconstruction(cfg, tmp_path / "levels", tmp_path)
     assert 1 <= metrics["start_zero_level16_iterations"] <= 30, metrics
     assert metrics["start_zero_initial_rel_error_d"] < 0.7, metrics
     assert metrics["rel_error_d"] < 0.5, metrics
+    history = torch.load(tmp_path / "levels" / "checkpoint.pt", weights_only=False)["solver_state"]["history"]
+    lengths = cfg["solver"]["preconditioner"]["length"]
+    assert min(lengths) < max(lengths)
+    assert history[0]["extras"]["preconditioner_length"] == pytest.approx(min(lengths))
 
 
 @pytest.mark.parametrize("experiment", ["m1", "m2v0", "m2v1", "m2v2", "m3v0", "m3v1", "m3v2"])

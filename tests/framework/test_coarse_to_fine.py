@@ -24,6 +24,7 @@ def test_levels_halve_the_grid_down_to_the_coarsest():
     ({"levels": 2.5}, "coarse_to_fine.levels=2.5"),
     ({"coarsest": 4}, "coarse_to_fine.coarsest=4"),
     ({"level": 2}, "unknown key"),
+    ({"fine_levels_from": "middle"}, "coarse_to_fine.fine_levels_from='middle' must be one of first, finest"),
 ])
 def test_bad_settings_are_refused_by_name(spec, message):
     with pytest.raises(ValueError, match=message):

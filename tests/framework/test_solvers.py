@@ -124,6 +124,10 @@ def test_a_shaped_start_begins_where_configured_and_every_built_solver_has_its_o
                            regularizers=[L1(2e-3), Bounds()], preconditioner=_schedule())
     whole.begin_from_shaped_start()
     assert whole.stage() == 0 and whole.step().extras["preconditioner_length"] == 0.5
+    told = PixelLandweber(data, torch.zeros(8, 8, dtype=DTYPE), BacktrackingStep(20.0 / L),
+                          regularizers=[L1(2e-3), Bounds()], preconditioner=_schedule())
+    told.begin_from_shaped_start("finest")  # a coarser grid's solution (coarse_to_fine.fine_levels_from)
+    assert told.stage() == 1
     with pytest.raises(ValueError, match="solver.shaped_start_from='coarse' must be one of first, finest"):
         PixelLandweber(data, torch.zeros(8, 8, dtype=DTYPE), BacktrackingStep(1.0), regularizers=[Bounds()],
                        shaped_start_from="coarse")

@@ -127,12 +127,21 @@ def test_calibration_recovers_the_distance_and_every_gain_from_a_stack_with_know
     (["data.weighting=loud"], r"data.weighting='loud'; use equal, distance, noise"),
     (["data.first_fit=farthest"], r"data.first_fit='farthest'; use one of nearest, lines, none"),
     (["data.shots=[{light_offset: [0, 0, -9.95]}]"], r"data.shots\[0\]: the light would sit at z = 0.05"),
+    (["coarse_to_fine.levels=2", "coarse_to_fine.coarsest=8"], r"coarse_to_fine.levels=2 reads one photo"),
 ])
 def test_bad_stacks_are_refused_in_one_line(tmp_path, overrides, message) -> None:
     cfg = compose_reconstruct([*SMALL, "data=stack", *overrides], tmp_path)
     with pytest.raises(ValueError, match=message) as error:
         Reconstruction.from_config(cfg, tmp_path).check(tmp_path, tmp_path / "run")
     assert "\n" not in str(error.value)
+
+
+def test_a_stack_takes_coarse_to_fine_settings_that_run_no_coarser_level(tmp_path) -> None:
+    """A preset's grid continuation (experiment=m2v1_newton: coarsest 128) runs no coarser level on a
+    smaller grid, so a stack is not refused for it."""
+    cfg = compose_reconstruct([*SMALL, "data=stack", "experiment=m2v1_newton"], tmp_path)
+    assert cfg["coarse_to_fine"]["levels"] > 1
+    Reconstruction.from_config(cfg, tmp_path).check(tmp_path, tmp_path / "run")
 
 
 def test_image_files_of_different_sizes_are_refused(tmp_path) -> None:

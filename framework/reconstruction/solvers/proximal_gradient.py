@@ -237,10 +237,11 @@ class ProximalGradientSolver(IterativeSolver):
         self._forget_curvature()
         return True
 
-    def begin_from_shaped_start(self) -> None:
-        """With ``shaped_start_from='finest'`` move the preconditioner to its finest length before
-        the first iteration; with ``'first'`` keep the whole schedule."""
-        while self.shaped_start_from == "finest" and self.refine(self.state.d):
+    def begin_from_shaped_start(self, schedule_from: str | None = None) -> None:
+        """With ``schedule_from`` (None: ``shaped_start_from``) ``'finest'`` move the preconditioner
+        to its finest length before the first iteration; with ``'first'`` keep the whole schedule."""
+        begin = self.shaped_start_from if schedule_from is None else schedule_from
+        while begin == "finest" and self.refine(self.state.d):
             pass
 
     def setup_changed(self) -> None:
