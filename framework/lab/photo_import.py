@@ -1,7 +1,8 @@
 """From a camera photo of the caustic on the screen to a receiver-aligned irradiance image.
 
 The chain (docs/photo_import.md): read the photo (values as a fraction of full scale, row 0 =
-top) -> mark saturated pixels on the raw values -> subtract the black level -> invert the camera
+top; a camera RAW file linearly, its black and white levels from the file:
+framework/lab/raw_photo.py) -> mark saturated pixels on the raw values -> subtract the black level -> invert the camera
 response -> pick the channel -> subtract a dark frame -> divide by a flat field -> homography
 from the receiver's four corners in the photo -> average supersample^2 bilinear samples per
 receiver pixel. The result follows framework/files/image_io.py: (c, n, n) with [row, col] = [y, x],
@@ -24,6 +25,7 @@ from PIL import Image, UnidentifiedImageError
 from framework.files.height_field_io import load_npy
 from framework.files.image_io import existing_file
 from framework.files.plotting import label_xy_axes, normalise, save_figure
+from framework.lab.raw_photo import RAW_SUFFIXES, read_raw
 from framework.lab.photo_geometry import (check_corners, check_receiver_grid, homography, inside_receiver, rectify,
                                           saturated_receiver_pixels)
 from operators.values import checked_number, checked_whole
@@ -34,8 +36,10 @@ Response = Literal["linear", "srgb", "gamma"]
 Channel = Literal["grey", "red", "green", "blue"]
 
 FULL_SCALE = {8: 255, 16: 65535}
+RAW_DEPTH = -1  # the "bit depth" of a camera RAW file, read as fractions of its own full scale
 FLAT_FLOOR = 1e-3  # flat pixels below this fraction of the flat's mean are unusable
-_SAVE_AS = "save it as an 8- or 16-bit greyscale or RGB PNG/TIFF, or as a .npy float array of linear values"
+_SAVE_AS = ("give the camera's RAW file (.dng, .cr2, .nef, .arw, ...), save it as an 8- or 16-bit greyscale or RGB "
+            "PNG/TIFF, or as a .npy float array of linear values")
 
 
 # --- reading -------------------------------------------------------------------------------------
@@ -74,29 +78,44 @@ def _pillow_bit_depth(img: Image.Image, name: str, what: str = "photo") -> int:
     raise ValueError(f"{what} {name} is {kind} (mode {mode!r}); {fix}")
 
 
+def _kind(depth: int) -> str:
+    """What a frame of bit depth ``depth`` is, for messages."""
+    return {0: "a linear float array", RAW_DEPTH: "a camera RAW file"}.get(depth, f"{depth}-bit")
+
+
 def read_photo(path: str | Path, bit_depth: int | None = None) -> tuple[np.ndarray, int]:
     """The photo as float64 (H, W) or (H, W, 3) in [0, 1] (value / full scale), row 0 = top,
-    and its bit depth (8, 16; 0 = a .npy float array of linear values).
+    and its bit depth (8, 16; 0 = a .npy float array of linear values; RAW_DEPTH = a camera RAW
+    file, black level off, framework/lab/raw_photo.py).
 
     ``bit_depth`` (8, 16 or None = either) is what the photo must have; a mismatch is refused.
     """
+    array, depth, _ = _checked_frame(path, bit_depth)
+    return array, depth
+
+
+def _checked_frame(path: str | Path, bit_depth: int | None) -> tuple[np.ndarray, int, str]:
+    """:func:`read_photo` with the line saying what was read."""
     if bit_depth is not None:
         must = "must be 8, 16 or null (accept either)"
         bit_depth = checked_whole(bit_depth, "data.bit_depth", must=must)
         if bit_depth not in FULL_SCALE:
             raise ValueError(f"data.bit_depth={bit_depth!r} {must}")
-    array, depth = _read_frame(path, "photo")
+    array, depth, read = _read_frame(path, "photo")
     if bit_depth is not None and depth != bit_depth:
-        what = "a linear float array" if depth == 0 else f"{depth}-bit"
-        raise ValueError(f"photo {Path(path).name} is {what} but data.bit_depth={bit_depth}; set data.bit_depth="
-                         f"{depth or 'null'} or give the photo the camera actually wrote")
-    return array, depth
+        raise ValueError(f"photo {Path(path).name} is {_kind(depth)} but data.bit_depth={bit_depth}; set "
+                         f"data.bit_depth={depth if depth > 0 else 'null'} or give the photo the camera actually wrote")
+    return array, depth, read
 
 
-def _read_frame(path: str | Path, what: str) -> tuple[np.ndarray, int]:
-    """:func:`read_photo` without the bit-depth requirement; ``what`` names the file in messages."""
+def _read_frame(path: str | Path, what: str) -> tuple[np.ndarray, int, str]:
+    """:func:`read_photo` without the bit-depth requirement, and a line saying what was read;
+    ``what`` names the file in messages."""
     p = existing_file(path, what)
     suffix = p.suffix.lower()
+    if suffix in RAW_SUFFIXES:
+        frame = read_raw(p, what)
+        return frame.values, RAW_DEPTH, frame.describe()
     if suffix == ".npy":
         array = load_npy(p, _SAVE_AS)
         if array.dtype.kind != "f":
@@ -121,7 +140,9 @@ def _read_frame(path: str | Path, what: str) -> tuple[np.ndarray, int]:
     if array.min() < 0.0 or array.max() > 1.0:
         raise ValueError(f"{what} {p.name} holds values in [{array.min():.4g}, {array.max():.4g}]; .npy photos are "
                          "linear values as a fraction of full scale in [0, 1]: divide by the white level")
-    return array, depth
+    height, width = array.shape[:2]
+    return array, depth, f"{width} x {height} px, " + ("linear float .npy" if depth == 0 else f"{depth}-bit") + (
+        " RGB" if array.ndim == 3 else " grey")
 
 
 def linearize(values: np.ndarray, response: Response = "linear", gamma: float = 2.2) -> np.ndarray:
@@ -185,10 +206,9 @@ def _linear_frame(raw: np.ndarray, depth: int, channel: Channel, black: float, r
 
 
 def _read_like(path: str | Path, what: str, shape: tuple[int, ...], depth: int) -> np.ndarray:
-    raw, frame_depth = _read_frame(path, what)
+    raw, frame_depth, _ = _read_frame(path, what)
     if frame_depth != depth:
-        bits = lambda d: f"{d}-bit" if d else "a linear float array"  # noqa: E731
-        raise ValueError(f"{what} {Path(path).name} is {bits(frame_depth)} but the photo is {bits(depth)}; "
+        raise ValueError(f"{what} {Path(path).name} is {_kind(frame_depth)} but the photo is {_kind(depth)}; "
                          f"save the {what} like the photo")
     if raw.shape != shape:
         size = lambda s: f"{s[1]} x {s[0]}" + (" RGB" if len(s) == 3 else " grey")  # noqa: E731
@@ -216,8 +236,11 @@ def import_photo(path: str | Path, corners: object, half_width: float, resolutio
     saturated in any used channel. Receiver pixels touching saturated or unusable photo pixels get
     weight 0; more than ``max_dropped`` of them is refused.
     """
-    raw, depth = read_photo(path, bit_depth)
+    raw, depth, read = _checked_frame(path, bit_depth)
     name = Path(path).name
+    if depth == RAW_DEPTH and (black_level or response != "linear"):
+        raise ValueError(f"photo {name} is a camera RAW file, read linearly with the file's black level; drop "
+                         f"data.black_level={black_level:g} and data.response={response!r} (the defaults 0 and linear)")
     corners = check_corners(corners, raw.shape)
     resolution, supersample = check_receiver_grid(resolution, half_width, supersample)
     if channel not in ("grey", "red", "green", "blue"):
@@ -232,13 +255,12 @@ def import_photo(path: str | Path, corners: object, half_width: float, resolutio
         raise ValueError(f"max_dropped={max_dropped!r} must be a fraction in [0, 1)")
     linearize(np.zeros(1), response, gamma)  # refuses an unknown response
     linearize(np.zeros(1), "gamma", gamma)  # and a bad gamma, whatever the response
-    if depth == 0 and response != "linear":
+    if depth == 0 and response != "linear":  # (a RAW file was refused above)
         raise ValueError(f"photo {name} is a .npy array of linear values but data.response={response!r}; "
                          "set data.response=linear")
     height, width = raw.shape[:2]
     rgb = raw.ndim == 3
-    steps = [f"read {name}: {width} x {height} px, " + ("linear float .npy" if depth == 0 else f"{depth}-bit")
-             + (" RGB" if rgb else " grey")]
+    steps = [f"read {name}: {read}"]
 
     used = _select(raw, channel)
     saturated = (used >= saturation).any(axis=-1)

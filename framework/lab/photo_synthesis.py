@@ -4,6 +4,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 
 from framework.lab.photo_geometry import bilinear_samples, homography, project_points
@@ -64,3 +66,41 @@ def synthesize_photo(image: np.ndarray, corners: object, photo_shape: tuple[int,
     value = value + black_level_dn / full
     value = np.where(value >= saturate_above, 1.0, value)
     return np.round(np.clip(value, 0.0, 1.0) * full).astype(np.uint8 if bit_depth == 8 else np.uint16)
+
+
+# Adobe DNG 1.4 tags of a Bayer mosaic (the DNG specification, chapter 4), as tifffile's extratags.
+_DNG_VERSION, _CFA_REPEAT, _CFA_PATTERN, _BLACK_REPEAT, _BLACK, _WHITE = 50706, 33421, 33422, 50713, 50714, 50717
+_CFA_COLOUR = {"R": 0, "G": 1, "B": 2}
+
+
+def write_dng(path: str | Path, rgb: np.ndarray, black: tuple[int, int, int] = (512, 512, 512), white: int = 16383,
+              pattern: str = "RGGB", orientation: int = 1) -> Path:
+    """A RAW photo as a DNG: (H, W, 3) linear values in [0, 1] (H, W even) sampled on a Bayer
+    ``pattern`` mosaic, each photosite black + value (white - black) counts (uint16, rounded), with
+    the black level of each colour, the white level and the TIFF ``orientation`` (1: as stored; 3:
+    turned 180 degrees; 6: view turned a quarter clockwise; 8: counter-clockwise) in the file. For
+    tests and synthetic benches of the RAW import (framework/lab/raw_photo.py)."""
+    import tifffile
+
+    rgb = np.asarray(rgb, dtype=np.float64)
+    if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.shape[0] % 2 or rgb.shape[1] % 2:
+        raise ValueError(f"write_dng needs (H, W, 3) values with H and W even, got {rgb.shape}")
+    if sorted(pattern) != ["B", "G", "G", "R"]:
+        raise ValueError(f"pattern={pattern!r} must be a 2 x 2 Bayer pattern such as RGGB, BGGR, GRBG or GBRG")
+    counts = np.empty(rgb.shape[:2], dtype=np.uint16)
+    blacks = []
+    for k, colour in enumerate(pattern):
+        i, j = divmod(k, 2)
+        c = _CFA_COLOUR[colour]
+        blacks.append(int(black[c]))
+        value = np.clip(rgb[i::2, j::2, c], 0.0, 1.0)
+        counts[i::2, j::2] = np.round(black[c] + value * (white - black[c])).astype(np.uint16)
+    tags = [(_DNG_VERSION, "B", 4, (1, 4, 0, 0), True), (_CFA_REPEAT, "H", 2, (2, 2), True),
+            (_CFA_PATTERN, "B", 4, tuple(_CFA_COLOUR[c] for c in pattern), True),
+            (_BLACK_REPEAT, "H", 2, (2, 2), True), (_BLACK, "H", 4, tuple(blacks), True),
+            (_WHITE, "H", 1, (int(white),), True), (50708, "s", 0, "shape-from-caustics synthetic bench", True),
+            (50721, "2i", 9, (1, 1, 0, 1, 0, 1, 0, 1, 1, 1, 0, 1, 0, 1, 0, 1, 1, 1), True),  # ColorMatrix1: identity
+            (50778, "H", 1, (21,), True), (274, "H", 1, (int(orientation),), True)]  # D65; Orientation
+    tifffile.imwrite(str(path), counts, photometric=32803, compression=None, subfiletype=0, metadata=None,
+                     extratags=tags)
+    return Path(path)
