@@ -33,6 +33,7 @@ from framework.core.contracts.data_source import DataRequest, PrintFacts
 from framework.core.data import ReconstructionData
 from framework.data.sources import KnownPrint, file_setting
 from framework.files.image_io import resolve_path
+from framework.lab.screen_markers import MarkerSheet
 from framework.lab.photo_import import PhotoImport, import_photo, save_photo_figure
 from operators.values import is_number
 
@@ -55,9 +56,12 @@ class PhotoData(KnownPrint):
     """A camera photo of the caustic on the screen (``data=photo``).
 
     Args:
-        photo: Path of the photo: 8/16-bit PNG/TIFF (grey or RGB) or a linear .npy.
+        photo: Path of the photo: a camera RAW file (.dng, .cr2, .nef, ...), 8/16-bit PNG/TIFF
+            (grey or RGB) or a linear .npy.
         corners: The receiver's corners in the photo, [[col, row] x 4] in pixels (row 0 at the
             top), in the order bottom-left, bottom-right, top-right, top-left of the receiver.
+        markers: Instead of ``corners``: the layout (.json) of the marker sheet printed around the
+            receiver (sfc-markers); each photo is located by the markers it shows.
         pixel_centre: The coordinate of the first pixel's centre in ``corners``: 0 (NumPy, OpenCV,
             scikit-image) or 0.5 (GIMP, Pillow, Inkscape: the first pixel spans [0, 1]).
         repeat: A second exposure of the same print with the same settings, or None. With it the
@@ -70,17 +74,20 @@ class PhotoData(KnownPrint):
     """
 
     def __init__(self, photo: str | None = None, corners: list[list[float]] | None = None,
-                 pixel_centre: float = 0.0, repeat: str | None = None, channel: str = "grey",
+                 markers: str | None = None, pixel_centre: float = 0.0, repeat: str | None = None,
+                 channel: str = "grey",
                  bit_depth: int | None = None, response: str = "linear", gamma: float = 2.2,
                  black_level: float = 0.0, dark: str | None = None, flat: str | None = None,
                  flat_kind: str = "substrate", saturation: float = 0.98, supersample: int = 4,
                  mask: str | None = None, volume: float | str | None = None, delta: float | str = 0.05,
                  brightness: str = "energy", mask_threshold: float = 1e-3, mask_dilation: float = 0.05) -> None:
         if not photo:
-            raise ValueError("data=photo needs data.photo=<photo .png/.tif/.npy>")
-        if corners is None:
-            raise ValueError("data=photo needs data.corners=[[col,row],[col,row],[col,row],[col,row]]: the "
-                             "receiver's bottom-left, bottom-right, top-right and top-left corners in the photo")
+            raise ValueError("data=photo needs data.photo=<photo: a camera RAW file, .png/.tif or .npy>")
+        if (corners is None) == (markers is None):
+            raise ValueError("data=photo needs either data.markers=<the marker sheet's layout .json, sfc-markers> or "
+                             "data.corners=[[col,row],[col,row],[col,row],[col,row]]: the receiver's bottom-left, "
+                             "bottom-right, top-right and top-left corners in the photo" + (
+                                 "; not both" if markers is not None else ""))
         if flat_kind not in FLAT_KINDS:
             raise ValueError(f"data.flat_kind={flat_kind!r}; use {' or '.join(FLAT_KINDS)}")
         if not is_number(pixel_centre) or pixel_centre not in (0, 0.5):
@@ -92,10 +99,10 @@ class PhotoData(KnownPrint):
                              "settings>, from which the noise level is estimated; or give data.delta=<number>")
         super().__init__(mask, volume, 0.05 if self.estimate_delta else delta, brightness, mask_threshold,
                          mask_dilation)
-        for key, value in (("photo", photo), ("repeat", repeat), ("dark", dark), ("flat", flat)):
+        for key, value in (("photo", photo), ("repeat", repeat), ("dark", dark), ("flat", flat), ("markers", markers)):
             file_setting(key, value)
         self.photo, self.repeat, self.flat, self.flat_kind, self.dark = str(photo), repeat, flat, flat_kind, dark
-        self.corners, self.pixel_centre = corners, float(pixel_centre)
+        self.corners, self.markers, self.pixel_centre = corners, markers, float(pixel_centre)
         self.settings = {"channel": channel, "bit_depth": bit_depth, "response": response, "gamma": gamma,
                          "black_level": black_level, "saturation": saturation, "supersample": supersample}
         self._imported: tuple[Any, list[PhotoImport]] | None = None
@@ -111,12 +118,24 @@ class PhotoData(KnownPrint):
         key = (n, half_width, str(request.base_dir))
         if self._imported is None or self._imported[0] != key:
             path = lambda p: None if p is None else resolve_path(str(p), request.base_dir)  # noqa: E731
-            corners = (self._corners() - self.pixel_centre).tolist()
             photos = [self.photo] + ([self.repeat] if self.repeat else [])
-            imported = [import_photo(path(p), corners, half_width, n, dark=path(self.dark), flat=path(self.flat),
-                                     **self.settings) for p in photos]
+            imported = [import_photo(path(p), self._locator(request), half_width, n, dark=path(self.dark),
+                                     flat=path(self.flat), **self.settings) for p in photos]
             self._imported = (key, imported)
         return self._imported[1]
+
+    def _locator(self, request: DataRequest) -> Any:
+        """What locates the receiver in each photo: the marker sheet (its receiver checked against the
+        scene's), or the typed corners."""
+        if self.markers is None:
+            return (self._corners() - self.pixel_centre).tolist()
+        sheet = MarkerSheet.load(resolve_path(self.markers, request.base_dir))
+        side_mm = 2 * float(request.operator.scene.receiver.half_width) * request.mm_per_unit
+        if abs(sheet.receiver_mm - side_mm) > 1e-3 * side_mm:
+            raise ValueError(f"data.markers={self.markers}: the sheet frames a {sheet.receiver_mm:g} mm receiver but "
+                             f"the scene's is {side_mm:g} mm (2 receiver.half_width x units.mm_per_unit); print a "
+                             f"sheet with sfc-markers --receiver-mm {side_mm:g}, or set the receiver to the sheet's")
+        return sheet
 
     def _corners(self) -> Any:
         """The corners as given, refused in one line when they are not four pairs of numbers."""

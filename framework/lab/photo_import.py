@@ -26,6 +26,7 @@ from framework.files.height_field_io import load_npy
 from framework.files.image_io import existing_file
 from framework.files.plotting import label_xy_axes, normalise, save_figure
 from framework.lab.raw_photo import RAW_SUFFIXES, read_raw
+from framework.lab.screen_markers import MarkerSheet, detect_receiver
 from framework.lab.photo_geometry import (check_corners, check_receiver_grid, homography, inside_receiver, rectify,
                                           saturated_receiver_pixels)
 from operators.values import checked_number, checked_whole
@@ -217,7 +218,7 @@ def _read_like(path: str | Path, what: str, shape: tuple[int, ...], depth: int) 
     return raw
 
 
-def import_photo(path: str | Path, corners: object, half_width: float, resolution: int, *,
+def import_photo(path: str | Path, corners: object | MarkerSheet, half_width: float, resolution: int, *,
                  channel: Channel = "grey", bit_depth: int | None = None, response: Response = "linear",
                  gamma: float = 2.2, black_level: float = 0.0, dark: str | Path | None = None,
                  flat: str | Path | None = None, saturation: float = 0.98, supersample: int = 4,
@@ -225,7 +226,9 @@ def import_photo(path: str | Path, corners: object, half_width: float, resolutio
     """Photo of the caustic -> receiver image (1, n, n) and weights, every step recorded.
 
     corners: receiver corners as photo [col, row] in the order bottom-left, bottom-right,
-    top-right, top-left; half_width: receiver half width W (scene units); resolution: n.
+    top-right, top-left, or the :class:`MarkerSheet` printed around the receiver, whose markers
+    in the photo locate it (framework/lab/screen_markers.py); half_width: receiver half width W
+    (scene units); resolution: n.
     channel: 'grey' (mean of R, G, B; default), 'red', 'green' (matches a 525 nm filter) or
     'blue'; ignored for grey photos. bit_depth: 8, 16 or None (either). response / gamma: see
     :func:`linearize`. black_level: offset in the photo's digital numbers (e.g. 512 of 65535;
@@ -238,6 +241,11 @@ def import_photo(path: str | Path, corners: object, half_width: float, resolutio
     """
     raw, depth, read = _checked_frame(path, bit_depth)
     name = Path(path).name
+    located = None
+    if isinstance(corners, MarkerSheet):
+        sheet = corners
+        located = detect_receiver(raw, sheet, f"photo {name}")
+        corners = located.corners
     if depth == RAW_DEPTH and (black_level or response != "linear"):
         raise ValueError(f"photo {name} is a camera RAW file, read linearly with the file's black level; drop "
                          f"data.black_level={black_level:g} and data.response={response!r} (the defaults 0 and linear)")
@@ -260,7 +268,7 @@ def import_photo(path: str | Path, corners: object, half_width: float, resolutio
                          "set data.response=linear")
     height, width = raw.shape[:2]
     rgb = raw.ndim == 3
-    steps = [f"read {name}: {read}"]
+    steps = [f"read {name}: {read}"] + ([located.describe(sheet)] if located else [])
 
     used = _select(raw, channel)
     saturated = (used >= saturation).any(axis=-1)
