@@ -33,8 +33,10 @@ from framework.core.contracts.data_source import DataRequest, PrintFacts
 from framework.core.data import ReconstructionData
 from framework.data.sources import KnownPrint, file_setting
 from framework.files.image_io import resolve_path
+from framework.lab.lens import LensModel
 from framework.lab.screen_markers import MarkerSheet
-from framework.lab.photo_import import PhotoImport, import_photo, save_photo_figure
+from framework.lab.photo_figure import save_photo_figure
+from framework.lab.photo_import import PhotoImport, import_photo
 from operators.values import is_number
 
 __all__ = ["PhotoData", "two_exposure_delta"]
@@ -62,6 +64,8 @@ class PhotoData(KnownPrint):
             top), in the order bottom-left, bottom-right, top-right, top-left of the receiver.
         markers: Instead of ``corners``: the layout (.json) of the marker sheet printed around the
             receiver (sfc-markers); each photo is located by the markers it shows.
+        lens: The camera's distortion (.json of sfc-lens calibrate), undone on every photo first;
+            None: an ideal lens.
         pixel_centre: The coordinate of the first pixel's centre in ``corners``: 0 (NumPy, OpenCV,
             scikit-image) or 0.5 (GIMP, Pillow, Inkscape: the first pixel spans [0, 1]).
         repeat: A second exposure of the same print with the same settings, or None. With it the
@@ -74,7 +78,8 @@ class PhotoData(KnownPrint):
     """
 
     def __init__(self, photo: str | None = None, corners: list[list[float]] | None = None,
-                 markers: str | None = None, pixel_centre: float = 0.0, repeat: str | None = None,
+                 markers: str | None = None, lens: str | None = None, pixel_centre: float = 0.0,
+                 repeat: str | None = None,
                  channel: str = "grey",
                  bit_depth: int | None = None, response: str = "linear", gamma: float = 2.2,
                  black_level: float = 0.0, dark: str | None = None, flat: str | None = None,
@@ -99,10 +104,11 @@ class PhotoData(KnownPrint):
                              "settings>, from which the noise level is estimated; or give data.delta=<number>")
         super().__init__(mask, volume, 0.05 if self.estimate_delta else delta, brightness, mask_threshold,
                          mask_dilation)
-        for key, value in (("photo", photo), ("repeat", repeat), ("dark", dark), ("flat", flat), ("markers", markers)):
+        for key, value in (("photo", photo), ("repeat", repeat), ("dark", dark), ("flat", flat), ("markers", markers),
+                           ("lens", lens)):
             file_setting(key, value)
         self.photo, self.repeat, self.flat, self.flat_kind, self.dark = str(photo), repeat, flat, flat_kind, dark
-        self.corners, self.markers, self.pixel_centre = corners, markers, float(pixel_centre)
+        self.corners, self.markers, self.lens, self.pixel_centre = corners, markers, lens, float(pixel_centre)
         self.settings = {"channel": channel, "bit_depth": bit_depth, "response": response, "gamma": gamma,
                          "black_level": black_level, "saturation": saturation, "supersample": supersample}
         self._imported: tuple[Any, list[PhotoImport]] | None = None
@@ -119,8 +125,9 @@ class PhotoData(KnownPrint):
         if self._imported is None or self._imported[0] != key:
             path = lambda p: None if p is None else resolve_path(str(p), request.base_dir)  # noqa: E731
             photos = [self.photo] + ([self.repeat] if self.repeat else [])
+            lens = None if self.lens is None else LensModel.load(path(self.lens))
             imported = [import_photo(path(p), self._locator(request), half_width, n, dark=path(self.dark),
-                                     flat=path(self.flat), **self.settings) for p in photos]
+                                     flat=path(self.flat), lens=lens, **self.settings) for p in photos]
             self._imported = (key, imported)
         return self._imported[1]
 

@@ -19,19 +19,18 @@ from pathlib import Path
 from typing import Literal
 
 import numpy as np
-from matplotlib.figure import Figure
 from PIL import Image, UnidentifiedImageError
 
 from framework.files.height_field_io import load_npy
 from framework.files.image_io import existing_file
-from framework.files.plotting import label_xy_axes, normalise, save_figure
+from framework.lab.lens import LensModel
 from framework.lab.raw_photo import RAW_SUFFIXES, read_raw
 from framework.lab.screen_markers import MarkerSheet, detect_receiver
 from framework.lab.photo_geometry import (check_corners, check_receiver_grid, homography, inside_receiver, rectify,
                                           saturated_receiver_pixels)
 from operators.values import checked_number, checked_whole
 
-__all__ = ["FULL_SCALE", "PhotoImport", "read_photo", "linearize", "import_photo", "save_photo_figure"]
+__all__ = ["FULL_SCALE", "PhotoImport", "read_photo", "linearize", "import_photo"]
 
 Response = Literal["linear", "srgb", "gamma"]
 Channel = Literal["grey", "red", "green", "blue"]
@@ -206,7 +205,18 @@ def _linear_frame(raw: np.ndarray, depth: int, channel: Channel, black: float, r
     return linearize(encoded, response, gamma).mean(axis=-1)
 
 
-def _read_like(path: str | Path, what: str, shape: tuple[int, ...], depth: int) -> np.ndarray:
+def _undistorted(raw: np.ndarray, lens: LensModel | None, channel: Channel, saturation: float,
+                 name: str) -> tuple[np.ndarray, np.ndarray]:
+    """The photo (H, W[, 3]) as the ideal lens would see it (``lens`` None: as it is), and where it
+    had saturated pixels before (bool (H, W), spread by the resampling's support)."""
+    if lens is None:
+        return raw, np.zeros(raw.shape[:2], dtype=bool)
+    flags = (_select(raw, channel) >= saturation).any(axis=-1).astype(np.float64)
+    return lens.undistort(raw, name), lens.undistort(flags, name) > 0.0
+
+
+def _read_like(path: str | Path, what: str, shape: tuple[int, ...], depth: int,
+               lens: LensModel | None = None) -> np.ndarray:
     raw, frame_depth, _ = _read_frame(path, what)
     if frame_depth != depth:
         raise ValueError(f"{what} {Path(path).name} is {_kind(frame_depth)} but the photo is {_kind(depth)}; "
@@ -215,14 +225,14 @@ def _read_like(path: str | Path, what: str, shape: tuple[int, ...], depth: int) 
         size = lambda s: f"{s[1]} x {s[0]}" + (" RGB" if len(s) == 3 else " grey")  # noqa: E731
         raise ValueError(f"{what} {Path(path).name} is {size(raw.shape)} but the photo is {size(shape)}; "
                          f"take the {what} with the same camera settings")
-    return raw
+    return raw if lens is None else lens.undistort(raw, f"{what} {Path(path).name}")
 
 
 def import_photo(path: str | Path, corners: object | MarkerSheet, half_width: float, resolution: int, *,
                  channel: Channel = "grey", bit_depth: int | None = None, response: Response = "linear",
                  gamma: float = 2.2, black_level: float = 0.0, dark: str | Path | None = None,
                  flat: str | Path | None = None, saturation: float = 0.98, supersample: int = 4,
-                 max_dropped: float = 0.5) -> PhotoImport:
+                 max_dropped: float = 0.5, lens: LensModel | None = None) -> PhotoImport:
     """Photo of the caustic -> receiver image (1, n, n) and weights, every step recorded.
 
     corners: receiver corners as photo [col, row] in the order bottom-left, bottom-right,
@@ -237,10 +247,13 @@ def import_photo(path: str | Path, corners: object | MarkerSheet, half_width: fl
     divided after normalising by its mean inside the receiver; its pixels below 1e-3 of that mean
     or saturated are unusable). saturation: raw value (fraction of full scale) at or above which a photo pixel is
     saturated in any used channel. Receiver pixels touching saturated or unusable photo pixels get
-    weight 0; more than ``max_dropped`` of them is refused.
+    weight 0; more than ``max_dropped`` of them is refused. lens: the camera's distortion
+    (framework/lab/lens.py), undone on the photo, dark frame and flat field before anything is
+    located or rectified (typed corners then refer to the undistorted photo); None: none.
     """
     raw, depth, read = _checked_frame(path, bit_depth)
     name = Path(path).name
+    raw, saturated_before = _undistorted(raw, lens, channel, saturation, f"photo {name}")
     located = None
     if isinstance(corners, MarkerSheet):
         sheet = corners
@@ -268,10 +281,13 @@ def import_photo(path: str | Path, corners: object | MarkerSheet, half_width: fl
                          "set data.response=linear")
     height, width = raw.shape[:2]
     rgb = raw.ndim == 3
-    steps = [f"read {name}: {read}"] + ([located.describe(sheet)] if located else [])
+    steps = [f"read {name}: {read}"] + ([f"lens distortion undone (k1, k2, p1, p2, k3 = "
+                                         f"{', '.join(f'{k:.4g}' for k in lens.distortion)}; calibrated on "
+                                         f"{lens.views} photos, rms {lens.rms_px:.3f} px)"] if lens else []) + (
+        [located.describe(sheet)] if located else [])
 
     used = _select(raw, channel)
-    saturated = (used >= saturation).any(axis=-1)
+    saturated = (used >= saturation).any(axis=-1) | saturated_before
     if not (used > black_level / full).any():
         raise ValueError(f"photo {name} is all zero after subtracting data.black_level={black_level} {unit} "
                          f"(largest value {used.max() * full:.6g} {unit}); lower data.black_level or check the file")
@@ -287,7 +303,7 @@ def import_photo(path: str | Path, corners: object | MarkerSheet, half_width: fl
 
     dark_values = None
     if dark is not None:
-        dark_values = _linear_frame(_read_like(dark, "dark frame", raw.shape, depth), depth, channel, black_level,
+        dark_values = _linear_frame(_read_like(dark, "dark frame", raw.shape, depth, lens), depth, channel, black_level,
                                     response, gamma)
         values = values - dark_values
         steps.append(f"dark frame {Path(dark).name} subtracted (mean {dark_values.mean():.4g})")
@@ -295,7 +311,7 @@ def import_photo(path: str | Path, corners: object | MarkerSheet, half_width: fl
     h = homography(corners, float(half_width))
     unusable = np.zeros_like(saturated)
     if flat is not None:
-        flat_raw = _read_like(flat, "flat field", raw.shape, depth)
+        flat_raw = _read_like(flat, "flat field", raw.shape, depth, lens)
         flat_values = _linear_frame(flat_raw, depth, channel, black_level, response, gamma)
         if dark_values is not None:
             flat_values = flat_values - dark_values
@@ -350,39 +366,3 @@ def import_photo(path: str | Path, corners: object | MarkerSheet, half_width: fl
                  "bilinear samples averaged per pixel")
     return PhotoImport(image=image, weights=weights, steps=steps, photo=values, corners=corners, homography=h,
                        bad_photo_pixels=bad, half_width=float(half_width), path=Path(path), left_out=left_out)
-
-
-# --- figure --------------------------------------------------------------------------------------
-
-def save_photo_figure(path: str | Path, photo_import: PhotoImport, dpi: int = 150) -> Path:
-    """One PNG: the processed photo with the receiver quadrilateral and labelled corners (bad
-    photo pixels in red), the rectified image (rows y-up) and the weights (0 in red)."""
-    result = photo_import
-    w = result.half_width
-    fig = Figure(figsize=(13.0, 4.4), dpi=dpi, layout="constrained")
-    ax_p, ax_i, ax_w = fig.subplots(1, 3)
-    ax_p.imshow(normalise(result.photo), cmap="gray")
-    if result.bad_photo_pixels.any():
-        overlay = np.zeros(result.photo.shape + (4,))
-        overlay[result.bad_photo_pixels] = (1.0, 0.0, 0.0, 1.0)
-        ax_p.imshow(overlay)
-    loop = np.vstack([result.corners, result.corners[:1]])
-    ax_p.plot(loop[:, 0], loop[:, 1], color="cyan", lw=1.0)
-    for (col, row), label in zip(result.corners, ("BL (-W,-W)", "BR (W,-W)", "TR (W,W)", "TL (-W,W)")):
-        ax_p.plot(col, row, "o", color="cyan", ms=3)
-        ax_p.annotate(label, (col, row), color="yellow", fontsize=7, xytext=(3, 3), textcoords="offset points",
-                      bbox={"facecolor": "black", "alpha": 0.6, "pad": 1, "lw": 0})
-    ax_p.set_title(f"photo {result.path.name} (linear)", fontsize=9)
-    ax_p.set_xlabel("column (px)")
-    ax_p.set_ylabel("row (px)")
-    extent = (-w, w, -w, w)
-    ax_i.imshow(normalise(result.image[0]), origin="lower", extent=extent, cmap="inferno")
-    ax_i.set_title("rectified receiver image", fontsize=9)
-    zero = result.weights[0] == 0
-    ax_w.imshow(normalise(result.image[0]), origin="lower", extent=extent, cmap="gray", alpha=0.5)
-    overlay = np.zeros(zero.shape + (4,))
-    overlay[zero] = (1.0, 0.0, 0.0, 1.0)
-    ax_w.imshow(overlay, origin="lower", extent=extent)
-    ax_w.set_title(f"weights: {int(zero.sum())} receiver pixels at 0 (red)", fontsize=9)
-    label_xy_axes(ax_i, ax_w)
-    return save_figure(fig, path)

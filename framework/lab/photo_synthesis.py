@@ -4,6 +4,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -11,7 +12,7 @@ import numpy as np
 from framework.lab.photo_geometry import bilinear_samples, homography, project_points
 from framework.lab.photo_import import FULL_SCALE
 
-__all__ = ["vignetting_field", "synthesize_photo"]
+__all__ = ["camera_view", "synthesize_photo", "vignetting_field", "write_dng"]
 
 
 def vignetting_field(photo_shape: tuple[int, ...], vignetting: float) -> np.ndarray:
@@ -104,3 +105,39 @@ def write_dng(path: str | Path, rgb: np.ndarray, black: tuple[int, int, int] = (
     tifffile.imwrite(str(path), counts, photometric=32803, compression=None, subfiletype=0, metadata=None,
                      extratags=tags)
     return Path(path)
+
+
+def camera_view(page: np.ndarray, mm_per_px: float, camera_matrix: np.ndarray, distortion: Sequence[float],
+                rotation: Sequence[float], translation_mm: Sequence[float], size: tuple[int, int],
+                outside: float = 0.0, supersample: int = 2) -> np.ndarray:
+    """A photo (H, W) float64 of a flat ``page`` (P_rows, P_cols; row 0 = its top, +y), ``mm_per_px``
+    a page pixel, lying at z = 0 with its centre at the origin, seen by a camera with
+    ``camera_matrix`` and OpenCV's ``distortion`` (k1, k2, p1, p2, k3) whose pose maps the page's
+    points X to R X + ``translation_mm``, R = ``rotation`` (Rodrigues vector) after the half turn
+    about x that makes rotation 0 a view of the printed side, its top up. Each photo pixel is the mean of
+    ``supersample``^2 bilinear samples of the page along the rays of its sub-points; ``outside``
+    where a ray misses the page. ``size`` is (width, height)."""
+    import cv2
+
+    width, height = size
+    offsets = (np.arange(supersample) + 0.5) / supersample - 0.5
+    cols = (np.arange(width)[None, :, None, None] + offsets[None, None, None, :]).repeat(height, 0)
+    rows = (np.arange(height)[:, None, None, None] + offsets[None, None, :, None]).repeat(width, 1)
+    cols, rows = np.broadcast_arrays(cols, rows)
+    pixels = np.stack([cols.ravel(), rows.ravel()], axis=1)
+    rays = cv2.undistortPoints(pixels.reshape(-1, 1, 2), np.asarray(camera_matrix, np.float64),
+                               np.asarray(distortion, np.float64)).reshape(-1, 2)
+    turn, _ = cv2.Rodrigues(np.asarray(rotation, np.float64))
+    turn = turn @ np.diag([1.0, -1.0, -1.0])  # rotation 0: the printed side faces the camera, its top up
+    direction = np.c_[rays, np.ones(len(rays))] @ turn  # R^T d, row-wise
+    origin = -turn.T @ np.asarray(translation_mm, np.float64)  # the camera centre on the page's axes
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s = -origin[2] / direction[:, 2]
+    x, y = origin[0] + s * direction[:, 0], origin[1] + s * direction[:, 1]
+    page_rows, page_cols = page.shape
+    map_x = (x / mm_per_px + page_cols / 2 - 0.5).astype(np.float32)
+    map_y = (page_rows / 2 - y / mm_per_px - 0.5).astype(np.float32)
+    map_x[~(s > 0)] = -1e6
+    seen = cv2.remap(page.astype(np.float64), map_x.reshape(height, -1), map_y.reshape(height, -1), cv2.INTER_LINEAR,
+                     borderMode=cv2.BORDER_CONSTANT, borderValue=outside)
+    return seen.reshape(height, width, supersample, supersample).mean(axis=(2, 3))

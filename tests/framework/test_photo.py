@@ -13,7 +13,8 @@ import pytest
 from PIL import Image
 
 import framework.lab.photo_geometry
-from framework.lab.photo_import import import_photo, linearize, read_photo, save_photo_figure
+from framework.lab.photo_figure import save_photo_figure
+from framework.lab.photo_import import import_photo, linearize, read_photo
 from framework.lab.photo_geometry import check_corners, homography, rectify
 from framework.lab.photo_synthesis import synthesize_photo, vignetting_field
 

@@ -1,0 +1,202 @@
+"""The camera lens's distortion: calibrated from photos of a ChArUco board, saved once, and undone
+on every photo before the receiver is located and rectified (docs/photo_import.md, "Lens
+distortion").
+
+The model is OpenCV's pinhole camera with radial and tangential distortion (k1, k2, p1, p2, k3):
+a point at normalised coordinates (x, y) = K^-1 (u, v, 1) of an ideal lens is seen at
+x (1 + k1 r^2 + k2 r^4 + k3 r^6) + 2 p1 x y + p2 (r^2 + 2 x^2), likewise for y. Undoing it
+resamples the photo onto the ideal lens's pixel grid with the same camera matrix, so pixel
+coordinates keep their meaning (bilinear interpolation, OpenCV's remap).
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["CharucoBoard", "LensModel", "calibrate_lens"]
+
+MIN_VIEWS = 3  # photos of the board with enough corners: fewer cannot tell focal length from distortion
+MIN_CORNERS = 12  # chessboard corners a photo must show to count as a view
+
+
+@dataclass(frozen=True)
+class CharucoBoard:
+    """A ChArUco calibration board: a chessboard whose white squares hold ArUco markers.
+
+    Attributes:
+        squares_x, squares_y: Squares across and down.
+        square_mm: A square's side (mm).
+        marker_mm: A marker's side inside its square (mm).
+        dictionary: The OpenCV ArUco dictionary.
+    """
+
+    squares_x: int = 9
+    squares_y: int = 6
+    square_mm: float = 10.0
+    marker_mm: float = 7.0
+    dictionary: str = "DICT_4X4_50"
+
+    def __post_init__(self) -> None:
+        import cv2
+
+        if not (isinstance(self.squares_x, int) and isinstance(self.squares_y, int) and min(self.squares_x,
+                                                                                              self.squares_y) >= 3):
+            raise ValueError(f"board squares {self.squares_x} x {self.squares_y} must be whole numbers >= 3")
+        if not 0 < self.marker_mm < self.square_mm:
+            raise ValueError(f"board marker_mm={self.marker_mm!r} must lie in (0, square_mm={self.square_mm!r})")
+        if not isinstance(cv2.aruco.__dict__.get(self.dictionary), int):
+            raise ValueError(f"board dictionary={self.dictionary!r} is not an OpenCV ArUco dictionary, e.g. "
+                             "DICT_4X4_50")
+
+    def board(self):  # noqa: ANN201 (cv2.aruco.CharucoBoard)
+        """OpenCV's board, lengths in mm."""
+        import cv2
+
+        dictionary = cv2.aruco.getPredefinedDictionary(int(cv2.aruco.__dict__[self.dictionary]))
+        return cv2.aruco.CharucoBoard((self.squares_x, self.squares_y), self.square_mm, self.marker_mm, dictionary)
+
+    def render(self, dpi: float = 600.0) -> np.ndarray:
+        """The board to print at ``dpi``: (rows, cols) uint8 with a white margin of one square (the
+        detector needs it around the outer black squares)."""
+        per_mm = dpi / 25.4
+        margin = int(round(self.square_mm * per_mm))
+        size = (int(round(self.squares_x * self.square_mm * per_mm)) + 2 * margin,
+                int(round(self.squares_y * self.square_mm * per_mm)) + 2 * margin)
+        return self.board().generateImage(size, marginSize=margin, borderBits=1)
+
+    def save(self, path: str | Path, dpi: float = 600.0) -> tuple[Path, Path]:
+        """The board's PNG (``dpi`` in the file) and its description beside it (.json)."""
+        from PIL import Image
+
+        png = Path(path).with_suffix(".png")
+        Image.fromarray(self.render(dpi)).save(png, dpi=(dpi, dpi))
+        layout = png.with_suffix(".json")
+        layout.write_text(json.dumps(asdict(self), indent=2))
+        return png, layout
+
+    @classmethod
+    def load(cls, path: str | Path) -> CharucoBoard:
+        """A board :meth:`save` described."""
+        values = _read_json(path, "a ChArUco board written by sfc-lens board")
+        try:
+            return cls(**values)
+        except TypeError as error:
+            raise ValueError(f"{path} is not a ChArUco board written by sfc-lens board ({error})") from None
+
+    def detect(self, grey: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The board's chessboard corners seen in a photo (H, W) uint8: (k, 2) photo pixels and
+        (k, 3) board points (mm, z = 0); k = 0 when the board is not seen."""
+        import cv2
+
+        board = self.board()
+        corners, ids, _, _ = cv2.aruco.CharucoDetector(board).detectBoard(grey)
+        if ids is None or len(ids) == 0:
+            return np.zeros((0, 2)), np.zeros((0, 3))
+        points = np.asarray(board.getChessboardCorners(), dtype=np.float64)[ids.ravel()]
+        return corners.reshape(-1, 2).astype(np.float64), points
+
+
+@dataclass(frozen=True)
+class LensModel:
+    """A calibrated camera: ``camera_matrix`` (3 x 3, pixels), ``distortion`` (k1, k2, p1, p2,
+    k3), the ``image_size`` (width, height) it holds for, the calibration's reprojection ``rms_px``
+    and the number of ``views`` it came from."""
+
+    camera_matrix: tuple[tuple[float, ...], ...]
+    distortion: tuple[float, ...]
+    image_size: tuple[int, int]
+    rms_px: float
+    views: int
+
+    def save(self, path: str | Path) -> Path:
+        """The model as JSON."""
+        Path(path).write_text(json.dumps(asdict(self), indent=2))
+        return Path(path)
+
+    @classmethod
+    def load(cls, path: str | Path) -> LensModel:
+        """A model :meth:`save` wrote."""
+        values = _read_json(path, "a lens calibration written by sfc-lens calibrate")
+        try:
+            return cls(camera_matrix=tuple(tuple(float(v) for v in row) for row in values["camera_matrix"]),
+                       distortion=tuple(float(v) for v in values["distortion"]),
+                       image_size=(int(values["image_size"][0]), int(values["image_size"][1])),
+                       rms_px=float(values["rms_px"]), views=int(values["views"]))
+        except (KeyError, TypeError, ValueError, IndexError) as error:
+            raise ValueError(f"{path} is not a lens calibration written by sfc-lens calibrate ({error})") from None
+
+    def undistort(self, values: np.ndarray, name: str = "photo") -> np.ndarray:
+        """``values`` (H, W[, 3]) resampled as the ideal lens would have seen them (same shape);
+        ValueError in one line for a photo of another size than the calibration's."""
+        import cv2
+
+        height, width = values.shape[:2]
+        if (width, height) != tuple(self.image_size):
+            raise ValueError(f"{name} is {width} x {height} px but the lens was calibrated on {self.image_size[0]} x "
+                             f"{self.image_size[1]} px photos; calibrate it again at this size (sfc-lens calibrate), "
+                             "or take the photo at the calibrated one")
+        k = np.asarray(self.camera_matrix, dtype=np.float64)
+        map_x, map_y = cv2.initUndistortRectifyMap(k, np.asarray(self.distortion), None, k, (width, height),
+                                                   cv2.CV_32FC1)
+        out = cv2.remap(values.astype(np.float64), map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
+                        borderValue=0.0)
+        return out.reshape(values.shape)
+
+    def displacement(self, points: np.ndarray) -> np.ndarray:
+        """(k, 2) where the lens shows ideal pixel positions ``points`` (k, 2): the distortion map."""
+        import cv2
+
+        k = np.asarray(self.camera_matrix, dtype=np.float64)
+        ideal = cv2.undistortPoints(points.reshape(-1, 1, 2).astype(np.float64), k, np.zeros(5))
+        seen, _ = cv2.projectPoints(np.c_[ideal.reshape(-1, 2), np.ones(len(points))], np.zeros(3), np.zeros(3), k,
+                                    np.asarray(self.distortion))
+        return seen.reshape(-1, 2)
+
+
+def calibrate_lens(photos: Sequence[np.ndarray], board: CharucoBoard, names: Sequence[str] | None = None) -> LensModel:
+    """The lens from photos (each (H, W[, 3]) linear values, one size) of ``board`` in several
+    poses. ValueError in one line with fewer than MIN_VIEWS usable photos (naming the others)."""
+    import cv2
+
+    names = list(names or [f"photo {k}" for k in range(len(photos))])
+    sizes = {p.shape[:2] for p in photos}
+    if len(sizes) != 1:
+        raise ValueError(f"the calibration photos have sizes {sorted(sizes)}; take them all at one size")
+    object_points, image_points, unused = [], [], []
+    for photo, name in zip(photos, names):
+        grey = photo.mean(axis=-1) if photo.ndim == 3 else photo
+        top = float(np.percentile(grey, 99.5)) or 1.0
+        seen, points = board.detect(np.round(255 * np.clip(grey / top, 0, 1)).astype(np.uint8))
+        if len(seen) < MIN_CORNERS:
+            unused.append(f"{name} ({len(seen)} corners)")
+            continue
+        image_points.append(seen.astype(np.float32))
+        object_points.append(points.astype(np.float32))
+    if len(image_points) < MIN_VIEWS:
+        raise ValueError(f"{len(image_points)} photos show the board with at least {MIN_CORNERS} corners, "
+                         f"{MIN_VIEWS} needed (unused: {', '.join(unused) or 'none'}); photograph the whole board "
+                         "tilted a different way each time, filling the frame")
+    height, width = next(iter(sizes))
+    rms, k, dist, _, _ = cv2.calibrateCamera(object_points, image_points, (width, height), None, None)
+    return LensModel(camera_matrix=tuple(tuple(float(v) for v in row) for row in k),
+                     distortion=tuple(float(v) for v in np.ravel(dist)[:5]), image_size=(width, height),
+                     rms_px=float(rms), views=len(image_points))
+
+
+def _read_json(path: str | Path, what: str) -> dict:
+    """A JSON object from ``path``, refused in one line if it is not one."""
+    p = Path(path)
+    try:
+        values = json.loads(p.read_text())
+    except FileNotFoundError:
+        raise FileNotFoundError(f"{p}: no such file; it should be {what}") from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as error:
+        raise ValueError(f"{p} is not {what} ({error})") from None
+    if not isinstance(values, dict):
+        raise ValueError(f"{p} is not {what}")
+    return values
