@@ -182,7 +182,10 @@ def calibrate_lens(photos: Sequence[np.ndarray], board: CharucoBoard, names: Seq
                          f"{MIN_VIEWS} needed (unused: {', '.join(unused) or 'none'}); photograph the whole board "
                          "tilted a different way each time, filling the frame")
     height, width = next(iter(sizes))
-    rms, k, dist, _, _ = cv2.calibrateCamera(object_points, image_points, (width, height), None, None)
+    # k3 stays 0: a bench's macro lens bends as k1, k2 describe, and a free k3 fitted to boards that
+    # do not reach the frame's corners throws the corners out by tens of pixels
+    rms, k, dist, _, _ = cv2.calibrateCamera(object_points, image_points, (width, height), None, None,
+                                             flags=cv2.CALIB_FIX_K3)
     return LensModel(camera_matrix=tuple(tuple(float(v) for v in row) for row in k),
                      distortion=tuple(float(v) for v in np.ravel(dist)[:5]), image_size=(width, height),
                      rms_px=float(rms), views=len(image_points))

@@ -1,15 +1,15 @@
 """Camera RAW photos read linearly through LibRaw (rawpy): the sensor's own counts, nothing the
-camera's or a converter's pipeline adds (no demosaicing, white balance, colour matrix, tone curve
-or brightening).
+camera's or a converter's pipeline adds (no white balance, colour matrix, tone curve or
+brightening).
 
-Each 2 x 2 cell of the Bayer mosaic is one colour sample: its red, green (mean of the two greens)
-and blue photosites, each with the file's black level of its position subtracted and divided by
-white level - black level, so a value is a fraction of the sensor's full scale in [0, 1]. The
-cell's value fills its four photo pixels, so the frame keeps the photo's size and pixel
-coordinates (corners read off the photo in any viewer). A cell whose photosite of a colour
-reached the white level reports that colour at its largest photosite, so the import's saturation
-test (framework/lab/photo_import.py, ``data.saturation``) sees it. The frame is turned as the file
-says the camera was held (LibRaw's ``flip``), as a viewer shows it.
+Every photosite has the file's black level of its position subtracted and is divided by white
+level - black level, so a value is a fraction of the sensor's full scale in [0, 1]. Each colour
+(red, green, blue) is then filled in at every photo pixel by bilinear interpolation of its own
+photosites (normalised convolution with the kernel [1 2 1]^T [1 2 1] / 4; a photosite keeps its
+own value), a linear map, so the frame keeps the photo's size, pixel coordinates and resolution.
+A pixel whose interpolation reaches a photosite at the white level reads 1 in that colour, so the
+import's saturation test (framework/lab/photo_import.py, ``data.saturation``) sees it. The frame is
+turned as the file says the camera was held (LibRaw's ``flip``), as a viewer shows it.
 
 Mosaics other than a 2 x 2 pattern of red, green and blue (Fuji's X-Trans, CMYG, linear DNGs)
 are refused in one line with a way to convert them.
@@ -30,6 +30,7 @@ _CONVERT = ("convert it to a 16-bit linear TIFF of the sensor's values (e.g. dcr
             "data.black_level")
 # LibRaw's flip: 0 none, 3 turned 180 degrees, 5 a quarter turn counter-clockwise, 6 clockwise.
 _QUARTER_TURNS = {0: 0, 3: 2, 5: 1, 6: -1}
+_BILINEAR = np.outer([1.0, 2.0, 1.0], [1.0, 2.0, 1.0]) / 4.0  # bilinear interpolation on a Bayer colour's sites
 
 
 class RawFrame:
@@ -51,7 +52,7 @@ class RawFrame:
         height, width = self.values.shape[:2]
         black = ", ".join(f"{b:g}" for b in self.black)
         return (f"{width} x {height} px camera RAW, {self.pattern} mosaic read linearly (black {black}, white "
-                f"{self.white:g} counts; one colour sample per 2 x 2 cell)")
+                f"{self.white:g} counts; each colour interpolated bilinearly from its photosites)")
 
 
 def read_raw(path: str | Path, what: str = "photo") -> RawFrame:
@@ -83,25 +84,28 @@ def read_raw(path: str | Path, what: str = "photo") -> RawFrame:
     rows, cols = counts.shape[0] // 2 * 2, counts.shape[1] // 2 * 2
     if rows < 2 or cols < 2:
         raise ValueError(f"{what} {p.name} has a {counts.shape[1]} x {counts.shape[0]} sensor image; too small to read")
-    per_colour: dict[str, list[np.ndarray]] = {"R": [], "G": [], "B": []}
+    counts = counts[:rows, :cols]
+    sites = {c: np.zeros((rows, cols), dtype=bool) for c in "RGB"}
+    black_map = np.empty((rows, cols))
     black_of: dict[str, float] = {}
     for k, colour in enumerate(colours):
         i, j = divmod(k, 2)
-        black = float(blacks[int(pattern[i, j])])
-        per_colour[colour].append(np.clip((counts[i:rows:2, j:cols:2] - black) / (white - black), 0.0, 1.0))
-        black_of[colour] = black
-    cells = np.stack([_cell_value(per_colour[c]) for c in "RGB"], axis=-1)
-    values = np.repeat(np.repeat(cells, 2, axis=0), 2, axis=1)
+        black_of[colour] = black_map[i::2, j::2] = float(blacks[int(pattern[i, j])])
+        sites[colour][i::2, j::2] = True
+    fraction = np.clip((counts - black_map) / (white - black_map), 0.0, 1.0)
+    values = np.stack([_interpolated(fraction, sites[c]) for c in "RGB"], axis=-1)
     values = np.rot90(values, _QUARTER_TURNS.get(flip, 0)).copy()
     return RawFrame(values, (black_of["R"], black_of["G"], black_of["B"]), white, colours)
 
 
-def _cell_value(sites: list[np.ndarray]) -> np.ndarray:
-    """A colour's value per cell: the mean of its photosites, or their largest where one reached
-    the white level (the import then finds the cell saturated)."""
-    if len(sites) == 1:
-        return sites[0]
-    stacked = np.stack(sites)
-    top = stacked.max(axis=0)
-    return np.where(top >= 1.0, top, stacked.mean(axis=0))
+def _interpolated(fraction: np.ndarray, sites: np.ndarray) -> np.ndarray:
+    """One colour (H, W) at every pixel from its photosites ``sites`` (bool (H, W)): its own value
+    there, elsewhere the bilinear interpolation of the neighbouring ones; 1 where that reaches a
+    photosite at the white level."""
+    from scipy.ndimage import convolve
+
+    weight = convolve(sites.astype(np.float64), _BILINEAR, mode="mirror")
+    value = convolve(np.where(sites, fraction, 0.0), _BILINEAR, mode="mirror") / weight
+    clipped = convolve((sites & (fraction >= 1.0)).astype(np.float64), _BILINEAR, mode="mirror") > 0.0
+    return np.where(sites, fraction, np.where(clipped, 1.0, value))
 
