@@ -18,6 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
+from framework.lab.printables import read_layout, save_printable
+
 __all__ = ["CharucoBoard", "LensModel", "calibrate_lens"]
 
 MIN_VIEWS = 3  # photos of the board with enough corners: fewer cannot tell focal length from distortion
@@ -71,18 +73,12 @@ class CharucoBoard:
 
     def save(self, path: str | Path, dpi: float = 600.0) -> tuple[Path, Path]:
         """The board's PNG (``dpi`` in the file) and its description beside it (.json)."""
-        from PIL import Image
-
-        png = Path(path).with_suffix(".png")
-        Image.fromarray(self.render(dpi)).save(png, dpi=(dpi, dpi))
-        layout = png.with_suffix(".json")
-        layout.write_text(json.dumps(asdict(self), indent=2))
-        return png, layout
+        return save_printable(self.render(dpi), asdict(self), path, dpi)
 
     @classmethod
     def load(cls, path: str | Path) -> CharucoBoard:
         """A board :meth:`save` described."""
-        values = _read_json(path, "a ChArUco board written by sfc-lens board")
+        values = read_layout(path, "a ChArUco board written by sfc-lens board")
         try:
             return cls(**values)
         except TypeError as error:
@@ -121,7 +117,7 @@ class LensModel:
     @classmethod
     def load(cls, path: str | Path) -> LensModel:
         """A model :meth:`save` wrote."""
-        values = _read_json(path, "a lens calibration written by sfc-lens calibrate")
+        values = read_layout(path, "a lens calibration written by sfc-lens calibrate")
         try:
             return cls(camera_matrix=tuple(tuple(float(v) for v in row) for row in values["camera_matrix"]),
                        distortion=tuple(float(v) for v in values["distortion"]),
@@ -190,16 +186,3 @@ def calibrate_lens(photos: Sequence[np.ndarray], board: CharucoBoard, names: Seq
                      distortion=tuple(float(v) for v in np.ravel(dist)[:5]), image_size=(width, height),
                      rms_px=float(rms), views=len(image_points))
 
-
-def _read_json(path: str | Path, what: str) -> dict:
-    """A JSON object from ``path``, refused in one line if it is not one."""
-    p = Path(path)
-    try:
-        values = json.loads(p.read_text())
-    except FileNotFoundError:
-        raise FileNotFoundError(f"{p}: no such file; it should be {what}") from None
-    except (json.JSONDecodeError, UnicodeDecodeError) as error:
-        raise ValueError(f"{p} is not {what} ({error})") from None
-    if not isinstance(values, dict):
-        raise ValueError(f"{p} is not {what}")
-    return values

@@ -15,11 +15,12 @@ the receiver's corners.
 
 from __future__ import annotations
 
-import json
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
+
+from framework.lab.printables import read_layout, save_printable
 
 __all__ = ["MarkerFit", "MarkerSheet", "detect_receiver"]
 
@@ -105,27 +106,16 @@ class MarkerSheet:
     def save(self, path: str | Path, dpi: float = 600.0) -> tuple[Path, Path]:
         """The sheet as a PNG that prints at its size (``dpi`` in the file) and its layout beside it
         (the same name, ``.json``); returns both paths."""
-        from PIL import Image
-
-        png = Path(path).with_suffix(".png")
-        Image.fromarray(self.render(dpi)).save(png, dpi=(dpi, dpi))
-        layout = png.with_suffix(".json")
-        layout.write_text(json.dumps(asdict(self), indent=2))
-        return png, layout
+        return save_printable(self.render(dpi), asdict(self), path, dpi)
 
     @classmethod
     def load(cls, path: str | Path) -> MarkerSheet:
         """The layout a :meth:`save` wrote (``.json``), refused in one line if it is not one."""
-        p = Path(path)
+        values = read_layout(path, "a marker layout written by sfc-markers (the .json beside the sheet's PNG)")
         try:
-            values = json.loads(p.read_text())
             return cls(**values)
-        except FileNotFoundError:
-            raise FileNotFoundError(f"data.markers={str(p)!r}: no such marker layout; write one with "
-                                    "sfc-markers") from None
-        except (json.JSONDecodeError, UnicodeDecodeError, TypeError) as error:
-            raise ValueError(f"data.markers={str(p)!r} is not a marker layout written by sfc-markers ({error}); give "
-                             "the .json written beside the sheet's PNG") from None
+        except TypeError as error:
+            raise ValueError(f"{path} is not a marker layout written by sfc-markers ({error})") from None
 
 
 @dataclass(frozen=True)
