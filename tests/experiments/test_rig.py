@@ -10,15 +10,15 @@ import yaml
 from experiments.apps.configs import app_config
 from experiments.apps.rig import main
 from framework.reconstruction.parts import Reconstruction
-from tests.framework.test_lab_bench import SHEET, _page, _photograph
+from tests.framework.test_lab_bench import BENCH, caustic_page
 
 
 @pytest.fixture(scope="module")
 def bench(tmp_path_factory):
     root = tmp_path_factory.mktemp("bench")
-    SHEET.save(root / "sheet", dpi=406.4)
-    np.save(root / "bare.npy", _photograph(_page(lit=False), noise=0.005, seed=1))
-    np.save(root / "flat.npy", _photograph(_page(lit=True), noise=0.0025, seed=2))
+    BENCH.sheet.save(root / "sheet", dpi=406.4)
+    np.save(root / "bare.npy", BENCH.photograph(caustic_page(), noise=0.005, seed=1))
+    np.save(root / "flat.npy", BENCH.photograph(BENCH.page(None), noise=0.0025, seed=2))
     np.save(root / "dark.npy", np.zeros((1500, 2000)))
     return root
 

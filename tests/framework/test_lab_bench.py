@@ -1,7 +1,8 @@
-"""A synthetic bench, end to end: the caustic on a screen framed by the marker sheet, photographed
-obliquely through a lens with barrel distortion and vignetting, with noise, written as camera RAW
-(DNG), and imported with no corners typed, the lens calibrated from photos of a ChArUco board
-(never the lens the photos were made with) and the vignetting divided out by a flat field."""
+"""A synthetic bench, end to end (framework/lab/synthetic_bench.py): the caustic on a screen framed
+by the marker sheet, photographed obliquely through a lens with barrel distortion and vignetting,
+with noise, written as camera RAW (DNG), and imported with no corners typed, the lens calibrated
+from photos of a ChArUco board (never the lens the photos were made with) and the vignetting
+divided out by a flat field."""
 
 from __future__ import annotations
 
@@ -10,16 +11,10 @@ import pytest
 
 from framework.lab.lens import CharucoBoard, calibrate_lens
 from framework.lab.photo_import import import_photo
-from framework.lab.photo_synthesis import camera_view, vignetting_field, write_dng
-from framework.lab.screen_markers import MarkerSheet
+from framework.lab.photo_synthesis import write_dng
+from framework.lab.synthetic_bench import SyntheticBench
 
-SIZE = (2000, 1500)  # the receiver about 930 photo pixels wide, 7 a receiver pixel at 128
-K = np.array([[2800.0, 0.0, 1000.0], [0.0, 2800.0, 750.0], [0.0, 0.0, 1.0]])
-BARREL = (-0.05, 0.0, 0.0, 0.0, 0.0)  # 0.9% at the frame's corners
-PER_MM = 16.0  # page pixels a millimetre: every marker edge and the receiver's on a pixel edge
-SHEET = MarkerSheet(receiver_mm=50.0)
-POSE = ((0.15, -0.1, 0.05), (1.0, -2.0, 150.0))
-VIGNETTING = 0.25
+BENCH = SyntheticBench()
 
 
 def _caustic(x: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -29,29 +24,17 @@ def _caustic(x: np.ndarray, y: np.ndarray) -> np.ndarray:
     return 0.25 + 0.45 * np.exp(-((x - 5) ** 2 + (y + 3) ** 2) / 60.0) + 0.3 * lines
 
 
-def _page(lit: bool) -> np.ndarray:
-    """The screen as the camera sees it: the sheet, its markers black, and on the paper the caustic
-    (0.35 around the receiver) or, ``lit``, even light of 0.6 (the flat field)."""
-    page = SHEET.render(PER_MM * 25.4).astype(np.float64) / 255 * (0.6 if lit else 0.35)
-    if not lit:
-        size = page.shape[0]
-        inner = int(round(SHEET.receiver_mm * PER_MM))
-        start = (size - inner) // 2
-        centres = (np.arange(inner) + 0.5) / PER_MM - SHEET.receiver_mm / 2
-        x, y = np.meshgrid(centres, -centres)  # row 0 = the receiver's top (+y)
-        page[start:start + inner, start:start + inner] = _caustic(x, y)
-    return page
-
-
-def _photograph(page: np.ndarray, noise: float, seed: int) -> np.ndarray:
-    seen = camera_view(page, 1.0 / PER_MM, K, BARREL, *POSE, SIZE, outside=0.02)
-    seen = seen * vignetting_field(seen.shape, VIGNETTING)
-    return np.clip(seen + noise * np.random.default_rng(seed).standard_normal(seen.shape), 0.0, 1.0)
+def caustic_page() -> np.ndarray:
+    """The bench's screen with the caustic sampled at the page's pixel centres."""
+    half = BENCH.sheet.receiver_mm / 2
+    centres = (np.arange(BENCH.receiver_pixels()) + 0.5) / BENCH.per_mm - half
+    x, y = np.meshgrid(centres, -centres)  # row 0 = the receiver's top (+y)
+    return BENCH.page(_caustic(x, y))
 
 
 def _truth(n: int) -> np.ndarray:
     """The caustic area-averaged on the receiver's n x n pixels (rows y-up), 8 x 8 samples each."""
-    sub = (np.arange(8 * n) + 0.5) / (8 * n) * SHEET.receiver_mm - SHEET.receiver_mm / 2
+    sub = (np.arange(8 * n) + 0.5) / (8 * n) * BENCH.sheet.receiver_mm - BENCH.sheet.receiver_mm / 2
     x, y = np.meshgrid(sub, sub)
     return _caustic(x, y).reshape(n, 8, n, 8).mean(axis=(1, 3))
 
@@ -59,19 +42,13 @@ def _truth(n: int) -> np.ndarray:
 @pytest.mark.slow
 def test_the_bench_is_rectified_to_half_a_percent_with_no_corners_typed(tmp_path):
     board = CharucoBoard()
-    board_page = board.render(254.0).astype(np.float64) / 255
-    # the board tilted four ways toward the frame's corners and twice in its middle
-    board_poses = [((0.3, 0.0, 0.0), (-35, -25, 250)), ((-0.3, 0.1, 0.0), (35, -25, 260)),
-                   ((0.0, 0.35, 0.1), (-35, 25, 245)), ((0.1, -0.35, -0.1), (35, 25, 250)),
-                   ((0.25, 0.25, 0.3), (0, 0, 240)), ((-0.2, -0.25, -0.2), (0, 0, 230))]
-    lens = calibrate_lens([0.1 + 0.8 * camera_view(board_page, 0.1, K, BARREL, r, t, SIZE, outside=1.0,
-                                                   supersample=1) for r, t in board_poses], board)
+    lens = calibrate_lens(BENCH.board_photos(board), board)
     # noise: 0.5% of full scale, a RAW at base ISO; the flat field the mean of four such exposures
-    photo = _photograph(_page(lit=False), noise=0.005, seed=1)
-    flat = _photograph(_page(lit=True), noise=0.0025, seed=2)
+    photo = BENCH.photograph(caustic_page(), noise=0.005, seed=1)
+    flat = BENCH.photograph(BENCH.page(None), noise=0.0025, seed=2)
     write_dng(tmp_path / "print.dng", np.repeat(photo[..., None], 3, axis=2))
     write_dng(tmp_path / "flat.dng", np.repeat(flat[..., None], 3, axis=2))
-    result = import_photo(tmp_path / "print.dng", SHEET, 1.0, 128, channel="green", flat=tmp_path / "flat.dng",
+    result = import_photo(tmp_path / "print.dng", BENCH.sheet, 1.0, 128, channel="green", flat=tmp_path / "flat.dng",
                           lens=lens)
     image, truth = result.image[0], _truth(128)
     error = np.linalg.norm(image / image.mean() - truth / truth.mean()) / np.linalg.norm(truth / truth.mean())
