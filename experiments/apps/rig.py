@@ -23,13 +23,14 @@ from pathlib import Path
 
 import yaml
 
+import conf
 from experiments.apps.input_errors import run_command
 from framework.lab.lens import LensModel
 from framework.lab.photo_import import read_photo
 from framework.lab.screen_markers import MarkerSheet, detect_receiver
 
 INPUT_ERROR_STATUS = 2
-CONFIG_ROOT = Path("sfc_conf")  # on the config search path of conf/reconstruct.yaml
+CONFIG_ROOT = Path(conf.USER_CONFIGS)  # on the config search path of conf/reconstruct.yaml
 
 
 def parser() -> argparse.ArgumentParser:
