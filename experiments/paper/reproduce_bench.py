@@ -17,7 +17,6 @@ experiment ``lab`` in --store (default mlruns/), its files under --work (default
 
 from __future__ import annotations
 
-import argparse
 from pathlib import Path
 from typing import Any
 
@@ -26,8 +25,8 @@ import torch
 
 from experiments.apps.configs import reconstruct_config
 from experiments.paper.mlflow_store import TrackingStore
-from experiments.paper.reproduce_lab import (SCENES, SCREEN_SIGMA, error_against, imported_error, photo_table,
-                                             true_caustic, truth_and_volume, with_noise, _run)
+from experiments.paper.reproduce_lab import (SCREEN_SIGMA, photo_against_render, photo_table, study_parser,
+                                             true_caustic)
 from framework.core.data import resample_image
 from framework.lab.lens import CharucoBoard, calibrate_lens
 from framework.lab.photo_synthesis import write_dng
@@ -70,33 +69,12 @@ def bench_study(scene: str, work: Path, store: TrackingStore, overrides: list[st
     """One scene: the imported image's error and both reconstruction errors."""
     base = [f"scene={scene}", "screen.psf=gaussian", f"screen.sigma={SCREEN_SIGMA}", *overrides]
     cfg = reconstruct_config(base)
-    seed = int(cfg["seed"])
-    files = write_bench(cfg, work / scene, reference_photons, seed)
-    truth, volume = truth_and_volume(cfg)
-    args = bench_arguments(files, volume)
-    import_error, weights = imported_error(base, args, files, work / scene)
-    delta = max(import_error, 0.01)
-    np.save(work / scene / "clean_noisy.npy", with_noise(files["clean"], delta, seed))
-    from_photo = _run([*base, *args, f"data.delta={delta}"], work / scene, store, "photo")
-    from_clean = _run([*base, "data=file", f"data.image={work / scene / 'clean_noisy.npy'}", "data.mask=design",
-                       f"data.volume={volume}", f"data.delta={delta}"], work / scene, store, "clean")
-    return {"scene": scene, "import_error": import_error, "delta": delta,
-            "saturated_photo_pixels": files["saturated_photo_pixels"], "weighted_out": int((weights == 0).sum()),
-            "photo_error": error_against(truth, work / scene / "photo", cfg),
-            "clean_error": error_against(truth, work / scene / "clean", cfg),
-            "photo_iterations": from_photo["iterations"], "clean_iterations": from_clean["iterations"]}
+    files = write_bench(cfg, work / scene, reference_photons, int(cfg["seed"]))
+    return photo_against_render(scene, base, cfg, files, bench_arguments, work / scene, store)
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--scenes", nargs="+", default=list(SCENES))
-    parser.add_argument("--store", type=Path, default=Path("mlruns"), help="MLflow store directory")
-    parser.add_argument("--tracking-uri", default=None, help="a shared MLflow tracking server instead of --store")
-    parser.add_argument("--work", type=Path, default=Path("outputs/bench"))
-    parser.add_argument("--out", type=Path, default=Path("docs/results"))
-    parser.add_argument("--reference-photons", type=int, default=1 << 22, help="photons of the truth's renders")
-    parser.add_argument("--overrides", nargs="*", default=[], help="extra Hydra overrides for every run")
-    args = parser.parse_args(argv)
+    args = study_parser(__doc__.splitlines()[0], "outputs/bench").parse_args(argv)
     store, work = TrackingStore(args.store.resolve(), args.tracking_uri), args.work.resolve()
     args.out.mkdir(parents=True, exist_ok=True)
     rows = [bench_study(s, work, store, args.overrides, args.reference_photons) for s in args.scenes]

@@ -32,6 +32,7 @@ from __future__ import annotations
 import argparse
 import json
 from pathlib import Path
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -148,22 +149,29 @@ def photo_study(scene: str, work: Path, store: TrackingStore, overrides: list[st
     caustic is rendered with ``reference_photons``."""
     base = [f"scene={scene}", "screen.psf=gaussian", f"screen.sigma={SCREEN_SIGMA}", *overrides]
     cfg = reconstruct_config(base)
-    seed = int(cfg["seed"])
-    files = write_photos(cfg, work / scene, reference_photons, seed)
+    files = write_photos(cfg, work / scene, reference_photons, int(cfg["seed"]))
+    return photo_against_render(scene, base, cfg, files, photo_arguments, work / scene, store)
+
+
+def photo_against_render(scene: str, base: list[str], cfg: dict[str, Any], files: dict[str, Any],
+                         arguments: Callable[[dict[str, Any], float], list[str]], work: Path,
+                         store: TrackingStore) -> dict[str, Any]:
+    """The photo's import error, and the reconstructions from the photo (``arguments``' overrides)
+    and from the clean render with as much relative noise as the import's error (at least 1%),
+    each against the truth."""
     truth, volume = truth_and_volume(cfg)
-    photo_args = photo_arguments(files, volume)
+    photo_args = arguments(files, volume)
     # The imported image's error against the clean render decides the noise level both runs get.
-    import_error, weights = imported_error(base, photo_args, files, work / scene)
+    import_error, weights = imported_error(base, photo_args, files, work)
     delta = max(import_error, 0.01)
-    np.save(work / scene / "clean_noisy.npy", with_noise(files["clean"], delta, seed))
-    from_photo = _run([*base, *photo_args, f"data.delta={delta}"], work / scene, store, "photo")
-    from_clean = _run([*base, "data=file", f"data.image={work / scene / 'clean_noisy.npy'}", "data.mask=design",
-                       f"data.volume={volume}", f"data.delta={delta}"], work / scene, store, "clean")
-    truth_error = lambda run: error_against(truth, work / scene / run, cfg)  # noqa: E731
+    np.save(work / "clean_noisy.npy", with_noise(files["clean"], delta, int(cfg["seed"])))
+    from_photo = _run([*base, *photo_args, f"data.delta={delta}"], work, store, "photo")
+    from_clean = _run([*base, "data=file", f"data.image={work / 'clean_noisy.npy'}", "data.mask=design",
+                       f"data.volume={volume}", f"data.delta={delta}"], work, store, "clean")
     return {"scene": scene, "import_error": import_error, "delta": delta,
             "saturated_photo_pixels": files["saturated_photo_pixels"],
-            "weighted_out": int((weights == 0).sum()), "photo_error": truth_error("photo"),
-            "clean_error": truth_error("clean"), "photo_iterations": from_photo["iterations"],
+            "weighted_out": int((weights == 0).sum()), "photo_error": error_against(truth, work / "photo", cfg),
+            "clean_error": error_against(truth, work / "clean", cfg), "photo_iterations": from_photo["iterations"],
             "clean_iterations": from_clean["iterations"]}
 
 
@@ -309,20 +317,27 @@ def screen_table(rows: list[dict[str, Any]]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def study_parser(description: str, work: str) -> argparse.ArgumentParser:
+    """The options of a lab study: --scenes, --store, --tracking-uri, --work (default ``work``),
+    --out, --reference-photons, --overrides."""
+    parser = argparse.ArgumentParser(description=description)
+    parser.add_argument("--scenes", nargs="+", default=list(SCENES))
+    parser.add_argument("--store", type=Path, default=Path("mlruns"), help="MLflow store directory")
+    parser.add_argument("--tracking-uri", default=None, help="a shared MLflow tracking server instead of --store")
+    parser.add_argument("--work", type=Path, default=Path(work))
+    parser.add_argument("--out", type=Path, default=Path("docs/results"))
+    parser.add_argument("--reference-photons", type=int, default=1 << 22, help="photons of the truth's renders")
+    parser.add_argument("--overrides", nargs="*", default=[], help="extra Hydra overrides for every run")
+    return parser
+
+
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = study_parser(__doc__.splitlines()[0], "outputs/lab")
     parser.add_argument("--study", choices=("photo", "calibration", "screen", "all"), default="all")
     parser.add_argument("--blurs", nargs="+", type=float, default=list(SCREEN_BLURS_PX),
                         help="the screen study's blurs, receiver pixels")
     parser.add_argument("--sources", nargs="+", choices=("render", "photo"), default=["render", "photo"],
                         help="the screen study's data: the render with noise, the imported photo")
-    parser.add_argument("--scenes", nargs="+", default=list(SCENES))
-    parser.add_argument("--store", type=Path, default=Path("mlruns"), help="MLflow store directory")
-    parser.add_argument("--tracking-uri", default=None, help="a shared MLflow tracking server instead of --store")
-    parser.add_argument("--work", type=Path, default=Path("outputs/lab"))
-    parser.add_argument("--out", type=Path, default=Path("docs/results"))
-    parser.add_argument("--reference-photons", type=int, default=1 << 22, help="photons of the truth's renders")
-    parser.add_argument("--overrides", nargs="*", default=[], help="extra Hydra overrides for every run")
     args = parser.parse_args(argv)
     store, work = TrackingStore(args.store.resolve(), args.tracking_uri), args.work.resolve()
     args.out.mkdir(parents=True, exist_ok=True)

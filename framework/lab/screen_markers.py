@@ -59,11 +59,12 @@ class MarkerSheet:
         if not self.dictionary.startswith("DICT_") or not isinstance(cv2.aruco.__dict__.get(self.dictionary), int):
             raise ValueError(f"markers.dictionary={self.dictionary!r} is not an OpenCV ArUco dictionary; use e.g. "
                              "DICT_4X4_50 or DICT_5X5_100")
-        if len(self.centres()) > cv2.aruco.getPredefinedDictionary(self._dictionary_id()).bytesList.shape[0]:
+        if len(self.centres()) > cv2.aruco.getPredefinedDictionary(self.dictionary_id()).bytesList.shape[0]:
             raise ValueError(f"markers: {len(self.centres())} markers need a dictionary with as many, not "
                              f"{self.dictionary}; lower per_side or take e.g. DICT_4X4_100")
 
-    def _dictionary_id(self) -> int:
+    def dictionary_id(self) -> int:
+        """OpenCV's id of the sheet's ArUco dictionary."""
         import cv2
 
         return int(cv2.aruco.__dict__[self.dictionary])
@@ -95,7 +96,7 @@ class MarkerSheet:
         per_mm = dpi / 25.4
         size = int(round(self.page_mm() * per_mm))
         page = np.full((size, size), 255, np.uint8)
-        dictionary = cv2.aruco.getPredefinedDictionary(self._dictionary_id())
+        dictionary = cv2.aruco.getPredefinedDictionary(self.dictionary_id())
         side = int(round(self.marker_mm * per_mm))
         for marker_id, (x, y) in enumerate(self.centres()):
             col = int(round((x - self.marker_mm / 2) * per_mm + size / 2))
@@ -182,7 +183,7 @@ def detect_receiver(values: np.ndarray, sheet: MarkerSheet, name: str = "photo")
     and what to check)."""
     import cv2
 
-    dictionary = cv2.aruco.getPredefinedDictionary(sheet._dictionary_id())
+    dictionary = cv2.aruco.getPredefinedDictionary(sheet.dictionary_id())
     parameters = cv2.aruco.DetectorParameters()
     parameters.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_CONTOUR
     found, ids, _ = cv2.aruco.ArucoDetector(dictionary, parameters).detectMarkers(_detector_image(values))
