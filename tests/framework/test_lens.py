@@ -18,9 +18,9 @@ POSES = [((0.3, 0.0, 0.0), (0, 0, 130)), ((-0.3, 0.1, 0.0), (5, -5, 140)), ((0.0
 DPI = 254.0
 
 
-def _board_photos(board: CharucoBoard) -> list[np.ndarray]:
+def _board_photos(board: CharucoBoard, views: int = len(POSES)) -> list[np.ndarray]:
     page = board.render(DPI).astype(np.float64) / 255
-    return [0.1 + 0.8 * camera_view(page, 25.4 / DPI, K, BARREL, r, t, SIZE, outside=1.0) for r, t in POSES]
+    return [0.1 + 0.8 * camera_view(page, 25.4 / DPI, K, BARREL, r, t, SIZE, outside=1.0) for r, t in POSES[:views]]
 
 
 def _grid(step: int = 20) -> np.ndarray:
@@ -67,7 +67,7 @@ def test_lens_errors_are_one_line(calibrated, tmp_path):
     blank = [np.full((SIZE[1], SIZE[0]), 0.5)] * 2
     with pytest.raises(ValueError, match=r"2 photos show the board with at least 12 corners, 3 needed \(unused: "
                                          r"c.png \(0 corners\), d.png \(0 corners\)\)"):
-        calibrate_lens([*_board_photos(board)[:2], *blank], board, ["a.png", "b.png", "c.png", "d.png"])
+        calibrate_lens([*_board_photos(board, 2), *blank], board, ["a.png", "b.png", "c.png", "d.png"])
     (tmp_path / "lens.json").write_text('{"camera_matrix": 3}')
     with pytest.raises(ValueError, match="is not a lens calibration written by sfc-lens calibrate"):
         LensModel.load(tmp_path / "lens.json")
@@ -81,7 +81,7 @@ def test_sfc_lens_writes_a_board_and_calibrates_from_its_photos(tmp_path, capsys
     main(["board", "--dpi", str(DPI), "--out", str(tmp_path / "charuco")])
     board = CharucoBoard.load(tmp_path / "charuco.json")
     paths = []
-    for k, photo in enumerate(_board_photos(board)[:4]):
+    for k, photo in enumerate(_board_photos(board, 4)):
         paths.append(str(tmp_path / f"shot{k}.npy"))
         np.save(paths[-1], np.clip(photo, 0.0, 1.0))
     main(["calibrate", "--board", str(tmp_path / "charuco.json"), *paths, "--out", str(tmp_path / "lens.json")])
