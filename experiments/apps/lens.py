@@ -60,8 +60,8 @@ def run(args: argparse.Namespace) -> None:
     lens = calibrate_lens([read_photo(p)[0] for p in args.photos], board, [p.name for p in args.photos])
     args.out.parent.mkdir(parents=True, exist_ok=True)
     lens.save(args.out)
-    print(f"{args.out}: {lens.views} of {len(args.photos)} photos used, reprojection rms {lens.rms_px:.3f} px; "
-          f"k1, k2, p1, p2, k3 = {', '.join(f'{k:.4g}' for k in lens.distortion)}; give it as data.lens={args.out}")
+    print(f"{args.out}: {lens.views} of {len(args.photos)} photos used; {lens.describe()}; give it as "
+          f"data.lens={args.out}")
 
 
 def main(argv: Sequence[str] | None = None) -> None:

@@ -24,6 +24,7 @@ from pathlib import Path
 import yaml
 
 import conf
+from experiments.apps.configs import reconstruct_config
 from experiments.apps.input_errors import run_command
 from framework.lab.lens import LensModel
 from framework.lab.photo_import import read_photo
@@ -75,11 +76,12 @@ def rig_config(args: argparse.Namespace) -> dict:
         if not value > 0:
             raise ValueError(f"{flag} {value:g} must be > 0")
     sheet = MarkerSheet.load(args.markers)
-    receiver_mm = 2 * 1.0 * args.mm_per_unit  # the scene's receiver: half width 1 scene unit (conf/scene/)
-    if abs(sheet.receiver_mm - receiver_mm) > 1e-3 * receiver_mm:
-        raise ValueError(f"--markers {args.markers}: the sheet frames a {sheet.receiver_mm:g} mm receiver but the "
-                         f"scene's is {receiver_mm:g} mm (2 scene units at --mm-per-unit {args.mm_per_unit:g}); give "
-                         f"--mm-per-unit {sheet.receiver_mm / 2:g} or print a sheet for {receiver_mm:g} mm")
+    half_width = float(reconstruct_config([])["receiver"]["half_width"])  # scene units (conf/scene/)
+    receiver_mm = 2 * half_width * args.mm_per_unit
+    sheet.check_frames(receiver_mm, f"--markers {args.markers}",
+                       f"2 receiver.half_width at --mm-per-unit {args.mm_per_unit:g}",
+                       f"give --mm-per-unit {sheet.receiver_mm / (2 * half_width):g} or print a sheet for "
+                       f"{receiver_mm:g} mm")
     lens = LensModel.load(args.lens) if args.lens else None
     for path, what in ((args.marker_photo, "marker photo"), (args.flat, "flat field")):
         if path is not None:

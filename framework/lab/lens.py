@@ -14,11 +14,12 @@ from __future__ import annotations
 import json
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass
+from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
 
-from framework.lab.printables import read_layout, save_printable
+from framework.lab.printables import aruco_dictionary, detector_image, load_layout, read_layout, save_printable
 
 __all__ = ["CharucoBoard", "LensModel", "calibrate_lens"]
 
@@ -44,23 +45,19 @@ class CharucoBoard:
     dictionary: str = "DICT_4X4_50"
 
     def __post_init__(self) -> None:
-        import cv2
-
         if not (isinstance(self.squares_x, int) and isinstance(self.squares_y, int) and min(self.squares_x,
                                                                                               self.squares_y) >= 3):
             raise ValueError(f"board squares {self.squares_x} x {self.squares_y} must be whole numbers >= 3")
         if not 0 < self.marker_mm < self.square_mm:
             raise ValueError(f"board marker_mm={self.marker_mm!r} must lie in (0, square_mm={self.square_mm!r})")
-        if not isinstance(cv2.aruco.__dict__.get(self.dictionary), int):
-            raise ValueError(f"board dictionary={self.dictionary!r} is not an OpenCV ArUco dictionary, e.g. "
-                             "DICT_4X4_50")
+        aruco_dictionary(self.dictionary, "board dictionary")
 
     def board(self):  # noqa: ANN201 (cv2.aruco.CharucoBoard)
         """OpenCV's board, lengths in mm."""
         import cv2
 
-        dictionary = cv2.aruco.getPredefinedDictionary(int(cv2.aruco.__dict__[self.dictionary]))
-        return cv2.aruco.CharucoBoard((self.squares_x, self.squares_y), self.square_mm, self.marker_mm, dictionary)
+        return cv2.aruco.CharucoBoard((self.squares_x, self.squares_y), self.square_mm, self.marker_mm,
+                                      aruco_dictionary(self.dictionary, "board dictionary"))
 
     def render(self, dpi: float = 600.0) -> np.ndarray:
         """The board to print at ``dpi``: (rows, cols) uint8 with a white margin of one square (the
@@ -78,19 +75,15 @@ class CharucoBoard:
     @classmethod
     def load(cls, path: str | Path) -> CharucoBoard:
         """A board :meth:`save` described."""
-        values = read_layout(path, "a ChArUco board written by sfc-lens board")
-        try:
-            return cls(**values)
-        except TypeError as error:
-            raise ValueError(f"{path} is not a ChArUco board written by sfc-lens board ({error})") from None
+        return load_layout(cls, path, "a ChArUco board written by sfc-lens board")
 
-    def detect(self, grey: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The board's chessboard corners seen in a photo (H, W) uint8: (k, 2) photo pixels and
-        (k, 3) board points (mm, z = 0); k = 0 when the board is not seen."""
+    def detect(self, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The board's chessboard corners seen in a photo (H, W[, 3], linear values): (k, 2) photo
+        pixels and (k, 3) board points (mm, z = 0); k = 0 when the board is not seen."""
         import cv2
 
         board = self.board()
-        corners, ids, _, _ = cv2.aruco.CharucoDetector(board).detectBoard(grey)
+        corners, ids, _, _ = cv2.aruco.CharucoDetector(board).detectBoard(detector_image(values))
         if ids is None or len(ids) == 0:
             return np.zeros((0, 2)), np.zeros((0, 3))
         points = np.asarray(board.getChessboardCorners(), dtype=np.float64)[ids.ravel()]
@@ -126,6 +119,11 @@ class LensModel:
         except (KeyError, TypeError, ValueError, IndexError) as error:
             raise ValueError(f"{path} is not a lens calibration written by sfc-lens calibrate ({error})") from None
 
+    def describe(self) -> str:
+        """The calibration in one line."""
+        return (f"k1, k2, p1, p2, k3 = {', '.join(f'{k:.4g}' for k in self.distortion)}; calibrated on {self.views} "
+                f"photos, rms {self.rms_px:.3f} px")
+
     def undistort(self, values: np.ndarray, name: str = "photo") -> np.ndarray:
         """``values`` (H, W[, 3]) resampled as the ideal lens would have seen them (same shape);
         ValueError in one line for a photo of another size than the calibration's."""
@@ -136,9 +134,7 @@ class LensModel:
             raise ValueError(f"{name} is {width} x {height} px but the lens was calibrated on {self.image_size[0]} x "
                              f"{self.image_size[1]} px photos; calibrate it again at this size (sfc-lens calibrate), "
                              "or take the photo at the calibrated one")
-        k = np.asarray(self.camera_matrix, dtype=np.float64)
-        map_x, map_y = cv2.initUndistortRectifyMap(k, np.asarray(self.distortion), None, k, (width, height),
-                                                   cv2.CV_32FC1)
+        map_x, map_y = _undistortion_maps(self.camera_matrix, self.distortion, (width, height))
         out = cv2.remap(values.astype(np.float64), map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
                         borderValue=0.0)
         return out.reshape(values.shape)
@@ -165,9 +161,7 @@ def calibrate_lens(photos: Sequence[np.ndarray], board: CharucoBoard, names: Seq
         raise ValueError(f"the calibration photos have sizes {sorted(sizes)}; take them all at one size")
     object_points, image_points, unused = [], [], []
     for photo, name in zip(photos, names):
-        grey = photo.mean(axis=-1) if photo.ndim == 3 else photo
-        top = float(np.percentile(grey, 99.5)) or 1.0
-        seen, points = board.detect(np.round(255 * np.clip(grey / top, 0, 1)).astype(np.uint8))
+        seen, points = board.detect(photo)
         if len(seen) < MIN_CORNERS:
             unused.append(f"{name} ({len(seen)} corners)")
             continue
@@ -186,3 +180,14 @@ def calibrate_lens(photos: Sequence[np.ndarray], board: CharucoBoard, names: Seq
                      distortion=tuple(float(v) for v in np.ravel(dist)[:5]), image_size=(width, height),
                      rms_px=float(rms), views=len(image_points))
 
+
+@lru_cache(maxsize=2)
+def _undistortion_maps(camera_matrix: tuple[tuple[float, ...], ...], distortion: tuple[float, ...],
+                       size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """OpenCV's remap tables (H, W) float32 from the ideal lens's pixels to the photo's, kept for
+    the next frame of the same lens and size (a photo's import undoes the lens on the photo, its
+    saturation, the dark frame and the flat field)."""
+    import cv2
+
+    k = np.asarray(camera_matrix, dtype=np.float64)
+    return cv2.initUndistortRectifyMap(k, np.asarray(distortion), None, k, size, cv2.CV_32FC1)

@@ -79,8 +79,7 @@ class PhotoData(KnownPrint):
 
     def __init__(self, photo: str | None = None, corners: list[list[float]] | None = None,
                  markers: str | None = None, lens: str | None = None, pixel_centre: float = 0.0,
-                 repeat: str | None = None,
-                 channel: str = "grey",
+                 repeat: str | None = None, channel: str = "grey",
                  bit_depth: int | None = None, response: str = "linear", gamma: float = 2.2,
                  black_level: float = 0.0, dark: str | None = None, flat: str | None = None,
                  flat_kind: str = "substrate", saturation: float = 0.98, supersample: int = 4,
@@ -126,8 +125,9 @@ class PhotoData(KnownPrint):
             path = lambda p: None if p is None else resolve_path(str(p), request.base_dir)  # noqa: E731
             photos = [self.photo] + ([self.repeat] if self.repeat else [])
             lens = None if self.lens is None else LensModel.load(path(self.lens))
-            imported = [import_photo(path(p), self._locator(request), half_width, n, dark=path(self.dark),
-                                     flat=path(self.flat), lens=lens, **self.settings) for p in photos]
+            locator = self._locator(request)
+            imported = [import_photo(path(p), locator, half_width, n, dark=path(self.dark), flat=path(self.flat),
+                                     lens=lens, **self.settings) for p in photos]
             self._imported = (key, imported)
         return self._imported[1]
 
@@ -138,10 +138,9 @@ class PhotoData(KnownPrint):
             return (self._corners() - self.pixel_centre).tolist()
         sheet = MarkerSheet.load(resolve_path(self.markers, request.base_dir))
         side_mm = 2 * float(request.operator.scene.receiver.half_width) * request.mm_per_unit
-        if abs(sheet.receiver_mm - side_mm) > 1e-3 * side_mm:
-            raise ValueError(f"data.markers={self.markers}: the sheet frames a {sheet.receiver_mm:g} mm receiver but "
-                             f"the scene's is {side_mm:g} mm (2 receiver.half_width x units.mm_per_unit); print a "
-                             f"sheet with sfc-markers --receiver-mm {side_mm:g}, or set the receiver to the sheet's")
+        sheet.check_frames(side_mm, f"data.markers={self.markers}", "2 receiver.half_width x units.mm_per_unit",
+                           f"print a sheet with sfc-markers --receiver-mm {side_mm:g}, or set the receiver to the "
+                           "sheet's")
         return sheet
 
     def _corners(self) -> Any:

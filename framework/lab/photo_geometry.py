@@ -13,11 +13,12 @@ import numpy as np
 
 from operators.values import checked_number, checked_whole
 
-__all__ = ["CORNER_NAMES", "CORNER_ORDER", "MIN_AREA_PX", "MAX_SUPERSAMPLE", "check_corners", "homography",
-           "project_points", "bilinear_samples", "check_receiver_grid", "rectify", "saturated_receiver_pixels",
-           "inside_receiver"]
+__all__ = ["CORNER_NAMES", "CORNER_ORDER", "RECEIVER_CORNERS", "MIN_AREA_PX", "MAX_SUPERSAMPLE", "check_corners",
+           "homography", "project_points", "bilinear_samples", "check_receiver_grid", "rectify",
+           "saturated_receiver_pixels", "inside_receiver"]
 
 CORNER_NAMES = ("bottom-left (-W, -W)", "bottom-right (W, -W)", "top-right (W, W)", "top-left (-W, W)")
+RECEIVER_CORNERS = ((-1.0, -1.0), (1.0, -1.0), (1.0, 1.0), (-1.0, 1.0))  # those corners over W
 CORNER_ORDER = "receiver bottom-left, bottom-right, top-right, top-left"
 MIN_AREA_PX = 16.0  # a quadrilateral smaller than 4 x 4 photo pixels is degenerate
 
@@ -83,7 +84,7 @@ def homography(corners: object, half_width: float) -> np.ndarray:
     """
     dst = _as_corners(corners)
     _check_half_width(half_width)
-    src = np.array([[-1.0, -1.0], [1.0, -1.0], [1.0, 1.0], [-1.0, 1.0]])  # receiver / half_width
+    src = np.asarray(RECEIVER_CORNERS)
     centre = dst.mean(axis=0)
     scale = np.sqrt(2.0) / max(float(np.linalg.norm(dst - centre, axis=1).mean()), 1e-300)
     norm = (dst - centre) * scale

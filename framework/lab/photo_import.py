@@ -253,25 +253,26 @@ def import_photo(path: str | Path, corners: object | MarkerSheet, half_width: fl
     """
     raw, depth, read = _checked_frame(path, bit_depth)
     name = Path(path).name
+    if depth == RAW_DEPTH and (black_level or response != "linear"):
+        raise ValueError(f"photo {name} is a camera RAW file, read linearly with the file's black level; drop "
+                         f"data.black_level={black_level:g} and data.response={response!r} (the defaults 0 and linear)")
+    resolution, supersample = check_receiver_grid(resolution, half_width, supersample)
+    if channel not in ("grey", "red", "green", "blue"):
+        raise ValueError(f"data.channel={channel!r} must be 'grey', 'red', 'green' or 'blue'")
+    checked_number(saturation, "data.saturation", above=0.0, most=1.0,
+                   must="must be a fraction of full scale in (0, 1]", example="0.98")
+    # the settings checked, the costly part: the lens undone and the receiver located
     raw, saturated_before = _undistorted(raw, lens, channel, saturation, f"photo {name}")
     located = None
     if isinstance(corners, MarkerSheet):
         sheet = corners
         located = detect_receiver(raw, sheet, f"photo {name}")
         corners = located.corners
-    if depth == RAW_DEPTH and (black_level or response != "linear"):
-        raise ValueError(f"photo {name} is a camera RAW file, read linearly with the file's black level; drop "
-                         f"data.black_level={black_level:g} and data.response={response!r} (the defaults 0 and linear)")
     corners = check_corners(corners, raw.shape)
-    resolution, supersample = check_receiver_grid(resolution, half_width, supersample)
-    if channel not in ("grey", "red", "green", "blue"):
-        raise ValueError(f"data.channel={channel!r} must be 'grey', 'red', 'green' or 'blue'")
     full = FULL_SCALE.get(depth, 1)
     unit = "DN" if depth else "(fraction of full scale)"
     checked_number(black_level, "data.black_level", 0.0, below=full,
                    must=f"must lie in [0, {full}) {unit} for photo {name}")
-    checked_number(saturation, "data.saturation", above=0.0, most=1.0,
-                   must="must be a fraction of full scale in (0, 1]", example="0.98")
     if not 0 <= max_dropped < 1:
         raise ValueError(f"max_dropped={max_dropped!r} must be a fraction in [0, 1)")
     linearize(np.zeros(1), response, gamma)  # refuses an unknown response
@@ -281,9 +282,7 @@ def import_photo(path: str | Path, corners: object | MarkerSheet, half_width: fl
                          "set data.response=linear")
     height, width = raw.shape[:2]
     rgb = raw.ndim == 3
-    steps = [f"read {name}: {read}"] + ([f"lens distortion undone (k1, k2, p1, p2, k3 = "
-                                         f"{', '.join(f'{k:.4g}' for k in lens.distortion)}; calibrated on "
-                                         f"{lens.views} photos, rms {lens.rms_px:.3f} px)"] if lens else []) + (
+    steps = [f"read {name}: {read}"] + ([f"lens distortion undone ({lens.describe()})"] if lens else []) + (
         [located.describe(sheet)] if located else [])
 
     used = _select(raw, channel)

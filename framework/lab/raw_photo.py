@@ -17,6 +17,7 @@ are refused in one line with a way to convert them.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -33,6 +34,7 @@ _QUARTER_TURNS = {0: 0, 3: 2, 5: 1, 6: -1}
 _BILINEAR = np.outer([1.0, 2.0, 1.0], [1.0, 2.0, 1.0]) / 4.0  # bilinear interpolation on a Bayer colour's sites
 
 
+@dataclass(frozen=True)
 class RawFrame:
     """A RAW photo as linear colour values.
 
@@ -44,8 +46,10 @@ class RawFrame:
         pattern: The mosaic's 2 x 2 colours in reading order, e.g. 'RGGB'.
     """
 
-    def __init__(self, values: np.ndarray, black: tuple[float, float, float], white: float, pattern: str) -> None:
-        self.values, self.black, self.white, self.pattern = values, black, white, pattern
+    values: np.ndarray
+    black: tuple[float, float, float]
+    white: float
+    pattern: str
 
     def describe(self) -> str:
         """One line for the import's steps."""

@@ -20,7 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
-from framework.lab.printables import read_layout, save_printable
+from framework.lab.photo_geometry import RECEIVER_CORNERS, project_points
+from framework.lab.printables import aruco_dictionary, detector_image, load_layout, save_printable
 
 __all__ = ["MarkerFit", "MarkerSheet", "detect_receiver"]
 
@@ -47,8 +48,6 @@ class MarkerSheet:
     dictionary: str = "DICT_4X4_50"
 
     def __post_init__(self) -> None:
-        import cv2
-
         for key, value in (("receiver_mm", self.receiver_mm), ("marker_mm", self.marker_mm)):
             if not (isinstance(value, (int, float)) and np.isfinite(value) and value > 0):
                 raise ValueError(f"markers.{key}={value!r} must be a length > 0 in mm, e.g. 50")
@@ -56,18 +55,20 @@ class MarkerSheet:
             raise ValueError(f"markers.gap_mm={self.gap_mm!r} must be a length >= 0 in mm")
         if not (isinstance(self.per_side, int) and self.per_side >= 2):
             raise ValueError(f"markers.per_side={self.per_side!r} must be a whole number >= 2")
-        if not self.dictionary.startswith("DICT_") or not isinstance(cv2.aruco.__dict__.get(self.dictionary), int):
-            raise ValueError(f"markers.dictionary={self.dictionary!r} is not an OpenCV ArUco dictionary; use e.g. "
-                             "DICT_4X4_50 or DICT_5X5_100")
-        if len(self.centres()) > cv2.aruco.getPredefinedDictionary(self.dictionary_id()).bytesList.shape[0]:
+        if len(self.centres()) > self.aruco().bytesList.shape[0]:
             raise ValueError(f"markers: {len(self.centres())} markers need a dictionary with as many, not "
                              f"{self.dictionary}; lower per_side or take e.g. DICT_4X4_100")
 
-    def dictionary_id(self) -> int:
-        """OpenCV's id of the sheet's ArUco dictionary."""
-        import cv2
+    def aruco(self):  # noqa: ANN201 (cv2.aruco.Dictionary)
+        """OpenCV's dictionary of the sheet's markers (refused in one line if unknown)."""
+        return aruco_dictionary(self.dictionary, "markers.dictionary")
 
-        return int(cv2.aruco.__dict__[self.dictionary])
+    def check_frames(self, receiver_mm: float, where: str, why: str, fix: str) -> None:
+        """Refuse a sheet whose receiver is not the scene's ``receiver_mm`` (to 0.1%), in one line:
+        ``where``, the two sizes, ``why`` the scene's is that size, and ``fix``."""
+        if abs(self.receiver_mm - receiver_mm) > 1e-3 * receiver_mm:
+            raise ValueError(f"{where}: the sheet frames a {self.receiver_mm:g} mm receiver but the scene's is "
+                             f"{receiver_mm:g} mm ({why}); {fix}")
 
     def centres(self) -> np.ndarray:
         """(k, 2) marker centres (mm), marker id = row: around the ring counter-clockwise from the
@@ -96,7 +97,7 @@ class MarkerSheet:
         per_mm = dpi / 25.4
         size = int(round(self.page_mm() * per_mm))
         page = np.full((size, size), 255, np.uint8)
-        dictionary = cv2.aruco.getPredefinedDictionary(self.dictionary_id())
+        dictionary = self.aruco()
         side = int(round(self.marker_mm * per_mm))
         for marker_id, (x, y) in enumerate(self.centres()):
             col = int(round((x - self.marker_mm / 2) * per_mm + size / 2))
@@ -112,11 +113,7 @@ class MarkerSheet:
     @classmethod
     def load(cls, path: str | Path) -> MarkerSheet:
         """The layout a :meth:`save` wrote (``.json``), refused in one line if it is not one."""
-        values = read_layout(path, "a marker layout written by sfc-markers (the .json beside the sheet's PNG)")
-        try:
-            return cls(**values)
-        except TypeError as error:
-            raise ValueError(f"{path} is not a marker layout written by sfc-markers ({error})") from None
+        return load_layout(cls, path, "a marker layout written by sfc-markers (the .json beside the sheet's PNG)")
 
 
 @dataclass(frozen=True)
@@ -127,7 +124,7 @@ class MarkerFit:
         corners: (4, 2) the receiver's corners [col, row] in photo pixels, in the order
             bottom-left, bottom-right, top-right, top-left.
         corner_std: (4,) each corner's standard error (px), from the fit's residuals.
-        rms_px: Root-mean-square reprojection error of the inlying marker corners (px).
+        rms_px: Root-mean-square reprojection error of the inlying markers' centres (px).
         found: Marker ids detected and used, ascending.
         rejected: Marker ids detected but left out by RANSAC.
     """
@@ -147,32 +144,24 @@ class MarkerFit:
                 f"{self.rms_px:.3f} px, corners to +-{self.corner_std.max():.3f} px{left}")
 
 
-def _detector_image(values: np.ndarray) -> np.ndarray:
-    """(H, W) uint8 for the detector from linear values (H, W[, 3]): grey, scaled to the 99.5th
-    percentile and kept linear (a gamma-encoded image moves every blurred edge toward the dark
-    side: 1.1-1.6 px at 1-1.5 px of blur, and loses markers at 2.5 px)."""
-    grey = values.mean(axis=-1) if values.ndim == 3 else values
-    top = float(np.percentile(grey, 99.5)) or 1.0
-    return np.round(255 * np.clip(grey / top, 0, 1)).astype(np.uint8)
-
-
-def _corner_errors(h: np.ndarray, screen: np.ndarray, photo: np.ndarray, receiver: np.ndarray) -> np.ndarray:
-    """(4,) standard errors (px) of the receiver's corners through the homography h fitted to
-    screen -> photo points: the residual variance propagated by the fit's linearisation."""
-    def project(params: np.ndarray, points: np.ndarray) -> np.ndarray:
-        m = np.append(params, 1.0).reshape(3, 3)
-        q = np.c_[points, np.ones(len(points))] @ m.T
-        return q[:, :2] / q[:, 2:]
-
+def _corner_errors(h: np.ndarray, screen: np.ndarray, residual: np.ndarray, receiver: np.ndarray) -> np.ndarray:
+    """(4,) standard errors (px) of the receiver's corners through the homography h fitted to the
+    screen points with ``residual`` (k, 2) photo pixels: the residual variance propagated by the
+    fit's linearisation in h's eight free entries."""
     params = (h / h[2, 2]).ravel()[:8]
-    step = 1e-7 * np.maximum(np.abs(params), 1e-3)
-    jac = np.stack([(project(params + e, screen) - project(params - e, screen)).ravel() / (2 * s)
-                    for e, s in zip(np.diag(step), step)], axis=1)
-    residual = (project(params, screen) - photo).ravel()
+    steps = 1e-7 * np.maximum(np.abs(params), 1e-3)
+
+    def jacobian(points: np.ndarray) -> np.ndarray:
+        """d(projected points, flattened) / d(params), by central differences."""
+        def project(p: np.ndarray) -> np.ndarray:
+            return np.stack(project_points(np.append(p, 1.0).reshape(3, 3), points[:, 0], points[:, 1]), 1).ravel()
+        return np.stack([(project(params + e) - project(params - e)) / (2 * step)
+                         for e, step in zip(np.diag(steps), steps)], axis=1)
+
+    jac = jacobian(screen)
     dof = max(residual.size - 8, 1)
-    cov = float(residual @ residual) / dof * np.linalg.pinv(jac.T @ jac)
-    corner_jac = np.stack([(project(params + e, receiver) - project(params - e, receiver)).ravel() / (2 * s)
-                           for e, s in zip(np.diag(step), step)], axis=1)
+    cov = float(np.sum(residual ** 2)) / dof * np.linalg.pinv(jac.T @ jac)
+    corner_jac = jacobian(receiver)
     var = np.einsum("ij,jk,ik->i", corner_jac, cov, corner_jac).reshape(4, 2)
     return np.sqrt(var.sum(axis=1))
 
@@ -183,13 +172,11 @@ def detect_receiver(values: np.ndarray, sheet: MarkerSheet, name: str = "photo")
     and what to check)."""
     import cv2
 
-    dictionary = cv2.aruco.getPredefinedDictionary(sheet.dictionary_id())
     parameters = cv2.aruco.DetectorParameters()
     parameters.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_CONTOUR
-    found, ids, _ = cv2.aruco.ArucoDetector(dictionary, parameters).detectMarkers(_detector_image(values))
-    known = {int(i): k for k, i in enumerate(ids.ravel())} if ids is not None else {}
-    known = {i: k for i, k in known.items() if i < len(sheet.centres())}
+    found, ids, _ = cv2.aruco.ArucoDetector(sheet.aruco(), parameters).detectMarkers(detector_image(values))
     total = len(sheet.centres())
+    known = {int(i): k for k, i in enumerate(ids.ravel()) if int(i) < total} if ids is not None else {}
     if len(known) < MIN_MARKERS:
         seen = ", ".join(map(str, sorted(known))) or "none"
         raise ValueError(f"{name}: {len(known)} of the {total} markers of {sheet.dictionary} found (ids {seen}), at "
@@ -207,10 +194,9 @@ def detect_receiver(values: np.ndarray, sheet: MarkerSheet, name: str = "photo")
                          "sheet; check that data.markers names the layout the sheet was printed from")
     screen_in, photo_in = screen[keep], photo[keep]
     h, _ = cv2.findHomography(screen_in, photo_in, 0)
-    half = sheet.receiver_mm / 2
-    receiver = np.array([[-half, -half], [half, -half], [half, half], [-half, half]])
+    receiver = np.asarray(RECEIVER_CORNERS) * (sheet.receiver_mm / 2)
     corners = cv2.perspectiveTransform(receiver[None], h)[0]
     residual = cv2.perspectiveTransform(screen_in[None], h)[0] - photo_in
-    return MarkerFit(corners=corners, corner_std=_corner_errors(h, screen_in, photo_in, receiver),
+    return MarkerFit(corners=corners, corner_std=_corner_errors(h, screen_in, residual, receiver),
                      rms_px=float(np.sqrt(np.mean(np.sum(residual ** 2, axis=1)))), found=tuple(used),
                      rejected=tuple(i for i, k in zip(order, keep) if not k))

@@ -80,7 +80,8 @@ class SyntheticBench:
 
     def board_photos(self, board: CharucoBoard) -> list[np.ndarray]:
         """The ChArUco board photographed by the bench's camera in :data:`BOARD_POSES`."""
-        page = board.render(254.0).astype(np.float64) / 255
-        return [0.1 + 0.8 * camera_view(page, 0.1, np.asarray(self.camera_matrix), self.distortion, rotation,
+        dpi = 254.0
+        page = board.render(dpi).astype(np.float64) / 255
+        return [0.1 + 0.8 * camera_view(page, 25.4 / dpi, np.asarray(self.camera_matrix), self.distortion, rotation,
                                         translation, self.size, outside=1.0, supersample=1)
                 for rotation, translation in BOARD_POSES]
